@@ -1,0 +1,49 @@
+"""The ``blackmetal`` command: one entry point, one subcommand per tool or service."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def _schema(args: argparse.Namespace) -> int:
+    from schemas import json_schemas
+
+    schemas = json_schemas()
+    if args.output is None:
+        json.dump(schemas, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    folder = Path(args.output)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, schema in schemas.items():
+        (folder / f"{name}.schema.json").write_text(json.dumps(schema, indent=2) + "\n")
+    print(f"wrote {len(schemas)} schemas to {folder}")
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from .sim import main as sim_main
+
+    parser = argparse.ArgumentParser(
+        prog="blackmetal", description="Zenoh gateway, odometry and simulator for the Black Metal robot."
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sim = sub.add_parser("sim", help="run the simulated robot (real wire protocol on TCP)", description=sim_main.__doc__)
+    sim_main.build_parser(sim)
+    sim.set_defaults(func=sim_main.run)
+    schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
+    schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
+    schema.set_defaults(func=_schema)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

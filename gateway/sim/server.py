@@ -1,0 +1,179 @@
+"""TCP edge of the simulated robot: control port and log port, with link faults.
+
+One control client at a time: a new connection takes over from the old one
+(the robot's side of a reconnect whose old socket is half dead). Any number
+of log-port clients each get a state report about once a second. Link
+faults (delay, garbage, glued and split writes, dropped connections,
+silence) are applied here; sensor faults live in :class:`SimRobot`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+
+from .. import protocol
+from ..protocol import Malformed
+from .robot import SimRobot
+
+log = logging.getLogger("blackmetal.sim")
+
+#: How long a reply held back to be glued to the next one may wait (s).
+GLUE_HOLD_S = 0.05
+
+
+class SimServer:
+    """Serves one :class:`SimRobot` on a control port and a log port."""
+
+    def __init__(
+        self,
+        robot: SimRobot,
+        host: str = "127.0.0.1",
+        control_port: int = 665,
+        log_port: int = 664,
+        log_interval: float = 1.0,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
+        self.robot = robot
+        self.host = host
+        self.control_port = control_port
+        self.log_port = log_port
+        self.log_interval = log_interval
+        self.clock = clock
+        self.state = 1  # READY: the real robot only ever reports READY ...
+        self.direction = 1  # ... and NORTH
+        self.connections = 0
+        self.malformed_requests = 0
+        self._servers: list[asyncio.base_events.Server] = []
+        self._control_writer: asyncio.StreamWriter | None = None
+        self._log_writers: set[asyncio.StreamWriter] = set()
+        self._tasks: set[asyncio.Task[None]] = set()
+        self._held = bytearray()
+        self._flush_handle: asyncio.TimerHandle | None = None
+
+    async def start(self) -> None:
+        """Bind both ports (0 = pick a free one; the bound ports replace 0)."""
+        control = await asyncio.start_server(self._serve_control, self.host, self.control_port)
+        logs = await asyncio.start_server(self._serve_log, self.host, self.log_port)
+        self._servers = [control, logs]
+        self.control_port = control.sockets[0].getsockname()[1]
+        self.log_port = logs.sockets[0].getsockname()[1]
+
+    async def close(self) -> None:
+        for server in self._servers:
+            server.close()
+        self.drop_clients()
+        for task in list(self._tasks):
+            task.cancel()
+        if self._tasks:
+            await asyncio.wait(self._tasks, timeout=1.0)
+        for server in self._servers:
+            try:
+                await asyncio.wait_for(server.wait_closed(), timeout=1.0)
+            except (TimeoutError, asyncio.TimeoutError):
+                pass
+
+    def drop_clients(self) -> None:
+        """Close every client connection, as a robot that lost its network would."""
+        if self._control_writer is not None:
+            self._control_writer.close()
+            self._control_writer = None
+        for writer in list(self._log_writers):
+            writer.close()
+        self._log_writers.clear()
+
+    def _track(self) -> None:
+        task = asyncio.current_task()
+        if task is not None:
+            self._tasks.add(task)
+            task.add_done_callback(self._tasks.discard)
+
+    # ------------------------------------------------------------------ control port
+
+    async def _serve_control(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._track()
+        if self._control_writer is not None:
+            log.info("new control client takes over from the old one")
+            self._control_writer.close()
+        self._control_writer = writer
+        self._held.clear()
+        self.connections += 1
+        decoder = protocol.RequestDecoder()
+        try:
+            while True:
+                data = await reader.read(4096)
+                if not data:
+                    break
+                for item in decoder.feed(data):
+                    if isinstance(item, Malformed):
+                        self.malformed_requests += 1
+                        log.warning("ignoring malformed request: %s", item.reason)
+                        continue
+                    faults = self.robot.faults
+                    if faults.disconnect and self.robot.rng.random() < faults.disconnect:
+                        log.info("fault: dropping the control connection")
+                        writer.close()
+                        return
+                    replies = self.robot.handle(item, self.clock())
+                    if faults.silent:
+                        continue
+                    if faults.delay:
+                        await asyncio.sleep(faults.delay)
+                    if writer.is_closing():
+                        return
+                    await self._write_replies(writer, b"".join(replies))
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass
+        except asyncio.CancelledError:
+            raise
+        finally:
+            if self._control_writer is writer:
+                self._control_writer = None
+            writer.close()
+
+    async def _write_replies(self, writer: asyncio.StreamWriter, data: bytes) -> None:
+        faults = self.robot.faults
+        rng = self.robot.rng
+        if faults.garbage and rng.random() < faults.garbage:
+            data = rng.randbytes(rng.randint(1, 24)) + data
+        if faults.glue and rng.random() < faults.glue:
+            self._held += data  # sent together with the next replies
+            if self._flush_handle is None:
+                self._flush_handle = asyncio.get_running_loop().call_later(GLUE_HOLD_S, self._flush_held, writer)
+            return
+        if self._held:
+            data = bytes(self._held) + data
+            self._held.clear()
+        if faults.split and len(data) > 1 and rng.random() < faults.split:
+            cut = rng.randint(1, len(data) - 1)
+            writer.write(data[:cut])
+            await writer.drain()
+            await asyncio.sleep(0.002)
+            data = data[cut:]
+        writer.write(data)
+        await writer.drain()
+
+    def _flush_held(self, writer: asyncio.StreamWriter) -> None:
+        self._flush_handle = None
+        if self._held and not writer.is_closing():
+            writer.write(bytes(self._held))
+        self._held.clear()
+
+    # ------------------------------------------------------------------ log port
+
+    async def _serve_log(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._track()
+        self._log_writers.add(writer)
+        try:
+            while not writer.is_closing():
+                if not self.robot.faults.silent:
+                    writer.write(protocol.encode_log_report(self.state, self.direction))
+                    await writer.drain()
+                await asyncio.sleep(self.log_interval)
+        except ConnectionError:
+            pass
+        finally:
+            self._log_writers.discard(writer)
+            writer.close()

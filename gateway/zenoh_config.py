@@ -1,0 +1,100 @@
+"""The Zenoh flags every blackmetal process shares, as zenoh-python's examples spell them.
+
+``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``-c/--config``,
+``--no-multicast-scouting``. Importing zenoh is deferred so that a process
+that does not use Zenoh (the plain simulator) never loads it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from .errors import ConfigError
+
+if TYPE_CHECKING:
+    import zenoh
+
+MODES = ("peer", "client", "router")
+
+
+@dataclass(slots=True)
+class ZenohSettings:
+    """What the shared flags say; turned into a ``zenoh.Config`` by :meth:`to_config`."""
+
+    mode: str | None = None
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    config_file: str | None = None
+    no_multicast_scouting: bool = False
+
+    @property
+    def given(self) -> bool:
+        """True when any Zenoh flag was set."""
+        return bool(self.mode or self.connect or self.listen or self.config_file or self.no_multicast_scouting)
+
+    def to_config(self) -> "zenoh.Config":
+        import zenoh
+
+        if self.config_file is not None:
+            path = Path(self.config_file)
+            if not path.is_file():
+                raise ConfigError(f"Zenoh config file {path} does not exist")
+            try:
+                conf = zenoh.Config.from_file(str(path))
+            except Exception as exc:  # zenoh raises its own ZError with the parser's text
+                raise ConfigError(f"Zenoh config file {path} is invalid: {exc}") from None
+        else:
+            conf = zenoh.Config()
+        try:
+            if self.mode is not None:
+                conf.insert_json5("mode", json.dumps(self.mode))
+            if self.connect:
+                conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+            if self.listen:
+                conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+            if self.no_multicast_scouting:
+                conf.insert_json5("scouting/multicast/enabled", "false")
+        except Exception as exc:
+            raise ConfigError(f"invalid Zenoh setting: {exc}") from None
+        return conf
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the shared Zenoh flags to ``parser``."""
+    group = parser.add_argument_group("Zenoh")
+    group.add_argument("-m", "--mode", choices=MODES, help="Zenoh session mode (default: peer)")
+    group.add_argument(
+        "-e", "--connect", action="append", default=[], metavar="ENDPOINT", help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
+    )
+    group.add_argument(
+        "-l", "--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
+    )
+    group.add_argument("-c", "--config", metavar="FILE", help="Zenoh configuration file (JSON5)")
+    group.add_argument(
+        "--no-multicast-scouting", action="store_true", help="disable multicast scouting (use explicit endpoints)"
+    )
+
+
+def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
+    return ZenohSettings(
+        mode=args.mode,
+        connect=list(args.connect),
+        listen=list(args.listen),
+        config_file=args.config,
+        no_multicast_scouting=args.no_multicast_scouting,
+    )
+
+
+def validate_prefix(prefix: str) -> str:
+    """A key-expression prefix such as ``robot`` or ``fleet/a``: no wildcards, no empty chunks."""
+    chunks = prefix.split("/")
+    if not prefix or any(not chunk for chunk in chunks):
+        raise ConfigError(f"prefix {prefix!r} must be non-empty chunks separated by '/', e.g. 'robot' or 'fleet/a'")
+    for chunk in chunks:
+        if any(ch in chunk for ch in "*$?#") or chunk.startswith("@"):
+            raise ConfigError(f"prefix {prefix!r} must not contain wildcards or the characters * $ ? # or a leading @")
+    return prefix

@@ -1,0 +1,1 @@
+"""The odometry service: wheel impulses in, a filtered, integrated pose out."""

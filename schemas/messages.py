@@ -1,0 +1,224 @@
+"""msgspec Structs for every message on the wire (JSON by default).
+
+No I/O here: the services and any client import these to encode and decode.
+Inputs that come from arbitrary clients (``Twist``, ``EStop``) forbid unknown
+fields so that a typo such as ``{"linear": {"X": 0.2}}`` is an error rather
+than a silent zero; messages between our own services tolerate extra fields so
+that a newer publisher does not break an older subscriber.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated
+
+import msgspec
+
+Finite = Annotated[float, msgspec.Meta(description="a finite number (no NaN or infinity)")]
+
+
+def _require_finite(owner: str, **values: float) -> None:
+    for name, value in values.items():
+        if not math.isfinite(value):
+            raise ValueError(f"{owner}.{name} must be a finite number, got {value!r}")
+
+
+class Vector3(msgspec.Struct, forbid_unknown_fields=True):
+    """A 3-vector; every component optional, default 0."""
+
+    x: Finite = 0.0
+    y: Finite = 0.0
+    z: Finite = 0.0
+
+    def __post_init__(self) -> None:
+        _require_finite("vector", x=self.x, y=self.y, z=self.z)
+
+
+class Twist(msgspec.Struct, forbid_unknown_fields=True):
+    """Velocity command in the ROS ``geometry_msgs/Twist`` shape.
+
+    ``linear.x`` is forward speed in m/s, ``angular.z`` the turn rate in rad/s
+    (positive turns left, REP-103). Missing fields are 0, so
+    ``{"linear":{"x":0.2}}`` is a complete command.
+    """
+
+    linear: Vector3 = msgspec.field(default_factory=Vector3)
+    angular: Vector3 = msgspec.field(default_factory=Vector3)
+
+
+class EStop(msgspec.Struct, forbid_unknown_fields=True):
+    """Emergency stop: ``{"engaged": true}`` latches, ``{"engaged": false}`` releases."""
+
+    engaged: bool
+
+
+class WheelImpulses(msgspec.Struct):
+    """One wheel-speed reading, exactly as the robot reported it.
+
+    ``left``/``right`` are encoder impulses per second; the right encoder is
+    mirrored (negative when the wheel drives forward). ``stamp`` is the Unix
+    time in seconds at which the reply arrived at the gateway; ``seq`` counts
+    readings from 0 and starts over when the gateway restarts.
+    """
+
+    seq: Annotated[int, msgspec.Meta(ge=0)]
+    stamp: Finite
+    left: int
+    right: int
+
+    def __post_init__(self) -> None:
+        _require_finite("impulses", stamp=self.stamp)
+
+
+class Quaternion(msgspec.Struct):
+    """Unit quaternion (x, y, z, w)."""
+
+    x: Finite = 0.0
+    y: Finite = 0.0
+    z: Finite = 0.0
+    w: Finite = 1.0
+
+
+class Pose(msgspec.Struct):
+    """A planar pose with its velocity, for odometry and the simulator's truth.
+
+    ``x``/``y`` in metres, ``yaw`` in radians wrapped to [-pi, pi], ``v`` the
+    forward speed (m/s), ``w`` the turn rate (rad/s), ``orientation`` the unit
+    quaternion of ``yaw`` for clients that want ROS-style orientation.
+    """
+
+    stamp: Finite
+    x: Finite
+    y: Finite
+    yaw: Finite
+    v: Finite = 0.0
+    w: Finite = 0.0
+    orientation: Quaternion = msgspec.field(default_factory=Quaternion)
+
+    def __post_init__(self) -> None:
+        _require_finite("pose", stamp=self.stamp, x=self.x, y=self.y, yaw=self.yaw, v=self.v, w=self.w)
+
+
+def wrap_angle(angle: float) -> float:
+    """Wrap an angle to [-pi, pi]."""
+    return math.remainder(angle, math.tau)
+
+
+def yaw_quaternion(yaw: float) -> Quaternion:
+    """The unit quaternion of a rotation by ``yaw`` about z."""
+    half = 0.5 * yaw
+    return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
+
+
+def make_pose(stamp: float, x: float, y: float, yaw: float, v: float = 0.0, w: float = 0.0) -> Pose:
+    """Build a :class:`Pose` with the yaw wrapped and its quaternion filled in."""
+    yaw = wrap_angle(float(yaw))
+    return Pose(
+        stamp=float(stamp), x=float(x), y=float(y), yaw=yaw, v=float(v), w=float(w), orientation=yaw_quaternion(yaw)
+    )
+
+
+STATE_NAMES: dict[int, str] = {0: "UNKNOWN", 1: "READY", 2: "ERROR", 3: "RUN", 4: "SHUTDOWN"}
+DIRECTION_NAMES: dict[int, str] = {1: "NORTH", 2: "SOUTH", 3: "WEST", 4: "EAST"}
+
+
+class RobotStatus(msgspec.Struct):
+    """The robot's state report from its log port, with readable names."""
+
+    stamp: Finite
+    state: int
+    state_name: str
+    direction: int
+    direction_name: str
+
+    @classmethod
+    def from_codes(cls, stamp: float, state: int, direction: int) -> "RobotStatus":
+        return cls(
+            stamp=stamp,
+            state=state,
+            state_name=STATE_NAMES.get(state, f"UNKNOWN({state})"),
+            direction=direction,
+            direction_name=DIRECTION_NAMES.get(direction, f"UNKNOWN({direction})"),
+        )
+
+
+class LinkHealth(msgspec.Struct):
+    """State of one TCP link to the robot."""
+
+    state: str  # "connected", "connecting" or "down"
+    connected_since: float | None = None
+    reconnects: int = 0
+
+
+class GatewayHealth(msgspec.Struct):
+    """The gateway's periodic self-report: links, counters, safety state."""
+
+    stamp: Finite
+    control: LinkHealth
+    log: LinkHealth
+    commands_sent: int = 0
+    polls: int = 0
+    replies: int = 0
+    full_buffer: int = 0
+    full_buffer_retries: int = 0
+    malformed_replies: int = 0
+    garbage_bytes: int = 0
+    rejected_inputs: int = 0
+    keepalives: int = 0
+    estop: bool = False
+    cmd_timeout_active: bool = False
+    last_rtt_ms: float | None = None
+    poll_hz: float = 0.0
+    wheel_speeds: tuple[float, float] = (0.0, 0.0)
+
+
+class ErrorReport(msgspec.Struct):
+    """One rejected input: where it came from, what was wrong, a short excerpt.
+
+    ``suppressed`` counts reports of the same kind dropped by rate limiting
+    since the previous report was published.
+    """
+
+    stamp: Finite
+    source: str
+    key: str
+    reason: str
+    excerpt: str = ""
+    suppressed: int = 0
+
+
+
+
+Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
+Seconds = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
+
+
+class SimFaults(msgspec.Struct, forbid_unknown_fields=True):
+    """Sensor and link faults the simulated robot injects on demand (all off by default).
+
+    Probabilities are per reply (per wheel for ``dropout`` and ``spike``).
+    Sent to ``<prefix>/sim/faults`` as a partial object to change only some.
+    """
+
+    dropout: Probability = 0.0
+    spike: Probability = 0.0
+    full_buffer: Probability = 0.0
+    delay: Seconds = 0.0
+    garbage: Probability = 0.0
+    glue: Probability = 0.0
+    split: Probability = 0.0
+    disconnect: Probability = 0.0
+    silent: bool = False
+
+
+#: Every message type, by the name used for its JSON Schema file.
+MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
+    "Twist": Twist,
+    "EStop": EStop,
+    "WheelImpulses": WheelImpulses,
+    "Pose": Pose,
+    "RobotStatus": RobotStatus,
+    "GatewayHealth": GatewayHealth,
+    "ErrorReport": ErrorReport,
+    "SimFaults": SimFaults,
+}
