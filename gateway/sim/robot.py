@@ -40,17 +40,18 @@ class RobotParams:
 
 
 def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
-    """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along an exact arc."""
+    """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along an exact arc.
+
+    Uses the chord form (length ``ds * sin(h)/h`` at heading ``yaw + h``, with
+    ``h`` half the turn), which is exact for any turn and well conditioned as
+    the turn goes to zero, where it becomes the straight line.
+    """
     ds = 0.5 * (d_left + d_right)
     dth = (d_right - d_left) / separation
-    if abs(dth) < 1e-12:
-        return x + ds * math.cos(yaw), y + ds * math.sin(yaw), yaw
-    radius = ds / dth
-    return (
-        x + radius * (math.sin(yaw + dth) - math.sin(yaw)),
-        y - radius * (math.cos(yaw + dth) - math.cos(yaw)),
-        yaw + dth,
-    )
+    half = 0.5 * dth
+    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
+    heading = yaw + half
+    return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
 
 
 class SimRobot:
