@@ -25,6 +25,7 @@ def _schema(args: argparse.Namespace) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from . import main as gateway_main
     from .sim import main as sim_main
 
     parser = argparse.ArgumentParser(
@@ -34,6 +35,9 @@ def build_parser() -> argparse.ArgumentParser:
     sim = sub.add_parser("sim", help="run the simulated robot (real wire protocol on TCP)", description=sim_main.__doc__)
     sim_main.build_parser(sim)
     sim.set_defaults(func=sim_main.run)
+    gateway = sub.add_parser("gateway", help="run the gateway (robot link, safety, Zenoh)", description=gateway_main.__doc__)
+    gateway_main.build_parser(gateway)
+    gateway.set_defaults(func=gateway_main.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
     schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
     schema.set_defaults(func=_schema)

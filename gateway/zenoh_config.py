@@ -64,28 +64,38 @@ class ZenohSettings:
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
-    """Add the shared Zenoh flags to ``parser``."""
+    """Add the shared Zenoh flags to ``parser`` (unset flags stay None, so settings files can fill them)."""
     group = parser.add_argument_group("Zenoh")
-    group.add_argument("-m", "--mode", choices=MODES, help="Zenoh session mode (default: peer)")
+    group.add_argument("-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: peer)")
     group.add_argument(
-        "-e", "--connect", action="append", default=[], metavar="ENDPOINT", help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)"
+        "-e",
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
     )
     group.add_argument(
-        "-l", "--listen", action="append", default=[], metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
+        "-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on (repeatable)"
     )
-    group.add_argument("-c", "--config", metavar="FILE", help="Zenoh configuration file (JSON5)")
+    group.add_argument("-c", "--config", default=None, metavar="FILE", help="Zenoh configuration file (JSON5)")
     group.add_argument(
-        "--no-multicast-scouting", action="store_true", help="disable multicast scouting (use explicit endpoints)"
+        "--no-multicast-scouting",
+        action="store_const",
+        const=True,
+        default=None,
+        help="disable multicast scouting (use explicit endpoints)",
     )
 
 
-def zenoh_settings(args: argparse.Namespace) -> ZenohSettings:
+def zenoh_settings(source: object) -> ZenohSettings:
+    """ZenohSettings from anything with the flag attributes (argparse namespace or a settings object)."""
     return ZenohSettings(
-        mode=args.mode,
-        connect=list(args.connect),
-        listen=list(args.listen),
-        config_file=args.config,
-        no_multicast_scouting=args.no_multicast_scouting,
+        mode=getattr(source, "mode", None),
+        connect=list(getattr(source, "connect", None) or []),
+        listen=list(getattr(source, "listen", None) or []),
+        config_file=getattr(source, "config", None),
+        no_multicast_scouting=bool(getattr(source, "no_multicast_scouting", False)),
     )
 
 

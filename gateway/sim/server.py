@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import socket
 import time
 from collections.abc import Callable
 
@@ -52,23 +53,26 @@ class SimServer:
         self._tasks: set[asyncio.Task[None]] = set()
         self._held = bytearray()
         self._flush_handle: asyncio.TimerHandle | None = None
+        self._closing = asyncio.Event()
 
     async def start(self) -> None:
         """Bind both ports (0 = pick a free one; the bound ports replace 0)."""
-        control = await asyncio.start_server(self._serve_control, self.host, self.control_port)
-        logs = await asyncio.start_server(self._serve_log, self.host, self.log_port)
+        control = await asyncio.start_server(self.serve_control, self.host, self.control_port)
+        logs = await asyncio.start_server(self.serve_log, self.host, self.log_port)
         self._servers = [control, logs]
         self.control_port = control.sockets[0].getsockname()[1]
         self.log_port = logs.sockets[0].getsockname()[1]
 
     async def close(self) -> None:
+        """Stop listening and close every client; handlers end by themselves."""
+        self._closing.set()
         for server in self._servers:
             server.close()
         self.drop_clients()
-        for task in list(self._tasks):
-            task.cancel()
         if self._tasks:
             await asyncio.wait(self._tasks, timeout=1.0)
+        for task in list(self._tasks):
+            task.cancel()  # last resort
         for server in self._servers:
             try:
                 await asyncio.wait_for(server.wait_closed(), timeout=1.0)
@@ -92,8 +96,11 @@ class SimServer:
 
     # ------------------------------------------------------------------ control port
 
-    async def _serve_control(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def serve_control(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._track()
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)  # replies go out at once
         if self._control_writer is not None:
             log.info("new control client takes over from the old one")
             self._control_writer.close()
@@ -124,10 +131,8 @@ class SimServer:
                     if writer.is_closing():
                         return
                     await self._write_replies(writer, b"".join(replies))
-        except (ConnectionError, asyncio.IncompleteReadError):
-            pass
-        except asyncio.CancelledError:
-            raise
+        except (ConnectionError, asyncio.IncompleteReadError, asyncio.CancelledError):
+            pass  # a handler ends quietly; the server logs nothing for a closed client
         finally:
             if self._control_writer is writer:
                 self._control_writer = None
@@ -163,7 +168,7 @@ class SimServer:
 
     # ------------------------------------------------------------------ log port
 
-    async def _serve_log(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    async def serve_log(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         self._track()
         self._log_writers.add(writer)
         try:
@@ -171,8 +176,11 @@ class SimServer:
                 if not self.robot.faults.silent:
                     writer.write(protocol.encode_log_report(self.state, self.direction))
                     await writer.drain()
-                await asyncio.sleep(self.log_interval)
-        except ConnectionError:
+                try:
+                    await asyncio.wait_for(self._closing.wait(), self.log_interval)
+                except (TimeoutError, asyncio.TimeoutError):
+                    pass
+        except (ConnectionError, asyncio.CancelledError):
             pass
         finally:
             self._log_writers.discard(writer)

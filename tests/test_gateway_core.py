@@ -1,0 +1,285 @@
+"""Gateway core, pure: kinematics, the safety governor on a fake clock, reply pairing, rate limits, settings."""
+
+from __future__ import annotations
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from gateway import protocol
+from gateway.config import load_settings, loads_json5
+from gateway.errors import ConfigError
+from gateway.exchange import Completed, Exchange, Lost
+from gateway.kinematics import WheelSpeeds, twist_to_wheels, wheels_to_twist
+from gateway.protocol import Command, Malformed, StatusReply
+from gateway.ratelimit import ReportLimiter
+from gateway.safety import Governor, SafetySettings
+from gateway.settings import GatewaySettings
+from schemas import Twist, Vector3
+
+OK = StatusReply("RECIEVE_OK")
+FULL = StatusReply("FULL_BUFFER")
+
+
+def twist(v: float = 0.0, w: float = 0.0) -> Twist:
+    return Twist(linear=Vector3(x=v), angular=Vector3(z=w))
+
+
+# ----------------------------------------------------------------------------- kinematics
+
+
+def test_left_turn_drives_the_right_wheel_faster() -> None:
+    wheels, scaled = twist_to_wheels(0.2, 0.4, 0.5, 0.8)
+    assert wheels == WheelSpeeds(right=pytest.approx(0.3), left=pytest.approx(0.1))  # type: ignore[arg-type]
+    assert not scaled
+
+
+def test_too_fast_commands_are_scaled_keeping_the_curvature() -> None:
+    wheels, scaled = twist_to_wheels(1.0, 2.0, 0.5, 0.8)
+    assert scaled
+    assert max(abs(wheels.right), abs(wheels.left)) == pytest.approx(0.8)
+    v, w = wheels_to_twist(wheels, 0.5)
+    assert w / v == pytest.approx(2.0 / 1.0)  # same arc, only slower
+
+
+@given(
+    st.floats(min_value=-10, max_value=10, allow_nan=False),
+    st.floats(min_value=-50, max_value=50, allow_nan=False),
+)
+def test_wheels_never_exceed_the_limit_and_keep_the_curvature(v: float, w: float) -> None:
+    wheels, _ = twist_to_wheels(v, w, 0.5, 0.8)
+    assert abs(wheels.right) <= 0.8 + 1e-12 and abs(wheels.left) <= 0.8 + 1e-12
+    v2, w2 = wheels_to_twist(wheels, 0.5)
+    if abs(v) > 1e-6 and abs(v2) > 1e-9:
+        assert w2 / v2 == pytest.approx(w / v, rel=1e-6, abs=1e-9)
+
+
+# ----------------------------------------------------------------------------- governor
+
+
+def governor(**overrides: object) -> Governor:
+    gov = Governor(SafetySettings(**overrides), now=0.0)  # type: ignore[arg-type]
+    gov.on_link_up()
+    return gov
+
+
+def test_link_up_sends_zero_then_commands_are_sent_once() -> None:
+    gov = governor()
+    first = gov.next_command(0.0)
+    assert first is not None and first.wheels == WheelSpeeds(0.0, 0.0)
+    assert gov.next_command(0.01) is None
+    assert gov.on_twist(twist(0.2), 0.02) is None
+    cmd = gov.next_command(0.02)
+    assert cmd is not None and cmd.wheels == WheelSpeeds(0.2, 0.2) and cmd.reason == "new"
+    gov.on_twist(twist(0.2), 0.1)  # unchanged: not re-sent
+    assert gov.next_command(0.1) is None
+
+
+def test_command_timeout_brakes_and_shows_in_state() -> None:
+    gov = governor(cmd_timeout=0.5)
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.3), 1.0)
+    assert gov.next_command(1.0).wheels == WheelSpeeds(0.3, 0.3)  # type: ignore[union-attr]
+    assert gov.next_command(1.5) is None and not gov.timed_out(1.5)
+    brake = gov.next_command(1.52)
+    assert brake is not None and brake.wheels == WheelSpeeds(0.0, 0.0)
+    assert gov.timed_out(1.52)
+    gov.on_twist(twist(0.1), 2.0)
+    assert not gov.timed_out(2.0)
+
+
+def test_timeout_zero_disables_it_and_keepalive_repeats_motion() -> None:
+    gov = governor(cmd_timeout=0.0, keepalive=5.0)
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.2), 0.0)
+    gov.next_command(0.0)
+    sent = [t for t in range(1, 31) if (c := gov.next_command(float(t))) is not None and c.reason == "keepalive"]
+    assert sent == [5, 10, 15, 20, 25, 30]  # the robot's 10 s watchdog never fires
+
+
+def test_zero_velocity_needs_no_keepalive() -> None:
+    gov = governor(cmd_timeout=0.0)
+    gov.next_command(0.0)
+    assert all(gov.next_command(float(t)) is None for t in range(1, 30))
+
+
+def test_estop_latches_refuses_commands_and_releases() -> None:
+    gov = governor()
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.3), 0.0)
+    gov.next_command(0.0)
+    gov.on_estop(True)
+    assert gov.emg_stop_needed
+    assert gov.next_command(0.1) is None
+    reason = gov.on_twist(twist(0.3), 0.1)
+    assert reason is not None and "emergency stop" in reason
+    gov.on_estop(False)
+    assert gov.next_command(0.2) is None  # release alone does not move the robot
+    assert gov.on_twist(twist(0.1), 0.3) is None
+    assert gov.next_command(0.3).wheels == WheelSpeeds(0.1, 0.1)  # type: ignore[union-attr]
+
+
+def test_link_down_refuses_and_reconnect_never_resumes_old_motion() -> None:
+    gov = governor()
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.3), 0.0)
+    gov.next_command(0.0)
+    gov.on_link_down()
+    assert "link is down" in (gov.on_twist(twist(0.3), 0.1) or "")
+    assert gov.next_command(0.1) is None
+    gov.on_link_up()
+    assert gov.next_command(0.2).wheels == WheelSpeeds(0.0, 0.0)  # type: ignore[union-attr]
+
+
+def test_estop_latched_across_a_reconnect_is_reasserted() -> None:
+    gov = governor()
+    gov.on_estop(True)
+    gov.emg_stop_needed = False  # sent
+    gov.on_link_down()
+    gov.on_link_up()
+    assert gov.emg_stop_needed
+
+
+def test_full_buffer_retries_are_bounded() -> None:
+    gov = governor(full_buffer_retries=3)
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.2), 0.0)
+    cmd = gov.next_command(0.0)
+    assert cmd is not None
+    retries = 0
+    for i in range(10):
+        if gov.on_full_buffer(cmd.wheels):
+            again = gov.next_command(0.01 * i)
+            assert again is not None and again.reason == "retry" and again.wheels == cmd.wheels
+            retries += 1
+    assert retries == 3
+    assert not gov.on_full_buffer(WheelSpeeds(0.5, 0.5))  # a superseded command is not retried
+
+
+def test_implausible_commands_are_rejected_not_scaled() -> None:
+    gov = governor()
+    assert "linear.x" in (gov.on_twist(twist(1e22), 0.0) or "")
+    assert "angular.z" in (gov.on_twist(twist(0.0, -1e300), 0.0) or "")
+    assert gov.on_twist(twist(5.0, 0.0), 0.0) is None  # fast but plausible: scaled
+    cmd = gov.next_command(0.0)
+    assert cmd is not None and gov.scaled and max(abs(cmd.wheels.left), abs(cmd.wheels.right)) <= 0.8
+
+
+def test_acceleration_limit_ramps_the_command() -> None:
+    gov = governor(linear_accel=0.5, cmd_timeout=0.0)
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.4), 0.0)
+    speeds = []
+    for i in range(1, 11):
+        cmd = gov.next_command(0.1 * i)
+        if cmd is not None:
+            speeds.append(cmd.wheels.left)
+    assert speeds[0] == pytest.approx(0.05) and speeds[-1] == pytest.approx(0.4)
+    assert all(b - a <= 0.05 + 1e-9 for a, b in zip(speeds, speeds[1:]))
+
+
+# ----------------------------------------------------------------------------- exchange
+
+
+def test_pipelined_requests_pair_with_their_replies() -> None:
+    ex = Exchange()
+    poll = protocol.simple(Command.GET_LR_WHEEL_VELOCITY)
+    vel = protocol.set_velocity(0.1, 0.1)
+    ex.sent(poll, 0.0)
+    ex.sent(vel, 0.001)
+    assert ex.received(OK, 0.002) == []
+    (done,) = ex.received(protocol.WheelSpeeds(100, -105), 0.003)
+    assert isinstance(done, Completed) and done.request == poll and done.data == protocol.WheelSpeeds(100, -105)
+    assert done.rtt == pytest.approx(0.002)
+    (done,) = ex.received(OK, 0.004)
+    assert done.request == vel and done.data is None
+
+
+def test_full_buffer_on_a_poll_means_no_data_follows() -> None:
+    ex = Exchange()
+    ex.sent(protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.0)
+    (done,) = ex.received(FULL, 0.001)
+    assert isinstance(done, Completed) and done.status.full_buffer and not ex.outstanding
+
+
+def test_a_lost_data_reply_costs_one_request_only() -> None:
+    ex = Exchange()
+    poll = protocol.simple(Command.GET_LR_WHEEL_VELOCITY)
+    vel = protocol.set_velocity(0.1, 0.1)
+    ex.sent(poll, 0.0)
+    ex.sent(vel, 0.0)
+    ex.received(OK, 0.001)
+    ex.received(Malformed("garbled", b"{x}"), 0.001)
+    lost, done = ex.received(OK, 0.002)
+    assert isinstance(lost, Lost) and lost.request == poll
+    assert isinstance(done, Completed) and done.request == vel
+
+
+def test_unanswered_requests_expire_and_unexpected_replies_are_counted() -> None:
+    ex = Exchange(reply_timeout=0.5)
+    assert ex.received(OK, 0.0) == [] and ex.unexpected == 1
+    ex.sent(protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.0)
+    assert ex.expire(0.4) == []
+    (lost,) = ex.expire(0.6)
+    assert "no reply" in lost.reason
+
+
+# ----------------------------------------------------------------------------- rate limit
+
+
+def test_error_reports_are_rate_limited_with_a_suppressed_count() -> None:
+    limiter = ReportLimiter(rate=5.0, burst=10)
+    admitted = [limiter.admit("k", 0.0)[0] for _ in range(100)]
+    assert sum(admitted) == 10
+    assert limiter.due_summaries(0.0) == []
+    assert limiter.due_summaries(1.0) == [("k", 90)]
+    ok, suppressed = limiter.admit("other", 1.0)
+    assert ok and suppressed == 0
+
+
+# ----------------------------------------------------------------------------- settings
+
+
+def test_settings_precedence_cli_over_env_over_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    toml = tmp_path / "gw.toml"
+    toml.write_text('robot = "10.0.0.9"\npoll_hz = 20\ncmd-timeout = 0.8\nprefix = "fleet/a"\n')
+    settings = load_settings(GatewaySettings, {"poll_hz": 100.0}, str(toml), environ={"BLACKMETAL_CMD_TIMEOUT": "0.7"})
+    assert settings.robot == "10.0.0.9"
+    assert settings.poll_hz == 100.0
+    assert settings.cmd_timeout == 0.7
+    assert settings.prefix == "fleet/a"
+    defaults = load_settings(GatewaySettings, {}, environ={})
+    assert defaults.robot == "127.0.0.1" and defaults.control_port == 665 and defaults.poll_hz == 50.0
+
+
+def test_json5_settings_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "gw.json5"
+    path.write_text("{\n  // the lab robot\n  robot: '192.0.2.7',\n  connect: ['tcp/127.0.0.1:7447',],\n  /* fast */ poll_hz: 200,\n}\n")
+    settings = load_settings(GatewaySettings, {}, str(path), environ={})
+    assert settings.robot == "192.0.2.7" and settings.poll_hz == 200 and settings.connect == ["tcp/127.0.0.1:7447"]
+    assert loads_json5('{"a": "x // not a comment"}') == {"a": "x // not a comment"}
+
+
+@pytest.mark.parametrize(
+    "cli, fragment",
+    [
+        ({"poll_hz": 0.0}, "poll_hz"),
+        ({"poll_hz": "fast"}, "poll_hz"),
+        ({"max_wheel_speed": 3.0}, "max_wheel_speed"),
+        ({"keepalive": 12.0}, "keepalive"),
+        ({"prefix": "robot/*"}, "prefix"),
+        ({"control_port": 70000}, "control_port"),
+        ({"cmd_timeout": -1.0}, "cmd_timeout"),
+    ],
+)
+def test_bad_settings_name_the_setting(cli: dict[str, object], fragment: str) -> None:
+    with pytest.raises(ConfigError, match=fragment):
+        load_settings(GatewaySettings, cli, environ={})
+
+
+def test_unknown_setting_in_a_file_is_an_error(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "gw.toml"
+    path.write_text("pol_hz = 20\n")
+    with pytest.raises(ConfigError, match="pol_hz"):
+        load_settings(GatewaySettings, {}, str(path), environ={})
+
