@@ -17,6 +17,8 @@ from .zenoh_config import add_zenoh_arguments, zenoh_settings
 
 log = logging.getLogger("blackmetal.gateway")
 
+SWITCH_INTERVAL_S = 0.0005
+
 
 async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
@@ -59,6 +61,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
+    # Zenoh delivers samples on its own threads; a short GIL switch interval lets
+    # them hand a command over without waiting out the default 5 ms slice.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     logging.basicConfig(level=logging.INFO, format="%(asctime)s gateway %(levelname)s %(message)s")
     options = given_options(args)
     try:

@@ -64,6 +64,8 @@ class MemoryConnector:
         self._tasks: set[asyncio.Task[None]] = set()
 
     async def open(self, port: str) -> tuple[asyncio.StreamReader, Any]:
+        if self.server.closed:
+            raise ConnectionRefusedError(f"simulated robot is not listening ({port})")
         client_reader, client_writer, server_reader, server_writer = _pipe()
         handler = self.server.serve_control if port == "control" else self.server.serve_log
         task = asyncio.create_task(handler(server_reader, server_writer))  # type: ignore[arg-type]

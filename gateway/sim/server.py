@@ -63,6 +63,10 @@ class SimServer:
         self.control_port = control.sockets[0].getsockname()[1]
         self.log_port = logs.sockets[0].getsockname()[1]
 
+    @property
+    def closed(self) -> bool:
+        return self._closing.is_set()
+
     async def close(self) -> None:
         """Stop listening and close every client; handlers end by themselves."""
         self._closing.set()

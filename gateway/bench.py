@@ -1,0 +1,340 @@
+"""Latency and poll-rate measurements of the gateway, each against a baseline from the same run.
+
+* ``cmd_vel`` put -> bytes at the robot's socket, next to one plain Zenoh
+  hop between two Python processes (half a ping-pong round trip);
+* sustained poll rate and worst gap at a given ``--poll-hz``.
+
+The robot here is a minimal in-process TCP server (no physics), so that
+simulator costs do not pollute the gateway's figures. Figures are printed;
+nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import queue
+import random
+import selectors
+import socket
+import statistics
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+from . import protocol
+from .protocol import Command, Request, RequestDecoder
+
+#: Publish bench messages without batching (what a latency-minded client does).
+EXPRESS = os.environ.get("BLACKMETAL_BENCH_EXPRESS", "1") == "1"
+
+
+def free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _zenoh_conf(listen: int | None = None, connect: int | None = None):  # type: ignore[no-untyped-def]
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{listen}"] if listen else []))
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{connect}"]))
+    return conf
+
+
+@dataclass
+class MiniRobot:
+    """A robot that answers instantly: status for every command, zeros for polls, a log report per second."""
+
+    control_port: int = 0
+    log_port: int = 0
+    arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> monotonic arrival
+    poll_times: list[float] = field(default_factory=list)
+    arrived: threading.Condition = field(default_factory=threading.Condition)
+
+    def start(self) -> "MiniRobot":
+        self._stop = threading.Event()
+        self._sel = selectors.DefaultSelector()
+        for kind in ("control", "log"):
+            server = socket.socket()
+            server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+            server.bind(("127.0.0.1", 0))
+            server.listen()
+            server.setblocking(False)
+            setattr(self, f"{kind}_port", server.getsockname()[1])
+            self._sel.register(server, selectors.EVENT_READ, ("accept", kind))
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(2)
+
+    def _run(self) -> None:
+        decoders: dict[socket.socket, RequestDecoder] = {}
+        log_clients: list[socket.socket] = []
+        next_log = time.monotonic()
+        while not self._stop.is_set():
+            for key, _ in self._sel.select(0.05):
+                kind, port = key.data
+                sock: socket.socket = key.fileobj  # type: ignore[assignment]
+                if kind == "accept":
+                    conn, _ = sock.accept()
+                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    if port == "control":
+                        decoders[conn] = RequestDecoder()
+                        self._sel.register(conn, selectors.EVENT_READ, ("control", None))
+                    else:
+                        log_clients.append(conn)
+                    continue
+                try:
+                    data = sock.recv(65536)
+                except OSError:
+                    data = b""
+                now = time.monotonic()
+                if not data:
+                    self._sel.unregister(sock)
+                    decoders.pop(sock, None)
+                    sock.close()
+                    continue
+                out = bytearray()
+                for request in decoders[sock].feed(data):
+                    if not isinstance(request, Request):
+                        continue
+                    out += protocol.encode_status()
+                    if request.command is Command.SET_LR_WHEEL_VELOCITY:
+                        with self.arrived:
+                            self.arrivals[float(request.right or 0.0)] = now
+                            self.arrived.notify_all()
+                    elif request.command is Command.GET_LR_WHEEL_VELOCITY:
+                        self.poll_times.append(now)
+                        out += protocol.encode_wheel_speeds(0, 0)
+                try:
+                    sock.sendall(out)
+                except OSError:
+                    pass
+            if time.monotonic() >= next_log:
+                next_log += 1.0
+                for client in list(log_clients):
+                    try:
+                        client.sendall(protocol.encode_log_report(1, 1))
+                    except OSError:
+                        log_clients.remove(client)
+
+
+def _robot_main() -> None:
+    """Child process: a MiniRobot; prints its ports, then on 'dump' its arrivals and polls as JSON."""
+    robot = MiniRobot().start()
+    print(json.dumps({"control": robot.control_port, "log": robot.log_port}), flush=True)
+    for line in sys.stdin:
+        if line.strip() == "dump":
+            with robot.arrived:
+                print(json.dumps({"arrivals": list(robot.arrivals.items()), "polls": robot.poll_times}), flush=True)
+        elif line.strip() == "quit":
+            break
+    robot.stop()
+
+
+class RobotProcess:
+    """A MiniRobot in its own process, so its thread never competes with the client for the GIL."""
+
+    def __init__(self) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "gateway.bench", "robot"], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True
+        )
+        assert self.proc.stdout is not None and self.proc.stdin is not None
+        ports = json.loads(self.proc.stdout.readline())
+        self.control_port, self.log_port = ports["control"], ports["log"]
+
+    def dump(self) -> dict[str, list]:  # type: ignore[type-arg]
+        assert self.proc.stdin is not None and self.proc.stdout is not None
+        self.proc.stdin.write("dump\n")
+        self.proc.stdin.flush()
+        return json.loads(self.proc.stdout.readline())
+
+    def close(self) -> None:
+        try:
+            assert self.proc.stdin is not None
+            self.proc.stdin.write("quit\n")
+            self.proc.stdin.flush()
+            self.proc.wait(3)
+        except (OSError, subprocess.TimeoutExpired):
+            self.proc.kill()
+
+
+def _percentiles(samples: list[float]) -> dict[str, float]:
+    ordered = sorted(samples)
+    pick = lambda q: ordered[min(len(ordered) - 1, int(q * len(ordered)))]  # noqa: E731
+    return {"p50_ms": pick(0.5) * 1e3, "p99_ms": pick(0.99) * 1e3, "max_ms": ordered[-1] * 1e3, "n": len(ordered)}
+
+
+def _echo_main(port: int) -> None:
+    """Child process: answer every ping with a pong, from the main thread (not the callback)."""
+    import zenoh
+
+    inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
+    with zenoh.open(_zenoh_conf(listen=port)) as session:
+        pub = session.declare_publisher("bench/pong", express=EXPRESS)
+        session.declare_subscriber("bench/ping", lambda s: inbox.put(s.payload.to_bytes()))
+        print("ready", flush=True)
+        while True:
+            payload = inbox.get()
+            if payload == b"quit":
+                return
+            pub.put(payload)
+
+
+def zenoh_hop(samples: int = 300) -> dict[str, float]:
+    """Half the ping-pong round trip between this process and a plain echo process."""
+    import zenoh
+
+    port = free_port()
+    child = subprocess.Popen(
+        [sys.executable, "-m", "gateway.bench", "echo", str(port)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert child.stdout is not None and child.stdout.readline().strip() == "ready"
+        got = threading.Event()
+        with zenoh.open(_zenoh_conf(connect=port)) as session:
+            session.declare_subscriber("bench/pong", lambda s: got.set())
+            ping = session.declare_publisher("bench/ping", express=EXPRESS)
+            hops: list[float] = []
+            for i in range(samples + 50):
+                got.clear()
+                start = time.monotonic()
+                ping.put(b"%d" % i)
+                if not got.wait(2.0):
+                    continue
+                if i >= 50:
+                    hops.append((time.monotonic() - start) / 2)
+                time.sleep(random.uniform(0.002, 0.01))
+            session.put("bench/ping", b"quit")
+    finally:
+        try:
+            child.wait(3)
+        except subprocess.TimeoutExpired:
+            child.kill()
+    return _percentiles(hops)
+
+
+def _start_gateway(robot: "RobotProcess", zport: int, poll_hz: float) -> subprocess.Popen[str]:
+    proc = subprocess.Popen(
+        [
+            sys.executable, "-m", "gateway",
+            "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+            "--poll-hz", str(poll_hz), "--cmd-timeout", "0",
+            "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}",
+        ],
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+        env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    assert proc.stdout is not None
+    for line in proc.stdout:
+        if "gateway ready" in line:
+            break
+    threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()  # type: ignore[union-attr]
+    return proc
+
+
+def _wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not robot.dump()["polls"]:
+        if time.monotonic() > deadline:
+            raise RuntimeError("the gateway never polled the robot")
+        time.sleep(0.1)
+
+
+def cmd_latency(samples: int = 300, poll_hz: float = 50.0) -> dict[str, float]:
+    """``cmd_vel`` put -> velocity command bytes read at the robot's socket (CLOCK_MONOTONIC is system-wide)."""
+    import zenoh
+
+    robot = RobotProcess()
+    zport = free_port()
+    gateway = _start_gateway(robot, zport, poll_hz)
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            pub = session.declare_publisher("robot/cmd_vel", express=EXPRESS)
+            _wait_polls(robot)
+            time.sleep(0.5)
+            sent: dict[float, float] = {}
+            for i in range(samples + 50):
+                speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
+                start = time.monotonic()
+                pub.put(b'{"linear":{"x":%.6f}}' % speed)
+                if i >= 50:
+                    sent[speed] = start
+                time.sleep(random.uniform(0.005, 0.015))
+            time.sleep(0.5)
+            arrivals = dict((float(k), v) for k, v in robot.dump()["arrivals"])
+    finally:
+        gateway.terminate()
+        gateway.wait(5)
+        robot.close()
+    latencies = [arrivals[speed] - start for speed, start in sent.items() if speed in arrivals]
+    return _percentiles(latencies)
+
+
+def poll_rate(poll_hz: float, seconds: float = 5.0) -> dict[str, float]:
+    """Sustained poll rate and worst gap, as seen by the robot."""
+    robot = RobotProcess()
+    gateway = _start_gateway(robot, free_port(), poll_hz)
+    try:
+        _wait_polls(robot)
+        time.sleep(1.0)
+        start = len(robot.dump()["polls"])
+        time.sleep(seconds)
+        window = robot.dump()["polls"][start:]
+    finally:
+        gateway.terminate()
+        gateway.wait(5)
+        robot.close()
+    gaps = [b - a for a, b in zip(window, window[1:])]
+    rate = (len(window) - 1) / (window[-1] - window[0])
+    return {
+        "asked_hz": poll_hz,
+        "rate_hz": rate,
+        "ratio": rate / poll_hz,
+        "worst_gap_ms": max(gaps) * 1e3,
+        "worst_gap_periods": max(gaps) * poll_hz,
+        "median_gap_ms": statistics.median(gaps) * 1e3,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(prog="python -m gateway.bench", description=__doc__)
+    parser.add_argument("what", nargs="?", default="all", choices=["all", "echo", "robot"])
+    parser.add_argument("port", nargs="?", type=int)
+    parser.add_argument("--samples", type=int, default=300)
+    args = parser.parse_args(argv)
+    if args.what == "echo":
+        _echo_main(args.port)
+        return 0
+    if args.what == "robot":
+        _robot_main()
+        return 0
+    hop = zenoh_hop(args.samples)
+    cmd = cmd_latency(args.samples)
+    print(f"zenoh hop (baseline):      p50 {hop['p50_ms']:.3f} ms  p99 {hop['p99_ms']:.3f} ms")
+    print(
+        f"cmd_vel -> robot socket:   p50 {cmd['p50_ms']:.3f} ms  p99 {cmd['p99_ms']:.3f} ms"
+        f"  ({cmd['p50_ms'] / hop['p50_ms']:.2f}x the hop at p50)"
+    )
+    for hz in (100.0, 200.0):
+        rate = poll_rate(hz)
+        print(
+            f"poll at {hz:g} Hz:            {rate['rate_hz']:.1f} Hz ({100 * rate['ratio']:.1f}%),"
+            f" worst gap {rate['worst_gap_ms']:.1f} ms ({rate['worst_gap_periods']:.2f} periods)"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
