@@ -38,6 +38,15 @@ def build_parser() -> argparse.ArgumentParser:
     gateway = sub.add_parser("gateway", help="run the gateway (robot link, safety, Zenoh)", description=gateway_main.__doc__)
     gateway_main.build_parser(gateway)
     gateway.set_defaults(func=gateway_main.run)
+    from odometry_service import main as odometry_main
+    from odometry_service import replay
+
+    odometry = sub.add_parser("odometry", help="run the odometry service (impulses -> pose)", description=odometry_main.__doc__)
+    odometry_main.build_parser(odometry)
+    odometry.set_defaults(func=odometry_main.run)
+    replay_parser = sub.add_parser("replay", help="replay a recorded impulse log through the odometry", description=replay.__doc__)
+    replay.build_parser(replay_parser)
+    replay_parser.set_defaults(func=replay.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
     schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
     schema.set_defaults(func=_schema)

@@ -18,6 +18,7 @@ MESSAGE_KEYS: dict[str, str] = {
     "GatewayHealth": "gateway/health",
     "ErrorReport": "errors",
     "SimFaults": "sim/faults",
+    "PoseReset": "odometry/reset (query payload)",
 }
 
 

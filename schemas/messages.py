@@ -189,6 +189,14 @@ class ErrorReport(msgspec.Struct):
 
 
 
+class PoseReset(msgspec.Struct, forbid_unknown_fields=True):
+    """Payload of a ``get`` on ``<prefix>/odometry/reset``: the pose to reset to (default: zero)."""
+
+    x: Finite = 0.0
+    y: Finite = 0.0
+    yaw: Finite = 0.0
+
+
 Probability = Annotated[float, msgspec.Meta(ge=0.0, le=1.0)]
 Seconds = Annotated[float, msgspec.Meta(ge=0.0, le=60.0)]
 
@@ -221,4 +229,5 @@ MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "GatewayHealth": GatewayHealth,
     "ErrorReport": ErrorReport,
     "SimFaults": SimFaults,
+    "PoseReset": PoseReset,
 }

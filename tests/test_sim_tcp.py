@@ -115,15 +115,16 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
 
         def set_faults(**faults: object) -> None:
             """Partial update: fields not named keep their value."""
-            session.put("robot/sim/faults", json.dumps(faults))
             state.update(faults)
             wanted = SimFaults(**state)  # type: ignore[arg-type]
 
             def applied() -> bool:
+                # re-put until applied: a put made before routes are known reaches nobody
+                session.put("robot/sim/faults", json.dumps(faults))
                 replies = list(session.get("robot/sim/faults", timeout=5))
                 return bool(replies) and replies[0].ok is not None and decode(SimFaults, replies[0].ok.payload.to_bytes()) == wanted
 
-            wait_for(applied, what=f"faults {faults}")
+            wait_for(applied, interval=0.2, what=f"faults {faults}")
 
         set_faults(full_buffer=1.0)
         assert client.request(protocol.set_velocity(0.1, 0.1)) == [StatusReply("FULL_BUFFER")]

@@ -1,0 +1,291 @@
+"""From raw wheel impulses to a pose, one sample at a time. Pure and clock-free.
+
+Pipeline per sample (each reading describes the interval since the previous one):
+
+1. convert impulses/s to rim speed in m/s (right encoder mirrored);
+2. glitches: a reading above the maximum wheel speed is a sensor fault and
+   is replaced by the wheel's previous reading; a single 0 in motion is held
+   at the previous output (a dropout); a second 0 shows the first was a real
+   stop, so the step integrated with the held value is taken back;
+3. the original first-order low-pass ``y = a*y + (1-a)*x``, reset to the
+   first non-zero sample after a stop (no ramp from rest), ``a = 0`` = off;
+4. exact-arc integration over the real time between the samples' stamps; a
+   gap longer than ``max_gap`` is not integrated (reported instead), nor is
+   the jump to a restarted gateway's new sequence.
+
+:mod:`odometry_service.batch` implements the same pipeline with numpy for
+replays; the two agree to 1e-9.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+from schemas import Pose, WheelImpulses, make_pose
+from schemas import robot as facts
+
+from .errors import SampleRejected
+
+
+@dataclass(frozen=True, slots=True)
+class OdometryParams:
+    wheel_separation: float = facts.WHEEL_SEPARATION
+    impulses_per_meter_left: float = facts.IMPULSES_PER_METER_LEFT
+    impulses_per_meter_right: float = facts.IMPULSES_PER_METER_RIGHT
+    #: The right encoder counts backwards when the wheel drives forward.
+    mirror_right: bool = True
+    max_wheel_speed: float = facts.MAX_WHEEL_SPEED
+    #: A reading above ``max_wheel_speed * spike_factor`` is a glitch (margin for quantisation).
+    spike_factor: float = 1.05
+    #: Low-pass strength a in [0, 1): 0 = off.
+    filter_alpha: float = 0.3
+    #: Samples further apart than this (s) are not integrated across.
+    max_gap: float = 0.5
+
+    def check(self) -> None:
+        from .errors import OdometryError
+
+        if not 0.0 <= self.filter_alpha < 1.0:
+            raise OdometryError(f"filter_alpha must be in [0, 1), got {self.filter_alpha}")
+        for name in ("wheel_separation", "impulses_per_meter_left", "impulses_per_meter_right", "max_wheel_speed", "max_gap"):
+            if not getattr(self, name) > 0:
+                raise OdometryError(f"{name} must be positive, got {getattr(self, name)}")
+        if self.spike_factor < 1.0:
+            raise OdometryError("spike_factor must be >= 1")
+
+    @property
+    def spike_limit(self) -> float:
+        return self.max_wheel_speed * self.spike_factor
+
+    def to_speeds(self, left: int, right: int) -> tuple[float, float]:
+        """Impulses per second to rim speeds (m/s), forward positive on both wheels."""
+        sign = -1.0 if self.mirror_right else 1.0
+        return left / self.impulses_per_meter_left, sign * right / self.impulses_per_meter_right
+
+
+def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
+    """Move a pose by wheel travels along the exact arc (chord form; straight-line limit for tiny turns)."""
+    ds = 0.5 * (d_left + d_right)
+    dth = (d_right - d_left) / separation
+    half = 0.5 * dth
+    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
+    heading = yaw + half
+    return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
+
+
+@dataclass(slots=True)
+class WheelState:
+    """What the glitch rules and the low-pass remember of one wheel."""
+
+    y: float = 0.0  # filter output (m/s)
+    prev: float = 0.0  # cleaned reading of the previous sample
+    prev2: float = 0.0  # ... and of the one before
+    zero_run: int = 2  # consecutive zeros after the previous sample, capped at 2; 2 = at rest
+    raw_prev: float = 0.0  # raw reading of the previous sample (spikes included)
+    anchor: float = 0.0  # last trustworthy raw reading (not a spike, not a first zero)
+    anchor_other: float = 0.0  # the other wheel's raw reading at that sample
+    anchor_other_ok: bool = False  # ... and whether it was trustworthy (not a spike)
+
+    def reset(self) -> None:
+        self.y = self.prev = self.prev2 = self.raw_prev = self.anchor = self.anchor_other = 0.0
+        self.zero_run = 2
+        self.anchor_other_ok = False
+
+
+class Glitches:
+    """Spike, dropout and stop rules for both wheels, with the low-pass; sample by sample.
+
+    A single zero while both wheels move is a dropout: it is estimated from
+    the wheel's previous reading scaled by how the other wheel changed (the
+    curvature is kept), or held when the other wheel cannot tell. The next
+    sample settles it, and the previous step is revised when it was wrong:
+
+    * a second zero means the wheel really stopped, unless the other wheel
+      was still moving at the first zero and stops only now (a dropout at a
+      joint stop): the step is redone with the wheel at 0;
+    * a wheel that reads 0 on the first sample of a joint start (the other
+      wheel starts on it) and moves on the next had its start dropped: the
+      step is redone with an estimate from the next reading.
+    """
+
+    def __init__(self, alpha: float, spike_limit: float) -> None:
+        self.alpha = alpha
+        self.limit = spike_limit
+        self.left = WheelState()
+        self.right = WheelState()
+        self.spikes = 0
+        self.dropouts = 0
+        self.started = False  # a previous sample exists in this epoch
+        self.started2 = False  # two previous samples exist in this epoch
+
+    def reset(self) -> None:
+        self.left.reset()
+        self.right.reset()
+        self.started = self.started2 = False
+
+    def _clip(self, value: float) -> float:
+        return max(-self.limit, min(self.limit, value))
+
+    def update(self, raw_left: float, raw_right: float) -> tuple[float, float, float | None, float | None]:
+        """Outputs (left, right) and revisions of the previous step's speeds (None = keep)."""
+        wheels = (self.left, self.right)
+        raws = (raw_left, raw_right)
+        valid = (abs(raw_left) <= self.limit, abs(raw_right) <= self.limit)
+        clean = []
+        for i, state in enumerate(wheels):
+            raw, raw_other = raws[i], raws[1 - i]
+            if valid[i]:
+                clean.append(raw)
+                continue
+            # a spike: the last trustworthy reading, scaled by how the other wheel changed since
+            self.spikes += 1
+            value = state.anchor
+            if valid[1 - i] and state.anchor_other_ok and raw_other != 0.0 and state.anchor_other != 0.0:
+                value = self._clip(value * raw_other / state.anchor_other)
+            clean.append(value)
+        revisions: list[float | None] = [None, None]
+        outputs = []
+        for i, (me, other) in enumerate(((self.left, self.right), (self.right, self.left))):
+            x, x_other = clean[i], clean[1 - i]
+            if self.started2:
+                if x == 0.0 and me.zero_run == 1 and not (other.prev != 0.0 and x_other == 0.0):
+                    revisions[i] = 0.0  # the held zero was a real stop
+                    self.dropouts -= 1
+                elif (
+                    x != 0.0
+                    and me.zero_run >= 2
+                    and other.prev2 == 0.0
+                    and other.prev != 0.0
+                    and x_other != 0.0
+                ):
+                    revisions[i] = self._clip(x * other.prev / x_other)  # the start of a joint start was dropped
+            if x == 0.0:
+                if me.zero_run == 0:
+                    self.dropouts += 1
+                    if other.prev != 0.0 and x_other != 0.0:
+                        estimate = self._clip(me.prev * x_other / other.prev)
+                        me.y = self.alpha * me.y + (1.0 - self.alpha) * estimate
+                    # else: hold the output
+                    me.zero_run = 1
+                else:
+                    me.y = 0.0
+                    me.zero_run = 2
+            else:
+                me.y = x if me.zero_run >= 2 else self.alpha * me.y + (1.0 - self.alpha) * x
+                me.zero_run = 0
+            outputs.append(me.y)
+        for i, state in enumerate(wheels):
+            raw = raws[i]
+            if valid[i] and not (raw == 0.0 and state.raw_prev != 0.0):
+                state.anchor, state.anchor_other, state.anchor_other_ok = raw, raws[1 - i], valid[1 - i]
+            state.raw_prev = raw
+            state.prev2, state.prev = state.prev, clean[i]
+        self.started2 = self.started
+        self.started = True
+        return outputs[0], outputs[1], revisions[0], revisions[1]
+
+
+@dataclass(slots=True)
+class Odometry:
+    """Streaming odometry: :meth:`feed` one WheelImpulses, get the pose after it."""
+
+    params: OdometryParams = field(default_factory=OdometryParams)
+    x: float = 0.0
+    y: float = 0.0
+    yaw: float = 0.0  # unwrapped
+    v: float = 0.0
+    w: float = 0.0
+    stamp: float = 0.0
+    samples: int = 0
+    gaps: int = 0
+    restarts: int = 0
+    missed: int = 0
+    retractions: int = 0
+    events: list[str] = field(default_factory=list)  # things worth reporting, drained by the service
+    _glitches: Glitches = field(init=False)
+    _last_seq: int | None = None
+    _last_stamp: float | None = None
+    _before_last: tuple[float, float, float] | None = None  # pose before the last step
+    _last_step: tuple[float, float, float] | None = None  # (left, right, dt) of the last step
+
+    def __post_init__(self) -> None:
+        self._glitches = Glitches(self.params.filter_alpha, self.params.spike_limit)
+
+    @property
+    def spikes(self) -> int:
+        return self._glitches.spikes
+
+    @property
+    def dropouts(self) -> int:
+        return self._glitches.dropouts
+
+    def reset(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> Pose:
+        """Set the pose (the filters keep running, so motion is not lost)."""
+        self.x, self.y, self.yaw = x, y, yaw
+        self._before_last = self._last_step = None
+        return self.pose()
+
+    def pose(self) -> Pose:
+        return make_pose(self.stamp, self.x, self.y, self.yaw, self.v, self.w)
+
+    def _check_order(self, sample: WheelImpulses) -> bool:
+        """Validate seq and stamp; True if this sample starts a new epoch (no integration from the last)."""
+        last_seq, last_stamp = self._last_seq, self._last_stamp
+        if last_seq is None or last_stamp is None:
+            return True
+        if sample.seq <= last_seq:
+            if sample.stamp > last_stamp:
+                self.restarts += 1
+                self.events.append(
+                    f"sequence restarted at {sample.seq} after {last_seq} (gateway restart): not integrating across it"
+                )
+                return True
+            raise SampleRejected(
+                f"duplicate or out-of-order sample: seq {sample.seq} (stamp {sample.stamp:.6f}) after seq {last_seq} (stamp {last_stamp:.6f})"
+            )
+        if sample.stamp < last_stamp:
+            raise SampleRejected(
+                f"stamp went backwards: seq {sample.seq} at {sample.stamp:.6f} after seq {last_seq} at {last_stamp:.6f}"
+            )
+        if sample.seq > last_seq + 1:
+            self.missed += sample.seq - last_seq - 1
+        if sample.stamp - last_stamp > self.params.max_gap:
+            self.gaps += 1
+            self.events.append(
+                f"gap of {sample.stamp - last_stamp:.3f} s before seq {sample.seq} exceeds {self.params.max_gap} s: not integrated"
+            )
+            return True
+        return False
+
+    def feed(self, sample: WheelImpulses) -> Pose:
+        """One impulse sample in, the updated pose out. Raises SampleRejected for unusable samples."""
+        new_epoch = self._check_order(sample)
+        p = self.params
+        raw_left, raw_right = p.to_speeds(sample.left, sample.right)
+        if new_epoch:
+            self._glitches.reset()
+            self._before_last = self._last_step = None
+        y_left, y_right, fix_left, fix_right = self._glitches.update(raw_left, raw_right)
+        if (fix_left is not None or fix_right is not None) and self._before_last is not None and self._last_step is not None:
+            # the previous step used a provisional value that the next sample proved wrong: redo it
+            self.retractions += 1
+            last_left, last_right, last_dt = self._last_step
+            if fix_left is not None:
+                last_left = fix_left
+            if fix_right is not None:
+                last_right = fix_right
+            bx, by, byaw = self._before_last
+            self.x, self.y, self.yaw = arc_step(bx, by, byaw, last_left * last_dt, last_right * last_dt, p.wheel_separation)
+        if not new_epoch:
+            assert self._last_stamp is not None
+            dt = sample.stamp - self._last_stamp
+            self._before_last = (self.x, self.y, self.yaw)
+            self._last_step = (y_left, y_right, dt)
+            self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, y_left * dt, y_right * dt, p.wheel_separation)
+        self._last_seq, self._last_stamp = sample.seq, sample.stamp
+        self.stamp = sample.stamp
+        self.v = 0.5 * (y_left + y_right)
+        self.w = (y_right - y_left) / p.wheel_separation
+        self.samples += 1
+        return self.pose()

@@ -1,0 +1,162 @@
+"""``blackmetal replay FILE``: a recorded impulse log through the odometry pipeline in one numpy pass.
+
+The file holds JSON lines of WheelImpulses, exactly as published on
+``<prefix>/wheels/impulses`` (``blackmetal record`` or any Zenoh subscriber
+that writes payloads one per line). The last line of stdout is the final
+pose as one JSON object; ``-o FILE`` writes every pose as JSON lines.
+"""
+
+from __future__ import annotations
+
+import gc
+import sys
+from operator import attrgetter
+from pathlib import Path
+from typing import BinaryIO
+
+import msgspec
+import numpy as np
+
+from schemas import Pose, WheelImpulses, encode, make_pose
+
+from .batch import BatchResult, run_batch
+from .core import OdometryParams
+from .errors import ReplayError
+
+
+class _Row(msgspec.Struct, gc=False):
+    """One log line; lean (no GC tracking) because a replay holds millions at once."""
+
+    seq: int
+    stamp: float
+    left: int
+    right: int
+
+
+_row_decoder = msgspec.json.Decoder(_Row)
+_impulse_decoder = msgspec.json.Decoder(WheelImpulses)
+
+
+def read_log(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Columns (seq, stamp, left, right) of a JSON-lines impulse log; ReplayError names a bad line."""
+    gc_was_enabled = gc.isenabled()
+    gc.disable()
+    try:
+        try:
+            rows = _row_decoder.decode_lines(data)
+        except (msgspec.ValidationError, msgspec.DecodeError):
+            rows = _slow_rows(data)
+        n = len(rows)
+        flat = np.fromiter(
+            (value for row in map(attrgetter("seq", "stamp", "left", "right"), rows) for value in row),
+            np.float64,
+            count=4 * n,
+        ).reshape(n, 4)
+    finally:
+        if gc_was_enabled:
+            gc.enable()
+    bad = ~np.isfinite(flat[:, 1]) | (flat[:, 0] < 0)
+    if bad.any():
+        line = int(np.flatnonzero(bad)[0]) + 1
+        raise ReplayError(f"line {line}: stamp must be finite and seq >= 0")
+    if np.any(np.abs(flat[:, [0, 2, 3]]) >= 2.0**53):
+        raise ReplayError("integer fields beyond 2**53 cannot be replayed exactly")
+    return flat[:, 0].astype(np.int64), flat[:, 1].copy(), flat[:, 2].copy(), flat[:, 3].copy()
+
+
+def _slow_rows(data: bytes) -> list[_Row]:
+    """Line by line, to name the first bad line (and to tolerate blank lines and extra fields)."""
+    rows: list[_Row] = []
+    for number, line in enumerate(data.splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            msg = _impulse_decoder.decode(line)
+        except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+            raise ReplayError(f"line {number}: not a WheelImpulses message: {exc}") from None
+        rows.append(_Row(msg.seq, msg.stamp, msg.left, msg.right))
+    return rows
+
+
+def replay_file(path: str | Path, params: OdometryParams | None = None) -> BatchResult:
+    try:
+        data = Path(path).read_bytes()
+    except OSError as exc:
+        raise ReplayError(f"cannot read {path}: {exc.strerror}") from None
+    return run_batch(*read_log(data), params)
+
+
+def final_pose(result: BatchResult) -> Pose:
+    if not len(result):
+        return make_pose(0.0, 0.0, 0.0, 0.0)
+    return pose_at(result, len(result) - 1)
+
+
+def pose_at(result: BatchResult, k: int) -> Pose:
+    return make_pose(result.stamp[k], result.x[k], result.y[k], result.yaw[k], result.v[k], result.w[k])
+
+
+def write_poses(result: BatchResult, out: BinaryIO) -> None:
+    """Every pose as a JSON line, the same objects the live service publishes."""
+    encoder = msgspec.json.Encoder()
+    buf = bytearray()
+    for k in range(len(result)):
+        encoder.encode_into(pose_at(result, k), buf, -1)
+        buf += b"\n"
+        if len(buf) > 1 << 20:
+            out.write(buf)
+            buf.clear()
+    out.write(buf)
+
+
+def summary(result: BatchResult) -> str:
+    return (
+        f"{len(result)} samples, {len(result.rejected)} rejected, {result.spikes} spikes, {result.dropouts} dropouts held,"
+        f" {result.retractions} stops corrected, {result.gaps} gaps, {result.restarts} restarts, {result.missed} missed"
+    )
+
+
+def print_final(result: BatchResult) -> None:
+    sys.stdout.buffer.write(encode(final_pose(result)) + b"\n")
+    sys.stdout.flush()
+
+
+def build_parser(parser=None):  # type: ignore[no-untyped-def]
+    import argparse
+
+    from .settings import add_odometry_arguments
+
+    parser = parser or argparse.ArgumentParser(prog="blackmetal replay", description=__doc__)
+    parser.add_argument("file", help="JSON-lines file of WheelImpulses")
+    parser.add_argument("-o", "--output", metavar="FILE", help="write every pose as JSON lines")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
+    add_odometry_arguments(parser)
+    return parser
+
+
+def run(args) -> int:  # type: ignore[no-untyped-def]
+    from gateway.config import given_options, load_settings
+    from gateway.errors import ConfigError
+
+    from .settings import OdometrySettings
+
+    options = given_options(args)
+    for name in ("file", "output", "quiet"):
+        options.pop(name, None)
+    try:
+        settings = load_settings(OdometrySettings, options, options.pop("settings", None))
+        result = replay_file(args.file, settings.params())
+    except (ConfigError, ReplayError) as exc:
+        print(f"blackmetal replay: {exc}", file=sys.stderr)
+        return 2
+    if args.output:
+        with open(args.output, "wb") as out:
+            write_poses(result, out)
+    if not args.quiet:
+        print(summary(result), file=sys.stderr)
+        for reason in result.rejected[:5]:
+            print(f"rejected: {reason}", file=sys.stderr)
+        for event in result.events[:5]:
+            print(f"note: {event}", file=sys.stderr)
+    print_final(result)
+    return 0

@@ -1,0 +1,289 @@
+"""Odometry core: conversion, glitches, filter rules, exact arcs, and streaming == batch."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from odometry_service.batch import linear_scan, run_batch
+from odometry_service.core import Glitches, Odometry, OdometryParams, arc_step
+from odometry_service.errors import SampleRejected
+from odometry_service.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
+from schemas import WheelImpulses
+from schemas import robot as facts
+
+IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
+
+
+def imp(seq: int, stamp: float, left: float, right: float) -> WheelImpulses:
+    """A sample with rim speeds in m/s turned into the robot's impulses (right mirrored)."""
+    return WheelImpulses(seq=seq, stamp=stamp, left=round(left * IPM_L), right=-round(right * IPM_R))
+
+
+def test_conversion_mirrors_the_right_wheel() -> None:
+    params = OdometryParams()
+    left, right = params.to_speeds(1013, -1054)
+    assert left == pytest.approx(1.0, abs=1e-3) and right == pytest.approx(1.0, abs=1e-3)
+    assert OdometryParams(mirror_right=False).to_speeds(0, 1054)[1] > 0
+
+
+def test_straight_line_uses_real_time_steps() -> None:
+    odo = Odometry(OdometryParams(filter_alpha=0.0))
+    t = 100.0
+    for k in range(200):
+        odo.feed(WheelImpulses(seq=k, stamp=t, left=203, right=-211))
+        t += 0.005 if k % 2 else 0.015  # jittered polls: the real time between samples counts
+    v_left, v_right = 203 / IPM_L, 211 / IPM_R
+    expected = 0.5 * (v_left + v_right) * (t - 100.0 - (0.015 if 199 % 2 == 0 else 0.005))
+    assert odo.x == pytest.approx(expected, rel=1e-6)  # the wheels differ by 0.2 mm/s: a very slight arc
+
+
+@pytest.mark.parametrize("v, w", [(0.2, 0.5), (0.1, -1.2), (0.0, 1.0), (0.3, 0.0)])
+def test_exact_arc_matches_the_closed_form_circle(v: float, w: float) -> None:
+    sep = 0.5
+    x = y = yaw = 0.0
+    total = 0.0
+    for dt in [0.01, 0.013, 0.007, 0.02] * 50:
+        x, y, yaw = arc_step(x, y, yaw, (v - w * sep / 2) * dt, (v + w * sep / 2) * dt, sep)
+        total += dt
+    if w == 0:
+        assert (x, y, yaw) == pytest.approx((v * total, 0.0, 0.0), abs=1e-12)
+    else:
+        r = v / w
+        assert x == pytest.approx(r * math.sin(w * total), abs=1e-12)
+        assert y == pytest.approx(r * (1 - math.cos(w * total)), abs=1e-12)
+        assert yaw == pytest.approx(w * total, abs=1e-12)
+
+
+def test_yaw_is_wrapped_in_the_published_pose() -> None:
+    odo = Odometry(OdometryParams(filter_alpha=0.0))
+    t = 0.0
+    pose = None
+    for k in range(1000):  # 10 s turning in place at 1 rad/s: several wraps
+        pose = odo.feed(imp(k, t, -0.25, 0.25))
+        t += 0.01
+    assert pose is not None
+    assert -math.pi <= pose.yaw <= math.pi
+    assert odo.yaw == pytest.approx(9.99, abs=0.03)  # whole impulses: 0.1% slow
+    assert pose.yaw == pytest.approx(math.remainder(odo.yaw, math.tau), abs=1e-12)
+    assert pose.orientation.z == pytest.approx(math.sin(pose.yaw / 2))
+    assert pose.w == pytest.approx(1.0, abs=0.01) and pose.v == pytest.approx(0.0, abs=1e-3)
+
+
+def test_filter_rules_on_one_wheel() -> None:
+    g = Glitches(alpha=0.5, spike_limit=0.84)
+
+    def left(x: float) -> tuple[float, float | None]:
+        y_left, _, fix_left, _ = g.update(x, 0.0)  # the right wheel stands still: no cross-wheel estimate
+        return y_left, fix_left
+
+    assert left(0.4) == (0.4, None)  # from rest: no ramp
+    assert left(0.2) == (pytest.approx(0.3), None)  # low-pass
+    assert left(0.0) == (pytest.approx(0.3), None)  # a single zero is held
+    assert left(0.3) == (pytest.approx(0.3), None)  # ... and it was a dropout
+    assert left(0.0)[0] == pytest.approx(0.3)
+    assert left(0.0) == (0.0, 0.0)  # second zero: a real stop; the held step is revised to 0
+    assert left(0.0) == (0.0, None)
+    assert left(0.5) == (0.5, None)  # first non-zero after a stop resets
+    assert left(5.0) == (0.5, None)  # a spike is replaced by the previous reading
+    assert g.spikes == 1 and g.dropouts == 1
+
+
+def test_a_dropout_while_both_wheels_change_keeps_the_curvature() -> None:
+    g = Glitches(alpha=0.0, spike_limit=0.84)
+    g.update(0.2, 0.1)
+    y_left, y_right, _, _ = g.update(0.0, 0.3)  # left dropped while the right went 0.1 -> 0.3
+    assert (y_left, y_right) == (pytest.approx(0.6), 0.3)
+
+
+def test_a_dropout_at_a_joint_stop_is_kept_and_a_dropped_start_is_restored() -> None:
+    g = Glitches(alpha=0.0, spike_limit=0.84)
+    g.update(0.3, 0.3)
+    g.update(0.0, 0.15)  # left dropped on the last, partial interval before the stop
+    _, _, fix_left, fix_right = g.update(0.0, 0.0)
+    assert fix_left is None and fix_right is None  # the estimate (0.15) stands
+    g.update(0.0, 0.0)
+    g.update(0.0, 0.1)  # joint start, left's first reading dropped
+    _, _, fix_left, _ = g.update(0.3, 0.3)
+    assert fix_left == pytest.approx(0.1)
+
+
+def test_dropout_in_motion_costs_nothing() -> None:
+    clean, faulty = Odometry(), Odometry()
+    for k in range(100):
+        sample = imp(k, 0.01 * k, 0.2, 0.2)
+        clean.feed(sample)
+        faulty.feed(WheelImpulses(seq=k, stamp=sample.stamp, left=0, right=sample.right) if k == 50 else sample)
+    assert faulty.x == pytest.approx(clean.x, abs=1e-12)
+    assert faulty.dropouts == 1
+
+
+def test_a_real_stop_is_exact_not_one_sample_too_long() -> None:
+    odo = Odometry()
+    for k in range(100):
+        odo.feed(imp(k, 0.01 * k, 0.2, 0.2))
+    at_last_motion = odo.x
+    provisional = odo.feed(imp(100, 1.0, 0.0, 0.0))  # first zero: held, as the original did
+    assert provisional.x > at_last_motion
+    final = odo.feed(imp(101, 1.01, 0.0, 0.0))  # second zero: it was a stop, the held step is taken back
+    assert final.x == pytest.approx(at_last_motion, abs=1e-12)
+    assert odo.retractions == 1 and odo.dropouts == 0 and final.v == 0.0
+
+
+def test_spikes_are_rejected() -> None:
+    clean, faulty = Odometry(), Odometry()
+    for k in range(100):
+        sample = imp(k, 0.01 * k, 0.2, 0.2)
+        clean.feed(sample)
+        faulty.feed(WheelImpulses(seq=k, stamp=sample.stamp, left=5000, right=-9000) if k % 25 == 3 else sample)
+    assert faulty.x == pytest.approx(clean.x, abs=1e-12)
+    assert faulty.spikes == 8
+
+
+def test_out_of_order_duplicate_and_backwards_samples_are_rejected() -> None:
+    odo = Odometry()
+    odo.feed(imp(5, 10.0, 0.1, 0.1))
+    odo.feed(imp(6, 10.01, 0.1, 0.1))
+    with pytest.raises(SampleRejected, match="duplicate or out-of-order"):
+        odo.feed(imp(6, 10.01, 0.1, 0.1))
+    with pytest.raises(SampleRejected, match="duplicate or out-of-order"):
+        odo.feed(imp(4, 9.0, 0.1, 0.1))
+    with pytest.raises(SampleRejected, match="stamp went backwards"):
+        odo.feed(imp(7, 10.0, 0.1, 0.1))
+    odo.feed(imp(9, 10.03, 0.1, 0.1))  # two missed polls: integrated honestly
+    assert odo.missed == 2
+
+
+def test_a_restarted_gateway_is_a_new_epoch_not_a_fault() -> None:
+    odo = Odometry()
+    for k in range(50):
+        odo.feed(imp(1000 + k, 0.01 * k, 0.2, 0.2))
+    x = odo.x
+    odo.feed(imp(0, 3.0, 0.2, 0.2))  # sequence starts over, stamp moves on
+    assert odo.x == x and odo.restarts == 1 and odo.events
+    odo.feed(imp(1, 3.01, 0.2, 0.2))
+    assert odo.x > x
+
+
+def test_a_long_gap_is_reported_not_guessed() -> None:
+    odo = Odometry(OdometryParams(max_gap=0.5))
+    odo.feed(imp(0, 0.0, 0.2, 0.2))
+    odo.feed(imp(1, 0.01, 0.2, 0.2))
+    x = odo.x
+    odo.feed(imp(2, 2.0, 0.2, 0.2))
+    assert odo.x == x and odo.gaps == 1 and "gap" in odo.events[-1]
+    odo.feed(imp(3, 2.2, 0.2, 0.2))  # 0.2 s: within the bound, integrated
+    assert odo.x == pytest.approx(x + 0.04, abs=1e-3)
+
+
+def test_reset_to_a_given_pose() -> None:
+    odo = Odometry()
+    odo.feed(imp(0, 0.0, 0.2, 0.2))
+    odo.feed(imp(1, 0.01, 0.2, 0.2))
+    pose = odo.reset(1.0, 2.0, 3.0)
+    assert (pose.x, pose.y, pose.yaw) == (1.0, 2.0, 3.0)
+    odo.feed(imp(2, 0.02, 0.2, 0.2))
+    assert odo.x < 1.0  # heading 3 rad points backwards
+
+
+# ----------------------------------------------------------------------------- streaming == batch
+
+
+def stream(messages: list[WheelImpulses], params: OdometryParams) -> tuple[list[tuple[float, ...]], Odometry]:
+    odo = Odometry(params)
+    poses = []
+    for msg in messages:
+        try:
+            odo.feed(msg)
+        except SampleRejected:
+            continue
+        poses.append((odo.stamp, odo.x, odo.y, odo.yaw, odo.v, odo.w))
+    return poses, odo
+
+
+@pytest.mark.parametrize("alpha", [0.0, 0.3, 0.9])
+def test_batch_equals_streaming_on_a_faulty_square(alpha: float) -> None:
+    params = OdometryParams(filter_alpha=alpha)
+    log = synth_log(square_legs(), dropout=0.05, spike=0.02, seed=3)
+    poses, odo = stream(log.messages(), params)
+    batch = run_batch(log.seq, log.stamp, log.left, log.right, params)
+    expected = np.array(poses)
+    got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
+    assert got.shape == expected.shape
+    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
+
+
+def test_batch_equals_streaming_on_an_irregular_log() -> None:
+    params = OdometryParams()
+    log = synth_log(square_legs(side=0.5), dropout=0.05, spike=0.02, seed=4)
+    msgs = log.messages()
+    msgs.insert(100, msgs[99])  # duplicate
+    msgs.insert(200, msgs[150])  # out of order
+    msgs[300] = WheelImpulses(seq=msgs[300].seq, stamp=msgs[299].stamp - 1.0, left=0, right=0)  # backwards
+    restart = [WheelImpulses(seq=i, stamp=m.stamp + 1.0, left=m.left, right=m.right) for i, m in enumerate(msgs[400:])]
+    msgs = msgs[:400] + restart  # gateway restarted, with a 1 s gap too
+    poses, odo = stream(msgs, params)
+    arr = np.array([(m.seq, m.stamp, m.left, m.right) for m in msgs])
+    batch = run_batch(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2], arr[:, 3], params)
+    np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw]), np.array(poses)[:, 1:4], atol=1e-9)
+    assert len(batch.rejected) == 3 and batch.restarts == odo.restarts == 1
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    st.lists(st.tuples(st.sampled_from([0, 0, 0, 150, -150, 203, 400, 5000]), st.sampled_from([0, 0, -211, 211, -400, -9000])), min_size=1, max_size=120),
+    st.lists(st.floats(0.0, 0.02), min_size=120, max_size=120),
+    st.floats(0.0, 0.95),
+)
+def test_batch_equals_streaming_on_random_logs(readings: list[tuple[int, int]], dts: list[float], alpha: float) -> None:
+    params = OdometryParams(filter_alpha=alpha, max_gap=0.015)
+    stamps = 1000.0 + np.cumsum(dts[: len(readings)])
+    msgs = [WheelImpulses(seq=k, stamp=float(t), left=l, right=r) for k, (t, (l, r)) in enumerate(zip(stamps, readings))]
+    poses, _ = stream(msgs, params)
+    batch = run_batch(np.arange(len(msgs)), stamps, np.array([m.left for m in msgs]), np.array([m.right for m in msgs]), params)
+    np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw, batch.v, batch.w]), np.array(poses)[:, 1:], atol=1e-9)
+
+
+def test_linear_scan_matches_the_recursion() -> None:
+    rng = np.random.default_rng(0)
+    a = rng.choice([0.0, 0.3, 1.0], 5000, p=[0.05, 0.9, 0.05])
+    b = rng.normal(size=5000)
+    y, prev = np.empty(5000), 0.0
+    for k in range(5000):
+        prev = a[k] * prev + b[k]
+        y[k] = prev
+    np.testing.assert_allclose(linear_scan(a, b), y, atol=1e-12)
+
+
+# ----------------------------------------------------------------------------- accuracy
+
+
+@pytest.mark.parametrize("clockwise", [False, True])
+def test_faulty_square_replay_closes_on_the_exact_answer(clockwise: bool) -> None:
+    legs = square_legs(side=2.0, clockwise=clockwise)
+    exact = exact_pose(legs)
+    assert exact[0] == pytest.approx(0.0, abs=1e-9) and exact[1] == pytest.approx(0.0, abs=1e-9)
+    log = synth_log(legs, dt_range=(0.005, 0.015), dropout=0.01, spike=0.005, seed=11)
+    result = run_batch(log.seq, log.stamp, log.left, log.right)
+    err_pos = math.hypot(result.x[-1] - exact[0], result.y[-1] - exact[1])
+    err_yaw = abs(math.remainder(result.yaw[-1] - exact[2], math.tau))
+    assert err_pos < 0.010, err_pos
+    assert err_yaw < 0.010, err_yaw
+    assert result.spikes > 0 and result.dropouts > 0 and result.retractions > 0
+    # the original driver (assumed period, held stops) misses by far more on the same log
+    ox, oy, oyaw = original_algorithm(log, period=0.010)
+    assert math.hypot(ox - exact[0], oy - exact[1]) > 2 * err_pos
+
+
+def test_stop_and_go_legs_are_exact() -> None:
+    legs = [Leg(0.3, 0, 0), Leg(1.0, 0.2, 0.2), Leg(0.3, 0, 0), Leg(1.0, 0.1, 0.3), Leg(0.3, 0, 0)]
+    log = synth_log(legs, dropout=0.0, spike=0.0, seed=2)
+    result = run_batch(log.seq, log.stamp, log.left, log.right)
+    exact = exact_pose(legs)
+    assert math.hypot(result.x[-1] - exact[0], result.y[-1] - exact[1]) < 2e-3
+    assert abs(result.yaw[-1] - exact[2]) < 5e-3
