@@ -70,6 +70,9 @@ class SimRobot:
         self._position_right: float | None = None
         self._deadline: float | None = None  # watchdog: stop at this time unless commanded again
         self._carry_left = self._carry_right = 0.0  # encoder quantisation carried between readings
+        self._read_at: float | None = None  # time of the previous speed reading
+        self._read_travel = (0.0, 0.0)  # rim travel at the previous speed reading
+        self._dropped = [False, False]  # the previous reading of each wheel was a dropout
         self.counters: dict[str, int] = {
             "requests": 0,
             "velocity_commands": 0,
@@ -165,33 +168,46 @@ class SimRobot:
             w=(self.speed_right - self.speed_left) / sep,
         )
 
-    def read_impulses(self) -> tuple[int, int]:
+    def read_impulses(self, now: float | None = None) -> tuple[int, int]:
         """Encoder impulses per second as the robot reports them (right mirrored), with faults.
 
-        Quantisation to whole impulses carries its remainder to the next
-        reading, like a counter read at intervals, so the reported rates are
-        unbiased on average.
+        Like an encoder counter read at intervals, a reading is the mean rate
+        since the previous reading (the current rate for the first one, or
+        after more than a second); whole impulses, the remainder carried to
+        the next reading so nothing is lost on average.
         """
-        left, self._carry_left = self._quantise(self.speed_left * self.params.impulses_per_meter_left, self._carry_left)
-        right, self._carry_right = self._quantise(
-            self.speed_right * self.params.impulses_per_meter_right, self._carry_right
-        )
+        now = self.t if now is None else now
+        self.advance(now)
+        interval = now - self._read_at if self._read_at is not None else 0.0
+        if 0.0 < interval <= 1.0:
+            rate_left = (self.travel_left - self._read_travel[0]) / interval
+            rate_right = (self.travel_right - self._read_travel[1]) / interval
+        else:
+            rate_left, rate_right = self.speed_left, self.speed_right
+        self._read_at = now
+        self._read_travel = (self.travel_left, self.travel_right)
+        left, self._carry_left = self._quantise(rate_left * self.params.impulses_per_meter_left, self._carry_left)
+        right, self._carry_right = self._quantise(rate_right * self.params.impulses_per_meter_right, self._carry_right)
         right = -right
-        return self._sensor_fault(left, self.params.impulses_per_meter_left), self._sensor_fault(
-            right, self.params.impulses_per_meter_right
+        return self._sensor_fault(left, self.params.impulses_per_meter_left, 0), self._sensor_fault(
+            right, self.params.impulses_per_meter_right, 1
         )
 
     @staticmethod
     def _quantise(rate: float, carry: float) -> tuple[int, float]:
-        if rate == 0.0:
+        if abs(rate) < 1e-9:
             return 0, 0.0
         value = rate + carry
         whole = round(value)
         return whole, value - whole
 
-    def _sensor_fault(self, value: int, impulses_per_meter: float) -> int:
+    def _sensor_fault(self, value: int, impulses_per_meter: float, wheel: int) -> int:
+        """Single-sample dropouts (never two in a row on a wheel) and impossible spikes."""
         faults = self.faults
-        if faults.dropout and value != 0 and self.rng.random() < faults.dropout:
+        dropped = self._dropped[wheel]
+        self._dropped[wheel] = False
+        if faults.dropout and value != 0 and not dropped and self.rng.random() < faults.dropout:
+            self._dropped[wheel] = True
             return 0
         if faults.spike and self.rng.random() < faults.spike:
             impossible = self.params.max_wheel_speed * impulses_per_meter * self.rng.uniform(2.0, 6.0)
@@ -243,7 +259,7 @@ class SimRobot:
             self.counters["prepare"] += 1
         elif command is Command.GET_LR_WHEEL_VELOCITY:
             self.counters["polls"] += 1
-            replies.append(protocol.encode_wheel_speeds(*self.read_impulses(), separator=separator))
+            replies.append(protocol.encode_wheel_speeds(*self.read_impulses(now), separator=separator))
         elif command is Command.GET_LR_WHEEL_POSITION:
             replies.append(protocol.encode_wheel_positions(*self.read_positions(), separator=separator))
         return replies
