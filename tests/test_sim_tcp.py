@@ -74,6 +74,8 @@ def test_drive_poll_and_watch_the_truth_move(sim: tuple[SimProcess, int]) -> Non
         assert client.speeds() == WheelSpeeds(0, 0)
         # a left turn: right wheel faster
         assert client.request(protocol.set_velocity(0.3, 0.2)) == [StatusReply("RECIEVE_OK")]
+        client.speeds()  # a reading is the mean rate since the previous one: this one is partial
+        time.sleep(0.02)
         speeds = client.speeds()
         assert speeds.left in (202, 203) and speeds.right in (-317, -316)
         wait_for(lambda: truths[-1].x > 0.05 and truths[-1].y > 0.0 and truths[-1].yaw > 0.0, what="a left turn")
@@ -130,6 +132,7 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
         assert client.request(protocol.set_velocity(0.1, 0.1)) == [StatusReply("FULL_BUFFER")]
         set_faults(full_buffer=0.0, garbage=1.0, split=1.0, glue=0.5)
         client.request(protocol.set_velocity(0.1, 0.1))
+        client.speeds()  # partial interval
         for _ in range(30):
             assert client.speeds().left in (0, 101, 102)
         assert client.malformed > 0  # garbage was seen, skipped, and every reply still arrived
@@ -188,6 +191,8 @@ def test_plain_sim_needs_no_zenoh(children: list[Child]) -> None:
     children.append(proc)
     client = RobotClient(proc.host, proc.control_port)
     client.request(protocol.set_velocity(0.2, 0.2))
+    client.speeds()  # partial interval
+    time.sleep(0.02)
     assert client.speeds().left in (202, 203)
     client.close()
     assert "truth on" not in proc.output()
