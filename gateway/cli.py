@@ -47,6 +47,21 @@ def build_parser() -> argparse.ArgumentParser:
     replay_parser = sub.add_parser("replay", help="replay a recorded impulse log through the odometry", description=replay.__doc__)
     replay.build_parser(replay_parser)
     replay_parser.set_defaults(func=replay.run)
+    from . import up
+
+    up_parser = sub.add_parser("up", help="run the demo: simulator, gateway and odometry in one command", description=up.__doc__)
+    up.build_parser(up_parser)
+    up_parser.set_defaults(func=up.run)
+    from . import square, teleop, watch
+
+    for name, module, text in (
+        ("teleop", teleop, "drive from the keyboard"),
+        ("watch", watch, "live view of pose, status, health and errors"),
+        ("square", square, "drive a square and report the odometry's closure error"),
+    ):
+        tool = sub.add_parser(name, help=text, description=module.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.build_parser(tool)
+        tool.set_defaults(func=module.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
     schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
     schema.set_defaults(func=_schema)

@@ -157,9 +157,10 @@ def _zero_run_before(zero: B, new_epoch: B) -> NDArray[np.int8]:
 
 def _glitches(
     c: F, c_other: F, new_epoch: B, alpha: float, limit: float
-) -> tuple[F, NDArray[np.float64], B, int]:
-    """One wheel's filter output, the revision of the previous step decided at each sample
-    (NaN = none), and its dropout count; the rules of :class:`~odometry_service.core.Glitches`."""
+) -> tuple[F, F, NDArray[np.float64], B, int]:
+    """One wheel's speeds to integrate, filtered speeds, the revision of the previous step decided
+    at each sample (NaN = none), and its dropout count; the rules of
+    :class:`~odometry_service.core.Glitches`."""
     zero = c == 0.0
     zero_o = c_other == 0.0
     zr_before = _zero_run_before(zero, new_epoch)
@@ -169,12 +170,11 @@ def _glitches(
     estimate = first_zero & ~prev_zero_o & ~zero_o
     with np.errstate(divide="ignore", invalid="ignore"):
         est_value = np.clip(np.where(estimate, prev_c * c_other / np.where(estimate, prev_co, 1.0), 0.0), -limit, limit)
-    a = np.where(
-        zero,
-        np.where(estimate, alpha, np.where(first_zero, 1.0, 0.0)),
-        np.where(zr_before >= 2, 0.0, alpha),
-    )
-    b = np.where(zero, np.where(estimate, (1.0 - alpha) * est_value, 0.0), np.where(zr_before >= 2, c, (1.0 - alpha) * c))
+    u = np.where(zero, np.where(first_zero, np.where(estimate, est_value, prev_c), 0.0), c)
+    moving = u != 0.0
+    reset = zr_before >= 2
+    a = np.where(moving & ~reset, alpha, 0.0)
+    b = np.where(moving, np.where(reset, u, (1.0 - alpha) * u), 0.0)
     y = linear_scan(a, b)
     # revisions of step k-1, decided at k (only where steps k-1 and k exist: two previous samples in the epoch)
     started = ~new_epoch
@@ -193,7 +193,7 @@ def _glitches(
         late_value = np.clip(np.where(late, c * prev_co / np.where(late, c_other, 1.0), 0.0), -limit, limit)
     revision = np.where(retract, 0.0, np.where(late, late_value, np.nan))
     dropouts = int(np.count_nonzero(first_zero)) - int(np.count_nonzero(retract))
-    return y, revision, retract | late, dropouts
+    return u, y, revision, retract | late, dropouts
 
 
 def _arc(yaw_before: F, d_left: F, d_right: F, separation: float) -> tuple[F, F, F]:
@@ -229,8 +229,8 @@ def run_batch(
     x_right = sign * np.asarray(right, np.float64) / p.impulses_per_meter_right
     c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
     c_right, spikes_r = _clean(x_right, x_left, new_epoch, p.spike_limit)
-    y_left, rev_left, fix_l, drops_l = _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit)
-    y_right, rev_right, fix_r, drops_r = _glitches(c_right, c_left, new_epoch, p.filter_alpha, p.spike_limit)
+    u_left, y_left, rev_left, fix_l, drops_l = _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit)
+    u_right, y_right, rev_right, fix_r, drops_r = _glitches(c_right, c_left, new_epoch, p.filter_alpha, p.spike_limit)
 
     dt = np.zeros(n)
     if n > 1:
@@ -238,8 +238,8 @@ def run_batch(
     dt[new_epoch] = 0.0
     has_step = ~new_epoch
     revised_at = fix_l | fix_r  # sample k revises step k-1
-    s_left = y_left.copy()
-    s_right = y_right.copy()
+    s_left = u_left.copy()
+    s_right = u_right.copy()
     fix_left = np.zeros(n, bool)
     fix_right = np.zeros(n, bool)
     fix_left[:-1] = fix_l[1:]
@@ -266,7 +266,7 @@ def run_batch(
         x_prev = np.where(k > 0, x[k - 1], 0.0)
         y_prev = np.where(k > 0, y[k - 1], 0.0)
         yaw_prev = np.where(k > 0, yaw[k - 1], 0.0)
-        held_l, held_r = y_left[k] * dt[k], y_right[k] * dt[k]
+        held_l, held_r = u_left[k] * dt[k], u_right[k] * dt[k]
         pdx, pdy, pdth = _arc(yaw_prev, held_l, held_r, p.wheel_separation)
         x = x.copy()
         y = y.copy()

@@ -77,39 +77,50 @@ def test_yaw_is_wrapped_in_the_published_pose() -> None:
 def test_filter_rules_on_one_wheel() -> None:
     g = Glitches(alpha=0.5, spike_limit=0.84)
 
-    def left(x: float) -> tuple[float, float | None]:
-        y_left, _, fix_left, _ = g.update(x, 0.0)  # the right wheel stands still: no cross-wheel estimate
-        return y_left, fix_left
+    def left(x: float) -> tuple[float, float, float | None]:
+        update = g.update(x, 0.0)  # the right wheel stands still: no cross-wheel estimate
+        return update.left, update.filtered_left, update.revise_left
 
-    assert left(0.4) == (0.4, None)  # from rest: no ramp
-    assert left(0.2) == (pytest.approx(0.3), None)  # low-pass
-    assert left(0.0) == (pytest.approx(0.3), None)  # a single zero is held
-    assert left(0.3) == (pytest.approx(0.3), None)  # ... and it was a dropout
-    assert left(0.0)[0] == pytest.approx(0.3)
-    assert left(0.0) == (0.0, 0.0)  # second zero: a real stop; the held step is revised to 0
-    assert left(0.0) == (0.0, None)
-    assert left(0.5) == (0.5, None)  # first non-zero after a stop resets
-    assert left(5.0) == (0.5, None)  # a spike is replaced by the previous reading
+    assert left(0.4) == (0.4, 0.4, None)  # from rest: no ramp
+    assert left(0.2) == (0.2, pytest.approx(0.3), None)  # low-pass on the published speed
+    assert left(0.0) == (0.2, pytest.approx(0.25), None)  # a single zero is held
+    assert left(0.3) == (0.3, pytest.approx(0.275), None)  # ... and it was a dropout
+    assert left(0.0)[0] == 0.3
+    assert left(0.0) == (0.0, 0.0, 0.0)  # second zero: a real stop; the held step is revised to 0
+    assert left(0.0) == (0.0, 0.0, None)
+    assert left(0.5) == (0.5, 0.5, None)  # first non-zero after a stop resets
+    assert left(5.0) == (0.5, 0.5, None)  # a spike is replaced by the last trustworthy reading
     assert g.spikes == 1 and g.dropouts == 1
 
 
 def test_a_dropout_while_both_wheels_change_keeps_the_curvature() -> None:
     g = Glitches(alpha=0.0, spike_limit=0.84)
     g.update(0.2, 0.1)
-    y_left, y_right, _, _ = g.update(0.0, 0.3)  # left dropped while the right went 0.1 -> 0.3
-    assert (y_left, y_right) == (pytest.approx(0.6), 0.3)
+    update = g.update(0.0, 0.3)  # left dropped while the right went 0.1 -> 0.3
+    assert (update.left, update.right) == (pytest.approx(0.6), 0.3)
 
 
 def test_a_dropout_at_a_joint_stop_is_kept_and_a_dropped_start_is_restored() -> None:
     g = Glitches(alpha=0.0, spike_limit=0.84)
     g.update(0.3, 0.3)
     g.update(0.0, 0.15)  # left dropped on the last, partial interval before the stop
-    _, _, fix_left, fix_right = g.update(0.0, 0.0)
-    assert fix_left is None and fix_right is None  # the estimate (0.15) stands
+    update = g.update(0.0, 0.0)
+    assert update.revise_left is None and update.revise_right is None  # the estimate (0.15) stands
     g.update(0.0, 0.0)
     g.update(0.0, 0.1)  # joint start, left's first reading dropped
-    _, _, fix_left, _ = g.update(0.3, 0.3)
-    assert fix_left == pytest.approx(0.1)
+    assert g.update(0.3, 0.3).revise_left == pytest.approx(0.1)
+
+
+def test_the_low_pass_does_not_bias_the_distance() -> None:
+    """A run that starts fast and ends slow: integrating filtered speeds would over-count."""
+    smooth, raw = Odometry(OdometryParams(filter_alpha=0.9)), Odometry(OdometryParams(filter_alpha=0.0))
+    speeds = [0.3] * 20 + [0.05] * 20 + [0.0, 0.0]
+    for k, v in enumerate(speeds):
+        sample = imp(k, 0.02 * k, v, v)
+        smooth.feed(sample)
+        raw.feed(sample)
+    assert smooth.x == pytest.approx(raw.x, abs=1e-12)
+    assert smooth.x == pytest.approx(0.3 * 19 * 0.02 + 0.05 * 20 * 0.02, abs=2e-3)
 
 
 def test_dropout_in_motion_costs_nothing() -> None:
