@@ -1,0 +1,203 @@
+"""The way a person meets the project: ``blackmetal up`` and the tools teleop, watch and square."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import pty
+import re
+import signal
+import socket
+import subprocess
+import sys
+import termios
+import time
+from collections.abc import Iterator
+
+import pytest
+import zenoh
+
+from gateway.teleop import Teleop, parse_keys
+from helpers import Child, client_config, free_port, wait_for
+from schemas import GatewayHealth, Pose, decode
+
+pytestmark = pytest.mark.integration
+
+
+class Up(Child):
+    def __init__(self, *extra: str) -> None:
+        self.zport = free_port()
+        self.endpoint = f"tcp/127.0.0.1:{self.zport}"
+        super().__init__(["-m", "gateway.cli", "up", "-l", self.endpoint, "--no-multicast-scouting", *extra])
+        match = self.wait_line(r"blackmetal is up: simulated robot on (\S+):(\d+) \(log (\d+)\)", timeout=60)
+        self.control_port = int(match.group(2))
+
+
+@pytest.fixture(scope="module")
+def up() -> Iterator[Up]:
+    demo = Up()
+    yield demo
+    demo.stop()
+
+
+def get(session: zenoh.Session, key: str, message_type: type, payload: bytes | None = None):  # type: ignore[no-untyped-def]
+    for reply in session.get(key, payload=payload, timeout=5):
+        if reply.ok is not None:
+            return decode(message_type, reply.ok.payload.to_bytes())
+    return None
+
+
+def tool(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "gateway.cli", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_up_prints_a_command_line_that_drives_the_robot(up: Up) -> None:
+    output = up.output()
+    line = next(line.strip() for line in output.splitlines() if line.strip().startswith("python3 -c"))
+    with zenoh.open(client_config(up.zport)) as session:
+        before = wait_for(lambda: get(session, "robot/pose", Pose), what="a pose")
+        result = subprocess.run(line.replace("python3", sys.executable, 1), shell=True, capture_output=True, text=True, timeout=60)
+        assert result.returncode == 0, result.stderr
+        pose = wait_for(lambda: (p := get(session, "robot/pose", Pose)) is not None and p.v == 0.0 and p, what="a stop")
+        moved = math.hypot(pose.x - before.x, pose.y - before.y)
+        assert moved > 0.3  # 3 s at 0.2 m/s on an arc
+        assert abs(math.remainder(pose.yaw - before.yaw, math.tau)) > 0.5
+    wait_for(lambda: re.search(r"link connected/connected \| poll \d+ Hz", up.output()), what="the live status line")
+
+
+def test_watch_shows_pose_status_health_and_errors(up: Up) -> None:
+    with zenoh.open(client_config(up.zport)) as session:
+        session.put("robot/cmd_vel", b"not json")  # something to show under errors
+        result = tool("watch", "-e", up.endpoint, "--no-multicast-scouting", "--duration", "3")
+    assert result.returncode == 0, result.stderr
+    out = result.stdout
+    assert "pose    x=" in out and "truth   x=" in out
+    assert "status  READY (1), direction NORTH" in out
+    assert "health  control connected" in out and "poll" in out
+
+
+def test_square_reports_a_closure_that_agrees_with_the_truth(up: Up) -> None:
+    result = tool("square", "-e", up.endpoint, "--no-multicast-scouting", "--size", "0.5", "--speed", "0.3", "--json", timeout=240)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "odometry closure" in result.stdout and "truth    closure" in result.stdout
+    (run,) = json.loads(result.stdout.strip().splitlines()[-1])
+    odo, truth = run["odometry"], run["truth"]
+    assert math.hypot(odo["dx_m"] - truth["dx_m"], odo["dy_m"] - truth["dy_m"]) < 0.02
+    assert abs(math.remainder(odo["dyaw_rad"] - truth["dyaw_rad"], math.tau)) < 0.03
+    assert truth["distance_m"] < 0.05  # it really drove a closed square
+
+
+def test_teleop_in_a_terminal(up: Up) -> None:
+    master, slave = pty.openpty()
+    before_attrs = termios.tcgetattr(slave)
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "gateway.cli", "teleop", "-e", up.endpoint, "--no-multicast-scouting"],
+        stdin=slave, stdout=slave, stderr=slave, env={**os.environ, "PYTHONUNBUFFERED": "1"},
+    )  # fmt: skip
+    screen = bytearray()
+
+    def read_screen() -> str:
+        import select
+
+        while select.select([master], [], [], 0)[0]:
+            try:
+                screen.extend(os.read(master, 65536))
+            except OSError:
+                break
+        return screen.decode(errors="replace")
+
+    def hold(key: bytes, seconds: float) -> None:
+        end = time.monotonic() + seconds
+        while time.monotonic() < end:  # a held key repeats, as a terminal does
+            os.write(master, key)
+            time.sleep(0.03)
+            read_screen()
+
+    try:
+        with zenoh.open(client_config(up.zport)) as session:
+            wait_for(lambda: "arrows/WASD drive" in read_screen(), what="teleop's help line")
+            start = get(session, "robot/sim/truth", Pose)
+            hold(b"\x1b[A", 1.5)  # up arrow: forward
+            forward = wait_for(lambda: (p := get(session, "robot/sim/truth", Pose)) is not None and p.v == 0.0 and p, what="a stop after release")
+            heading = (math.cos(start.yaw), math.sin(start.yaw))
+            assert (forward.x - start.x) * heading[0] + (forward.y - start.y) * heading[1] > 0.15
+            hold(b"a", 1.0)  # turn left
+            turned = wait_for(lambda: (p := get(session, "robot/sim/truth", Pose)) is not None and p.w == 0.0 and p, what="a stop")
+            assert math.remainder(turned.yaw - forward.yaw, math.tau) > 0.3
+            os.write(master, b"e")
+            wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.estop, what="e-stop engaged")
+            os.write(master, b"e")
+            wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and not h.estop, what="e-stop released")
+            assert "pose x=" in read_screen()
+            os.write(master, b"q")
+            assert proc.wait(20) == 0
+        assert termios.tcgetattr(slave) == before_attrs  # the terminal is restored
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+        os.close(master)
+        os.close(slave)
+
+
+def test_tools_fail_clearly_when_nothing_answers() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    for name in ("watch", "square"):
+        result = tool(name, "-e", endpoint, "--no-multicast-scouting", "--wait", "1", timeout=60)
+        assert result.returncode == 1
+        assert "no gateway answered" in result.stderr and "Traceback" not in result.stderr
+    master, slave = pty.openpty()
+    try:
+        proc = subprocess.run(
+            [sys.executable, "-m", "gateway.cli", "teleop", "-e", endpoint, "--no-multicast-scouting", "--wait", "1"],
+            stdin=slave, capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+        assert proc.returncode == 1 and "no gateway answered" in proc.stderr
+    finally:
+        os.close(master)
+        os.close(slave)
+    result = subprocess.run([sys.executable, "-m", "gateway.cli", "teleop"], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2 and "needs a terminal" in result.stderr
+
+
+def test_up_stops_everything_on_ctrl_c_within_three_seconds() -> None:
+    demo = Up()
+    try:
+        with socket.create_connection(("127.0.0.1", demo.control_port), timeout=5):
+            pass  # the simulator is there
+        start = time.monotonic()
+        assert demo.stop(signal.SIGINT) == 0
+        assert time.monotonic() - start < 3.0
+        with pytest.raises(OSError):
+            socket.create_connection(("127.0.0.1", demo.control_port), timeout=2).close()
+    finally:
+        demo.stop()
+
+
+def test_up_reports_a_child_that_dies() -> None:
+    demo = Up()
+    try:
+        found = subprocess.run(["pgrep", "-f", f"odometry_service.*-e {demo.endpoint}"], capture_output=True, text=True)
+        pids = [int(p) for p in found.stdout.split()]
+        assert pids, "odometry child not found"
+        for pid in pids:
+            os.kill(pid, signal.SIGKILL)
+        assert demo.proc.wait(20) == 1
+        demo._reader.join(5)
+        assert re.search(r"odometry exited with code -9; its last lines:\n\s+.*odometry ready", demo.output())
+    finally:
+        demo.stop()
+
+
+def test_teleop_keys_to_commands() -> None:
+    assert parse_keys(b"w\x1b[Aa \x1b[Dq\x03") == ["w", "up", "a", "space", "left", "q", "quit"]
+    t = Teleop(speed=0.2, turn_rate=0.8, hold=0.5, rate=10.0)
+    (kind, twist), = t.on_key("up", 0.0)
+    assert kind == "cmd_vel" and twist.linear.x == 0.2  # type: ignore[attr-defined]
+    assert t.on_key("up", 0.03) == []  # key repeat faster than 10 Hz: no extra message
+    assert t.tick(0.05) == [] and len(t.tick(0.11)) == 1  # 10 Hz while held
+    (kind, stop), = t.tick(0.7)  # released: one zero command
+    assert stop.linear.x == 0.0 and t.tick(0.8) == []  # type: ignore[attr-defined]
+    msgs = t.on_key("e", 1.0)
+    assert msgs[0][0] == "estop" and msgs[0][1].engaged is True  # type: ignore[attr-defined]
