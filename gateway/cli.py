@@ -62,6 +62,11 @@ def build_parser() -> argparse.ArgumentParser:
         tool = sub.add_parser(name, help=text, description=module.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(tool)
         tool.set_defaults(func=module.run)
+    from . import bench
+
+    bench_parser = sub.add_parser("bench", help="measure latency, poll rate, replay speed, memory", description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    bench.build_parser(bench_parser)
+    bench_parser.set_defaults(func=bench.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
     schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
     schema.set_defaults(func=_schema)

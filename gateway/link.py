@@ -170,23 +170,15 @@ class Link:
                 await _sleep_or_stop(stop, BACKOFF_FIRST_S)
 
     async def _read(self, reader: asyncio.StreamReader, stop: asyncio.Event) -> str:
-        stop_wait = asyncio.ensure_future(stop.wait())
-        try:
-            while True:
-                read = asyncio.ensure_future(reader.read(65536))
-                done, _ = await asyncio.wait({read, stop_wait}, return_when=asyncio.FIRST_COMPLETED)
-                if read not in done:
-                    read.cancel()
-                    return "gateway stopping"
-                data = read.result()
-                if not data:
-                    return "closed by the robot"
-                now = self.clock()
-                self._last_rx = now
-                self._waiting_since = None
-                self.on_data(data, self.wallclock())
-        finally:
-            stop_wait.cancel()
+        """Read until EOF; stopping closes the writer, which ends the read with EOF."""
+        while not stop.is_set():
+            data = await reader.read(65536)
+            if not data:
+                return "closed by the robot" if not stop.is_set() else "gateway stopping"
+            self._last_rx = self.clock()
+            self._waiting_since = None
+            self.on_data(data, self.wallclock())
+        return "gateway stopping"
 
 
 async def _sleep_or_stop(stop: asyncio.Event, delay: float) -> None:

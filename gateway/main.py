@@ -55,6 +55,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--keepalive", type=float, help="repeat an unchanged motion command this often, s (default 5)")
     parser.add_argument("--linear-accel", type=float, help="acceleration limit, m/s^2 (default off)")
     parser.add_argument("--angular-accel", type=float, help="angular acceleration limit, rad/s^2 (default off)")
+    parser.add_argument("--max-command-hz", type=float, help="cap on velocity commands per second to the robot; a flood is coalesced to the latest (default 500, so the latest command waits at most 2 ms)")
     parser.add_argument("--prefix", help="key-expression prefix (default robot)")
     add_zenoh_arguments(parser)
     return parser

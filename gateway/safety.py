@@ -32,6 +32,8 @@ class SafetySettings:
     plausible_angular: float = 50.0
     #: How often a command answered FULL_BUFFER is re-sent before giving up until the next change.
     full_buffer_retries: int = 5
+    #: At most this many velocity commands per second reach the robot; a flood is coalesced to the latest.
+    max_command_hz: float = 500.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -59,6 +61,8 @@ class Governor:
         self._last_sent_at = -math.inf
         self._retries = 0
         self._retry_pending = False
+        #: When a rate-limited command may go out (None: nothing is waiting).
+        self.hold_until: float | None = None
 
     # ------------------------------------------------------------------ inputs
 
@@ -143,6 +147,12 @@ class Governor:
         s = self.settings
         wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
         wheels = wheels.rounded()
+        if wheels != self._last_sent and not self._retry_pending:
+            earliest = self._last_sent_at + 1.0 / s.max_command_hz
+            if now < earliest and self._last_sent is not None:
+                self.hold_until = earliest  # coalesce: the latest wanted command goes out then
+                return None
+        self.hold_until = None
         if self._retry_pending:
             self._retry_pending = False
             if wheels == self._last_sent:

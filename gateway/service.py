@@ -113,6 +113,7 @@ class GatewayService:
         self._last_status_at = -1e9
         self._poll_times: list[float] = []
         self._stopping = False
+        self._pump_timer: asyncio.TimerHandle | None = None
         self._cmd_key = f"{settings.prefix}/cmd_vel"
         self._estop_key = f"{settings.prefix}/estop"
         self._robot_key = f"robot:{connector.describe('control')}"
@@ -197,6 +198,8 @@ class GatewayService:
                 gov.emg_stop_needed = False
                 self.counters.commands_sent += 1
         command = gov.next_command(now)
+        if gov.hold_until is not None and self._pump_timer is None:
+            self._pump_timer = asyncio.get_running_loop().call_later(max(gov.hold_until - now, 0.0), self._pump_later)
         if command is not None:
             wheels = command.wheels
             if self._send(protocol.set_velocity(wheels.right, wheels.left)):
@@ -205,6 +208,10 @@ class GatewayService:
                     self.counters.keepalives += 1
                 elif command.reason == "retry":
                     self.counters.full_buffer_retries += 1
+
+    def _pump_later(self) -> None:
+        self._pump_timer = None
+        self._pump(self.clock())
 
     def _poll(self) -> None:
         if not self.control.connected:

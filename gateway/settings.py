@@ -23,6 +23,7 @@ class GatewaySettings:
     keepalive: float = 5.0
     linear_accel: float | None = None
     angular_accel: float | None = None
+    max_command_hz: float = 500.0
     prefix: str = facts.DEFAULT_PREFIX
     #: A request unanswered this long is given up (the original driver used 200 ms).
     reply_timeout: float = 0.5
@@ -51,6 +52,7 @@ class GatewaySettings:
             "log_silence_timeout": self.log_silence_timeout,
             "connect_timeout": self.connect_timeout,
             "health_period": self.health_period,
+            "max_command_hz": self.max_command_hz,
         }
         for name, value in positive.items():
             if not value > 0:
@@ -82,4 +84,5 @@ class GatewaySettings:
             keepalive=self.keepalive,
             linear_accel=self.linear_accel,
             angular_accel=self.angular_accel,
+            max_command_hz=self.max_command_hz,
         )

@@ -30,7 +30,7 @@ class GatewayZenoh:
         self.session = session
         self.prefix = prefix
         self._impulses = session.declare_publisher(
-            f"{prefix}/wheels/impulses", encoding=JSON, congestion_control=zenoh.CongestionControl.DROP
+            f"{prefix}/wheels/impulses", encoding=JSON, congestion_control=zenoh.CongestionControl.DROP, express=True
         )
         self._status = session.declare_publisher(f"{prefix}/status", encoding=JSON)
         self._health = session.declare_publisher(f"{prefix}/gateway/health", encoding=JSON)

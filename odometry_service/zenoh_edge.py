@@ -22,7 +22,7 @@ class OdometryZenoh:
         self.session = session
         self.prefix = prefix
         self.inbox: queue.SimpleQueue[tuple[str, Any]] = queue.SimpleQueue()
-        self._pose = session.declare_publisher(f"{prefix}/pose", encoding=JSON)
+        self._pose = session.declare_publisher(f"{prefix}/pose", encoding=JSON, express=True)  # no batching: latency
         self._errors = session.declare_publisher(f"{prefix}/errors", encoding=JSON)
         self._entities: list[Any] = [self._pose, self._errors]
 

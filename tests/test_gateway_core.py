@@ -90,7 +90,7 @@ def test_command_timeout_brakes_and_shows_in_state() -> None:
 
 def test_timeout_zero_disables_it_and_keepalive_repeats_motion() -> None:
     gov = governor(cmd_timeout=0.0, keepalive=5.0)
-    gov.next_command(0.0)
+    gov.next_command(-1.0)
     gov.on_twist(twist(0.2), 0.0)
     gov.next_command(0.0)
     sent = [t for t in range(1, 31) if (c := gov.next_command(float(t))) is not None and c.reason == "keepalive"]
@@ -142,7 +142,7 @@ def test_estop_latched_across_a_reconnect_is_reasserted() -> None:
 
 def test_full_buffer_retries_are_bounded() -> None:
     gov = governor(full_buffer_retries=3)
-    gov.next_command(0.0)
+    gov.next_command(-1.0)
     gov.on_twist(twist(0.2), 0.0)
     cmd = gov.next_command(0.0)
     assert cmd is not None
@@ -154,6 +154,21 @@ def test_full_buffer_retries_are_bounded() -> None:
             retries += 1
     assert retries == 3
     assert not gov.on_full_buffer(WheelSpeeds(0.5, 0.5))  # a superseded command is not retried
+
+
+def test_a_flood_is_coalesced_to_the_latest_command() -> None:
+    gov = governor(max_command_hz=100.0, cmd_timeout=0.0)
+    gov.next_command(0.0)
+    sent = []
+    for i in range(1, 101):  # 100 different commands within 0.1 s (1 kHz)
+        now = 1.0 + i * 0.001
+        gov.on_twist(twist(0.001 * i), now)
+        if (cmd := gov.next_command(now)) is not None:
+            sent.append((now, cmd.wheels.left))
+    assert len(sent) <= 11  # at most 100 Hz reach the robot
+    assert gov.hold_until is not None and gov.hold_until <= 1.1 + 0.01
+    final = gov.next_command(gov.hold_until)
+    assert final is not None and final.wheels.left == pytest.approx(0.1)  # the latest one, not a backlog
 
 
 def test_implausible_commands_are_rejected_not_scaled() -> None:

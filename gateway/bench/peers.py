@@ -1,12 +1,9 @@
-"""Latency and poll-rate measurements of the gateway, each against a baseline from the same run.
+"""The benchmark's peers: a minimal robot and a Zenoh echo, each in its own process.
 
-* ``cmd_vel`` put -> bytes at the robot's socket, next to one plain Zenoh
-  hop between two Python processes (half a ping-pong round trip);
-* sustained poll rate and worst gap at a given ``--poll-hz``.
-
-The robot here is a minimal in-process TCP server (no physics), so that
-simulator costs do not pollute the gateway's figures. Figures are printed;
-nothing is asserted.
+The minimal robot answers at once (status for every command, zeros for
+polls, a log report per second) and records when velocity commands and polls
+arrive, so that simulator costs do not pollute the gateway's figures and its
+thread never competes with the measuring client for the GIL.
 """
 
 from __future__ import annotations
@@ -25,8 +22,8 @@ import threading
 import time
 from dataclasses import dataclass, field
 
-from . import protocol
-from .protocol import Command, Request, RequestDecoder
+from .. import protocol
+from ..protocol import Command, Request, RequestDecoder
 
 #: Publish bench messages without batching (what a latency-minded client does).
 EXPRESS = os.environ.get("BLACKMETAL_BENCH_EXPRESS", "1") == "1"
@@ -56,6 +53,7 @@ class MiniRobot:
     control_port: int = 0
     log_port: int = 0
     arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> monotonic arrival
+    velocity_commands: int = 0
     poll_times: list[float] = field(default_factory=list)
     arrived: threading.Condition = field(default_factory=threading.Condition)
 
@@ -112,6 +110,7 @@ class MiniRobot:
                     out += protocol.encode_status()
                     if request.command is Command.SET_LR_WHEEL_VELOCITY:
                         with self.arrived:
+                            self.velocity_commands += 1
                             self.arrivals[float(request.right or 0.0)] = now
                             self.arrived.notify_all()
                     elif request.command is Command.GET_LR_WHEEL_VELOCITY:
@@ -137,7 +136,12 @@ def _robot_main() -> None:
     for line in sys.stdin:
         if line.strip() == "dump":
             with robot.arrived:
-                print(json.dumps({"arrivals": list(robot.arrivals.items()), "polls": robot.poll_times}), flush=True)
+                print(
+                    json.dumps(
+                        {"arrivals": list(robot.arrivals.items()), "polls": robot.poll_times, "commands": robot.velocity_commands}
+                    ),
+                    flush=True,
+                )
         elif line.strip() == "quit":
             break
     robot.stop()
@@ -192,6 +196,10 @@ def _echo_main(port: int) -> None:
             pub.put(payload)
 
 
+def percentiles(samples: list[float]) -> dict[str, float]:
+    return _percentiles(samples)
+
+
 def zenoh_hop(samples: int = 300) -> dict[str, float]:
     """Half the ping-pong round trip between this process and a plain echo process."""
     import zenoh
@@ -222,119 +230,6 @@ def zenoh_hop(samples: int = 300) -> dict[str, float]:
             child.wait(3)
         except subprocess.TimeoutExpired:
             child.kill()
-    return _percentiles(hops)
+    return {**_percentiles(hops), "rtt_p50_ms": 2 * _percentiles(hops)["p50_ms"], "rtt_p99_ms": 2 * _percentiles(hops)["p99_ms"]}
 
 
-def _start_gateway(robot: "RobotProcess", zport: int, poll_hz: float) -> subprocess.Popen[str]:
-    proc = subprocess.Popen(
-        [
-            sys.executable, "-m", "gateway",
-            "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
-            "--poll-hz", str(poll_hz), "--cmd-timeout", "0",
-            "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}",
-        ],
-        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-        env={**os.environ, "PYTHONUNBUFFERED": "1"},
-    )  # fmt: skip
-    assert proc.stdout is not None
-    for line in proc.stdout:
-        if "gateway ready" in line:
-            break
-    threading.Thread(target=lambda: [None for _ in proc.stdout], daemon=True).start()  # type: ignore[union-attr]
-    return proc
-
-
-def _wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
-    while not robot.dump()["polls"]:
-        if time.monotonic() > deadline:
-            raise RuntimeError("the gateway never polled the robot")
-        time.sleep(0.1)
-
-
-def cmd_latency(samples: int = 300, poll_hz: float = 50.0) -> dict[str, float]:
-    """``cmd_vel`` put -> velocity command bytes read at the robot's socket (CLOCK_MONOTONIC is system-wide)."""
-    import zenoh
-
-    robot = RobotProcess()
-    zport = free_port()
-    gateway = _start_gateway(robot, zport, poll_hz)
-    try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
-            pub = session.declare_publisher("robot/cmd_vel", express=EXPRESS)
-            _wait_polls(robot)
-            time.sleep(0.5)
-            sent: dict[float, float] = {}
-            for i in range(samples + 50):
-                speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
-                start = time.monotonic()
-                pub.put(b'{"linear":{"x":%.6f}}' % speed)
-                if i >= 50:
-                    sent[speed] = start
-                time.sleep(random.uniform(0.005, 0.015))
-            time.sleep(0.5)
-            arrivals = dict((float(k), v) for k, v in robot.dump()["arrivals"])
-    finally:
-        gateway.terminate()
-        gateway.wait(5)
-        robot.close()
-    latencies = [arrivals[speed] - start for speed, start in sent.items() if speed in arrivals]
-    return _percentiles(latencies)
-
-
-def poll_rate(poll_hz: float, seconds: float = 5.0) -> dict[str, float]:
-    """Sustained poll rate and worst gap, as seen by the robot."""
-    robot = RobotProcess()
-    gateway = _start_gateway(robot, free_port(), poll_hz)
-    try:
-        _wait_polls(robot)
-        time.sleep(1.0)
-        start = len(robot.dump()["polls"])
-        time.sleep(seconds)
-        window = robot.dump()["polls"][start:]
-    finally:
-        gateway.terminate()
-        gateway.wait(5)
-        robot.close()
-    gaps = [b - a for a, b in zip(window, window[1:])]
-    rate = (len(window) - 1) / (window[-1] - window[0])
-    return {
-        "asked_hz": poll_hz,
-        "rate_hz": rate,
-        "ratio": rate / poll_hz,
-        "worst_gap_ms": max(gaps) * 1e3,
-        "worst_gap_periods": max(gaps) * poll_hz,
-        "median_gap_ms": statistics.median(gaps) * 1e3,
-    }
-
-
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="python -m gateway.bench", description=__doc__)
-    parser.add_argument("what", nargs="?", default="all", choices=["all", "echo", "robot"])
-    parser.add_argument("port", nargs="?", type=int)
-    parser.add_argument("--samples", type=int, default=300)
-    args = parser.parse_args(argv)
-    if args.what == "echo":
-        _echo_main(args.port)
-        return 0
-    if args.what == "robot":
-        _robot_main()
-        return 0
-    hop = zenoh_hop(args.samples)
-    cmd = cmd_latency(args.samples)
-    print(f"zenoh hop (baseline):      p50 {hop['p50_ms']:.3f} ms  p99 {hop['p99_ms']:.3f} ms")
-    print(
-        f"cmd_vel -> robot socket:   p50 {cmd['p50_ms']:.3f} ms  p99 {cmd['p99_ms']:.3f} ms"
-        f"  ({cmd['p50_ms'] / hop['p50_ms']:.2f}x the hop at p50)"
-    )
-    for hz in (100.0, 200.0):
-        rate = poll_rate(hz)
-        print(
-            f"poll at {hz:g} Hz:            {rate['rate_hz']:.1f} Hz ({100 * rate['ratio']:.1f}%),"
-            f" worst gap {rate['worst_gap_ms']:.1f} ms ({rate['worst_gap_periods']:.2f} periods)"
-        )
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())
