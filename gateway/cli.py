@@ -62,7 +62,15 @@ def build_parser() -> argparse.ArgumentParser:
         tool = sub.add_parser(name, help=text, description=module.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(tool)
         tool.set_defaults(func=module.run)
-    from . import bench
+    from . import bench, robots, router
+
+    for name, module, text in (
+        ("router", router, "run a Zenoh router from the Python wheel"),
+        ("robots", robots, "list the robots whose gateway is alive"),
+    ):
+        tool = sub.add_parser(name, help=text, description=module.__doc__)
+        module.build_parser(tool)
+        tool.set_defaults(func=module.run)
 
     bench_parser = sub.add_parser("bench", help="measure latency, poll rate, replay speed, memory", description=bench.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     bench.build_parser(bench_parser)

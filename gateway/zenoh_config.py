@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -30,6 +31,10 @@ class ZenohSettings:
     listen: list[str] = field(default_factory=list)
     config_file: str | None = None
     no_multicast_scouting: bool = False
+    #: Zenoh user/password authentication; taken from the environment
+    #: (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD) so no secret sits on a command line.
+    user: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_USER") or None)
+    password: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_PASSWORD") or None)
 
     @property
     def given(self) -> bool:
@@ -58,6 +63,13 @@ class ZenohSettings:
                 conf.insert_json5("listen/endpoints", json.dumps(self.listen))
             if self.no_multicast_scouting:
                 conf.insert_json5("scouting/multicast/enabled", "false")
+            if self.user is not None:
+                if self.password is None:
+                    raise ConfigError("BLACKMETAL_ZENOH_USER is set but BLACKMETAL_ZENOH_PASSWORD is not")
+                conf.insert_json5("transport/auth/usrpwd/user", json.dumps(self.user))
+                conf.insert_json5("transport/auth/usrpwd/password", json.dumps(self.password))
+        except ConfigError:
+            raise
         except Exception as exc:
             raise ConfigError(f"invalid Zenoh setting: {exc}") from None
         return conf

@@ -59,11 +59,11 @@ def client_config(port: int) -> zenoh.Config:
 class Child:
     """A child process whose output is collected by a thread (so pipes never fill)."""
 
-    def __init__(self, args: list[str], env: dict[str, str] | None = None) -> None:
+    def __init__(self, args: list[str], env: dict[str, str] | None = None, launcher: list[str] | None = None) -> None:
         full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
         self.args = args
         self.proc = subprocess.Popen(
-            [sys.executable, *args],
+            [*(launcher or []), sys.executable, *args],
             stdout=subprocess.PIPE,
             stderr=subprocess.STDOUT,
             stdin=subprocess.DEVNULL,
@@ -115,8 +115,8 @@ class Child:
 class SimProcess(Child):
     """``blackmetal sim`` on free ports; ``control_port``/``log_port`` once ready."""
 
-    def __init__(self, *extra: str) -> None:
-        super().__init__(["-m", "gateway.cli", "sim", "--control-port", "0", "--log-port", "0", *extra])
+    def __init__(self, *extra: str, launcher: list[str] | None = None) -> None:
+        super().__init__(["-m", "gateway.cli", "sim", "--control-port", "0", "--log-port", "0", *extra], launcher=launcher)
         match = self.wait_line(r"control (\S+):(\d+), log (\S+):(\d+)")
         self.host = match.group(1)
         self.control_port = int(match.group(2))

@@ -1,0 +1,286 @@
+"""deploy/: the router configurations, access control, TLS and fleets, each tested on loopback.
+
+The routers run from the Python wheel (``blackmetal router``) with the files in
+deploy/zenoh, their ports (and credential and certificate paths) overridden.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from gateway.config import loads_json5
+from helpers import TIMEOUT, Child, SimProcess, free_port, wait_for
+from schemas import Pose, decode
+
+pytestmark = pytest.mark.integration
+
+ROOT = Path(__file__).resolve().parent.parent
+DEPLOY = ROOT / "deploy"
+
+
+def config_copy(name: str, tmp_path: Path, edit=None) -> Path:  # type: ignore[no-untyped-def]
+    """A deploy/zenoh file, parsed (so it must be valid JSON5), edited, written as JSON."""
+    data = loads_json5((DEPLOY / "zenoh" / name).read_text())
+    if edit is not None:
+        edit(data)
+    out = tmp_path / name.replace(".json5", ".json")
+    out.write_text(json.dumps(data))
+    return out
+
+
+class Router(Child):
+    def __init__(self, config: Path, endpoint: str) -> None:
+        super().__init__(["-m", "gateway.cli", "router", "-c", str(config), "-l", endpoint])
+        self.endpoint = endpoint
+        self.wait_line("blackmetal router ready")
+
+
+def client_conf(endpoint: str, user: str | None = None, password: str | None = None, extra: dict | None = None) -> zenoh.Config:  # type: ignore[type-arg]
+    conf: dict = {"mode": "client", "connect": {"endpoints": [endpoint]}, "scouting": {"multicast": {"enabled": False}}}  # type: ignore[type-arg]
+    if user is not None:
+        conf["transport"] = {"auth": {"usrpwd": {"user": user, "password": password}}}
+    if extra:
+        conf.setdefault("transport", {}).update(extra)
+    return zenoh.Config.from_json5(json.dumps(conf))
+
+
+def start_robot(children: list[Child], endpoint: str, prefix: str = "robot", creds: dict[str, str] | None = None,
+                extra: tuple[str, ...] = ()) -> SimProcess:  # fmt: skip
+    """Simulator, gateway and odometry, each a Zenoh client of the router."""
+    zargs = ["-m", "client", "-e", endpoint, "--no-multicast-scouting", "--prefix", prefix, *extra]
+
+    def env(user: str) -> dict[str, str]:
+        return {} if creds is None else {"BLACKMETAL_ZENOH_USER": user, "BLACKMETAL_ZENOH_PASSWORD": creds[user]}
+
+    old = {k: os.environ.get(k) for k in ("BLACKMETAL_ZENOH_USER", "BLACKMETAL_ZENOH_PASSWORD")}
+    try:
+        os.environ.update(env("sim"))
+        sim = SimProcess(*zargs)
+    finally:
+        for key, value in old.items():
+            if value is None:
+                os.environ.pop(key, None)
+            else:
+                os.environ[key] = value
+    children.append(sim)
+    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], env=env("gateway"))
+    odometry = Child(["-m", "odometry_service", *zargs], env=env("odometry"))
+    children.extend([gateway, odometry])
+    gateway.wait_line("gateway ready")
+    odometry.wait_line("odometry ready")
+    return sim
+
+
+def get_pose(session: zenoh.Session, key: str) -> Pose | None:
+    for reply in session.get(key, timeout=3):
+        if reply.ok is not None:
+            return decode(Pose, reply.ok.payload.to_bytes())
+    return None
+
+
+def drive(session: zenoh.Session, prefix: str, seconds: float = 1.5, v: float = 0.2, w: float = 0.0) -> None:
+    end = time.monotonic() + seconds
+    while time.monotonic() < end:
+        session.put(f"{prefix}/cmd_vel", json.dumps({"linear": {"x": v}, "angular": {"z": w}}))
+        time.sleep(0.1)
+
+
+def wait_services(session: zenoh.Session, prefix: str = "robot") -> None:
+    wait_for(lambda: get_pose(session, f"{prefix}/pose") is not None and get_pose(session, f"{prefix}/sim/truth") is not None,
+             what=f"{prefix} services through the router")  # fmt: skip
+    wait_for(
+        lambda: any(r.ok is not None for r in session.get(f"{prefix}/gateway/health", timeout=3)), what="the gateway's health"
+    )
+
+
+def test_router_config_carries_a_client_mode_drive(children: list[Child], tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = Router(config_copy("router.json5", tmp_path), endpoint)
+    children.append(router)
+    for name in ("gateway.json5", "odometry.json5", "operator.json5", "client-tls.json5", "router-secure.json5", "router-tls.json5"):
+        zenoh.Config.from_file(str(DEPLOY / "zenoh" / name))  # every file is a valid Zenoh config
+    start_robot(children, endpoint)
+    with zenoh.open(client_conf(endpoint)) as session:
+        wait_services(session)
+        drive(session, "robot", v=0.2, w=0.3)
+        wait_for(lambda: (p := get_pose(session, "robot/pose")) is not None and p.x > 0.1 and p.yaw > 0.1, what="the pose to follow")
+        truth = get_pose(session, "robot/sim/truth")
+        pose = get_pose(session, "robot/pose")
+        assert truth is not None and pose is not None
+        assert math.hypot(truth.x - pose.x, truth.y - pose.y) < 0.02
+
+
+def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(children: list[Child], tmp_path: Path) -> None:
+    creds = {user: f"pw-{user}-{os.getpid()}" for user in ("operator", "viewer", "gateway", "odometry", "sim")}
+    cred_file = tmp_path / "credentials.txt"
+    cred_file.write_text("".join(f"{u}:{p}\n" for u, p in creds.items()))
+
+    def edit(data: dict) -> None:  # type: ignore[type-arg]
+        data["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred_file)
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
+    start_robot(children, endpoint, creds=creds)
+    with zenoh.open(client_conf(endpoint, "operator", creds["operator"])) as operator, zenoh.open(
+        client_conf(endpoint, "viewer", creds["viewer"])
+    ) as viewer:
+        wait_services(operator)
+        wait_services(viewer)  # the viewer reads pose, truth and health
+        start = get_pose(viewer, "robot/sim/truth")
+        assert start is not None
+        drive(viewer, "robot", seconds=1.5)  # denied by the router: never reaches the gateway
+        time.sleep(0.5)
+        still = get_pose(viewer, "robot/sim/truth")
+        assert still is not None and math.hypot(still.x - start.x, still.y - start.y) < 1e-9
+        poses: list[Pose] = []
+        viewer.declare_subscriber("robot/pose", lambda s: poses.append(decode(Pose, s.payload.to_bytes())))
+        drive(operator, "robot", seconds=1.5)
+        moved = wait_for(lambda: (p := get_pose(operator, "robot/sim/truth")) is not None and p.x - start.x > 0.1 and p, what="the operator's drive")
+        assert moved.x > start.x
+        wait_for(lambda: poses and poses[-1].x > 0.1, what="the viewer to see the pose move")
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(client_conf(endpoint, "operator", "wrong-password"))
+
+
+def test_tls_drive_and_a_client_without_the_ca_is_refused(children: list[Child], tmp_path: Path) -> None:
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed: cannot make test certificates")
+    certs = tmp_path / "certs"
+    subprocess.run(["bash", str(DEPLOY / "tls" / "make-certs.sh"), str(certs), "localhost"], check=True, capture_output=True, timeout=60)
+
+    def edit(data: dict) -> None:  # type: ignore[type-arg]
+        tls = data["transport"]["link"]["tls"]
+        tls["root_ca_certificate"] = str(certs / "ca.pem")
+        tls["listen_private_key"] = str(certs / "router.key")
+        tls["listen_certificate"] = str(certs / "router.pem")
+
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router-tls.json5", tmp_path, edit), endpoint))
+
+    def client_edit(data: dict) -> None:  # type: ignore[type-arg]
+        data["transport"]["link"]["tls"]["root_ca_certificate"] = str(certs / "ca.pem")
+
+    client_file = config_copy("client-tls.json5", tmp_path, client_edit)
+    start_robot(children, endpoint, extra=("-c", str(client_file)))
+    tls = {"link": {"tls": {"root_ca_certificate": str(certs / "ca.pem")}}}
+    with zenoh.open(client_conf(endpoint, extra=tls)) as session:
+        wait_services(session)
+        drive(session, "robot")
+        wait_for(lambda: (p := get_pose(session, "robot/pose")) is not None and p.x > 0.1, what="a drive over TLS")
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(client_conf(endpoint))  # no CA: the router's certificate is not trusted
+
+
+def test_a_fleet_of_two_robots_on_one_router(children: list[Child], tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router.json5", tmp_path), endpoint))
+    for prefix in ("fleet/a", "fleet/b"):
+        start_robot(children, endpoint, prefix=prefix)
+    with zenoh.open(client_conf(endpoint)) as session:
+        wait_services(session, "fleet/a")
+        wait_services(session, "fleet/b")
+        listed = subprocess.run(
+            [sys.executable, "-m", "gateway.cli", "robots", "-m", "client", "-e", endpoint, "--no-multicast-scouting"],
+            capture_output=True, text=True, timeout=TIMEOUT,
+        )  # fmt: skip
+        assert listed.returncode == 0 and listed.stdout.split() == ["fleet/a", "fleet/b"]
+        b_start = get_pose(session, "fleet/b/sim/truth")
+        drive(session, "fleet/a")
+        wait_for(lambda: (p := get_pose(session, "fleet/a/sim/truth")) is not None and p.x > 0.1, what="robot a to move")
+        wait_for(lambda: (p := get_pose(session, "fleet/a/pose")) is not None and p.x > 0.1, what="robot a's odometry")
+        b_now = get_pose(session, "fleet/b/sim/truth")
+        assert b_start is not None and b_now is not None and b_now.x == b_start.x  # driving a moved only a
+        b_pose = get_pose(session, "fleet/b/pose")
+        assert b_pose is not None and b_pose.x == 0.0
+
+
+# ----------------------------------------------------------------------------- separate hosts
+
+
+def _ip(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=20)
+
+
+@pytest.fixture
+def hosts() -> object:
+    """Three network namespaces (router, robot, operator) joined by veth links; removed afterwards."""
+    if os.geteuid() != 0 or shutil.which("ip") is None:
+        pytest.skip("network namespaces need root and iproute2's ip")
+    tag = f"{os.getpid() % 10000}"
+    names = {role: f"bm{tag}{role}" for role in ("r", "g", "c")}
+    created: list[str] = []
+    try:
+        for ns in names.values():
+            result = _ip("netns", "add", ns)
+            if result.returncode != 0:
+                pytest.skip(f"cannot create network namespaces here: {result.stderr.strip()}")
+            created.append(ns)
+            _ip("-n", ns, "link", "set", "lo", "up")
+        # router <-> robot: 10.231.1.0/24, router <-> operator: 10.231.2.0/24 (only inside these namespaces)
+        for index, role in ((1, "g"), (2, "c")):
+            left, right = f"bm{tag}r{role}", f"bm{tag}{role}r"
+            assert _ip("link", "add", left, "netns", names["r"], "type", "veth", "peer", "name", right, "netns", names[role]).returncode == 0
+            _ip("-n", names["r"], "addr", "add", f"10.231.{index}.1/24", "dev", left)
+            _ip("-n", names[role], "addr", "add", f"10.231.{index}.2/24", "dev", right)
+            _ip("-n", names["r"], "link", "set", left, "up")
+            _ip("-n", names[role], "link", "set", right, "up")
+        yield names
+    finally:
+        for ns in created:
+            _ip("netns", "del", ns)
+
+
+def test_router_gateway_and_operator_on_separate_hosts(children: list[Child], tmp_path: Path, hosts: dict[str, str]) -> None:
+    config = config_copy("router.json5", tmp_path)
+    router = Child(
+        ["-m", "gateway.cli", "router", "-c", str(config), "-l", "tcp/10.231.1.1:7447", "-l", "tcp/10.231.2.1:7447"],
+        launcher=["ip", "netns", "exec", hosts["r"]],
+    )
+    children.append(router)
+    router.wait_line("blackmetal router ready")
+    robot_side = ["ip", "netns", "exec", hosts["g"]]
+    zargs = ["-m", "client", "-e", "tcp/10.231.1.1:7447", "--no-multicast-scouting"]
+    sim = SimProcess(*zargs, launcher=robot_side)
+    children.append(sim)
+    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], launcher=robot_side)
+    odometry = Child(["-m", "odometry_service", *zargs], launcher=robot_side)
+    children.extend([gateway, odometry])
+    gateway.wait_line("gateway ready")
+    odometry.wait_line("odometry ready")
+    script = f"""
+import json, sys, time, zenoh
+conf = zenoh.Config.from_json5('{{"mode": "client", "connect": {{"endpoints": ["tcp/10.231.2.1:7447"]}}, "scouting": {{"multicast": {{"enabled": false}}}}}}')
+with zenoh.open(conf) as s:
+    def pose(key):
+        for r in s.get(key, timeout=3):
+            if r.ok is not None:
+                return json.loads(r.ok.payload.to_bytes())
+    deadline = time.monotonic() + 20
+    while pose("robot/pose") is None and time.monotonic() < deadline:
+        time.sleep(0.2)
+    for _ in range(15):
+        s.put("robot/cmd_vel", '{{"linear": {{"x": 0.2}}}}')
+        time.sleep(0.1)
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline:
+        p = pose("robot/pose")
+        if p and p["x"] > 0.1 and p["v"] == 0.0:
+            break
+        time.sleep(0.2)
+    print(json.dumps({{"pose": pose("robot/pose"), "truth": pose("robot/sim/truth")}}))
+"""
+    result = subprocess.run(["ip", "netns", "exec", hosts["c"], sys.executable, "-c", script], capture_output=True, text=True, timeout=90)
+    assert result.returncode == 0, result.stderr
+    seen = json.loads(result.stdout.strip().splitlines()[-1])
+    assert seen["pose"]["x"] > 0.1, seen
+    assert abs(seen["pose"]["x"] - seen["truth"]["x"]) < 0.02
