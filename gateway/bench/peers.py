@@ -16,6 +16,7 @@ import random
 import selectors
 import socket
 import statistics
+import struct
 import subprocess
 import sys
 import threading
@@ -24,6 +25,9 @@ from dataclasses import dataclass, field
 
 from .. import protocol
 from ..protocol import Command, Request, RequestDecoder
+
+#: Linux's SO_TIMESTAMPNS (not exported by Python's socket module): kernel receive time stamps.
+SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 
 #: Publish bench messages without batching (what a latency-minded client does).
 EXPRESS = os.environ.get("BLACKMETAL_BENCH_EXPRESS", "1") == "1"
@@ -52,7 +56,7 @@ class MiniRobot:
 
     control_port: int = 0
     log_port: int = 0
-    arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> monotonic arrival
+    arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> arrival (Unix time, kernel stamp)
     velocity_commands: int = 0
     poll_times: list[float] = field(default_factory=list)
     arrived: threading.Condition = field(default_factory=threading.Condition)
@@ -87,6 +91,7 @@ class MiniRobot:
                 if kind == "accept":
                     conn, _ = sock.accept()
                     conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                    conn.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps arrivals
                     if port == "control":
                         decoders[conn] = RequestDecoder()
                         self._sel.register(conn, selectors.EVENT_READ, ("control", None))
@@ -94,10 +99,14 @@ class MiniRobot:
                         log_clients.append(conn)
                     continue
                 try:
-                    data = sock.recv(65536)
+                    data, ancillary, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
                 except OSError:
-                    data = b""
-                now = time.monotonic()
+                    data, ancillary = b"", []
+                now = time.time()
+                for level, kind_, payload in ancillary:
+                    if level == socket.SOL_SOCKET and kind_ == SO_TIMESTAMPNS and len(payload) >= 16:
+                        seconds, nanos = struct.unpack("qq", payload[:16])
+                        now = seconds + nanos * 1e-9  # when the bytes reached the socket, not when we woke up
                 if not data:
                     self._sel.unregister(sock)
                     decoders.pop(sock, None)
