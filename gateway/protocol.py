@@ -31,7 +31,8 @@ import math
 import re
 from dataclasses import dataclass
 from enum import IntEnum
-from typing import Any, Union
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar, Union
 
 import msgspec
 
@@ -189,6 +190,7 @@ class Malformed:
 
 
 Reply = Union[StatusReply, WheelSpeeds, WheelPositions, LogReport]
+M = TypeVar("M")
 
 
 def encode_status(status: str = STATUS_OK) -> bytes:
@@ -326,16 +328,12 @@ def parse_reply(frame: bytes) -> Reply | Malformed:
     return cls(a, b)
 
 
-class ReplyDecoder:
-    """Client role: feed bytes from the control or log port, get replies.
+class _FramedDecoder(Generic[M]):
+    """Frames a byte stream by braces and parses each frame; ``feed`` never raises."""
 
-    ``feed`` returns replies in stream order, with a :class:`Malformed` item
-    where garbage was skipped; it never raises. ``garbage_bytes`` and
-    ``malformed`` count what was skipped.
-    """
-
-    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
+    def __init__(self, parse: Callable[[bytes], M | Malformed], max_frame: int) -> None:
         self._framer = _BraceFramer(max_frame)
+        self._parse = parse
         self.malformed = 0
 
     @property
@@ -346,12 +344,12 @@ class ReplyDecoder:
     def pending(self) -> int:
         return self._framer.pending
 
-    def feed(self, data: bytes) -> list[Reply | Malformed]:
+    def feed(self, data: bytes) -> list[M | Malformed]:
         frames: list[bytes | Malformed] = []
         self._framer.feed(data, frames)
-        out: list[Reply | Malformed] = []
+        out: list[M | Malformed] = []
         for frame in frames:
-            item = frame if isinstance(frame, Malformed) else parse_reply(frame)
+            item = frame if isinstance(frame, Malformed) else self._parse(frame)
             if isinstance(item, Malformed):
                 self.malformed += 1
             out.append(item)
@@ -360,6 +358,18 @@ class ReplyDecoder:
     def reset(self) -> None:
         """Forget any partial message (after a reconnect)."""
         self._framer.reset()
+
+
+class ReplyDecoder(_FramedDecoder[Reply]):
+    """Client role: feed bytes from the control or log port, get replies.
+
+    ``feed`` returns replies in stream order, with a :class:`Malformed` item
+    where garbage was skipped; it never raises. ``garbage_bytes`` and
+    ``malformed`` count what was skipped.
+    """
+
+    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
+        super().__init__(parse_reply, max_frame)
 
 
 _request_decoder = msgspec.json.Decoder(dict[str, Any])
@@ -393,24 +403,8 @@ def parse_request(frame: bytes) -> Request | Malformed:
     return Request(command, None, None, user_id)
 
 
-class RequestDecoder:
+class RequestDecoder(_FramedDecoder[Request]):
     """Server role (the simulator): feed bytes from a client, get requests."""
 
     def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
-        self._framer = _BraceFramer(max_frame)
-        self.malformed = 0
-
-    @property
-    def garbage_bytes(self) -> int:
-        return self._framer.garbage_bytes
-
-    def feed(self, data: bytes) -> list[Request | Malformed]:
-        frames: list[bytes | Malformed] = []
-        self._framer.feed(data, frames)
-        out: list[Request | Malformed] = []
-        for frame in frames:
-            item = frame if isinstance(frame, Malformed) else parse_request(frame)
-            if isinstance(item, Malformed):
-                self.malformed += 1
-            out.append(item)
-        return out
+        super().__init__(parse_request, max_frame)

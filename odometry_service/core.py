@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 from schemas import Pose, WheelImpulses, make_pose
 from schemas import robot as facts
+from schemas.robot import arc_step
 
 from .errors import SampleRejected
 
@@ -66,16 +67,6 @@ class OdometryParams:
         """Impulses per second to rim speeds (m/s), forward positive on both wheels."""
         sign = -1.0 if self.mirror_right else 1.0
         return left / self.impulses_per_meter_left, sign * right / self.impulses_per_meter_right
-
-
-def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
-    """Move a pose by wheel travels along the exact arc (chord form; straight-line limit for tiny turns)."""
-    ds = 0.5 * (d_left + d_right)
-    dth = (d_right - d_left) / separation
-    half = 0.5 * dth
-    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
-    heading = yaw + half
-    return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
 
 
 @dataclass(slots=True)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 
 from schemas import Pose, SimFaults, make_pose
 from schemas import robot as facts
+from schemas.robot import arc_step
 
 from .. import protocol
 from ..protocol import Command, Request
@@ -37,21 +38,6 @@ class RobotParams:
     position_speed: float = 0.3
     #: Longest integration step while a wheel accelerates or runs a position move (s).
     substep: float = 0.001
-
-
-def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
-    """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along an exact arc.
-
-    Uses the chord form (length ``ds * sin(h)/h`` at heading ``yaw + h``, with
-    ``h`` half the turn), which is exact for any turn and well conditioned as
-    the turn goes to zero, where it becomes the straight line.
-    """
-    ds = 0.5 * (d_left + d_right)
-    dth = (d_right - d_left) / separation
-    half = 0.5 * dth
-    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
-    heading = yaw + half
-    return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
 
 
 class SimRobot:
