@@ -122,7 +122,7 @@ def encode_request(request: Request) -> bytes:
     Raises ProtocolError for anything the robot must never see: non-finite or
     out-of-range speeds, non-integer positions, unknown commands.
     """
-    command = Command(request.command)
+    command = request.command if type(request.command) is Command else Command(request.command)
     head = f'{{"UserID":{_wire_int("UserID", request.user_id)},"Command":{int(command)}'
     if command is Command.SET_LR_WHEEL_VELOCITY:
         body = (

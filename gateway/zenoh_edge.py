@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING
 
 import zenoh
 
-from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses, encode, to_bytes
+from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses, encode
 
 if TYPE_CHECKING:
     from .service import GatewayService
@@ -58,7 +58,7 @@ class GatewayZenoh:
         def handover(handler):  # type: ignore[no-untyped-def]
             def callback(sample: zenoh.Sample) -> None:
                 try:
-                    payload = to_bytes(sample.payload)
+                    payload = sample.payload.to_bytes()
                 except Exception:  # never let anything escape into Zenoh's thread
                     payload = b""
                 loop.call_soon_threadsafe(handler, payload)
