@@ -13,7 +13,7 @@ import threading
 import time
 from pathlib import Path
 
-from .peers import EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
+from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
 
 CLK_TCK = os.sysconf("SC_CLK_TCK")
 
@@ -99,7 +99,7 @@ def cmd_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
                 pub.put(b'{"linear":{"x":%.6f}}' % speed)
                 if i >= 30:  # warm-up
                     sent[speed] = start
-                time.sleep(random.uniform(0.004, 0.012))
+                time.sleep(random.uniform(*COMMAND_GAP_S))
             time.sleep(0.3)
             arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
     finally:
@@ -315,10 +315,10 @@ def flood(rate_hz: float, seconds: float) -> dict[str, float]:
     }
 
 
-def zenoh_hop(samples: int) -> dict[str, float]:
+def zenoh_hop(samples: int, gap: tuple[float, float] = COMMAND_GAP_S) -> dict[str, float]:
     from .peers import zenoh_hop as hop
 
-    return hop(samples)
+    return hop(samples, gap)
 
 
 def dumps(figures: dict[str, object]) -> str:
