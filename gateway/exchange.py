@@ -81,17 +81,17 @@ class Exchange:
                 self.outstanding.popleft()
                 out.append(Completed(head.request, item, None, now - head.sent_at))
         elif isinstance(item, (WheelSpeeds, WheelPositions)):
-            head = self.outstanding[0] if self.outstanding else None
+            waiting = self.outstanding[0] if self.outstanding else None
             if (
-                head is None
-                or head.status is None
-                or _DATA_KIND.get(head.request.command) is not type(item)
+                waiting is None
+                or waiting.status is None
+                or _DATA_KIND.get(waiting.request.command) is not type(item)
             ):
                 self.unexpected += 1
                 return out
             self.outstanding.popleft()
-            assert head.status_at is not None
-            out.append(Completed(head.request, head.status, item, head.status_at - head.sent_at))
+            assert waiting.status_at is not None
+            out.append(Completed(waiting.request, waiting.status, item, waiting.status_at - waiting.sent_at))
         elif isinstance(item, LogReport):
             self.unexpected += 1
         return out

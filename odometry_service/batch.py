@@ -65,7 +65,7 @@ def _acceptance(seq: NDArray[np.int64], stamp: F, max_gap: float) -> tuple[B, B,
     accepted = np.zeros(n, bool)
     new_epoch = np.zeros(n, bool)
     rejected: list[str] = []
-    events: list[str] = []
+    events = []
     gaps = restarts = missed = 0
     last_seq: int | None = None
     last_stamp = 0.0
@@ -221,12 +221,14 @@ def run_batch(
     seq = np.asarray(seq, np.int64)
     stamp = np.asarray(stamp, np.float64)
     accepted, new_epoch, rejected, events, gaps, restarts, missed = _acceptance(seq, stamp, p.max_gap)
+    left_imp = np.asarray(left, np.float64)
+    right_imp = np.asarray(right, np.float64)
     if not accepted.all():
-        stamp, left, right = stamp[accepted], np.asarray(left)[accepted], np.asarray(right)[accepted]
+        stamp, left_imp, right_imp = stamp[accepted], left_imp[accepted], right_imp[accepted]
     n = len(stamp)
     sign = -1.0 if p.mirror_right else 1.0
-    x_left = np.asarray(left, np.float64) / p.impulses_per_meter_left
-    x_right = sign * np.asarray(right, np.float64) / p.impulses_per_meter_right
+    x_left = left_imp / p.impulses_per_meter_left
+    x_right = sign * right_imp / p.impulses_per_meter_right
     c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
     c_right, spikes_r = _clean(x_right, x_left, new_epoch, p.spike_limit)
     u_left, y_left, rev_left, fix_l, drops_l = _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit)

@@ -23,7 +23,6 @@ replays; the two agree to 1e-9.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 
 from schemas import Pose, WheelImpulses, make_pose

@@ -257,9 +257,9 @@ def test_router_gateway_and_operator_on_separate_hosts(children: list[Child], tm
     children.extend([gateway, odometry])
     gateway.wait_line("gateway ready")
     odometry.wait_line("odometry ready")
-    script = f"""
+    script = """
 import json, sys, time, zenoh
-conf = zenoh.Config.from_json5('{{"mode": "client", "connect": {{"endpoints": ["tcp/10.231.2.1:7447"]}}, "scouting": {{"multicast": {{"enabled": false}}}}}}')
+conf = zenoh.Config.from_json5('{"mode": "client", "connect": {"endpoints": ["tcp/10.231.2.1:7447"]}, "scouting": {"multicast": {"enabled": false}}}')
 with zenoh.open(conf) as s:
     def pose(key):
         for r in s.get(key, timeout=3):
@@ -269,7 +269,7 @@ with zenoh.open(conf) as s:
     while pose("robot/pose") is None and time.monotonic() < deadline:
         time.sleep(0.2)
     for _ in range(15):
-        s.put("robot/cmd_vel", '{{"linear": {{"x": 0.2}}}}')
+        s.put("robot/cmd_vel", '{"linear": {"x": 0.2}}')
         time.sleep(0.1)
     deadline = time.monotonic() + 20
     while time.monotonic() < deadline:
@@ -277,7 +277,7 @@ with zenoh.open(conf) as s:
         if p and p["x"] > 0.1 and p["v"] == 0.0:
             break
         time.sleep(0.2)
-    print(json.dumps({{"pose": pose("robot/pose"), "truth": pose("robot/sim/truth")}}))
+    print(json.dumps({"pose": pose("robot/pose"), "truth": pose("robot/sim/truth")}))
 """
     result = subprocess.run(["ip", "netns", "exec", hosts["c"], sys.executable, "-c", script], capture_output=True, text=True, timeout=90)
     assert result.returncode == 0, result.stderr

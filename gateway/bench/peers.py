@@ -8,20 +8,19 @@ thread never competes with the measuring client for the GIL.
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import queue
 import random
 import selectors
 import socket
-import statistics
 import struct
 import subprocess
 import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 from .. import protocol
 from ..protocol import Command, Request, RequestDecoder
@@ -167,7 +166,7 @@ class RobotProcess:
         ports = json.loads(self.proc.stdout.readline())
         self.control_port, self.log_port = ports["control"], ports["log"]
 
-    def dump(self) -> dict[str, list]:  # type: ignore[type-arg]
+    def dump(self) -> dict[str, Any]:
         assert self.proc.stdin is not None and self.proc.stdout is not None
         self.proc.stdin.write("dump\n")
         self.proc.stdin.flush()
