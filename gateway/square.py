@@ -149,9 +149,15 @@ def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | N
         "clockwise" if clockwise else "counter-clockwise",
         closure(start, end),
         closure(truth_start, truth_end) if truth_start is not None and truth_end is not None else None,
-        list(driver.odometry_path),
-        list(driver.truth_path),
+        _in_frame_of(start, driver.odometry_path),
+        _in_frame_of(truth_start, driver.truth_path) if truth_start is not None else [],
     )
+
+
+def _in_frame_of(origin: Pose, path: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Points relative to a start pose, so odometry and truth paths overlay from the same origin."""
+    c, s = math.cos(-origin.yaw), math.sin(-origin.yaw)
+    return [(c * (x - origin.x) - s * (y - origin.y), s * (x - origin.x) + c * (y - origin.y)) for x, y in path]
 
 
 def report(run: Run) -> str:
