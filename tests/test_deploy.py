@@ -181,6 +181,43 @@ def test_tls_drive_and_a_client_without_the_ca_is_refused(children: list[Child],
         zenoh.open(client_conf(endpoint))  # no CA: the router's certificate is not trusted
 
 
+def test_mutual_tls_refuses_a_client_without_a_certificate(children: list[Child], tmp_path: Path) -> None:
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl is not installed: cannot make test certificates")
+    certs = tmp_path / "certs"
+    subprocess.run(["bash", str(DEPLOY / "tls" / "make-certs.sh"), str(certs), "localhost"], check=True, capture_output=True, timeout=60)
+
+    def edit(data: dict) -> None:  # type: ignore[type-arg]
+        tls = data["transport"]["link"]["tls"]
+        tls.update(
+            root_ca_certificate=str(certs / "ca.pem"),
+            listen_private_key=str(certs / "router.key"),
+            listen_certificate=str(certs / "router.pem"),
+            enable_mtls=True,
+        )
+
+    endpoint = f"tls/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router-tls.json5", tmp_path, edit), endpoint))
+    ca_only = {"link": {"tls": {"root_ca_certificate": str(certs / "ca.pem")}}}
+    with_cert = {
+        "link": {
+            "tls": {
+                "root_ca_certificate": str(certs / "ca.pem"),
+                "enable_mtls": True,
+                "connect_private_key": str(certs / "client.key"),
+                "connect_certificate": str(certs / "client.pem"),
+            }
+        }
+    }
+    with zenoh.open(client_conf(endpoint, extra=with_cert)) as session:
+        got: list[bytes] = []
+        session.declare_subscriber("robot/echo", lambda s: got.append(s.payload.to_bytes()))
+        with zenoh.open(client_conf(endpoint, extra=with_cert)) as other:
+            wait_for(lambda: (other.put("robot/echo", b"over mTLS"), got)[1], what="a sample over mutual TLS")
+    with pytest.raises(zenoh.ZError):
+        zenoh.open(client_conf(endpoint, extra=ca_only))  # trusts the router, but presents no certificate
+
+
 def test_a_fleet_of_two_robots_on_one_router(children: list[Child], tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     children.append(Router(config_copy("router.json5", tmp_path), endpoint))
