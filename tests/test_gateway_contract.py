@@ -134,11 +134,11 @@ async def test_impulses_are_published_raw_with_sequence_and_stamps(transport: st
 async def test_command_timeout_brakes_within_timeout_plus_a_poll(transport: str) -> None:
     rig = await start_rig(transport, cmd_timeout=0.3, poll_hz=50.0)
     try:
+        started = time.monotonic()
         rig.service.on_cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
-        started = time.monotonic()
         await until(lambda: rig.robot.target_left == 0.0, "the command-timeout brake")
-        assert time.monotonic() - started >= 0.25
+        assert time.monotonic() - started >= 0.29  # never before the timeout
         assert rig.service.health().cmd_timeout_active
     finally:
         await rig.close()
