@@ -9,13 +9,12 @@ from __future__ import annotations
 
 import argparse
 import json
-import signal
 import sys
-import threading
 
 import zenoh
 
 from .errors import ConfigError
+from .signals import stop_on_signals
 from .zenoh_config import ZenohSettings
 
 
@@ -28,9 +27,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"blackmetal router: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         session = zenoh.open(conf)
     except Exception as exc:

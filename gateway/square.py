@@ -14,7 +14,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import signal
 import sys
 import threading
 import time
@@ -24,7 +23,16 @@ import zenoh
 
 from schemas import Pose, Twist, Vector3, encode
 
-from .client import Latest, ToolError, add_client_arguments, client_settings, require_gateway, require_pose, where
+from .client import (
+    Latest,
+    ToolError,
+    add_client_arguments,
+    client_settings,
+    require_gateway,
+    require_pose,
+    where,
+)
+from .signals import stop_on_signals
 
 RATE_HZ = 20.0
 
@@ -200,9 +208,7 @@ def plot(runs: list[Run], path: str) -> None:
 
 def run(args: argparse.Namespace) -> int:
     settings = client_settings(args)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     with zenoh.open(settings.to_config()) as session:
         try:
             health = require_gateway(session, args.prefix, settings, args.wait)

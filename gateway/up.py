@@ -27,6 +27,7 @@ from schemas import robot as facts
 
 from .client import Latest
 from .errors import ConfigError
+from .signals import stop_on_signals
 from .zenoh_config import add_zenoh_arguments, validate_prefix, zenoh_settings
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -211,9 +212,7 @@ def run(args: argparse.Namespace) -> int:
             file=sys.stderr,
         )
         return 1
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     children: list[ChildProcess] = []
     try:
         return _run(args, session, hub, children, stop)

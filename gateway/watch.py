@@ -4,17 +4,31 @@ from __future__ import annotations
 
 import argparse
 import math
-import signal
 import sys
-import threading
 import time
 from collections import deque
 
 import zenoh
 
-from schemas import ErrorReport, GatewayHealth, PayloadError, Pose, RobotStatus, decode, to_bytes
+from schemas import (
+    ErrorReport,
+    GatewayHealth,
+    PayloadError,
+    Pose,
+    RobotStatus,
+    decode,
+    to_bytes,
+)
 
-from .client import Latest, ToolError, add_client_arguments, client_settings, require_gateway, where
+from .client import (
+    Latest,
+    ToolError,
+    add_client_arguments,
+    client_settings,
+    require_gateway,
+    where,
+)
+from .signals import stop_on_signals
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -53,9 +67,7 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
 
 def run(args: argparse.Namespace) -> int:
     settings = client_settings(args)
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     with zenoh.open(settings.to_config()) as session:
         try:
             health0 = require_gateway(session, args.prefix, settings, args.wait)

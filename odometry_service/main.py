@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
 import threading
 
 from gateway.config import given_options, load_settings
 from gateway.errors import ConfigError
+from gateway.signals import stop_on_signals
 from gateway.zenoh_config import add_zenoh_arguments, zenoh_settings
 
 from .service import OdometryService
@@ -54,9 +54,7 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"blackmetal odometry: {exc}", file=sys.stderr)
         return 2
-    stop = threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
+    stop = stop_on_signals()
     try:
         serve(settings, stop)
     except ConfigError as exc:
