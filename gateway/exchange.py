@@ -13,19 +13,19 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from .protocol import (
+from blackmetal.wire import (
     DATA_COMMANDS,
-    Command,
+    CommandCode,
     LogReport,
     Malformed,
+    PositionReading,
     Reply,
     Request,
+    SpeedReading,
     StatusReply,
-    WheelPositions,
-    WheelSpeeds,
 )
 
-_DATA_KIND = {Command.GET_LR_WHEEL_VELOCITY: WheelSpeeds, Command.GET_LR_WHEEL_POSITION: WheelPositions}
+_DATA_KIND = {CommandCode.GET_LR_WHEEL_VELOCITY: SpeedReading, CommandCode.GET_LR_WHEEL_POSITION: PositionReading}
 
 
 @dataclass(slots=True)
@@ -42,7 +42,7 @@ class Completed:
 
     request: Request
     status: StatusReply
-    data: WheelSpeeds | WheelPositions | None
+    data: SpeedReading | PositionReading | None
     rtt: float  # seconds from sending to the status reply
 
 
@@ -64,7 +64,7 @@ class Exchange:
         self.outstanding.append(Pending(request, now))
 
     def polls_in_flight(self) -> int:
-        return sum(1 for p in self.outstanding if p.request.command is Command.GET_LR_WHEEL_VELOCITY)
+        return sum(1 for p in self.outstanding if p.request.command is CommandCode.GET_LR_WHEEL_VELOCITY)
 
     def received(self, item: Reply | Malformed, now: float) -> list[Completed | Lost]:
         out: list[Completed | Lost] = []
@@ -80,13 +80,9 @@ class Exchange:
             if not (item.ok and head.request.command in DATA_COMMANDS):
                 self.outstanding.popleft()
                 out.append(Completed(head.request, item, None, now - head.sent_at))
-        elif isinstance(item, (WheelSpeeds, WheelPositions)):
+        elif isinstance(item, (SpeedReading, PositionReading)):
             waiting = self.outstanding[0] if self.outstanding else None
-            if (
-                waiting is None
-                or waiting.status is None
-                or _DATA_KIND.get(waiting.request.command) is not type(item)
-            ):
+            if waiting is None or waiting.status is None or _DATA_KIND.get(waiting.request.command) is not type(item):
                 self.unexpected += 1
                 return out
             self.outstanding.popleft()
@@ -98,7 +94,7 @@ class Exchange:
 
     def expire(self, now: float) -> list[Lost]:
         lost: list[Lost] = []
-        while self.outstanding and now - self.outstanding[0].sent_at > self.reply_timeout:
+        while self.outstanding and now >= self.outstanding[0].sent_at + self.reply_timeout:
             lost.append(Lost(self.outstanding.popleft().request, f"no reply within {self.reply_timeout:.3g} s"))
         return lost
 
@@ -107,5 +103,6 @@ class Exchange:
         self.outstanding.clear()
         return lost
 
-    def oldest_age(self, now: float) -> float:
-        return now - self.outstanding[0].sent_at if self.outstanding else 0.0
+    def next_expiry(self) -> float:
+        """When the oldest outstanding request will be given up (inf if none)."""
+        return self.outstanding[0].sent_at + self.reply_timeout if self.outstanding else float("inf")

@@ -1,7 +1,8 @@
 """What velocity the robot should get, and when: limits, timeout, e-stop, dedup, keep-alive.
 
-Pure and clock-injected: the service calls :meth:`Governor.next_command`
-on every event and at every poll tick and sends what it returns. Nothing here
+Pure and clock-injected: the robot connection calls
+:meth:`Governor.next_command` on every event and at every deadline
+(:meth:`Governor.next_deadline`) and sends what it returns. Nothing here
 knows about sockets or Zenoh.
 """
 
@@ -10,16 +11,15 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, WHEEL_SEPARATION, WheelSpeeds, twist_to_wheels
 from schemas import Twist
-
-from .kinematics import ZERO, WheelSpeeds, twist_to_wheels
 
 
 @dataclass(frozen=True, slots=True)
 class SafetySettings:
-    wheel_separation: float = 0.5
+    wheel_separation: float = WHEEL_SEPARATION
     #: Per-wheel limit (m/s); faster commands are scaled down, keeping the curvature.
-    max_wheel_speed: float = 0.8
+    max_wheel_speed: float = MAX_WHEEL_SPEED
     #: Brake when no valid cmd_vel arrived for this long (s); 0 disables.
     cmd_timeout: float = 0.5
     #: Repeat an unchanged, non-zero command this often so the robot's 10 s watchdog never fires (s).
@@ -37,7 +37,7 @@ class SafetySettings:
 
 
 @dataclass(frozen=True, slots=True)
-class Command:
+class VelocityCommand:
     """A velocity to send now, and why (``new``, ``keepalive``, ``retry``)."""
 
     wheels: WheelSpeeds
@@ -88,7 +88,7 @@ class Governor:
                 self.emg_stop_needed = True
             self.estop = True
             self.target = self.current = (0.0, 0.0)
-            self._last_sent = ZERO  # EMG_STOP stops the wheels; no velocity command needed
+            self._last_sent = STANDSTILL  # EMG_STOP stops the wheels; no velocity command needed
         else:
             self.estop = False
             self.last_cmd_at = -math.inf  # a fresh cmd_vel is needed to move again
@@ -133,9 +133,9 @@ class Governor:
     def timed_out(self, now: float) -> bool:
         """True while no valid cmd_vel arrived within the command timeout."""
         timeout = self.settings.cmd_timeout
-        return timeout > 0 and now - self.last_cmd_at > timeout
+        return timeout > 0 and now >= self.last_cmd_at + timeout
 
-    def next_command(self, now: float) -> Command | None:
+    def next_command(self, now: float) -> VelocityCommand | None:
         """The velocity to send now, if any; call on every event and every tick."""
         dt = max(0.0, now - self._last_update)
         self._last_update = now
@@ -159,22 +159,38 @@ class Governor:
                 return self._sent(wheels, now, "retry")
         if wheels != self._last_sent:
             return self._sent(wheels, now, "new")
-        if not wheels.is_zero and now - self._last_sent_at >= s.keepalive:
+        if not wheels.is_zero and now >= self._last_sent_at + s.keepalive:
             return self._sent(wheels, now, "keepalive")
         return None
 
-    def _sent(self, wheels: WheelSpeeds, now: float, reason: str) -> Command:
+    def _sent(self, wheels: WheelSpeeds, now: float, reason: str) -> VelocityCommand:
         if wheels != self._last_sent:
             self._retries = 0
         self._last_sent = wheels
         self._last_sent_at = now
-        return Command(wheels, reason)
+        return VelocityCommand(wheels, reason)
 
     def _ramp(self, current: tuple[float, float], target: tuple[float, float], dt: float) -> tuple[float, float]:
         s = self.settings
         v = _approach(current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt)
         w = _approach(current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt)
         return v, w
+
+    def next_deadline(self) -> float:
+        """When :meth:`next_command` may next have something to send without a new input."""
+        deadline = math.inf
+        if not self.link_up or self.estop:
+            return deadline
+        if self.hold_until is not None:
+            deadline = self.hold_until
+        s = self.settings
+        if self.target != (0.0, 0.0) and s.cmd_timeout > 0:
+            deadline = min(deadline, self.last_cmd_at + s.cmd_timeout)
+        if self._last_sent is not None and not self._last_sent.is_zero:
+            deadline = min(deadline, self._last_sent_at + s.keepalive)
+        if self.current != self.target:  # ramping under an acceleration limit
+            deadline = min(deadline, self._last_update + 0.02)
+        return deadline
 
     @property
     def wheels_sent(self) -> WheelSpeeds | None:

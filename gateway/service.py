@@ -1,9 +1,11 @@
-"""The gateway's core loop: robot links, safety and polling, between two thin edges.
+"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
 
-Runs on one asyncio loop. Inputs arrive as bytes (from the Zenoh edge via
-``loop.call_soon_threadsafe``, never inside a Zenoh callback); outputs
-leave through a :class:`GatewayOutput` (the Zenoh edge, or a recorder in
-tests); the robot is reached through a :class:`~gateway.link.Connector`.
+All decisions are in :class:`~gateway.connection.RobotConnection`; this
+module opens the robot's streams through an injected
+:class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
+pipe in tests), reconnects with backoff, feeds what it reads, writes what
+the connection wants written, hands messages to a :class:`GatewayOutput`,
+and sleeps until the connection's next deadline or the next input.
 """
 
 from __future__ import annotations
@@ -15,29 +17,19 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from schemas import (
-    EStop,
-    ErrorReport,
-    GatewayHealth,
-    LinkHealth,
-    PayloadError,
-    RobotStatus,
-    Twist,
-    WheelImpulses,
-    decode,
-    excerpt,
-)
+from blackmetal.transport import ByteStream, Connector
+from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
-from . import protocol
-from .exchange import Completed, Exchange, Lost
-from .kinematics import WheelSpeeds
-from .link import Connector, Link
-from .protocol import Command, LogReport, Malformed, ReplyDecoder
-from .ratelimit import ReportLimiter
-from .safety import Governor
+from .connection import Counters, DropLink, LinkName, LinkState, RobotConnection
 from .settings import GatewaySettings
 
 log = logging.getLogger("blackmetal.gateway")
+
+#: Reconnect backoff: first retry after this long, doubling up to the cap.
+BACKOFF_FIRST_S = 0.05
+BACKOFF_MAX_S = 2.0
+#: Largest read from a robot socket at once.
+READ_SIZE = 65536
 
 
 class GatewayOutput(Protocol):
@@ -71,23 +63,8 @@ class RecordingOutput:
         self.error_log.append(message)
 
 
-@dataclass
-class Counters:
-    commands_sent: int = 0
-    polls: int = 0
-    polls_skipped: int = 0
-    replies: int = 0
-    full_buffer: int = 0
-    full_buffer_retries: int = 0
-    lost_replies: int = 0
-    malformed_replies: int = 0
-    rejected_inputs: int = 0
-    keepalives: int = 0
-    impulses_published: int = 0
-
-
 class GatewayService:
-    """Owns the robot links and the safety state; see the module docstring."""
+    """Runs one :class:`RobotConnection` on the running asyncio loop; see the module docstring."""
 
     def __init__(
         self,
@@ -98,317 +75,161 @@ class GatewayService:
         wallclock: Callable[[], float] = time.time,
     ) -> None:
         self.settings = settings
+        self.connector = connector
         self.output = output
         self.clock = clock
-        self.wallclock = wallclock
-        self.counters = Counters()
-        self.governor = Governor(settings.safety(), clock())
-        self.exchange = Exchange(reply_timeout=settings.reply_timeout)
-        self.limiter = ReportLimiter()
-        self.last_rtt: float | None = None
-        self.seq = 0
-        self._control_decoder = ReplyDecoder()
-        self._log_decoder = ReplyDecoder()
-        self._last_status: RobotStatus | None = None
-        self._last_status_at = -1e9
-        self._poll_times: list[float] = []
-        self._stopping = False
-        self._pump_timer: asyncio.TimerHandle | None = None
-        self._cmd_key = f"{settings.prefix}/cmd_vel"
-        self._estop_key = f"{settings.prefix}/estop"
-        self._robot_key = f"robot:{connector.describe('control')}"
-        self.control = Link(
-            "control",
-            connector,
-            self._on_control_connected,
-            self._on_control_data,
-            self._on_control_down,
-            settings.silence_timeout,
-            clock,
-            wallclock,
-        )
-        self.log_link = Link(
-            "log",
-            connector,
-            self._on_log_connected,
-            self._on_log_data,
-            lambda reason: None,
-            settings.log_silence_timeout,
-            clock,
-            wallclock,
-        )
+        robot = {name: f"robot:{connector.describe(name)}" for name in ("control", "log")}
+        self.connection = RobotConnection(settings, clock(), wallclock, robot)
+        self._streams: dict[LinkName, ByteStream | None] = {"control": None, "log": None}
+        self._drop_reason: dict[LinkName, str] = {}
+        self._wake = asyncio.Event()
 
-    # ------------------------------------------------------------------ Zenoh inputs (on the loop)
+    # ------------------------------------------------------------------ what tests and the edge see
 
-    def on_cmd_vel(self, payload: bytes) -> None:
-        now = self.clock()
-        try:
-            twist = decode(Twist, payload)
-        except PayloadError as exc:
-            self.reject(self._cmd_key, str(exc), exc.excerpt)
-            return
-        reason = self.governor.on_twist(twist, now)
-        if reason is not None:
-            self.reject(self._cmd_key, reason, excerpt(payload))
-            return
-        self._pump(now)
+    @property
+    def counters(self) -> Counters:
+        return self.connection.counters
 
-    def on_estop(self, payload: bytes) -> None:
-        try:
-            estop = decode(EStop, payload)
-        except PayloadError as exc:
-            self.reject(self._estop_key, str(exc), exc.excerpt)
-            return
-        if estop.engaged != self.governor.estop:
-            log.warning("emergency stop %s", "ENGAGED" if estop.engaged else "released")
-        self.governor.on_estop(estop.engaged)
-        self._pump(self.clock())
-        self._publish_health()
-
-    def reject(self, key: str, reason: str, snippet: str = "", source: str = "gateway") -> None:
-        """Report a rejected input on ``<prefix>/errors`` (rate-limited per key)."""
-        self.counters.rejected_inputs += 1
-        self._report(key, reason, snippet, source)
-
-    def _report(self, key: str, reason: str, snippet: str = "", source: str = "gateway") -> None:
-        admitted, suppressed = self.limiter.admit(key, self.clock())
-        if admitted:
-            self.output.error(
-                ErrorReport(
-                    stamp=self.wallclock(), source=source, key=key, reason=reason, excerpt=snippet, suppressed=suppressed
-                )
-            )
-
-    # ------------------------------------------------------------------ sending
-
-    def _send(self, request: protocol.Request) -> bool:
-        data = protocol.encode_request(request)  # raises on anything the robot must not see
-        if not self.control.write(data):
-            return False
-        self.exchange.sent(request, self.clock())
-        return True
-
-    def _pump(self, now: float) -> None:
-        """Send whatever the safety state wants sent now: EMG_STOP first, then velocity."""
-        if not self.control.connected:
-            return
-        gov = self.governor
-        if gov.emg_stop_needed:
-            if self._send(protocol.simple(Command.EMG_STOP)):
-                gov.emg_stop_needed = False
-                self.counters.commands_sent += 1
-        command = gov.next_command(now)
-        if gov.hold_until is not None and self._pump_timer is None:
-            self._pump_timer = asyncio.get_running_loop().call_later(max(gov.hold_until - now, 0.0), self._pump_later)
-        if command is not None:
-            wheels = command.wheels
-            if self._send(protocol.set_velocity(wheels.right, wheels.left)):
-                self.counters.commands_sent += 1
-                if command.reason == "keepalive":
-                    self.counters.keepalives += 1
-                elif command.reason == "retry":
-                    self.counters.full_buffer_retries += 1
-
-    def _pump_later(self) -> None:
-        self._pump_timer = None
-        self._pump(self.clock())
-
-    def _poll(self) -> None:
-        if not self.control.connected:
-            return
-        if self.exchange.polls_in_flight():
-            self.counters.polls_skipped += 1  # never build a backlog of polls
-            return
-        if self._send(protocol.simple(Command.GET_LR_WHEEL_VELOCITY)):
-            self.counters.polls += 1
-
-    # ------------------------------------------------------------------ control link
-
-    def _on_control_connected(self) -> None:
-        self._control_decoder.reset()
-        self.exchange.clear("reconnected")
-        self._send(protocol.simple(Command.PREPARE_WHEEL_CONTROLLER))
-        self.governor.on_link_up()
-        self._pump(self.clock())
-
-    def _on_control_down(self, reason: str) -> None:
-        self.governor.on_link_down()
-        lost = self.exchange.clear(reason)
-        self.counters.lost_replies += len(lost)
-        if not self._stopping:
-            self._report(self._robot_key, f"control link down: {reason}", source="robot")
-
-    def _on_control_data(self, data: bytes, stamp: float) -> None:
-        now = self.clock()
-        for item in self._control_decoder.feed(data):
-            if isinstance(item, Malformed):
-                self.counters.malformed_replies += 1
-                self._report(self._robot_key, f"malformed reply from the robot: {item.reason}", excerpt(item.raw), "robot")
-                continue
-            self.counters.replies += 1
-            for result in self.exchange.received(item, now):
-                self._on_result(result, stamp)
-        self._pump(now)
-
-    def _on_result(self, result: Completed | Lost, stamp: float) -> None:
-        request = result.request
-        if isinstance(result, Lost):
-            self.counters.lost_replies += 1
-            if request.command is Command.SET_LR_WHEEL_VELOCITY:
-                self.governor.on_full_buffer(WheelSpeeds(float(request.right or 0.0), float(request.left or 0.0)))
-            elif request.command is Command.EMG_STOP:
-                self.governor.on_emg_stop_dropped()
-            return
-        self.last_rtt = result.rtt
-        if result.status.full_buffer:
-            self.counters.full_buffer += 1
-            if request.command is Command.SET_LR_WHEEL_VELOCITY:
-                wheels = WheelSpeeds(float(request.right or 0.0), float(request.left or 0.0))
-                if not self.governor.on_full_buffer(wheels):
-                    self._report(self._robot_key, "robot buffer full: velocity command dropped, retries exhausted", source="robot")
-            elif request.command is Command.EMG_STOP:
-                self.governor.on_emg_stop_dropped()
-            elif request.command is Command.PREPARE_WHEEL_CONTROLLER:
-                self._send(protocol.simple(Command.PREPARE_WHEEL_CONTROLLER))
-            return
-        if not result.status.ok:
-            self._report(self._robot_key, f"unknown status {result.status.status!r} from the robot", source="robot")
-        if request.command is Command.SET_LR_WHEEL_VELOCITY:
-            self.governor.on_acknowledged(WheelSpeeds(float(request.right or 0.0), float(request.left or 0.0)))
-        elif isinstance(result.data, protocol.WheelSpeeds):
-            self.output.impulses(WheelImpulses(seq=self.seq, stamp=stamp, left=result.data.left, right=result.data.right))
-            self.seq += 1
-            self.counters.impulses_published += 1
-            self._poll_times.append(self.clock())
-
-    # ------------------------------------------------------------------ log link
-
-    def _on_log_connected(self) -> None:
-        self._log_decoder.reset()
-
-    def _on_log_data(self, data: bytes, stamp: float) -> None:
-        for item in self._log_decoder.feed(data):
-            if isinstance(item, LogReport):
-                status = RobotStatus.from_codes(stamp, item.state, item.direction)
-                changed = self._last_status is None or (
-                    (status.state, status.direction) != (self._last_status.state, self._last_status.direction)
-                )
-                if changed or stamp - self._last_status_at >= 0.9:
-                    self.output.status(status)
-                    self._last_status_at = stamp
-                self._last_status = status
-            else:
-                self.counters.malformed_replies += 1
-                raw = excerpt(item.raw) if isinstance(item, Malformed) else repr(item)
-                why = item.reason if isinstance(item, Malformed) else "unexpected message"
-                self._report(f"robot:{self.log_link.connector.describe('log')}", f"log port: {why}", raw, "robot")
-
-    # ------------------------------------------------------------------ health
+    @property
+    def control(self) -> LinkState:
+        return self.connection.links["control"]
 
     def health(self) -> GatewayHealth:
-        now = self.clock()
-        window = [t for t in self._poll_times if now - t <= 2.0]
-        self._poll_times = window
-        rate = 0.0
-        if len(window) >= 2:
-            rate = (len(window) - 1) / max(window[-1] - window[0], 1e-9)
-        c = self.counters
-        sent = self.governor.wheels_sent
-        return GatewayHealth(
-            stamp=self.wallclock(),
-            control=LinkHealth(self.control.state, self.control.connected_since, self.control.reconnects),
-            log=LinkHealth(self.log_link.state, self.log_link.connected_since, self.log_link.reconnects),
-            commands_sent=c.commands_sent,
-            polls=c.polls,
-            replies=c.replies,
-            full_buffer=c.full_buffer,
-            full_buffer_retries=c.full_buffer_retries,
-            malformed_replies=c.malformed_replies,
-            garbage_bytes=self._control_decoder.garbage_bytes + self._log_decoder.garbage_bytes,
-            rejected_inputs=c.rejected_inputs,
-            keepalives=c.keepalives,
-            estop=self.governor.estop,
-            cmd_timeout_active=self.governor.link_up and self.governor.timed_out(now),
-            last_rtt_ms=None if self.last_rtt is None else round(self.last_rtt * 1000, 3),
-            poll_hz=round(rate, 2),
-            wheel_speeds=(0.0, 0.0) if sent is None else (sent.left, sent.right),
-        )
+        return self.connection.health(self.clock())
 
-    def _publish_health(self) -> None:
-        self.output.health(self.health())
+    def on_cmd_vel(self, payload: bytes) -> None:
+        self.connection.on_cmd_vel(payload, self.clock())
+        self._flush()
 
-    # ------------------------------------------------------------------ main loop
+    def on_estop(self, payload: bytes) -> None:
+        self.connection.on_estop(payload, self.clock())
+        self._flush()
+
+    # ------------------------------------------------------------------ moving bytes
+
+    def _flush(self) -> None:
+        """Write what the connection wants written; publish its messages; act on drops."""
+        conn = self.connection
+        for name, stream in self._streams.items():
+            data = conn.take_outgoing(name)
+            if data and stream is not None and not stream.is_closing():
+                stream.write(data)
+        for event in conn.take_events():
+            if isinstance(event, WheelImpulses):
+                self.output.impulses(event)
+            elif isinstance(event, RobotStatus):
+                self.output.status(event)
+            elif isinstance(event, GatewayHealth):
+                self.output.health(event)
+            elif isinstance(event, ErrorReport):
+                log.warning("error on %s: %s", event.key, event.reason)
+                self.output.error(event)
+            elif isinstance(event, DropLink):
+                stream = self._streams[event.link]
+                if stream is not None and not stream.is_closing():
+                    log.warning("%s link: dropping connection: %s", event.link, event.reason)
+                    self._drop_reason[event.link] = event.reason
+                    stream.close()
+        self._wake.set()
+
+    async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
+        """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
+        conn = self.connection
+        backoff = BACKOFF_FIRST_S
+        first_failure = True
+        while not stop.is_set():
+            conn.link_connecting(name)
+            try:
+                stream = await self.connector.open(name)
+            except (OSError, TimeoutError) as exc:
+                reason = f"cannot connect to {self.connector.describe(name)}: {exc or type(exc).__name__}"
+                conn.link_down(name, reason, self.clock())
+                if first_failure:
+                    log.warning("%s link: %s; retrying", name, reason)
+                    first_failure = False
+                await _sleep_or_stop(stop, backoff)
+                backoff = min(BACKOFF_MAX_S, backoff * 2)
+                continue
+            first_failure = True
+            backoff = BACKOFF_FIRST_S
+            self._streams[name] = stream
+            log.info("%s link: connected to %s", name, self.connector.describe(name))
+            conn.link_up(name, self.clock())
+            self._flush()
+            reason = "closed by the robot"
+            try:
+                while True:
+                    data = await stream.read(READ_SIZE)
+                    if not data:
+                        break
+                    conn.receive(name, data, self.clock())
+                    self._flush()
+            except (ConnectionError, OSError) as exc:
+                reason = f"connection error: {exc}"
+            finally:
+                self._streams[name] = None
+                stream.close()
+            reason = self._drop_reason.pop(name, reason)
+            if stop.is_set():
+                reason = "gateway stopping"
+            else:
+                log.warning("%s link: %s; reconnecting", name, reason)
+            conn.link_down(name, reason, self.clock())
+            self._flush()
+            if not stop.is_set():
+                await _sleep_or_stop(stop, BACKOFF_FIRST_S)
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
-        tasks = [
-            asyncio.create_task(self.control.run(link_stop), name="control-link"),
-            asyncio.create_task(self.log_link.run(link_stop), name="log-link"),
-        ]
+        tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in ("control", "log")]
+        waker = asyncio.create_task(_set_when(stop, self._wake))
         try:
-            await self._tick_loop(stop)
+            while not stop.is_set():
+                self.connection.tick(self.clock())
+                self._flush()
+                self._wake.clear()
+                delay = self.connection.next_deadline() - self.clock()
+                if delay > 0:
+                    try:
+                        await asyncio.wait_for(self._wake.wait(), min(delay, 3600.0))
+                    except TimeoutError:
+                        pass
         finally:
-            self._stopping = True
+            waker.cancel()
             await self._stop_robot()
             link_stop.set()
-            self.control.drop("gateway stopping")
-            self.log_link.drop("gateway stopping")
+            for stream in self._streams.values():
+                if stream is not None:
+                    stream.close()
             await asyncio.wait(tasks, timeout=1.0)
             for task in tasks:
                 task.cancel()
 
-    async def _tick_loop(self, stop: asyncio.Event) -> None:
-        period = 1.0 / self.settings.poll_hz
-        next_tick = self.clock()
-        next_health = next_tick
-        while not stop.is_set():
-            now = self.clock()
-            self._tick(now)
-            self._poll()
-            if now >= next_health:
-                self._publish_health()
-                self._flush_suppressed()
-                next_health = now + self.settings.health_period
-            next_tick += period
-            if next_tick < now - period:  # fell behind (loaded machine): resynchronise, no burst
-                next_tick = now
-            delay = next_tick - self.clock()
-            if delay > 0:
-                try:
-                    await asyncio.wait_for(stop.wait(), delay)
-                except (TimeoutError, asyncio.TimeoutError):
-                    pass
-
-    def _tick(self, now: float) -> None:
-        for lost in self.exchange.expire(now):
-            self._on_result(lost, self.wallclock())
-        if self.control.connected and self.control.silent(now, expect_push=False):
-            self.control.drop(f"robot silent: no reply for {self.settings.silence_timeout:.3g} s")
-        if self.log_link.connected and self.log_link.silent(now, expect_push=True):
-            self.log_link.drop(f"no state report for {self.settings.log_silence_timeout:.3g} s")
-        self._pump(now)
-
-    def _flush_suppressed(self) -> None:
-        for key, suppressed in self.limiter.due_summaries(self.clock()):
-            self.output.error(
-                ErrorReport(
-                    stamp=self.wallclock(),
-                    source="gateway",
-                    key=key,
-                    reason=f"{suppressed} more reports on {key} were rate-limited",
-                    suppressed=suppressed,
-                )
-            )
-
     async def _stop_robot(self) -> None:
-        """Zero velocity and NORMAL_STOP, so the robot is left standing."""
-        if not self.control.connected:
+        """Zero velocity and NORMAL_STOP, so the robot is left standing; wait briefly for the replies."""
+        self.connection.stop_robot(self.clock())
+        self._flush()
+        stream = self._streams["control"]
+        if stream is None:
             return
-        self._send(protocol.set_velocity(0.0, 0.0))
-        self._send(protocol.simple(Command.NORMAL_STOP))
-        self.counters.commands_sent += 2
-        await self.control.drain(0.5)
+        try:
+            await asyncio.wait_for(stream.drain(), 0.5)
+        except (ConnectionError, TimeoutError):
+            return
         deadline = self.clock() + 0.3
-        while self.exchange.outstanding and self.clock() < deadline:
+        while not self.connection.idle and self.clock() < deadline and self._streams["control"] is not None:
             await asyncio.sleep(0.01)
+
+
+async def _sleep_or_stop(stop: asyncio.Event, delay: float) -> None:
+    try:
+        await asyncio.wait_for(stop.wait(), delay)
+    except TimeoutError:
+        pass
+
+
+async def _set_when(stop: asyncio.Event, wake: asyncio.Event) -> None:
+    """Wake the main loop when ``stop`` is set, so it never sleeps through a stop."""
+    await stop.wait()
+    wake.set()

@@ -15,6 +15,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
+from blackmetal.robot_model import arc_deltas, wheels_to_twist
+
 from .core import OdometryParams
 
 F = NDArray[np.float64]
@@ -57,9 +59,7 @@ def _acceptance(seq: NDArray[np.int64], stamp: F, max_gap: float) -> tuple[B, B,
         new_epoch[0] = True
         new_epoch[1:] = dstamp > max_gap
         gap_idx = np.flatnonzero(new_epoch[1:]) + 1
-        events = [
-            f"gap of {stamp[k] - stamp[k - 1]:.3f} s before seq {seq[k]} exceeds {max_gap} s: not integrated" for k in gap_idx
-        ]
+        events = [f"gap of {stamp[k] - stamp[k - 1]:.3f} s before seq {seq[k]} exceeds {max_gap} s: not integrated" for k in gap_idx]
         return accepted, new_epoch, [], events, len(gap_idx), 0, int(np.sum(dseq - 1))
     # irregular log: the streaming acceptance rules, sample by sample
     accepted = np.zeros(n, bool)
@@ -155,9 +155,7 @@ def _zero_run_before(zero: B, new_epoch: B) -> NDArray[np.int8]:
     return zr_before
 
 
-def _glitches(
-    c: F, c_other: F, new_epoch: B, alpha: float, limit: float
-) -> tuple[F, F, NDArray[np.float64], B, int]:
+def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.float64], B, int]:
     """One wheel's speeds to integrate, filtered speeds, the revision of the previous step decided
     at each sample (NaN = none), and its dropout count; the rules of
     :class:`~odometry_service.core.Glitches`."""
@@ -180,33 +178,12 @@ def _glitches(
     started = ~new_epoch
     started2 = started & _prev(started, False)
     retract = started2 & zero & (zr_before == 1) & ~(~prev_zero_o & zero_o)
-    late = (
-        started2
-        & ~retract
-        & ~zero
-        & (zr_before >= 2)
-        & _prev(prev_zero_o, True)
-        & ~prev_zero_o
-        & ~zero_o
-    )
+    late = started2 & ~retract & ~zero & (zr_before >= 2) & _prev(prev_zero_o, True) & ~prev_zero_o & ~zero_o
     with np.errstate(divide="ignore", invalid="ignore"):
         late_value = np.clip(np.where(late, c * prev_co / np.where(late, c_other, 1.0), 0.0), -limit, limit)
     revision = np.where(retract, 0.0, np.where(late, late_value, np.nan))
     dropouts = int(np.count_nonzero(first_zero)) - int(np.count_nonzero(retract))
     return u, y, revision, retract | late, dropouts
-
-
-def _arc(yaw_before: F, d_left: F, d_right: F, separation: float) -> tuple[F, F, F]:
-    """Chord components and turn of each step (the scalar arc_step, vectorised)."""
-    ds = 0.5 * (d_left + d_right)
-    dth = (d_right - d_left) / separation
-    half = 0.5 * dth
-    small = np.abs(half) <= 1e-6
-    safe = np.where(small, 1.0, half)
-    factor = np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
-    chord = ds * factor
-    heading = yaw_before + half
-    return chord * np.cos(heading), chord * np.sin(heading), dth
 
 
 def run_batch(
@@ -226,9 +203,7 @@ def run_batch(
     if not accepted.all():
         stamp, left_imp, right_imp = stamp[accepted], left_imp[accepted], right_imp[accepted]
     n = len(stamp)
-    sign = -1.0 if p.mirror_right else 1.0
-    x_left = left_imp / p.impulses_per_meter_left
-    x_right = sign * right_imp / p.impulses_per_meter_right
+    x_left, x_right = p.encoders.to_speeds(left_imp, right_imp)
     c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
     c_right, spikes_r = _clean(x_right, x_left, new_epoch, p.spike_limit)
     u_left, y_left, rev_left, fix_l, drops_l = _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit)
@@ -251,13 +226,12 @@ def run_batch(
     d_left = np.where(has_step, s_left * dt, 0.0)
     d_right = np.where(has_step, s_right * dt, 0.0)
 
-    dth = (d_right - d_left) / p.wheel_separation
-    yaw = np.cumsum(dth)
+    yaw = np.cumsum(wheels_to_twist(d_left, d_right, p.wheel_separation)[1])  # turn of each step
     yaw_before = np.empty(n)
     if n:
         yaw_before[0] = 0.0
         yaw_before[1:] = yaw[:-1]
-    dx, dy, _ = _arc(yaw_before, d_left, d_right, p.wheel_separation)
+    dx, dy, _ = arc_deltas(yaw_before, d_left, d_right, p.wheel_separation)
     x = np.cumsum(dx)
     y = np.cumsum(dy)
 
@@ -269,19 +243,20 @@ def run_batch(
         y_prev = np.where(k > 0, y[k - 1], 0.0)
         yaw_prev = np.where(k > 0, yaw[k - 1], 0.0)
         held_l, held_r = u_left[k] * dt[k], u_right[k] * dt[k]
-        pdx, pdy, pdth = _arc(yaw_prev, held_l, held_r, p.wheel_separation)
+        pdx, pdy, pdth = arc_deltas(yaw_prev, held_l, held_r, p.wheel_separation)
         x = x.copy()
         y = y.copy()
         yaw = yaw.copy()
         x[k], y[k], yaw[k] = x_prev + pdx, y_prev + pdy, yaw_prev + pdth
 
+    v, w = wheels_to_twist(y_left, y_right, p.wheel_separation)
     return BatchResult(
         stamp=stamp,
         x=x,
         y=y,
         yaw=yaw,
-        v=0.5 * (y_left + y_right),
-        w=(y_right - y_left) / p.wheel_separation,
+        v=v,
+        w=w,
         rejected=rejected,
         events=events,
         spikes=spikes_l + spikes_r,

@@ -25,21 +25,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from blackmetal import robot_model as model
+from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
 from schemas import Pose, WheelImpulses, make_pose
-from schemas import robot as facts
-from schemas.robot import arc_step
 
-from .errors import SampleRejected
+from .errors import OdometryError, SampleRejected
 
 
 @dataclass(frozen=True, slots=True)
 class OdometryParams:
-    wheel_separation: float = facts.WHEEL_SEPARATION
-    impulses_per_meter_left: float = facts.IMPULSES_PER_METER_LEFT
-    impulses_per_meter_right: float = facts.IMPULSES_PER_METER_RIGHT
-    #: The right encoder counts backwards when the wheel drives forward.
-    mirror_right: bool = True
-    max_wheel_speed: float = facts.MAX_WHEEL_SPEED
+    wheel_separation: float = model.WHEEL_SEPARATION
+    #: Impulses per metre of each wheel and the right encoder's mirroring.
+    encoders: Encoders = NOMINAL_ENCODERS
+    max_wheel_speed: float = model.MAX_WHEEL_SPEED
     #: A reading above ``max_wheel_speed * spike_factor`` is a glitch (margin for quantisation).
     spike_factor: float = 1.05
     #: Low-pass strength a in [0, 1): 0 = off.
@@ -48,24 +46,24 @@ class OdometryParams:
     max_gap: float = 0.5
 
     def check(self) -> None:
-        from .errors import OdometryError
-
         if not 0.0 <= self.filter_alpha < 1.0:
             raise OdometryError(f"filter_alpha must be in [0, 1), got {self.filter_alpha}")
-        for name in ("wheel_separation", "impulses_per_meter_left", "impulses_per_meter_right", "max_wheel_speed", "max_gap"):
-            if not getattr(self, name) > 0:
-                raise OdometryError(f"{name} must be positive, got {getattr(self, name)}")
+        values = {
+            "wheel_separation": self.wheel_separation,
+            "impulses_left": self.encoders.impulses_per_meter_left,
+            "impulses_right": self.encoders.impulses_per_meter_right,
+            "max_wheel_speed": self.max_wheel_speed,
+            "max_gap": self.max_gap,
+        }
+        for name, value in values.items():
+            if not value > 0:
+                raise OdometryError(f"{name} must be positive, got {value}")
         if self.spike_factor < 1.0:
             raise OdometryError("spike_factor must be >= 1")
 
     @property
     def spike_limit(self) -> float:
         return self.max_wheel_speed * self.spike_factor
-
-    def to_speeds(self, left: int, right: int) -> tuple[float, float]:
-        """Impulses per second to rim speeds (m/s), forward positive on both wheels."""
-        sign = -1.0 if self.mirror_right else 1.0
-        return left / self.impulses_per_meter_left, sign * right / self.impulses_per_meter_right
 
 
 @dataclass(slots=True)
@@ -160,13 +158,7 @@ class Glitches:
                 if x == 0.0 and me.zero_run == 1 and not (other.prev != 0.0 and x_other == 0.0):
                     revisions[i] = 0.0  # the estimated zero was a real stop
                     self.dropouts -= 1
-                elif (
-                    x != 0.0
-                    and me.zero_run >= 2
-                    and other.prev2 == 0.0
-                    and other.prev != 0.0
-                    and x_other != 0.0
-                ):
+                elif x != 0.0 and me.zero_run >= 2 and other.prev2 == 0.0 and other.prev != 0.0 and x_other != 0.0:
                     revisions[i] = self._clip(x * other.prev / x_other)  # the start of a joint start was dropped
             zero_run = me.zero_run
             if x == 0.0 and zero_run == 0:
@@ -253,17 +245,13 @@ class Odometry:
         if sample.seq <= last_seq:
             if sample.stamp > last_stamp:
                 self.restarts += 1
-                self.events.append(
-                    f"sequence restarted at {sample.seq} after {last_seq} (gateway restart): not integrating across it"
-                )
+                self.events.append(f"sequence restarted at {sample.seq} after {last_seq} (gateway restart): not integrating across it")
                 return True
             raise SampleRejected(
                 f"duplicate or out-of-order sample: seq {sample.seq} (stamp {sample.stamp:.6f}) after seq {last_seq} (stamp {last_stamp:.6f})"
             )
         if sample.stamp < last_stamp:
-            raise SampleRejected(
-                f"stamp went backwards: seq {sample.seq} at {sample.stamp:.6f} after seq {last_seq} at {last_stamp:.6f}"
-            )
+            raise SampleRejected(f"stamp went backwards: seq {sample.seq} at {sample.stamp:.6f} after seq {last_seq} at {last_stamp:.6f}")
         if sample.seq > last_seq + 1:
             self.missed += sample.seq - last_seq - 1
         if sample.stamp - last_stamp > self.params.max_gap:
@@ -278,7 +266,7 @@ class Odometry:
         """One impulse sample in, the updated pose out. Raises SampleRejected for unusable samples."""
         new_epoch = self._check_order(sample)
         p = self.params
-        raw_left, raw_right = p.to_speeds(sample.left, sample.right)
+        raw_left, raw_right = p.encoders.to_speeds(float(sample.left), float(sample.right))
         if new_epoch:
             self._glitches.reset()
             self._before_last = self._last_step = None
@@ -302,7 +290,6 @@ class Odometry:
             self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, u_left * dt, u_right * dt, p.wheel_separation)
         self._last_seq, self._last_stamp = sample.seq, sample.stamp
         self.stamp = sample.stamp
-        self.v = 0.5 * (update.filtered_left + update.filtered_right)
-        self.w = (update.filtered_right - update.filtered_left) / p.wheel_separation
+        self.v, self.w = wheels_to_twist(update.filtered_left, update.filtered_right, p.wheel_separation)
         self.samples += 1
         return self.pose()

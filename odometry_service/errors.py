@@ -1,10 +1,12 @@
-"""The one error hierarchy of the odometry service."""
+"""Errors of the odometry service, under the one root :class:`schemas.BlackmetalError`."""
 
 from __future__ import annotations
 
+from schemas import BlackmetalError
 
-class OdometryError(Exception):
-    """Base of every error raised by :mod:`odometry_service`."""
+
+class OdometryError(BlackmetalError):
+    """Base of the errors raised by :mod:`odometry_service`."""
 
 
 class SampleRejected(OdometryError):
@@ -12,4 +14,4 @@ class SampleRejected(OdometryError):
 
 
 class ReplayError(OdometryError):
-    """A replay file that cannot be read; the text names the line."""
+    """A recording that cannot be replayed; the text names the line."""

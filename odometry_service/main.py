@@ -3,65 +3,46 @@
 from __future__ import annotations
 
 import argparse
-import logging
-import sys
-import threading
+import asyncio
 
-from gateway.config import given_options, load_settings
-from gateway.errors import ConfigError
-from gateway.signals import stop_on_signals
-from gateway.zenoh_config import add_zenoh_arguments, zenoh_settings
+from blackmetal.runtime.entry import run_service, service_parser
+from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.settings import load_settings
+from blackmetal.runtime.zenoh_setup import open_session
+from schemas import Keys
 
 from .service import OdometryService
-from .settings import OdometrySettings, add_odometry_arguments
+from .settings import OdometrySettings
+from .zenoh_edge import OdometryZenoh
 
-log = logging.getLogger("blackmetal.odometry")
+#: How often rate-limited error summaries are published (s).
+FLUSH_PERIOD_S = 1.0
 
 
-def serve(settings: OdometrySettings, stop: threading.Event) -> None:
-    import zenoh
-
-    from .zenoh_edge import OdometryZenoh
-
-    with zenoh.open(zenoh_settings(settings).to_config()) as session:
-        edge = OdometryZenoh(session, settings.prefix)
-        service = OdometryService(settings.params(), settings.prefix, edge)
-        edge.attach()
-        print(f"blackmetal odometry ready: {settings.prefix}/wheels/impulses -> {settings.prefix}/pose", flush=True)
+async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
+    keys = Keys(settings.prefix)
+    with open_session(settings.zenoh) as session:
+        edge = OdometryZenoh(session, keys)
+        service = OdometryService(settings.params(), keys, edge)
+        edge.attach(service, asyncio.get_running_loop())
+        print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
+        announce_ready("odometry", prefix=settings.prefix)
         try:
-            edge.serve(service, stop)
+            while not stop.is_set():
+                try:
+                    await asyncio.wait_for(stop.wait(), FLUSH_PERIOD_S)
+                except TimeoutError:
+                    service.reporter.flush()
         finally:
             edge.close()
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal odometry", description=__doc__)
-    add_odometry_arguments(parser)
-    parser.add_argument("--prefix", help="key-expression prefix (default robot)")
-    add_zenoh_arguments(parser)
-    return parser
-
-
-def load(args: argparse.Namespace) -> OdometrySettings:
-    options = given_options(args)
-    return load_settings(OdometrySettings, options, options.pop("settings", None))
+    return service_parser("blackmetal odometry", __doc__, OdometrySettings, parser)
 
 
 def run(args: argparse.Namespace) -> int:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s odometry %(levelname)s %(message)s")
-    try:
-        settings = load(args)
-    except ConfigError as exc:
-        print(f"blackmetal odometry: {exc}", file=sys.stderr)
-        return 2
-    stop = stop_on_signals()
-    try:
-        serve(settings, stop)
-    except ConfigError as exc:
-        print(f"blackmetal odometry: {exc}", file=sys.stderr)
-        return 2
-    log.info("stopped")
-    return 0
+    return run_service("odometry", lambda: load_settings(OdometrySettings, args), serve)
 
 
 def main(argv: list[str] | None = None) -> int:

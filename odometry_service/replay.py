@@ -1,15 +1,14 @@
-"""``blackmetal replay FILE``: a recorded impulse log through the odometry pipeline in one numpy pass.
+"""The replay core: a recorded impulse log through the odometry pipeline in one numpy pass.
 
-The file holds JSON lines of WheelImpulses, exactly as published on
-``<prefix>/wheels/impulses`` (``blackmetal record`` or any Zenoh subscriber
-that writes payloads one per line). The last line of stdout is the final
-pose as one JSON object; ``-o FILE`` writes every pose as JSON lines.
+A log holds JSON lines of WheelImpulses, exactly as published on
+``<prefix>/wheels/impulses`` (any Zenoh subscriber that writes the payloads
+one per line makes one). The ``blackmetal replay`` command is in
+:mod:`blackmetal.tools.replay`.
 """
 
 from __future__ import annotations
 
 import gc
-import sys
 from operator import attrgetter
 from pathlib import Path
 from typing import BinaryIO
@@ -17,7 +16,7 @@ from typing import BinaryIO
 import msgspec
 import numpy as np
 
-from schemas import Pose, WheelImpulses, encode, make_pose
+from schemas import Pose, WheelImpulses, make_pose
 
 from .batch import BatchResult, run_batch
 from .core import OdometryParams
@@ -114,49 +113,3 @@ def summary(result: BatchResult) -> str:
         f"{len(result)} samples, {len(result.rejected)} rejected, {result.spikes} spikes, {result.dropouts} dropouts held,"
         f" {result.retractions} stops corrected, {result.gaps} gaps, {result.restarts} restarts, {result.missed} missed"
     )
-
-
-def print_final(result: BatchResult) -> None:
-    sys.stdout.buffer.write(encode(final_pose(result)) + b"\n")
-    sys.stdout.flush()
-
-
-def build_parser(parser=None):  # type: ignore[no-untyped-def]
-    import argparse
-
-    from .settings import add_odometry_arguments
-
-    parser = parser or argparse.ArgumentParser(prog="blackmetal replay", description=__doc__)
-    parser.add_argument("file", help="JSON-lines file of WheelImpulses")
-    parser.add_argument("-o", "--output", metavar="FILE", help="write every pose as JSON lines")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
-    add_odometry_arguments(parser)
-    return parser
-
-
-def run(args) -> int:  # type: ignore[no-untyped-def]
-    from gateway.config import given_options, load_settings
-    from gateway.errors import ConfigError
-
-    from .settings import OdometrySettings
-
-    options = given_options(args)
-    for name in ("file", "output", "quiet"):
-        options.pop(name, None)
-    try:
-        settings = load_settings(OdometrySettings, options, options.pop("settings", None))
-        result = replay_file(args.file, settings.params())
-    except (ConfigError, ReplayError) as exc:
-        print(f"blackmetal replay: {exc}", file=sys.stderr)
-        return 2
-    if args.output:
-        with open(args.output, "wb") as out:
-            write_poses(result, out)
-    if not args.quiet:
-        print(summary(result), file=sys.stderr)
-        for reason in result.rejected[:5]:
-            print(f"rejected: {reason}", file=sys.stderr)
-        for event in result.events[:5]:
-            print(f"note: {event}", file=sys.stderr)
-    print_final(result)
-    return 0

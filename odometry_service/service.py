@@ -1,7 +1,7 @@
-"""The odometry service's core loop: impulses in, poses out, between thin edges.
+"""The odometry service's core: impulse payloads in, poses and error reports out, between thin edges.
 
-All work happens on one thread that drains a queue; the Zenoh edge only puts
-payloads and queries on that queue from its callbacks.
+Runs on one asyncio loop; the Zenoh edge hands payloads and queries over
+(:mod:`blackmetal.runtime.edge`). No I/O here: tests call it directly.
 """
 
 from __future__ import annotations
@@ -11,8 +11,8 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
-from gateway.ratelimit import ReportLimiter
-from schemas import ErrorReport, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
+from blackmetal.runtime.reports import ErrorReporter
+from schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
 
 from .core import Odometry, OdometryParams
 from .errors import SampleRejected
@@ -41,38 +41,40 @@ class OdometryService:
     def __init__(
         self,
         params: OdometryParams,
-        prefix: str,
+        keys: Keys,
         output: OdometryOutput,
         clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
     ) -> None:
         self.odometry = Odometry(params)
-        self.prefix = prefix
+        self.keys = keys
         self.output = output
         self.clock = clock
-        self.wallclock = wallclock
-        self.limiter = ReportLimiter()
+        self.reporter = ErrorReporter("odometry", output.error, clock, wallclock)
         self.rejected = 0
-        self._impulses_key = f"{prefix}/wheels/impulses"
 
     def on_impulses(self, payload: bytes) -> None:
         try:
             sample = decode(WheelImpulses, payload)
         except PayloadError as exc:
-            self.reject(self._impulses_key, str(exc), exc.excerpt)
+            self.reject(self.keys.impulses, str(exc), exc.excerpt)
             return
         try:
             pose = self.odometry.feed(sample)
         except SampleRejected as exc:
-            self.reject(self._impulses_key, str(exc), excerpt(payload))
+            self.reject(self.keys.impulses, str(exc), excerpt(payload))
             return
         self.output.pose(pose)
         while self.odometry.events:
-            self.report(self._impulses_key, self.odometry.events.pop(0))
+            self.reporter.report(self.keys.impulses, self.odometry.events.pop(0))
 
     def on_reset(self, payload: bytes | None) -> Pose:
-        """Reset to zero, or to the pose in the payload; PayloadError if it is not one."""
-        target = PoseReset() if not payload or not payload.strip() else decode(PoseReset, payload)
+        """Reset to zero, or to the pose in the payload; PayloadError (reported) if it is not one."""
+        try:
+            target = PoseReset() if not payload or not payload.strip() else decode(PoseReset, payload)
+        except PayloadError as exc:
+            self.reject(self.keys.odometry_reset, str(exc), exc.excerpt)
+            raise
         return self.odometry.reset(target.x, target.y, target.yaw)
 
     def latest(self) -> Pose:
@@ -80,25 +82,4 @@ class OdometryService:
 
     def reject(self, key: str, reason: str, snippet: str = "") -> None:
         self.rejected += 1
-        self.report(key, reason, snippet)
-
-    def report(self, key: str, reason: str, snippet: str = "") -> None:
-        admitted, suppressed = self.limiter.admit(key, self.clock())
-        if admitted:
-            self.output.error(
-                ErrorReport(
-                    stamp=self.wallclock(), source="odometry", key=key, reason=reason, excerpt=snippet, suppressed=suppressed
-                )
-            )
-
-    def flush_suppressed(self) -> None:
-        for key, suppressed in self.limiter.due_summaries(self.clock()):
-            self.output.error(
-                ErrorReport(
-                    stamp=self.wallclock(),
-                    source="odometry",
-                    key=key,
-                    reason=f"{suppressed} more reports on {key} were rate-limited",
-                    suppressed=suppressed,
-                )
-            )
+        self.reporter.report(key, reason, snippet)

@@ -1,39 +1,35 @@
-"""The odometry service's settings (same precedence rules as the gateway's)."""
+"""The odometry service's settings: one typed model, the same precedence rules as every service."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from gateway.errors import ConfigError
-from gateway.zenoh_config import MODES, validate_prefix
-from schemas import robot as facts
+from blackmetal import robot_model as model
+from blackmetal.robot_model import Encoders
+from blackmetal.runtime.settings import setting
+from blackmetal.runtime.zenoh_setup import ZenohSettings
+from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 from .core import OdometryParams
 from .errors import OdometryError
 
 
 @dataclass(slots=True)
-class OdometrySettings:
-    wheel_separation: float = facts.WHEEL_SEPARATION
-    impulses_left: float = facts.IMPULSES_PER_METER_LEFT
-    impulses_right: float = facts.IMPULSES_PER_METER_RIGHT
-    mirror_right: bool = True
-    max_wheel_speed: float = facts.MAX_WHEEL_SPEED
-    filter_alpha: float = 0.3
-    max_gap: float = 0.5
-    prefix: str = facts.DEFAULT_PREFIX
-    mode: str | None = None
-    connect: list[str] = field(default_factory=list)
-    listen: list[str] = field(default_factory=list)
-    config: str | None = None
-    no_multicast_scouting: bool = False
+class PipelineSettings:
+    """The pipeline's options, shared by ``blackmetal odometry`` and ``blackmetal replay``."""
+
+    wheel_separation: float = setting(model.WHEEL_SEPARATION, "distance between the wheels, m", metavar="M")
+    impulses_left: float = setting(model.IMPULSES_PER_METER_LEFT, "impulses per metre, left wheel", metavar="N")
+    impulses_right: float = setting(model.IMPULSES_PER_METER_RIGHT, "impulses per metre, right wheel", metavar="N")
+    mirror_right: bool = setting(model.RIGHT_ENCODER_MIRRORED, "the right encoder is not mirrored", flag="--no-mirror-right", const=False)
+    max_wheel_speed: float = setting(model.MAX_WHEEL_SPEED, "m/s; readings above 1.05x this are glitches", metavar="M/S")
+    filter_alpha: float = setting(0.3, "low-pass strength in [0, 1), 0 = off", metavar="A")
+    max_gap: float = setting(0.5, "do not integrate across gaps longer than this, s", metavar="S")
 
     def params(self) -> OdometryParams:
         return OdometryParams(
             wheel_separation=self.wheel_separation,
-            impulses_per_meter_left=self.impulses_left,
-            impulses_per_meter_right=self.impulses_right,
-            mirror_right=self.mirror_right,
+            encoders=Encoders(self.impulses_left, self.impulses_right, self.mirror_right),
             max_wheel_speed=self.max_wheel_speed,
             filter_alpha=self.filter_alpha,
             max_gap=self.max_gap,
@@ -44,20 +40,13 @@ class OdometrySettings:
             self.params().check()
         except OdometryError as exc:
             raise ConfigError(str(exc)) from None
-        if self.mode is not None and self.mode not in MODES:
-            raise ConfigError(f"mode must be one of {MODES}")
+
+
+@dataclass(slots=True)
+class OdometrySettings(PipelineSettings):
+    prefix: str = setting(DEFAULT_PREFIX, "key-expression prefix, e.g. fleet/a")
+    zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+
+    def check(self) -> None:
+        PipelineSettings.check(self)
         validate_prefix(self.prefix)
-
-
-def add_odometry_arguments(parser) -> None:  # type: ignore[no-untyped-def]
-    """Pipeline options shared by ``blackmetal odometry`` and ``blackmetal replay``."""
-    parser.add_argument("--settings", metavar="FILE", help="settings file (TOML or JSON5)")
-    parser.add_argument("--wheel-separation", type=float, help="m (default 0.5)")
-    parser.add_argument("--impulses-left", type=float, help="impulses per metre, left wheel (default 1012.53636364)")
-    parser.add_argument("--impulses-right", type=float, help="impulses per metre, right wheel (default 1053.67588345)")
-    parser.add_argument(
-        "--no-mirror-right", dest="mirror_right", action="store_const", const=False, help="the right encoder is not mirrored"
-    )
-    parser.add_argument("--max-wheel-speed", type=float, help="m/s; readings above are glitches (default 0.8)")
-    parser.add_argument("--filter-alpha", type=float, help="low-pass strength in [0, 1), 0 = off (default 0.3)")
-    parser.add_argument("--max-gap", type=float, help="do not integrate across gaps longer than this, s (default 0.5)")

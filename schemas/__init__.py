@@ -1,14 +1,15 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, to_bytes
-from .errors import PayloadError, SchemaError
+from .errors import BlackmetalError, ConfigError, PayloadError
 from .jsonschema import json_schemas
+from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
 from .messages import (
     DIRECTION_NAMES,
     MESSAGE_TYPES,
     STATE_NAMES,
-    EStop,
     ErrorReport,
+    EStop,
     GatewayHealth,
     LinkHealth,
     Pose,
@@ -25,20 +26,26 @@ from .messages import (
 )
 
 __all__ = [
+    "ANY_GATEWAY_ALIVE",
+    "DEFAULT_PREFIX",
     "DIRECTION_NAMES",
+    "KEY_SPECS",
     "MAX_PAYLOAD_BYTES",
     "MESSAGE_TYPES",
     "STATE_NAMES",
+    "BlackmetalError",
+    "ConfigError",
     "EStop",
     "ErrorReport",
     "GatewayHealth",
+    "KeySpec",
+    "Keys",
     "LinkHealth",
     "PayloadError",
     "Pose",
     "PoseReset",
     "Quaternion",
     "RobotStatus",
-    "SchemaError",
     "SimFaults",
     "Twist",
     "Vector3",
@@ -49,6 +56,7 @@ __all__ = [
     "json_schemas",
     "make_pose",
     "to_bytes",
+    "validate_prefix",
     "wrap_angle",
     "yaw_quaternion",
 ]

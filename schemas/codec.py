@@ -68,9 +68,7 @@ def decode(message_type: type[T], payload: Any, max_bytes: int = MAX_PAYLOAD_BYT
     name = message_type.__name__
     data = to_bytes(payload)
     if len(data) > max_bytes:
-        raise PayloadError(
-            name, f"payload is {len(data)} bytes, larger than the {max_bytes}-byte limit", excerpt(data)
-        )
+        raise PayloadError(name, f"payload is {len(data)} bytes, larger than the {max_bytes}-byte limit", excerpt(data))
     if data.startswith(b"\xef\xbb\xbf"):
         data = data[3:]
     data = data.strip()

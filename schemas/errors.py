@@ -1,13 +1,31 @@
-"""The one error type of the schemas package."""
+"""The one error hierarchy of blackmetal, rooted here at the bottom layer so every package can use it.
+
+Every error a blackmetal module raises on purpose derives from
+:class:`BlackmetalError`; a command catches that root and prints one
+sentence instead of a traceback. The whole tree::
+
+    BlackmetalError                      schemas.errors
+    ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
+    ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
+    ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
+    ├── OdometryError                    odometry_service.errors
+    │   ├── SampleRejected               an impulse sample that cannot be integrated
+    │   └── ReplayError                  a recording that cannot be replayed; names the line
+    └── ToolError                        blackmetal.tools.client: a user tool cannot do its job; says what to check
+"""
 
 from __future__ import annotations
 
 
-class SchemaError(ValueError):
-    """Base of every error raised by :mod:`schemas`."""
+class BlackmetalError(Exception):
+    """Root of every error blackmetal raises on purpose; see the module docstring for the tree."""
 
 
-class PayloadError(SchemaError):
+class ConfigError(BlackmetalError):
+    """A setting is missing, malformed or out of range; the text names it and says what would work."""
+
+
+class PayloadError(BlackmetalError, ValueError):
     """A payload is not a valid message: the text says what was wrong, for a person.
 
     Carries the message type's name and a short, printable excerpt of the

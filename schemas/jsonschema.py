@@ -6,32 +6,23 @@ from typing import Any
 
 import msgspec
 
+from .keys import KEY_SPECS
 from .messages import MESSAGE_TYPES
 
-#: Which key expression (below the prefix) carries each message.
-MESSAGE_KEYS: dict[str, str] = {
-    "Twist": "cmd_vel",
-    "EStop": "estop",
-    "WheelImpulses": "wheels/impulses",
-    "Pose": "pose, sim/truth",
-    "RobotStatus": "status",
-    "GatewayHealth": "gateway/health",
-    "ErrorReport": "errors",
-    "SimFaults": "sim/faults",
-    "PoseReset": "odometry/reset (query payload)",
-}
+
+def _where(message_type: type[msgspec.Struct]) -> str:
+    suffixes = [spec.suffix for spec in KEY_SPECS if spec.message is message_type]
+    return ", ".join(f"<prefix>/{suffix}" for suffix in suffixes)
 
 
 def json_schemas() -> dict[str, dict[str, Any]]:
     """One self-contained JSON Schema (draft 2020-12) per message type."""
     schemas: dict[str, dict[str, Any]] = {}
     for name, message_type in MESSAGE_TYPES.items():
-        schema = msgspec.json.schema(message_type)
-        schema = {
+        schemas[name] = {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "title": name,
-            "description": f"blackmetal message on <prefix>/{MESSAGE_KEYS[name]}",
-            **schema,
+            "description": f"blackmetal message on {_where(message_type)}",
+            **msgspec.json.schema(message_type),
         }
-        schemas[name] = schema
     return schemas

@@ -113,9 +113,7 @@ def yaw_quaternion(yaw: float) -> Quaternion:
 def make_pose(stamp: float, x: float, y: float, yaw: float, v: float = 0.0, w: float = 0.0) -> Pose:
     """Build a :class:`Pose` with the yaw wrapped and its quaternion filled in."""
     yaw = wrap_angle(float(yaw))
-    return Pose(
-        stamp=float(stamp), x=float(x), y=float(y), yaw=yaw, v=float(v), w=float(w), orientation=yaw_quaternion(yaw)
-    )
+    return Pose(stamp=float(stamp), x=float(x), y=float(y), yaw=yaw, v=float(v), w=float(w), orientation=yaw_quaternion(yaw))
 
 
 STATE_NAMES: dict[int, str] = {0: "UNKNOWN", 1: "READY", 2: "ERROR", 3: "RUN", 4: "SHUTDOWN"}
@@ -165,6 +163,10 @@ class GatewayHealth(msgspec.Struct):
     garbage_bytes: int = 0
     rejected_inputs: int = 0
     keepalives: int = 0
+    #: Requests given up: no reply within the reply timeout, or the link went down first.
+    lost_replies: int = 0
+    #: Poll ticks skipped because the previous poll was still unanswered (polls never queue up).
+    polls_skipped: int = 0
     estop: bool = False
     cmd_timeout_active: bool = False
     last_rtt_ms: float | None = None
@@ -185,8 +187,6 @@ class ErrorReport(msgspec.Struct):
     reason: str
     excerpt: str = ""
     suppressed: int = 0
-
-
 
 
 class PoseReset(msgspec.Struct, forbid_unknown_fields=True):

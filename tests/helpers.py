@@ -3,19 +3,15 @@
 from __future__ import annotations
 
 import json
-import os
 import re
-import signal
 import socket
-import subprocess
-import sys
-import threading
 import time
-from collections import deque
 from collections.abc import Callable
 from typing import Any
 
 import zenoh
+
+from blackmetal.runtime.harness import ChildFailed, ServiceProcess
 
 #: Generous: these tests must hold on a loaded 2-core machine.
 TIMEOUT = 20.0
@@ -56,33 +52,15 @@ def client_config(port: int) -> zenoh.Config:
     return conf
 
 
-class Child:
-    """A child process whose output is collected by a thread (so pipes never fill)."""
+class Child(ServiceProcess):
+    """A child process through the project's one harness; ``wait_line`` checks what a person would read."""
 
     def __init__(self, args: list[str], env: dict[str, str] | None = None, launcher: list[str] | None = None) -> None:
-        full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {})}
-        self.args = args
-        self.proc = subprocess.Popen(
-            [*(launcher or []), sys.executable, *args],
-            stdout=subprocess.PIPE,
-            stderr=subprocess.STDOUT,
-            stdin=subprocess.DEVNULL,
-            env=full_env,
-            text=True,
-        )
-        self.lines: deque[str] = deque(maxlen=2000)
-        self._reader = threading.Thread(target=self._read, daemon=True)
-        self._reader.start()
-
-    def _read(self) -> None:
-        assert self.proc.stdout is not None
-        for line in self.proc.stdout:
-            self.lines.append(line.rstrip("\n"))
-
-    def output(self) -> str:
-        return "\n".join(self.lines)
+        name = args[2] if args[:2] == ["-m", "blackmetal"] and len(args) > 2 else " ".join(args[:2])
+        super().__init__(name, args, env=env, launcher=launcher)
 
     def wait_line(self, pattern: str, timeout: float = TIMEOUT) -> re.Match[str]:
+        """The first line of output matching ``pattern`` (for assertions on human output, not readiness)."""
         regex = re.compile(pattern)
 
         def found() -> re.Match[str] | None:
@@ -99,25 +77,20 @@ class Child:
         except AssertionError as exc:
             raise AssertionError(f"{exc}\noutput so far:\n{self.output()}") from None
 
-    def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
-        """Signal the child and wait; kill it if it does not exit in time."""
-        if self.proc.poll() is None:
-            self.proc.send_signal(sig)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait(5)
-        self._reader.join(2)
-        return self.proc.returncode
+    def ready(self, timeout: float = TIMEOUT) -> dict[str, Any]:
+        """Wait for the child's ready announcement; fail the test with its output if it never comes."""
+        try:
+            return self.wait_ready(timeout)
+        except ChildFailed as exc:
+            raise AssertionError(str(exc) + "\n" + self.output()) from None
 
 
 class SimProcess(Child):
     """``blackmetal sim`` on free ports; ``control_port``/``log_port`` once ready."""
 
     def __init__(self, *extra: str, launcher: list[str] | None = None) -> None:
-        super().__init__(["-m", "gateway.cli", "sim", "--control-port", "0", "--log-port", "0", *extra], launcher=launcher)
-        match = self.wait_line(r"control (\S+):(\d+), log (\S+):(\d+)")
-        self.host = match.group(1)
-        self.control_port = int(match.group(2))
-        self.log_port = int(match.group(4))
+        super().__init__(["-m", "blackmetal", "sim", "--control-port", "0", "--log-port", "0", *extra], launcher=launcher)
+        info = self.ready()
+        self.host = info["host"]
+        self.control_port = int(info["control_port"])
+        self.log_port = int(info["log_port"])

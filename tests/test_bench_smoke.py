@@ -14,11 +14,19 @@ pytestmark = pytest.mark.integration
 def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no-untyped-def]
     out = tmp_path / "bench.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "gateway.cli", "bench", "--quick", "--json", str(out)],
+        [sys.executable, "-m", "blackmetal", "bench", "--quick", "--json", str(out)],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    for row in ("cmd_vel -> robot socket p50", "impulse -> Pose at client p50", "poll at 200 Hz", "replay", "RSS after", "CPU at 100 Hz", "cmd_vel flood"):
+    for row in (
+        "cmd_vel -> robot socket p50",
+        "impulse -> Pose at client p50",
+        "poll at 200 Hz",
+        "replay",
+        "RSS after",
+        "CPU at 100 Hz",
+        "cmd_vel flood",
+    ):
         assert row in proc.stdout
     figures = json.loads(out.read_text())
     assert set(figures) >= {"cmd_vel_to_robot_ms", "zenoh_hop_ms", "impulse_to_pose_ms", "two_hops_ms", "poll", "replay", "memory", "flood"}

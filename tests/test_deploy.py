@@ -15,11 +15,11 @@ import sys
 import time
 from pathlib import Path
 
+import json5
 import pytest
 import zenoh
-
-from gateway.config import loads_json5
 from helpers import TIMEOUT, Child, SimProcess, free_port, wait_for
+
 from schemas import Pose, decode
 
 pytestmark = pytest.mark.integration
@@ -30,7 +30,7 @@ DEPLOY = ROOT / "deploy"
 
 def config_copy(name: str, tmp_path: Path, edit=None) -> Path:  # type: ignore[no-untyped-def]
     """A deploy/zenoh file, parsed (so it must be valid JSON5), edited, written as JSON."""
-    data = loads_json5((DEPLOY / "zenoh" / name).read_text())
+    data = json5.loads((DEPLOY / "zenoh" / name).read_text())
     if edit is not None:
         edit(data)
     out = tmp_path / name.replace(".json5", ".json")
@@ -40,9 +40,9 @@ def config_copy(name: str, tmp_path: Path, edit=None) -> Path:  # type: ignore[n
 
 class Router(Child):
     def __init__(self, config: Path, endpoint: str) -> None:
-        super().__init__(["-m", "gateway.cli", "router", "-c", str(config), "-l", endpoint])
+        super().__init__(["-m", "blackmetal", "router", "-c", str(config), "-l", endpoint])
         self.endpoint = endpoint
-        self.wait_line("blackmetal router ready")
+        self.ready()
 
 
 def client_conf(endpoint: str, user: str | None = None, password: str | None = None, extra: dict | None = None) -> zenoh.Config:  # type: ignore[type-arg]
@@ -76,8 +76,8 @@ def start_robot(children: list[Child], endpoint: str, prefix: str = "robot", cre
     gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], env=env("gateway"))
     odometry = Child(["-m", "odometry_service", *zargs], env=env("odometry"))
     children.extend([gateway, odometry])
-    gateway.wait_line("gateway ready")
-    odometry.wait_line("odometry ready")
+    gateway.ready()
+    odometry.ready()
     return sim
 
 
@@ -98,9 +98,7 @@ def drive(session: zenoh.Session, prefix: str, seconds: float = 1.5, v: float = 
 def wait_services(session: zenoh.Session, prefix: str = "robot") -> None:
     wait_for(lambda: get_pose(session, f"{prefix}/pose") is not None and get_pose(session, f"{prefix}/sim/truth") is not None,
              what=f"{prefix} services through the router")  # fmt: skip
-    wait_for(
-        lambda: any(r.ok is not None for r in session.get(f"{prefix}/gateway/health", timeout=3)), what="the gateway's health"
-    )
+    wait_for(lambda: any(r.ok is not None for r in session.get(f"{prefix}/gateway/health", timeout=3)), what="the gateway's health")
 
 
 def test_router_config_carries_a_client_mode_drive(children: list[Child], tmp_path: Path) -> None:
@@ -131,9 +129,10 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
     start_robot(children, endpoint, creds=creds)
-    with zenoh.open(client_conf(endpoint, "operator", creds["operator"])) as operator, zenoh.open(
-        client_conf(endpoint, "viewer", creds["viewer"])
-    ) as viewer:
+    with (
+        zenoh.open(client_conf(endpoint, "operator", creds["operator"])) as operator,
+        zenoh.open(client_conf(endpoint, "viewer", creds["viewer"])) as viewer,
+    ):
         wait_services(operator)
         wait_services(viewer)  # the viewer reads pose, truth and health
         start = get_pose(viewer, "robot/sim/truth")
@@ -145,7 +144,9 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
         poses: list[Pose] = []
         viewer.declare_subscriber("robot/pose", lambda s: poses.append(decode(Pose, s.payload.to_bytes())))
         drive(operator, "robot", seconds=1.5)
-        moved = wait_for(lambda: (p := get_pose(operator, "robot/sim/truth")) is not None and p.x - start.x > 0.1 and p, what="the operator's drive")
+        moved = wait_for(
+            lambda: (p := get_pose(operator, "robot/sim/truth")) is not None and p.x - start.x > 0.1 and p, what="the operator's drive"
+        )
         assert moved.x > start.x
         wait_for(lambda: poses and poses[-1].x > 0.1, what="the viewer to see the pose move")
     with pytest.raises(zenoh.ZError):
@@ -227,7 +228,7 @@ def test_a_fleet_of_two_robots_on_one_router(children: list[Child], tmp_path: Pa
         wait_services(session, "fleet/a")
         wait_services(session, "fleet/b")
         listed = subprocess.run(
-            [sys.executable, "-m", "gateway.cli", "robots", "-m", "client", "-e", endpoint, "--no-multicast-scouting"],
+            [sys.executable, "-m", "blackmetal", "robots", "-m", "client", "-e", endpoint, "--no-multicast-scouting"],
             capture_output=True, text=True, timeout=TIMEOUT,
         )  # fmt: skip
         assert listed.returncode == 0 and listed.stdout.split() == ["fleet/a", "fleet/b"]
@@ -266,7 +267,9 @@ def hosts() -> object:
         # router <-> robot: 10.231.1.0/24, router <-> operator: 10.231.2.0/24 (only inside these namespaces)
         for index, role in ((1, "g"), (2, "c")):
             left, right = f"bm{tag}r{role}", f"bm{tag}{role}r"
-            assert _ip("link", "add", left, "netns", names["r"], "type", "veth", "peer", "name", right, "netns", names[role]).returncode == 0
+            assert (
+                _ip("link", "add", left, "netns", names["r"], "type", "veth", "peer", "name", right, "netns", names[role]).returncode == 0
+            )
             _ip("-n", names["r"], "addr", "add", f"10.231.{index}.1/24", "dev", left)
             _ip("-n", names[role], "addr", "add", f"10.231.{index}.2/24", "dev", right)
             _ip("-n", names["r"], "link", "set", left, "up")
@@ -280,20 +283,22 @@ def hosts() -> object:
 def test_router_gateway_and_operator_on_separate_hosts(children: list[Child], tmp_path: Path, hosts: dict[str, str]) -> None:
     config = config_copy("router.json5", tmp_path)
     router = Child(
-        ["-m", "gateway.cli", "router", "-c", str(config), "-l", "tcp/10.231.1.1:7447", "-l", "tcp/10.231.2.1:7447"],
+        ["-m", "blackmetal", "router", "-c", str(config), "-l", "tcp/10.231.1.1:7447", "-l", "tcp/10.231.2.1:7447"],
         launcher=["ip", "netns", "exec", hosts["r"]],
     )
     children.append(router)
-    router.wait_line("blackmetal router ready")
+    router.ready()
     robot_side = ["ip", "netns", "exec", hosts["g"]]
     zargs = ["-m", "client", "-e", "tcp/10.231.1.1:7447", "--no-multicast-scouting"]
     sim = SimProcess(*zargs, launcher=robot_side)
     children.append(sim)
-    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], launcher=robot_side)
+    gateway = Child(
+        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], launcher=robot_side
+    )
     odometry = Child(["-m", "odometry_service", *zargs], launcher=robot_side)
     children.extend([gateway, odometry])
-    gateway.wait_line("gateway ready")
-    odometry.wait_line("odometry ready")
+    gateway.ready()
+    odometry.ready()
     script = """
 import json, sys, time, zenoh
 conf = zenoh.Config.from_json5('{"mode": "client", "connect": {"endpoints": ["tcp/10.231.2.1:7447"]}, "scouting": {"multicast": {"enabled": false}}}')

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import itertools
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -16,12 +17,12 @@ from typing import Any
 
 import pytest
 
-from gateway.link import TcpConnector
+from blackmetal.sim.memory import MemoryConnector
+from blackmetal.sim.physics import RobotParams, SimRobot
+from blackmetal.sim.server import SimServer
+from blackmetal.transport import TcpConnector
 from gateway.service import GatewayService, RecordingOutput
 from gateway.settings import GatewaySettings
-from gateway.sim.memory import MemoryConnector
-from gateway.sim.robot import RobotParams, SimRobot
-from gateway.sim.server import SimServer
 from schemas import SimFaults
 
 TIMEOUT = 20.0
@@ -122,7 +123,7 @@ async def test_impulses_are_published_raw_with_sequence_and_stamps(transport: st
         assert rate >= 95.0, f"{rate:.1f} Hz at --poll-hz 100"
         log = rig.output.impulse_log
         assert [m.seq for m in log] == list(range(len(log)))
-        assert all(b.stamp >= a.stamp for a, b in zip(log, log[1:]))
+        assert all(b.stamp >= a.stamp for a, b in itertools.pairwise(log))
         moving = [m for m in log[-50:]]
         assert all(m.left in (202, 203) and m.right in (-211, -210) for m in moving)  # raw, right mirrored
         assert abs(log[-1].stamp - time.time()) < 5.0
@@ -187,7 +188,7 @@ async def test_full_buffer_is_recovered(transport: str) -> None:
         rig.robot.faults = SimFaults(full_buffer=0.5)
         for speed in (0.1, 0.2, 0.3, 0.25, 0.15):
             rig.service.on_cmd_vel(b'{"linear":{"x":%.2f}}' % speed)
-            await until(lambda: rig.robot.target_left == pytest.approx(speed), f"{speed} m/s despite FULL_BUFFER")
+            await until(lambda s=speed: rig.robot.target_left == pytest.approx(s), f"{speed} m/s despite FULL_BUFFER")
         assert rig.robot.counters["full_buffer"] > 0
         assert rig.service.counters.full_buffer > 0 and rig.service.counters.full_buffer_retries > 0
     finally:
@@ -294,7 +295,7 @@ async def test_hostile_payloads_are_reported_and_never_reach_the_robot(transport
         assert rig.service.counters.rejected_inputs == 2 * 5 * len(HOSTILE)
         assert rig.output.error_log and all(e.reason for e in rig.output.error_log)
         assert len(rig.output.error_log) <= 40  # rate-limited
-        assert all(abs(r) <= 0.8 and abs(l) <= 0.8 for r, l in seen)
+        assert all(abs(r) <= 0.8 and abs(left) <= 0.8 for r, left in seen)
         assert rig.server.malformed_requests == 0
         # and the gateway still serves
         rig.service.on_cmd_vel(b'{"linear":{"x":0.05}}')

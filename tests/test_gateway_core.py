@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+import itertools
+
+import json5
 import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gateway import protocol
-from gateway.config import load_settings, loads_json5
-from gateway.errors import ConfigError
+from blackmetal import wire
+from blackmetal.robot_model import WheelSpeeds, twist_to_wheels, wheels_to_twist
+from blackmetal.runtime.reports import ReportLimiter
+from blackmetal.runtime.settings import load_settings
+from blackmetal.wire import CommandCode, Malformed, StatusReply
 from gateway.exchange import Completed, Exchange, Lost
-from gateway.kinematics import WheelSpeeds, twist_to_wheels, wheels_to_twist
-from gateway.protocol import Command, Malformed, StatusReply
-from gateway.ratelimit import ReportLimiter
 from gateway.safety import Governor, SafetySettings
 from gateway.settings import GatewaySettings
-from schemas import Twist, Vector3
+from schemas import ConfigError, Twist, Vector3
 
 OK = StatusReply("RECIEVE_OK")
 FULL = StatusReply("FULL_BUFFER")
@@ -38,7 +40,7 @@ def test_too_fast_commands_are_scaled_keeping_the_curvature() -> None:
     wheels, scaled = twist_to_wheels(1.0, 2.0, 0.5, 0.8)
     assert scaled
     assert max(abs(wheels.right), abs(wheels.left)) == pytest.approx(0.8)
-    v, w = wheels_to_twist(wheels, 0.5)
+    v, w = wheels_to_twist(wheels.left, wheels.right, 0.5)
     assert w / v == pytest.approx(2.0 / 1.0)  # same arc, only slower
 
 
@@ -49,7 +51,7 @@ def test_too_fast_commands_are_scaled_keeping_the_curvature() -> None:
 def test_wheels_never_exceed_the_limit_and_keep_the_curvature(v: float, w: float) -> None:
     wheels, _ = twist_to_wheels(v, w, 0.5, 0.8)
     assert abs(wheels.right) <= 0.8 + 1e-12 and abs(wheels.left) <= 0.8 + 1e-12
-    v2, w2 = wheels_to_twist(wheels, 0.5)
+    v2, w2 = wheels_to_twist(wheels.left, wheels.right, 0.5)
     if abs(v) > 1e-6 and abs(v2) > 1e-9:
         assert w2 / v2 == pytest.approx(w / v, rel=1e-6, abs=1e-9)
 
@@ -80,10 +82,11 @@ def test_command_timeout_brakes_and_shows_in_state() -> None:
     gov.next_command(0.0)
     gov.on_twist(twist(0.3), 1.0)
     assert gov.next_command(1.0).wheels == WheelSpeeds(0.3, 0.3)  # type: ignore[union-attr]
-    assert gov.next_command(1.5) is None and not gov.timed_out(1.5)
-    brake = gov.next_command(1.52)
+    assert gov.next_command(1.499) is None and not gov.timed_out(1.499)
+    assert gov.next_deadline() == 1.5  # the brake has its own deadline
+    brake = gov.next_command(1.5)
     assert brake is not None and brake.wheels == WheelSpeeds(0.0, 0.0)
-    assert gov.timed_out(1.52)
+    assert gov.timed_out(1.5)
     gov.on_twist(twist(0.1), 2.0)
     assert not gov.timed_out(2.0)
 
@@ -190,7 +193,7 @@ def test_acceleration_limit_ramps_the_command() -> None:
         if cmd is not None:
             speeds.append(cmd.wheels.left)
     assert speeds[0] == pytest.approx(0.05) and speeds[-1] == pytest.approx(0.4)
-    assert all(b - a <= 0.05 + 1e-9 for a, b in zip(speeds, speeds[1:]))
+    assert all(b - a <= 0.05 + 1e-9 for a, b in itertools.pairwise(speeds))
 
 
 # ----------------------------------------------------------------------------- exchange
@@ -198,13 +201,13 @@ def test_acceleration_limit_ramps_the_command() -> None:
 
 def test_pipelined_requests_pair_with_their_replies() -> None:
     ex = Exchange()
-    poll = protocol.simple(Command.GET_LR_WHEEL_VELOCITY)
-    vel = protocol.set_velocity(0.1, 0.1)
+    poll = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
+    vel = wire.set_velocity(0.1, 0.1)
     ex.sent(poll, 0.0)
     ex.sent(vel, 0.001)
     assert ex.received(OK, 0.002) == []
-    (done,) = ex.received(protocol.WheelSpeeds(100, -105), 0.003)
-    assert isinstance(done, Completed) and done.request == poll and done.data == protocol.WheelSpeeds(100, -105)
+    (done,) = ex.received(wire.SpeedReading(100, -105), 0.003)
+    assert isinstance(done, Completed) and done.request == poll and done.data == wire.SpeedReading(100, -105)
     assert done.rtt == pytest.approx(0.002)
     (done,) = ex.received(OK, 0.004)
     assert done.request == vel and done.data is None
@@ -212,15 +215,15 @@ def test_pipelined_requests_pair_with_their_replies() -> None:
 
 def test_full_buffer_on_a_poll_means_no_data_follows() -> None:
     ex = Exchange()
-    ex.sent(protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.0)
+    ex.sent(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.0)
     (done,) = ex.received(FULL, 0.001)
     assert isinstance(done, Completed) and done.status.full_buffer and not ex.outstanding
 
 
 def test_a_lost_data_reply_costs_one_request_only() -> None:
     ex = Exchange()
-    poll = protocol.simple(Command.GET_LR_WHEEL_VELOCITY)
-    vel = protocol.set_velocity(0.1, 0.1)
+    poll = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
+    vel = wire.set_velocity(0.1, 0.1)
     ex.sent(poll, 0.0)
     ex.sent(vel, 0.0)
     ex.received(OK, 0.001)
@@ -233,7 +236,7 @@ def test_a_lost_data_reply_costs_one_request_only() -> None:
 def test_unanswered_requests_expire_and_unexpected_replies_are_counted() -> None:
     ex = Exchange(reply_timeout=0.5)
     assert ex.received(OK, 0.0) == [] and ex.unexpected == 1
-    ex.sent(protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.0)
+    ex.sent(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.0)
     assert ex.expire(0.4) == []
     (lost,) = ex.expire(0.6)
     assert "no reply" in lost.reason
@@ -271,8 +274,15 @@ def test_json5_settings_file(tmp_path) -> None:  # type: ignore[no-untyped-def]
     path = tmp_path / "gw.json5"
     path.write_text("{\n  // the lab robot\n  robot: '192.0.2.7',\n  connect: ['tcp/127.0.0.1:7447',],\n  /* fast */ poll_hz: 200,\n}\n")
     settings = load_settings(GatewaySettings, {}, str(path), environ={})
-    assert settings.robot == "192.0.2.7" and settings.poll_hz == 200 and settings.connect == ["tcp/127.0.0.1:7447"]
-    assert loads_json5('{"a": "x // not a comment"}') == {"a": "x // not a comment"}
+    assert settings.robot == "192.0.2.7" and settings.poll_hz == 200 and settings.zenoh.connect == ["tcp/127.0.0.1:7447"]
+
+
+@pytest.mark.parametrize("text", ["[1, 2,]", "x, b: y", "x // not a comment", "a /* b */ c", "it's"])
+def test_json5_strings_are_taken_verbatim(tmp_path, text: str) -> None:  # type: ignore[no-untyped-def]
+    path = tmp_path / "gw.json5"
+    path.write_text(f"{{robot: {json5.dumps(text)}, poll_hz: 20}}")
+    settings = load_settings(GatewaySettings, {}, str(path), environ={})
+    assert settings.robot == text and settings.poll_hz == 20
 
 
 @pytest.mark.parametrize(
@@ -297,4 +307,3 @@ def test_unknown_setting_in_a_file_is_an_error(tmp_path) -> None:  # type: ignor
     path.write_text("pol_hz = 20\n")
     with pytest.raises(ConfigError, match="pol_hz"):
         load_settings(GatewaySettings, {}, str(path), environ={})
-

@@ -8,8 +8,8 @@ import time
 
 import pytest
 import zenoh
-
 from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+
 from schemas import GatewayHealth, Pose, WheelImpulses, decode
 
 pytestmark = pytest.mark.integration
@@ -36,12 +36,10 @@ class Rig:
             ]
         )
         children.append(self.gateway)
-        self.gateway.wait_line("blackmetal gateway ready")
+        self.gateway.ready()
 
     def start_sim(self) -> SimProcess:
-        sim = SimProcess(
-            "--control-port", str(self.sim_ports[0]), "--log-port", str(self.sim_ports[1]), *zenoh_listen_args(self.zport)
-        )
+        sim = SimProcess("--control-port", str(self.sim_ports[0]), "--log-port", str(self.sim_ports[1]), *zenoh_listen_args(self.zport))
         self.children.append(sim)
         return sim
 

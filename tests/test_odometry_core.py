@@ -9,12 +9,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from blackmetal import robot_model as facts
+from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
+from blackmetal.robot_model import Encoders, arc_step
 from odometry_service.batch import linear_scan, run_batch
-from odometry_service.core import Glitches, Odometry, OdometryParams, arc_step
+from odometry_service.core import Glitches, Odometry, OdometryParams
 from odometry_service.errors import SampleRejected
-from odometry_service.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
 from schemas import WheelImpulses
-from schemas import robot as facts
 
 IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
 
@@ -26,9 +27,9 @@ def imp(seq: int, stamp: float, left: float, right: float) -> WheelImpulses:
 
 def test_conversion_mirrors_the_right_wheel() -> None:
     params = OdometryParams()
-    left, right = params.to_speeds(1013, -1054)
+    left, right = params.encoders.to_speeds(1013, -1054)
     assert left == pytest.approx(1.0, abs=1e-3) and right == pytest.approx(1.0, abs=1e-3)
-    assert OdometryParams(mirror_right=False).to_speeds(0, 1054)[1] > 0
+    assert OdometryParams(encoders=Encoders(mirror_right=False)).encoders.to_speeds(0, 1054)[1] > 0
 
 
 def test_straight_line_uses_real_time_steps() -> None:
@@ -247,14 +248,18 @@ def test_batch_equals_streaming_on_an_irregular_log() -> None:
 
 @settings(max_examples=60, deadline=None)
 @given(
-    st.lists(st.tuples(st.sampled_from([0, 0, 0, 150, -150, 203, 400, 5000]), st.sampled_from([0, 0, -211, 211, -400, -9000])), min_size=1, max_size=120),
+    st.lists(
+        st.tuples(st.sampled_from([0, 0, 0, 150, -150, 203, 400, 5000]), st.sampled_from([0, 0, -211, 211, -400, -9000])),
+        min_size=1,
+        max_size=120,
+    ),
     st.lists(st.floats(0.0, 0.02), min_size=120, max_size=120),
     st.floats(0.0, 0.95),
 )
 def test_batch_equals_streaming_on_random_logs(readings: list[tuple[int, int]], dts: list[float], alpha: float) -> None:
     params = OdometryParams(filter_alpha=alpha, max_gap=0.015)
     stamps = 1000.0 + np.cumsum(dts[: len(readings)])
-    msgs = [WheelImpulses(seq=k, stamp=float(t), left=l, right=r) for k, (t, (l, r)) in enumerate(zip(stamps, readings))]
+    msgs = [WheelImpulses(seq=k, stamp=float(t), left=lw, right=r) for k, (t, (lw, r)) in enumerate(zip(stamps, readings, strict=False))]
     poses, _ = stream(msgs, params)
     batch = run_batch(np.arange(len(msgs)), stamps, np.array([m.left for m in msgs]), np.array([m.right for m in msgs]), params)
     np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw, batch.v, batch.w]), np.array(poses)[:, 1:], atol=1e-9)
@@ -287,7 +292,7 @@ def test_faulty_square_replay_closes_on_the_exact_answer(clockwise: bool) -> Non
     assert err_yaw < 0.010, err_yaw
     assert result.spikes > 0 and result.dropouts > 0 and result.retractions > 0
     # the original driver (assumed period, held stops) misses by far more on the same log
-    ox, oy, oyaw = original_algorithm(log, period=0.010)
+    ox, oy, _oyaw = original_algorithm(log, period=0.010)
     assert math.hypot(ox - exact[0], oy - exact[1]) > 2 * err_pos
 
 

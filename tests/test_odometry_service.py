@@ -12,17 +12,17 @@ import time
 import numpy as np
 import pytest
 import zenoh
-
 from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+
+from blackmetal.bench.synth import exact_pose, square_legs, synth_log
 from odometry_service.core import Odometry, OdometryParams
 from odometry_service.service import OdometryService, RecordingOdometryOutput
-from odometry_service.synth import exact_pose, square_legs, synth_log
-from schemas import Pose, PayloadError, decode, encode
+from schemas import Keys, PayloadError, Pose, decode, encode
 
 
 def service() -> tuple[OdometryService, RecordingOdometryOutput]:
     out = RecordingOdometryOutput()
-    return OdometryService(OdometryParams(), "robot", out), out
+    return OdometryService(OdometryParams(), Keys("robot"), out), out
 
 
 def test_every_sample_publishes_a_pose_and_bad_input_is_reported() -> None:
@@ -60,7 +60,7 @@ def test_replay_command_prints_the_final_pose_and_writes_every_pose(tmp_path) ->
     path.write_bytes(log.jsonl())
     out = tmp_path / "poses.jsonl"
     proc = subprocess.run(
-        [sys.executable, "-m", "gateway.cli", "replay", str(path), "-o", str(out)], capture_output=True, text=True, timeout=120
+        [sys.executable, "-m", "blackmetal", "replay", str(path), "-o", str(out)], capture_output=True, text=True, timeout=120
     )
     assert proc.returncode == 0, proc.stderr
     final = decode(Pose, proc.stdout.strip().splitlines()[-1])
@@ -81,7 +81,7 @@ def test_replay_command_prints_the_final_pose_and_writes_every_pose(tmp_path) ->
 def test_replay_names_a_bad_line(tmp_path) -> None:  # type: ignore[no-untyped-def]
     path = tmp_path / "bad.jsonl"
     path.write_bytes(b'{"seq":0,"stamp":1.0,"left":0,"right":0}\n{"seq":1,"stamp":"x","left":0,"right":0}\n')
-    proc = subprocess.run([sys.executable, "-m", "gateway.cli", "replay", str(path)], capture_output=True, text=True, timeout=60)
+    proc = subprocess.run([sys.executable, "-m", "blackmetal", "replay", str(path)], capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2
     assert "line 2" in proc.stderr and "Traceback" not in proc.stderr
 
@@ -92,12 +92,24 @@ def test_drive_the_simulator_and_the_pose_follows_the_truth(children: list[Child
     sim = SimProcess(*zenoh_listen_args(zport))
     children.append(sim)
     gateway = Child(
-        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), "--cmd-timeout", "1.0", "--poll-hz", "50", *zenoh_connect_args(zport)]
+        [
+            "-m",
+            "gateway",
+            "--control-port",
+            str(sim.control_port),
+            "--log-port",
+            str(sim.log_port),
+            "--cmd-timeout",
+            "1.0",
+            "--poll-hz",
+            "50",
+            *zenoh_connect_args(zport),
+        ]
     )
     odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
     children.extend([gateway, odometry])
-    gateway.wait_line("gateway ready")
-    odometry.wait_line("odometry ready")
+    gateway.ready()
+    odometry.ready()
     with zenoh.open(client_config(zport)) as session:
         poses: list[Pose] = []
         session.declare_subscriber("robot/pose", lambda s: poses.append(decode(Pose, s.payload.to_bytes())))
@@ -131,7 +143,9 @@ def test_drive_the_simulator_and_the_pose_follows_the_truth(children: list[Child
         rel_yaw = math.remainder(truth.yaw - start_truth.yaw, math.tau)
         travelled = 0.3 * 3 + 0.25 * 3 + 0.2 * 2.5
         assert math.hypot(rel_x, rel_y) > 0.5, "the robot did not move"
-        print(f"odometry vs truth: {1000 * math.hypot(pose.x - rel_x, pose.y - rel_y):.1f} mm, {1000 * abs(math.remainder(pose.yaw - rel_yaw, math.tau)):.1f} mrad")
+        print(
+            f"odometry vs truth: {1000 * math.hypot(pose.x - rel_x, pose.y - rel_y):.1f} mm, {1000 * abs(math.remainder(pose.yaw - rel_yaw, math.tau)):.1f} mrad"
+        )
         assert math.hypot(pose.x - rel_x, pose.y - rel_y) < 0.02, (pose, rel_x, rel_y, travelled)
         assert abs(math.remainder(pose.yaw - rel_yaw, math.tau)) < 0.03
         alive = [str(r.ok.key_expr) for r in session.liveliness().get("robot/alive/*", timeout=5) if r.ok is not None]
@@ -146,7 +160,7 @@ def test_hostile_impulses_and_resets_on_zenoh(children: list[Child]) -> None:
     zport = free_port()
     odometry = Child(["-m", "odometry_service", *zenoh_listen_args(zport)])
     children.append(odometry)
-    odometry.wait_line("odometry ready")
+    odometry.ready()
     with zenoh.open(client_config(zport)) as session:
         errors: list[dict[str, object]] = []
         session.declare_subscriber("robot/errors", lambda s: errors.append(json.loads(s.payload.to_bytes())))

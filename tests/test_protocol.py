@@ -2,24 +2,25 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from gateway import protocol
-from gateway.errors import ProtocolError
-from gateway.protocol import (
-    Command,
+from blackmetal import wire
+from blackmetal.wire import (
+    CommandCode,
     LogReport,
     Malformed,
+    PositionReading,
+    ProtocolError,
     ReplyDecoder,
     Request,
     RequestDecoder,
+    SpeedReading,
     StatusReply,
-    WheelPositions,
-    WheelSpeeds,
     encode_request,
 )
 
@@ -27,29 +28,29 @@ from gateway.protocol import (
 @pytest.mark.parametrize(
     "request_, wire",
     [
-        (protocol.simple(Command.EMPTY), b'{"UserID":1,"Command":0}'),
-        (protocol.simple(Command.EMG_STOP), b'{"UserID":1,"Command":1}'),
-        (protocol.simple(Command.NORMAL_STOP), b'{"UserID":1,"Command":2}'),
+        (wire.simple(CommandCode.EMPTY), b'{"UserID":1,"Command":0}'),
+        (wire.simple(CommandCode.EMG_STOP), b'{"UserID":1,"Command":1}'),
+        (wire.simple(CommandCode.NORMAL_STOP), b'{"UserID":1,"Command":2}'),
         (
-            protocol.set_velocity(0.25, 0.25),
+            wire.set_velocity(0.25, 0.25),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":0.250000,"LeftWheelSpeed":0.250000}',
         ),
         (
-            protocol.set_velocity(-0.8, 0.1234567),
+            wire.set_velocity(-0.8, 0.1234567),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":-0.800000,"LeftWheelSpeed":0.123457}',
         ),
         (
-            protocol.set_velocity(-0.0, -1e-9),
+            wire.set_velocity(-0.0, -1e-9),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":0.000000,"LeftWheelSpeed":0.000000}',
         ),
         (
-            protocol.set_position(1200, -1200),
+            wire.set_position(1200, -1200),
             b'{"UserID":1,"Command":4,"RightWheelPosition":1200,"LeftWheelPosition":-1200}',
         ),
-        (protocol.simple(Command.NOT_IMPLEMENTED_5), b'{"UserID":1,"Command":5}'),
-        (protocol.simple(Command.GET_LR_WHEEL_VELOCITY), b'{"UserID":1,"Command":6}'),
-        (protocol.simple(Command.PREPARE_WHEEL_CONTROLLER), b'{"UserID":1,"Command":7}'),
-        (protocol.simple(Command.GET_LR_WHEEL_POSITION), b'{"UserID":1,"Command":8}'),
+        (wire.simple(CommandCode.NOT_IMPLEMENTED_5), b'{"UserID":1,"Command":5}'),
+        (wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), b'{"UserID":1,"Command":6}'),
+        (wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), b'{"UserID":1,"Command":7}'),
+        (wire.simple(CommandCode.GET_LR_WHEEL_POSITION), b'{"UserID":1,"Command":8}'),
     ],
 )
 def test_every_command_encodes_to_the_robots_bytes(request_: Request, wire: bytes) -> None:
@@ -66,19 +67,19 @@ def test_every_command_encodes_to_the_robots_bytes(request_: Request, wire: byte
 )
 def test_velocity_the_robot_must_never_see_is_refused(right: object, left: object) -> None:
     with pytest.raises(ProtocolError):
-        encode_request(Request(Command.SET_LR_WHEEL_VELOCITY, right, left))  # type: ignore[arg-type]
+        encode_request(Request(CommandCode.SET_LR_WHEEL_VELOCITY, right, left))  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("value", [2**31, -(2**31) - 1, 1.5, None])
 def test_positions_must_be_32_bit_integers(value: object) -> None:
     with pytest.raises(ProtocolError):
-        encode_request(Request(Command.SET_LR_WHEEL_POSITION, value, 0))  # type: ignore[arg-type]
+        encode_request(Request(CommandCode.SET_LR_WHEEL_POSITION, value, 0))  # type: ignore[arg-type]
 
 
 def test_replies_expected() -> None:
-    assert protocol.replies_expected(Command.GET_LR_WHEEL_VELOCITY) == 2
-    assert protocol.replies_expected(Command.GET_LR_WHEEL_POSITION) == 2
-    assert protocol.replies_expected(Command.SET_LR_WHEEL_VELOCITY) == 1
+    assert wire.replies_expected(CommandCode.GET_LR_WHEEL_VELOCITY) == 2
+    assert wire.replies_expected(CommandCode.GET_LR_WHEEL_POSITION) == 2
+    assert wire.replies_expected(CommandCode.SET_LR_WHEEL_VELOCITY) == 1
 
 
 @pytest.mark.parametrize(
@@ -87,11 +88,11 @@ def test_replies_expected() -> None:
         (b'{"status":"RECIEVE_OK"}', StatusReply("RECIEVE_OK")),
         (b'{"status":"FULL_BUFFER"}', StatusReply("FULL_BUFFER")),
         (b'{"status": "RECIEVE_OK" }', StatusReply("RECIEVE_OK")),
-        (b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}', WheelSpeeds(150, -148)),
-        (b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}', WheelSpeeds(150, -148)),
-        (b'{"RightWheelSpeed"=-1, "LeftWheelSpeed"=0}', WheelSpeeds(0, -1)),
-        (b'{"LeftWheelSpeed":150,"RightWheelSpeed":-148}', WheelSpeeds(150, -148)),
-        (b'{"LeftWheelPosition"=1200 "RightWheelPosition"=-1190}', WheelPositions(1200, -1190)),
+        (b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}', SpeedReading(150, -148)),
+        (b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}', SpeedReading(150, -148)),
+        (b'{"RightWheelSpeed"=-1, "LeftWheelSpeed"=0}', SpeedReading(0, -1)),
+        (b'{"LeftWheelSpeed":150,"RightWheelSpeed":-148}', SpeedReading(150, -148)),
+        (b'{"LeftWheelPosition"=1200 "RightWheelPosition"=-1190}', PositionReading(1200, -1190)),
         (b'{"state":1,"direction":1}', LogReport(1, 1)),
         (b'{"state":3, "direction":4}', LogReport(3, 4)),
     ],
@@ -138,7 +139,7 @@ def test_glued_split_and_garbage_stream() -> None:
     assert out[1:] == [StatusReply("RECIEVE_OK")]
     assert decoder.pending > 0
     out = decoder.feed(b'WheelSpeed"=-148}  {"stat')
-    assert out == [WheelSpeeds(150, -148)]
+    assert out == [SpeedReading(150, -148)]
     out = decoder.feed(b'us":"FULL_BUFFER"}}}{"state":1,"direction":1}')
     assert out == [StatusReply("FULL_BUFFER"), Malformed("bytes outside any {...} message", b"}}"), LogReport(1, 1)]
     assert decoder.garbage_bytes == len(b"\x00\xffjunk") + 2
@@ -185,12 +186,12 @@ def test_request_decoder_rejects_what_a_robot_must_not_act_on() -> None:
 
 
 def test_reply_encoders_match_the_robots_format() -> None:
-    assert protocol.encode_status() == b'{"status":"RECIEVE_OK"}'
-    assert protocol.encode_wheel_speeds(150, -148) == b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}'
-    assert protocol.encode_wheel_speeds(150, -148, ",") == b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}'
-    assert protocol.encode_log_report(1, 1) == b'{"state":1,"direction":1}'
+    assert wire.encode_status() == b'{"status":"RECIEVE_OK"}'
+    assert wire.encode_wheel_speeds(150, -148) == b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}'
+    assert wire.encode_wheel_speeds(150, -148, ",") == b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}'
+    assert wire.encode_log_report(1, 1) == b'{"state":1,"direction":1}'
     with pytest.raises(ProtocolError):
-        protocol.encode_wheel_speeds(1, 1, ";")
+        wire.encode_wheel_speeds(1, 1, ";")
 
 
 # ----------------------------------------------------------------------------- properties
@@ -198,21 +199,21 @@ def test_reply_encoders_match_the_robots_format() -> None:
 int32 = st.integers(min_value=-(2**31), max_value=2**31 - 1)
 replies = st.one_of(
     st.sampled_from([StatusReply("RECIEVE_OK"), StatusReply("FULL_BUFFER")]),
-    st.builds(WheelSpeeds, int32, int32),
-    st.builds(WheelPositions, int32, int32),
+    st.builds(SpeedReading, int32, int32),
+    st.builds(PositionReading, int32, int32),
     st.builds(LogReport, st.integers(0, 4), st.integers(1, 4)),
 )
 
 
 def _encode_reply(reply: object, separator: str) -> bytes:
     if isinstance(reply, StatusReply):
-        return protocol.encode_status(reply.status)
-    if isinstance(reply, WheelSpeeds):
-        return protocol.encode_wheel_speeds(reply.left, reply.right, separator)
-    if isinstance(reply, WheelPositions):
-        return protocol.encode_wheel_positions(reply.left, reply.right, separator)
+        return wire.encode_status(reply.status)
+    if isinstance(reply, SpeedReading):
+        return wire.encode_wheel_speeds(reply.left, reply.right, separator)
+    if isinstance(reply, PositionReading):
+        return wire.encode_wheel_positions(reply.left, reply.right, separator)
     assert isinstance(reply, LogReport)
-    return protocol.encode_log_report(reply.state, reply.direction)
+    return wire.encode_log_report(reply.state, reply.direction)
 
 
 @settings(max_examples=300)
@@ -225,7 +226,7 @@ def test_any_split_of_a_valid_stream_decodes_to_the_same_replies(items: list, cu
     points = sorted({min(cut, len(stream)) for cut in cuts} | {0, len(stream)})
     decoder = ReplyDecoder()
     out = []
-    for start, end in zip(points, points[1:]):
+    for start, end in itertools.pairwise(points):
         out.extend(decoder.feed(stream[start:end]))
     assert out == [reply for reply, _ in items]
     assert decoder.pending == 0 and decoder.malformed == 0
@@ -238,7 +239,7 @@ def test_random_bytes_never_raise_and_the_buffer_stays_bounded(chunks: list[byte
     requests = RequestDecoder(max_frame=128)
     for chunk in chunks:
         for item in decoder.feed(chunk):
-            assert isinstance(item, (StatusReply, WheelSpeeds, WheelPositions, LogReport, Malformed))
+            assert isinstance(item, (StatusReply, SpeedReading, PositionReading, LogReport, Malformed))
         requests.feed(chunk)
         assert decoder.pending <= 128 + len(chunk)
     # after any garbage, a valid reply still comes through
@@ -256,7 +257,7 @@ def test_garbage_before_a_reply_is_skipped_and_counted(garbage: bytes, reply: ob
 
 @given(st.floats(min_value=-1.0, max_value=1.0), st.floats(min_value=-1.0, max_value=1.0))
 def test_any_legal_velocity_round_trips_to_six_decimals(right: float, left: float) -> None:
-    (decoded,) = RequestDecoder().feed(encode_request(protocol.set_velocity(right, left)))
+    (decoded,) = RequestDecoder().feed(encode_request(wire.set_velocity(right, left)))
     assert isinstance(decoded, Request)
     assert decoded.right == pytest.approx(right, abs=5e-7)
     assert decoded.left == pytest.approx(left, abs=5e-7)

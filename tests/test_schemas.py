@@ -12,8 +12,8 @@ from hypothesis import strategies as st
 
 from schemas import (
     MESSAGE_TYPES,
-    EStop,
     ErrorReport,
+    EStop,
     PayloadError,
     Pose,
     Twist,

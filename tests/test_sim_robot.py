@@ -6,21 +6,22 @@ import math
 
 import pytest
 
-from gateway import protocol
-from gateway.protocol import Command, ReplyDecoder, StatusReply, WheelPositions, WheelSpeeds
-from gateway.sim.robot import RobotParams, SimRobot, arc_step
+from blackmetal import robot_model as facts
+from blackmetal import wire
+from blackmetal.robot_model import arc_step
+from blackmetal.sim.physics import RobotParams, SimRobot
+from blackmetal.wire import CommandCode, PositionReading, ReplyDecoder, SpeedReading, StatusReply
 from schemas import SimFaults
-from schemas import robot as facts
 
 
-def send(robot: SimRobot, request: protocol.Request, now: float) -> list[object]:
+def send(robot: SimRobot, request: wire.Request, now: float) -> list[object]:
     decoder = ReplyDecoder()
     return [item for wire in robot.handle(request, now) for item in decoder.feed(wire)]
 
 
 def test_straight_line_is_exact() -> None:
     robot = SimRobot()
-    assert send(robot, protocol.set_velocity(0.2, 0.2), 0.0) == [StatusReply("RECIEVE_OK")]
+    assert send(robot, wire.set_velocity(0.2, 0.2), 0.0) == [StatusReply("RECIEVE_OK")]
     robot.advance(5.0)
     assert robot.x == pytest.approx(1.0, abs=1e-12)
     assert robot.y == pytest.approx(0.0, abs=1e-12)
@@ -31,7 +32,7 @@ def test_straight_line_is_exact() -> None:
 def test_left_turn_on_a_circle_matches_the_closed_form() -> None:
     robot = SimRobot()
     v_r, v_l, sep = 0.3, 0.1, facts.WHEEL_SEPARATION
-    send(robot, protocol.set_velocity(v_r, v_l), 0.0)
+    send(robot, wire.set_velocity(v_r, v_l), 0.0)
     w = (v_r - v_l) / sep
     radius = 0.5 * (v_r + v_l) / w
     for t in (0.37, 1.0, 2.5, 7.9):
@@ -49,9 +50,9 @@ def test_arc_step_straight_limit_is_continuous() -> None:
 
 def test_watchdog_stops_the_robot_ten_seconds_after_the_last_motion_command() -> None:
     robot = SimRobot()
-    send(robot, protocol.set_velocity(0.1, 0.1), 0.0)
+    send(robot, wire.set_velocity(0.1, 0.1), 0.0)
     for t in range(1, 9):  # polls do not count as commands for the watchdog
-        send(robot, protocol.simple(Command.GET_LR_WHEEL_VELOCITY), float(t))
+        send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), float(t))
     robot.advance(9.999)
     assert robot.moving
     robot.advance(30.0)
@@ -63,17 +64,17 @@ def test_watchdog_stops_the_robot_ten_seconds_after_the_last_motion_command() ->
 def test_repeating_the_command_keeps_the_robot_going() -> None:
     robot = SimRobot()
     for t in range(0, 30, 5):
-        send(robot, protocol.set_velocity(0.1, 0.1), float(t))
+        send(robot, wire.set_velocity(0.1, 0.1), float(t))
     robot.advance(30.0)
     assert robot.moving and robot.x == pytest.approx(3.0)
 
 
 def test_emergency_stop_is_immediate_even_with_an_acceleration_limit() -> None:
     robot = SimRobot(RobotParams(accel_limit=0.5))
-    send(robot, protocol.set_velocity(0.4, 0.4), 0.0)
+    send(robot, wire.set_velocity(0.4, 0.4), 0.0)
     robot.advance(2.0)
     assert robot.speed_left == pytest.approx(0.4)
-    send(robot, protocol.simple(Command.EMG_STOP), 2.0)
+    send(robot, wire.simple(CommandCode.EMG_STOP), 2.0)
     assert robot.speed_left == robot.speed_right == 0.0
     x = robot.x
     robot.advance(3.0)
@@ -82,13 +83,13 @@ def test_emergency_stop_is_immediate_even_with_an_acceleration_limit() -> None:
 
 def test_acceleration_limit_ramps_and_normal_stop_decelerates() -> None:
     robot = SimRobot(RobotParams(accel_limit=0.5))
-    send(robot, protocol.set_velocity(0.4, 0.4), 0.0)
+    send(robot, wire.set_velocity(0.4, 0.4), 0.0)
     robot.advance(0.4)
     assert robot.speed_left == pytest.approx(0.2, abs=1e-9)
     robot.advance(2.0)
     # 0.8 s ramp covers 0.16 m, then 1.2 s at 0.4 m/s
     assert robot.x == pytest.approx(0.16 + 0.48, abs=1e-6)
-    send(robot, protocol.simple(Command.NORMAL_STOP), 2.0)
+    send(robot, wire.simple(CommandCode.NORMAL_STOP), 2.0)
     robot.advance(2.4)
     assert robot.speed_left == pytest.approx(0.2, abs=1e-9)
     robot.advance(5.0)
@@ -98,16 +99,16 @@ def test_acceleration_limit_ramps_and_normal_stop_decelerates() -> None:
 
 def test_wheel_speed_is_clamped_to_the_robots_limit() -> None:
     robot = SimRobot()
-    send(robot, protocol.set_velocity(1.0, -1.0), 0.0)
+    send(robot, wire.set_velocity(1.0, -1.0), 0.0)
     assert robot.speed_right == facts.MAX_WHEEL_SPEED
     assert robot.speed_left == -facts.MAX_WHEEL_SPEED
 
 
 def test_speed_reply_reports_mirrored_integer_impulses_without_bias() -> None:
     robot = SimRobot()
-    send(robot, protocol.set_velocity(0.2, 0.2), 0.0)
-    readings = [send(robot, protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.005 * i)[1] for i in range(1, 1001)]
-    assert all(isinstance(r, WheelSpeeds) for r in readings)
+    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
+    readings = [send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.005 * i)[1] for i in range(1, 1001)]
+    assert all(isinstance(r, SpeedReading) for r in readings)
     lefts = [r.left for r in readings]  # type: ignore[union-attr]
     rights = [r.right for r in readings]  # type: ignore[union-attr]
     assert set(lefts) <= {202, 203} and set(rights) <= {-211, -210}
@@ -119,40 +120,40 @@ def test_position_command_moves_each_wheel_by_its_impulses() -> None:
     robot = SimRobot()
     left_imp = round(0.3 * facts.IMPULSES_PER_METER_LEFT)
     right_imp = round(0.3 * facts.IMPULSES_PER_METER_RIGHT)
-    send(robot, protocol.set_position(right_imp, left_imp), 0.0)
+    send(robot, wire.set_position(right_imp, left_imp), 0.0)
     robot.advance(0.5)
     assert robot.moving
     robot.advance(3.0)
     assert not robot.moving
     assert robot.x == pytest.approx(0.3, abs=1e-3)
-    replies = send(robot, protocol.simple(Command.GET_LR_WHEEL_POSITION), 3.0)
-    assert replies[1] == WheelPositions(left_imp, -right_imp)
+    replies = send(robot, wire.simple(CommandCode.GET_LR_WHEEL_POSITION), 3.0)
+    assert replies[1] == PositionReading(left_imp, -right_imp)
 
 
 def test_status_reply_for_every_command_and_data_only_for_gets() -> None:
     robot = SimRobot()
-    for command in Command:
-        if command in (Command.SET_LR_WHEEL_VELOCITY, Command.SET_LR_WHEEL_POSITION):
+    for command in CommandCode:
+        if command in (CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.SET_LR_WHEEL_POSITION):
             continue
-        replies = send(robot, protocol.simple(command), 0.0)
+        replies = send(robot, wire.simple(command), 0.0)
         assert replies[0] == StatusReply("RECIEVE_OK")
-        assert len(replies) == protocol.replies_expected(command)
+        assert len(replies) == wire.replies_expected(command)
 
 
 def test_full_buffer_fault_drops_the_command() -> None:
     robot = SimRobot(seed=1)
     robot.faults = SimFaults(full_buffer=1.0)
-    assert send(robot, protocol.set_velocity(0.2, 0.2), 0.0) == [StatusReply("FULL_BUFFER")]
-    assert send(robot, protocol.simple(Command.GET_LR_WHEEL_VELOCITY), 0.0) == [StatusReply("FULL_BUFFER")]
+    assert send(robot, wire.set_velocity(0.2, 0.2), 0.0) == [StatusReply("FULL_BUFFER")]
+    assert send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.0) == [StatusReply("FULL_BUFFER")]
     assert not robot.moving
     robot.faults = SimFaults()
-    send(robot, protocol.set_velocity(0.2, 0.2), 0.0)
+    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
     assert robot.moving
 
 
 def test_dropout_and_spike_faults_corrupt_readings_only() -> None:
     robot = SimRobot(seed=3)
-    send(robot, protocol.set_velocity(0.2, 0.2), 0.0)
+    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
     robot.faults = SimFaults(dropout=1.0)
     assert robot.read_impulses() == (0, 0)
     robot.faults = SimFaults(spike=1.0)

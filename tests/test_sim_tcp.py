@@ -8,10 +8,10 @@ import time
 
 import pytest
 import zenoh
-
-from gateway import protocol
-from gateway.protocol import Command, LogReport, Malformed, ReplyDecoder, StatusReply, WheelSpeeds
 from helpers import TIMEOUT, Child, SimProcess, client_config, free_port, wait_for, zenoh_listen_args
+
+from blackmetal import wire
+from blackmetal.wire import CommandCode, LogReport, Malformed, ReplyDecoder, SpeedReading, StatusReply
 from schemas import Pose, SimFaults, decode
 
 pytestmark = pytest.mark.integration
@@ -38,17 +38,17 @@ class RobotClient:
                     self.pending.append(item)
         return self.pending.pop(0)
 
-    def request(self, request: protocol.Request) -> list[object]:
-        self.sock.sendall(protocol.encode_request(request))
+    def request(self, request: wire.Request) -> list[object]:
+        self.sock.sendall(wire.encode_request(request))
         status = self.next_reply()
         assert isinstance(status, StatusReply)
-        if status.ok and protocol.replies_expected(request.command) == 2:
+        if status.ok and wire.replies_expected(request.command) == 2:
             return [status, self.next_reply()]
         return [status]
 
-    def speeds(self) -> WheelSpeeds:
-        replies = self.request(protocol.simple(Command.GET_LR_WHEEL_VELOCITY))
-        assert isinstance(replies[-1], WheelSpeeds), replies
+    def speeds(self) -> SpeedReading:
+        replies = self.request(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY))
+        assert isinstance(replies[-1], SpeedReading), replies
         return replies[-1]
 
     def close(self) -> None:
@@ -70,10 +70,10 @@ def test_drive_poll_and_watch_the_truth_move(sim: tuple[SimProcess, int]) -> Non
         sub = session.declare_subscriber("robot/sim/truth", lambda s: truths.append(decode(Pose, s.payload.to_bytes())))
         wait_for(lambda: len(truths) > 5, what="truth samples")
         client = RobotClient(proc.host, proc.control_port)
-        assert client.request(protocol.simple(Command.PREPARE_WHEEL_CONTROLLER)) == [StatusReply("RECIEVE_OK")]
-        assert client.speeds() == WheelSpeeds(0, 0)
+        assert client.request(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER)) == [StatusReply("RECIEVE_OK")]
+        assert client.speeds() == SpeedReading(0, 0)
         # a left turn: right wheel faster
-        assert client.request(protocol.set_velocity(0.3, 0.2)) == [StatusReply("RECIEVE_OK")]
+        assert client.request(wire.set_velocity(0.3, 0.2)) == [StatusReply("RECIEVE_OK")]
         client.speeds()  # a reading is the mean rate since the previous one: this one is partial
         time.sleep(0.02)
         speeds = client.speeds()
@@ -86,9 +86,9 @@ def test_drive_poll_and_watch_the_truth_move(sim: tuple[SimProcess, int]) -> Non
         assert rate >= 40, rate  # 50 Hz nominal; slack for a loaded machine
         # the watchdog (1.5 s here) stops the robot when commands stop, polls do not count
         deadline = time.monotonic() + TIMEOUT
-        while time.monotonic() < deadline and client.speeds() != WheelSpeeds(0, 0):
+        while time.monotonic() < deadline and client.speeds() != SpeedReading(0, 0):
             time.sleep(0.1)
-        assert client.speeds() == WheelSpeeds(0, 0)
+        assert client.speeds() == SpeedReading(0, 0)
         x = truths[-1].x
         time.sleep(0.3)
         assert truths[-1].x == pytest.approx(x, abs=1e-9)
@@ -112,7 +112,6 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
     proc, zport = sim
     client = RobotClient(proc.host, proc.control_port)
     with zenoh.open(client_config(zport)) as session:
-
         state: dict[str, object] = {}
 
         def set_faults(**faults: object) -> None:
@@ -129,9 +128,9 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
             wait_for(applied, interval=0.2, what=f"faults {faults}")
 
         set_faults(full_buffer=1.0)
-        assert client.request(protocol.set_velocity(0.1, 0.1)) == [StatusReply("FULL_BUFFER")]
+        assert client.request(wire.set_velocity(0.1, 0.1)) == [StatusReply("FULL_BUFFER")]
         set_faults(full_buffer=0.0, garbage=1.0, split=1.0, glue=0.5)
-        client.request(protocol.set_velocity(0.1, 0.1))
+        client.request(wire.set_velocity(0.1, 0.1))
         client.speeds()  # partial interval
         for _ in range(30):
             assert client.speeds().left in (0, 101, 102)
@@ -164,7 +163,7 @@ def test_a_new_control_client_takes_over(sim: tuple[SimProcess, int]) -> None:
     first = RobotClient(proc.host, proc.control_port)
     first.speeds()
     second = RobotClient(proc.host, proc.control_port)
-    assert second.speeds() == WheelSpeeds(0, 0)
+    assert second.speeds() == SpeedReading(0, 0)
     with pytest.raises((ConnectionError, OSError)):
         first.speeds()
     second.close()
@@ -190,7 +189,7 @@ def test_plain_sim_needs_no_zenoh(children: list[Child]) -> None:
     proc = SimProcess()
     children.append(proc)
     client = RobotClient(proc.host, proc.control_port)
-    client.request(protocol.set_velocity(0.2, 0.2))
+    client.request(wire.set_velocity(0.2, 0.2))
     client.speeds()  # partial interval
     time.sleep(0.02)
     assert client.speeds().left in (202, 203)
@@ -199,7 +198,7 @@ def test_plain_sim_needs_no_zenoh(children: list[Child]) -> None:
 
 
 def test_bad_flags_are_a_clear_error(children: list[Child]) -> None:
-    proc = Child(["-m", "gateway.cli", "sim", "--dropout", "2"])
+    proc = Child(["-m", "blackmetal", "sim", "--dropout", "2"])
     children.append(proc)
     assert proc.proc.wait(TIMEOUT) == 2
     proc.stop()

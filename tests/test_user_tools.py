@@ -17,9 +17,9 @@ from collections.abc import Iterator
 
 import pytest
 import zenoh
-
-from gateway.teleop import Teleop, parse_keys
 from helpers import Child, client_config, free_port, wait_for
+
+from blackmetal.tools.teleop import Teleop, parse_keys
 from schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
@@ -29,9 +29,10 @@ class Up(Child):
     def __init__(self, *extra: str) -> None:
         self.zport = free_port()
         self.endpoint = f"tcp/127.0.0.1:{self.zport}"
-        super().__init__(["-m", "gateway.cli", "up", "-l", self.endpoint, "--no-multicast-scouting", *extra])
-        match = self.wait_line(r"blackmetal is up: simulated robot on (\S+):(\d+) \(log (\d+)\)", timeout=60)
-        self.control_port = int(match.group(2))
+        super().__init__(["-m", "blackmetal", "up", "-l", self.endpoint, "--no-multicast-scouting", *extra])
+        info = self.ready(timeout=60)
+        self.control_port = int(info["control_port"])
+        self.children: dict[str, int] = info["children"]
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +50,7 @@ def get(session: zenoh.Session, key: str, message_type: type, payload: bytes | N
 
 
 def tool(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "gateway.cli", *args], capture_output=True, text=True, timeout=timeout)
+    return subprocess.run([sys.executable, "-m", "blackmetal", *args], capture_output=True, text=True, timeout=timeout)
 
 
 def test_up_prints_a_command_line_that_drives_the_robot(up: Up) -> None:
@@ -92,7 +93,7 @@ def test_teleop_in_a_terminal(up: Up) -> None:
     master, slave = pty.openpty()
     before_attrs = termios.tcgetattr(slave)
     proc = subprocess.Popen(
-        [sys.executable, "-m", "gateway.cli", "teleop", "-e", up.endpoint, "--no-multicast-scouting"],
+        [sys.executable, "-m", "blackmetal", "teleop", "-e", up.endpoint, "--no-multicast-scouting"],
         stdin=slave, stdout=slave, stderr=slave, env={**os.environ, "PYTHONUNBUFFERED": "1"},
     )  # fmt: skip
     screen = bytearray()
@@ -119,7 +120,9 @@ def test_teleop_in_a_terminal(up: Up) -> None:
             wait_for(lambda: "arrows/WASD drive" in read_screen(), what="teleop's help line")
             start = get(session, "robot/sim/truth", Pose)
             hold(b"\x1b[A", 1.5)  # up arrow: forward
-            forward = wait_for(lambda: (p := get(session, "robot/sim/truth", Pose)) is not None and p.v == 0.0 and p, what="a stop after release")
+            forward = wait_for(
+                lambda: (p := get(session, "robot/sim/truth", Pose)) is not None and p.v == 0.0 and p, what="a stop after release"
+            )
             heading = (math.cos(start.yaw), math.sin(start.yaw))
             assert (forward.x - start.x) * heading[0] + (forward.y - start.y) * heading[1] > 0.15
             hold(b"a", 1.0)  # turn left
@@ -150,14 +153,16 @@ def test_tools_fail_clearly_when_nothing_answers() -> None:
     master, slave = pty.openpty()
     try:
         proc = subprocess.run(
-            [sys.executable, "-m", "gateway.cli", "teleop", "-e", endpoint, "--no-multicast-scouting", "--wait", "1"],
+            [sys.executable, "-m", "blackmetal", "teleop", "-e", endpoint, "--no-multicast-scouting", "--wait", "1"],
             stdin=slave, capture_output=True, text=True, timeout=60,
         )  # fmt: skip
         assert proc.returncode == 1 and "no gateway answered" in proc.stderr
     finally:
         os.close(master)
         os.close(slave)
-    result = subprocess.run([sys.executable, "-m", "gateway.cli", "teleop"], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60)
+    result = subprocess.run(
+        [sys.executable, "-m", "blackmetal", "teleop"], stdin=subprocess.DEVNULL, capture_output=True, text=True, timeout=60
+    )
     assert result.returncode == 2 and "needs a terminal" in result.stderr
 
 
@@ -178,9 +183,7 @@ def test_up_stops_everything_on_ctrl_c_within_three_seconds() -> None:
 def test_up_reports_a_child_that_dies() -> None:
     demo = Up()
     try:
-        found = subprocess.run(["pgrep", "-f", f"odometry_service.*-e {demo.endpoint}"], capture_output=True, text=True)
-        pids = [int(p) for p in found.stdout.split()]
-        assert pids, "odometry child not found"
+        pids = [demo.children["odometry"]]
         for pid in pids:
             os.kill(pid, signal.SIGKILL)
         assert demo.proc.wait(20) == 1
@@ -193,11 +196,11 @@ def test_up_reports_a_child_that_dies() -> None:
 def test_teleop_keys_to_commands() -> None:
     assert parse_keys(b"w\x1b[Aa \x1b[Dq\x03") == ["w", "up", "a", "space", "left", "q", "quit"]
     t = Teleop(speed=0.2, turn_rate=0.8, hold=0.5, rate=10.0)
-    (kind, twist), = t.on_key("up", 0.0)
+    ((kind, twist),) = t.on_key("up", 0.0)
     assert kind == "cmd_vel" and twist.linear.x == 0.2  # type: ignore[attr-defined]
     assert t.on_key("up", 0.03) == []  # key repeat faster than 10 Hz: no extra message
     assert t.tick(0.05) == [] and len(t.tick(0.11)) == 1  # 10 Hz while held
-    (kind, stop), = t.tick(0.7)  # released: one zero command
+    ((kind, stop),) = t.tick(0.7)  # released: one zero command
     assert stop.linear.x == 0.0 and t.tick(0.8) == []  # type: ignore[attr-defined]
     msgs = t.on_key("e", 1.0)
     assert msgs[0][0] == "estop" and msgs[0][1].engaged is True  # type: ignore[attr-defined]

@@ -1,0 +1,13 @@
+"""``python -m blackmetal.bench [echo PORT | robot]``: the benchmark, or one of its peer processes."""
+
+import sys
+
+from . import build_parser, run
+from .peers import _echo_main, _robot_main
+
+if len(sys.argv) > 1 and sys.argv[1] == "echo":
+    _echo_main(int(sys.argv[2]))
+elif len(sys.argv) > 1 and sys.argv[1] == "robot":
+    _robot_main()
+else:
+    sys.exit(run(build_parser().parse_args()))

@@ -1,0 +1,293 @@
+"""Each figure of ``blackmetal bench``, measured in fresh processes on loopback."""
+
+from __future__ import annotations
+
+import itertools
+import os
+import random
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from blackmetal.runtime.harness import ServiceProcess
+from schemas import Keys
+
+from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
+from .synth import square_legs, synth_log
+
+KEYS = Keys()
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
+
+
+def _service(name: str, command: list[str]) -> ServiceProcess:
+    child = ServiceProcess.blackmetal(name, command)
+    child.wait_ready()
+    return child
+
+
+def gateway(robot: RobotProcess, zport: int, poll_hz: float, listen: bool = True) -> ServiceProcess:
+    zenoh_args = ["--no-multicast-scouting", "-l" if listen else "-e", f"tcp/127.0.0.1:{zport}"]
+    return _service(
+        "gateway",
+        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *zenoh_args],
+    )  # fmt: skip
+
+
+def odometry(zport: int) -> ServiceProcess:
+    return _service("odometry", ["odometry", "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{zport}"])
+
+
+def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not robot.dump()["polls"]:
+        if time.monotonic() > deadline:
+            raise RuntimeError("the gateway never polled the robot")
+        time.sleep(0.1)
+
+
+def cmd_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
+    """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time)."""
+    import zenoh
+
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+            wait_polls(robot)
+            time.sleep(0.3)
+            sent: dict[float, float] = {}
+            for i in range(samples + 30):
+                speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
+                start = time.time()
+                pub.put(b'{"linear":{"x":%.6f}}' % speed)
+                if i >= 30:  # warm-up
+                    sent[speed] = start
+                time.sleep(random.uniform(*COMMAND_GAP_S))
+            time.sleep(0.3)
+            arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
+    finally:
+        gw.stop()
+        robot.close()
+    return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
+
+
+def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
+    """Speed reply at the gateway (the impulse stamp) -> Pose received by a client: two Zenoh hops."""
+    import zenoh
+
+    from schemas import Pose, decode
+
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    odo = odometry(zport)
+    latencies: list[float] = []
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            session.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
+            deadline = time.monotonic() + 20
+            while len(latencies) < 20 and time.monotonic() < deadline:
+                time.sleep(0.05)
+            latencies.clear()  # warm-up
+            time.sleep(seconds)
+            samples = list(latencies)
+    finally:
+        odo.stop()
+        gw.stop()
+        robot.close()
+    return percentiles(samples)
+
+
+def poll_rate(poll_hz: float, seconds: float) -> dict[str, float]:
+    """Sustained poll rate and worst gap, as the robot sees them."""
+    robot = RobotProcess()
+    gw = gateway(robot, free_port(), poll_hz)
+    try:
+        wait_polls(robot)
+        time.sleep(0.5)
+        start = len(robot.dump()["polls"])
+        time.sleep(seconds)
+        window = robot.dump()["polls"][start:]
+    finally:
+        gw.stop()
+        robot.close()
+    gaps = [b - a for a, b in itertools.pairwise(window)]
+    rate = (len(window) - 1) / (window[-1] - window[0])
+    return {
+        "asked_hz": poll_hz,
+        "rate_hz": rate,
+        "ratio": rate / poll_hz,
+        "worst_gap_ms": max(gaps) * 1e3,
+        "worst_gap_periods": max(gaps) * poll_hz,
+        "median_gap_ms": statistics.median(gaps) * 1e3,
+    }
+
+
+_REPLAY_SNIPPET = """
+import sys, time
+t0 = time.perf_counter()
+from odometry_service.replay import replay_file
+t1 = time.perf_counter()
+result = replay_file(sys.argv[1])
+t2 = time.perf_counter()
+print(len(result), t2 - t1)
+"""
+
+_STREAM_SNIPPET = """
+import sys, time, msgspec
+from odometry_service.core import Odometry
+from schemas import WheelImpulses, encode
+decoder = msgspec.json.Decoder(WheelImpulses)
+lines = open(sys.argv[1], "rb").read().splitlines()[: int(sys.argv[2])]
+odo = Odometry()
+t0 = time.perf_counter()
+for line in lines:
+    encode(odo.feed(decoder.decode(line)))
+t1 = time.perf_counter()
+print(len(lines), t1 - t0)
+"""
+
+
+def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
+    """``blackmetal replay`` (file reading included) against the streaming path, per sample, each in a fresh process."""
+    legs = square_legs(side=2.0) * max(1, samples // 3900 + 1)
+    log = synth_log(legs, dropout=0.01, spike=0.005, seed=1)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "impulses.jsonl"
+        path.write_bytes(log.jsonl())
+        n = min(samples, len(log))
+        if n < len(log):
+            lines = path.read_bytes().splitlines(keepends=True)[:n]
+            path.write_bytes(b"".join(lines))
+
+        def fresh(snippet: str, *args: str) -> tuple[int, float]:
+            out = subprocess.run([sys.executable, "-c", snippet, str(path), *args], capture_output=True, text=True, check=True)
+            count, seconds = out.stdout.split()
+            return int(count), float(seconds)
+
+        replay_runs = [fresh(_REPLAY_SNIPPET) for _ in range(3)]
+        stream_count, stream_seconds = fresh(_STREAM_SNIPPET, str(stream_samples))
+    rates = [count / seconds for count, seconds in replay_runs]
+    stream_rate = stream_count / stream_seconds
+    return {
+        "samples": replay_runs[0][0],
+        "replay_per_s": statistics.median(rates),
+        "replay_min_per_s": min(rates),
+        "replay_max_per_s": max(rates),
+        "stream_per_s": stream_rate,
+        "ratio": statistics.median(rates) / stream_rate,
+    }
+
+
+_BARE_SNIPPET = "import zenoh, time, sys; print('ready', flush=True); time.sleep(float(sys.argv[1]))"
+
+
+def memory_and_cpu(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
+    """Resident memory of gateway and odometry after ``seconds`` at ``poll_hz``; the gateway's CPU share."""
+    bare = subprocess.Popen([sys.executable, "-c", _BARE_SNIPPET, "30"], stdout=subprocess.PIPE, text=True)
+    assert bare.stdout is not None
+    bare.stdout.readline()
+    time.sleep(0.5)
+    baseline = rss_mb(bare.pid)
+    bare.kill()
+    bare.wait()
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    odo = odometry(zport)
+    try:
+        wait_polls(robot)
+        time.sleep(1.0)
+        start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
+        cpu0, t0 = cpu_seconds(gw.proc.pid), time.monotonic()
+        odo_cpu0 = cpu_seconds(odo.proc.pid)
+        time.sleep(seconds)
+        cpu1, t1 = cpu_seconds(gw.proc.pid), time.monotonic()
+        odo_cpu1 = cpu_seconds(odo.proc.pid)
+        end_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
+    finally:
+        odo.stop()
+        gw.stop()
+        robot.close()
+    return {
+        "bare_zenoh_mb": baseline,
+        "gateway_mb": end_rss[0],
+        "odometry_mb": end_rss[1],
+        "gateway_over_bare_mb": end_rss[0] - baseline,
+        "odometry_over_bare_mb": end_rss[1] - baseline,
+        "gateway_growth_mb": end_rss[0] - start_rss[0],
+        "odometry_growth_mb": end_rss[1] - start_rss[1],
+        "gateway_cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0),
+        "odometry_cpu_pct": 100 * (odo_cpu1 - odo_cpu0) / (t1 - t0),
+        "seconds": seconds,
+    }
+
+
+def flood(rate_hz: float, seconds: float) -> dict[str, float]:
+    """``cmd_vel`` at ``rate_hz`` for ``seconds``: gateway memory, and how soon the last command reaches the robot."""
+    import zenoh
+
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, 50.0)
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+            wait_polls(robot)
+            time.sleep(0.3)
+            rss_before = rss_mb(gw.proc.pid)
+            period = 1.0 / rate_hz
+            count = int(rate_hz * seconds)
+            start = time.monotonic()
+            for i in range(count):
+                target = start + i * period
+                while time.monotonic() < target:
+                    pass
+                pub.put(b'{"linear":{"x":%.6f}}' % (0.1 + 0.3 * (i % 1000) / 1000))
+            last_value = round(0.1 + 0.3 * ((count - 1) % 1000) / 1000, 6)
+            final = round(-0.123456, 6)
+            t_final = time.time()
+            pub.put(b'{"linear":{"x":%.6f}}' % final)
+            deadline = time.monotonic() + 5
+            arrivals: dict[float, float] = {}
+            while time.monotonic() < deadline:
+                arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
+                if final in arrivals:
+                    break
+                time.sleep(0.02)
+            achieved = count / (time.monotonic() - start)
+            rss_after = rss_mb(gw.proc.pid)
+            commands = robot.dump()["commands"]
+    finally:
+        gw.stop()
+        robot.close()
+    return {
+        "asked_hz": rate_hz,
+        "sent_hz": achieved,
+        "sent": count + 1,
+        "commands_at_robot": commands,
+        "rss_before_mb": rss_before,
+        "rss_after_mb": rss_after,
+        "rss_growth_mb": rss_after - rss_before,
+        "last_command_latency_ms": (arrivals[final] - t_final) * 1e3 if final in arrivals else float("nan"),
+        "last_flood_value_seen": float(last_value in arrivals),
+    }

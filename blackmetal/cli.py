@@ -1,0 +1,71 @@
+"""The ``blackmetal`` command: one entry point, one subcommand per tool or service."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import json
+import sys
+from pathlib import Path
+
+
+def _schema(args: argparse.Namespace) -> int:
+    from schemas import json_schemas
+
+    schemas = json_schemas()
+    if args.output is None:
+        json.dump(schemas, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    folder = Path(args.output)
+    folder.mkdir(parents=True, exist_ok=True)
+    for name, schema in schemas.items():
+        (folder / f"{name}.schema.json").write_text(json.dumps(schema, indent=2) + "\n")
+    print(f"wrote {len(schemas)} schemas to {folder}")
+    return 0
+
+
+#: Subcommand -> (module with build_parser(parser) and run(args), one-line help).
+COMMANDS: dict[str, tuple[str, str]] = {
+    "sim": ("blackmetal.sim.main", "run the simulated robot (real wire protocol on TCP)"),
+    "gateway": ("gateway.main", "run the gateway (robot link, safety, Zenoh)"),
+    "odometry": ("odometry_service.main", "run the odometry service (impulses -> pose)"),
+    "replay": ("blackmetal.tools.replay", "replay a recorded impulse log through the odometry"),
+    "up": ("blackmetal.tools.up", "run the demo: simulator, gateway and odometry in one command"),
+    "teleop": ("blackmetal.tools.teleop", "drive from the keyboard"),
+    "watch": ("blackmetal.tools.watch", "live view of pose, status, health and errors"),
+    "square": ("blackmetal.tools.square", "drive a square and report the odometry's closure error"),
+    "router": ("blackmetal.tools.router", "run a Zenoh router from the Python wheel"),
+    "robots": ("blackmetal.tools.list_robots", "list the robots whose gateway is alive"),
+    "bench": ("blackmetal.bench", "measure latency, poll rate, replay speed, memory"),
+}
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The full command; with ``only``, just that subcommand's module is imported
+    (so ``blackmetal sim`` without Zenoh flags never loads Zenoh)."""
+    parser = argparse.ArgumentParser(prog="blackmetal", description="Zenoh gateway, odometry and simulator for the Black Metal robot.")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (module_name, text) in COMMANDS.items():
+        if only is not None and name != only:
+            sub.add_parser(name, help=text)
+            continue
+        module = importlib.import_module(module_name)
+        command = sub.add_parser(name, help=text, description=module.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        module.build_parser(command)
+        command.set_defaults(func=module.run)
+    schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
+    schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
+    schema.set_defaults(func=_schema)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    only = argv[0] if argv and argv[0] in COMMANDS else None
+    args = build_parser(only).parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

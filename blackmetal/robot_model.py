@@ -1,0 +1,138 @@
+"""The Black Metal robot as numbers and formulas: the one place they are computed.
+
+The gateway (twist to wheel commands), the odometry (impulses to motion,
+streaming and batch), the simulator (motion to impulses, true pose), the log
+synthesiser and the bench all take the robot's constants and formulas from
+here, so a calibration or a sign convention changes in one place. The
+formulas are plain arithmetic, so each works on floats and on numpy arrays.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, TypeVar
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+#: Encoder impulses per metre of rim travel (= impulses/s per m/s), left wheel.
+IMPULSES_PER_METER_LEFT = 1012.53636364
+#: Same for the right wheel. Its encoder is mirrored: forward motion reads negative.
+IMPULSES_PER_METER_RIGHT = 1053.67588345
+#: The right wheel's encoder counts backwards when the wheel drives forward.
+RIGHT_ENCODER_MIRRORED = True
+#: The robot's own limit per wheel (m/s); a reading above it is a glitch.
+MAX_WHEEL_SPEED = 0.8
+#: Distance between the wheels (m), from the original driver's configuration.
+WHEEL_SEPARATION = 0.5
+#: Wheel radius (m).
+WHEEL_RADIUS = 0.1
+#: The robot stops its wheels by itself after this long without a motion command (s).
+ROBOT_WATCHDOG_S = 10.0
+#: TCP ports of the robot's control computer.
+CONTROL_PORT = 665
+LOG_PORT = 664
+
+Num = TypeVar("Num", float, "NDArray[np.float64]")
+
+
+@dataclass(frozen=True, slots=True)
+class WheelSpeeds:
+    """Wheel rim speeds in m/s, natural sign (forward positive on both wheels)."""
+
+    right: float
+    left: float
+
+    def rounded(self) -> "WheelSpeeds":
+        """As the wire carries them (6 decimals), so equal commands compare equal."""
+        return WheelSpeeds(round(self.right, 6) + 0.0, round(self.left, 6) + 0.0)
+
+    @property
+    def is_zero(self) -> bool:
+        return self.right == 0.0 and self.left == 0.0
+
+
+STANDSTILL = WheelSpeeds(0.0, 0.0)
+
+
+@dataclass(frozen=True, slots=True)
+class Encoders:
+    """How encoder impulses relate to rim travel: impulses per metre of each wheel, and the mirroring."""
+
+    impulses_per_meter_left: float = IMPULSES_PER_METER_LEFT
+    impulses_per_meter_right: float = IMPULSES_PER_METER_RIGHT
+    mirror_right: bool = RIGHT_ENCODER_MIRRORED
+
+    def to_speeds(self, left: Num, right: Num) -> tuple[Num, Num]:
+        """Impulses (per second) as the robot reports them -> rim speeds (m/s), forward positive."""
+        sign = -1.0 if self.mirror_right else 1.0
+        return left / self.impulses_per_meter_left, sign * right / self.impulses_per_meter_right
+
+    def to_impulses(self, left: Num, right: Num) -> tuple[Num, Num]:
+        """Rim speeds (m/s) or travels (m) -> impulses as the robot reports them (right mirrored), unrounded."""
+        sign = -1.0 if self.mirror_right else 1.0
+        return left * self.impulses_per_meter_left, sign * right * self.impulses_per_meter_right
+
+    def commanded_travel(self, left: int, right: int) -> tuple[float, float]:
+        """Rim travel (m) of a SET_LR_WHEEL_POSITION command: impulses in the natural sign, like speeds on the wire."""
+        return left / self.impulses_per_meter_left, right / self.impulses_per_meter_right
+
+
+NOMINAL_ENCODERS = Encoders()
+
+
+def twist_to_wheels(v: float, w: float, separation: float, max_wheel_speed: float) -> tuple[WheelSpeeds, bool]:
+    """Wheel speeds for forward speed ``v`` (m/s) and turn rate ``w`` (rad/s, + is left).
+
+    ``right = v + w*L/2``, ``left = v - w*L/2``. If either exceeds
+    ``max_wheel_speed``, both are scaled by the same factor so the robot
+    follows the same arc, only slower (clamping each wheel alone would bend
+    the path). Returns the speeds and whether they were scaled.
+    """
+    half = 0.5 * w * separation
+    right = v + half
+    left = v - half
+    peak = max(abs(right), abs(left))
+    if peak <= max_wheel_speed:
+        return WheelSpeeds(right, left), False
+    scale = max_wheel_speed / peak
+    return WheelSpeeds(right * scale, left * scale), True
+
+
+def wheels_to_twist(left: Num, right: Num, separation: float) -> tuple[Num, Num]:
+    """Forward speed and turn rate of rim speeds (the inverse of :func:`twist_to_wheels`)."""
+    return 0.5 * (right + left), (right - left) / separation
+
+
+def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
+    """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along the exact arc.
+
+    Chord form: length ``ds * sin(h)/h`` at heading ``yaw + h`` with ``h`` half
+    the turn; exact for any turn and well conditioned as the turn goes to zero,
+    where it becomes the straight line. The simulator's truth and the odometry
+    both move this way.
+    """
+    ds = 0.5 * (d_left + d_right)
+    dth = (d_right - d_left) / separation
+    half = 0.5 * dth
+    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
+    heading = yaw + half
+    return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
+
+
+def arc_deltas(
+    yaw_before: "NDArray[np.float64]", d_left: "NDArray[np.float64]", d_right: "NDArray[np.float64]", separation: float
+) -> tuple["NDArray[np.float64]", "NDArray[np.float64]", "NDArray[np.float64]"]:
+    """:func:`arc_step` for many steps at once: the x, y and yaw change of each step (numpy)."""
+    import numpy as np
+
+    ds = 0.5 * (d_left + d_right)
+    dth = (d_right - d_left) / separation
+    half = 0.5 * dth
+    small = np.abs(half) <= 1e-6
+    safe = np.where(small, 1.0, half)
+    chord = ds * np.where(small, 1.0 - half * half / 6.0, np.sin(safe) / safe)
+    heading = yaw_before + half
+    return chord * np.cos(heading), chord * np.sin(heading), dth

@@ -1,0 +1,135 @@
+"""The one way a service meets Zenoh: declare at the edge, hand every sample over to the service's loop.
+
+Zenoh calls back on its own threads. A callback here only copies the
+payload and appends it to a bounded channel, then wakes the service's
+asyncio loop once per batch; the service's handlers run on that loop, never
+inside a Zenoh callback, and never block Zenoh. Channels are bounded: a
+``latest`` channel keeps only the newest item (a newer command supersedes an
+older one), a queue keeps at most ``capacity`` items and drops the oldest,
+counting what it dropped. Channels with a higher ``priority`` are drained
+first, so an emergency stop is handled before a backlog of anything else.
+:class:`ZenohEdge` keeps every declared entity and undeclares them in
+reverse order of declaration.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import threading
+from collections import deque
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any, Generic, TypeVar
+
+if TYPE_CHECKING:
+    import zenoh
+
+T = TypeVar("T")
+
+
+class Channel(Generic[T]):
+    """One input of a service: items from any thread, handled on the loop in arrival order."""
+
+    def __init__(self, name: str, handler: Callable[[T], None], capacity: int, priority: int) -> None:
+        self.name = name
+        self.handler = handler
+        self.priority = priority
+        self.items: deque[T] = deque(maxlen=capacity)
+        self.dropped = 0
+        self.received = 0
+
+
+class Handover:
+    """Thread-safe hand-over from Zenoh's threads to one asyncio loop."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+        self.loop = loop
+        self._channels: list[Channel[Any]] = []
+        self._lock = threading.Lock()
+        self._scheduled = False
+
+    def channel(
+        self, name: str, handler: Callable[[T], None], *, capacity: int = 1024, latest: bool = False, priority: int = 0
+    ) -> Callable[[T], None]:
+        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item."""
+        channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority)
+        self._channels.append(channel)
+        self._channels.sort(key=lambda c: -c.priority)
+
+        def put(item: T) -> None:
+            with self._lock:
+                if len(channel.items) == channel.items.maxlen:
+                    channel.dropped += 1
+                channel.items.append(item)
+                channel.received += 1
+                if self._scheduled:
+                    return
+                self._scheduled = True
+            try:
+                self.loop.call_soon_threadsafe(self._drain)
+            except RuntimeError:  # the loop is closed: the service is stopping
+                pass
+
+        return put
+
+    def _drain(self) -> None:
+        with self._lock:
+            self._scheduled = False
+        for channel in self._channels:
+            while True:
+                with self._lock:
+                    if not channel.items:
+                        break
+                    item = channel.items.popleft()
+                channel.handler(item)
+
+    def stats(self) -> dict[str, tuple[int, int]]:
+        """Per channel: items received and items dropped because the channel was full."""
+        return {c.name: (c.received, c.dropped) for c in self._channels}
+
+
+def payload_bytes(sample: "zenoh.Sample") -> bytes:
+    """The payload as bytes; empty if Zenoh cannot give it (never raises into Zenoh's thread)."""
+    try:
+        return bytes(sample.payload.to_bytes())
+    except Exception:
+        return b""
+
+
+class ZenohEdge:
+    """Declares a service's Zenoh entities on an open session and undeclares them, newest first."""
+
+    def __init__(self, session: "zenoh.Session") -> None:
+        self.session = session
+        self._entities: list[Any] = []
+
+    def publisher(self, key: str, *, express: bool = False, drop_when_congested: bool = False) -> "zenoh.Publisher":
+        import zenoh
+
+        publisher = self.session.declare_publisher(
+            key,
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            express=express,
+            congestion_control=zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK,
+        )
+        self._entities.append(publisher)
+        return publisher
+
+    def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
+        """Payload bytes of every sample on ``key`` go to ``put`` (a Handover channel)."""
+        self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))
+
+    def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
+        """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""
+        self._entities.append(self.session.declare_queryable(key, put))
+
+    def token(self, key: str) -> None:
+        """A liveliness token, present while this edge is open."""
+        self._entities.append(self.session.liveliness().declare_token(key))
+
+    def close(self) -> None:
+        for entity in reversed(self._entities):
+            try:
+                entity.undeclare()
+            except Exception:  # already undeclared by a closing session
+                pass
+        self._entities.clear()

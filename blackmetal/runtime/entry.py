@@ -1,0 +1,52 @@
+"""How a service process starts and ends: settings, an asyncio loop, SIGINT/SIGTERM, one sentence on failure."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import logging
+import sys
+from collections.abc import Awaitable, Callable
+from typing import TypeVar
+
+from schemas import BlackmetalError
+
+from .settings import add_setting_arguments
+from .signals import loop_stop_on_signals
+from .zenoh_setup import add_zenoh_arguments
+
+T = TypeVar("T")
+
+
+def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Event], Awaitable[None]]) -> int:
+    """Load settings, then ``serve(settings, stop)`` until SIGINT/SIGTERM sets ``stop``.
+
+    Exit codes: 0 after a requested stop; 2 for a setting or configuration
+    the service cannot use; 1 when the operating system refuses (a port in
+    use, an address not ours). Every failure is one line on stderr.
+    """
+    logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s")
+
+    async def _main(settings: T) -> None:
+        await serve(settings, loop_stop_on_signals())
+
+    try:
+        asyncio.run(_main(load()))
+    except BlackmetalError as exc:
+        print(f"blackmetal {name}: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"blackmetal {name}: {exc}", file=sys.stderr)
+        return 1
+    logging.getLogger(f"blackmetal.{name}").info("stopped")
+    return 0
+
+
+def service_parser(
+    prog: str, doc: str | None, settings_cls: type, parser: argparse.ArgumentParser | None = None
+) -> argparse.ArgumentParser:
+    """A service's options: one per settings field, then the shared Zenoh flags."""
+    parser = parser or argparse.ArgumentParser(prog=prog, description=doc)
+    add_setting_arguments(parser, settings_cls)
+    add_zenoh_arguments(parser)
+    return parser

@@ -1,0 +1,178 @@
+"""Typed settings with one precedence: command line > environment > file > defaults.
+
+Each process has one settings dataclass whose fields are declared with
+:func:`setting`; its command-line options, their help and the names a file
+or the environment may use all come from those fields. A settings file is
+TOML (``.toml``, read by the standard library) or JSON5 (``.json5``/``.json``,
+read by the ``json5`` package) holding the option names (``poll_hz`` or
+``poll-hz``); the environment uses ``BLACKMETAL_<NAME>``
+(``BLACKMETAL_POLL_HZ=100``). The Zenoh flags are one
+:class:`~blackmetal.runtime.zenoh_setup.ZenohSettings` composed into every
+process's settings as the ``zenoh`` field, under the same rules.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import tomllib
+import types
+import typing
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any, TypeVar
+
+import json5
+import msgspec
+
+from schemas import ConfigError
+
+from .zenoh_setup import ZenohSettings
+
+T = TypeVar("T")
+
+ENV_PREFIX = "BLACKMETAL_"
+#: Options that are not settings: they choose the file, or belong to the command itself.
+NOT_SETTINGS = frozenset({"settings", "func", "command"})
+
+
+def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Any = None, **option: Any) -> Any:
+    """A settings field with the help text and argparse details of its command-line option.
+
+    ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option
+    string, e.g. ``--no-mirror-right``) and ``const`` (for such a flag), or
+    ``cli=False`` for a field with no option.
+    """
+    metadata = {"help": help, **option}
+    if factory is not None:
+        return dataclasses.field(default_factory=factory, metadata=metadata)
+    return dataclasses.field(default=default, metadata=metadata)
+
+
+def _fields(cls: type) -> list[dataclasses.Field[Any]]:
+    return [f for f in dataclasses.fields(cls) if f.name != "zenoh"]
+
+
+def _default_text(f: dataclasses.Field[Any]) -> str:
+    if f.default is not dataclasses.MISSING:
+        value = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        value = f.default_factory()
+    else:
+        return ""
+    if value is None or value == [] or value is False:
+        return ""
+    return f" (default {value:g})" if isinstance(value, float) else f" (default {value})"
+
+
+def add_setting_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
+    """One option per field of ``cls``; unset options stay None so files and the environment can fill them."""
+    hints = typing.get_type_hints(cls)
+    parser.add_argument("--settings", metavar="FILE", help="settings file (TOML or JSON5) with the option names as keys")
+    for f in _fields(cls):
+        meta = f.metadata
+        if meta.get("cli", True) is False:
+            continue
+        flag = meta.get("flag", "--" + f.name.replace("_", "-"))
+        kwargs: dict[str, Any] = {"dest": f.name, "default": None, "help": meta.get("help", "") + _default_text(f)}
+        kind = hints[f.name]
+        args = [a for a in typing.get_args(kind) if a is not type(None)]
+        if isinstance(kind, types.UnionType) and len(args) == 1:
+            kind = args[0]
+        if kind is bool:
+            kwargs.update(action="store_const", const=meta.get("const", True))
+            if "const" in meta:
+                kwargs["help"] = meta.get("help", "")
+        elif typing.get_origin(kind) is list:
+            kwargs.update(action="append", metavar=meta.get("metavar", "VALUE"))
+        else:
+            kwargs.update(type=kind, metavar=meta.get("metavar", f.name.upper()))
+            if "choices" in meta:
+                kwargs["choices"] = meta["choices"]
+        parser.add_argument(flag, **kwargs)
+
+
+def read_settings_file(path: str | Path) -> dict[str, Any]:
+    """The settings in a TOML or JSON5 file, names with dashes or underscores."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read settings file {path}: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text) if path.suffix == ".toml" else json5.loads(text)
+    except (tomllib.TOMLDecodeError, ValueError) as exc:
+        kind = "TOML" if path.suffix == ".toml" else "JSON5"
+        raise ConfigError(f"settings file {path} is not valid {kind}: {exc}") from None
+    if not isinstance(data, dict):
+        raise ConfigError(f"settings file {path} must hold a table (TOML) or an object (JSON5) of settings")
+    return {str(key).replace("-", "_"): value for key, value in data.items()}
+
+
+def _from_env(names: list[str], list_names: set[str], environ: Mapping[str, str]) -> dict[str, Any]:
+    found: dict[str, Any] = {}
+    for name in names:
+        value = environ.get(ENV_PREFIX + name.upper())
+        if value is None:
+            continue
+        if name in list_names:
+            found[name] = [item.strip() for item in value.split(",") if item.strip()]
+        elif value.lower() in ("none", "off", ""):
+            found[name] = None
+        else:
+            found[name] = value
+    return found
+
+
+def _list_names(cls: type) -> set[str]:
+    hints = typing.get_type_hints(cls)
+    return {name for name, kind in hints.items() if typing.get_origin(kind) is list}
+
+
+def load_settings(
+    cls: type[T],
+    given: argparse.Namespace | Mapping[str, Any],
+    settings_file: str | None = None,
+    environ: Mapping[str, str] | None = None,
+) -> T:
+    """Build ``cls`` from defaults < file < environment < ``given`` (options actually set; None = not set).
+
+    ``given`` may be the parsed arguments, whose ``settings`` names the file.
+    Unknown names in the file and values of the wrong type are errors that
+    name the setting; so are the checks of the class's ``check()``.
+    """
+    options = dict(vars(given) if isinstance(given, argparse.Namespace) else given)
+    settings_file = settings_file or options.get("settings")
+    own = [f.name for f in _fields(cls)]
+    has_zenoh = any(f.name == "zenoh" for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+    zenoh_names = [f.name for f in dataclasses.fields(ZenohSettings) if f.metadata.get("cli", True)] if has_zenoh else []
+    names = own + zenoh_names
+    merged: dict[str, Any] = {}
+    if settings_file:
+        from_file = read_settings_file(settings_file)
+        unknown = sorted(set(from_file) - set(names))
+        if unknown:
+            raise ConfigError(f"settings file {settings_file}: unknown settings {unknown}; known: {sorted(names)}")
+        merged.update(from_file)
+    lists = _list_names(cls) | (_list_names(ZenohSettings) if has_zenoh else set())
+    merged.update(_from_env(names, lists, os.environ if environ is None else environ))
+    merged.update({k: v for k, v in options.items() if k in names and k not in NOT_SETTINGS and v is not None})
+    try:
+        values = {k: v for k, v in merged.items() if k in own}
+        if has_zenoh:
+            values["zenoh"] = msgspec.convert({k: v for k, v in merged.items() if k in zenoh_names}, ZenohSettings, strict=False)
+        settings = msgspec.convert(values, cls, strict=False)
+    except msgspec.ValidationError as exc:
+        raise ConfigError(f"invalid setting: {exc}") from None
+    check = getattr(settings, "check", None)
+    if callable(check):
+        check()
+    return settings
+
+
+def check_positive(**values: float | None) -> None:
+    """Raise ConfigError naming the first value that is set but not positive."""
+    for name, value in values.items():
+        if value is not None and not value > 0:
+            raise ConfigError(f"{name} must be positive, got {value}")

@@ -1,0 +1,134 @@
+"""The Zenoh flags every blackmetal process shares, as zenoh-python's examples spell them.
+
+``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``-c/--config``,
+``--no-multicast-scouting``. Importing zenoh is deferred so that a process
+that does not use Zenoh (the plain simulator) never loads it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from schemas import ConfigError
+
+if TYPE_CHECKING:
+    import zenoh
+
+MODES = ("peer", "client", "router")
+
+
+def _env(name: str) -> str | None:
+    return os.environ.get(name) or None
+
+
+@dataclass(slots=True)
+class ZenohSettings:
+    """What the shared flags say; turned into a ``zenoh.Config`` by :meth:`to_config`."""
+
+    mode: str | None = None
+    connect: list[str] = field(default_factory=list)
+    listen: list[str] = field(default_factory=list)
+    config: str | None = None
+    no_multicast_scouting: bool = False
+    #: Zenoh user/password authentication, from the environment only
+    #: (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD) so no secret sits on a command line or in a file.
+    user: str | None = field(default_factory=lambda: _env("BLACKMETAL_ZENOH_USER"), metadata={"cli": False})
+    password: str | None = field(default_factory=lambda: _env("BLACKMETAL_ZENOH_PASSWORD"), metadata={"cli": False})
+
+    def __post_init__(self) -> None:
+        if self.mode is not None and self.mode not in MODES:
+            raise ConfigError(f"Zenoh mode must be one of {', '.join(MODES)}, got {self.mode!r}")
+
+    @property
+    def given(self) -> bool:
+        """True when any Zenoh flag was set."""
+        return bool(self.mode or self.connect or self.listen or self.config or self.no_multicast_scouting)
+
+    def where(self) -> str:
+        """Where this session looks for others, for messages."""
+        if self.connect:
+            return ", ".join(self.connect)
+        return "multicast scouting" if not self.no_multicast_scouting else "no endpoint"
+
+    def to_config(self) -> "zenoh.Config":
+        import zenoh
+
+        if self.config is not None:
+            path = Path(self.config)
+            if not path.is_file():
+                raise ConfigError(f"Zenoh config file {path} does not exist")
+            try:
+                conf = zenoh.Config.from_file(str(path))
+            except Exception as exc:  # zenoh raises its own ZError with the parser's text
+                raise ConfigError(f"Zenoh config file {path} is invalid: {exc}") from None
+        else:
+            conf = zenoh.Config()
+        try:
+            if self.mode is not None:
+                conf.insert_json5("mode", json.dumps(self.mode))
+            if self.connect:
+                conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+            if self.listen:
+                conf.insert_json5("listen/endpoints", json.dumps(self.listen))
+            if self.no_multicast_scouting:
+                conf.insert_json5("scouting/multicast/enabled", "false")
+            if self.user is not None:
+                if self.password is None:
+                    raise ConfigError("BLACKMETAL_ZENOH_USER is set but BLACKMETAL_ZENOH_PASSWORD is not")
+                conf.insert_json5("transport/auth/usrpwd/user", json.dumps(self.user))
+                conf.insert_json5("transport/auth/usrpwd/password", json.dumps(self.password))
+        except ConfigError:
+            raise
+        except Exception as exc:
+            raise ConfigError(f"invalid Zenoh setting: {exc}") from None
+        return conf
+
+
+def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the shared Zenoh flags to ``parser`` (unset flags stay None, so settings files can fill them)."""
+    group = parser.add_argument_group("Zenoh")
+    group.add_argument("-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: peer)")
+    group.add_argument(
+        "-e",
+        "--connect",
+        action="append",
+        default=None,
+        metavar="ENDPOINT",
+        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+    )
+    group.add_argument("-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on (repeatable)")
+    group.add_argument("-c", "--config", default=None, metavar="FILE", help="Zenoh configuration file (JSON5)")
+    group.add_argument(
+        "--no-multicast-scouting",
+        action="store_const",
+        const=True,
+        default=None,
+        help="disable multicast scouting (use explicit endpoints)",
+    )
+
+
+def zenoh_settings(args: argparse.Namespace | Any) -> ZenohSettings:
+    """ZenohSettings from parsed arguments that carry the shared flags."""
+    return ZenohSettings(
+        mode=getattr(args, "mode", None),
+        connect=list(getattr(args, "connect", None) or []),
+        listen=list(getattr(args, "listen", None) or []),
+        config=getattr(args, "config", None),
+        no_multicast_scouting=bool(getattr(args, "no_multicast_scouting", False)),
+    )
+
+
+def open_session(settings: ZenohSettings) -> "zenoh.Session":
+    """Open a session; ConfigError with what to check instead of Zenoh's own traceback."""
+    import zenoh
+
+    conf = settings.to_config()
+    try:
+        return zenoh.open(conf)
+    except Exception as exc:  # zenoh.ZError carries the reason as text
+        raise ConfigError(f"cannot open a Zenoh session ({settings.where()}): {exc}") from None

@@ -1,0 +1,241 @@
+"""Differential-drive physics and command handling of the simulated robot.
+
+Pure and clock-injected: every method takes ``now`` (monotonic seconds), so
+tests drive it with a fake clock and the TCP server with the real one. The
+true pose is integrated exactly: each wheel speed is constant between
+events, so one exact-arc step per interval is exact; while a wheel
+accelerates (optional motor limit) or runs a position move, steps are at
+most ``substep`` long.
+"""
+
+from __future__ import annotations
+
+import math
+import random
+from dataclasses import dataclass
+
+from blackmetal import robot_model as model
+from blackmetal import wire
+from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
+from blackmetal.wire import CommandCode, Request
+from schemas import Pose, SimFaults, make_pose
+
+
+@dataclass(frozen=True, slots=True)
+class RobotParams:
+    """Physical parameters of the simulated robot."""
+
+    wheel_separation: float = model.WHEEL_SEPARATION
+    #: The robot's true encoders (which may differ from the nominal constants the gateway and odometry use).
+    encoders: Encoders = NOMINAL_ENCODERS
+    max_wheel_speed: float = model.MAX_WHEEL_SPEED
+    #: Motor acceleration limit per wheel (m/s^2); None = wheels follow at once.
+    accel_limit: float | None = None
+    #: Stop by itself after this long without a motion command (s).
+    watchdog: float = model.ROBOT_WATCHDOG_S
+    #: Rim speed used for SET_LR_WHEEL_POSITION moves (m/s).
+    position_speed: float = 0.3
+    #: Longest integration step while a wheel accelerates or runs a position move (s).
+    substep: float = 0.001
+
+
+class SimRobot:
+    """The robot's control computer and chassis, without any I/O."""
+
+    def __init__(self, params: RobotParams | None = None, now: float = 0.0, seed: int | None = None) -> None:
+        self.params = params or RobotParams()
+        self.faults = SimFaults()
+        self.rng = random.Random(seed)
+        self.t = now
+        self.x = self.y = self.yaw = 0.0  # yaw unwrapped internally
+        self.speed_left = self.speed_right = 0.0  # actual rim speeds (m/s)
+        self.target_left = self.target_right = 0.0  # commanded rim speeds (m/s)
+        self.travel_left = self.travel_right = 0.0  # cumulative rim travel (m)
+        self._position_left: float | None = None  # remaining travel of a position move (m)
+        self._position_right: float | None = None
+        self._deadline: float | None = None  # watchdog: stop at this time unless commanded again
+        self._carry_left = self._carry_right = 0.0  # encoder quantisation carried between readings
+        self._read_at: float | None = None  # time of the previous speed reading
+        self._read_travel = (0.0, 0.0)  # rim travel at the previous speed reading
+        self._dropped = [False, False]  # the previous reading of each wheel was a dropout
+        self.counters: dict[str, int] = {
+            "requests": 0,
+            "velocity_commands": 0,
+            "prepare": 0,
+            "emergency_stops": 0,
+            "normal_stops": 0,
+            "watchdog_stops": 0,
+            "full_buffer": 0,
+            "polls": 0,
+        }
+
+    # ------------------------------------------------------------------ physics
+
+    @property
+    def moving(self) -> bool:
+        return self.speed_left != 0.0 or self.speed_right != 0.0 or self._position_left is not None
+
+    def _transient(self) -> bool:
+        if self._position_left is not None:
+            return True
+        return self.params.accel_limit is not None and (self.speed_left != self.target_left or self.speed_right != self.target_right)
+
+    def advance(self, now: float) -> None:
+        """Integrate the true pose up to ``now``; fire the watchdog on the way."""
+        while True:
+            if self._deadline is not None and self.t >= self._deadline:
+                self._deadline = None
+                self.counters["watchdog_stops"] += 1
+                self._halt(immediate=False)
+            if self.t >= now:
+                return
+            t_end = now
+            if self._deadline is not None:
+                t_end = min(t_end, self._deadline)
+            if self._transient():
+                t_end = min(t_end, self.t + self.params.substep)
+            self._step(t_end - self.t)
+            self.t = t_end
+
+    def _step(self, dt: float) -> None:
+        if self._position_left is not None and self._position_right is not None:
+            d_left, self._position_left, self.speed_left = self._position_move(self._position_left, dt)
+            d_right, self._position_right, self.speed_right = self._position_move(self._position_right, dt)
+            if self._position_left == 0.0 and self._position_right == 0.0:
+                self._position_left = self._position_right = None
+        else:
+            d_left, self.speed_left = self._ramp(self.speed_left, self.target_left, dt)
+            d_right, self.speed_right = self._ramp(self.speed_right, self.target_right, dt)
+        self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, d_left, d_right, self.params.wheel_separation)
+        self.travel_left += d_left
+        self.travel_right += d_right
+
+    def _ramp(self, speed: float, target: float, dt: float) -> tuple[float, float]:
+        """Travel over ``dt`` and the speed at its end, under the acceleration limit."""
+        accel = self.params.accel_limit
+        if accel is None or speed == target:
+            return target * dt, target
+        change = target - speed
+        t_reach = abs(change) / accel
+        if t_reach >= dt:
+            end = speed + math.copysign(accel * dt, change)
+            return 0.5 * (speed + end) * dt, end
+        return 0.5 * (speed + target) * t_reach + target * (dt - t_reach), target
+
+    def _position_move(self, remaining: float, dt: float) -> tuple[float, float, float]:
+        """Travel, remaining travel and speed of one wheel in a position move."""
+        step = self.params.position_speed * dt
+        if abs(remaining) <= step:
+            return remaining, 0.0, 0.0
+        return (
+            math.copysign(step, remaining),
+            remaining - math.copysign(step, remaining),
+            math.copysign(self.params.position_speed, remaining),
+        )
+
+    def _halt(self, immediate: bool) -> None:
+        self.target_left = self.target_right = 0.0
+        self._position_left = self._position_right = None
+        if immediate or self.params.accel_limit is None:
+            self.speed_left = self.speed_right = 0.0
+
+    # ------------------------------------------------------------------ readings
+
+    def pose(self, stamp: float) -> Pose:
+        """The true pose, stamped ``stamp`` (Unix time)."""
+        v, w = wheels_to_twist(self.speed_left, self.speed_right, self.params.wheel_separation)
+        return make_pose(stamp, self.x, self.y, self.yaw, v=v, w=w)
+
+    def read_impulses(self, now: float | None = None) -> tuple[int, int]:
+        """Encoder impulses per second as the robot reports them (right mirrored), with faults.
+
+        Like an encoder counter read at intervals, a reading is the mean rate
+        since the previous reading (the current rate for the first one, or
+        after more than a second); whole impulses, the remainder carried to
+        the next reading so nothing is lost on average.
+        """
+        now = self.t if now is None else now
+        self.advance(now)
+        interval = now - self._read_at if self._read_at is not None else 0.0
+        if 0.0 < interval <= 1.0:
+            rate_left = (self.travel_left - self._read_travel[0]) / interval
+            rate_right = (self.travel_right - self._read_travel[1]) / interval
+        else:
+            rate_left, rate_right = self.speed_left, self.speed_right
+        self._read_at = now
+        self._read_travel = (self.travel_left, self.travel_right)
+        exact_left, exact_right = self.params.encoders.to_impulses(rate_left, rate_right)
+        left, self._carry_left = self._quantise(exact_left, self._carry_left)
+        right, self._carry_right = self._quantise(exact_right, self._carry_right)
+        return self._sensor_fault(left, 0), self._sensor_fault(right, 1)
+
+    @staticmethod
+    def _quantise(rate: float, carry: float) -> tuple[int, float]:
+        if abs(rate) < 1e-9:
+            return 0, 0.0
+        value = rate + carry
+        whole = round(value)
+        return whole, value - whole
+
+    def _sensor_fault(self, value: int, wheel: int) -> int:
+        """Single-sample dropouts (never two in a row on a wheel) and impossible spikes."""
+        faults = self.faults
+        dropped = self._dropped[wheel]
+        self._dropped[wheel] = False
+        if faults.dropout and value != 0 and not dropped and self.rng.random() < faults.dropout:
+            self._dropped[wheel] = True
+            return 0
+        if faults.spike and self.rng.random() < faults.spike:
+            limit = self.params.max_wheel_speed
+            impossible = abs(self.params.encoders.to_impulses(limit, limit)[wheel]) * self.rng.uniform(2.0, 6.0)
+            return int(math.copysign(impossible, value or 1))
+        return value
+
+    def read_positions(self) -> tuple[int, int]:
+        """Cumulative encoder impulses (right mirrored)."""
+        left, right = self.params.encoders.to_impulses(self.travel_left, self.travel_right)
+        return round(left), round(right)
+
+    # ------------------------------------------------------------------ commands
+
+    def handle(self, request: Request, now: float) -> list[bytes]:
+        """Apply one command at ``now`` and return the replies the robot sends."""
+        self.advance(now)
+        self.counters["requests"] += 1
+        if self.faults.full_buffer and self.rng.random() < self.faults.full_buffer:
+            self.counters["full_buffer"] += 1
+            return [wire.encode_status(wire.STATUS_FULL_BUFFER)]
+        command = request.command
+        replies = [wire.encode_status(wire.STATUS_OK)]
+        separator = " " if self.rng.random() < 0.5 else ","
+        if command is CommandCode.EMG_STOP:
+            self.counters["emergency_stops"] += 1
+            self._deadline = None
+            self._halt(immediate=True)
+        elif command is CommandCode.NORMAL_STOP:
+            self.counters["normal_stops"] += 1
+            self._deadline = None
+            self._halt(immediate=False)
+        elif command is CommandCode.SET_LR_WHEEL_VELOCITY:
+            self.counters["velocity_commands"] += 1
+            limit = self.params.max_wheel_speed
+            self._position_left = self._position_right = None
+            self.target_right = max(-limit, min(limit, float(request.right or 0.0)))
+            self.target_left = max(-limit, min(limit, float(request.left or 0.0)))
+            if self.params.accel_limit is None:
+                self.speed_left, self.speed_right = self.target_left, self.target_right
+            self._deadline = now + self.params.watchdog
+        elif command is CommandCode.SET_LR_WHEEL_POSITION:
+            self._position_left, self._position_right = self.params.encoders.commanded_travel(
+                int(request.left or 0), int(request.right or 0)
+            )
+            self.target_left = self.target_right = 0.0
+            self._deadline = now + self.params.watchdog
+        elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
+            self.counters["prepare"] += 1
+        elif command is CommandCode.GET_LR_WHEEL_VELOCITY:
+            self.counters["polls"] += 1
+            replies.append(wire.encode_wheel_speeds(*self.read_impulses(now), separator=separator))
+        elif command is CommandCode.GET_LR_WHEEL_POSITION:
+            replies.append(wire.encode_wheel_positions(*self.read_positions(), separator=separator))
+        return replies

@@ -1,0 +1,89 @@
+"""Zenoh edge of the simulator: ground truth out, faults in.
+
+Publishes the true pose on ``<prefix>/sim/truth`` when the simulator's loop
+asks (at a fixed rate), answers ``get`` on ``<prefix>/sim/truth`` and
+``<prefix>/sim/faults``, and takes partial fault settings put on
+``<prefix>/sim/faults``; inputs go through the one hand-over of
+:mod:`blackmetal.runtime.edge`, so no work runs inside a Zenoh callback.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+import msgspec
+
+from blackmetal.runtime.edge import Handover, ZenohEdge
+from blackmetal.runtime.reports import ErrorReporter
+from schemas import Keys, PayloadError, SimFaults, encode, excerpt
+
+from .physics import SimRobot
+
+if TYPE_CHECKING:
+    import zenoh
+
+log = logging.getLogger("blackmetal.sim")
+
+_dict_decoder = msgspec.json.Decoder(dict[str, Any])
+
+
+def apply_fault_update(current: SimFaults, payload: bytes) -> SimFaults:
+    """``current`` with the fields of a partial JSON object replaced; PayloadError if invalid."""
+    data = payload.strip()
+    if len(data) > 4096:
+        raise PayloadError("SimFaults", "payload larger than 4096 bytes", excerpt(data))
+    try:
+        update = _dict_decoder.decode(data)
+        return msgspec.convert({**msgspec.structs.asdict(current), **update}, SimFaults)
+    except (msgspec.ValidationError, msgspec.DecodeError) as exc:
+        raise PayloadError("SimFaults", str(exc), excerpt(data)) from None
+
+
+class SimZenoh(ZenohEdge):
+    """Declares the simulator's publishers, subscriber, queryables and token on an open session."""
+
+    def __init__(self, session: "zenoh.Session", keys: Keys, robot: SimRobot, clock: Callable[[], float]) -> None:
+        super().__init__(session)
+        self.keys = keys
+        self.robot = robot
+        self.clock = clock
+        self._truth = self.publisher(keys.sim_truth)
+        errors = self.publisher(keys.errors)
+        self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
+        self.published = 0
+
+    def attach(self, loop: asyncio.AbstractEventLoop) -> Handover:
+        handover = Handover(loop)
+        self.subscriber(self.keys.sim_faults, handover.channel("faults", self._on_faults))
+        self.queryable(self.keys.sim_faults, handover.channel("faults?", self._answer_faults))
+        self.queryable(self.keys.sim_truth, handover.channel("truth?", self._answer_truth))
+        self.token(self.keys.alive_sim)
+        return handover
+
+    def publish_truth(self) -> None:
+        self._truth.put(self._truth_payload())
+        self.published += 1
+
+    def _truth_payload(self) -> bytes:
+        self.robot.advance(self.clock())
+        return encode(self.robot.pose(time.time()))
+
+    def _on_faults(self, payload: bytes) -> None:
+        try:
+            self.robot.faults = apply_fault_update(self.robot.faults, payload)
+            log.info("faults now %s", self.robot.faults)
+        except PayloadError as exc:
+            log.warning("%s", exc)
+            self.reporter.report(self.keys.sim_faults, str(exc), exc.excerpt)
+
+    def _answer_faults(self, query: "zenoh.Query") -> None:
+        with query:
+            query.reply(self.keys.sim_faults, encode(self.robot.faults))
+
+    def _answer_truth(self, query: "zenoh.Query") -> None:
+        with query:
+            query.reply(self.keys.sim_truth, self._truth_payload())

@@ -1,0 +1,154 @@
+"""What every user tool needs: a Zenoh session with sensible defaults, latest values, clear failures.
+
+Tools (teleop, watch, square) default to the demo's endpoint
+``tcp/127.0.0.1:7447`` when no Zenoh flag is given, and fail with a message
+that says what to check, not a traceback, when nothing answers.
+"""
+
+from __future__ import annotations
+
+import argparse
+import functools
+import sys
+import threading
+import time
+from collections.abc import Callable
+from typing import Any, TypeVar
+
+import msgspec
+import zenoh
+
+from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, zenoh_settings
+from schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, decode, to_bytes
+
+DEMO_ENDPOINT = "tcp/127.0.0.1:7447"
+T = TypeVar("T", bound=msgspec.Struct)
+
+
+class ToolError(BlackmetalError):
+    """A user tool cannot do its job; the message says what to check."""
+
+
+def add_client_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the robot's services (default 5)")
+    add_zenoh_arguments(parser)
+
+
+def client_settings(args: argparse.Namespace) -> ZenohSettings:
+    """The Zenoh flags, or the demo's endpoint (multicast scouting off) when none was given."""
+    settings = zenoh_settings(args)
+    if not settings.given:
+        settings.connect = [DEMO_ENDPOINT]
+        settings.no_multicast_scouting = True
+    if settings.mode is None and not settings.listen:
+        settings.listen = ["tcp/127.0.0.1:0"]  # a client peer needs no listener reachable from the LAN
+    return settings
+
+
+def where(settings: ZenohSettings) -> str:
+    return settings.where()
+
+
+class Latest:
+    """Keeps the newest value of a key, decoded; the callback only stores it."""
+
+    def __init__(self, session: zenoh.Session, key: str, message_type: type[T]) -> None:
+        self.key = key
+        self.message_type = message_type
+        self.value: Any = None
+        self.count = 0
+        self.received_at = 0.0
+        self._event = threading.Event()
+        self._sub = session.declare_subscriber(key, self._on_sample)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        try:
+            self.value = decode(self.message_type, to_bytes(sample.payload))
+        except PayloadError:
+            return
+        self.count += 1
+        self.received_at = time.monotonic()
+        self._event.set()
+
+    def wait(self, timeout: float) -> Any:
+        self._event.wait(timeout)
+        return self.value
+
+    def age(self) -> float:
+        return time.monotonic() - self.received_at if self.count else float("inf")
+
+    def close(self) -> None:
+        self._sub.undeclare()
+
+
+def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
+    """The first valid answer to a ``get`` on ``key``, or None."""
+    for reply in session.get(key, payload=payload, timeout=timeout):
+        if reply.ok is not None:
+            try:
+                return decode(message_type, to_bytes(reply.ok.payload))
+            except PayloadError:
+                continue
+    return None
+
+
+def _require(session: zenoh.Session, key: str, message_type: type[T], timeout: float, missing: str) -> T:
+    """The first valid answer on ``key`` within ``timeout`` (asked once a second), or ToolError(``missing``)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = query(session, key, message_type, timeout=1.0)
+        if value is not None:
+            return value
+        if time.monotonic() > deadline:
+            raise ToolError(missing)
+        time.sleep(0.2)
+
+
+def require_gateway(session: zenoh.Session, keys: Keys, settings: ZenohSettings, timeout: float) -> GatewayHealth:
+    return _require(
+        session,
+        keys.health,
+        GatewayHealth,
+        timeout,
+        f"no gateway answered on {keys.health} within {timeout:g} s (Zenoh: {where(settings)}). "
+        "Is `blackmetal up` (or a gateway) running, with the same --prefix and a reachable endpoint (-e)?",
+    )
+
+
+def require_pose(session: zenoh.Session, keys: Keys, settings: ZenohSettings, timeout: float) -> Pose:
+    return _require(
+        session,
+        keys.pose,
+        Pose,
+        timeout,
+        f"no odometry service answered on {keys.pose} within {timeout:g} s (Zenoh: {where(settings)}). "
+        "Is `blackmetal up` (or `blackmetal odometry`) running?",
+    )
+
+
+def connect(args: argparse.Namespace) -> tuple[Keys, ZenohSettings, zenoh.Session]:
+    """The key space, the Zenoh settings and an open session for a tool; BlackmetalError says what is wrong."""
+    keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
+    settings = client_settings(args)
+    return keys, settings, open_session(settings)
+
+
+def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
+    """Decorate a tool's ``run``: a BlackmetalError ends it with one line on stderr (exit 1, or 2 for settings)."""
+
+    def wrap(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
+        @functools.wraps(run)
+        def wrapper(args: argparse.Namespace) -> int:
+            try:
+                return run(args)
+            except ToolError as exc:
+                print(f"blackmetal {name}: {exc}", file=sys.stderr)
+                return 1
+            except BlackmetalError as exc:
+                print(f"blackmetal {name}: {exc}", file=sys.stderr)
+                return 2
+
+        return wrapper
+
+    return wrap

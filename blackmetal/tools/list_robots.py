@@ -1,0 +1,42 @@
+"""``blackmetal robots``: list the robots whose gateway is alive (liveliness ``**/alive/gateway``)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import zenoh
+
+from blackmetal.runtime.zenoh_setup import add_zenoh_arguments
+from schemas import ANY_GATEWAY_ALIVE, Keys
+
+from .client import connect, tool, where
+
+
+def alive_robots(session: zenoh.Session, timeout: float = 3.0) -> list[str]:
+    """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway."""
+    prefixes = set()
+    for reply in session.liveliness().get(ANY_GATEWAY_ALIVE, timeout=timeout):
+        if reply.ok is not None:
+            prefixes.add(Keys.prefix_of_gateway_token(str(reply.ok.key_expr)))
+    return sorted(prefixes)
+
+
+@tool("robots")
+def run(args: argparse.Namespace) -> int:
+    _, settings, session = connect(args)
+    with session:
+        robots = alive_robots(session, args.wait)
+    if not robots:
+        print(f"blackmetal robots: no live gateway found via {where(settings)} within {args.wait:g} s", file=sys.stderr)
+        return 1
+    for prefix in robots:
+        print(prefix)
+    return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal robots", description=__doc__)
+    parser.add_argument("--wait", type=float, default=3.0, help="seconds to collect answers (default 3)")
+    add_zenoh_arguments(parser)
+    return parser

@@ -1,0 +1,53 @@
+"""``blackmetal router -c deploy/zenoh/router.json5``: a Zenoh router from the Python wheel.
+
+For setups without ``zenohd`` (and for tests): the same JSON5 configuration
+files, access control and authentication included. ``-l`` replaces the
+listen endpoints of the file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+import zenoh
+
+from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.signals import stop_on_signals
+from blackmetal.runtime.zenoh_setup import ZenohSettings
+from schemas import ConfigError
+
+
+def run(args: argparse.Namespace) -> int:
+    settings = ZenohSettings(mode="router", listen=list(args.listen or []), config=args.config,
+                             connect=list(args.connect or []), no_multicast_scouting=bool(args.no_multicast_scouting))  # fmt: skip
+    settings.user = settings.password = None  # a router authenticates others from its own config
+    try:
+        conf = settings.to_config()
+    except ConfigError as exc:
+        print(f"blackmetal router: {exc}", file=sys.stderr)
+        return 2
+    stop = stop_on_signals()
+    try:
+        session = zenoh.open(conf)
+    except Exception as exc:
+        print(f"blackmetal router: cannot start: {exc}", file=sys.stderr)
+        return 1
+    try:
+        listen = conf.get_json("listen/endpoints")
+        print(f"blackmetal router ready: {session.zid()} listening on {json.dumps(listen)}", flush=True)
+        announce_ready("router", zid=str(session.zid()), listen=listen)
+        stop.wait()
+    finally:
+        session.close()
+    return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal router", description=__doc__)
+    parser.add_argument("-c", "--config", metavar="FILE", help="Zenoh router configuration (JSON5)")
+    parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT", help="listen endpoint, replaces the file's (repeatable)")
+    parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT", help="another router to connect to (repeatable)")
+    parser.add_argument("--no-multicast-scouting", action="store_true", help="disable multicast scouting")
+    return parser

@@ -1,0 +1,255 @@
+"""``blackmetal square``: drive a square on odometry and report how well it closes (UMBmark).
+
+The robot drives ``--size`` metres, stops, turns 90 degrees, stops, four
+times, steering by its own odometry (as a robot does). It then reports the
+closure error: where the odometry believes it ended relative to where it
+started, and, with the simulator, where it really ended. Their difference is
+the odometry's error. ``--both`` drives counter-clockwise then clockwise,
+as UMBmark does; ``--plot out.png`` draws odometry against truth (needs the
+``plot`` extra: matplotlib).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import threading
+import time
+from dataclasses import dataclass, field
+
+import zenoh
+
+from blackmetal.runtime.signals import stop_on_signals
+from schemas import Pose, Twist, Vector3, encode
+
+from .client import (
+    Latest,
+    ToolError,
+    add_client_arguments,
+    connect,
+    require_gateway,
+    require_pose,
+    tool,
+    where,
+)
+
+RATE_HZ = 20.0
+
+
+@dataclass
+class Closure:
+    """End pose relative to the start pose, in the start's frame."""
+
+    dx: float
+    dy: float
+    dyaw: float
+
+    @property
+    def distance(self) -> float:
+        return math.hypot(self.dx, self.dy)
+
+    def as_dict(self) -> dict[str, float]:
+        return {"dx_m": self.dx, "dy_m": self.dy, "dyaw_rad": self.dyaw, "distance_m": self.distance}
+
+
+def closure(start: Pose, end: Pose) -> Closure:
+    dx, dy = end.x - start.x, end.y - start.y
+    c, s = math.cos(-start.yaw), math.sin(-start.yaw)
+    return Closure(c * dx - s * dy, s * dx + c * dy, math.remainder(end.yaw - start.yaw, math.tau))
+
+
+@dataclass
+class Run:
+    direction: str
+    odometry: Closure
+    truth: Closure | None
+    odometry_path: list[tuple[float, float]] = field(default_factory=list)
+    truth_path: list[tuple[float, float]] = field(default_factory=list)
+
+
+class Cancelled(Exception):
+    pass
+
+
+class Driver:
+    """Closed-loop legs on the odometry pose, publishing cmd_vel at 20 Hz."""
+
+    def __init__(self, publisher: zenoh.Publisher, pose: Latest, truth: Latest | None, speed: float, turn_rate: float,
+                 stop: threading.Event) -> None:  # fmt: skip
+        self.publisher = publisher
+        self.pose = pose
+        self.truth = truth
+        self.speed = speed
+        self.turn_rate = turn_rate
+        self.stop = stop
+        self.odometry_path: list[tuple[float, float]] = []
+        self.truth_path: list[tuple[float, float]] = []
+
+    def _send(self, v: float, w: float) -> None:
+        self.publisher.put(encode(Twist(linear=Vector3(x=v), angular=Vector3(z=w))))
+
+    def _step(self) -> Pose:
+        if self.stop.wait(1.0 / RATE_HZ):
+            self._send(0.0, 0.0)
+            raise Cancelled
+        pose: Pose = self.pose.value
+        self.odometry_path.append((pose.x, pose.y))
+        if self.truth is not None and self.truth.value is not None:
+            self.truth_path.append((self.truth.value.x, self.truth.value.y))
+        if self.pose.age() > 1.0:
+            self._send(0.0, 0.0)
+            raise ToolError("the odometry stopped publishing poses for more than 1 s; stopped the robot")
+        return pose
+
+    def settle(self) -> Pose:
+        """Zero velocity until the odometry has stood still for 0.3 s."""
+        still_since = None
+        deadline = time.monotonic() + 10.0
+        while time.monotonic() < deadline:
+            self._send(0.0, 0.0)
+            pose = self._step()
+            if abs(pose.v) < 1e-6 and abs(pose.w) < 1e-6:
+                still_since = still_since or time.monotonic()
+                if time.monotonic() - still_since >= 0.3:
+                    return pose
+            else:
+                still_since = None
+        raise ToolError("the robot did not come to rest within 10 s")
+
+    def straight(self, distance: float) -> None:
+        start = self.settle()
+        heading = start.yaw
+        while True:
+            pose = self._step()
+            along = (pose.x - start.x) * math.cos(heading) + (pose.y - start.y) * math.sin(heading)
+            remaining = distance - along
+            if remaining <= 0.001:
+                break
+            v = max(0.03, min(self.speed, 1.5 * remaining))
+            w = max(-0.5, min(0.5, 2.0 * math.remainder(heading - pose.yaw, math.tau)))
+            self._send(v, w)
+        self.settle()
+
+    def turn(self, angle: float) -> None:
+        start = self.settle()
+        target = start.yaw + angle
+        while True:
+            pose = self._step()
+            error = math.remainder(target - pose.yaw, math.tau)
+            if abs(error) <= 0.002 or error * angle < 0:
+                break
+            w = math.copysign(max(0.08, min(self.turn_rate, 2.0 * abs(error))), error)
+            self._send(0.0, w)
+        self.settle()
+
+
+def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | None) -> Run:
+    start = driver.settle()
+    truth_start: Pose | None = truth.value if truth is not None else None
+    driver.odometry_path, driver.truth_path = [], []
+    for _ in range(4):
+        driver.straight(size)
+        driver.turn(-math.pi / 2 if clockwise else math.pi / 2)
+    end = driver.settle()
+    truth_end: Pose | None = truth.value if truth is not None else None
+    return Run(
+        "clockwise" if clockwise else "counter-clockwise",
+        closure(start, end),
+        closure(truth_start, truth_end) if truth_start is not None and truth_end is not None else None,
+        _in_frame_of(start, driver.odometry_path),
+        _in_frame_of(truth_start, driver.truth_path) if truth_start is not None else [],
+    )
+
+
+def _in_frame_of(origin: Pose, path: list[tuple[float, float]]) -> list[tuple[float, float]]:
+    """Points relative to a start pose, so odometry and truth paths overlay from the same origin."""
+    c, s = math.cos(-origin.yaw), math.sin(-origin.yaw)
+    return [(c * (x - origin.x) - s * (y - origin.y), s * (x - origin.x) + c * (y - origin.y)) for x, y in path]
+
+
+def report(run: Run) -> str:
+    o = run.odometry
+    text = f"{run.direction}: odometry closure {1000 * o.distance:.1f} mm (dx {1000 * o.dx:+.1f}, dy {1000 * o.dy:+.1f}), yaw {1000 * o.dyaw:+.1f} mrad"
+    if run.truth is not None:
+        t = run.truth
+        text += (
+            f"\n{' ' * len(run.direction)}  truth    closure {1000 * t.distance:.1f} mm (dx {1000 * t.dx:+.1f}, dy {1000 * t.dy:+.1f}), yaw {1000 * t.dyaw:+.1f} mrad"
+            f"\n{' ' * len(run.direction)}  odometry error {1000 * math.hypot(o.dx - t.dx, o.dy - t.dy):.1f} mm, {1000 * abs(math.remainder(o.dyaw - t.dyaw, math.tau)):.1f} mrad"
+        )
+    return text
+
+
+def plot(runs: list[Run], path: str) -> None:
+    try:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        raise ToolError("--plot needs matplotlib: pip install 'blackmetal[plot]'") from None
+    fig, ax = plt.subplots(figsize=(6, 6))
+    for run in runs:
+        if run.odometry_path:
+            xs, ys = zip(*run.odometry_path, strict=False)
+            ax.plot(xs, ys, label=f"odometry ({run.direction})")
+        if run.truth_path:
+            xs, ys = zip(*run.truth_path, strict=False)
+            ax.plot(xs, ys, "--", label=f"truth ({run.direction})")
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(True)
+    ax.legend()
+    ax.set_title("blackmetal square")
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+@tool("square")
+def run(args: argparse.Namespace) -> int:
+    keys, settings, session = connect(args)
+    stop = stop_on_signals()
+    with session:
+        try:
+            health = require_gateway(session, keys, settings, args.wait)
+            if health.estop:
+                raise ToolError("the emergency stop is engaged; release it first")
+            first = require_pose(session, keys, settings, args.wait)
+            pose = Latest(session, keys.pose, Pose)
+            pose.value = first
+            truth = Latest(session, keys.sim_truth, Pose)
+            has_truth = truth.wait(2.0) is not None
+            pose.wait(2.0)
+            publisher = session.declare_publisher(keys.cmd_vel, express=True)
+            driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop)
+            print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {where(settings)}", flush=True)
+            runs = []
+            for clockwise in [False, True] if args.both else [args.clockwise]:
+                result = drive_square(driver, args.size, clockwise, truth if has_truth else None)
+                runs.append(result)
+                print(report(result), flush=True)
+        except Cancelled:
+            print("blackmetal square: cancelled; robot stopped", file=sys.stderr)
+            return 130
+    if args.json:
+        out = [{"direction": r.direction, "odometry": r.odometry.as_dict(), "truth": r.truth.as_dict() if r.truth else None} for r in runs]
+        print(json.dumps(out))
+    if args.plot:
+        plot(runs, args.plot)
+        print(f"wrote {args.plot}")
+    return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal square", description=__doc__)
+    parser.add_argument("--size", type=float, default=1.0, help="side length, m (default 1)")
+    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
+    parser.add_argument("--turn-rate", type=float, default=0.6, help="turn rate, rad/s (default 0.6)")
+    parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
+    parser.add_argument("--both", action="store_true", help="counter-clockwise, then clockwise (UMBmark)")
+    parser.add_argument("--plot", metavar="PNG", help="draw odometry vs truth (needs matplotlib)")
+    parser.add_argument("--json", action="store_true", help="also print the closures as JSON")
+    add_client_arguments(parser)
+    return parser

@@ -1,0 +1,199 @@
+"""``blackmetal teleop``: drive the robot from the keyboard.
+
+Arrows or WASD drive, space stops, ``e`` toggles the emergency stop, ``+``/``-``
+change the speed, ``q`` quits. While a key is held (the terminal repeats it)
+``cmd_vel`` goes out at 10 Hz; when it is released, one zero command. The
+terminal is restored on any exit.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import select
+import signal
+import sys
+import termios
+import time
+import tty
+from dataclasses import dataclass
+
+import zenoh
+
+from schemas import EStop, GatewayHealth, Pose, Twist, Vector3, encode
+
+from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
+
+#: Key -> (forward, turn) direction.
+DRIVE_KEYS: dict[str, tuple[float, float]] = {
+    "w": (1.0, 0.0), "up": (1.0, 0.0),
+    "s": (-1.0, 0.0), "down": (-1.0, 0.0),
+    "a": (0.0, 1.0), "left": (0.0, 1.0),
+    "d": (0.0, -1.0), "right": (0.0, -1.0),
+}  # fmt: skip
+ARROWS = {"A": "up", "B": "down", "C": "right", "D": "left"}
+
+
+def parse_keys(data: bytes) -> list[str]:
+    """Key names from raw terminal bytes (arrows arrive as ESC [ A..D)."""
+    keys: list[str] = []
+    text = data.decode("utf-8", errors="ignore")
+    i = 0
+    while i < len(text):
+        if text.startswith("\x1b[", i) and i + 2 < len(text) and text[i + 2] in ARROWS:
+            keys.append(ARROWS[text[i + 2]])
+            i += 3
+            continue
+        ch = text[i]
+        keys.append({" ": "space", "\x03": "quit", "\x04": "quit"}.get(ch, ch.lower()))
+        i += 1
+    return keys
+
+
+@dataclass
+class Teleop:
+    """Keyboard state to commands, clock injected; no I/O."""
+
+    speed: float = 0.2
+    turn_rate: float = 0.8
+    hold: float = 0.7  # how long a key counts as held after its last repeat (s)
+    rate: float = 10.0
+    direction: tuple[float, float] = (0.0, 0.0)
+    last_key_at: float = -math.inf
+    last_sent_at: float = -math.inf
+    moving: bool = False
+    estop: bool = False
+    quit: bool = False
+
+    def on_key(self, key: str, now: float) -> list[tuple[str, object]]:
+        """Handle one key; returns messages to publish now as (kind, message)."""
+        out: list[tuple[str, object]] = []
+        if key in DRIVE_KEYS:
+            self.direction = DRIVE_KEYS[key]
+            self.last_key_at = now
+            if not self.moving or now - self.last_sent_at >= 1.0 / self.rate:
+                out.append(("cmd_vel", self._twist()))
+                self.last_sent_at = now
+            self.moving = True
+        elif key == "space":
+            out.append(self._stop(now))
+        elif key == "e":
+            self.estop = not self.estop
+            out.append(("estop", EStop(engaged=self.estop)))
+            if self.moving:
+                out.append(self._stop(now))
+        elif key in ("+", "="):
+            self.speed = min(self.speed * 1.25, 0.8)
+            self.turn_rate = min(self.turn_rate * 1.25, 3.0)
+        elif key in ("-", "_"):
+            self.speed = max(self.speed / 1.25, 0.02)
+            self.turn_rate = max(self.turn_rate / 1.25, 0.1)
+        elif key in ("q", "quit"):
+            self.quit = True
+            if self.moving:
+                out.append(self._stop(now))
+        return out
+
+    def tick(self, now: float) -> list[tuple[str, object]]:
+        """Call often: repeats the command at ``rate`` while held, stops once on release."""
+        if not self.moving:
+            return []
+        if now - self.last_key_at > self.hold:
+            return [self._stop(now)]
+        if now - self.last_sent_at >= 1.0 / self.rate:
+            self.last_sent_at = now
+            return [("cmd_vel", self._twist())]
+        return []
+
+    def _stop(self, now: float) -> tuple[str, object]:
+        self.moving = False
+        self.direction = (0.0, 0.0)
+        self.last_sent_at = now
+        return ("cmd_vel", Twist())
+
+    def _twist(self) -> Twist:
+        forward, turn = self.direction
+        return Twist(linear=Vector3(x=forward * self.speed), angular=Vector3(z=turn * self.turn_rate))
+
+
+HELP = "arrows/WASD drive, space stop, e e-stop, +/- speed, q quit"
+
+
+def _status(teleop: Teleop, pose: Pose | None, health: GatewayHealth | None) -> str:
+    forward, turn = teleop.direction
+    parts = [f"cmd v={forward * teleop.speed:+.2f} w={turn * teleop.turn_rate:+.2f} (max {teleop.speed:.2f} m/s)"]
+    if pose is not None:
+        parts.append(f"pose x={pose.x:+.3f} y={pose.y:+.3f} yaw={math.degrees(pose.yaw):+6.1f}°")
+    if health is not None:
+        parts.append(f"link {health.control.state}")
+        parts.append("E-STOP ENGAGED" if health.estop else "e-stop off")
+    return " | ".join(parts)
+
+
+@tool("teleop")
+def run(args: argparse.Namespace) -> int:
+    if not os.isatty(sys.stdin.fileno()):
+        print("blackmetal teleop: needs a terminal (stdin is not a TTY)", file=sys.stderr)
+        return 2
+    keys, settings, session = connect(args)
+    with session:
+        health0 = require_gateway(session, keys, settings, args.wait)
+        teleop = Teleop(speed=args.speed, turn_rate=args.turn_rate, hold=args.hold, estop=health0.estop)
+        publishers = {
+            "cmd_vel": session.declare_publisher(keys.cmd_vel, express=True),
+            "estop": session.declare_publisher(keys.estop, express=True),
+        }
+        pose = Latest(session, keys.pose, Pose)
+        health = Latest(session, keys.health, GatewayHealth)
+        health.value = health0
+        print(f"blackmetal teleop on {args.prefix} via {where(settings)}: {HELP}", flush=True)
+        return _loop(teleop, publishers, pose, health)
+
+
+def _terminate(*_: object) -> None:
+    raise SystemExit(0)  # unwinds through the finally that restores the terminal
+
+
+def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, health: Latest) -> int:
+    fd = sys.stdin.fileno()
+    saved = termios.tcgetattr(fd)
+    previous_term = signal.signal(signal.SIGTERM, _terminate)
+    try:
+        tty.setcbreak(fd)
+        last_draw = 0.0
+        while not teleop.quit:
+            ready, _, _ = select.select([fd], [], [], 0.05)
+            now = time.monotonic()
+            messages = []
+            if ready:
+                data = os.read(fd, 64)
+                if not data:
+                    break
+                for key in parse_keys(data):
+                    messages += teleop.on_key(key, now)
+            messages += teleop.tick(now)
+            for kind, message in messages:
+                publishers[kind].put(encode(message))  # type: ignore[arg-type]
+            if now - last_draw > 0.2 or messages:
+                sys.stdout.write("\r\x1b[2K" + _status(teleop, pose.value, health.value))
+                sys.stdout.flush()
+                last_draw = now
+    except KeyboardInterrupt:
+        if teleop.moving:
+            publishers["cmd_vel"].put(encode(Twist()))
+    finally:
+        termios.tcsetattr(fd, termios.TCSADRAIN, saved)
+        signal.signal(signal.SIGTERM, previous_term)
+        sys.stdout.write("\n")
+        sys.stdout.flush()
+    return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal teleop", description=__doc__)
+    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
+    parser.add_argument("--turn-rate", type=float, default=0.8, help="turn rate, rad/s (default 0.8)")
+    parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
+    add_client_arguments(parser)
+    return parser

@@ -1,0 +1,237 @@
+"""``blackmetal up``: the simulated robot, the gateway and the odometry service in one command.
+
+Each runs as its own process; this one holds the Zenoh endpoint that clients
+connect to (``tcp/127.0.0.1:7447`` unless ``-l`` says otherwise), prints how
+to drive the robot, then a live one-line status. Ctrl-C stops everything
+within 3 s; a child that dies is reported with its last lines.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import os
+import sys
+import threading
+import time
+
+import zenoh
+
+from blackmetal import robot_model as model
+from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
+from blackmetal.runtime.signals import stop_on_signals
+from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, zenoh_settings
+from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose
+
+from .client import Latest
+
+DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+STOP_BUDGET_S = 3.0
+READY_TIMEOUT_S = 30.0
+
+
+def _child_zenoh_args(args: argparse.Namespace, hub: str) -> list[str]:
+    """Children join as loopback-only peers of our session (plus any routers given with -e)."""
+    out = ["--no-multicast-scouting", "-e", hub, "-l", "tcp/127.0.0.1:0"]
+    for endpoint in args.connect or []:
+        out += ["-e", endpoint]
+    if args.config:
+        out += ["-c", args.config]
+    return out
+
+
+def _hub_endpoint(listen: str) -> str:
+    """Where a local child connects to reach a listener (0.0.0.0 / [::] become loopback)."""
+    proto, _, address = listen.partition("/")
+    host, _, port = address.rpartition(":")
+    if host in ("0.0.0.0", "[::]", ""):
+        host = "127.0.0.1"
+    return f"{proto}/{host}:{port}"
+
+
+def python_snippet(keys: Keys, endpoint: str) -> str:
+    """A shell command that drives the robot for 3 s from plain Python (no single quotes inside)."""
+    code = (
+        "import zenoh, time; c = zenoh.Config(); "
+        f'c.insert_json5("connect/endpoints", "[\\"{endpoint}\\"]"); s = zenoh.open(c); '
+        f'[(s.put("{keys.cmd_vel}", "{{\\"linear\\":{{\\"x\\":0.2}},\\"angular\\":{{\\"z\\":0.5}}}}"), time.sleep(0.1)) '
+        "for _ in range(30)]; s.close()"
+    )
+    return f"python3 -c '{code}'"
+
+
+def _drive_help(keys: Keys, endpoint: str) -> str:
+    return "\n".join(
+        [
+            "Drive it from any Zenoh client (commands time out after 0.5 s: publish at 5 Hz or more):",
+            f"  blackmetal teleop -e {endpoint}",
+            f"  {python_snippet(keys, endpoint)}",
+            f'  z_put -e {endpoint} -k {keys.cmd_vel} -p \'{{"linear":{{"x":0.2}}}}\'   # zenoh\'s own CLI, if installed',
+            f"Watch it:  blackmetal watch -e {endpoint}    Pose:  z_get -e {endpoint} -s {keys.pose}",
+            "Ctrl-C stops everything.",
+        ]
+    )
+
+
+class StatusLine:
+    """Subscriptions for the live one-line status."""
+
+    def __init__(self, session: zenoh.Session, keys: Keys, with_truth: bool) -> None:
+        self.health = Latest(session, keys.health, GatewayHealth)
+        self.pose = Latest(session, keys.pose, Pose)
+        self.truth = Latest(session, keys.sim_truth, Pose) if with_truth else None
+        self.errors = Latest(session, keys.errors, ErrorReport)
+        self._last_count = 0
+        self._last_time = time.monotonic()
+
+    def render(self) -> str:
+        now = time.monotonic()
+        rate = (self.pose.count - self._last_count) / max(now - self._last_time, 1e-6)
+        self._last_count, self._last_time = self.pose.count, now
+        h: GatewayHealth | None = self.health.value
+        parts = []
+        if h is None:
+            parts.append("gateway: waiting")
+        else:
+            parts.append(f"link {h.control.state}/{h.log.state}")
+            parts.append(f"poll {h.poll_hz:.0f} Hz")
+            if h.estop:
+                parts.append("E-STOP")
+            if h.cmd_timeout_active:
+                parts.append("idle")
+        p: Pose | None = self.pose.value
+        if p is None:
+            parts.append("pose: waiting")
+        else:
+            parts.append(f"pose x={p.x:+.3f} y={p.y:+.3f} yaw={math.degrees(p.yaw):+6.1f}° v={p.v:+.2f} w={p.w:+.2f}")
+            parts.append(f"{rate:.0f} poses/s")
+        if self.truth is not None and self.truth.value is not None:
+            t: Pose = self.truth.value
+            parts.append(f"truth x={t.x:+.3f} y={t.y:+.3f}")
+        if self.errors.count:
+            parts.append(f"errors {self.errors.count}")
+        return " | ".join(parts)
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal up", description=__doc__)
+    parser.add_argument("--robot", metavar="HOST", help="drive a real robot at HOST instead of the simulator")
+    parser.add_argument(
+        "--control-port", type=int, default=model.CONTROL_PORT, help=f"robot control port with --robot (default {model.CONTROL_PORT})"
+    )
+    parser.add_argument("--log-port", type=int, default=model.LOG_PORT, help=f"robot log port with --robot (default {model.LOG_PORT})")
+    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument("--poll-hz", type=float, default=50.0, help="wheel polls per second (default 50)")
+    parser.add_argument("--seed", type=int, help="simulator fault seed")
+    parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
+    parser.add_argument("-v", "--verbose", action="store_true", help="show the services' own log lines")
+    add_zenoh_arguments(parser)
+    return parser
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        keys = Keys(args.prefix)
+        settings = zenoh_settings(args)
+        if not settings.listen:
+            settings.listen = [DEFAULT_LISTEN]
+        conf = settings.to_config()
+    except BlackmetalError as exc:
+        print(f"blackmetal up: {exc}", file=sys.stderr)
+        return 2
+    hub = _hub_endpoint(settings.listen[0])
+    try:
+        session = zenoh.open(conf)
+    except Exception as exc:  # zenoh raises ZError with the OS reason
+        print(
+            f"blackmetal up: cannot open Zenoh listening on {', '.join(settings.listen)}: {exc}\n"
+            "Is another `blackmetal up` running? Choose another endpoint with -l, e.g. -l tcp/127.0.0.1:7448",
+            file=sys.stderr,
+        )
+        return 1
+    stop = stop_on_signals()
+    children: list[ServiceProcess] = []
+    try:
+        return _run(args, keys, session, hub, children, stop)
+    finally:
+        # odometry and gateway first (the gateway stops the robot), then the simulator
+        stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)
+        session.close()
+
+
+def _start(children: list[ServiceProcess], name: str, command: list[str], verbose: bool) -> ServiceProcess:
+    child = ServiceProcess.blackmetal(name, command, echo=verbose, own_session=True)
+    children.append(child)
+    return child
+
+
+def _run(
+    args: argparse.Namespace,
+    keys: Keys,
+    session: zenoh.Session,
+    hub: str,
+    children: list[ServiceProcess],
+    stop: threading.Event,
+) -> int:
+    zargs = _child_zenoh_args(args, hub)
+    prefix = keys.prefix
+    try:
+        if args.robot:
+            host, control_port, log_port = args.robot, args.control_port, args.log_port
+            where = f"robot {host}:{control_port}/{log_port}"
+        else:
+            sim_args = ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *zargs]
+            if args.seed is not None:
+                sim_args += ["--seed", str(args.seed)]
+            ready = _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
+            host, control_port, log_port = ready["host"], ready["control_port"], ready["log_port"]
+            where = f"simulated robot on {host}:{control_port} (log {log_port})"
+        gateway = _start(
+            children,
+            "gateway",
+            ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
+             "--prefix", prefix, "--poll-hz", str(args.poll_hz), *zargs],
+            args.verbose,
+        )  # fmt: skip
+        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *zargs], args.verbose)
+        gateway.wait_ready(READY_TIMEOUT_S)
+        odometry.wait_ready(READY_TIMEOUT_S)
+    except ChildFailed as exc:
+        print(f"blackmetal up: {exc}", file=sys.stderr)
+        return 1
+    print(f"blackmetal is up: {where}, Zenoh on {hub}, prefix {prefix}", flush=True)
+    print(_drive_help(keys, hub), flush=True)
+    announce_ready(
+        "up",
+        endpoint=hub,
+        prefix=prefix,
+        robot=host,
+        control_port=control_port,
+        log_port=log_port,
+        children={child.name: child.proc.pid for child in children},
+    )
+    status = StatusLine(session, keys, with_truth=not args.robot)
+    tty = sys.stdout.isatty()
+    interval = args.status_interval if tty else max(args.status_interval, 2.0)
+    while not stop.wait(interval):
+        for child in children:
+            if child.poll() is not None:
+                if tty:
+                    print()
+                print(
+                    f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
+                    file=sys.stderr,
+                    flush=True,
+                )
+                return 1
+        line = status.render()
+        if tty:
+            width = os.get_terminal_size().columns
+            sys.stdout.write("\r\x1b[2K" + line[: max(width - 1, 20)])
+            sys.stdout.flush()
+        else:
+            print(line, flush=True)
+    if tty:
+        print()
+    print("blackmetal up: stopping", flush=True)
+    return 0

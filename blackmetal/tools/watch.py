@@ -1,0 +1,101 @@
+"""``blackmetal watch``: a live view of pose, status, health and errors."""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+import time
+from collections import deque
+
+import zenoh
+
+from blackmetal.runtime.signals import stop_on_signals
+from schemas import (
+    ErrorReport,
+    GatewayHealth,
+    PayloadError,
+    Pose,
+    RobotStatus,
+    decode,
+    to_bytes,
+)
+
+from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
+
+
+def _fmt_pose(pose: Pose | None) -> str:
+    if pose is None:
+        return "-"
+    return f"x={pose.x:+8.3f} m  y={pose.y:+8.3f} m  yaw={math.degrees(pose.yaw):+7.2f}°  v={pose.v:+.3f} m/s  w={pose.w:+.3f} rad/s"
+
+
+def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, health: GatewayHealth | None,
+           errors: list[ErrorReport], pose_rate: float) -> list[str]:  # fmt: skip
+    lines = [f"pose    {_fmt_pose(pose)}   ({pose_rate:.0f}/s)"]
+    if truth is not None:
+        lines.append(f"truth   {_fmt_pose(truth)}")
+    lines.append("status  -" if status is None else f"status  {status.state_name} ({status.state}), direction {status.direction_name}")
+    if health is None:
+        lines.append("health  -")
+    else:
+        h = health
+        rtt = "-" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.2f} ms"
+        lines.append(
+            f"health  control {h.control.state} (reconnects {h.control.reconnects}), log {h.log.state}; "
+            f"poll {h.poll_hz:.1f} Hz, rtt {rtt}; e-stop {'ENGAGED' if h.estop else 'off'}; "
+            f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}"
+        )
+        lines.append(
+            f"counts  commands {h.commands_sent}, polls {h.polls}, replies {h.replies}, full-buffer {h.full_buffer}, "
+            f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}"
+        )
+    lines.append(f"errors  {len(errors)} recent" + ("" if errors else ": none"))
+    for report in errors[-5:]:
+        lines.append(f"  {time.strftime('%H:%M:%S', time.localtime(report.stamp))} {report.source} {report.key}: {report.reason}")
+    return lines
+
+
+@tool("watch")
+def run(args: argparse.Namespace) -> int:
+    keys, settings, session = connect(args)
+    stop = stop_on_signals()
+    with session:
+        health0 = require_gateway(session, keys, settings, args.wait)
+        pose = Latest(session, keys.pose, Pose)
+        truth = Latest(session, keys.sim_truth, Pose)
+        status = Latest(session, keys.status, RobotStatus)
+        health = Latest(session, keys.health, GatewayHealth)
+        health.value = health0
+        errors: deque[ErrorReport] = deque(maxlen=50)
+
+        def on_error(sample: zenoh.Sample) -> None:
+            try:
+                errors.append(decode(ErrorReport, to_bytes(sample.payload)))
+            except PayloadError:
+                pass
+
+        session.declare_subscriber(keys.errors, on_error)
+        tty = sys.stdout.isatty()
+        period = 0.2 if tty else 1.0
+        deadline = time.monotonic() + args.duration if args.duration else math.inf
+        last_count, last_time = 0, time.monotonic()
+        print(f"blackmetal watch on {keys.prefix} via {where(settings)} (Ctrl-C to quit)", flush=True)
+        while not stop.wait(period) and time.monotonic() < deadline:
+            now = time.monotonic()
+            rate = (pose.count - last_count) / max(now - last_time, 1e-6)
+            last_count, last_time = pose.count, now
+            lines = render(pose.value, truth.value, status.value, health.value, list(errors), rate)
+            if tty:
+                sys.stdout.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
+            else:
+                sys.stdout.write("\n".join(lines) + "\n--\n")
+            sys.stdout.flush()
+    return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal watch", description=__doc__)
+    parser.add_argument("--duration", type=float, default=0.0, help="quit after this many seconds (default: run until Ctrl-C)")
+    add_client_arguments(parser)
+    return parser

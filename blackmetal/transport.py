@@ -1,0 +1,135 @@
+"""Byte streams to and from the robot: TCP, or an in-memory pipe, selected like any other transport.
+
+A :class:`ByteStream` reads, writes and closes; a :class:`Connector` opens
+the robot's control or log stream. The gateway takes a Connector, and the
+simulator serves ByteStreams, so tests swap TCP for :func:`memory_pipe` the
+way httpx swaps its transport, with nothing patched.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+from typing import Protocol
+
+
+class ByteStream(Protocol):
+    """One side of a duplex byte stream."""
+
+    async def read(self, max_bytes: int) -> bytes:
+        """Up to ``max_bytes`` bytes; ``b""`` once the peer has closed."""
+        ...
+
+    def write(self, data: bytes) -> None:
+        """Queue ``data`` for sending now (never blocks)."""
+        ...
+
+    async def drain(self) -> None:
+        """Wait until written data has left (raises ConnectionError if the stream broke)."""
+        ...
+
+    def close(self) -> None: ...
+
+    def is_closing(self) -> bool: ...
+
+
+class Connector(Protocol):
+    """Opens the robot's ``"control"`` or ``"log"`` stream."""
+
+    async def open(self, port: str) -> ByteStream: ...
+
+    def describe(self, port: str) -> str: ...
+
+
+class TcpStream:
+    """A ByteStream over an asyncio TCP connection (Nagle off: commands leave at once)."""
+
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        self._reader = reader
+        self._writer = writer
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    async def read(self, max_bytes: int) -> bytes:
+        return await self._reader.read(max_bytes)
+
+    def write(self, data: bytes) -> None:
+        self._writer.write(data)
+
+    async def drain(self) -> None:
+        await self._writer.drain()
+
+    def close(self) -> None:
+        self._writer.close()
+
+    def is_closing(self) -> bool:
+        return self._writer.is_closing()
+
+
+class TcpConnector:
+    """The real robot (or the simulator) over TCP/IPv4."""
+
+    def __init__(self, host: str, control_port: int, log_port: int, timeout: float = 1.0) -> None:
+        self.host = host
+        self.ports = {"control": control_port, "log": log_port}
+        self.timeout = timeout
+
+    async def open(self, port: str) -> ByteStream:
+        reader, writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.ports[port]), self.timeout)
+        return TcpStream(reader, writer)
+
+    def describe(self, port: str) -> str:
+        return f"{self.host}:{self.ports[port]}"
+
+
+class MemoryStream:
+    """One end of an in-memory duplex pipe; closing either end closes both, as a TCP close does."""
+
+    def __init__(self) -> None:
+        self._buffer = bytearray()
+        self._readable = asyncio.Event()
+        self._eof = False
+        self._closed = False
+        self.peer: MemoryStream | None = None
+
+    def _deliver(self, data: bytes) -> None:
+        self._buffer += data
+        self._readable.set()
+
+    def _end(self) -> None:
+        self._eof = True
+        self._readable.set()
+
+    async def read(self, max_bytes: int) -> bytes:
+        while not self._buffer and not self._eof:
+            self._readable.clear()
+            await self._readable.wait()
+        data = bytes(self._buffer[:max_bytes])
+        del self._buffer[:max_bytes]
+        return data
+
+    def write(self, data: bytes) -> None:
+        if not self._closed and self.peer is not None:
+            self.peer._deliver(data)
+
+    async def drain(self) -> None:
+        if self._closed:
+            raise ConnectionResetError("pipe closed")
+        await asyncio.sleep(0)
+
+    def close(self) -> None:
+        for side in (self, self.peer):
+            if side is not None and not side._closed:
+                side._closed = True
+                side._end()
+
+    def is_closing(self) -> bool:
+        return self._closed
+
+
+def memory_pipe() -> tuple[MemoryStream, MemoryStream]:
+    """Two connected ends: what one writes the other reads."""
+    a, b = MemoryStream(), MemoryStream()
+    a.peer, b.peer = b, a
+    return a, b

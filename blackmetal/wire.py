@@ -1,0 +1,413 @@
+"""The Black Metal robot's wire protocol, sans I/O: both roles, for the gateway and the simulator.
+
+Pure code, no sockets: encode commands to the exact bytes the robot expects,
+and decoders you ``feed(bytes)`` that return every complete message and keep
+the rest. The gateway uses the client role (:func:`encode_request`,
+:class:`ReplyDecoder`); the simulator uses the server role
+(:class:`RequestDecoder`, the ``encode_*`` reply functions).
+
+What the robot speaks (control port 665, log port 664):
+
+* requests are one JSON object each, no terminator:
+  ``{"UserID":1,"Command":3,"RightWheelSpeed":0.250000,"LeftWheelSpeed":0.250000}``;
+* every command gets a status reply ``{"status":"RECIEVE_OK"}`` (the robot's
+  spelling) or ``{"status":"FULL_BUFFER"}`` (command dropped);
+* commands 6 and 8 get a second, JSON-like data reply that a JSON parser
+  rejects: ``{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}``, with a space or a
+  comma between the pairs; values are integer impulses (per second for
+  speeds), the right encoder mirrored;
+* the log port pushes ``{"state":S,"direction":D}`` about once a second.
+
+TCP is a byte stream, so one read may hold half a message or several glued
+together, with garbage in between. Framing is by braces (no message nests
+one); garbage is skipped, counted and reported as :class:`Malformed`, and a
+run of bytes without a closing brace is dropped once it exceeds
+``max_frame`` so the buffer stays bounded. ``feed`` never raises.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Callable
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Any, Generic, TypeVar
+
+import msgspec
+
+from schemas import BlackmetalError
+
+
+class ProtocolError(BlackmetalError):
+    """A command the robot must never see, or a value the wire cannot carry."""
+
+
+#: The only user id the robot's software is known to use.
+USER_ID = 1
+#: Largest wheel speed (m/s) that may go on the wire; the robot's own limit is 0.8.
+WIRE_SPEED_LIMIT = 1.0
+#: Integer fields on the wire are 32-bit on the robot.
+INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
+#: Longest message we wait for before declaring the bytes garbage.
+DEFAULT_MAX_FRAME = 512
+
+STATUS_OK = "RECIEVE_OK"  # sic: the robot's own spelling
+STATUS_FULL_BUFFER = "FULL_BUFFER"
+
+
+class CommandCode(IntEnum):
+    """Command codes of the control port."""
+
+    EMPTY = 0
+    EMG_STOP = 1
+    NORMAL_STOP = 2
+    SET_LR_WHEEL_VELOCITY = 3
+    SET_LR_WHEEL_POSITION = 4
+    NOT_IMPLEMENTED_5 = 5
+    GET_LR_WHEEL_VELOCITY = 6
+    PREPARE_WHEEL_CONTROLLER = 7
+    GET_LR_WHEEL_POSITION = 8
+
+
+#: Commands that get a data reply after their status reply.
+DATA_COMMANDS = frozenset({CommandCode.GET_LR_WHEEL_VELOCITY, CommandCode.GET_LR_WHEEL_POSITION})
+
+
+def replies_expected(command: CommandCode) -> int:
+    """How many replies the robot sends for ``command`` when it accepts it."""
+    return 2 if command in DATA_COMMANDS else 1
+
+
+# --------------------------------------------------------------------------- requests
+
+
+@dataclass(frozen=True, slots=True)
+class Request:
+    """One command to the robot. ``right``/``left`` are wheel speeds (m/s) for
+    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None."""
+
+    command: CommandCode
+    right: float | int | None = None
+    left: float | int | None = None
+    user_id: int = USER_ID
+
+
+def set_velocity(right: float, left: float) -> Request:
+    return Request(CommandCode.SET_LR_WHEEL_VELOCITY, float(right), float(left))
+
+
+def set_position(right: int, left: int) -> Request:
+    return Request(CommandCode.SET_LR_WHEEL_POSITION, int(right), int(left))
+
+
+def simple(command: CommandCode) -> Request:
+    """A command without payload fields (everything but 3 and 4)."""
+    return Request(CommandCode(command))
+
+
+def _wire_speed(name: str, value: object) -> str:
+    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+        raise ProtocolError(f"{name} must be a finite number, got {value!r}")
+    if abs(value) > WIRE_SPEED_LIMIT:
+        raise ProtocolError(f"{name} {value!r} m/s is beyond the wire limit of {WIRE_SPEED_LIMIT} m/s")
+    text = f"{value:.6f}"
+    return "0.000000" if text == "-0.000000" else text
+
+
+def _wire_int(name: str, value: object) -> str:
+    if not isinstance(value, int) or isinstance(value, bool) or not INT32_MIN <= value <= INT32_MAX:
+        raise ProtocolError(f"{name} must be a 32-bit integer, got {value!r}")
+    return str(value)
+
+
+def encode_request(request: Request) -> bytes:
+    """The exact bytes the robot expects for ``request`` (one JSON object, no newline).
+
+    Raises ProtocolError for anything the robot must never see: non-finite or
+    out-of-range speeds, non-integer positions, unknown commands.
+    """
+    command = request.command if type(request.command) is CommandCode else CommandCode(request.command)
+    head = f'{{"UserID":{_wire_int("UserID", request.user_id)},"Command":{int(command)}'
+    if command is CommandCode.SET_LR_WHEEL_VELOCITY:
+        body = (
+            f',"RightWheelSpeed":{_wire_speed("RightWheelSpeed", request.right)}'
+            f',"LeftWheelSpeed":{_wire_speed("LeftWheelSpeed", request.left)}'
+        )
+    elif command is CommandCode.SET_LR_WHEEL_POSITION:
+        body = (
+            f',"RightWheelPosition":{_wire_int("RightWheelPosition", request.right)}'
+            f',"LeftWheelPosition":{_wire_int("LeftWheelPosition", request.left)}'
+        )
+    else:
+        body = ""
+    return (head + body + "}").encode("ascii")
+
+
+# --------------------------------------------------------------------------- replies
+
+
+@dataclass(frozen=True, slots=True)
+class StatusReply:
+    """The robot's answer to every command."""
+
+    status: str
+
+    @property
+    def ok(self) -> bool:
+        return self.status == STATUS_OK
+
+    @property
+    def full_buffer(self) -> bool:
+        return self.status == STATUS_FULL_BUFFER
+
+
+@dataclass(frozen=True, slots=True)
+class SpeedReading:
+    """Data reply to GET_LR_WHEEL_VELOCITY: impulses per second, right mirrored."""
+
+    left: int
+    right: int
+
+
+@dataclass(frozen=True, slots=True)
+class PositionReading:
+    """Data reply to GET_LR_WHEEL_POSITION: cumulative impulses, right mirrored."""
+
+    left: int
+    right: int
+
+
+@dataclass(frozen=True, slots=True)
+class LogReport:
+    """Log-port state report."""
+
+    state: int
+    direction: int
+
+
+@dataclass(frozen=True, slots=True)
+class Malformed:
+    """Bytes that are not a valid message: why, and a short excerpt."""
+
+    reason: str
+    raw: bytes
+
+
+Reply = StatusReply | SpeedReading | PositionReading | LogReport
+M = TypeVar("M")
+
+
+def encode_status(status: str = STATUS_OK) -> bytes:
+    return f'{{"status":"{status}"}}'.encode("ascii")
+
+
+def encode_wheel_speeds(left: int, right: int, separator: str = " ") -> bytes:
+    """The robot's JSON-like speed reply; ``separator`` is " " or "," (both occur)."""
+    return _encode_pair("LeftWheelSpeed", left, "RightWheelSpeed", right, separator)
+
+
+def encode_wheel_positions(left: int, right: int, separator: str = " ") -> bytes:
+    return _encode_pair("LeftWheelPosition", left, "RightWheelPosition", right, separator)
+
+
+def _encode_pair(left_name: str, left: int, right_name: str, right: int, separator: str) -> bytes:
+    if separator not in (" ", ","):
+        raise ProtocolError(f"separator must be ' ' or ',', got {separator!r}")
+    return (f'{{"{left_name}"={_wire_int(left_name, left)}{separator}"{right_name}"={_wire_int(right_name, right)}}}').encode("ascii")
+
+
+def encode_log_report(state: int, direction: int) -> bytes:
+    return f'{{"state":{_wire_int("state", state)},"direction":{_wire_int("direction", direction)}}}'.encode("ascii")
+
+
+# --------------------------------------------------------------------------- framing
+
+
+class _BraceFramer:
+    """Cuts a byte stream into ``{...}`` frames; everything else is garbage."""
+
+    __slots__ = ("_buf", "garbage_bytes", "max_frame")
+
+    def __init__(self, max_frame: int) -> None:
+        self._buf = bytearray()
+        self.max_frame = max_frame
+        self.garbage_bytes = 0
+
+    @property
+    def pending(self) -> int:
+        """Bytes held while waiting for the rest of a frame."""
+        return len(self._buf)
+
+    def feed(self, data: bytes, out: list[bytes | Malformed]) -> None:
+        buf = self._buf
+        buf += data
+        pos = 0
+        size = len(buf)
+        while pos < size:
+            start = buf.find(b"{", pos)
+            if start < 0:
+                self._garbage(buf, pos, size, "bytes outside any {...} message", out)
+                pos = size
+                break
+            if start > pos:
+                self._garbage(buf, pos, start, "bytes outside any {...} message", out)
+            end = buf.find(b"}", start + 1)
+            restart = buf.find(b"{", start + 1, end if end >= 0 else size)
+            if restart >= 0:
+                self._garbage(buf, start, restart, "message cut off by a new '{'", out)
+                pos = restart
+                continue
+            if end < 0:
+                if size - start > self.max_frame:
+                    self._garbage(buf, start, size, f"no closing '}}' within {self.max_frame} bytes", out)
+                    pos = size
+                else:
+                    pos = start
+                break
+            out.append(bytes(buf[start : end + 1]))
+            pos = end + 1
+        del buf[:pos]
+
+    def _garbage(self, buf: bytearray, start: int, end: int, reason: str, out: list[bytes | Malformed]) -> None:
+        chunk = bytes(buf[start:end])
+        if not chunk.strip():
+            return  # whitespace between messages is harmless
+        self.garbage_bytes += len(chunk)
+        out.append(Malformed(reason, chunk[:DEFAULT_MAX_FRAME]))
+
+    def reset(self) -> None:
+        self._buf.clear()
+
+
+_PAIR = re.compile(rb'\s*"([A-Za-z_]{1,32})"\s*[:=]\s*(?:"([A-Za-z_]{0,32})"|(-?\d{1,10}))\s*(,?)')
+
+
+def _parse_pairs(frame: bytes) -> dict[str, str | int] | None:
+    """Parse the robot's JSON-like ``{"k"=v "k2":v2}`` body; None if it is not that."""
+    body = frame[1:-1]
+    fields: dict[str, str | int] = {}
+    pos = 0
+    end = len(body)
+    while pos < end:
+        match = _PAIR.match(body, pos)
+        if match is None or match.end() == pos:
+            return None
+        key = match.group(1).decode("ascii")
+        if key in fields:
+            return None
+        string, number = match.group(2), match.group(3)
+        fields[key] = string.decode("ascii") if string is not None else int(number)
+        pos = match.end()
+    return fields
+
+
+_PAIR_REPLIES: dict[frozenset[str], tuple[type, str, str]] = {
+    frozenset({"LeftWheelSpeed", "RightWheelSpeed"}): (SpeedReading, "LeftWheelSpeed", "RightWheelSpeed"),
+    frozenset({"LeftWheelPosition", "RightWheelPosition"}): (PositionReading, "LeftWheelPosition", "RightWheelPosition"),
+    frozenset({"state", "direction"}): (LogReport, "state", "direction"),
+}
+
+
+def parse_reply(frame: bytes) -> Reply | Malformed:
+    """Turn one ``{...}`` frame from the robot into a reply, or Malformed."""
+    fields = _parse_pairs(frame)
+    if fields is None:
+        return Malformed("not a robot reply (unreadable key/value pairs)", frame)
+    if set(fields) == {"status"}:
+        status = fields["status"]
+        if isinstance(status, str) and status:
+            return StatusReply(status)
+        return Malformed("status reply without a status word", frame)
+    shape = _PAIR_REPLIES.get(frozenset(fields))
+    if shape is None:
+        return Malformed(f"unknown reply fields {sorted(fields)}", frame)
+    cls, first, second = shape
+    a, b = fields[first], fields[second]
+    if not isinstance(a, int) or not isinstance(b, int):
+        return Malformed(f"{cls.__name__} values must be integers", frame)
+    if not (INT32_MIN <= a <= INT32_MAX and INT32_MIN <= b <= INT32_MAX):
+        return Malformed(f"{cls.__name__} values beyond 32 bits", frame)
+    return cls(a, b)
+
+
+class _FramedDecoder(Generic[M]):
+    """Frames a byte stream by braces and parses each frame; ``feed`` never raises."""
+
+    def __init__(self, parse: Callable[[bytes], M | Malformed], max_frame: int) -> None:
+        self._framer = _BraceFramer(max_frame)
+        self._parse = parse
+        self.malformed = 0
+
+    @property
+    def garbage_bytes(self) -> int:
+        return self._framer.garbage_bytes
+
+    @property
+    def pending(self) -> int:
+        return self._framer.pending
+
+    def feed(self, data: bytes) -> list[M | Malformed]:
+        frames: list[bytes | Malformed] = []
+        self._framer.feed(data, frames)
+        out: list[M | Malformed] = []
+        for frame in frames:
+            item = frame if isinstance(frame, Malformed) else self._parse(frame)
+            if isinstance(item, Malformed):
+                self.malformed += 1
+            out.append(item)
+        return out
+
+    def reset(self) -> None:
+        """Forget any partial message (after a reconnect)."""
+        self._framer.reset()
+
+
+class ReplyDecoder(_FramedDecoder[Reply]):
+    """Client role: feed bytes from the control or log port, get replies.
+
+    ``feed`` returns replies in stream order, with a :class:`Malformed` item
+    where garbage was skipped; it never raises. ``garbage_bytes`` and
+    ``malformed`` count what was skipped.
+    """
+
+    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
+        super().__init__(parse_reply, max_frame)
+
+
+_request_decoder = msgspec.json.Decoder(dict[str, Any])
+
+
+def parse_request(frame: bytes) -> Request | Malformed:
+    """Turn one ``{...}`` frame from a client into a Request, or Malformed."""
+    try:
+        fields = _request_decoder.decode(frame)
+    except msgspec.DecodeError:
+        return Malformed("request is not a JSON object", frame)
+    user_id = fields.get("UserID")
+    code = fields.get("Command")
+    if not isinstance(user_id, int) or isinstance(user_id, bool):
+        return Malformed("request without an integer UserID", frame)
+    if not isinstance(code, int) or isinstance(code, bool) or not 0 <= code <= 8:
+        return Malformed("request without a Command code 0-8", frame)
+    command = CommandCode(code)
+    if command is CommandCode.SET_LR_WHEEL_VELOCITY:
+        right, left = fields.get("RightWheelSpeed"), fields.get("LeftWheelSpeed")
+        for value in (right, left):
+            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+                return Malformed("SET_LR_WHEEL_VELOCITY needs finite RightWheelSpeed and LeftWheelSpeed", frame)
+        return Request(command, float(right), float(left), user_id)  # type: ignore[arg-type]
+    if command is CommandCode.SET_LR_WHEEL_POSITION:
+        right, left = fields.get("RightWheelPosition"), fields.get("LeftWheelPosition")
+        for value in (right, left):
+            if not isinstance(value, int) or isinstance(value, bool) or not INT32_MIN <= value <= INT32_MAX:
+                return Malformed("SET_LR_WHEEL_POSITION needs integer RightWheelPosition and LeftWheelPosition", frame)
+        return Request(command, right, left, user_id)
+    return Request(command, None, None, user_id)
+
+
+class RequestDecoder(_FramedDecoder[Request]):
+    """Server role (the simulator): feed bytes from a client, get requests."""
+
+    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
+        super().__init__(parse_request, max_frame)

@@ -1,0 +1,112 @@
+"""The key space: every key expression blackmetal uses, with the message carried on it.
+
+One robot lives under one prefix (``robot`` by default, ``fleet/a`` in a
+fleet). Services, tools, tests and the JSON Schema export take their keys
+from :class:`Keys` and nowhere else, so a key is renamed in one place.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import msgspec
+
+from .errors import ConfigError
+from .messages import (
+    ErrorReport,
+    EStop,
+    GatewayHealth,
+    Pose,
+    PoseReset,
+    RobotStatus,
+    SimFaults,
+    Twist,
+    WheelImpulses,
+)
+
+DEFAULT_PREFIX = "robot"
+
+
+class KeySpec(NamedTuple):
+    """One key below the prefix: the attribute that names it, what travels on it, who uses it."""
+
+    name: str
+    suffix: str
+    message: type[msgspec.Struct] | None
+    kind: str  # "publication", "query" or "liveliness"
+    who: str
+
+
+#: Every key, in the order the README's table lists them.
+KEY_SPECS: tuple[KeySpec, ...] = (
+    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway"),
+    KeySpec("estop", "estop", EStop, "publication", "any client -> gateway"),
+    KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->"),
+    KeySpec("status", "status", RobotStatus, "publication", "gateway ->"),
+    KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get"),
+    KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->"),
+    KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get"),
+    KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
+    KeySpec("alive_gateway", "alive/gateway", None, "liveliness", "gateway"),
+    KeySpec("alive_odometry", "alive/odometry", None, "liveliness", "odometry"),
+    KeySpec("alive_sim", "alive/sim", None, "liveliness", "simulator"),
+    KeySpec("sim_truth", "sim/truth", Pose, "publication", "simulator ->, and get"),
+    KeySpec("sim_faults", "sim/faults", SimFaults, "publication", "any client -> simulator, and get"),
+)
+
+#: Liveliness key expression that matches every robot's gateway, whatever its prefix.
+ANY_GATEWAY_ALIVE = "**/alive/gateway"
+
+
+def validate_prefix(prefix: str) -> str:
+    """A key-expression prefix such as ``robot`` or ``fleet/a``: no wildcards, no empty chunks."""
+    chunks = prefix.split("/")
+    if not prefix or any(not chunk for chunk in chunks):
+        raise ConfigError(f"prefix {prefix!r} must be non-empty chunks separated by '/', e.g. 'robot' or 'fleet/a'")
+    for chunk in chunks:
+        if any(ch in chunk for ch in "*$?#") or chunk.startswith("@"):
+            raise ConfigError(f"prefix {prefix!r} must not contain wildcards or the characters * $ ? # or a leading @")
+    return prefix
+
+
+class Keys:
+    """The key expressions of the robot under ``prefix``; ``Keys("fleet/a").pose == "fleet/a/pose"``."""
+
+    cmd_vel: str
+    estop: str
+    impulses: str
+    status: str
+    health: str
+    errors: str
+    pose: str
+    odometry_reset: str
+    alive_gateway: str
+    alive_odometry: str
+    alive_sim: str
+    sim_truth: str
+    sim_faults: str
+
+    def __init__(self, prefix: str = DEFAULT_PREFIX) -> None:
+        self.prefix = validate_prefix(prefix)
+        for spec in KEY_SPECS:
+            setattr(self, spec.name, f"{prefix}/{spec.suffix}")
+
+    @property
+    def everything(self) -> str:
+        """Every key of this robot (for recorders and viewers)."""
+        return f"{self.prefix}/**"
+
+    def message_for(self, key: str) -> type[msgspec.Struct] | None:
+        """The message type carried on ``key`` (None for liveliness keys and keys not ours)."""
+        for spec in KEY_SPECS:
+            if key == f"{self.prefix}/{spec.suffix}":
+                return spec.message
+        return None
+
+    @staticmethod
+    def prefix_of_gateway_token(key: str) -> str:
+        """``fleet/a`` from the liveliness key ``fleet/a/alive/gateway``."""
+        return key.removesuffix("/alive/gateway")
+
+    def __repr__(self) -> str:
+        return f"Keys({self.prefix!r})"

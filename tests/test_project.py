@@ -1,0 +1,62 @@
+"""The project's own rules, checked like behaviour: layers, lint, types, and docs that match the code."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from schemas import KEY_SPECS, Keys
+
+ROOT = Path(__file__).resolve().parent.parent
+BIN = Path(sys.executable).parent
+
+
+def _run(args: list[str], timeout: float = 600) -> subprocess.CompletedProcess[str]:
+    return subprocess.run(args, cwd=ROOT, capture_output=True, text=True, timeout=timeout)
+
+
+def test_the_layers_hold_and_the_services_never_import_each_other() -> None:
+    result = _run([str(BIN / "lint-imports")])
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "0 broken" in result.stdout
+
+
+def test_ruff_finds_nothing() -> None:
+    lint = _run([sys.executable, "-m", "ruff", "check", "."])
+    assert lint.returncode == 0, lint.stdout + lint.stderr
+    fmt = _run([sys.executable, "-m", "ruff", "format", "--check", "."])
+    assert fmt.returncode == 0, fmt.stdout + fmt.stderr
+
+
+def test_mypy_finds_nothing() -> None:
+    result = _run([sys.executable, "-m", "mypy"])
+    assert result.returncode == 0, result.stdout + result.stderr
+
+
+def _readme_section(title: str) -> str:
+    text = (ROOT / "README.md").read_text()
+    start = text.index(f"## {title}")
+    end = text.find("\n## ", start + 1)
+    return text[start : end if end >= 0 else len(text)]
+
+
+def test_the_readme_key_table_lists_exactly_the_key_space() -> None:
+    section = _readme_section("Key expressions")
+    rows = [line for line in section.splitlines() if line.startswith("| `robot/")]
+    documented = {key for row in rows for key in re.findall(r"`(robot/[^`]+)`", row.split("|")[1])}
+    keys = Keys("robot")
+    assert documented == {getattr(keys, spec.name) for spec in KEY_SPECS}
+
+
+def test_keys_follow_the_prefix_and_refuse_wildcards() -> None:
+    fleet = Keys("fleet/a")
+    assert fleet.cmd_vel == "fleet/a/cmd_vel" and fleet.impulses == "fleet/a/wheels/impulses"
+    assert fleet.message_for("fleet/a/pose").__name__ == "Pose"  # type: ignore[union-attr]
+    assert Keys.prefix_of_gateway_token(fleet.alive_gateway) == "fleet/a"
+    for bad in ("", "robot/*", "a//b", "@robot", "r$"):
+        with pytest.raises(Exception, match="prefix"):
+            Keys(bad)
