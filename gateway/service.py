@@ -82,7 +82,9 @@ class GatewayService:
         self.connection = RobotConnection(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {"control": None, "log": None}
         self._drop_reason: dict[LinkName, str] = {}
-        self._wake = asyncio.Event()
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_at = float("inf")
+        self._running = False
 
     # ------------------------------------------------------------------ what tests and the edge see
 
@@ -130,7 +132,26 @@ class GatewayService:
                     log.warning("%s link: dropping connection: %s", event.link, event.reason)
                     self._drop_reason[event.link] = event.reason
                     stream.close()
-        self._wake.set()
+        if self._running:
+            deadline = conn.next_deadline()
+            if deadline < self._timer_at:
+                self._schedule(deadline)
+
+    def _schedule(self, deadline: float) -> None:
+        """Run the connection's timers at ``deadline`` (one timer, moved only when a deadline comes earlier)."""
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_at = deadline
+        delay = min(max(deadline - self.clock(), 0.0), 3600.0)
+        self._timer = asyncio.get_running_loop().call_later(delay, self._on_timer)
+
+    def _on_timer(self) -> None:
+        self._timer = None
+        self._timer_at = float("inf")
+        self.connection.tick(self.clock())
+        self._flush()
+        if self._timer is None:
+            self._schedule(self.connection.next_deadline())
 
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
@@ -183,20 +204,15 @@ class GatewayService:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in ("control", "log")]
-        waker = asyncio.create_task(_set_when(stop, self._wake))
+        self._running = True
+        self._on_timer()
         try:
-            while not stop.is_set():
-                self.connection.tick(self.clock())
-                self._flush()
-                self._wake.clear()
-                delay = self.connection.next_deadline() - self.clock()
-                if delay > 0:
-                    try:
-                        await asyncio.wait_for(self._wake.wait(), min(delay, 3600.0))
-                    except TimeoutError:
-                        pass
+            await stop.wait()
         finally:
-            waker.cancel()
+            self._running = False
+            if self._timer is not None:
+                self._timer.cancel()
+                self._timer = None
             await self._stop_robot()
             link_stop.set()
             for stream in self._streams.values():
@@ -227,9 +243,3 @@ async def _sleep_or_stop(stop: asyncio.Event, delay: float) -> None:
         await asyncio.wait_for(stop.wait(), delay)
     except TimeoutError:
         pass
-
-
-async def _set_when(stop: asyncio.Event, wake: asyncio.Event) -> None:
-    """Wake the main loop when ``stop`` is set, so it never sleeps through a stop."""
-    await stop.wait()
-    wake.set()

@@ -15,7 +15,6 @@ reverse order of declaration.
 from __future__ import annotations
 
 import asyncio
-import threading
 from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -39,12 +38,17 @@ class Channel(Generic[T]):
 
 
 class Handover:
-    """Thread-safe hand-over from Zenoh's threads to one asyncio loop."""
+    """Thread-safe hand-over from Zenoh's threads to one asyncio loop.
+
+    Lock-free: ``deque.append``/``popleft`` are atomic, and the drain clears
+    its "scheduled" flag *before* it empties the channels, so an item that
+    arrives while a drain runs is either taken by it or schedules the next
+    one; at worst a drain finds nothing to do.
+    """
 
     def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
         self.loop = loop
         self._channels: list[Channel[Any]] = []
-        self._lock = threading.Lock()
         self._scheduled = False
 
     def channel(
@@ -54,32 +58,31 @@ class Handover:
         channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)
+        items = channel.items
 
         def put(item: T) -> None:
-            with self._lock:
-                if len(channel.items) == channel.items.maxlen:
-                    channel.dropped += 1
-                channel.items.append(item)
-                channel.received += 1
-                if self._scheduled:
-                    return
+            if len(items) == items.maxlen:
+                channel.dropped += 1
+            items.append(item)
+            channel.received += 1
+            if not self._scheduled:
                 self._scheduled = True
-            try:
-                self.loop.call_soon_threadsafe(self._drain)
-            except RuntimeError:  # the loop is closed: the service is stopping
-                pass
+                try:
+                    self.loop.call_soon_threadsafe(self._drain)
+                except RuntimeError:  # the loop is closed: the service is stopping
+                    pass
 
         return put
 
     def _drain(self) -> None:
-        with self._lock:
-            self._scheduled = False
+        self._scheduled = False
         for channel in self._channels:
-            while True:
-                with self._lock:
-                    if not channel.items:
-                        break
-                    item = channel.items.popleft()
+            items = channel.items
+            while items:
+                try:
+                    item = items.popleft()
+                except IndexError:
+                    break
                 channel.handler(item)
 
     def stats(self) -> dict[str, tuple[int, int]]:
