@@ -240,24 +240,28 @@ class _BraceFramer:
         return len(self._buf)
 
     def feed(self, data: bytes, out: list[bytes | Malformed]) -> None:
+        """Append ``data``; every complete frame and every run of garbage goes to ``out``.
+
+        The work is per frame, not per byte: a frame is the last ``{`` before
+        the next ``}``, and all that lies before it is one run of garbage,
+        whatever its length (a flood of ``{`` costs one report per read).
+        """
         buf = self._buf
         buf += data
         pos = 0
         size = len(buf)
         while pos < size:
-            start = buf.find(b"{", pos)
-            if start < 0:
-                self._garbage(buf, pos, size, "bytes outside any {...} message", out)
-                pos = size
-                break
-            if start > pos:
-                self._garbage(buf, pos, start, "bytes outside any {...} message", out)
-            end = buf.find(b"}", start + 1)
-            restart = buf.find(b"{", start + 1, end if end >= 0 else size)
-            if restart >= 0:
-                self._garbage(buf, start, restart, "message cut off by a new '{'", out)
-                pos = restart
+            end = buf.find(b"}", pos)
+            start = buf.rfind(b"{", pos, end if end >= 0 else size)
+            if start < 0:  # no opening brace before the next closing one (or at all): garbage up to the next '{'
+                stop = buf.find(b"{", end + 1) if end >= 0 else -1
+                stop = size if stop < 0 else stop
+                self._garbage(buf, pos, stop, "bytes outside any {...} message", out)
+                pos = stop
                 continue
+            if start > pos:
+                cut = buf.find(b"{", pos, start) >= 0
+                self._garbage(buf, pos, start, "message cut off by a new '{'" if cut else "bytes outside any {...} message", out)
             if end < 0:
                 if size - start > self.max_frame:
                     self._garbage(buf, start, size, f"no closing '}}' within {self.max_frame} bytes", out)

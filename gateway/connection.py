@@ -30,12 +30,11 @@ from dataclasses import dataclass
 from typing import Literal
 
 from blackmetal import wire
-from blackmetal.robot_model import WheelSpeeds
+from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.wire import CommandCode, LogReport, Malformed, ReplyDecoder
 from schemas import (
     ErrorReport,
-    EStop,
     GatewayHealth,
     Keys,
     LinkHealth,
@@ -47,9 +46,13 @@ from schemas import (
     excerpt,
 )
 
+from .estop import read_estop
 from .exchange import Completed, Exchange, Lost
-from .safety import Governor
+from .safety import Governor, retry_delay
 from .settings import GatewaySettings
+
+#: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
+MAX_IN_FLIGHT = 8
 
 LinkName = Literal["control", "log"]
 LINKS: tuple[LinkName, LinkName] = ("control", "log")
@@ -78,6 +81,7 @@ class Counters:
     malformed_replies: int = 0
     rejected_inputs: int = 0
     keepalives: int = 0
+    stops_repeated: int = 0
 
 
 @dataclass
@@ -102,6 +106,40 @@ class LinkState:
         return LinkHealth(self.state, self.connected_since, self.reconnects)
 
 
+class ReconnectBackoff:
+    """How long to wait before the next connection attempt: doubling, capped, reset only by a stable connection.
+
+    A connection that the robot closes within ``stable`` seconds of opening
+    counts as a failure, so a robot that accepts and at once closes or resets
+    gets attempts at the capped pace, not a storm.
+    """
+
+    def __init__(self, first: float = 0.05, cap: float = 2.0, stable: float = 5.0) -> None:
+        self.first = first
+        self.cap = cap
+        self.stable = stable
+        self.delay = first
+        self._opened_at: float | None = None
+
+    def opened(self, now: float) -> None:
+        self._opened_at = now
+
+    def failed(self, now: float) -> float:
+        """A connection attempt failed, or a connection ended: the pause before the next attempt."""
+        if self._opened_at is not None and now - self._opened_at >= self.stable:
+            self.delay = self.first  # that connection was a good one: start over
+        wait = self.delay
+        self.delay = min(self.cap, self.delay * 2)
+        self._opened_at = None
+        return wait
+
+
+def _is_stop(request: wire.Request) -> bool:
+    if request.command in (CommandCode.EMG_STOP, CommandCode.NORMAL_STOP):
+        return True
+    return request.command is CommandCode.SET_LR_WHEEL_VELOCITY and request.right == 0.0 and request.left == 0.0
+
+
 def _wheels(request: wire.Request) -> WheelSpeeds:
     return WheelSpeeds(float(request.right or 0.0), float(request.left or 0.0))
 
@@ -121,7 +159,7 @@ class RobotConnection:
         self.keys = Keys(settings.prefix)
         self.counters = Counters()
         self.governor = Governor(settings.safety(), now)
-        self.exchange = Exchange(reply_timeout=settings.reply_timeout)
+        self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links: dict[LinkName, LinkState] = {name: LinkState() for name in LINKS}
         self.last_rtt: float | None = None
         self.seq = 0
@@ -137,6 +175,9 @@ class RobotConnection:
         self._last_status: RobotStatus | None = None
         self._last_status_at = -math.inf
         self._poll_times: deque[float] = deque(maxlen=4096)
+        self._prepare_at: float | None = None  # PREPARE to re-send (after FULL_BUFFER) at this time
+        self._prepare_attempts = 0
+        self._down_since: dict[LinkName, float | None] = {name: None for name in LINKS}
         self.stopping = False
 
     # ------------------------------------------------------------------ outputs
@@ -157,10 +198,12 @@ class RobotConnection:
 
     def next_deadline(self) -> float:
         """When :meth:`tick` must run next, at the latest (monotonic seconds)."""
-        deadline = min(self._next_health, self.exchange.next_expiry(), self.governor.next_deadline())
+        deadline = min(self._next_health, self.exchange.next_expiry(), self.governor.next_deadline(self._congested()))
         control, log = self.links["control"], self.links["log"]
         if control.connected:
             deadline = min(deadline, self._next_poll)
+            if self._prepare_at is not None:
+                deadline = min(deadline, self._prepare_at)
             if control.waiting_since is not None:
                 deadline = min(deadline, control.waiting_since + self.settings.silence_timeout)
         if log.connected:
@@ -183,10 +226,16 @@ class RobotConnection:
         state.waiting_since = None
         self._decoders[link].reset()
         self._outgoing[link].clear()
+        down_since = self._down_since[link]
+        if down_since is not None:
+            self._down_since[link] = None
+            self.reporter.report(self._robot[link], f"{link} link up again after {now - down_since:.1f} s", source="robot")
         if link == "control":
             self.exchange.clear("reconnected")
+            self._prepare_at = None
+            self._prepare_attempts = 0
             self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
-            self.governor.on_link_up()
+            self.governor.on_link_up(now)
             self._next_poll = now
             self._pump(now)
 
@@ -199,12 +248,15 @@ class RobotConnection:
         state.connected_since = None
         state.waiting_since = None
         self._outgoing[link].clear()
+        if was_up:
+            self._down_since[link] = now
+            if not self.stopping:
+                self.reporter.report(self._robot[link], f"{link} link down: {reason}", source="robot")
         if link == "control" and was_up:
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))
             self._next_poll = math.inf
-            if not self.stopping:
-                self.reporter.report(self._robot["control"], f"control link down: {reason}", source="robot")
+            self._prepare_at = None
 
     def receive(self, link: LinkName, data: bytes, now: float) -> None:
         """Bytes read from ``link``."""
@@ -234,14 +286,12 @@ class RobotConnection:
         self._pump(now)
 
     def on_estop(self, payload: bytes, now: float) -> None:
-        """A payload put on ``<prefix>/estop``."""
+        """A payload put on ``<prefix>/estop``: anything but a valid release engages (see :mod:`gateway.estop`)."""
         self._now = now
-        try:
-            estop = decode(EStop, payload)
-        except PayloadError as exc:
-            self.reject(self.keys.estop, str(exc), exc.excerpt)
-            return
-        self.governor.on_estop(estop.engaged)
+        engaged, complaint = read_estop(payload)
+        if complaint is not None:
+            self.reject(self.keys.estop, complaint, excerpt(payload))
+        self.governor.on_estop(engaged, now)
         self._pump(now)
         self._events.append(self.health(now))
 
@@ -264,6 +314,9 @@ class RobotConnection:
         if log.connected and now >= log.last_rx + self.settings.log_silence_timeout:
             self._events.append(DropLink("log", f"no state report for {self.settings.log_silence_timeout:.3g} s"))
             log.last_rx = now
+        if control.connected and self._prepare_at is not None and now >= self._prepare_at:
+            self._prepare_at = None
+            self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
         if control.connected and now >= self._next_poll:
             self._poll(now)
             self._next_poll += self._period
@@ -295,7 +348,7 @@ class RobotConnection:
         window = [t for t in self._poll_times if now - t <= 2.0]
         rate = (len(window) - 1) / max(window[-1] - window[0], 1e-9) if len(window) >= 2 else 0.0
         c = self.counters
-        sent = self.governor.wheels_sent
+        accepted = self.governor.accepted
         return GatewayHealth(
             stamp=self.wallclock(),
             control=self.links["control"].health(),
@@ -315,7 +368,7 @@ class RobotConnection:
             cmd_timeout_active=self.governor.link_up and self.governor.timed_out(now),
             last_rtt_ms=None if self.last_rtt is None else round(self.last_rtt * 1000, 3),
             poll_hz=round(rate, 2),
-            wheel_speeds=(0.0, 0.0) if sent is None else (sent.left, sent.right),
+            wheel_speeds=(0.0, 0.0) if accepted is None else (accepted.left, accepted.right),
         )
 
     # ------------------------------------------------------------------ sending
@@ -323,7 +376,11 @@ class RobotConnection:
     def _send(self, request: wire.Request, now: float) -> bool:
         if not self.links["control"].connected:
             return False
-        self._outgoing["control"] += wire.encode_request(request)  # raises on anything the robot must not see
+        data = wire.encode_request(request)  # raises on anything the robot must not see
+        if self.exchange.in_doubt and _is_stop(request):
+            # a stop cannot wait for doubtful replies to settle: give them up, so the stop's own reply pairs with it
+            self.counters.lost_replies += self.exchange.forget_expired()
+        self._outgoing["control"] += data
         self.exchange.sent(request, now)
         state = self.links["control"]
         if state.waiting_since is None:
@@ -335,19 +392,30 @@ class RobotConnection:
         if not self.links["control"].connected or self.stopping:
             return
         gov = self.governor
-        if gov.emg_stop_needed and self._send(wire.simple(CommandCode.EMG_STOP), now):
-            gov.emg_stop_needed = False
+        if gov.emg_stop_due(now) and self._send(wire.simple(CommandCode.EMG_STOP), now):
+            gov.on_emg_stop_sent()
             self.counters.commands_sent += 1
-        command = gov.next_command(now)
+        command = gov.next_command(now, congested=self._congested())
         if command is not None and self._send(wire.set_velocity(command.wheels.right, command.wheels.left), now):
             self.counters.commands_sent += 1
             if command.reason == "keepalive":
                 self.counters.keepalives += 1
             elif command.reason == "retry":
                 self.counters.full_buffer_retries += 1
+            elif command.reason == "stop-again":
+                self.counters.stops_repeated += 1
+                self.reporter.report(
+                    self._robot["control"],
+                    "robot wheels still turn although it accepted a stop: asking it to stop again",
+                    source="robot",
+                )
+
+    def _congested(self) -> bool:
+        """Only stops go out: the robot is behind, or a reply is in doubt (late or lost) and pairing must settle."""
+        return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        if self.exchange.polls_in_flight():
+        if self.exchange.polls_in_flight() or self._congested():
             self.counters.polls_skipped += 1  # never build a backlog of polls
             return
         if self._send(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), now):
@@ -369,34 +437,48 @@ class RobotConnection:
     def _on_result(self, result: Completed | Lost) -> None:
         request = result.request
         command = request.command
+        now = self._now
         if isinstance(result, Lost):
             self.counters.lost_replies += 1
-            if command is CommandCode.SET_LR_WHEEL_VELOCITY:
-                self.governor.on_full_buffer(_wheels(request))
-            elif command is CommandCode.EMG_STOP:
-                self.governor.on_emg_stop_dropped()
+            self._not_taken(request, now)
             return
         self.last_rtt = result.rtt
+        if result.late:
+            self.reporter.report(
+                self._robot["control"],
+                f"robot slow: a reply came {1000 * result.rtt:.0f} ms after its request "
+                f"(reply timeout {1000 * self.settings.reply_timeout:.0f} ms); polling waits for it",
+                source="robot",
+            )
         if result.status.full_buffer:
             self.counters.full_buffer += 1
-            if command is CommandCode.SET_LR_WHEEL_VELOCITY:
-                if not self.governor.on_full_buffer(_wheels(request)):
-                    self.reporter.report(
-                        self._robot["control"], "robot buffer full: velocity command dropped, retries exhausted", source="robot"
-                    )
-            elif command is CommandCode.EMG_STOP:
-                self.governor.on_emg_stop_dropped()
-            elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
-                self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), self._now)
+            self._not_taken(request, now)
             return
         if not result.status.ok:
             self.reporter.report(self._robot["control"], f"unknown status {result.status.status!r} from the robot", source="robot")
         if command is CommandCode.SET_LR_WHEEL_VELOCITY:
-            self.governor.on_acknowledged(_wheels(request))
+            self.governor.on_accepted(_wheels(request), now)
+        elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
+            self._prepare_attempts = 0
         elif isinstance(result.data, wire.SpeedReading):
-            self._events.append(WheelImpulses(seq=self.seq, stamp=self.wallclock(), left=result.data.left, right=result.data.right))
+            reading = result.data
+            self._events.append(WheelImpulses(seq=self.seq, stamp=self.wallclock(), left=reading.left, right=reading.right))
             self.seq += 1
-            self._poll_times.append(self._now)
+            self._poll_times.append(now)
+            self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)
+
+    def _not_taken(self, request: wire.Request, now: float) -> None:
+        """The robot dropped ``request`` (FULL_BUFFER) or did not answer in time: re-send what must be re-sent, spaced."""
+        command = request.command
+        if command is CommandCode.SET_LR_WHEEL_VELOCITY:
+            reason = self.governor.on_dropped(_wheels(request), now)
+            if reason is not None:
+                self.reporter.report(self._robot["control"], reason, source="robot")
+        elif command is CommandCode.EMG_STOP:
+            self.governor.on_emg_stop_dropped(now)
+        elif command is CommandCode.PREPARE_WHEEL_CONTROLLER and self._prepare_at is None:
+            self._prepare_attempts += 1
+            self._prepare_at = now + retry_delay(self._prepare_attempts)
 
     def _receive_log(self, data: bytes) -> None:
         for item in self._decoders["log"].feed(data):

@@ -4,8 +4,14 @@ The robot answers requests in order: a status reply for each, then a data
 reply for the GET commands (unless the status is FULL_BUFFER). Requests
 may be pipelined, so a velocity command never waits for a poll's reply.
 Replies are matched by kind, so a garbled or lost reply costs one request,
-not the alignment of all that follow; a request unanswered for
-``reply_timeout`` is given up as lost.
+not the alignment of all that follow.
+
+A request unanswered for ``reply_timeout`` is reported lost, but it keeps
+its place for ``late_horizon``: a slow robot's late reply is taken by the
+request it answers (with the true round trip). While such a request is in
+doubt (its reply may be late, or lost), the connection sends nothing new but
+stops: the queue drains, by late replies or at the horizon, and pairing is
+exact again; a reply is never attributed to a request sent after it.
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ class Pending:
     sent_at: float
     status: StatusReply | None = None
     status_at: float | None = None
+    expired: bool = False  # reported lost; kept to take its late reply
 
 
 @dataclass(frozen=True, slots=True)
@@ -44,6 +51,7 @@ class Completed:
     status: StatusReply
     data: SpeedReading | PositionReading | None
     rtt: float  # seconds from sending to the status reply
+    late: bool = False  # it came after the request had been reported lost
 
 
 @dataclass(frozen=True, slots=True)
@@ -57,11 +65,18 @@ class Lost:
 @dataclass(slots=True)
 class Exchange:
     reply_timeout: float = 0.5
+    #: How long a request reported lost still waits for a late reply (s).
+    late_horizon: float = 1.5
     outstanding: deque[Pending] = field(default_factory=deque)
     unexpected: int = 0
 
     def sent(self, request: Request, now: float) -> None:
         self.outstanding.append(Pending(request, now))
+
+    @property
+    def in_doubt(self) -> bool:
+        """A request past its reply timeout is still waiting: a reply now may be late, or the next one's."""
+        return any(p.expired for p in self.outstanding)
 
     def polls_in_flight(self) -> int:
         return sum(1 for p in self.outstanding if p.request.command is CommandCode.GET_LR_WHEEL_VELOCITY)
@@ -79,7 +94,7 @@ class Exchange:
             head.status, head.status_at = item, now
             if not (item.ok and head.request.command in DATA_COMMANDS):
                 self.outstanding.popleft()
-                out.append(Completed(head.request, item, None, now - head.sent_at))
+                out.append(Completed(head.request, item, None, now - head.sent_at, head.expired))
         elif isinstance(item, (SpeedReading, PositionReading)):
             waiting = self.outstanding[0] if self.outstanding else None
             if waiting is None or waiting.status is None or _DATA_KIND.get(waiting.request.command) is not type(item):
@@ -87,22 +102,42 @@ class Exchange:
                 return out
             self.outstanding.popleft()
             assert waiting.status_at is not None
-            out.append(Completed(waiting.request, waiting.status, item, waiting.status_at - waiting.sent_at))
+            out.append(Completed(waiting.request, waiting.status, item, waiting.status_at - waiting.sent_at, waiting.expired))
         elif isinstance(item, LogReport):
             self.unexpected += 1
         return out
 
     def expire(self, now: float) -> list[Lost]:
+        """Requests past their reply timeout, reported once each; those past the late horizon are forgotten."""
         lost: list[Lost] = []
-        while self.outstanding and now >= self.outstanding[0].sent_at + self.reply_timeout:
-            lost.append(Lost(self.outstanding.popleft().request, f"no reply within {self.reply_timeout:.3g} s"))
+        for pending in self.outstanding:
+            if now < pending.sent_at + self.reply_timeout:
+                break  # in sending order: the rest are younger
+            if not pending.expired:
+                pending.expired = True
+                lost.append(Lost(pending.request, f"no reply within {self.reply_timeout:.3g} s"))
+        while self.outstanding and now >= self.outstanding[0].sent_at + self.late_horizon:
+            self.outstanding.popleft()
         return lost
+
+    def next_expiry(self) -> float:
+        """When :meth:`expire` next has something to do (inf if nothing is outstanding)."""
+        if not self.outstanding:
+            return float("inf")
+        deadline = self.outstanding[0].sent_at + self.late_horizon
+        for pending in self.outstanding:
+            if not pending.expired:
+                return min(deadline, pending.sent_at + self.reply_timeout)
+        return deadline
+
+    def forget_expired(self) -> int:
+        """Give up every request in doubt for good (before a stop must go out): how many were dropped."""
+        kept = deque(p for p in self.outstanding if not p.expired)
+        dropped = len(self.outstanding) - len(kept)
+        self.outstanding = kept
+        return dropped
 
     def clear(self, reason: str) -> list[Lost]:
         lost = [Lost(p.request, reason) for p in self.outstanding]
         self.outstanding.clear()
         return lost
-
-    def next_expiry(self) -> float:
-        """When the oldest outstanding request will be given up (inf if none)."""
-        return self.outstanding[0].sent_at + self.reply_timeout if self.outstanding else float("inf")

@@ -20,16 +20,14 @@ from typing import Protocol
 from blackmetal.transport import ByteStream, Connector
 from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
-from .connection import Counters, DropLink, LinkName, LinkState, RobotConnection
+from .connection import Counters, DropLink, LinkName, LinkState, ReconnectBackoff, RobotConnection
 from .settings import GatewaySettings
 
 log = logging.getLogger("blackmetal.gateway")
 
-#: Reconnect backoff: first retry after this long, doubling up to the cap.
-BACKOFF_FIRST_S = 0.05
-BACKOFF_MAX_S = 2.0
-#: Largest read from a robot socket at once.
-READ_SIZE = 65536
+#: Largest read from a robot socket at once; after each read the loop runs its timers and inputs,
+#: so a robot flooding a socket cannot starve the e-stop, the brake or the polls.
+READ_SIZE = 4096
 
 
 class GatewayOutput(Protocol):
@@ -156,7 +154,7 @@ class GatewayService:
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
         conn = self.connection
-        backoff = BACKOFF_FIRST_S
+        backoff = ReconnectBackoff()
         first_failure = True
         while not stop.is_set():
             conn.link_connecting(name)
@@ -168,11 +166,10 @@ class GatewayService:
                 if first_failure:
                     log.warning("%s link: %s; retrying", name, reason)
                     first_failure = False
-                await _sleep_or_stop(stop, backoff)
-                backoff = min(BACKOFF_MAX_S, backoff * 2)
+                await _sleep_or_stop(stop, backoff.failed(self.clock()))
                 continue
             first_failure = True
-            backoff = BACKOFF_FIRST_S
+            backoff.opened(self.clock())
             self._streams[name] = stream
             log.info("%s link: connected to %s", name, self.connector.describe(name))
             conn.link_up(name, self.clock())
@@ -185,6 +182,7 @@ class GatewayService:
                         break
                     conn.receive(name, data, self.clock())
                     self._flush()
+                    await asyncio.sleep(0)  # a read returns at once while data is buffered: let the loop breathe
             except (ConnectionError, OSError) as exc:
                 reason = f"connection error: {exc}"
             finally:
@@ -198,7 +196,7 @@ class GatewayService:
             conn.link_down(name, reason, self.clock())
             self._flush()
             if not stop.is_set():
-                await _sleep_or_stop(stop, BACKOFF_FIRST_S)
+                await _sleep_or_stop(stop, backoff.failed(self.clock()))
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set, then stop the robot and close the links."""

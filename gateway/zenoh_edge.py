@@ -2,7 +2,8 @@
 
 Inputs go through the one hand-over of :mod:`blackmetal.runtime.edge`: the
 callbacks copy the payload and the service's loop runs the handlers, the
-e-stop channel ahead of everything else. Health queries are answered from
+e-stop channel ahead of everything else; each channel is bounded, so a
+flood of commands can neither grow memory nor delay an e-stop. Health queries are answered from
 the loop.
 """
 
@@ -47,9 +48,10 @@ class GatewayZenoh(ZenohEdge):
     def attach(self, service: "GatewayService", loop: asyncio.AbstractEventLoop) -> Handover:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
         handover = Handover(loop)
-        self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, priority=2))
-        self.subscriber(self.keys.cmd_vel, handover.channel("cmd_vel", service.on_cmd_vel, priority=1))
-        self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q)))
+        # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
+        self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
+        self.subscriber(self.keys.cmd_vel, handover.channel("cmd_vel", service.on_cmd_vel, capacity=64, priority=1))
+        self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         self.token(self.keys.alive_gateway)
         return handover
 

@@ -38,6 +38,11 @@ class Bench:
         self.requests: list[tuple[float, Request]] = []
         self.events: list[Any] = []
         self.answering = True
+        #: Replies reach the gateway this long after the request (a slow robot).
+        self.reply_delay = 0.0
+        self._in_transit: list[tuple[float, bytes]] = []
+        #: Until this time the robot answers every command FULL_BUFFER (and drops it).
+        self.full_buffer_until = -math.inf
 
     def connect(self) -> None:
         self.conn.link_up("control", self.t)
@@ -54,9 +59,13 @@ class Bench:
             for request in self.decoder.feed(data):
                 assert isinstance(request, Request), request
                 self.requests.append((self.t, request))
-                if self.answering:
+                if self.answering and self.t < self.full_buffer_until:
+                    replies += wire.encode_status(wire.STATUS_FULL_BUFFER)
+                elif self.answering:
                     replies += b"".join(self.robot.handle(request, self.t))
-            if replies:
+            if replies and self.reply_delay > 0:
+                self._in_transit.append((self.t + self.reply_delay, replies))
+            elif replies:
                 self.conn.receive("control", replies, self.t)
         self.events += self.conn.take_events()
 
@@ -66,10 +75,13 @@ class Bench:
         steps = 0
         next_log = math.floor(self.t) + 1.0
         while True:
-            deadline = min(self.conn.next_deadline(), next_log)
+            arrival = self._in_transit[0][0] if self._in_transit else math.inf
+            deadline = min(self.conn.next_deadline(), next_log, arrival)
             if deadline > end:
                 break
             self.t = max(self.t, deadline)
+            while self._in_transit and self._in_transit[0][0] <= self.t:
+                self.conn.receive("control", self._in_transit.pop(0)[1], self.t)
             if self.t >= next_log:
                 next_log += 1.0
                 if self.answering and self.conn.links["log"].connected:
@@ -215,13 +227,32 @@ def test_a_silent_robot_is_dropped_after_the_silence_timeout() -> None:
     assert any(d.link == "log" for d in bench.of(DropLink))
 
 
-def test_requests_unanswered_past_the_reply_timeout_are_given_up() -> None:
+def test_requests_unanswered_past_the_reply_timeout_are_given_up_without_a_backlog() -> None:
     bench = Bench(reply_timeout=0.2, silence_timeout=5.0, poll_hz=20.0)
     bench.connect()
     bench.answering = False
-    bench.run(1.0)
+    bench.run(3.0)
     assert bench.conn.counters.lost_replies >= 3
-    assert len(bench.conn.exchange.outstanding) <= 5  # never a backlog
+    assert bench.conn.counters.polls_skipped > 0
+    assert len(bench.conn.exchange.outstanding) <= 2  # never a backlog
+
+
+def test_late_replies_are_paired_with_their_own_requests() -> None:
+    """A robot answering 0.7 s late (reply timeout 0.5 s): nothing is attributed to a later request."""
+    bench = Bench(reply_timeout=0.5, silence_timeout=5.0, poll_hz=50.0, cmd_timeout=0.0)
+    bench.connect()
+    bench.run(0.5)
+    bench.reply_delay = 0.7
+    bench.cmd(b'{"linear":{"x":0.2}}')
+    bench.run(6.0)
+    health = bench.conn.health(bench.t)
+    assert health.last_rtt_ms == pytest.approx(700.0, abs=1.0)  # the true round trip
+    assert any("robot slow" in e.reason and "700 ms" in e.reason for e in bench.of(ErrorReport))
+    assert health.wheel_speeds == pytest.approx((0.2, 0.2))  # what the robot accepted, late but accepted
+    assert 1.0 <= health.poll_hz <= 1.6  # polling waits for the slow robot instead of piling up
+    late = bench.of(WheelImpulses)[-3:]
+    assert all(m.left in (202, 203) for m in late)  # readings of a moving robot, not of the old standstill
+    assert len(bench.conn.exchange.outstanding) <= 3
 
 
 def test_malformed_replies_are_counted_and_reported_not_fatal() -> None:
@@ -253,3 +284,124 @@ def test_shutdown_leaves_the_robot_standing() -> None:
     bench.settle()
     assert bench.velocity()[-1][1:] == (0.0, 0.0)
     assert bench.count(CommandCode.NORMAL_STOP) == 1 and bench.conn.idle
+
+
+# ----------------------------------------------------------------------------- failing safe (issue: fail safe under robot faults)
+
+
+def test_a_short_full_buffer_burst_cannot_lose_the_brake() -> None:
+    """0.5 m/s, the publisher stops, the timeout brake meets 2 ms of FULL_BUFFER: the zero is re-sent until taken."""
+    bench = Bench(cmd_timeout=0.5)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.5}}')
+    last_cmd = bench.conn.governor.last_cmd_at  # the timeout counts from the command's arrival
+    bench.run(last_cmd + 0.5 - 0.0005 - bench.t)
+    bench.full_buffer_until = bench.t + 0.002  # the brake falls inside this burst
+    bench.run(1.0)
+    bench.robot.advance(bench.t)
+    assert bench.robot.target_left == 0.0 and not bench.robot.moving
+    zeros = [t for t, r, _ in bench.velocity() if r == 0.0 and t > last_cmd]
+    assert len(zeros) >= 2 and zeros[1] - zeros[0] >= 0.005  # re-sent, spaced
+    assert bench.conn.health(bench.t).wheel_speeds == (0.0, 0.0)  # what the robot accepted
+
+
+def test_health_reports_what_the_robot_accepted_not_what_was_sent() -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.3}}')
+    bench.full_buffer_until = math.inf
+    bench.cmd(b'{"linear":{"x":0.1}}')
+    bench.run(0.5)
+    assert bench.conn.health(bench.t).wheel_speeds == pytest.approx((0.3, 0.3))
+
+
+def test_an_operators_zero_is_confirmed_like_the_brake() -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.4}}')
+    bench.full_buffer_until = bench.t + 0.05
+    bench.cmd(b'{"linear":{"x":0.0}}')
+    bench.run(2.0)
+    bench.robot.advance(bench.t)
+    assert not bench.robot.moving and bench.conn.health(bench.t).wheel_speeds == (0.0, 0.0)
+
+
+def test_emg_stop_and_prepare_retries_stay_under_50_a_second() -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.full_buffer_until = math.inf
+    bench.connect()
+    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.run(3.0)
+    assert 3 <= bench.count(CommandCode.EMG_STOP) <= 3 * 50
+    assert 3 <= bench.count(CommandCode.PREPARE_WHEEL_CONTROLLER) <= 3 * 50
+    bench.full_buffer_until = bench.t  # the robot recovers: the stop lands
+    bench.run(1.0)
+    assert bench.robot.counters["emergency_stops"] >= 1
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        b'{"engaged": true, "reason": "operator"}',
+        b'{"engaged": 1}',
+        b'{"engaged": "true"}',
+        b"true",
+        b'{"data": true}',
+        b'{"Engaged": true}',
+        b'{"engaged": true}\x00',
+    ],
+)
+def test_any_true_meaning_engages_the_stop_without_complaint(payload: bytes) -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.2}}')
+    bench.conn.on_estop(payload, bench.t)
+    bench.settle()
+    assert bench.conn.health(bench.t).estop and bench.robot.counters["emergency_stops"] == 1
+    assert not bench.of(ErrorReport)
+
+
+@pytest.mark.parametrize("payload", [b"garbage", b"", b"{", b'{"data": false}', b'{"engaged": false, "why": "x"}', b"\xff" * 70000])
+def test_anything_but_a_valid_release_engages_and_is_reported(payload: bytes) -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.2}}')
+    bench.conn.on_estop(payload, bench.t)
+    bench.settle()
+    assert bench.conn.health(bench.t).estop and bench.robot.counters["emergency_stops"] == 1
+    (report,) = bench.of(ErrorReport)
+    assert 'only {"engaged": false} releases' in report.reason
+
+
+def test_only_a_valid_release_releases() -> None:
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(b' {"engaged":false}\n', bench.t)
+    assert not bench.conn.health(bench.t).estop
+
+
+def test_losing_and_regaining_the_log_link_is_reported() -> None:
+    bench = Bench()
+    bench.connect()
+    bench.run(1.0)
+    bench.conn.link_down("log", "closed by the robot", bench.t)
+    bench.run(2.0)
+    bench.conn.link_up("log", bench.t)
+    bench.settle()
+    reasons = [e.reason for e in bench.of(ErrorReport)]
+    assert "log link down: closed by the robot" in reasons
+    assert any(r.startswith("log link up again after 2.0 s") for r in reasons)
+
+
+def test_reconnect_backoff_is_not_reset_by_connections_that_die_at_once() -> None:
+    from gateway.connection import ReconnectBackoff
+
+    backoff, now, attempts = ReconnectBackoff(first=0.05, cap=2.0, stable=5.0), 0.0, 0
+    while now < 10.0:  # a robot that accepts and closes at once, for 10 s
+        backoff.opened(now)
+        now += backoff.failed(now + 0.001) + 0.001
+        attempts += 1
+    assert attempts <= 10  # 0.05, 0.1, ... then 2 s apart (was 144-149 in 10 s)
+    backoff.opened(now)
+    assert backoff.failed(now + 6.0) == 0.05  # a connection that held 6 s starts the backoff over

@@ -289,15 +289,20 @@ async def test_hostile_payloads_are_reported_and_never_reach_the_robot(transport
         for _ in range(5):
             for payload in HOSTILE:
                 rig.service.on_cmd_vel(payload)
-                rig.service.on_estop(payload)
         await asyncio.sleep(0.3)
         assert rig.robot.target_left == pytest.approx(0.1)  # the robot's command stayed as it was
+        for _ in range(5):
+            for payload in HOSTILE:
+                rig.service.on_estop(payload)  # fails safe: engages the stop, and is reported
+        await until(lambda: rig.robot.counters["emergency_stops"] >= 1, "EMG_STOP")
+        assert rig.service.health().estop and not rig.robot.moving
         assert rig.service.counters.rejected_inputs == 2 * 5 * len(HOSTILE)
         assert rig.output.error_log and all(e.reason for e in rig.output.error_log)
         assert len(rig.output.error_log) <= 40  # rate-limited
         assert all(abs(r) <= 0.8 and abs(left) <= 0.8 for r, left in seen)
         assert rig.server.malformed_requests == 0
-        # and the gateway still serves
+        # and the gateway still serves once the stop is released
+        rig.service.on_estop(b'{"engaged": false}')
         rig.service.on_cmd_vel(b'{"linear":{"x":0.05}}')
         await until(lambda: rig.robot.target_left == pytest.approx(0.05), "service after the burst")
     finally:

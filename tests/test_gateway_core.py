@@ -61,7 +61,7 @@ def test_wheels_never_exceed_the_limit_and_keep_the_curvature(v: float, w: float
 
 def governor(**overrides: object) -> Governor:
     gov = Governor(SafetySettings(**overrides), now=0.0)  # type: ignore[arg-type]
-    gov.on_link_up()
+    gov.on_link_up(0.0)
     return gov
 
 
@@ -111,12 +111,12 @@ def test_estop_latches_refuses_commands_and_releases() -> None:
     gov.next_command(0.0)
     gov.on_twist(twist(0.3), 0.0)
     gov.next_command(0.0)
-    gov.on_estop(True)
-    assert gov.emg_stop_needed
+    gov.on_estop(True, 0.0)
+    assert gov.emg_stop_due(0.0)
     assert gov.next_command(0.1) is None
     reason = gov.on_twist(twist(0.3), 0.1)
     assert reason is not None and "emergency stop" in reason
-    gov.on_estop(False)
+    gov.on_estop(False, 0.2)
     assert gov.next_command(0.2) is None  # release alone does not move the robot
     assert gov.on_twist(twist(0.1), 0.3) is None
     assert gov.next_command(0.3).wheels == WheelSpeeds(0.1, 0.1)  # type: ignore[union-attr]
@@ -130,33 +130,72 @@ def test_link_down_refuses_and_reconnect_never_resumes_old_motion() -> None:
     gov.on_link_down()
     assert "link is down" in (gov.on_twist(twist(0.3), 0.1) or "")
     assert gov.next_command(0.1) is None
-    gov.on_link_up()
+    gov.on_link_up(0.2)
     assert gov.next_command(0.2).wheels == WheelSpeeds(0.0, 0.0)  # type: ignore[union-attr]
 
 
 def test_estop_latched_across_a_reconnect_is_reasserted() -> None:
     gov = governor()
-    gov.on_estop(True)
-    gov.emg_stop_needed = False  # sent
+    gov.on_estop(True, 0.0)
+    gov.on_emg_stop_sent()
     gov.on_link_down()
-    gov.on_link_up()
-    assert gov.emg_stop_needed
+    gov.on_link_up(1.0)
+    assert gov.emg_stop_due(1.0)
 
 
-def test_full_buffer_retries_are_bounded() -> None:
-    gov = governor(full_buffer_retries=3)
+def test_motion_retries_are_spaced_growing_and_bounded() -> None:
+    gov = governor(full_buffer_retries=3, cmd_timeout=0.0)
     gov.next_command(-1.0)
     gov.on_twist(twist(0.2), 0.0)
     cmd = gov.next_command(0.0)
     assert cmd is not None
-    retries = 0
-    for i in range(10):
-        if gov.on_full_buffer(cmd.wheels):
-            again = gov.next_command(0.01 * i)
-            assert again is not None and again.reason == "retry" and again.wheels == cmd.wheels
-            retries += 1
-    assert retries == 3
-    assert not gov.on_full_buffer(WheelSpeeds(0.5, 0.5))  # a superseded command is not retried
+    now, times = 0.0, []
+    for _ in range(10):
+        reason = gov.on_dropped(cmd.wheels, now)
+        if reason is not None:
+            assert "given up" in reason
+            break
+        assert gov.next_command(now) is None  # never at once: spaced
+        now = gov.next_deadline()
+        again = gov.next_command(now)
+        assert again is not None and again.reason == "retry" and again.wheels == cmd.wheels
+        times.append(now)
+    assert len(times) == 3
+    gaps = [b - a for a, b in zip([0.0, *times], times, strict=False)]
+    assert gaps == pytest.approx([0.005, 0.010, 0.020])
+    assert gov.on_dropped(WheelSpeeds(0.5, 0.5), now) is None  # a superseded command is not retried
+
+
+def test_a_stop_is_never_given_up_and_never_faster_than_50_a_second() -> None:
+    gov = governor(full_buffer_retries=3, cmd_timeout=0.5)
+    gov.next_command(0.0)
+    gov.on_accepted(WheelSpeeds(0.0, 0.0), 0.0)
+    gov.on_twist(twist(0.5), 0.01)
+    gov.on_accepted(gov.next_command(0.01).wheels, 0.011)  # type: ignore[union-attr]
+    brake = gov.next_command(0.51)
+    assert brake is not None and brake.wheels.is_zero
+    now, sent = 0.51, [0.51]
+    while now < 10.51:  # the robot answers FULL_BUFFER to every stop for 10 s
+        assert gov.on_dropped(WheelSpeeds(0.0, 0.0), now) is None
+        now = gov.next_deadline()
+        again = gov.next_command(now)
+        assert again is not None and again.wheels.is_zero
+        sent.append(now)
+    assert len(sent) / 10.0 < 50  # re-sent, spaced, for as long as it takes
+    gov.on_accepted(WheelSpeeds(0.0, 0.0), now)
+    assert gov.accepted == WheelSpeeds(0.0, 0.0) and gov.next_deadline() == float("inf")
+
+
+def test_a_robot_that_moves_after_accepting_a_stop_is_asked_again() -> None:
+    gov = governor(cmd_timeout=0.0)
+    gov.next_command(0.0)
+    gov.on_accepted(WheelSpeeds(0.0, 0.0), 0.001)
+    gov.observe_motion(0.4, 0.4, 0.1)  # the wheels turn although nothing asks for it
+    assert gov.next_command(0.2) is None  # within the grace a stop may still be taking effect
+    again = gov.next_command(gov.next_deadline())
+    assert again is not None and again.reason == "stop-again" and again.wheels.is_zero
+    gov.observe_motion(0.0, 0.0, 1.0)
+    assert gov.next_deadline() == float("inf")
 
 
 def test_a_flood_is_coalesced_to_the_latest_command() -> None:

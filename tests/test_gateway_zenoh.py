@@ -139,7 +139,11 @@ def test_hostile_zenoh_payloads_leave_the_gateway_serving(children: list[Child])
         reports = [json.loads(e) for e in errors]
         assert all(r["reason"] and r["key"] in ("robot/cmd_vel", "robot/estop") for r in reports)
         assert any("larger than" in r["reason"] for r in reports)
-        assert truth(session).v == pytest.approx(0.1)  # the robot kept its last valid command
+        # a hostile payload on estop fails safe: the stop is engaged, and only a valid release lifts it
+        wait_for(lambda: truth(session).v == 0.0, what="the robot stopped by the engaged e-stop")
+        assert health(session).estop  # type: ignore[union-attr]
+        session.put("robot/estop", b'{"engaged": false}')
+        wait_for(lambda: (h := health(session)) is not None and not h.estop, what="the release")
         session.put("robot/cmd_vel", b'{"linear":{"x":0.05}}')
         wait_for(lambda: truth(session).v == pytest.approx(0.05), what="the gateway still serving")
     assert rig.gateway.proc.poll() is None

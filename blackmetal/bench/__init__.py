@@ -3,6 +3,7 @@
 | figure | baseline in the same run |
 |---|---|
 | cmd_vel put -> bytes at the robot socket, p50/p99 | one plain Zenoh hop between two Python processes |
+| e-stop put -> EMG_STOP at the robot socket, p50/p99 | cmd_vel's figure |
 | impulse reply at the gateway -> Pose at a client | two Zenoh hops (a ping-pong round trip) |
 | sustained poll rate and worst gap at 100 and 200 Hz | the asked rate |
 | replay samples/s, file reading included | the streaming pipeline on the same file |
@@ -60,6 +61,13 @@ def measure(quick: bool, progress: Any = print) -> dict[str, Any]:
         "p50_over_hop": statistics.median(c / h for c, h in zip(cmds, hops, strict=False)),
         "noisy": _noisy(cmds) or _noisy(hops),
     }
+    progress("latency: e-stop -> EMG_STOP at the robot socket, against cmd_vel ...")
+    estops = [figures.estop_latency(samples // 2) for _ in range(rounds)]
+    out["estop_to_robot_ms"] = {
+        "p50": _spread([e["p50_ms"] for e in estops]),
+        "p99": _spread([e["p99_ms"] for e in estops]),
+        "p50_over_cmd_vel": statistics.median(e["p50_ms"] for e in estops) / statistics.median(cmds),
+    }
     progress("latency: impulse reply -> Pose at a client, against two Zenoh hops ...")
     for _ in range(rounds):
         # the baseline paced like the polls (50 Hz): the same idle time between samples
@@ -101,7 +109,14 @@ def table(f: dict[str, Any]) -> str:
             f"1 Zenoh hop {ms(hop['p50'])}",
             f"{cmd['p50_over_hop']:.2f}x (<= 1.5x)" + (" NOISY" if cmd["noisy"] else ""),
         ),
-        ("cmd_vel -> robot socket p99", ms(cmd["p99"]), f"1 Zenoh hop {ms(hop['p99'])}", "(<= 2 ms)"),
+        ("cmd_vel -> robot socket p99", ms(cmd["p99"]), f"1 Zenoh hop {ms(hop['p99'])}", "(<= 1 ms)"),
+        (
+            "e-stop -> EMG_STOP at robot p50",
+            ms(f["estop_to_robot_ms"]["p50"]),
+            f"cmd_vel p50 {ms(cmd['p50'])}",
+            f"{f['estop_to_robot_ms']['p50_over_cmd_vel']:.2f}x (<= 1x)",
+        ),
+        ("e-stop -> EMG_STOP at robot p99", ms(f["estop_to_robot_ms"]["p99"]), f"cmd_vel p99 {ms(cmd['p99'])}", ""),
         (
             "impulse -> Pose at client p50",
             ms(pose["p50"]),

@@ -90,6 +90,35 @@ def cmd_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
 
 
+def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
+    """``{"engaged": true}`` put on estop -> EMG_STOP bytes at the robot's socket (kernel receive stamp)."""
+    import zenoh
+
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    latencies: list[float] = []
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
+            wait_polls(robot)
+            time.sleep(0.3)
+            for i in range(samples + 10):
+                seen = len(robot.dump()["emg_stops"])
+                time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
+                start = time.time()
+                pub.put(b'{"engaged": true}')
+                time.sleep(0.05)  # the arrival is the kernel's stamp: no need to watch for it
+                stops = robot.dump()["emg_stops"]
+                if i >= 10 and len(stops) > seen:  # warm-up
+                    latencies.append(stops[seen] - start)
+                pub.put(b'{"engaged": false}')
+    finally:
+        gw.stop()
+        robot.close()
+    return percentiles(latencies)
+
+
 def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
     """Speed reply at the gateway (the impulse stamp) -> Pose received by a client: two Zenoh hops."""
     import zenoh

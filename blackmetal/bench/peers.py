@@ -60,6 +60,7 @@ class MiniRobot:
     log_port: int = 0
     arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> arrival (Unix time, kernel stamp)
     velocity_commands: int = 0
+    emg_stops: list[float] = field(default_factory=list)  # arrival of every EMG_STOP (Unix time, kernel stamp)
     poll_times: list[float] = field(default_factory=list)
     arrived: threading.Condition = field(default_factory=threading.Condition)
 
@@ -124,6 +125,9 @@ class MiniRobot:
                             self.velocity_commands += 1
                             self.arrivals[float(request.right or 0.0)] = now
                             self.arrived.notify_all()
+                    elif request.command is CommandCode.EMG_STOP:
+                        with self.arrived:
+                            self.emg_stops.append(now)
                     elif request.command is CommandCode.GET_LR_WHEEL_VELOCITY:
                         self.poll_times.append(now)
                         out += wire.encode_wheel_speeds(0, 0)
@@ -148,7 +152,14 @@ def _robot_main() -> None:
         if line.strip() == "dump":
             with robot.arrived:
                 print(
-                    json.dumps({"arrivals": list(robot.arrivals.items()), "polls": robot.poll_times, "commands": robot.velocity_commands}),
+                    json.dumps(
+                        {
+                            "arrivals": list(robot.arrivals.items()),
+                            "polls": robot.poll_times,
+                            "commands": robot.velocity_commands,
+                            "emg_stops": robot.emg_stops,
+                        }
+                    ),
                     flush=True,
                 )
         elif line.strip() == "quit":

@@ -24,10 +24,13 @@ from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, zenoh_settings
 from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose
 
 from .client import Latest
+from .stop_robot import stop_robot
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
 STOP_BUDGET_S = 3.0
 READY_TIMEOUT_S = 30.0
+#: How often the children are checked: a dead gateway's robot is stopped within about this long.
+CHILD_CHECK_S = 0.05
 
 
 def _child_zenoh_args(args: argparse.Namespace, hub: str) -> list[str]:
@@ -213,17 +216,25 @@ def _run(
     status = StatusLine(session, keys, with_truth=not args.robot)
     tty = sys.stdout.isatty()
     interval = args.status_interval if tty else max(args.status_interval, 2.0)
-    while not stop.wait(interval):
+    next_status = time.monotonic() + interval
+    while not stop.wait(CHILD_CHECK_S):
         for child in children:
             if child.poll() is not None:
                 if tty:
                     print()
+                if child is gateway:  # nobody is left to stop the robot: do it now
+                    reason = stop_robot(host, control_port, timeout=2.0)
+                    outcome = "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
+                    print(f"blackmetal up: gateway gone; {outcome}", file=sys.stderr, flush=True)
                 print(
                     f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
                     file=sys.stderr,
                     flush=True,
                 )
                 return 1
+        if time.monotonic() < next_status:
+            continue
+        next_status += interval
         line = status.render()
         if tty:
             width = os.get_terminal_size().columns
