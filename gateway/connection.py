@@ -178,6 +178,7 @@ class RobotConnection:
         self._prepare_at: float | None = None  # PREPARE to re-send (after FULL_BUFFER) at this time
         self._prepare_attempts = 0
         self._down_since: dict[LinkName, float | None] = {name: None for name in LINKS}
+        self._health_now = False
         self.stopping = False
 
     # ------------------------------------------------------------------ outputs
@@ -192,7 +193,10 @@ class RobotConnection:
         return out
 
     def take_events(self) -> list[Event]:
-        """Messages to publish and links to drop, in the order they arose."""
+        """Messages to publish and links to drop, in the order they arose (take the outgoing bytes first)."""
+        if self._health_now:
+            self._health_now = False
+            self._events.append(self.health(self._now))
         events, self._events[:] = list(self._events), []
         return events
 
@@ -293,7 +297,7 @@ class RobotConnection:
             self.reject(self.keys.estop, complaint, excerpt(payload))
         self.governor.on_estop(engaged, now)
         self._pump(now)
-        self._events.append(self.health(now))
+        self._health_now = True  # reported from take_events, after the host has written the EMG_STOP
 
     def reject(self, key: str, reason: str, snippet: str = "") -> None:
         """An input refused: counted and reported on ``<prefix>/errors``."""

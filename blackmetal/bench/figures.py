@@ -103,16 +103,16 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
             pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
             wait_polls(robot)
             time.sleep(0.3)
-            for i in range(samples + 10):
-                seen = len(robot.dump()["emg_stops"])
+            starts = []
+            for _ in range(samples + 10):
                 time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
-                start = time.time()
+                starts.append(time.time())
                 pub.put(b'{"engaged": true}')
-                time.sleep(0.05)  # the arrival is the kernel's stamp: no need to watch for it
-                stops = robot.dump()["emg_stops"]
-                if i >= 10 and len(stops) > seen:  # warm-up
-                    latencies.append(stops[seen] - start)
+                time.sleep(random.uniform(*COMMAND_GAP_S))
                 pub.put(b'{"engaged": false}')
+            time.sleep(0.3)
+            stops = robot.dump()["emg_stops"]  # one EMG_STOP per engage, in order (the robot takes every command)
+            latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
     finally:
         gw.stop()
         robot.close()
