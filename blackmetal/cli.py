@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "square": ("blackmetal.tools.square", "drive a square and report the odometry's closure error"),
     "router": ("blackmetal.tools.router", "run a Zenoh router from the Python wheel"),
     "robots": ("blackmetal.tools.list_robots", "list the robots whose gateway is alive"),
+    "estop": ("blackmetal.tools.estop", "engage or release the emergency stop, confirmed by the gateway"),
     "stop-robot": ("blackmetal.tools.stop_robot", "send the robot zero velocity and NORMAL_STOP (when its gateway is gone)"),
     "bench": ("blackmetal.bench", "measure latency, poll rate, replay speed, memory"),
 }

@@ -24,6 +24,7 @@ with a fake clock and no I/O at all.
 from __future__ import annotations
 
 import math
+import secrets
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -53,6 +54,8 @@ from .settings import GatewaySettings
 
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
+#: A conflict with another gateway on the prefix holds this long after its last health report (s).
+CONFLICT_HOLD_S = 3.0
 
 LinkName = Literal["control", "log"]
 LINKS: tuple[LinkName, LinkName] = ("control", "log")
@@ -153,6 +156,7 @@ class RobotConnection:
         now: float,
         wallclock: Callable[[], float],
         robot: dict[str, str] | None = None,
+        source: str | None = None,
     ) -> None:
         self.settings = settings
         self.wallclock = wallclock
@@ -163,6 +167,8 @@ class RobotConnection:
         self.links: dict[LinkName, LinkState] = {name: LinkState() for name in LINKS}
         self.last_rtt: float | None = None
         self.seq = 0
+        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
+        self.source = source or secrets.token_hex(6)
         self._now = now
         self._robot = robot or {"control": "robot:control", "log": "robot:log"}
         self._decoders: dict[LinkName, ReplyDecoder] = {name: ReplyDecoder() for name in LINKS}
@@ -179,6 +185,10 @@ class RobotConnection:
         self._prepare_attempts = 0
         self._down_since: dict[LinkName, float | None] = {name: None for name in LINKS}
         self._health_now = False
+        #: Another gateway seen on this prefix: its run id, and until when the conflict holds without news of it.
+        self.conflict_with: str | None = None
+        self._conflict_until = -math.inf
+        self._conflict_reported = -math.inf
         self.stopping = False
 
     # ------------------------------------------------------------------ outputs
@@ -203,6 +213,8 @@ class RobotConnection:
     def next_deadline(self) -> float:
         """When :meth:`tick` must run next, at the latest (monotonic seconds)."""
         deadline = min(self._next_health, self.exchange.next_expiry(), self.governor.next_deadline(self._congested()))
+        if self.conflict_with is not None:
+            deadline = min(deadline, self._conflict_until, self._conflict_reported + 1.0)
         control, log = self.links["control"], self.links["log"]
         if control.connected:
             deadline = min(deadline, self._next_poll)
@@ -283,6 +295,9 @@ class RobotConnection:
         except PayloadError as exc:
             self.reject(self.keys.cmd_vel, str(exc), exc.excerpt)
             return
+        if now < self._conflict_until:
+            self.reject(self.keys.cmd_vel, self._conflict_reason(), excerpt(payload))
+            return
         reason = self.governor.on_twist(twist, now)
         if reason is not None:
             self.reject(self.keys.cmd_vel, reason, excerpt(payload))
@@ -298,6 +313,34 @@ class RobotConnection:
         self.governor.on_estop(engaged, now)
         self._pump(now)
         self._health_now = True  # reported from take_events, after the host has written the EMG_STOP
+
+    def on_health_seen(self, payload: bytes, now: float) -> None:
+        """A health report on our own key: one from another gateway run means two gateways share this prefix."""
+        self._now = now
+        try:
+            other = decode(GatewayHealth, payload).source
+        except PayloadError:
+            return
+        if other is None or other == self.source:
+            return
+        if now >= self._conflict_until:  # a new conflict: stop driving at once
+            self.governor.brake()
+            self._conflict_reported = -math.inf
+        self.conflict_with = other
+        self._conflict_until = now + CONFLICT_HOLD_S
+        self._report_conflict(now)
+        self._pump(now)
+
+    def _conflict_reason(self) -> str:
+        return (
+            f"another gateway (run {self.conflict_with}) serves prefix {self.keys.prefix}: both brake and refuse cmd_vel "
+            "until one leaves; give one of them another --prefix"
+        )
+
+    def _report_conflict(self, now: float) -> None:
+        if now >= self._conflict_reported + 1.0:
+            self._conflict_reported = now
+            self.reporter.report(self.keys.health, self._conflict_reason(), source="gateway")
 
     def reject(self, key: str, reason: str, snippet: str = "") -> None:
         """An input refused: counted and reported on ``<prefix>/errors``."""
@@ -326,6 +369,11 @@ class RobotConnection:
             self._next_poll += self._period
             if self._next_poll < now - self._period:  # fell behind (loaded machine): resynchronise, no burst
                 self._next_poll = now + self._period
+        if now < self._conflict_until:
+            self._report_conflict(now)
+        elif self.conflict_with is not None:
+            self.conflict_with = None
+            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again")
         if now >= self._next_health:
             self._events.append(self.health(now))
             self.reporter.flush()
@@ -373,6 +421,8 @@ class RobotConnection:
             last_rtt_ms=None if self.last_rtt is None else round(self.last_rtt * 1000, 3),
             poll_hz=round(rate, 2),
             wheel_speeds=(0.0, 0.0) if accepted is None else (accepted.left, accepted.right),
+            source=self.source,
+            conflict_with=self.conflict_with if now < self._conflict_until else None,
         )
 
     # ------------------------------------------------------------------ sending
@@ -466,7 +516,9 @@ class RobotConnection:
             self._prepare_attempts = 0
         elif isinstance(result.data, wire.SpeedReading):
             reading = result.data
-            self._events.append(WheelImpulses(seq=self.seq, stamp=self.wallclock(), left=reading.left, right=reading.right))
+            self._events.append(
+                WheelImpulses(seq=self.seq, stamp=self.wallclock(), left=reading.left, right=reading.right, mono=now, source=self.source)
+            )
             self.seq += 1
             self._poll_times.append(now)
             self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)

@@ -6,6 +6,7 @@ import argparse
 import asyncio
 import sys
 
+from blackmetal.runtime.edge import refuse_if_taken
 from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
@@ -25,8 +26,10 @@ SWITCH_INTERVAL_S = 0.0005
 async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
     connector = TcpConnector(settings.robot, settings.control_port, settings.log_port, settings.connect_timeout)
+    keys = Keys(settings.prefix)
     with open_session(settings.zenoh) as session:
-        edge = GatewayZenoh(session, Keys(settings.prefix))
+        refuse_if_taken(session, keys.alive_gateway, "gateway", keys.prefix)
+        edge = GatewayZenoh(session, keys)
         service = GatewayService(settings, connector, edge)
         edge.attach(service, asyncio.get_running_loop())
         print(

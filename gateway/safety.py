@@ -126,6 +126,11 @@ class Governor:
             self.emg_stop_needed = False
             self.last_cmd_at = -math.inf  # a fresh cmd_vel is needed to move again
 
+    def brake(self) -> None:
+        """Stop now, whatever was commanded (a conflict); a fresh cmd_vel is needed to move again."""
+        self.target = (0.0, 0.0)
+        self.last_cmd_at = -math.inf
+
     def on_link_up(self, now: float) -> None:
         """A new connection: the robot gets zero velocity (and EMG_STOP if latched), never an old motion."""
         self.link_up = True

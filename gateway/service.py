@@ -105,6 +105,10 @@ class GatewayService:
         self.connection.on_estop(payload, self.clock())
         self._flush()
 
+    def on_health_seen(self, payload: bytes) -> None:
+        self.connection.on_health_seen(payload, self.clock())
+        self._flush()
+
     # ------------------------------------------------------------------ moving bytes
 
     def _flush(self) -> None:

@@ -52,6 +52,8 @@ class GatewayZenoh(ZenohEdge):
         self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
         self.subscriber(self.keys.cmd_vel, handover.channel("cmd_vel", service.on_cmd_vel, capacity=64, priority=1))
         self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
+        # every gateway publishes its health once a second: another run's report on our key is a second gateway
+        self.subscriber(self.keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))
         self.token(self.keys.alive_gateway)
         return handover
 

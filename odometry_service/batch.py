@@ -17,7 +17,8 @@ from numpy.typing import NDArray
 
 from blackmetal.robot_model import arc_deltas, wheels_to_twist
 
-from .core import OdometryParams
+from .core import OdometryParams, SampleOrder
+from .errors import SampleRejected
 
 F = NDArray[np.float64]
 B = NDArray[np.bool_]
@@ -46,53 +47,52 @@ class BatchResult:
         return len(self.stamp)
 
 
-def _acceptance(seq: NDArray[np.int64], stamp: F, max_gap: float) -> tuple[B, B, list[str], list[str], int, int, int]:
-    """Which samples are accepted and which start a new epoch, by the streaming rules."""
+def _acceptance(
+    seq: NDArray[np.int64], stamp: F, time: F, sources: list[str | None] | None, max_gap: float
+) -> tuple[B, B, list[str], list[str], int, int, int]:
+    """Which samples are accepted and which start a new epoch, by the live rules (:class:`SampleOrder`).
+
+    ``time`` is what intervals are measured on (``mono`` when the log has it, else the stamps).
+    """
     n = len(seq)
     if n == 0:
         return np.zeros(0, bool), np.zeros(0, bool), [], [], 0, 0, 0
     dseq = np.diff(seq)
-    dstamp = np.diff(stamp)
-    if bool(np.all(dseq > 0)) and bool(np.all(dstamp >= 0)):
+    dtime = np.diff(time)
+    one_source = sources is None or len(set(sources)) == 1
+    if one_source and bool(np.all(dseq > 0)) and bool(np.all(dtime >= 0)):  # a well-formed log: one vectorised pass
         accepted = np.ones(n, bool)
         new_epoch = np.empty(n, bool)
         new_epoch[0] = True
-        new_epoch[1:] = dstamp > max_gap
+        new_epoch[1:] = dtime > max_gap
         gap_idx = np.flatnonzero(new_epoch[1:]) + 1
-        events = [f"gap of {stamp[k] - stamp[k - 1]:.3f} s before seq {seq[k]} exceeds {max_gap} s: not integrated" for k in gap_idx]
+        events = [f"gap of {time[k] - time[k - 1]:.3f} s before seq {seq[k]} exceeds {max_gap} s: not integrated" for k in gap_idx]
         return accepted, new_epoch, [], events, len(gap_idx), 0, int(np.sum(dseq - 1))
-    # irregular log: the streaming acceptance rules, sample by sample
+    # an irregular log: the live rules, sample by sample
+    order = SampleOrder(max_gap)
     accepted = np.zeros(n, bool)
     new_epoch = np.zeros(n, bool)
     rejected: list[str] = []
     events = []
     gaps = restarts = missed = 0
-    last_seq: int | None = None
-    last_stamp = 0.0
+    uses_mono = time is not stamp
     for k in range(n):
-        s, t = int(seq[k]), float(stamp[k])
-        epoch = last_seq is None
-        if last_seq is not None:
-            if s <= last_seq:
-                if t > last_stamp:
-                    restarts += 1
-                    events.append(f"sequence restarted at {s} after {last_seq} (gateway restart): not integrating across it")
-                    epoch = True
-                else:
-                    rejected.append(f"duplicate or out-of-order sample: seq {s} after seq {last_seq}")
-                    continue
-            elif t < last_stamp:
-                rejected.append(f"stamp went backwards: seq {s} at {t:.6f} after seq {last_seq} at {last_stamp:.6f}")
-                continue
-            else:
-                missed += s - last_seq - 1
-                if t - last_stamp > max_gap:
-                    gaps += 1
-                    events.append(f"gap of {t - last_stamp:.3f} s before seq {s} exceeds {max_gap} s: not integrated")
-                    epoch = True
+        previous = order.seq
+        source = None if sources is None else sources[k]
+        try:
+            verdict = order.check(int(seq[k]), float(stamp[k]), float(time[k]) if uses_mono else None, source, None)
+        except SampleRejected as exc:
+            rejected.append(str(exc))
+            continue
+        restart = verdict.event is not None and "gap" not in verdict.event
+        if verdict.event is not None:
+            events.append(verdict.event)
+            restarts += restart
+            gaps += not restart
+        if previous is not None and not restart and seq[k] > previous + 1:
+            missed += int(seq[k]) - previous - 1
         accepted[k] = True
-        new_epoch[k] = epoch
-        last_seq, last_stamp = s, t
+        new_epoch[k] = verdict.new_epoch
     return accepted, new_epoch[accepted], rejected, events, gaps, restarts, missed
 
 
@@ -192,16 +192,22 @@ def run_batch(
     left: NDArray[np.int64] | F,
     right: NDArray[np.int64] | F,
     params: OdometryParams | None = None,
+    mono: F | None = None,
+    sources: list[str | None] | None = None,
 ) -> BatchResult:
-    """Replay a whole impulse log; the pose after every accepted sample, as the live service publishes it."""
+    """Replay a whole impulse log; the pose after every accepted sample, as the live service publishes it.
+
+    ``mono``/``sources``: the samples' monotonic times and gateway ids, when the log has them.
+    """
     p = params or OdometryParams()
     seq = np.asarray(seq, np.int64)
     stamp = np.asarray(stamp, np.float64)
-    accepted, new_epoch, rejected, events, gaps, restarts, missed = _acceptance(seq, stamp, p.max_gap)
+    time = stamp if mono is None else np.asarray(mono, np.float64)
+    accepted, new_epoch, rejected, events, gaps, restarts, missed = _acceptance(seq, stamp, time, sources, p.max_gap)
     left_imp = np.asarray(left, np.float64)
     right_imp = np.asarray(right, np.float64)
     if not accepted.all():
-        stamp, left_imp, right_imp = stamp[accepted], left_imp[accepted], right_imp[accepted]
+        stamp, time, left_imp, right_imp = stamp[accepted], time[accepted], left_imp[accepted], right_imp[accepted]
     n = len(stamp)
     x_left, x_right = p.encoders.to_speeds(left_imp, right_imp)
     c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
@@ -211,7 +217,7 @@ def run_batch(
 
     dt = np.zeros(n)
     if n > 1:
-        dt[1:] = np.diff(stamp)
+        dt[1:] = np.diff(time)
     dt[new_epoch] = 0.0
     has_step = ~new_epoch
     revised_at = fix_l | fix_r  # sample k revises step k-1

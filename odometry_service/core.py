@@ -23,13 +23,18 @@ replays; the two agree to 1e-9.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 from blackmetal import robot_model as model
 from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
-from schemas import Pose, WheelImpulses, make_pose
+from schemas import Pose, WheelImpulses, make_pose, wrap_angle
 
 from .errors import OdometryError, SampleRejected
+
+#: A reset to a pose further than this from the origin (m), or a yaw beyond this (rad), is refused as absurd.
+RESET_LIMIT_M = 1e6
+RESET_LIMIT_RAD = 1e3
 
 
 @dataclass(frozen=True, slots=True)
@@ -194,6 +199,102 @@ class Glitches:
         return Update(speeds[0], speeds[1], outputs[0], outputs[1], revisions[0], revisions[1])
 
 
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """What :class:`SampleOrder` decided about one sample."""
+
+    new_epoch: bool  # do not integrate from the previous sample
+    dt: float  # seconds since the previous sample (0 for a new epoch)
+    event: str | None = None  # worth reporting, though accepted
+
+
+#: Samples may claim at most this much more time than their arrivals show, in total over an epoch (s).
+SPACING_TOLERANCE_S = 0.1
+#: How far the receiver's estimate of the smallest delivery delay may settle below the first sample's (s).
+SETTLE_S = 0.5
+#: Impulses from another gateway are taken over only after the followed one was silent this long (s).
+FOLLOW_TIMEOUT_S = 1.0
+
+
+@dataclass(slots=True)
+class SampleOrder:
+    """Which impulse samples may be integrated, and over which interval: one rule set for live odometry and replay.
+
+    The interval is the gateway's monotonic time (``mono``) when the sample
+    carries it, so a wall-clock step (NTP) or a stamp from the future cannot
+    freeze or stretch the pose; older logs without it use the wall stamps.
+    A sample is rejected (:class:`SampleRejected`, with the reason) when it
+    repeats or goes back in sequence from the same gateway, goes back in
+    time, claims more time than its arrival shows, or comes from another
+    gateway while the followed one is alive. A gateway that restarts (new
+    ``source``) or a gap longer than ``max_gap`` starts a new epoch.
+
+    The arrival check is cumulative, so delivery jitter on a loaded machine
+    cannot trip it: ``arrival - mono`` (``arrival`` on the receiver's
+    monotonic clock; replay has none) is the delivery delay plus a constant
+    and never falls below its smallest value, unless samples claim time that
+    did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
+    """
+
+    max_gap: float
+    seq: int | None = None
+    time: float | None = None
+    source: str | None = None
+    arrival: float | None = None
+    #: arrival - time of this epoch's first sample, and the smallest since (delivery delay plus a constant).
+    first_offset: float | None = None
+    least_offset: float | None = None
+
+    def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
+        """Accept (and remember) the sample, or raise SampleRejected and remember nothing."""
+        time = stamp if mono is None else mono
+        if mono is None:
+            arrival = None  # wall stamps may step: arrivals are compared with the gateway's monotonic time only
+        if self.seq is None or self.time is None:
+            return self._accept(seq, time, source, arrival, Verdict(True, 0.0))
+        if source != self.source:
+            silent = arrival is None or self.arrival is None or arrival - self.arrival >= FOLLOW_TIMEOUT_S
+            if not silent:
+                raise SampleRejected(
+                    f"impulses from gateway {source} while following gateway {self.source}: "
+                    "two gateways publish on this prefix; only one is integrated"
+                )
+            if source is not None and self.source is not None:
+                event = f"gateway {source} took over from gateway {self.source} (a restart): not integrating across it"
+                return self._accept(seq, time, source, arrival, Verdict(True, 0.0, event))
+        if seq <= self.seq:
+            if source is None and time > self.time:  # a log without sources: a later stamp means a restart
+                event = f"sequence restarted at {seq} after {self.seq} (gateway restart): not integrating across it"
+                return self._accept(seq, time, source, arrival, Verdict(True, 0.0, event))
+            raise SampleRejected(f"duplicate or out-of-order sample: seq {seq} after seq {self.seq} from the same gateway")
+        if time < self.time:
+            clock = "stamp" if mono is None else "monotonic time"
+            raise SampleRejected(f"{clock} went backwards: seq {seq} at {time:.6f} after seq {self.seq} at {self.time:.6f}")
+        dt = time - self.time
+        if arrival is not None and self.least_offset is not None and arrival - time < self.least_offset - SPACING_TOLERANCE_S:
+            ahead = self.least_offset - (arrival - time)
+            raise SampleRejected(
+                f"seq {seq} claims {dt:.3f} s since the previous sample, {ahead:.3f} s more than the samples' arrivals allow"
+            )
+        if dt > self.max_gap:
+            event = f"gap of {dt:.3f} s before seq {seq} exceeds {self.max_gap} s: not integrated"
+            return self._accept(seq, time, source, arrival, Verdict(True, 0.0, event))
+        return self._accept(seq, time, source, arrival, Verdict(False, dt))
+
+    def _accept(self, seq: int, time: float, source: str | None, arrival: float | None, verdict: Verdict) -> Verdict:
+        self.seq, self.time, self.source, self.arrival = seq, time, source, arrival
+        if arrival is None:
+            self.first_offset = self.least_offset = None
+        elif verdict.new_epoch or self.first_offset is None or self.least_offset is None:
+            self.first_offset = self.least_offset = arrival - time
+        else:  # the smallest delivery delay seen, allowed to settle at most SETTLE_S below the first sample's
+            self.least_offset = max(min(self.least_offset, arrival - time), self.first_offset - SETTLE_S)
+        return verdict
+
+    def forget(self) -> None:
+        self.seq = self.time = self.source = self.arrival = self.first_offset = self.least_offset = None
+
+
 @dataclass(slots=True)
 class Odometry:
     """Streaming odometry: :meth:`feed` one WheelImpulses, get the pose after it."""
@@ -212,13 +313,13 @@ class Odometry:
     retractions: int = 0
     events: list[str] = field(default_factory=list)  # things worth reporting, drained by the service
     _glitches: Glitches = field(init=False)
-    _last_seq: int | None = None
-    _last_stamp: float | None = None
+    _order: SampleOrder = field(init=False)
     _before_last: tuple[float, float, float] | None = None  # pose before the last step
     _last_step: tuple[float, float, float] | None = None  # (left, right, dt) of the last step
 
     def __post_init__(self) -> None:
         self._glitches = Glitches(self.params.filter_alpha, self.params.spike_limit)
+        self._order = SampleOrder(self.params.max_gap)
 
     @property
     def spikes(self) -> int:
@@ -229,42 +330,39 @@ class Odometry:
         return self._glitches.dropouts
 
     def reset(self, x: float = 0.0, y: float = 0.0, yaw: float = 0.0) -> Pose:
-        """Set the pose (the filters keep running, so motion is not lost)."""
-        self.x, self.y, self.yaw = x, y, yaw
+        """Start over at the given pose: every piece of state is cleared, the next sample starts a new epoch.
+
+        Raises OdometryError for a pose that is not finite or is absurd (beyond
+        RESET_LIMIT_M from the origin, or a yaw beyond RESET_LIMIT_RAD), naming it.
+        """
+        for name, value, limit in (("x", x, RESET_LIMIT_M), ("y", y, RESET_LIMIT_M), ("yaw", yaw, RESET_LIMIT_RAD)):
+            if not math.isfinite(value) or abs(value) > limit:
+                raise OdometryError(f"reset refused: {name} = {value!r} is not a pose (|{name}| must be at most {limit:g})")
+        self.x, self.y, self.yaw = x, y, wrap_angle(yaw)
+        self.v = self.w = 0.0
         self._before_last = self._last_step = None
+        self._glitches.reset()
+        self._order.forget()
         return self.pose()
 
     def pose(self) -> Pose:
         return make_pose(self.stamp, self.x, self.y, self.yaw, self.v, self.w)
 
-    def _check_order(self, sample: WheelImpulses) -> bool:
-        """Validate seq and stamp; True if this sample starts a new epoch (no integration from the last)."""
-        last_seq, last_stamp = self._last_seq, self._last_stamp
-        if last_seq is None or last_stamp is None:
-            return True
-        if sample.seq <= last_seq:
-            if sample.stamp > last_stamp:
-                self.restarts += 1
-                self.events.append(f"sequence restarted at {sample.seq} after {last_seq} (gateway restart): not integrating across it")
-                return True
-            raise SampleRejected(
-                f"duplicate or out-of-order sample: seq {sample.seq} (stamp {sample.stamp:.6f}) after seq {last_seq} (stamp {last_stamp:.6f})"
-            )
-        if sample.stamp < last_stamp:
-            raise SampleRejected(f"stamp went backwards: seq {sample.seq} at {sample.stamp:.6f} after seq {last_seq} at {last_stamp:.6f}")
-        if sample.seq > last_seq + 1:
-            self.missed += sample.seq - last_seq - 1
-        if sample.stamp - last_stamp > self.params.max_gap:
-            self.gaps += 1
-            self.events.append(
-                f"gap of {sample.stamp - last_stamp:.3f} s before seq {sample.seq} exceeds {self.params.max_gap} s: not integrated"
-            )
-            return True
-        return False
+    def feed(self, sample: WheelImpulses, arrival: float | None = None) -> Pose:
+        """One impulse sample in, the updated pose out. Raises SampleRejected for unusable samples.
 
-    def feed(self, sample: WheelImpulses) -> Pose:
-        """One impulse sample in, the updated pose out. Raises SampleRejected for unusable samples."""
-        new_epoch = self._check_order(sample)
+        ``arrival``: when the sample arrived, on the receiver's monotonic clock (None in replays).
+        """
+        previous_seq = self._order.seq
+        verdict = self._order.check(sample.seq, sample.stamp, sample.mono, sample.source, arrival)
+        new_epoch, dt = verdict.new_epoch, verdict.dt
+        restart = verdict.event is not None and "gap" not in verdict.event
+        if verdict.event is not None:
+            self.events.append(verdict.event)
+            self.restarts += restart
+            self.gaps += not restart
+        if previous_seq is not None and not restart and sample.seq > previous_seq + 1:
+            self.missed += sample.seq - previous_seq - 1
         p = self.params
         raw_left, raw_right = p.encoders.to_speeds(float(sample.left), float(sample.right))
         if new_epoch:
@@ -283,12 +381,9 @@ class Odometry:
             bx, by, byaw = self._before_last
             self.x, self.y, self.yaw = arc_step(bx, by, byaw, last_left * last_dt, last_right * last_dt, p.wheel_separation)
         if not new_epoch:
-            assert self._last_stamp is not None
-            dt = sample.stamp - self._last_stamp
             self._before_last = (self.x, self.y, self.yaw)
             self._last_step = (u_left, u_right, dt)
             self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, u_left * dt, u_right * dt, p.wheel_separation)
-        self._last_seq, self._last_stamp = sample.seq, sample.stamp
         self.stamp = sample.stamp
         self.v, self.w = wheels_to_twist(update.filtered_left, update.filtered_right, p.wheel_separation)
         self.samples += 1

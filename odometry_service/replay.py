@@ -9,12 +9,14 @@ one per line makes one). The ``blackmetal replay`` command is in
 from __future__ import annotations
 
 import gc
+from dataclasses import dataclass
 from operator import attrgetter
 from pathlib import Path
 from typing import BinaryIO
 
 import msgspec
 import numpy as np
+from numpy.typing import NDArray
 
 from schemas import Pose, WheelImpulses, make_pose
 
@@ -30,14 +32,31 @@ class _Row(msgspec.Struct, gc=False):
     stamp: float
     left: int
     right: int
+    mono: float | None = None
+    source: str | None = None
+
+
+@dataclass
+class ImpulseLog:
+    """The columns of an impulse log; ``mono`` and ``sources`` only when every line has them."""
+
+    seq: NDArray[np.int64]
+    stamp: NDArray[np.float64]
+    left: NDArray[np.float64]
+    right: NDArray[np.float64]
+    mono: NDArray[np.float64] | None = None
+    sources: list[str | None] | None = None
+
+    def replay(self, params: OdometryParams | None = None) -> BatchResult:
+        return run_batch(self.seq, self.stamp, self.left, self.right, params, self.mono, self.sources)
 
 
 _row_decoder = msgspec.json.Decoder(_Row)
 _impulse_decoder = msgspec.json.Decoder(WheelImpulses)
 
 
-def read_log(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Columns (seq, stamp, left, right) of a JSON-lines impulse log; ReplayError names a bad line."""
+def read_log(data: bytes) -> ImpulseLog:
+    """The columns of a JSON-lines impulse log; ReplayError names a bad line."""
     gc_was_enabled = gc.isenabled()
     gc.disable()
     try:
@@ -51,6 +70,12 @@ def read_log(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
             np.float64,
             count=4 * n,
         ).reshape(n, 4)
+        mono = sources = None
+        if n and rows[0].mono is not None:  # a log with the gateway's monotonic time and id
+            mono_values = [row.mono for row in rows]
+            if None not in mono_values:
+                mono = np.array(mono_values, np.float64)
+                sources = [row.source for row in rows]
     finally:
         if gc_was_enabled:
             gc.enable()
@@ -60,7 +85,9 @@ def read_log(data: bytes) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarra
         raise ReplayError(f"line {line}: stamp must be finite and seq >= 0")
     if np.any(np.abs(flat[:, [0, 2, 3]]) >= 2.0**53):
         raise ReplayError("integer fields beyond 2**53 cannot be replayed exactly")
-    return flat[:, 0].astype(np.int64), flat[:, 1].copy(), flat[:, 2].copy(), flat[:, 3].copy()
+    if mono is not None and not np.all(np.isfinite(mono)):
+        raise ReplayError(f"line {int(np.flatnonzero(~np.isfinite(mono))[0]) + 1}: mono must be finite")
+    return ImpulseLog(flat[:, 0].astype(np.int64), flat[:, 1].copy(), flat[:, 2].copy(), flat[:, 3].copy(), mono, sources)
 
 
 def _slow_rows(data: bytes) -> list[_Row]:
@@ -73,7 +100,7 @@ def _slow_rows(data: bytes) -> list[_Row]:
             msg = _impulse_decoder.decode(line)
         except (msgspec.ValidationError, msgspec.DecodeError) as exc:
             raise ReplayError(f"line {number}: not a WheelImpulses message: {exc}") from None
-        rows.append(_Row(msg.seq, msg.stamp, msg.left, msg.right))
+        rows.append(_Row(msg.seq, msg.stamp, msg.left, msg.right, msg.mono, msg.source))
     return rows
 
 
@@ -82,7 +109,7 @@ def replay_file(path: str | Path, params: OdometryParams | None = None) -> Batch
         data = Path(path).read_bytes()
     except OSError as exc:
         raise ReplayError(f"cannot read {path}: {exc.strerror}") from None
-    return run_batch(*read_log(data), params)
+    return read_log(data).replay(params)
 
 
 def final_pose(result: BatchResult) -> Pose:

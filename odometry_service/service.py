@@ -15,7 +15,7 @@ from blackmetal.runtime.reports import ErrorReporter
 from schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
 
 from .core import Odometry, OdometryParams
-from .errors import SampleRejected
+from .errors import OdometryError, SampleRejected
 
 
 class OdometryOutput(Protocol):
@@ -60,7 +60,7 @@ class OdometryService:
             self.reject(self.keys.impulses, str(exc), exc.excerpt)
             return
         try:
-            pose = self.odometry.feed(sample)
+            pose = self.odometry.feed(sample, arrival=self.clock())
         except SampleRejected as exc:
             self.reject(self.keys.impulses, str(exc), excerpt(payload))
             return
@@ -69,13 +69,22 @@ class OdometryService:
             self.reporter.report(self.keys.impulses, self.odometry.events.pop(0))
 
     def on_reset(self, payload: bytes | None) -> Pose:
-        """Reset to zero, or to the pose in the payload; PayloadError (reported) if it is not one."""
+        """Reset to zero, or to the pose in the payload; PayloadError (reported) if it is not a usable pose."""
         try:
             target = PoseReset() if not payload or not payload.strip() else decode(PoseReset, payload)
+            try:
+                return self.odometry.reset(target.x, target.y, target.yaw)
+            except OdometryError as exc:
+                raise PayloadError("PoseReset", str(exc), excerpt(payload or b"")) from None
         except PayloadError as exc:
             self.reject(self.keys.odometry_reset, str(exc), exc.excerpt)
             raise
-        return self.odometry.reset(target.x, target.y, target.yaw)
+
+    def on_dropped(self, count: int) -> None:
+        """``count`` impulse samples were dropped before they could be handled (the input is bounded)."""
+        self.reporter.report(
+            self.keys.impulses, f"{count} impulse samples dropped: the odometry fell behind its input (oldest dropped first)"
+        )
 
     def latest(self) -> Pose:
         return self.odometry.pose()

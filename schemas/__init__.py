@@ -1,7 +1,7 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, to_bytes
-from .errors import BlackmetalError, ConfigError, PayloadError
+from .errors import BlackmetalError, ConfigError, PayloadError, ZenohUnavailable
 from .jsonschema import json_schemas
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
 from .messages import (
@@ -50,6 +50,7 @@ __all__ = [
     "Twist",
     "Vector3",
     "WheelImpulses",
+    "ZenohUnavailable",
     "decode",
     "encode",
     "excerpt",

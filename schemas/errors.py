@@ -6,6 +6,7 @@ sentence instead of a traceback. The whole tree::
 
     BlackmetalError                      schemas.errors
     ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
+    ├── ZenohUnavailable                 schemas.errors: no Zenoh session (router down, port in use, credentials)
     ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
     ├── OdometryError                    odometry_service.errors
@@ -23,6 +24,10 @@ class BlackmetalError(Exception):
 
 class ConfigError(BlackmetalError):
     """A setting is missing, malformed or out of range; the text names it and says what would work."""
+
+
+class ZenohUnavailable(BlackmetalError):
+    """A Zenoh session cannot be opened; the text says what to check (router address, port in use, credentials)."""
 
 
 class PayloadError(BlackmetalError, ValueError):

@@ -58,16 +58,25 @@ class WheelImpulses(msgspec.Struct):
     ``left``/``right`` are encoder impulses per second; the right encoder is
     mirrored (negative when the wheel drives forward). ``stamp`` is the Unix
     time in seconds at which the reply arrived at the gateway; ``seq`` counts
-    readings from 0 and starts over when the gateway restarts.
+    readings from 0 and starts over when the gateway restarts. ``mono`` is
+    the same instant on the gateway's monotonic clock (seconds, arbitrary
+    origin): the odometry integrates over its differences, which no clock
+    step can bend. ``source`` names the gateway run that published the
+    sample; it changes when the gateway restarts. Both are optional so that
+    older recordings still replay.
     """
 
     seq: Annotated[int, msgspec.Meta(ge=0)]
     stamp: Finite
     left: int
     right: int
+    mono: Finite | None = None
+    source: Annotated[str, msgspec.Meta(max_length=64)] | None = None
 
     def __post_init__(self) -> None:
         _require_finite("impulses", stamp=self.stamp)
+        if self.mono is not None:
+            _require_finite("impulses", mono=self.mono)
 
 
 class Quaternion(msgspec.Struct):
@@ -172,6 +181,10 @@ class GatewayHealth(msgspec.Struct):
     last_rtt_ms: float | None = None
     poll_hz: float = 0.0
     wheel_speeds: tuple[float, float] = (0.0, 0.0)
+    #: This gateway's run id (the ``source`` of its impulses): two different ones on a prefix are a conflict.
+    source: str | None = None
+    #: The run id of another gateway seen on this prefix (commands are refused until it leaves).
+    conflict_with: str | None = None
 
 
 class ErrorReport(msgspec.Struct):

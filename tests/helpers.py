@@ -44,11 +44,12 @@ def zenoh_connect_args(port: int) -> list[str]:
 
 
 def client_config(port: int) -> zenoh.Config:
-    """A peer that connects to a process listening on ``port``, multicast scouting off."""
+    """A client of the process listening on ``port`` (no discovery: only that endpoint)."""
     conf = zenoh.Config()
+    conf.insert_json5("mode", '"client"')
     conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
-    conf.insert_json5("listen/endpoints", "[]")
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
     return conf
 
 

@@ -149,6 +149,15 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
         )
         assert moved.x > start.x
         wait_for(lambda: poses and poses[-1].x > 0.1, what="the viewer to see the pose move")
+        # queries that change state are rights, not reads: the viewer's reset and fault queries are denied
+        for key in ("robot/odometry/reset", "robot/sim/faults"):
+            assert [r for r in viewer.get(key, timeout=2) if r.ok is not None] == []
+        after = get_pose(viewer, "robot/pose")
+        assert after is not None and after.x > 0.1  # the viewer's reset did nothing
+        reset = [r for r in operator.get("robot/odometry/reset", timeout=5) if r.ok is not None]
+        assert reset and decode(Pose, reset[0].ok.payload.to_bytes()).x == 0.0  # the operator's did
+        faults = [r for r in operator.get("robot/sim/faults", timeout=5) if r.ok is not None]
+        assert faults  # and the operator may read and set the simulator's faults
     with pytest.raises(zenoh.ZError):
         zenoh.open(client_conf(endpoint, "operator", "wrong-password"))
 

@@ -405,3 +405,34 @@ def test_reconnect_backoff_is_not_reset_by_connections_that_die_at_once() -> Non
     assert attempts <= 10  # 0.05, 0.1, ... then 2 s apart (was 144-149 in 10 s)
     backoff.opened(now)
     assert backoff.failed(now + 6.0) == 0.05  # a connection that held 6 s starts the backoff over
+
+
+def test_a_second_gateway_on_the_prefix_brakes_both_until_one_leaves() -> None:
+    from schemas import GatewayHealth
+
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.3}}')
+    other = bench.conn.health(bench.t)
+    other = GatewayHealth(stamp=other.stamp, control=other.control, log=other.log, source="another-run")
+    from schemas import encode
+
+    for _ in range(3):  # its health arrives once a second
+        bench.conn.on_health_seen(encode(other), bench.t)
+        bench.settle()
+        bench.run(1.0)
+    bench.robot.advance(bench.t)
+    assert not bench.robot.moving  # braked
+    bench.cmd(b'{"linear":{"x":0.3}}')
+    assert not bench.robot.moving  # and refuses commands, saying why
+    reasons = [e.reason for e in bench.of(ErrorReport)]
+    assert any("another gateway (run another-run)" in r for r in reasons)
+    assert 3 <= sum("another gateway" in r and "serves prefix" in r for r in reasons) <= 8  # about once a second
+    assert bench.conn.health(bench.t).conflict_with == "another-run"
+    bench.run(4.0)  # the other one left
+    assert any("commands accepted again" in r for r in [e.reason for e in bench.of(ErrorReport)])
+    bench.cmd(b'{"linear":{"x":0.3}}')
+    assert bench.robot.target_left == pytest.approx(0.3)
+    own = encode(bench.conn.health(bench.t))
+    bench.conn.on_health_seen(own, bench.t)  # its own reports are no conflict
+    assert bench.conn.health(bench.t).conflict_with is None

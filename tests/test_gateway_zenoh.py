@@ -8,7 +8,7 @@ import time
 
 import pytest
 import zenoh
-from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args
 
 from schemas import GatewayHealth, Pose, WheelImpulses, decode
 
@@ -16,13 +16,15 @@ pytestmark = pytest.mark.integration
 
 
 class Rig:
-    """sim (listening on Zenoh) + gateway (connecting to it) + a client session."""
+    """A Zenoh router (the hub: nobody under test), gateway and sim as its clients, and a client session."""
 
     def __init__(self, children: list[Child], *gateway_args: str, sim_ports: tuple[int, int] | None = None) -> None:
         self.zport = free_port()
         self.children = children
         self.sim_ports = sim_ports or (free_port(), free_port())
-        self.sim = self.start_sim()
+        router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{self.zport}"])
+        children.append(router)
+        router.ready()
         self.gateway = Child(
             [
                 "-m",
@@ -37,9 +39,10 @@ class Rig:
         )
         children.append(self.gateway)
         self.gateway.ready()
+        self.sim = self.start_sim()
 
     def start_sim(self) -> SimProcess:
-        sim = SimProcess("--control-port", str(self.sim_ports[0]), "--log-port", str(self.sim_ports[1]), *zenoh_listen_args(self.zport))
+        sim = SimProcess("--control-port", str(self.sim_ports[0]), "--log-port", str(self.sim_ports[1]), *zenoh_connect_args(self.zport))
         self.children.append(sim)
         return sim
 

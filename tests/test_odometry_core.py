@@ -198,7 +198,9 @@ def test_reset_to_a_given_pose() -> None:
     odo.feed(imp(1, 0.01, 0.2, 0.2))
     pose = odo.reset(1.0, 2.0, 3.0)
     assert (pose.x, pose.y, pose.yaw) == (1.0, 2.0, 3.0)
-    odo.feed(imp(2, 0.02, 0.2, 0.2))
+    odo.feed(imp(2, 0.02, 0.2, 0.2))  # a reset clears every state: this sample starts a new epoch
+    assert (odo.x, odo.y) == (1.0, 2.0)
+    odo.feed(imp(3, 0.03, 0.2, 0.2))
     assert odo.x < 1.0  # heading 3 rad points backwards
 
 

@@ -146,17 +146,29 @@ def test_teleop_in_a_terminal(up: Up) -> None:
 
 def test_tools_fail_clearly_when_nothing_answers() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    for name in ("watch", "square"):
-        result = tool(name, "-e", endpoint, "--no-multicast-scouting", "--wait", "1", timeout=60)
-        assert result.returncode == 1
-        assert "no gateway answered" in result.stderr and "Traceback" not in result.stderr
+    for name in ("watch", "square", "robots"):  # nothing listens there at all
+        result = tool(name, "-e", endpoint, "--wait", "1", timeout=60)
+        assert result.returncode == 1 and "Traceback" not in result.stderr
+        assert result.stderr.count("\n") == 1 and f"cannot reach {endpoint}" in result.stderr
+    for bad in ("127.0.0.1:7447", "tcp/127.0.0.1"):  # an endpoint without its protocol, or without a port
+        result = tool("watch", "-e", bad, timeout=60)
+        assert result.returncode == 2 and "must look like PROTOCOL/HOST:PORT" in result.stderr and "Traceback" not in result.stderr
+    router = Child(["-m", "blackmetal", "router", "-l", endpoint])  # a router runs, but no robot behind it
+    try:
+        router.ready()
+        for name in ("watch", "square"):
+            result = tool(name, "-e", endpoint, "--no-multicast-scouting", "--wait", "1", timeout=60)
+            assert result.returncode == 1
+            assert "no gateway answered" in result.stderr and "Traceback" not in result.stderr
+    finally:
+        router.stop()
     master, slave = pty.openpty()
     try:
         proc = subprocess.run(
             [sys.executable, "-m", "blackmetal", "teleop", "-e", endpoint, "--no-multicast-scouting", "--wait", "1"],
             stdin=slave, capture_output=True, text=True, timeout=60,
         )  # fmt: skip
-        assert proc.returncode == 1 and "no gateway answered" in proc.stderr
+        assert proc.returncode == 1 and "cannot reach" in proc.stderr
     finally:
         os.close(master)
         os.close(slave)
@@ -204,3 +216,15 @@ def test_teleop_keys_to_commands() -> None:
     assert stop.linear.x == 0.0 and t.tick(0.8) == []  # type: ignore[attr-defined]
     msgs = t.on_key("e", 1.0)
     assert msgs[0][0] == "estop" and msgs[0][1].engaged is True  # type: ignore[attr-defined]
+
+
+def test_estop_on_and_off_are_confirmed_by_the_gateway(up: Up) -> None:
+    try:
+        on = tool("estop", "on", "-e", up.endpoint, timeout=60)
+        assert on.returncode == 0 and "ENGAGED" in on.stdout and "confirmed" in on.stdout, on.stderr
+        with zenoh.open(client_config(up.zport)) as session:
+            health = get(session, "robot/gateway/health", GatewayHealth)
+            assert health is not None and health.estop
+    finally:
+        off = tool("estop", "off", "-e", up.endpoint, timeout=60)
+    assert off.returncode == 0 and "released" in off.stdout, off.stderr

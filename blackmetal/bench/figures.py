@@ -50,8 +50,10 @@ def gateway(robot: RobotProcess, zport: int, poll_hz: float, listen: bool = True
     )  # fmt: skip
 
 
-def odometry(zport: int) -> ServiceProcess:
-    return _service("odometry", ["odometry", "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{zport}"])
+def odometry(zport: int, listen: int | None = None) -> ServiceProcess:
+    """The odometry, a client of the gateway's endpoint; with ``listen``, a peer that clients can reach directly."""
+    zenoh_args = ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
+    return _service("odometry", ["odometry", *zenoh_args])
 
 
 def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
@@ -126,12 +128,12 @@ def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
     from schemas import Pose, decode
 
     robot = RobotProcess()
-    zport = free_port()
+    zport, oport = free_port(), free_port()
     gw = gateway(robot, zport, poll_hz)
-    odo = odometry(zport)
+    odo = odometry(zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
     latencies: list[float] = []
     try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+        with zenoh.open(_zenoh_conf(connect=oport)) as session:
             session.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
             deadline = time.monotonic() + 20
             while len(latencies) < 20 and time.monotonic() < deadline:

@@ -46,8 +46,10 @@ def _zenoh_conf(listen: int | None = None, connect: int | None = None) -> "zenoh
 
     conf = zenoh.Config()
     conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
     conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{listen}"] if listen else []))
     if connect:
+        conf.insert_json5("mode", '"client"')  # a client of exactly that process, as blackmetal's tools are
         conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{connect}"]))
     return conf
 

@@ -19,6 +19,8 @@ from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
+from schemas import ConfigError
+
 if TYPE_CHECKING:
     import zenoh
 
@@ -88,6 +90,16 @@ class Handover:
     def stats(self) -> dict[str, tuple[int, int]]:
         """Per channel: items received and items dropped because the channel was full."""
         return {c.name: (c.received, c.dropped) for c in self._channels}
+
+
+def refuse_if_taken(session: "zenoh.Session", token: str, role: str, prefix: str, timeout: float = 0.5) -> None:
+    """ConfigError if another process already holds the liveliness ``token`` (call before declaring ours)."""
+    others = [r for r in session.liveliness().get(token, timeout=timeout) if r.ok is not None]
+    if others:
+        raise ConfigError(
+            f"another {role} is already alive on prefix {prefix!r} ({token}); one robot per prefix: "
+            f"stop the other one, or give this one another --prefix (e.g. --prefix fleet/b)"
+        )
 
 
 def payload_bytes(sample: "zenoh.Sample") -> bytes:

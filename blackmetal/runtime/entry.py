@@ -9,7 +9,7 @@ import sys
 from collections.abc import Awaitable, Callable
 from typing import TypeVar
 
-from schemas import BlackmetalError
+from schemas import BlackmetalError, ZenohUnavailable
 
 from .settings import add_setting_arguments
 from .signals import loop_stop_on_signals
@@ -32,6 +32,9 @@ def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Ev
 
     try:
         asyncio.run(_main(load()))
+    except ZenohUnavailable as exc:
+        print(f"blackmetal {name}: {exc}", file=sys.stderr)
+        return 1
     except BlackmetalError as exc:
         print(f"blackmetal {name}: {exc}", file=sys.stderr)
         return 2

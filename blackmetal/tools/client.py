@@ -19,7 +19,7 @@ import msgspec
 import zenoh
 
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, zenoh_settings
-from schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, decode, to_bytes
+from schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
 
 DEMO_ENDPOINT = "tcp/127.0.0.1:7447"
 T = TypeVar("T", bound=msgspec.Struct)
@@ -36,13 +36,10 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def client_settings(args: argparse.Namespace) -> ZenohSettings:
-    """The Zenoh flags, or the demo's endpoint (multicast scouting off) when none was given."""
+    """The Zenoh flags; the demo's endpoint when no endpoint (and no config file) was given."""
     settings = zenoh_settings(args)
-    if not settings.given:
+    if not settings.connect and settings.config is None and not settings.discovers:
         settings.connect = [DEMO_ENDPOINT]
-        settings.no_multicast_scouting = True
-    if settings.mode is None and not settings.listen:
-        settings.listen = ["tcp/127.0.0.1:0"]  # a client peer needs no listener reachable from the LAN
     return settings
 
 
@@ -142,7 +139,7 @@ def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[
         def wrapper(args: argparse.Namespace) -> int:
             try:
                 return run(args)
-            except ToolError as exc:
+            except (ToolError, ZenohUnavailable) as exc:
                 print(f"blackmetal {name}: {exc}", file=sys.stderr)
                 return 1
             except BlackmetalError as exc:

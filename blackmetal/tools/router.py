@@ -15,13 +15,14 @@ import zenoh
 
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.runtime.zenoh_setup import ZenohSettings
+from blackmetal.runtime.zenoh_setup import ZenohSettings, unavailable_reason
 from schemas import ConfigError
 
 
 def run(args: argparse.Namespace) -> int:
     settings = ZenohSettings(mode="router", listen=list(args.listen or []), config=args.config,
-                             connect=list(args.connect or []), no_multicast_scouting=bool(args.no_multicast_scouting))  # fmt: skip
+                             connect=list(args.connect or []), no_multicast_scouting=bool(args.no_multicast_scouting),
+                             multicast_scouting=bool(args.multicast_scouting))  # fmt: skip
     settings.user = settings.password = None  # a router authenticates others from its own config
     try:
         conf = settings.to_config()
@@ -32,7 +33,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = zenoh.open(conf)
     except Exception as exc:
-        print(f"blackmetal router: cannot start: {exc}", file=sys.stderr)
+        print(f"blackmetal router: {unavailable_reason(settings, str(exc))}", file=sys.stderr)
         return 1
     try:
         listen = conf.get_json("listen/endpoints")
@@ -49,5 +50,6 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("-c", "--config", metavar="FILE", help="Zenoh router configuration (JSON5)")
     parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT", help="listen endpoint, replaces the file's (repeatable)")
     parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT", help="another router to connect to (repeatable)")
-    parser.add_argument("--no-multicast-scouting", action="store_true", help="disable multicast scouting")
+    parser.add_argument("--multicast-scouting", action="store_true", help="discover peers and routers on the LAN (default: off)")
+    parser.add_argument("--no-multicast-scouting", action="store_true", help="no discovery (the default; accepted for older scripts)")
     return parser

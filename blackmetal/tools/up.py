@@ -20,7 +20,7 @@ import zenoh
 from blackmetal import robot_model as model
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, zenoh_settings
+from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, unavailable_reason, zenoh_settings
 from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose
 
 from .client import Latest
@@ -34,8 +34,8 @@ CHILD_CHECK_S = 0.05
 
 
 def _child_zenoh_args(args: argparse.Namespace, hub: str) -> list[str]:
-    """Children join as loopback-only peers of our session (plus any routers given with -e)."""
-    out = ["--no-multicast-scouting", "-e", hub, "-l", "tcp/127.0.0.1:0"]
+    """Children are clients of our session, which routes between them and the tools (plus any routers given with -e)."""
+    out = ["-m", "client", "-e", hub]
     for endpoint in args.connect or []:
         out += ["-e", endpoint]
     if args.config:
@@ -146,11 +146,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         session = zenoh.open(conf)
     except Exception as exc:  # zenoh raises ZError with the OS reason
-        print(
-            f"blackmetal up: cannot open Zenoh listening on {', '.join(settings.listen)}: {exc}\n"
-            "Is another `blackmetal up` running? Choose another endpoint with -l, e.g. -l tcp/127.0.0.1:7448",
-            file=sys.stderr,
-        )
+        print(f"blackmetal up: {unavailable_reason(settings, str(exc))}", file=sys.stderr)
         return 1
     stop = stop_on_signals()
     children: list[ServiceProcess] = []

@@ -1,0 +1,108 @@
+"""One robot per prefix and per Zenoh network: blackmetal processes meet only what they are told to reach."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import pytest
+import zenoh
+from helpers import Child, client_config, free_port, wait_for
+
+from schemas import Keys, Pose, decode
+
+pytestmark = pytest.mark.integration
+
+KEYS = Keys()
+
+
+def _truth(session: zenoh.Session) -> Pose:
+    def ask() -> Pose | None:
+        for reply in session.get(KEYS.sim_truth, timeout=2):
+            if reply.ok is not None:
+                return decode(Pose, reply.ok.payload.to_bytes())
+        return None
+
+    pose: Pose = wait_for(ask, what="the simulator's truth")
+    return pose
+
+
+def test_two_demos_on_one_host_are_independent() -> None:
+    """Default flags only (no --no-multicast-scouting anywhere): a command to one demo never moves the other."""
+    ports = (free_port(), free_port())
+    ups = [Child(["-m", "blackmetal", "up", "-l", f"tcp/127.0.0.1:{port}"]) for port in ports]
+    try:
+        for up in ups:
+            up.ready(timeout=60)
+        with zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
+            poses_a: list[bytes] = []
+            a.declare_subscriber(KEYS.pose, lambda s: poses_a.append(s.payload.to_bytes()))
+            start_b = _truth(b)
+            for _ in range(15):
+                a.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
+                time.sleep(0.1)
+            wait_for(lambda: _truth(a).x > 0.2, what="demo A to move")
+            end_b = _truth(b)
+            assert (end_b.x, end_b.y) == (start_b.x, start_b.y)  # demo B never moved
+            alive = [str(r.ok.key_expr) for r in a.liveliness().get("**/alive/**", timeout=2) if r.ok is not None]
+            assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim})  # each once: A's only
+            time.sleep(1.0)
+            rates = [json.loads(p)["stamp"] for p in poses_a[-60:]]
+            assert len(rates) >= 2 and (len(rates) - 1) / (rates[-1] - rates[0]) < 60  # 50 poses/s, not 100
+    finally:
+        for up in ups:
+            up.stop()
+
+
+@pytest.mark.parametrize("service", ["gateway", "odometry", "sim"])
+def test_a_port_in_use_or_a_router_down_is_one_sentence(service: str) -> None:
+    import socket
+    import subprocess
+    import sys
+
+    extra = ["--control-port", "0", "--log-port", "0"] if service == "sim" else []
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        in_use = subprocess.run(
+            [sys.executable, "-m", "blackmetal", service, *extra, "-l", f"tcp/127.0.0.1:{port}"],
+            capture_output=True, text=True, timeout=60,
+        )  # fmt: skip
+    assert in_use.returncode == 1, in_use.stderr
+    errors = [line for line in in_use.stderr.splitlines() if "blackmetal" in line and "INFO" not in line]
+    assert errors == [f"blackmetal {service}: cannot listen on tcp/127.0.0.1:{port}: the port is in use by another process "
+                      "(another `blackmetal up`, a router or a service?); stop it, or choose another port with -l tcp/127.0.0.1:PORT"]  # fmt: skip
+    assert "ready" not in in_use.stdout and "Traceback" not in in_use.stderr
+    down = subprocess.run(
+        [sys.executable, "-m", "blackmetal", service, *extra, "-m", "client", "-e", f"tcp/127.0.0.1:{free_port()}"],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert down.returncode == 1 and "Traceback" not in down.stderr
+    assert "cannot reach tcp/127.0.0.1:" in down.stderr and "runs there" in down.stderr
+
+
+def test_a_second_gateway_or_odometry_on_a_prefix_refuses_to_start() -> None:
+    import subprocess
+    import sys
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    hub = Child(["-m", "blackmetal", "router", "-l", endpoint])
+    hub.ready()
+    first = []
+    try:
+        for service in ("gateway", "odometry"):
+            first.append(Child(["-m", "blackmetal", service, "-e", endpoint]))
+            first[-1].ready()
+        for service, role in (("gateway", "gateway"), ("odometry", "odometry service")):
+            second = subprocess.run(
+                [sys.executable, "-m", "blackmetal", service, "-e", endpoint], capture_output=True, text=True, timeout=60
+            )
+            assert second.returncode == 2 and "Traceback" not in second.stderr
+            assert f"another {role} is already alive on prefix 'robot'" in second.stderr and "--prefix" in second.stderr
+        other = Child(["-m", "blackmetal", "odometry", "-e", endpoint, "--prefix", "fleet/b"])  # another prefix is fine
+        first.append(other)
+        other.ready()
+    finally:
+        for child in [*first, hub]:
+            child.stop()
