@@ -8,6 +8,8 @@ import json
 import sys
 from pathlib import Path
 
+from . import __version__
+
 
 def _schema(args: argparse.Namespace) -> int:
     from schemas import json_schemas
@@ -47,13 +49,14 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     """The full command; with ``only``, just that subcommand's module is imported
     (so ``blackmetal sim`` without Zenoh flags never loads Zenoh)."""
     parser = argparse.ArgumentParser(prog="blackmetal", description="Zenoh gateway, odometry and simulator for the Black Metal robot.")
+    parser.add_argument("--version", action="version", version=f"blackmetal {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name, (module_name, text) in COMMANDS.items():
         if only is not None and name != only:
             sub.add_parser(name, help=text)
             continue
         module = importlib.import_module(module_name)
-        command = sub.add_parser(name, help=text, description=module.__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+        command = sub.add_parser(name, help=text, description=_plain(module.__doc__), formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(command)
         command.set_defaults(func=module.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
@@ -62,10 +65,19 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     return parser
 
 
+def _plain(doc: str | None) -> str | None:
+    """A module docstring as help text: without reST's double backticks."""
+    return None if doc is None else doc.replace("``", "")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     only = argv[0] if argv and argv[0] in COMMANDS else None
-    args = build_parser(only).parse_args(argv)
+    parser = build_parser(only)
+    args, unknown = parser.parse_known_args(argv)
+    if unknown:  # the subcommand's usage says what it takes, not the top level's
+        subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+        subparsers.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
     return int(args.func(args))
 
 

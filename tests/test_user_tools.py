@@ -228,3 +228,20 @@ def test_estop_on_and_off_are_confirmed_by_the_gateway(up: Up) -> None:
     finally:
         off = tool("estop", "off", "-e", up.endpoint, timeout=60)
     assert off.returncode == 0 and "released" in off.stdout, off.stderr
+
+
+def test_small_things_a_new_user_meets(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    version = tool("--version")
+    assert version.returncode == 0 and version.stdout.startswith("blackmetal ")
+    typo = tool("gateway", "--pol-hz", "5")
+    assert typo.returncode == 2 and "usage: blackmetal gateway" in typo.stderr and "--pol-hz" in typo.stderr
+    assert "``" not in tool("replay", "--help").stdout  # no raw reST in help texts
+    empty = tmp_path / "empty.jsonl"
+    empty.write_text("")
+    replay = tool("replay", str(empty))
+    assert replay.returncode == 2 and "no usable impulse sample" in replay.stderr and replay.stdout == ""
+    try:
+        import matplotlib  # noqa: F401
+    except ImportError:  # --plot without matplotlib fails before driving anything, not after the whole route
+        plot = tool("square", "--plot", str(tmp_path / "p.png"), "-e", f"tcp/127.0.0.1:{free_port()}", timeout=60)
+        assert plot.returncode == 1 and "pip install 'blackmetal[plot]'" in plot.stderr

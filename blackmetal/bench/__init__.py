@@ -99,6 +99,9 @@ def table(f: dict[str, Any]) -> str:
     def ms(spread: dict[str, float]) -> str:
         return f"{spread['median']:.3f} ms [{spread['min']:.3f}-{spread['max']:.3f}]"
 
+    def met(ok: bool) -> str:
+        return ": met" if ok else ": MISSED"
+
     cmd, hop = f["cmd_vel_to_robot_ms"], f["zenoh_hop_ms"]
     pose, two = f["impulse_to_pose_ms"], f["two_hops_ms"]
     rows = [
@@ -107,38 +110,39 @@ def table(f: dict[str, Any]) -> str:
             "cmd_vel -> robot socket p50",
             ms(cmd["p50"]),
             f"1 Zenoh hop {ms(hop['p50'])}",
-            f"{cmd['p50_over_hop']:.2f}x (<= 1.5x)" + (" NOISY" if cmd["noisy"] else ""),
+            f"{cmd['p50_over_hop']:.2f}x (<= 1.5x{met(cmd['p50_over_hop'] <= 1.5)})" + (" NOISY" if cmd["noisy"] else ""),
         ),
-        ("cmd_vel -> robot socket p99", ms(cmd["p99"]), f"1 Zenoh hop {ms(hop['p99'])}", "(<= 1 ms)"),
+        ("cmd_vel -> robot socket p99", ms(cmd["p99"]), f"1 Zenoh hop {ms(hop['p99'])}", f"(<= 1 ms{met(cmd['p99']['median'] <= 1.0)})"),
         (
             "e-stop -> EMG_STOP at robot p50",
             ms(f["estop_to_robot_ms"]["p50"]),
             f"cmd_vel p50 {ms(cmd['p50'])}",
-            f"{f['estop_to_robot_ms']['p50_over_cmd_vel']:.2f}x (<= 1x)",
+            f"{f['estop_to_robot_ms']['p50_over_cmd_vel']:.2f}x (<= 1x{met(f['estop_to_robot_ms']['p50_over_cmd_vel'] <= 1.0)})",
         ),
         ("e-stop -> EMG_STOP at robot p99", ms(f["estop_to_robot_ms"]["p99"]), f"cmd_vel p99 {ms(cmd['p99'])}", ""),
         (
             "impulse -> Pose at client p50",
             ms(pose["p50"]),
             f"2 Zenoh hops {ms(two['p50'])}",
-            f"{pose['p50_over_two_hops']:.2f}x (<= 1.5x)" + (" NOISY" if pose["noisy"] else ""),
+            f"{pose['p50_over_two_hops']:.2f}x (<= 1.5x{met(pose['p50_over_two_hops'] <= 1.5)})" + (" NOISY" if pose["noisy"] else ""),
         ),
         ("impulse -> Pose at client p99", ms(pose["p99"]), f"2 Zenoh hops {ms(two['p99'])}", ""),
     ]
     for hz, p in f["poll"].items():
         rows.append(
             (f"poll at {hz} Hz", f"{p['rate_hz']:.1f} Hz, worst gap {p['worst_gap_ms']:.1f} ms", f"asked {hz} Hz",
-             f"{100 * p['ratio']:.1f}% (>= 98%), gap {p['worst_gap_periods']:.2f} periods (<= 3)")
+             f"{100 * p['ratio']:.1f}% (>= 98%), gap {p['worst_gap_periods']:.2f} periods (<= 3){met(p['ratio'] >= 0.98 and p['worst_gap_periods'] <= 3)}")
         )  # fmt: skip
     r = f["replay"]
     rows.append(
         (f"replay ({r['samples']} samples, file read)", f"{r['replay_per_s'] / 1e6:.2f} M/s [{r['replay_min_per_s'] / 1e6:.2f}-{r['replay_max_per_s'] / 1e6:.2f}]",
-         f"streaming {r['stream_per_s'] / 1e3:.0f} k/s", f"{r['ratio']:.0f}x (>= 1 M/s, >= 20x)")
+         f"streaming {r['stream_per_s'] / 1e3:.0f} k/s",
+         f"{r['ratio']:.0f}x (>= 1 M/s{met(r['replay_per_s'] >= 1e6)}; >= 20x{met(r['ratio'] >= 20)})")
     )  # fmt: skip
     m = f["memory"]
     rows.append(
         (f"RSS after {m['seconds']:.0f} s at 100 Hz", f"gateway {m['gateway_mb']:.1f} MB, odometry {m['odometry_mb']:.1f} MB",
-         f"bare zenoh {m['bare_zenoh_mb']:.1f} MB", f"+{m['gateway_over_bare_mb']:.1f} / +{m['odometry_over_bare_mb']:.1f} MB (<= +40 MB)")
+         f"bare zenoh {m['bare_zenoh_mb']:.1f} MB", f"+{m['gateway_over_bare_mb']:.1f} / +{m['odometry_over_bare_mb']:.1f} MB (<= +40 MB{met(max(m['gateway_over_bare_mb'], m['odometry_over_bare_mb']) <= 40)})")
     )  # fmt: skip
     rows.append(("CPU at 100 Hz", f"gateway {m['gateway_cpu_pct']:.1f}%, odometry {m['odometry_cpu_pct']:.1f}% of a core", "-", "report"))
     fl = f["flood"]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import time
 
 import zenoh
 
@@ -14,11 +15,24 @@ from .client import connect, tool, where
 
 
 def alive_robots(session: zenoh.Session, timeout: float = 3.0) -> list[str]:
-    """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway."""
-    prefixes = set()
-    for reply in session.liveliness().get(ANY_GATEWAY_ALIVE, timeout=timeout):
-        if reply.ok is not None:
-            prefixes.add(Keys.prefix_of_gateway_token(str(reply.ok.key_expr)))
+    """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway.
+
+    A liveliness subscriber with history collects the tokens for ``timeout``
+    seconds: a single early ``get`` can miss tokens the router has not yet
+    told a freshly connected session about.
+    """
+    prefixes: set[str] = set()
+    subscriber = session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, history=True)
+    try:
+        deadline = time.monotonic() + timeout
+        while (left := deadline - time.monotonic()) > 0:
+            sample = subscriber.try_recv()
+            if sample is None:
+                time.sleep(min(0.05, left))
+            elif sample.kind == zenoh.SampleKind.PUT:
+                prefixes.add(Keys.prefix_of_gateway_token(str(sample.key_expr)))
+    finally:
+        subscriber.undeclare()
     return sorted(prefixes)
 
 

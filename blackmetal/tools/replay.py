@@ -32,6 +32,9 @@ def run(args: argparse.Namespace) -> int:
     except BlackmetalError as exc:
         print(f"blackmetal replay: {exc}", file=sys.stderr)
         return 2
+    if not len(result):
+        print(f"blackmetal replay: {args.file} holds no usable impulse sample: nothing to replay", file=sys.stderr)
+        return 2
     if args.output:
         with open(args.output, "wb") as out:
             write_poses(result, out)

@@ -18,6 +18,7 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from typing import Any
 
 import zenoh
 
@@ -36,6 +37,8 @@ from .client import (
 )
 
 RATE_HZ = 20.0
+#: Commanding motion for this long without the pose changing means the commands have no effect (s).
+NO_EFFECT_S = 5.0
 
 
 @dataclass
@@ -86,9 +89,24 @@ class Driver:
         self.stop = stop
         self.odometry_path: list[tuple[float, float]] = []
         self.truth_path: list[tuple[float, float]] = []
+        self._moved_at = time.monotonic()
+        self._last_pose: tuple[float, float, float] | None = None
 
     def _send(self, v: float, w: float) -> None:
         self.publisher.put(encode(Twist(linear=Vector3(x=v), angular=Vector3(z=w))))
+
+    def _check_effect(self, pose: Pose) -> None:
+        """Motion is being commanded: if the pose has not changed for NO_EFFECT_S, the commands do nothing."""
+        now = time.monotonic()
+        here = (pose.x, pose.y, pose.yaw)
+        if here != self._last_pose:
+            self._last_pose, self._moved_at = here, now
+        elif now - self._moved_at > NO_EFFECT_S:
+            self._send(0.0, 0.0)
+            raise ToolError(
+                f"the robot has not moved for {NO_EFFECT_S:g} s of cmd_vel: the commands have no effect. Is this user "
+                "allowed to put on cmd_vel (the router's access control), is the e-stop engaged, is the gateway connected?"
+            )
 
     def _step(self) -> Pose:
         if self.stop.wait(1.0 / RATE_HZ):
@@ -130,6 +148,7 @@ class Driver:
             v = max(0.03, min(self.speed, 1.5 * remaining))
             w = max(-0.5, min(0.5, 2.0 * math.remainder(heading - pose.yaw, math.tau)))
             self._send(v, w)
+            self._check_effect(pose)
         self.settle()
 
     def turn(self, angle: float) -> None:
@@ -142,6 +161,7 @@ class Driver:
                 break
             w = math.copysign(max(0.08, min(self.turn_rate, 2.0 * abs(error))), error)
             self._send(0.0, w)
+            self._check_effect(pose)
         self.settle()
 
 
@@ -149,7 +169,9 @@ def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | N
     start = driver.settle()
     truth_start: Pose | None = truth.value if truth is not None else None
     driver.odometry_path, driver.truth_path = [], []
-    for _ in range(4):
+    direction = "clockwise" if clockwise else "counter-clockwise"
+    for side in range(1, 5):
+        print(f"  {direction}: side {side} of 4, {size:g} m, then a {'right' if clockwise else 'left'} turn", flush=True)
         driver.straight(size)
         driver.turn(-math.pi / 2 if clockwise else math.pi / 2)
     end = driver.settle()
@@ -181,7 +203,7 @@ def report(run: Run) -> str:
     return text
 
 
-def plot(runs: list[Run], path: str) -> None:
+def _matplotlib() -> Any:
     try:
         import matplotlib
 
@@ -189,6 +211,11 @@ def plot(runs: list[Run], path: str) -> None:
         import matplotlib.pyplot as plt
     except ImportError:
         raise ToolError("--plot needs matplotlib: pip install 'blackmetal[plot]'") from None
+    return plt
+
+
+def plot(runs: list[Run], path: str) -> None:
+    plt = _matplotlib()
     fig, ax = plt.subplots(figsize=(6, 6))
     for run in runs:
         if run.odometry_path:
@@ -209,13 +236,15 @@ def plot(runs: list[Run], path: str) -> None:
 
 @tool("square")
 def run(args: argparse.Namespace) -> int:
+    if args.plot:
+        _matplotlib()  # before driving the whole route, not after
     keys, settings, session = connect(args)
     stop = stop_on_signals()
     with session:
         try:
             health = require_gateway(session, keys, settings, args.wait)
             if health.estop:
-                raise ToolError("the emergency stop is engaged; release it first")
+                raise ToolError("the emergency stop is engaged; release it first with `blackmetal estop off` (same -e and --prefix)")
             first = require_pose(session, keys, settings, args.wait)
             pose = Latest(session, keys.pose, Pose)
             pose.value = first

@@ -127,7 +127,7 @@ def _status(teleop: Teleop, pose: Pose | None, health: GatewayHealth | None) -> 
         parts.append(f"pose x={pose.x:+.3f} y={pose.y:+.3f} yaw={math.degrees(pose.yaw):+6.1f}°")
     if health is not None:
         parts.append(f"link {health.control.state}")
-        parts.append("E-STOP ENGAGED" if health.estop else "e-stop off")
+        parts.append("E-STOP ENGAGED: commands refused, e releases" if health.estop else "e-stop off")
     return " | ".join(parts)
 
 
