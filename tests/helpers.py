@@ -13,6 +13,17 @@ import zenoh
 
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess
 
+#: Payloads on estop whose meaning is plainly "true", in the shapes clients send: each must engage the stop.
+TRUE_ESTOPS = [
+    b'{"engaged": true, "reason": "operator"}',
+    b'{"engaged": 1}',
+    b'{"engaged": "true"}',
+    b"true",
+    b'{"data": true}',  # a ROS bridge's std_msgs/Bool
+    b'{"Engaged": true}',
+    b'{"engaged": true}\x00',  # a C client's terminator
+]
+
 #: Generous: these tests must hold on a loaded 2-core machine.
 TIMEOUT = 20.0
 

@@ -14,6 +14,7 @@ import math
 from typing import Any
 
 import pytest
+from helpers import TRUE_ESTOPS
 
 from blackmetal import wire
 from blackmetal.sim.physics import RobotParams, SimRobot
@@ -341,15 +342,7 @@ def test_emg_stop_and_prepare_retries_stay_under_50_a_second() -> None:
 
 @pytest.mark.parametrize(
     "payload",
-    [
-        b'{"engaged": true, "reason": "operator"}',
-        b'{"engaged": 1}',
-        b'{"engaged": "true"}',
-        b"true",
-        b'{"data": true}',
-        b'{"Engaged": true}',
-        b'{"engaged": true}\x00',
-    ],
+    TRUE_ESTOPS,
 )
 def test_any_true_meaning_engages_the_stop_without_complaint(payload: bytes) -> None:
     bench = Bench(cmd_timeout=0.0)
