@@ -106,3 +106,29 @@ def test_a_second_gateway_or_odometry_on_a_prefix_refuses_to_start() -> None:
     finally:
         for child in [*first, hub]:
             child.stop()
+
+
+def test_a_peer_that_met_two_demos_does_not_link_them() -> None:
+    """A plain Zenoh peer (its default config: gossip on) connects to both demos for 2 s and leaves; B's cmd_vel never drives A."""
+    ports = (free_port(), free_port())
+    ups = [Child(["-m", "blackmetal", "up", "-l", f"tcp/127.0.0.1:{port}"]) for port in ports]
+    try:
+        for up in ups:
+            up.ready(timeout=60)
+        conf = zenoh.Config()
+        conf.insert_json5("scouting/multicast/enabled", "false")  # gossip stays at Zenoh's default
+        conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}" for port in ports]))
+        with zenoh.open(conf):
+            time.sleep(2.0)
+        time.sleep(1.0)
+        with zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
+            start_a = _truth(a)
+            for _ in range(15):
+                b.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
+                time.sleep(0.1)
+            wait_for(lambda: _truth(b).x > 0.2, what="demo B to move")
+            end_a = _truth(a)
+            assert (end_a.x, end_a.y) == (start_a.x, start_a.y)  # demo A never moved
+    finally:
+        for up in ups:
+            up.stop()
