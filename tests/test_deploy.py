@@ -160,6 +160,19 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
         assert faults  # and the operator may read and set the simulator's faults
     with pytest.raises(zenoh.ZError):
         zenoh.open(client_conf(endpoint, "operator", "wrong-password"))
+    for user, password in (("operator", "wrong-password"), (None, None)):  # a wrong password, and none at all
+        env = {k: v for k, v in os.environ.items() if not k.startswith("BLACKMETAL_ZENOH_")}
+        if user is not None:
+            env.update(BLACKMETAL_ZENOH_USER=user, BLACKMETAL_ZENOH_PASSWORD=str(password))
+        refused = subprocess.run(
+            [sys.executable, "-m", "blackmetal", "watch", "-e", endpoint, "--wait", "1"],
+            capture_output=True,
+            text=True,
+            timeout=TIMEOUT,
+            env=env,
+        )
+        assert refused.returncode == 1 and refused.stderr.count("\n") == 1 and "Traceback" not in refused.stderr
+        assert "BLACKMETAL_ZENOH_USER" in refused.stderr and f"cannot reach {endpoint}" in refused.stderr
 
 
 def test_tls_drive_and_a_client_without_the_ca_is_refused(children: list[Child], tmp_path: Path) -> None:
