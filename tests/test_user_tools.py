@@ -54,8 +54,7 @@ def tool(*args: str, timeout: float = 120) -> subprocess.CompletedProcess[str]:
 
 
 def test_up_prints_a_command_line_that_drives_the_robot(up: Up) -> None:
-    output = up.output()
-    line = next(line.strip() for line in output.splitlines() if line.strip().startswith("python3 -c"))
+    line = up.wait_line(r"^\s*python3 -c .*").group(0).strip()  # the ready announcement can overtake the printed lines
     with zenoh.open(client_config(up.zport)) as session:
         before = wait_for(lambda: get(session, "robot/pose", Pose), what="a pose")
         result = subprocess.run(line.replace("python3", sys.executable, 1), shell=True, capture_output=True, text=True, timeout=60)
@@ -198,8 +197,7 @@ def test_up_reports_a_child_that_dies() -> None:
         pids = [demo.children["odometry"]]
         for pid in pids:
             os.kill(pid, signal.SIGKILL)
-        assert demo.proc.wait(20) == 1
-        demo._reader.join(5)
+        assert demo.wait(20) == 1
         assert re.search(r"odometry exited with code -9; its last lines:\n\s+.*odometry ready", demo.output())
     finally:
         demo.stop()

@@ -149,6 +149,12 @@ class ServiceProcess:
             except ProcessLookupError:
                 pass
 
+    def wait(self, timeout: float) -> int:
+        """Wait for the child to exit by itself and for its last output lines to be read; its exit code."""
+        code = self.proc.wait(timeout)
+        self._reader.join(5)
+        return code
+
     def stop(self, sig: int = signal.SIGINT, timeout: float = 10.0) -> int:
         """Signal the child and wait; kill it if it does not exit in time. Returns its exit code."""
         self.send_signal(sig)
