@@ -84,7 +84,6 @@ class Counters:
     malformed_replies: int = 0
     rejected_inputs: int = 0
     keepalives: int = 0
-    stops_repeated: int = 0
 
 
 @dataclass
@@ -457,7 +456,6 @@ class RobotConnection:
             elif command.reason == "retry":
                 self.counters.full_buffer_retries += 1
             elif command.reason == "stop-again":
-                self.counters.stops_repeated += 1
                 self.reporter.report(
                     self._robot["control"],
                     "robot wheels still turn although it accepted a stop: asking it to stop again",

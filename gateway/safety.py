@@ -76,7 +76,6 @@ class Governor:
         self.target = (0.0, 0.0)  # wanted (v, w)
         self.current = (0.0, 0.0)  # after acceleration limits
         self.last_cmd_at = -math.inf
-        self.scaled = False
         #: The wheel speeds the robot last accepted (None: nothing accepted on this connection).
         self.accepted: WheelSpeeds | None = None
         self.accepted_at = -math.inf
@@ -89,7 +88,6 @@ class Governor:
         self._last_sent_at = -math.inf
         self._attempts = 0  # re-sends of _last_sent so far
         self._retry_at: float | None = None
-        self._gave_up = False
         self._moving = False
         self._moving_since = -math.inf
         #: When a rate-limited command may go out (None: nothing is waiting).
@@ -150,7 +148,6 @@ class Governor:
         self.accepted = None
         self._attempts = 0
         self._retry_at = None
-        self._gave_up = False
         self._moving = False
 
     def _request_emg_stop(self, now: float) -> None:
@@ -167,14 +164,12 @@ class Governor:
         if wheels == self._last_sent:
             self._attempts = 0
             self._retry_at = None
-            self._gave_up = False
 
     def on_dropped(self, wheels: WheelSpeeds, now: float) -> str | None:
         """The robot did not take ``wheels`` (FULL_BUFFER, or no reply). Returns a reason to report, if any."""
         if wheels != self._last_sent or self._retry_at is not None:
             return None  # superseded by a newer command, or a re-send is already planned
         if not wheels.is_zero and self._attempts >= self.settings.full_buffer_retries:
-            self._gave_up = True
             return f"robot did not take the velocity command {self._attempts + 1} times: given up until the command changes"
         self._attempts += 1
         self._retry_at = now + retry_delay(self._attempts)
@@ -237,7 +232,7 @@ class Governor:
             self.target = (0.0, 0.0)  # brake
         self.current = self._ramp(self.current, self.target, dt)
         s = self.settings
-        wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
+        wheels, _ = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
         wheels = wheels.rounded()
         if congested and not wheels.is_zero:
             return None
@@ -249,7 +244,6 @@ class Governor:
             self.hold_until = None
             self._attempts = 0
             self._retry_at = None
-            self._gave_up = False
             return self._sent(wheels, now, "new")
         self.hold_until = None
         if self._retry_at is not None and now >= self._retry_at:
@@ -300,10 +294,6 @@ class Governor:
         v = _approach(current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt)
         w = _approach(current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt)
         return v, w
-
-    @property
-    def wheels_sent(self) -> WheelSpeeds | None:
-        return self._last_sent
 
 
 def _approach(value: float, target: float, max_step: float | None) -> float:

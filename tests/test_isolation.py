@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import time
+from collections.abc import Iterator
 
 import pytest
 import zenoh
@@ -27,31 +29,37 @@ def _truth(session: zenoh.Session) -> Pose:
     return pose
 
 
-def test_two_demos_on_one_host_are_independent() -> None:
-    """Default flags only (no --no-multicast-scouting anywhere): a command to one demo never moves the other."""
+@contextlib.contextmanager
+def two_demos() -> Iterator[tuple[int, int]]:
+    """Two `blackmetal up` on one host with default flags; their Zenoh ports."""
     ports = (free_port(), free_port())
     ups = [Child(["-m", "blackmetal", "up", "-l", f"tcp/127.0.0.1:{port}"]) for port in ports]
     try:
         for up in ups:
             up.ready(timeout=60)
-        with zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
-            poses_a: list[bytes] = []
-            a.declare_subscriber(KEYS.pose, lambda s: poses_a.append(s.payload.to_bytes()))
-            start_b = _truth(b)
-            for _ in range(15):
-                a.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
-                time.sleep(0.1)
-            wait_for(lambda: _truth(a).x > 0.2, what="demo A to move")
-            end_b = _truth(b)
-            assert (end_b.x, end_b.y) == (start_b.x, start_b.y)  # demo B never moved
-            alive = [str(r.ok.key_expr) for r in a.liveliness().get("**/alive/**", timeout=2) if r.ok is not None]
-            assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim})  # each once: A's only
-            time.sleep(1.0)
-            rates = [json.loads(p)["stamp"] for p in poses_a[-60:]]
-            assert len(rates) >= 2 and (len(rates) - 1) / (rates[-1] - rates[0]) < 60  # 50 poses/s, not 100
+        yield ports
     finally:
         for up in ups:
             up.stop()
+
+
+def test_two_demos_on_one_host_are_independent() -> None:
+    """Default flags only (no --no-multicast-scouting anywhere): a command to one demo never moves the other."""
+    with two_demos() as ports, zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
+        poses_a: list[bytes] = []
+        a.declare_subscriber(KEYS.pose, lambda s: poses_a.append(s.payload.to_bytes()))
+        start_b = _truth(b)
+        for _ in range(15):
+            a.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
+            time.sleep(0.1)
+        wait_for(lambda: _truth(a).x > 0.2, what="demo A to move")
+        end_b = _truth(b)
+        assert (end_b.x, end_b.y) == (start_b.x, start_b.y)  # demo B never moved
+        alive = [str(r.ok.key_expr) for r in a.liveliness().get("**/alive/**", timeout=2) if r.ok is not None]
+        assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim})  # each once: A's only
+        time.sleep(1.0)
+        rates = [json.loads(p)["stamp"] for p in poses_a[-60:]]
+        assert len(rates) >= 2 and (len(rates) - 1) / (rates[-1] - rates[0]) < 60  # 50 poses/s, not 100
 
 
 @pytest.mark.parametrize("service", ["gateway", "odometry", "sim"])
@@ -110,11 +118,7 @@ def test_a_second_gateway_or_odometry_on_a_prefix_refuses_to_start() -> None:
 
 def test_a_peer_that_met_two_demos_does_not_link_them() -> None:
     """A plain Zenoh peer (its default config: gossip on) connects to both demos for 2 s and leaves; B's cmd_vel never drives A."""
-    ports = (free_port(), free_port())
-    ups = [Child(["-m", "blackmetal", "up", "-l", f"tcp/127.0.0.1:{port}"]) for port in ports]
-    try:
-        for up in ups:
-            up.ready(timeout=60)
+    with two_demos() as ports:
         conf = zenoh.Config()
         conf.insert_json5("scouting/multicast/enabled", "false")  # gossip stays at Zenoh's default
         conf.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}" for port in ports]))
@@ -129,6 +133,3 @@ def test_a_peer_that_met_two_demos_does_not_link_them() -> None:
             wait_for(lambda: _truth(b).x > 0.2, what="demo B to move")
             end_a = _truth(a)
             assert (end_a.x, end_a.y) == (start_a.x, start_a.y)  # demo A never moved
-    finally:
-        for up in ups:
-            up.stop()

@@ -26,7 +26,6 @@ class ReportLimiter:
         self._tokens: dict[str, float] = {}
         self._last: dict[str, float] = {}
         self._suppressed: dict[str, int] = {}
-        self.total_suppressed = 0
 
     def _refill(self, key: str, now: float, default: float) -> float:
         tokens = min(float(self.burst), self._tokens.get(key, default) + (now - self._last.get(key, now)) * self.rate)
@@ -40,7 +39,6 @@ class ReportLimiter:
             return True, self._suppressed.pop(key, 0)
         self._tokens[key] = tokens
         self._suppressed[key] = self._suppressed.get(key, 0) + 1
-        self.total_suppressed += 1
         return False, 0
 
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
