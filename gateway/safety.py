@@ -76,6 +76,8 @@ class Governor:
         self.target = (0.0, 0.0)  # wanted (v, w)
         self.current = (0.0, 0.0)  # after acceleration limits
         self.last_cmd_at = -math.inf
+        #: The last command was scaled down to the wheel limit (keeping its curvature).
+        self.scaled = False
         #: The wheel speeds the robot last accepted (None: nothing accepted on this connection).
         self.accepted: WheelSpeeds | None = None
         self.accepted_at = -math.inf
@@ -232,7 +234,7 @@ class Governor:
             self.target = (0.0, 0.0)  # brake
         self.current = self._ramp(self.current, self.target, dt)
         s = self.settings
-        wheels, _ = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
+        wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
         wheels = wheels.rounded()
         if congested and not wheels.is_zero:
             return None
