@@ -1,7 +1,7 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, to_bytes
-from .errors import BlackmetalError, ConfigError, PayloadError, ZenohUnavailable
+from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, require_extra
 from .jsonschema import json_schemas
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
 from .messages import (
@@ -41,6 +41,7 @@ __all__ = [
     "KeySpec",
     "Keys",
     "LinkHealth",
+    "MissingExtra",
     "PayloadError",
     "Pose",
     "PoseReset",
@@ -56,6 +57,7 @@ __all__ = [
     "excerpt",
     "json_schemas",
     "make_pose",
+    "require_extra",
     "to_bytes",
     "validate_prefix",
     "wrap_angle",

@@ -6,6 +6,7 @@ sentence instead of a traceback. The whole tree::
 
     BlackmetalError                      schemas.errors
     ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
+    │   └── MissingExtra                 schemas.errors: an optional extra (ros2, record, foxglove) is not installed
     ├── ZenohUnavailable                 schemas.errors: no Zenoh session (router down, port in use, credentials)
     ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
@@ -24,6 +25,24 @@ class BlackmetalError(Exception):
 
 class ConfigError(BlackmetalError):
     """A setting is missing, malformed or out of range; the text names it and says what would work."""
+
+
+class MissingExtra(ConfigError):
+    """A command needs an optional extra that is not installed; the text says what to ``pip install``."""
+
+    def __init__(self, command: str, extra: str, module: str) -> None:
+        self.extra = extra
+        super().__init__(f"{command} needs the {extra!r} extra (module {module!r} is missing): pip install 'blackmetal[{extra}]'")
+
+
+def require_extra(command: str, extra: str, module: str) -> None:
+    """MissingExtra unless ``module`` can be imported."""
+    import importlib
+
+    try:
+        importlib.import_module(module)
+    except ImportError:
+        raise MissingExtra(command, extra, module) from None
 
 
 class ZenohUnavailable(BlackmetalError):

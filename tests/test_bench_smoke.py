@@ -26,6 +26,8 @@ def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no
         "RSS after",
         "CPU at 100 Hz",
         "cmd_vel flood",
+        "ROS /cmd_vel -> robot p50",
+        "/odom rate at 100 Hz",
     ):
         assert row in proc.stdout
     figures = json.loads(out.read_text())

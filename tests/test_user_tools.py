@@ -37,7 +37,7 @@ class Up(Child):
 
 @pytest.fixture(scope="module")
 def up() -> Iterator[Up]:
-    demo = Up()
+    demo = Up("--ros2")
     yield demo
     demo.stop()
 
@@ -226,6 +226,30 @@ def test_estop_on_and_off_are_confirmed_by_the_gateway(up: Up) -> None:
     finally:
         off = tool("estop", "off", "-e", up.endpoint, timeout=60)
     assert off.returncode == 0 and "released" in off.stdout, off.stderr
+
+
+def test_up_with_ros2_serves_odom_and_takes_the_estop_from_ros(up: Up) -> None:
+    from blackmetal.ros2.messages import RosCodec
+
+    assert "ros2" in up.children
+    up.wait_line(r"ROS 2: node /blackmetal \(rmw_zenoh\)")
+    codec = RosCodec()
+    estop_key = f"0/estop/std_msgs::msg::dds_::Bool_/{codec.type_hash('std_msgs/msg/Bool')}"
+    odom_key = f"0/odom/nav_msgs::msg::dds_::Odometry_/{codec.type_hash('nav_msgs/msg/Odometry')}"
+    with zenoh.open(client_config(up.zport)) as session:
+        odoms: list[bytes] = []
+        session.declare_subscriber(odom_key, lambda s: odoms.append(s.payload.to_bytes()))
+        wait_for(lambda: len(odoms) >= 3, what="/odom from blackmetal up --ros2")
+
+        def estop_is(engaged: bool) -> bool:
+            session.put(estop_key, codec.encode_bool(engaged))
+            health = get(session, "robot/gateway/health", GatewayHealth)
+            return health is not None and health.estop is engaged
+
+        try:
+            wait_for(lambda: estop_is(True), what="the ROS /estop to engage the gateway's stop", interval=0.2)
+        finally:
+            wait_for(lambda: estop_is(False), what="the ROS /estop to release it", interval=0.2)
 
 
 def test_small_things_a_new_user_meets(tmp_path) -> None:  # type: ignore[no-untyped-def]

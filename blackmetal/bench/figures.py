@@ -64,29 +64,55 @@ def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
         time.sleep(0.1)
 
 
-def cmd_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
-    """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time)."""
+def ros2_adapter(zport: int) -> ServiceProcess:
+    """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint."""
+    return _service("ros2", ["ros2", "-e", f"tcp/127.0.0.1:{zport}"])
+
+
+def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False) -> dict[str, float]:
+    """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time).
+
+    With ``via_ros2`` the put is a CDR Twist on rmw_zenoh's ``/cmd_vel`` key,
+    through ``blackmetal ros2`` (one more Zenoh hop and a CDR decode).
+    """
     import zenoh
 
     robot = RobotProcess()
     zport = free_port()
     gw = gateway(robot, zport, poll_hz)
+    adapter = ros2_adapter(zport) if via_ros2 else None
     try:
         with zenoh.open(_zenoh_conf(connect=zport)) as session:
-            pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+            if adapter is not None:
+                from blackmetal.ros2.messages import RosCodec
+
+                codec = RosCodec()
+                pub = session.declare_publisher(adapter.wait_ready()["keys"]["cmd_vel"], express=EXPRESS)
+
+                def payload(speed: float) -> bytes:
+                    return codec.encode_twist(speed, 0.0)
+            else:
+                pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+
+                def payload(speed: float) -> bytes:
+                    return b'{"linear":{"x":%.6f}}' % speed
+
             wait_polls(robot)
             time.sleep(0.3)
             sent: dict[float, float] = {}
             for i in range(samples + 30):
                 speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
+                data = payload(speed)
                 start = time.time()
-                pub.put(b'{"linear":{"x":%.6f}}' % speed)
+                pub.put(data)
                 if i >= 30:  # warm-up
                     sent[speed] = start
                 time.sleep(random.uniform(*COMMAND_GAP_S))
             time.sleep(0.3)
             arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
     finally:
+        if adapter is not None:
+            adapter.stop()
         gw.stop()
         robot.close()
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
@@ -119,6 +145,40 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
         gw.stop()
         robot.close()
     return percentiles(latencies)
+
+
+def ros2_odom_rate(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
+    """Poses on ``<prefix>/pose`` and ``/odom`` samples from ``blackmetal ros2`` counted over the same window."""
+    import zenoh
+
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    odo = odometry(zport)
+    adapter = ros2_adapter(zport)
+    counts = {"pose": 0, "odom": 0}
+    try:
+        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+            session.declare_subscriber(KEYS.pose, lambda s: counts.__setitem__("pose", counts["pose"] + 1))
+            odom_key = adapter.wait_ready()["keys"]["odom"]
+            session.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
+            wait_polls(robot)
+            time.sleep(1.0)
+            start = dict(counts)
+            started = time.monotonic()
+            time.sleep(seconds)
+            end, elapsed = dict(counts), time.monotonic() - started
+            cpu = cpu_seconds(adapter.proc.pid)
+            time.sleep(1.0)
+            cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / 1.0
+    finally:
+        adapter.stop()
+        odo.stop()
+        gw.stop()
+        robot.close()
+    pose_hz = (end["pose"] - start["pose"]) / elapsed
+    odom_hz = (end["odom"] - start["odom"]) / elapsed
+    return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
 
 
 def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:

@@ -21,7 +21,7 @@ from blackmetal import robot_model as model
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, unavailable_reason, zenoh_settings
-from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose
+from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose, require_extra
 
 from .client import Latest
 from .stop_robot import stop_robot
@@ -127,6 +127,14 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--poll-hz", type=float, default=50.0, help="wheel polls per second (default 50)")
     parser.add_argument("--seed", type=int, help="simulator fault seed")
     parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
+    parser.add_argument(
+        "--ros2",
+        nargs="?",
+        const="rmw_zenoh",
+        choices=["rmw_zenoh", "bridge"],
+        metavar="FLAVOR",
+        help="also run the ROS 2 adapter (blackmetal ros2), rmw_zenoh (default) or bridge",
+    )
     parser.add_argument("-v", "--verbose", action="store_true", help="show the services' own log lines")
     add_zenoh_arguments(parser)
     return parser
@@ -135,6 +143,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 def run(args: argparse.Namespace) -> int:
     try:
         keys = Keys(args.prefix)
+        if args.ros2:
+            require_extra("blackmetal up --ros2", "ros2", "rosbags")
         settings = zenoh_settings(args)
         if not settings.listen:
             settings.listen = [DEFAULT_LISTEN]
@@ -193,12 +203,16 @@ def _run(
             args.verbose,
         )  # fmt: skip
         odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *zargs], args.verbose)
+        ros2 = _start(children, "ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *zargs], args.verbose) if args.ros2 else None
         gateway.wait_ready(READY_TIMEOUT_S)
         odometry.wait_ready(READY_TIMEOUT_S)
+        ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
     print(f"blackmetal is up: {where}, Zenoh on {hub}, prefix {prefix}", flush=True)
+    if ros2_node:
+        print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
     print(_drive_help(keys, hub), flush=True)
     announce_ready(
         "up",

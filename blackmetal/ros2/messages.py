@@ -1,0 +1,186 @@
+"""ROS 2 messages as CDR bytes, both ways, with the ``rosbags`` package's Jazzy type store.
+
+The adapter's whole contact with ROS types: blackmetal messages in, CDR
+bytes out (``/odom``, ``/tf``, ``/joint_states``), and CDR bytes in,
+blackmetal messages out (``/cmd_vel``, ``/estop``). Decoding is strict: a
+payload that is not exactly one valid message of the expected type, or
+that carries a non-finite number, is a :class:`PayloadError` saying why.
+Type hashes (``RIHS01_...``) are computed by rosbags from the type
+definitions, never copied by hand.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+from schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra
+
+TWIST = "geometry_msgs/msg/Twist"
+TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
+ODOMETRY = "nav_msgs/msg/Odometry"
+TF_MESSAGE = "tf2_msgs/msg/TFMessage"
+JOINT_STATE = "sensor_msgs/msg/JointState"
+BOOL = "std_msgs/msg/Bool"
+
+#: CDR encapsulation headers ROS 2 writes: plain CDR, little- or big-endian.
+CDR_HEADERS = (b"\x00\x01", b"\x00\x00")
+
+
+def _store() -> Any:
+    require_extra("blackmetal ros2", "ros2", "rosbags")
+    require_extra("blackmetal ros2", "ros2", "xxhash")
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def excerpt(payload: bytes) -> str:
+    """The first bytes of a binary payload in hex, as a person compares them with a dump."""
+    head = payload[:24].hex(" ")
+    return head + (" ..." if len(payload) > 24 else "")
+
+
+@dataclass(frozen=True, slots=True)
+class Frames:
+    odom: str = "odom"
+    base: str = "base_link"
+
+
+def stamp_parts(stamp: float) -> tuple[int, int]:
+    """Unix seconds -> (sec, nanosec) as builtin_interfaces/Time holds them (whole seconds first: no 1e18 rounding)."""
+    sec = math.floor(stamp)
+    nanosec = round((stamp - sec) * 1e9)
+    if nanosec >= 1_000_000_000:
+        sec, nanosec = sec + 1, nanosec - 1_000_000_000
+    return int(sec), int(nanosec)
+
+
+class RosCodec:
+    """Encodes and decodes the adapter's ROS messages; one instance holds the type store."""
+
+    def __init__(self) -> None:
+        self.store = _store()
+        t = self.store.types
+        self._Time, self._Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
+        self._Vector3, self._Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
+        self._Point, self._Pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Pose"]
+        self._PoseCov, self._Twist = t["geometry_msgs/msg/PoseWithCovariance"], t[TWIST]
+        self._TwistCov, self._Odometry = t["geometry_msgs/msg/TwistWithCovariance"], t[ODOMETRY]
+        self._Transform, self._TransformStamped = t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/TransformStamped"]
+        self._TF, self._JointState = t[TF_MESSAGE], t[JOINT_STATE]
+
+    def type_hash(self, ros_type: str) -> str:
+        return str(self.store.hash_rihs01(ros_type))
+
+    def _header(self, stamp: float, frame_id: str) -> Any:
+        sec, nanosec = stamp_parts(stamp)
+        return self._Header(stamp=self._Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+
+    def _serialize(self, message: Any, ros_type: str) -> bytes:
+        return bytes(self.store.serialize_cdr(message, ros_type))
+
+    # --------------------------------------------------------------- out
+    def odometry(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
+        """nav_msgs/Odometry: pose in ``odom``, twist in ``base_link``; covariances are 36-element arrays."""
+        import numpy as np
+
+        q = pose.orientation
+        message = self._Odometry(
+            header=self._header(pose.stamp, frames.odom),
+            child_frame_id=frames.base,
+            pose=self._PoseCov(
+                pose=self._Pose(
+                    position=self._Point(x=pose.x, y=pose.y, z=0.0),
+                    orientation=self._Quaternion(x=q.x, y=q.y, z=q.z, w=q.w),
+                ),
+                covariance=np.asarray(pose_covariance, dtype=np.float64),
+            ),
+            twist=self._TwistCov(
+                twist=self._Twist(linear=self._Vector3(x=pose.v, y=0.0, z=0.0), angular=self._Vector3(x=0.0, y=0.0, z=pose.w)),
+                covariance=np.asarray(twist_covariance, dtype=np.float64),
+            ),
+        )
+        return self._serialize(message, ODOMETRY)
+
+    def transform(self, pose: Pose, frames: Frames) -> bytes:
+        """tf2_msgs/TFMessage with the one transform odom -> base_link, stamped like the pose."""
+        q = pose.orientation
+        transform = self._TransformStamped(
+            header=self._header(pose.stamp, frames.odom),
+            child_frame_id=frames.base,
+            transform=self._Transform(
+                translation=self._Vector3(x=pose.x, y=pose.y, z=0.0),
+                rotation=self._Quaternion(x=q.x, y=q.y, z=q.z, w=q.w),
+            ),
+        )
+        return self._serialize(self._TF(transforms=[transform]), TF_MESSAGE)
+
+    def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
+        import numpy as np
+
+        message = self._JointState(
+            header=self._header(stamp, ""),
+            name=list(names),
+            position=np.asarray(positions, dtype=np.float64),
+            velocity=np.asarray(velocities, dtype=np.float64),
+            effort=np.zeros(0, dtype=np.float64),
+        )
+        return self._serialize(message, JOINT_STATE)
+
+    # --------------------------------------------------------------- in
+    def _decode(self, payload: bytes, ros_type: str) -> Any:
+        short = ros_type.rsplit("/", 1)[-1]
+        if len(payload) < 4:
+            raise PayloadError(short, f"{len(payload)} bytes: a CDR message starts with a 4-byte encapsulation header", excerpt(payload))
+        if payload[:2] not in CDR_HEADERS:
+            raise PayloadError(
+                short,
+                f"encapsulation header {payload[:4].hex(' ')} is not plain CDR (expected 00 01 00 00, little-endian)",
+                excerpt(payload),
+            )
+        try:
+            return self.store.deserialize_cdr(payload, ros_type)
+        except Exception as exc:  # rosbags raises SerdeError, struct.error, IndexError... for bad bytes
+            raise PayloadError(short, f"not a valid CDR {ros_type} ({len(payload)} bytes): {exc}", excerpt(payload)) from None
+
+    def twist(self, payload: bytes, stamped: bool = False) -> Twist:
+        """geometry_msgs/Twist (or TwistStamped) CDR -> a blackmetal Twist; PayloadError if invalid or not finite."""
+        message = self._decode(payload, TWIST_STAMPED if stamped else TWIST)
+        twist = message.twist if stamped else message
+        values = {
+            "linear.x": twist.linear.x,
+            "linear.y": twist.linear.y,
+            "linear.z": twist.linear.z,
+            "angular.x": twist.angular.x,
+            "angular.y": twist.angular.y,
+            "angular.z": twist.angular.z,
+        }
+        bad = [name for name, value in values.items() if not math.isfinite(value)]
+        if bad:
+            raise PayloadError("Twist", f"{', '.join(bad)} must be finite numbers, got {[values[b] for b in bad]}", excerpt(payload))
+        return Twist(
+            linear=Vector3(x=twist.linear.x, y=twist.linear.y, z=twist.linear.z),
+            angular=Vector3(x=twist.angular.x, y=twist.angular.y, z=twist.angular.z),
+        )
+
+    def estop(self, payload: bytes) -> EStop:
+        """std_msgs/Bool CDR -> EStop(engaged=data)."""
+        message = self._decode(payload, BOOL)
+        return EStop(engaged=bool(message.data))
+
+    # --------------------------------------------------------------- for tests and tools playing the ROS side
+    def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
+        twist = self._Twist(linear=self._Vector3(x=linear_x, y=0.0, z=0.0), angular=self._Vector3(x=0.0, y=0.0, z=angular_z))
+        if stamp is None:
+            return self._serialize(twist, TWIST)
+        stamped = self.store.types[TWIST_STAMPED](header=self._header(stamp, frame_id), twist=twist)
+        return self._serialize(stamped, TWIST_STAMPED)
+
+    def encode_bool(self, value: bool) -> bytes:
+        return self._serialize(self.store.types[BOOL](data=value), BOOL)
+
+    def decode(self, payload: bytes, ros_type: str) -> Any:
+        """Any message of the store, as rosbags' dataclass (for tests and tools)."""
+        return self._decode(payload, ros_type)

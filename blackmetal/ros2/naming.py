@@ -1,0 +1,163 @@
+"""Where ROS 2 messages live on Zenoh: rmw_zenoh's keys, liveliness tokens and attachments, and the bridge's keys.
+
+Pure string and byte work, no Zenoh and no ROS. The rmw_zenoh formats
+follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp`` and
+``attachment_helpers.cpp`` (Jazzy >= 0.2.5, Kilted, Rolling):
+
+* data key: ``<domain>/<topic without outer slashes>/<DDS type>/<type hash>``;
+* liveliness token: ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS>/
+  <enclave>/<namespace>/<node>[/<topic>/<DDS type>/<type hash>/<qos>]``,
+  every ``/`` inside a name replaced by ``%`` (so ``/`` becomes ``%``);
+* QoS: ``reliability:durability:history,depth:deadline s,ns:lifespan s,ns:
+  liveliness,lease s,ns``, each value left empty when it equals rmw_zenoh's
+  default (reliable, volatile, keep-last 42, infinite durations, automatic);
+* attachment: int64 LE sequence number, int64 LE source timestamp (ns),
+  one length byte (16), the 16-byte GID = XXH3-128 of the entity's token.
+
+zenoh-bridge-ros2dds instead puts raw CDR on the topic name without its
+leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token.
+"""
+
+from __future__ import annotations
+
+import re
+import struct
+from dataclasses import dataclass
+from enum import StrEnum
+
+from schemas import ConfigError
+
+ADMIN_SPACE = "@ros2_lv"
+ATTACHMENT_SIZE = 33
+GID_SIZE = 16
+_ATTACHMENT = struct.Struct("<qqB16s")
+
+# rmw's enum values (rmw/types.h), as rmw_zenoh writes them into a QoS string.
+RELIABILITY_RELIABLE, RELIABILITY_BEST_EFFORT = 1, 2
+DURABILITY_TRANSIENT_LOCAL, DURABILITY_VOLATILE = 1, 2
+HISTORY_KEEP_LAST, HISTORY_KEEP_ALL = 1, 2
+#: rmw_zenoh's defaults: a value equal to its default is written as an empty field.
+RMW_ZENOH_DEFAULTS = {"reliability": RELIABILITY_RELIABLE, "durability": DURABILITY_VOLATILE, "history": HISTORY_KEEP_LAST, "depth": 42}
+
+_NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
+
+
+class Flavor(StrEnum):
+    RMW_ZENOH = "rmw_zenoh"
+    BRIDGE = "bridge"
+
+
+class Direction(StrEnum):
+    PUBLISH = "MP"  # we publish: a ROS publisher in the graph
+    SUBSCRIBE = "MS"  # we subscribe: a ROS subscription
+
+
+@dataclass(frozen=True, slots=True)
+class Qos:
+    """The QoS a topic is declared with; the issue's default: reliable, volatile, keep-last 10."""
+
+    reliability: int = RELIABILITY_RELIABLE
+    durability: int = DURABILITY_VOLATILE
+    history: int = HISTORY_KEEP_LAST
+    depth: int = 10
+
+    def keyexpr(self) -> str:
+        """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
+
+        def field(name: str, value: int) -> str:
+            return "" if RMW_ZENOH_DEFAULTS[name] == value else str(value)
+
+        return (
+            f"{field('reliability', self.reliability)}:{field('durability', self.durability)}:"
+            f"{field('history', self.history)},{field('depth', self.depth)}:,:,:,,"
+        )
+
+
+def check_ros_name(kind: str, name: str) -> str:
+    """A ROS name segment (node name, namespace part): letters, digits, underscores, not starting with a digit."""
+    if not _NAME.match(name):
+        raise ConfigError(f"{kind} {name!r} is not a valid ROS name: letters, digits and '_', not starting with a digit")
+    return name
+
+
+def normalise_namespace(namespace: str | None) -> str:
+    """``r1``, ``/r1``, ``/r1/`` -> ``/r1``; none or empty -> ``/`` (ROS's root namespace)."""
+    parts = [p for p in (namespace or "").split("/") if p]
+    for part in parts:
+        check_ros_name("namespace part", part)
+    return "/" + "/".join(parts)
+
+
+def full_topic(namespace: str, topic: str) -> str:
+    """The fully qualified topic name: ``/r1`` + ``odom`` -> ``/r1/odom``."""
+    base = namespace.rstrip("/")
+    return f"{base}/{topic.strip('/')}"
+
+
+def dds_type(ros_type: str) -> str:
+    """``geometry_msgs/msg/Twist`` -> ``geometry_msgs::msg::dds_::Twist_`` (the name rmw_zenoh puts in keys)."""
+    package, kind, name = ros_type.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def mangle(name: str) -> str:
+    """rmw_zenoh's ``mangle_name``: every ``/`` becomes ``%`` so a name is one key chunk."""
+    return name.replace("/", "%")
+
+
+def rmw_zenoh_data_key(domain_id: int, topic: str, ros_type: str, type_hash: str) -> str:
+    return f"{domain_id}/{topic.strip('/')}/{dds_type(ros_type)}/{type_hash}"
+
+
+def bridge_data_key(topic: str) -> str:
+    """zenoh-bridge-ros2dds: the fully qualified topic name without its leading slash."""
+    return topic.strip("/")
+
+
+@dataclass(frozen=True, slots=True)
+class NodeIdentity:
+    """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace."""
+
+    domain_id: int
+    zid: str
+    name: str
+    namespace: str = "/"
+    enclave: str = "/"
+    node_id: int = 0
+
+    def _head(self, entity_id: int, kind: str) -> str:
+        return (
+            f"{ADMIN_SPACE}/{self.domain_id}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
+            f"{mangle(self.enclave)}/{mangle(self.namespace)}/{mangle(self.name)}"
+        )
+
+    def node_token(self) -> str:
+        return self._head(self.node_id, "NN")
+
+    def entity_token(self, entity_id: int, direction: Direction, topic: str, ros_type: str, type_hash: str, qos: Qos) -> str:
+        return f"{self._head(entity_id, direction.value)}/{mangle(topic)}/{dds_type(ros_type)}/{type_hash}/{qos.keyexpr()}"
+
+
+def gid_of(token: str) -> bytes:
+    """An entity's 16-byte GID as rmw_zenoh computes it: XXH3-128 of its liveliness token, low half first."""
+    import xxhash
+
+    return xxhash.xxh3_128_intdigest(token.encode()).to_bytes(GID_SIZE, "little")
+
+
+def attachment(sequence: int, source_timestamp_ns: int, gid: bytes) -> bytes:
+    """The 33-byte attachment every rmw_zenoh subscriber requires on a sample."""
+    return _ATTACHMENT.pack(sequence, source_timestamp_ns, GID_SIZE, gid)
+
+
+def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
+    """(sequence, source timestamp ns, gid) from an rmw_zenoh attachment; ValueError if it is not one."""
+    if len(data) != ATTACHMENT_SIZE or data[16] != GID_SIZE:
+        raise ValueError(f"an rmw_zenoh attachment is {ATTACHMENT_SIZE} bytes with a length byte 16, got {len(data)} bytes")
+    sequence, stamp, _, gid = _ATTACHMENT.unpack(data)
+    return sequence, stamp, gid
+
+
+def split_token(token: str) -> list[str]:
+    """The parts rmw_zenoh's parser splits a token into (``Entity::make``)."""
+    return token.split("/")
