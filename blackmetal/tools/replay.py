@@ -1,36 +1,85 @@
 """``blackmetal replay FILE``: a recorded impulse log through the odometry pipeline in one numpy pass.
 
-The file holds JSON lines of WheelImpulses, exactly as published on
+FILE is an MCAP recording (``blackmetal record``, ``blackmetal square
+--record``) or JSON lines of WheelImpulses exactly as published on
 ``<prefix>/wheels/impulses``. The last line of stdout is the final pose as
-one JSON object; ``-o FILE`` writes every pose as JSON lines.
+one JSON object; ``-o FILE`` writes every pose as JSON lines; ``--compare``
+sets the replay against the live poses a recording holds;
+``--export-jsonl FILE`` writes a recording's impulses as JSON lines.
 """
 
 from __future__ import annotations
 
 import argparse
+import math
 import sys
+from collections.abc import Callable
+from pathlib import Path
 
+import msgspec
+import numpy as np
+
+from blackmetal.recording.reader import is_mcap, topic_lines
 from blackmetal.runtime.settings import add_setting_arguments, load_settings
-from odometry_service.replay import final_pose, replay_file, summary, write_poses
+from odometry_service.batch import BatchResult
+from odometry_service.replay import final_pose, read_log, summary, write_poses
 from odometry_service.settings import PipelineSettings
-from schemas import BlackmetalError, encode
+from schemas import KEY_SPECS, BlackmetalError, ConfigError, Pose, encode
+
+_SUFFIX = {spec.name: spec.suffix for spec in KEY_SPECS}
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal replay", description=__doc__)
-    parser.add_argument("file", help="JSON-lines file of WheelImpulses")
-    parser.add_argument("-o", "--output", metavar="FILE", help="write every pose as JSON lines")
-    parser.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
-    add_setting_arguments(parser, PipelineSettings)
-    return parser
+def key_matcher(prefix: str | None, name: str) -> Callable[[str], bool]:
+    """Matches the recording's channel of key ``name`` (``impulses``): under ``prefix`` if given, else under any prefix."""
+    suffix = _SUFFIX[name]
+    if prefix:
+        return lambda topic: topic == f"{prefix}/{suffix}"
+    return lambda topic: topic.endswith("/" + suffix)
+
+
+def load_impulses(path: str, prefix: str | None) -> tuple[bytes, str | None]:
+    """The impulses as JSON lines, from an MCAP recording or a JSON-lines file; and what a cut-off recording lacked."""
+    if is_mcap(path):
+        return topic_lines(path, key_matcher(prefix, "impulses"))
+    try:
+        return Path(path).read_bytes(), None
+    except OSError as exc:
+        raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+
+
+def compare(result: BatchResult, path: str, prefix: str | None) -> str:
+    """The largest difference between the live poses recorded and the replayed poses of the same stamps."""
+    text, _ = topic_lines(path, key_matcher(prefix, "pose"))
+    live = msgspec.json.Decoder(Pose).decode_lines(text) if text.strip() else []
+    if not live:
+        return f"--compare: {path} holds no poses to compare with"
+    index = {float(s): k for k, s in enumerate(result.stamp)}
+    pairs = [(pose, index[pose.stamp]) for pose in live if pose.stamp in index]
+    if not pairs:
+        return f"--compare: none of the {len(live)} live poses has the stamp of a replayed one"
+    dist = np.array([math.hypot(p.x - result.x[k], p.y - result.y[k]) for p, k in pairs])
+    dyaw = np.array([abs(math.remainder(p.yaw - result.yaw[k], math.tau)) for p, k in pairs])
+    worst = int(np.argmax(dist))
+    return (
+        f"--compare: {len(pairs)} of {len(live)} live poses matched by stamp; largest difference "
+        f"{1e3 * dist.max():.3f} mm (at stamp {pairs[worst][0].stamp:.3f}), {1e3 * dyaw.max():.3f} mrad"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(PipelineSettings, args)
-        result = replay_file(args.file, settings.params())
+        data, truncated = load_impulses(args.file, args.prefix)
+        if args.export_jsonl:
+            lines = [line.strip() for line in data.splitlines() if line.strip()]
+            Path(args.export_jsonl).write_bytes(b"".join(line + b"\n" for line in lines))
+        result = read_log(data).replay(settings.params())
+        comparison = compare(result, args.file, args.prefix) if args.compare and is_mcap(args.file) else None
     except BlackmetalError as exc:
         print(f"blackmetal replay: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"blackmetal replay: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
         return 2
     if not len(result):
         print(f"blackmetal replay: {args.file} holds no usable impulse sample: nothing to replay", file=sys.stderr)
@@ -39,11 +88,27 @@ def run(args: argparse.Namespace) -> int:
         with open(args.output, "wb") as out:
             write_poses(result, out)
     if not args.quiet:
+        if truncated:
+            print(f"note: the recording ends early (its recorder was stopped abruptly): {truncated}", file=sys.stderr)
         print(summary(result), file=sys.stderr)
         for reason in result.rejected[:5]:
             print(f"rejected: {reason}", file=sys.stderr)
         for event in result.events[:5]:
             print(f"note: {event}", file=sys.stderr)
+    if args.compare:
+        print(comparison or "--compare needs an MCAP recording that holds the live poses", file=sys.stderr)
     sys.stdout.buffer.write(encode(final_pose(result)) + b"\n")
     sys.stdout.flush()
     return 0
+
+
+def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    parser = parser or argparse.ArgumentParser(prog="blackmetal replay", description=__doc__)
+    parser.add_argument("file", help="MCAP recording, or JSON-lines file of WheelImpulses")
+    parser.add_argument("-o", "--output", metavar="FILE", help="write every pose as JSON lines")
+    parser.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
+    parser.add_argument("--prefix", help="in a recording, the robot's prefix (default: the one impulses channel it holds)")
+    parser.add_argument("--compare", action="store_true", help="print the largest difference from the live poses of the recording")
+    parser.add_argument("--export-jsonl", metavar="FILE", help="also write the impulses as JSON lines")
+    add_setting_arguments(parser, PipelineSettings)
+    return parser

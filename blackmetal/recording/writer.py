@@ -1,0 +1,156 @@
+"""MCAP recordings of the robot's keys, written with the ``mcap`` package: evidence first.
+
+One channel per key, registered when the key first speaks. A key that
+carries a known message gets message encoding ``json`` and that message's
+JSON Schema (schema encoding ``jsonschema``), so Foxglove, the ``mcap`` CLI
+and any MCAP reader understand the file without blackmetal; other keys get a
+channel without a schema. Payloads are written byte for byte as received,
+invalid ones included. Log time is the arrival time; publish time is the
+message's own ``stamp`` where it has one.
+
+Chunks are closed by :meth:`McapRecording.flush`, which the recorder calls
+at least once a second, so a recorder killed mid-run loses at most the last
+second: everything before is in closed chunks that ordinary streaming MCAP
+readers read. ``split_bytes`` rotates to a new file (``name-001.mcap``, ...)
+once a file has grown that large.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import IO, Any
+
+import msgspec
+
+from schemas import ConfigError, Keys, json_schemas, require_extra
+
+#: Zstandard-compressed chunks of at most this many bytes (closed earlier by flush()).
+CHUNK_BYTES = 1 << 20
+PROFILE = ""  # not a ROS profile: JSON channels
+LIBRARY = "blackmetal"
+
+
+class _Stamped(msgspec.Struct):
+    stamp: float
+
+
+_stamp_decoder = msgspec.json.Decoder(_Stamped)
+
+
+def publish_time_ns(payload: bytes, log_time_ns: int) -> int:
+    """The message's own stamp (Unix seconds) in ns, or the log time if it has none or is not valid JSON."""
+    try:
+        stamp = _stamp_decoder.decode(payload).stamp
+    except (msgspec.DecodeError, msgspec.ValidationError):
+        return log_time_ns
+    if not 0.0 < stamp < 1e10:
+        return log_time_ns
+    return int(stamp * 1e9)
+
+
+def message_name_for(keys: Keys, key: str) -> str | None:
+    """The schema name of the message carried on ``key`` (``Pose``...), None for keys without one."""
+    message = keys.message_for(key)
+    return None if message is None else message.__name__
+
+
+@dataclass
+class ChannelStats:
+    messages: int = 0
+    bytes: int = 0
+
+
+@dataclass
+class McapRecording:
+    """Writes samples of the robot's keys to one MCAP file, or a numbered series when split."""
+
+    path: Path
+    keys: Keys
+    split_bytes: int | None = None
+    clock_ns: Callable[[], int] = time.time_ns
+    files: list[Path] = field(default_factory=list)
+    stats: dict[str, ChannelStats] = field(default_factory=dict)
+    total_bytes: int = 0
+
+    def __post_init__(self) -> None:
+        require_extra("blackmetal record", "record", "mcap")
+        self._schemas = {name: json.dumps(schema).encode() for name, schema in json_schemas().items()}
+        self._stream: IO[bytes] | None = None
+        self._writer: Any = None
+        self._channels: dict[str, int] = {}
+        self._open()
+
+    def _next_path(self) -> Path:
+        if not self.files:
+            return self.path
+        return self.path.with_name(f"{self.path.stem}-{len(self.files):03d}{self.path.suffix}")
+
+    def _open(self) -> None:
+        from mcap.writer import CompressionType, IndexType, Writer
+
+        path = self._next_path()
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self._stream = open(path, "wb")  # noqa: SIM115 - closed in _close()
+        except OSError as exc:
+            raise ConfigError(f"cannot write the recording {path}: {exc.strerror}") from None
+        self.files.append(path)
+        # Chunk indexes only: readers seek by chunk; per-message indexes would double the work of every streaming read.
+        index = IndexType.ALL & ~IndexType.MESSAGE
+        self._writer = Writer(self._stream, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD, index_types=index)
+        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._writer.add_metadata("blackmetal", {"prefix": self.keys.prefix, "part": str(len(self.files))})
+        self._channels = {}
+
+    def _channel(self, key: str) -> int:
+        channel = self._channels.get(key)
+        if channel is None:
+            name = message_name_for(self.keys, key)
+            schema_id = 0
+            if name is not None:
+                schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=self._schemas[name])
+            channel = self._channels[key] = self._writer.register_channel(topic=key, message_encoding="json", schema_id=schema_id)
+        return channel
+
+    def write(self, key: str, payload: bytes, log_time_ns: int | None = None) -> None:
+        """One sample as received; never raises for what the payload holds."""
+        log_time = self.clock_ns() if log_time_ns is None else log_time_ns
+        channel = self._channel(key)
+        stats = self.stats.setdefault(key, ChannelStats())
+        stats.messages += 1
+        stats.bytes += len(payload)
+        self.total_bytes += len(payload)
+        self._writer.add_message(
+            channel_id=channel,
+            log_time=log_time,
+            data=payload,
+            publish_time=publish_time_ns(payload, log_time),
+            sequence=stats.messages,
+        )
+        if self.split_bytes and self._stream is not None and self._stream.tell() >= self.split_bytes:
+            self._close()
+            self._open()
+
+    def flush(self) -> None:
+        """Close the chunk in progress and write it out: what is written survives a kill from now on."""
+        self._writer.flush()
+
+    def _close(self) -> None:
+        if self._writer is not None:
+            self._writer.finish()
+            self._writer = None
+        if self._stream is not None:
+            self._stream.close()
+            self._stream = None
+
+    def close(self) -> None:
+        """Finish the file properly (summary, indexes): Ctrl-C and SIGTERM end here."""
+        self._close()
+
+    def progress(self, elapsed: float) -> str:
+        per_key = ", ".join(f"{key.removeprefix(self.keys.prefix + '/')} {s.messages}" for key, s in sorted(self.stats.items()))
+        return f"recording {self.files[-1].name}: {elapsed:.0f} s, {self.total_bytes / 1e6:.2f} MB | {per_key or 'waiting for messages'}"
