@@ -32,6 +32,7 @@ class Recorded:
     path: Path
     channels: dict[str, Channel]
     truncated: str | None = None
+    metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
 
     def find(self, suffix: str) -> Channel | None:
         """The one channel whose key ends with ``/suffix`` (``wheels/impulses``), None if there is none."""
@@ -51,9 +52,11 @@ def is_mcap(path: str | Path) -> bool:
 
 
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded:
-    """Every message of the chosen topics (all by default); a truncated end is noted, not fatal."""
+    """Every message of the chosen topics (all by default), and the metadata records; a truncated end is noted, not fatal."""
     require_extra("reading MCAP", "record", "mcap")
-    from mcap.reader import NonSeekingReader
+    from mcap.records import Channel as ChannelRecord
+    from mcap.records import Message, Metadata, Schema
+    from mcap.stream_reader import StreamReader
 
     path = Path(path)
     wanted = None if topics is None else set(topics)
@@ -63,25 +66,34 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
         stream = open(path, "rb")  # noqa: SIM115 - closed below
     except OSError as exc:
         raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+    metadata: list[tuple[str, dict[str, str]]] = []
+    schemas: dict[int, str] = {}
+    known: dict[int, Channel | None] = {}
     with stream:
-        reader = NonSeekingReader(stream, validate_crcs=False)
         try:
-            for schema, channel, message in reader.iter_messages(
-                log_time_order=False
-            ):  # in file order: a cut-off end spoils nothing before it
-                if wanted is not None and channel.topic not in wanted:
-                    continue
-                out = channels.get(channel.topic)
-                if out is None:
-                    out = channels[channel.topic] = Channel(channel.topic, None if schema is None else schema.name)
-                out.payloads.append(message.data)
-                out.log_times.append(message.log_time)
-                out.publish_times.append(message.publish_time)
+            # in file order: a cut-off end spoils nothing before it
+            for record in StreamReader(stream, validate_crcs=False).records:
+                if isinstance(record, Message):
+                    out = known.get(record.channel_id)
+                    if out is not None:
+                        out.payloads.append(record.data)
+                        out.log_times.append(record.log_time)
+                        out.publish_times.append(record.publish_time)
+                elif isinstance(record, ChannelRecord):
+                    if wanted is None or record.topic in wanted:
+                        out = channels.get(record.topic) or Channel(record.topic, schemas.get(record.schema_id))
+                        channels[record.topic] = known[record.id] = out
+                    else:
+                        known[record.id] = None
+                elif isinstance(record, Schema):
+                    schemas[record.id] = record.name
+                elif isinstance(record, Metadata):
+                    metadata.append((record.name, dict(record.metadata)))
         except Exception as exc:  # the mcap package raises several types for a cut-off or damaged file
             if not channels:
                 raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
             truncated = str(exc) or type(exc).__name__
-    return Recorded(path, channels, truncated)
+    return Recorded(path, channels, truncated, metadata)
 
 
 _MESSAGE, _CHANNEL = 0x05, 0x04

@@ -30,6 +30,7 @@ class SessionRecorder:
         self.flush_period = flush_period
         self.error: BaseException | None = None
         self._queue: deque[tuple[str, bytes, int]] = deque()
+        self._notes: deque[tuple[str, dict[str, str]]] = deque()
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
         self._thread.start()
@@ -43,11 +44,17 @@ class SessionRecorder:
             payload = b""
         self._queue.append((str(sample.key_expr), payload, arrival))
 
+    def note(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record (e.g. where a run starts and ends), written by the writer thread."""
+        self._notes.append((name, data))
+
     def _drain(self) -> None:
         queue, write = self._queue, self.recording.write
         while queue:
             key, payload, arrival = queue.popleft()
             write(key, payload, arrival)
+        while self._notes:
+            self.recording.metadata(*self._notes.popleft())
 
     def _run(self) -> None:
         next_flush = time.monotonic() + self.flush_period

@@ -135,6 +135,10 @@ class McapRecording:
             self._close()
             self._open()
 
+    def metadata(self, name: str, data: dict[str, str]) -> None:
+        """A named metadata record: ``blackmetal square`` marks each run's span this way."""
+        self._writer.add_metadata(name, data)
+
     def flush(self) -> None:
         """Close the chunk in progress and write it out: what is written survives a kill from now on."""
         self._writer.flush()

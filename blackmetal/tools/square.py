@@ -6,7 +6,9 @@ closure error: where the odometry believes it ended relative to where it
 started, and, with the simulator, where it really ended. Their difference is
 the odometry's error. ``--both`` drives counter-clockwise then clockwise,
 as UMBmark does; ``--plot out.png`` draws odometry against truth (needs the
-``plot`` extra: matplotlib).
+``plot`` extra: matplotlib); ``--record run.mcap`` records the run
+(impulses, poses, truth, cmd_vel, and each square's span as MCAP metadata)
+for ``blackmetal replay`` and ``blackmetal calibrate``.
 """
 
 from __future__ import annotations
@@ -18,12 +20,15 @@ import sys
 import threading
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import zenoh
 
+from blackmetal.recording.recorder import SessionRecorder
+from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.signals import stop_on_signals
-from schemas import Pose, Twist, Vector3, encode
+from schemas import Pose, Twist, Vector3, encode, require_extra
 
 from .client import (
     Latest,
@@ -238,10 +243,16 @@ def plot(runs: list[Run], path: str) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.plot:
         _matplotlib()  # before driving the whole route, not after
+    if args.record:
+        require_extra("blackmetal square --record", "record", "mcap")
     keys, settings, session = connect(args)
     stop = stop_on_signals()
+    recorder: SessionRecorder | None = None
     with session:
         try:
+            if args.record:
+                recording = McapRecording(Path(args.record), keys)
+                recorder = SessionRecorder(session, [keys.impulses, keys.pose, keys.sim_truth, keys.cmd_vel], recording)
             health = require_gateway(session, keys, settings, args.wait)
             if health.estop:
                 raise ToolError("the emergency stop is engaged; release it first with `blackmetal estop off` (same -e and --prefix)")
@@ -256,12 +267,25 @@ def run(args: argparse.Namespace) -> int:
             print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {where(settings)}", flush=True)
             runs = []
             for clockwise in [False, True] if args.both else [args.clockwise]:
+                started = time.time_ns()
                 result = drive_square(driver, args.size, clockwise, truth if has_truth else None)
                 runs.append(result)
+                if recorder is not None:
+                    span = {
+                        "direction": result.direction,
+                        "size_m": repr(args.size),
+                        "start_ns": str(started),
+                        "end_ns": str(time.time_ns()),
+                    }
+                    recorder.note("blackmetal.square", span)
                 print(report(result), flush=True)
         except Cancelled:
             print("blackmetal square: cancelled; robot stopped", file=sys.stderr)
             return 130
+        finally:
+            if recorder is not None:
+                recorder.stop()
+                print(f"recorded {', '.join(str(f) for f in recorder.recording.files)}", flush=True)
     if args.json:
         out = [{"direction": r.direction, "odometry": r.odometry.as_dict(), "truth": r.truth.as_dict() if r.truth else None} for r in runs]
         print(json.dumps(out))
@@ -280,5 +304,6 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--both", action="store_true", help="counter-clockwise, then clockwise (UMBmark)")
     parser.add_argument("--plot", metavar="PNG", help="draw odometry vs truth (needs matplotlib)")
     parser.add_argument("--json", action="store_true", help="also print the closures as JSON")
+    parser.add_argument("--record", metavar="FILE.mcap", help="record the run (impulses, poses, truth, cmd_vel) for replay and calibration")
     add_client_arguments(parser)
     return parser

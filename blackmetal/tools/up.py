@@ -135,6 +135,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         metavar="FLAVOR",
         help="also run the ROS 2 adapter (blackmetal ros2), rmw_zenoh (default) or bridge",
     )
+    parser.add_argument("--foxglove", action="store_true", help="also serve a live Foxglove view (blackmetal foxglove)")
+    parser.add_argument("--foxglove-port", type=int, default=8765, help="its WebSocket port (default 8765)")
     parser.add_argument("-v", "--verbose", action="store_true", help="show the services' own log lines")
     add_zenoh_arguments(parser)
     return parser
@@ -145,6 +147,8 @@ def run(args: argparse.Namespace) -> int:
         keys = Keys(args.prefix)
         if args.ros2:
             require_extra("blackmetal up --ros2", "ros2", "rosbags")
+        if args.foxglove:
+            require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
         settings = zenoh_settings(args)
         if not settings.listen:
             settings.listen = [DEFAULT_LISTEN]
@@ -207,12 +211,18 @@ def _run(
         gateway.wait_ready(READY_TIMEOUT_S)
         odometry.wait_ready(READY_TIMEOUT_S)
         ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
+        view = None
+        if args.foxglove:
+            view_args = ["foxglove", "--prefix", prefix, "--port", str(args.foxglove_port), *zargs]
+            view = _start(children, "foxglove", view_args, args.verbose).wait_ready(READY_TIMEOUT_S)["url"]
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
     print(f"blackmetal is up: {where}, Zenoh on {hub}, prefix {prefix}", flush=True)
     if ros2_node:
         print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
+    if view:
+        print(f"Foxglove: open a Foxglove WebSocket connection to {view} (layout: deploy/foxglove/blackmetal.layout.json)", flush=True)
     print(_drive_help(keys, hub), flush=True)
     announce_ready(
         "up",

@@ -1,0 +1,129 @@
+"""The live Foxglove view, seen by a WebSocket client that speaks Foxglove's protocol as the app does."""
+
+from __future__ import annotations
+
+import base64
+import itertools
+import json
+import struct
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from helpers import Child, SimProcess, client_config, free_port, zenoh_connect_args, zenoh_listen_args
+from mcap.reader import make_reader
+from websockets.sync.client import connect
+
+from schemas import Pose, decode
+
+#: The subprotocols Foxglove's app offers.
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+EXPECTED = {
+    "/pose": "foxglove.PoseInFrame",
+    "/tf": "foxglove.FrameTransform",
+    "/path": "foxglove.PosesInFrame",
+    "/truth/pose": "foxglove.PoseInFrame",
+    "/truth/path": "foxglove.PosesInFrame",
+    "/odometry": "Pose",
+    "/wheels": "WheelSpeeds",
+    "/status": "RobotStatus",
+    "/health": "GatewayHealth",
+    "/errors": "ErrorReport",
+    "/log": "foxglove.Log",
+}
+
+
+def protobuf_class(channel: dict[str, Any]) -> Any:
+    """The message class of an advertised protobuf channel, built from its FileDescriptorSet."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for file in files.file:
+        pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+@pytest.mark.integration
+def test_foxglove_client_sees_the_robot_drive(children: list[Child], tmp_path: Path) -> None:
+    zport = free_port()
+    sim = SimProcess(*zenoh_listen_args(zport))
+    children.append(sim)
+    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zenoh_connect_args(zport)])
+    odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
+    mcap_path = tmp_path / "view.mcap"
+    view = Child(["-m", "blackmetal", "foxglove", "--port", "0", "--mcap", str(mcap_path), *zenoh_connect_args(zport)])
+    children.extend([gateway, odometry, view])
+    gateway.ready()
+    odometry.ready()
+    url = view.ready()["url"]
+    with connect(url, subprotocols=SUBPROTOCOLS, open_timeout=20) as ws, zenoh.open(client_config(zport)) as session:  # type: ignore[arg-type]
+        assert ws.subprotocol in SUBPROTOCOLS
+        channels: dict[str, dict[str, Any]] = {}
+        server_info = None
+        deadline = time.monotonic() + 20
+        while (server_info is None or set(channels) < set(EXPECTED)) and time.monotonic() < deadline:
+            message = ws.recv(timeout=20)
+            if isinstance(message, str):
+                op = json.loads(message)
+                if op["op"] == "serverInfo":
+                    server_info = op
+                elif op["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in op["channels"]})
+        assert server_info is not None and server_info["name"] == "blackmetal"
+        assert {topic: channels[topic]["schemaName"] for topic in EXPECTED} == EXPECTED
+        assert channels["/odometry"]["encoding"] == "json" and channels["/odometry"]["schemaEncoding"] == "jsonschema"
+        pose_class = protobuf_class(channels["/pose"])
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels["/pose"]["id"]}]}))
+
+        xs: list[float] = []
+        frames: set[str] = set()
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:  # drive forward at 10 Hz and read what the view sends
+            session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.3}}))
+            stop_reading = time.monotonic() + 0.1
+            while time.monotonic() < stop_reading:
+                try:
+                    message = ws.recv(timeout=0.05)
+                except TimeoutError:
+                    break
+                if isinstance(message, bytes) and message[0] == 0x01:
+                    (subscription,) = struct.unpack_from("<I", message, 1)
+                    assert subscription == 7
+                    pose = pose_class.FromString(message[13:])
+                    xs.append(pose.pose.position.x)
+                    frames.add(pose.frame_id)
+        replies = [r for r in session.get("robot/pose", timeout=5) if r.ok is not None]
+        odometry_x = decode(Pose, replies[0].ok.payload.to_bytes()).x
+        assert frames == {"odom"}
+        assert len(xs) > 50 and xs[-1] - xs[0] > 0.3, (xs[:3], xs[-3:])
+        assert all(b >= a - 1e-9 for a, b in itertools.pairwise(xs)), "x follows the forward drive"
+        assert abs(xs[-1] - odometry_x) < 0.1
+    assert view.stop() == 0
+    with open(mcap_path, "rb") as handle:
+        topics = {channel.topic for _, channel, _ in make_reader(handle).iter_messages()}
+    assert {"/pose", "/tf", "/path", "/odometry", "/wheels"} <= topics
+
+
+def test_the_shipped_layout_uses_the_views_topics() -> None:
+    layout = json.loads((Path(__file__).parent.parent / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
+    used: set[str] = set()
+
+    def walk(node: Any) -> None:
+        if isinstance(node, dict):
+            for key, value in node.items():
+                if key == "topics" and isinstance(value, dict):
+                    used.update(value)
+                elif key in ("value", "topicToRender", "topicPath") and isinstance(value, str):
+                    used.add(value.split(".")[0])
+                elif key == "followTf":
+                    assert value == "base_link"
+                walk(value)
+        elif isinstance(node, list):
+            for item in node:
+                walk(item)
+
+    walk(layout)
+    assert used and used <= set(EXPECTED), used - set(EXPECTED)
+    assert {"/odometry", "/log", "/path"} <= used
