@@ -28,6 +28,8 @@ def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no
         "cmd_vel flood",
         "ROS /cmd_vel -> robot p50",
         "/odom rate at 100 Hz",
+        "replay from MCAP",
+        "recorder at 200 Hz polling",
     ):
         assert row in proc.stdout
     figures = json.loads(out.read_text())

@@ -105,6 +105,8 @@ def measure(quick: bool, progress: Any = print) -> dict[str, Any]:
     out["poll"] = {str(int(hz)): figures.poll_rate(hz, 1.5 if quick else 5.0) for hz in (100.0, 200.0)}
     progress("replay throughput against the streaming path ...")
     out["replay"] = figures.replay_throughput(50_000 if quick else 1_000_000, 5_000 if quick else 100_000)
+    progress("recorder CPU and bytes/s at 100 and 200 Hz ...")
+    out["recorder"] = {str(int(hz)): figures.recorder_load(hz, 2.0 if quick else 10.0) for hz in (100.0, 200.0)}
     progress(f"memory and CPU after {3 if quick else 60} s at 100 Hz ...")
     out["memory"] = figures.memory_and_cpu(3.0 if quick else 60.0)
     progress("cmd_vel flood ...")
@@ -167,6 +169,12 @@ def table(f: dict[str, Any]) -> str:
          f"streaming {r['stream_per_s'] / 1e3:.0f} k/s",
          f"{r['ratio']:.0f}x (>= 1 M/s{met(r['replay_per_s'] >= 1e6)}; >= 20x{met(r['ratio'] >= 20)})")
     )  # fmt: skip
+    rows.append(
+        ("replay from MCAP (same samples)", f"{r['mcap_replay_per_s'] / 1e6:.2f} M/s", f"JSON lines {r['replay_per_s'] / 1e6:.2f} M/s",
+         f"{r['mcap_over_jsonl']:.2f}x (>= 1 M/s{met(r['mcap_replay_per_s'] >= 1e6)})")
+    )  # fmt: skip
+    for hz, rec in f["recorder"].items():
+        rows.append((f"recorder at {hz} Hz polling", f"CPU {rec['cpu_pct']:.1f}% of a core, {rec['bytes_per_s'] / 1e3:.1f} kB/s", "-", "report"))
     m = f["memory"]
     rows.append(
         (f"RSS after {m['seconds']:.0f} s at 100 Hz", f"gateway {m['gateway_mb']:.1f} MB, odometry {m['odometry_mb']:.1f} MB",

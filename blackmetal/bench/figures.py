@@ -243,6 +243,18 @@ t2 = time.perf_counter()
 print(len(result), t2 - t1)
 """
 
+_MCAP_REPLAY_SNIPPET = """
+import sys, time
+from blackmetal.tools.replay import load_impulses
+from odometry_service.replay import read_log
+import mcap.records, mcap.stream_reader, zstandard  # imported before the clock starts, as the JSON-lines figure does
+t1 = time.perf_counter()
+data, _ = load_impulses(sys.argv[1], None)
+result = read_log(data).replay()
+t2 = time.perf_counter()
+print(len(result), t2 - t1)
+"""
+
 _STREAM_SNIPPET = """
 import sys, time, msgspec
 from odometry_service.core import Odometry
@@ -256,6 +268,48 @@ for line in lines:
 t1 = time.perf_counter()
 print(len(lines), t1 - t0)
 """
+
+
+def mcap_replay(jsonl: Path) -> list[tuple[int, float]]:
+    """The same log written as an MCAP recording, replayed three times in fresh processes (file reading included)."""
+    from blackmetal.recording.writer import McapRecording
+
+    path = jsonl.with_suffix(".mcap")
+    recording = McapRecording(path, KEYS)
+    for i, line in enumerate(jsonl.read_bytes().splitlines()):
+        recording.write(KEYS.impulses, line, 1_795_000_000_000_000_000 + 10_000_000 * i)
+        if i % 100 == 99:  # a chunk per second at 100 Hz, as the recorder writes them
+            recording.flush()
+    recording.close()
+    runs = []
+    for _ in range(3):
+        out = subprocess.run([sys.executable, "-c", _MCAP_REPLAY_SNIPPET, str(path)], capture_output=True, text=True, check=True)
+        count, seconds = out.stdout.split()
+        runs.append((int(count), float(seconds)))
+    return runs
+
+
+def recorder_load(poll_hz: float, seconds: float) -> dict[str, float]:
+    """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
+    robot = RobotProcess()
+    zport = free_port()
+    gw = gateway(robot, zport, poll_hz)
+    odo = odometry(zport)
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "bench.mcap"
+        recorder = _service("record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
+        try:
+            wait_polls(robot)
+            time.sleep(1.0)
+            cpu0, size0, t0 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
+            time.sleep(seconds)
+            cpu1, size1, t1 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
+        finally:
+            recorder.stop()
+            odo.stop()
+            gw.stop()
+            robot.close()
+    return {"poll_hz": poll_hz, "cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0), "bytes_per_s": (size1 - size0) / (t1 - t0)}
 
 
 def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
@@ -277,9 +331,13 @@ def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
 
         replay_runs = [fresh(_REPLAY_SNIPPET) for _ in range(3)]
         stream_count, stream_seconds = fresh(_STREAM_SNIPPET, str(stream_samples))
+        mcap_runs = mcap_replay(path)
     rates = [count / seconds for count, seconds in replay_runs]
     stream_rate = stream_count / stream_seconds
+    mcap_rates = [count / seconds for count, seconds in mcap_runs]
     return {
+        "mcap_replay_per_s": statistics.median(mcap_rates),
+        "mcap_over_jsonl": statistics.median(mcap_rates) / statistics.median(rates),
         "samples": replay_runs[0][0],
         "replay_per_s": statistics.median(rates),
         "replay_min_per_s": min(rates),
