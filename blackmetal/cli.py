@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "odometry": ("odometry_service.main", "run the odometry service (impulses -> pose)"),
     "ros2": ("blackmetal.ros2.main", "run the ROS 2 adapter: the robot as a ROS 2 node over rmw_zenoh or zenoh-bridge-ros2dds"),
     "foxglove": ("blackmetal.foxglove.main", "serve a live Foxglove view of the robot (WebSocket), optionally to MCAP"),
+    "calibrate": ("blackmetal.tools.calibrate", "fit the odometry's constants from recordings (UMBmark or a trajectory fit)"),
     "record": ("blackmetal.tools.record", "record the robot's keys into an MCAP file"),
     "replay": ("blackmetal.tools.replay", "replay a recorded impulse log through the odometry"),
     "up": ("blackmetal.tools.up", "run the demo: simulator, gateway and odometry in one command"),

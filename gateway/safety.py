@@ -56,6 +56,9 @@ class SafetySettings:
     full_buffer_retries: int = 5
     #: At most this many velocity commands per second reach the robot; a flood is coalesced to the latest.
     max_command_hz: float = 500.0
+    #: Per-wheel correction (left, right) of the commanded m/s: calibrated impulses per metre over the
+    #: nominal ones the robot's firmware uses, so a wheel larger than its drawing is asked for less.
+    wheel_gain: tuple[float, float] = (1.0, 1.0)
 
 
 @dataclass(frozen=True, slots=True)
@@ -235,6 +238,8 @@ class Governor:
         self.current = self._ramp(self.current, self.target, dt)
         s = self.settings
         wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
+        if s.wheel_gain != (1.0, 1.0):
+            wheels = WheelSpeeds(wheels.right * s.wheel_gain[1], wheels.left * s.wheel_gain[0])
         wheels = wheels.rounded()
         if congested and not wheels.is_zero:
             return None

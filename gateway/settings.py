@@ -19,6 +19,12 @@ class GatewaySettings:
     log_port: int = setting(model.LOG_PORT, "robot log port", metavar="PORT")
     poll_hz: float = setting(50.0, "wheel-speed polls per second", metavar="HZ")
     wheel_separation: float = setting(model.WHEEL_SEPARATION, "distance between the wheels, m", metavar="M")
+    impulses_left: float = setting(
+        model.IMPULSES_PER_METER_LEFT,
+        "calibrated impulses per metre, left wheel (commands are corrected by this over the nominal)",
+        metavar="N",
+    )
+    impulses_right: float = setting(model.IMPULSES_PER_METER_RIGHT, "calibrated impulses per metre, right wheel", metavar="N")
     max_wheel_speed: float = setting(
         model.MAX_WHEEL_SPEED, "per-wheel limit, m/s; faster commands are scaled keeping the curvature", metavar="M/S"
     )
@@ -54,7 +60,14 @@ class GatewaySettings:
             max_command_hz=self.max_command_hz,
             linear_accel=self.linear_accel,
             angular_accel=self.angular_accel,
+            impulses_left=self.impulses_left,
+            impulses_right=self.impulses_right,
         )
+        for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
+            if not 0.5 * nominal <= getattr(self, name) <= 2.0 * nominal:
+                raise ConfigError(
+                    f"{name} {getattr(self, name)} is not within half to twice the nominal {nominal:g}: is the calibration right?"
+                )
         if self.poll_hz > 1000:
             raise ConfigError(f"poll_hz {self.poll_hz} is beyond 1000 Hz")
         if self.max_wheel_speed > 1.0:
@@ -77,4 +90,5 @@ class GatewaySettings:
             linear_accel=self.linear_accel,
             angular_accel=self.angular_accel,
             max_command_hz=self.max_command_hz,
+            wheel_gain=(self.impulses_left / model.IMPULSES_PER_METER_LEFT, self.impulses_right / model.IMPULSES_PER_METER_RIGHT),
         )

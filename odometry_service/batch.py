@@ -42,6 +42,9 @@ class BatchResult:
     gaps: int = 0
     restarts: int = 0
     missed: int = 0
+    #: Rim travel of each wheel over each step (m), as integrated: what a calibration rescales.
+    d_left: F | None = None
+    d_right: F | None = None
 
     def __len__(self) -> int:
         return len(self.stamp)
@@ -232,14 +235,7 @@ def run_batch(
     d_left = np.where(has_step, s_left * dt, 0.0)
     d_right = np.where(has_step, s_right * dt, 0.0)
 
-    yaw = np.cumsum(wheels_to_twist(d_left, d_right, p.wheel_separation)[1])  # turn of each step
-    yaw_before = np.empty(n)
-    if n:
-        yaw_before[0] = 0.0
-        yaw_before[1:] = yaw[:-1]
-    dx, dy, _ = arc_deltas(yaw_before, d_left, d_right, p.wheel_separation)
-    x = np.cumsum(dx)
-    y = np.cumsum(dy)
+    x, y, yaw = integrate(d_left, d_right, p.wheel_separation)
 
     # what the live service published at a first zero later shown to be a stop: the held step
     provisional = np.flatnonzero(fix_left | fix_right)
@@ -271,4 +267,21 @@ def run_batch(
         gaps=gaps,
         restarts=restarts,
         missed=missed,
+        d_left=d_left,
+        d_right=d_right,
     )
+
+
+def integrate(d_left: F, d_right: F, separation: float) -> tuple[F, F, F]:
+    """Poses (x, y, unwrapped yaw) after each step from the wheels' travels: exact arcs, one numpy pass.
+
+    The whole of the odometry's geometry; a calibration calls it many times
+    with rescaled travels and another separation.
+    """
+    yaw = np.cumsum(wheels_to_twist(d_left, d_right, separation)[1])  # turn of each step
+    yaw_before = np.empty(len(yaw))
+    if len(yaw):
+        yaw_before[0] = 0.0
+        yaw_before[1:] = yaw[:-1]
+    dx, dy, _ = arc_deltas(yaw_before, d_left, d_right, separation)
+    return np.cumsum(dx), np.cumsum(dy), yaw

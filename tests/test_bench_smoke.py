@@ -29,6 +29,8 @@ def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no
         "ROS /cmd_vel -> robot p50",
         "/odom rate at 100 Hz",
         "replay from MCAP",
+        "batch odometry, parsed columns",
+        "calibration of a 2 m square pair",
         "recorder at 200 Hz polling",
     ):
         assert row in proc.stdout

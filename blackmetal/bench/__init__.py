@@ -105,6 +105,8 @@ def measure(quick: bool, progress: Any = print) -> dict[str, Any]:
     out["poll"] = {str(int(hz)): figures.poll_rate(hz, 1.5 if quick else 5.0) for hz in (100.0, 200.0)}
     progress("replay throughput against the streaming path ...")
     out["replay"] = figures.replay_throughput(50_000 if quick else 1_000_000, 5_000 if quick else 100_000)
+    progress("calibration: the batch odometry on parsed columns, one fit ...")
+    out["calibration"] = figures.calibration_speed(200_000 if quick else 2_000_000)
     progress("recorder CPU and bytes/s at 100 and 200 Hz ...")
     out["recorder"] = {str(int(hz)): figures.recorder_load(hz, 2.0 if quick else 10.0) for hz in (100.0, 200.0)}
     progress(f"memory and CPU after {3 if quick else 60} s at 100 Hz ...")
@@ -173,8 +175,18 @@ def table(f: dict[str, Any]) -> str:
         ("replay from MCAP (same samples)", f"{r['mcap_replay_per_s'] / 1e6:.2f} M/s", f"JSON lines {r['replay_per_s'] / 1e6:.2f} M/s",
          f"{r['mcap_over_jsonl']:.2f}x (>= 1 M/s{met(r['mcap_replay_per_s'] >= 1e6)})")
     )  # fmt: skip
+    c = f["calibration"]
+    rows.append(
+        (f"batch odometry, parsed columns ({c['samples']})", f"{c['batch_per_s'] / 1e6:.1f} M/s; fit evaluation {c['evaluation_per_s'] / 1e6:.1f} M/s",
+         "-", f"(>= 10 M/s{met(c['batch_per_s'] >= 10e6)}; evaluation{met(c['evaluation_per_s'] >= 10e6)})")
+    )  # fmt: skip
+    rows.append((
+        "calibration of a 2 m square pair", f"{1000 * c['fit_s']:.0f} ms ({c['fit_steps']} steps, {c['fit_evaluations']} evaluations)", "-", "report"
+    ))  # fmt: skip
     for hz, rec in f["recorder"].items():
-        rows.append((f"recorder at {hz} Hz polling", f"CPU {rec['cpu_pct']:.1f}% of a core, {rec['bytes_per_s'] / 1e3:.1f} kB/s", "-", "report"))
+        rows.append(
+            (f"recorder at {hz} Hz polling", f"CPU {rec['cpu_pct']:.1f}% of a core, {rec['bytes_per_s'] / 1e3:.1f} kB/s", "-", "report")
+        )
     m = f["memory"]
     rows.append(
         (f"RSS after {m['seconds']:.0f} s at 100 Hz", f"gateway {m['gateway_mb']:.1f} MB, odometry {m['odometry_mb']:.1f} MB",

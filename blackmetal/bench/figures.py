@@ -289,6 +289,52 @@ def mcap_replay(jsonl: Path) -> list[tuple[int, float]]:
     return runs
 
 
+def calibration_speed(samples: int) -> dict[str, float]:
+    """The batch odometry on already-parsed columns (samples/s), one fit evaluation (samples/s), and one fit of a 2 m square pair (s)."""
+    import numpy as np
+
+    from blackmetal import robot_model as model
+    from odometry_service.batch import integrate, run_batch
+    from odometry_service.calibration import Constants, Segment, align, fit_trajectory
+
+    legs = square_legs(side=2.0) * max(1, samples // 3900 + 1)
+    log = synth_log(legs, seed=1)
+    n = min(samples, len(log))
+    seq, stamp, left, right = log.seq[:n], log.stamp[:n], log.left[:n].astype(float), log.right[:n].astype(float)
+    timings = []
+    for _ in range(3):
+        started = time.perf_counter()
+        result = run_batch(seq, stamp, left, right)
+        timings.append(time.perf_counter() - started)
+    assert result.d_left is not None and result.d_right is not None
+    d_left, d_right = result.d_left, result.d_right
+    evals = []
+    for _ in range(3):
+        started = time.perf_counter()
+        integrate(d_left * 1.001, d_right * 0.999, 0.51)
+        evals.append(time.perf_counter() - started)
+    # a 2 m square each way at 100 Hz, as `blackmetal square --both --size 2` records it
+    nominal = Constants(model.IMPULSES_PER_METER_LEFT, model.IMPULSES_PER_METER_RIGHT, model.WHEEL_SEPARATION)
+    segments = []
+    for clockwise in (False, True):
+        pair = synth_log(square_legs(side=2.0, clockwise=clockwise), dt_range=(0.0095, 0.0105), seed=2)
+        sl, sr = model.Encoders().to_speeds(pair.left.astype(float), pair.right.astype(float))
+        dt = np.diff(pair.stamp, prepend=pair.stamp[0])
+        x, y, yaw = integrate(sl * dt * 1.015, sr * dt, 0.515)
+        segments.append(Segment(sl * dt, sr * dt, *align(x, y, yaw)))
+    started = time.perf_counter()
+    fit = fit_trajectory(segments, nominal)
+    fit_s = time.perf_counter() - started
+    return {
+        "samples": n,
+        "batch_per_s": n / statistics.median(timings),
+        "evaluation_per_s": n / statistics.median(evals),
+        "fit_s": fit_s,
+        "fit_steps": sum(len(seg.d_left) for seg in segments),
+        "fit_evaluations": fit.evaluations,
+    }
+
+
 def recorder_load(poll_hz: float, seconds: float) -> dict[str, float]:
     """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
     robot = RobotProcess()

@@ -30,6 +30,10 @@ class SimSettings:
     log_port: int = setting(model.LOG_PORT, "log port; 0 = a free port", metavar="PORT")
     log_interval: float = setting(1.0, "seconds between log-port state reports", metavar="S")
     wheel_separation: float = setting(model.WHEEL_SEPARATION, "the true distance between the wheels, m", metavar="M")
+    left_wheel_scale: float = setting(
+        1.0, "real travel of the left wheel per reported impulse, relative to the nominal constant", metavar="F"
+    )
+    right_wheel_scale: float = setting(1.0, "the same for the right wheel", metavar="F")
     accel_limit: float | None = setting(None, "motor acceleration limit, m/s^2 (default none)", metavar="M/S2")
     watchdog: float = setting(model.ROBOT_WATCHDOG_S, "stop after this many seconds without a motion command", metavar="S")
     seed: int | None = setting(None, "random seed for faults", metavar="N")
@@ -54,7 +58,12 @@ class SimSettings:
             truth_hz=self.truth_hz,
             log_interval=self.log_interval,
             accel_limit=self.accel_limit,
+            left_wheel_scale=self.left_wheel_scale,
+            right_wheel_scale=self.right_wheel_scale,
         )
+        for name in ("left_wheel_scale", "right_wheel_scale"):
+            if not 0.5 <= getattr(self, name) <= 2.0:
+                raise ConfigError(f"{name} must be within 0.5..2.0, got {getattr(self, name)}")
         if self.prefix is not None:
             validate_prefix(self.prefix)
         self.faults()
@@ -72,7 +81,13 @@ class SimSettings:
 
 async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
     """Serve until ``stop`` is set; then close everything within a second or two."""
-    params = RobotParams(wheel_separation=settings.wheel_separation, accel_limit=settings.accel_limit, watchdog=settings.watchdog)
+    params = RobotParams.with_wheel_scales(
+        settings.left_wheel_scale,
+        settings.right_wheel_scale,
+        wheel_separation=settings.wheel_separation,
+        accel_limit=settings.accel_limit,
+        watchdog=settings.watchdog,
+    )
     robot = SimRobot(params, now=time.monotonic(), seed=settings.seed)
     robot.faults = settings.faults()
     server = SimServer(robot, settings.host, settings.control_port, settings.log_port, log_interval=settings.log_interval)

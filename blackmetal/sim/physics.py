@@ -13,6 +13,7 @@ from __future__ import annotations
 import math
 import random
 from dataclasses import dataclass
+from typing import Any
 
 from blackmetal import robot_model as model
 from blackmetal import wire
@@ -28,6 +29,17 @@ class RobotParams:
     wheel_separation: float = model.WHEEL_SEPARATION
     #: The robot's true encoders (which may differ from the nominal constants the gateway and odometry use).
     encoders: Encoders = NOMINAL_ENCODERS
+    #: Real travel per impulse relative to the nominal constant, per wheel (left, right): the firmware
+    #: turns a commanded m/s into impulses with the nominal constants, so a wheel with scale 1.015 really
+    #: runs 1.5 % faster than commanded while reporting the commanded impulses. Use :meth:`with_wheel_scales`.
+    wheel_scale: tuple[float, float] = (1.0, 1.0)
+
+    @classmethod
+    def with_wheel_scales(cls, left: float, right: float, **others: Any) -> "RobotParams":
+        """A robot whose wheels are not their drawing: true encoders follow from the scales."""
+        encoders = Encoders(model.IMPULSES_PER_METER_LEFT / left, model.IMPULSES_PER_METER_RIGHT / right)
+        return cls(encoders=encoders, wheel_scale=(left, right), **others)
+
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
     #: Motor acceleration limit per wheel (m/s^2); None = wheels follow at once.
     accel_limit: float | None = None
@@ -220,8 +232,9 @@ class SimRobot:
             self.counters["velocity_commands"] += 1
             limit = self.params.max_wheel_speed
             self._position_left = self._position_right = None
-            self.target_right = max(-limit, min(limit, float(request.right or 0.0)))
-            self.target_left = max(-limit, min(limit, float(request.left or 0.0)))
+            scale_left, scale_right = self.params.wheel_scale
+            self.target_right = max(-limit, min(limit, float(request.right or 0.0))) * scale_right
+            self.target_left = max(-limit, min(limit, float(request.left or 0.0))) * scale_left
             if self.params.accel_limit is None:
                 self.speed_left, self.speed_right = self.target_left, self.target_right
             self._deadline = now + self.params.watchdog

@@ -208,6 +208,25 @@ def report(run: Run) -> str:
     return text
 
 
+def umbmark_figure(runs: list[Run]) -> str | None:
+    """UMBmark's E_max,syst from the true end points (None without the simulator's truth), and how to calibrate from them."""
+    ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
+    for run in runs:
+        if run.truth is None:
+            return None
+        ends[run.direction].append((run.truth.dx, run.truth.dy))
+    if not ends["clockwise"] or not ends["counter-clockwise"]:
+        return None
+    cg = {d: (sum(p[0] for p in pts) / len(pts), sum(p[1] for p in pts) / len(pts)) for d, pts in ends.items()}
+    e_max = max(math.hypot(*cg["clockwise"]), math.hypot(*cg["counter-clockwise"]))
+    cw, ccw = cg["clockwise"], cg["counter-clockwise"]
+    return (
+        f"UMBmark E_max,syst {1000 * e_max:.1f} mm (true end points' centres of gravity: clockwise ({1000 * cw[0]:+.1f}, {1000 * cw[1]:+.1f}) mm, "
+        f"counter-clockwise ({1000 * ccw[0]:+.1f}, {1000 * ccw[1]:+.1f}) mm, {len(ends['clockwise'])} run(s) each way)\n"
+        f"  UMBmark correction: blackmetal calibrate RECORDING --cw-end={cw[0]:.4f},{cw[1]:.4f} --ccw-end={ccw[0]:.4f},{ccw[1]:.4f}"
+    )
+
+
 def _matplotlib() -> Any:
     try:
         import matplotlib
@@ -245,6 +264,8 @@ def run(args: argparse.Namespace) -> int:
         _matplotlib()  # before driving the whole route, not after
     if args.record:
         require_extra("blackmetal square --record", "record", "mcap")
+    if args.repeat < 1:
+        raise ToolError(f"--repeat must be at least 1, got {args.repeat}")
     keys, settings, session = connect(args)
     stop = stop_on_signals()
     recorder: SessionRecorder | None = None
@@ -266,7 +287,7 @@ def run(args: argparse.Namespace) -> int:
             driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop)
             print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {where(settings)}", flush=True)
             runs = []
-            for clockwise in [False, True] if args.both else [args.clockwise]:
+            for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
                 started = time.time_ns()
                 result = drive_square(driver, args.size, clockwise, truth if has_truth else None)
                 runs.append(result)
@@ -286,6 +307,10 @@ def run(args: argparse.Namespace) -> int:
             if recorder is not None:
                 recorder.stop()
                 print(f"recorded {', '.join(str(f) for f in recorder.recording.files)}", flush=True)
+    if args.both:
+        figure = umbmark_figure(runs)
+        if figure:
+            print(figure, flush=True)
     if args.json:
         out = [{"direction": r.direction, "odometry": r.odometry.as_dict(), "truth": r.truth.as_dict() if r.truth else None} for r in runs]
         print(json.dumps(out))
@@ -302,6 +327,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--turn-rate", type=float, default=0.6, help="turn rate, rad/s (default 0.6)")
     parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
     parser.add_argument("--both", action="store_true", help="counter-clockwise, then clockwise (UMBmark)")
+    parser.add_argument(
+        "--repeat", type=int, default=1, metavar="N", help="drive the square(s) N times (UMBmark: centres of gravity of the end points)"
+    )
     parser.add_argument("--plot", metavar="PNG", help="draw odometry vs truth (needs matplotlib)")
     parser.add_argument("--json", action="store_true", help="also print the closures as JSON")
     parser.add_argument("--record", metavar="FILE.mcap", help="record the run (impulses, poses, truth, cmd_vel) for replay and calibration")

@@ -126,6 +126,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--poll-hz", type=float, default=50.0, help="wheel polls per second (default 50)")
     parser.add_argument("--seed", type=int, help="simulator fault seed")
+    parser.add_argument(
+        "--settings", metavar="FILE", help="settings file for the gateway and the odometry (e.g. from blackmetal calibrate)"
+    )
     parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
     parser.add_argument(
         "--ros2",
@@ -187,6 +190,7 @@ def _run(
     stop: threading.Event,
 ) -> int:
     zargs = _child_zenoh_args(args, hub)
+    settings_args = ["--settings", os.path.abspath(args.settings)] if args.settings else []
     prefix = keys.prefix
     try:
         if args.robot:
@@ -203,10 +207,10 @@ def _run(
             children,
             "gateway",
             ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
-             "--prefix", prefix, "--poll-hz", str(args.poll_hz), *zargs],
+             "--prefix", prefix, "--poll-hz", str(args.poll_hz), *settings_args, *zargs],
             args.verbose,
         )  # fmt: skip
-        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *zargs], args.verbose)
+        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *settings_args, *zargs], args.verbose)
         ros2 = _start(children, "ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *zargs], args.verbose) if args.ros2 else None
         gateway.wait_ready(READY_TIMEOUT_S)
         odometry.wait_ready(READY_TIMEOUT_S)

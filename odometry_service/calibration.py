@@ -1,0 +1,215 @@
+"""Calibration of the odometry's constants, pure numpy: UMBmark in closed form, and a trajectory fit.
+
+Odometry is wrong mostly for two systematic reasons: the wheels are not
+exactly the size the constants say (unequal impulses per metre), and the
+effective wheel separation is not the one on the drawing.
+
+* :func:`umbmark` is Borenstein and Feng's UMBmark (1996): from the true end
+  points of a clockwise and a counter-clockwise square driven on odometry,
+  the wheel-diameter ratio ``E_d`` and the wheelbase factor ``E_b`` in closed
+  form. Written for the start frame with x along the first side and y to the
+  left: alpha = (y_cw - y_ccw) / (-4L), beta = (y_cw + y_ccw) / (-4L),
+  R = (L/2) / sin(beta/2), E_d = (R + b/2) / (R - b/2),
+  E_b = (pi/2) / (pi/2 - alpha). UMBmark keeps the mean wheel size: it
+  cannot see it.
+* :func:`fit_trajectory` fits the left and right impulses per metre and the
+  separation by least squares (Levenberg-Marquardt) of the odometry's path
+  against a reference path (the simulator's truth, motion capture), reusing
+  the wheels' travels of one replay: each evaluation is one
+  :func:`~odometry_service.batch.integrate` pass.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .batch import integrate
+from .errors import OdometryError
+
+F = NDArray[np.float64]
+
+#: Metres of path error that weigh as much as one radian of heading error in the fit.
+YAW_WEIGHT_M = 0.5
+
+
+class CalibrationError(OdometryError):
+    """The recordings cannot calibrate anything; the text says what is missing."""
+
+
+@dataclass(frozen=True, slots=True)
+class Constants:
+    impulses_left: float
+    impulses_right: float
+    wheel_separation: float
+
+    def relative_to(self, other: "Constants") -> tuple[float, float, float]:
+        """Relative differences (self / other - 1) of the three constants."""
+        return (
+            self.impulses_left / other.impulses_left - 1.0,
+            self.impulses_right / other.impulses_right - 1.0,
+            self.wheel_separation / other.wheel_separation - 1.0,
+        )
+
+
+# ---------------------------------------------------------------------------------------------- UMBmark
+
+
+@dataclass(frozen=True, slots=True)
+class UmbmarkResult:
+    alpha: float  # rad, turn error per 90 degree corner (wheelbase)
+    beta: float  # rad, heading change per straight side (unequal wheels)
+    e_d: float  # right over left wheel diameter
+    e_b: float  # actual over nominal wheelbase
+    constants: Constants
+    e_max_syst: float  # m, the larger distance of the two end points from the start
+
+
+def umbmark(cw_end: tuple[float, float], ccw_end: tuple[float, float], side: float, used: Constants) -> UmbmarkResult:
+    """Closed-form corrections from the true end points (start frame) of squares of ``side`` driven with ``used``."""
+    if not side > 0:
+        raise CalibrationError(f"the square's side must be positive, got {side}")
+    y_cw, y_ccw = cw_end[1], ccw_end[1]
+    alpha = (y_cw - y_ccw) / (-4.0 * side)
+    beta = (y_cw + y_ccw) / (-4.0 * side)
+    b = used.wheel_separation
+    if abs(beta) < 1e-12:
+        e_d = 1.0
+    else:
+        radius = (side / 2.0) / math.sin(beta / 2.0)
+        e_d = (radius + b / 2.0) / (radius - b / 2.0)
+    e_b = (math.pi / 2.0) / (math.pi / 2.0 - alpha)
+    if not (0.5 < e_d < 2.0 and 0.5 < e_b < 2.0):
+        raise CalibrationError(
+            f"UMBmark gives implausible corrections (E_d {e_d:.3f}, E_b {e_b:.3f}): are the end points in metres, in the start frame?"
+        )
+    # distance per impulse of each wheel times c_L, c_R; their mean is kept (UMBmark cannot see it)
+    c_left = 2.0 / (e_d + 1.0)
+    c_right = 2.0 / (1.0 / e_d + 1.0)
+    constants = Constants(used.impulses_left / c_left, used.impulses_right / c_right, used.wheel_separation * e_b)
+    e_max = max(math.hypot(*cw_end), math.hypot(*ccw_end))
+    return UmbmarkResult(alpha, beta, e_d, e_b, constants, e_max)
+
+
+def centre_of_gravity(points: list[tuple[float, float]]) -> tuple[float, float]:
+    if not points:
+        raise CalibrationError("no end point given")
+    return (sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points))
+
+
+# ---------------------------------------------------------------------------------------------- trajectory fit
+
+
+@dataclass
+class Segment:
+    """One stretch of driving: the wheels' travels per step under ``used`` constants, and the reference at each step.
+
+    The reference is in the odometry's start frame (its pose at the first
+    step is the origin, heading along x).
+    """
+
+    d_left: F
+    d_right: F
+    ref_x: F
+    ref_y: F
+    ref_yaw: F
+
+
+def align(ref_x: F, ref_y: F, ref_yaw: F) -> tuple[F, F, F]:
+    """A reference path moved so that its first pose is the origin, heading along x."""
+    c, s = math.cos(-ref_yaw[0]), math.sin(-ref_yaw[0])
+    dx, dy = ref_x - ref_x[0], ref_y - ref_y[0]
+    return c * dx - s * dy, s * dx + c * dy, ref_yaw - ref_yaw[0]
+
+
+def _residuals(theta: F, segments: list[Segment]) -> F:
+    scale_left, scale_right, separation = theta
+    out = []
+    for seg in segments:
+        x, y, yaw = integrate(seg.d_left * scale_left, seg.d_right * scale_right, separation)
+        out.append(x - seg.ref_x)
+        out.append(y - seg.ref_y)
+        out.append(YAW_WEIGHT_M * (yaw - seg.ref_yaw))
+    return np.concatenate(out)
+
+
+@dataclass(frozen=True, slots=True)
+class FitResult:
+    constants: Constants
+    rms_before: float  # m (yaw weighted in), over every step
+    rms_after: float
+    evaluations: int
+    iterations: int
+
+
+def fit_trajectory(segments: list[Segment], used: Constants, max_iterations: int = 50) -> FitResult:
+    """Least-squares impulses per metre (both wheels) and separation; ``used`` are the constants of the travels."""
+    if not segments or sum(len(s.d_left) for s in segments) < 10:
+        raise CalibrationError("too few samples to fit (fewer than 10 steps with a reference)")
+    travel = sum(float(np.sum(np.abs(s.d_left) + np.abs(s.d_right))) for s in segments) / 2.0
+    ref_motion = max(float(np.ptp(np.hypot(s.ref_x, s.ref_y))) for s in segments)
+    if ref_motion < 0.05:
+        raise CalibrationError(
+            f"the reference never moves (it spans {1000 * ref_motion:.0f} mm): is it the right channel, was it recorded?"
+        )
+    if travel < 0.1:
+        raise CalibrationError(f"the wheels hardly moved ({travel:.3f} m): nothing to fit")
+    turned = max(float(np.ptp(np.cumsum(s.d_right - s.d_left))) / used.wheel_separation for s in segments)
+    if turned < math.radians(30):
+        raise CalibrationError(
+            "the recording hardly turns: the wheel separation cannot be fitted (drive squares: blackmetal square --both)"
+        )
+    theta = np.array([1.0, 1.0, used.wheel_separation])
+    r = _residuals(theta, segments)
+    cost = float(r @ r)
+    n = len(r)
+    rms_before = math.sqrt(cost / n)
+    lam = 1e-3
+    evaluations = 1
+    iterations = 0
+    converged = False
+    steps = np.array([1e-6, 1e-6, 1e-6 * used.wheel_separation])
+    for iterations in range(1, max_iterations + 1):  # noqa: B007 - reported
+        jac = np.empty((n, 3))
+        for i in range(3):
+            t = theta.copy()
+            t[i] += steps[i]
+            jac[:, i] = (_residuals(t, segments) - r) / steps[i]
+        evaluations += 3
+        a = jac.T @ jac
+        g = jac.T @ r
+        improved = False
+        while lam < 1e12:
+            delta = np.linalg.solve(a + lam * np.diag(np.diag(a)), -g)
+            candidate = theta + delta
+            r_new = _residuals(candidate, segments)
+            evaluations += 1
+            cost_new = float(r_new @ r_new)
+            if cost_new < cost:
+                theta, r, lam, improved = candidate, r_new, max(lam / 10.0, 1e-12), True
+                converged = bool(cost - cost_new <= 1e-12 * cost or np.all(np.abs(delta) <= 1e-10 * np.abs(theta)))
+                cost = cost_new
+                break
+            lam *= 10.0
+        if not improved or converged:
+            break
+    scale_left, scale_right, separation = (float(v) for v in theta)
+    if not (0.5 < scale_left < 2.0 and 0.5 < scale_right < 2.0 and 0.25 * used.wheel_separation < separation < 4 * used.wheel_separation):
+        raise CalibrationError(
+            f"the fit did not converge to plausible constants (scales {scale_left:.3f}, {scale_right:.3f}, separation {separation:.3f} m)"
+        )
+    constants = Constants(used.impulses_left / scale_left, used.impulses_right / scale_right, separation)
+    return FitResult(constants, rms_before, math.sqrt(cost / n), evaluations, iterations)
+
+
+def closure_error(d_left: F, d_right: F, ref_x: F, ref_y: F, constants: Constants, used: Constants) -> float:
+    """Distance between where the odometry (with ``constants``) and the reference end, both from the same start (m)."""
+    x, y, _ = integrate(
+        d_left * used.impulses_left / constants.impulses_left,
+        d_right * used.impulses_right / constants.impulses_right,
+        constants.wheel_separation,
+    )
+    return math.hypot(x[-1] - ref_x[-1], y[-1] - ref_y[-1])
