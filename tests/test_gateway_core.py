@@ -77,6 +77,31 @@ def test_link_up_sends_zero_then_commands_are_sent_once() -> None:
     assert gov.next_command(0.1) is None
 
 
+def test_calibrated_wheels_are_asked_for_what_makes_them_true() -> None:
+    # a left wheel 1.5 % larger than its drawing: the robot's firmware would run it 1.5 % fast, so it is asked for less
+    gov = governor(wheel_gain=(1 / 1.015, 1.0))
+    gov.next_command(0.0)
+    gov.on_twist(twist(0.3), 0.01)
+    cmd = gov.next_command(0.01)
+    assert cmd is not None and cmd.wheels == WheelSpeeds(0.3, round(0.3 / 1.015, 6))
+
+
+def test_gateway_settings_turn_calibrated_impulses_into_the_gain(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from blackmetal import robot_model as model
+    from blackmetal.runtime.settings import load_settings
+    from gateway.settings import GatewaySettings
+    from schemas import ConfigError
+
+    calibration = tmp_path / "calibration.toml"
+    calibration.write_text(
+        f"wheel_separation = 0.515\nimpulses_left = {model.IMPULSES_PER_METER_LEFT / 1.015}\nimpulses_right = {model.IMPULSES_PER_METER_RIGHT}\n"
+    )
+    safety = load_settings(GatewaySettings, {}, str(calibration), environ={}).safety()
+    assert safety.wheel_separation == 0.515 and safety.wheel_gain == pytest.approx((1 / 1.015, 1.0))
+    with pytest.raises(ConfigError, match="impulses_left"):
+        load_settings(GatewaySettings, {"impulses_left": 5.0}, environ={})
+
+
 def test_command_timeout_brakes_and_shows_in_state() -> None:
     gov = governor(cmd_timeout=0.5)
     gov.next_command(0.0)

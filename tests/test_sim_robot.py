@@ -116,6 +116,17 @@ def test_speed_reply_reports_mirrored_integer_impulses_without_bias() -> None:
     assert -sum(rights) / len(rights) == pytest.approx(0.2 * facts.IMPULSES_PER_METER_RIGHT, abs=2e-3)
 
 
+def test_a_wheel_larger_than_its_drawing_runs_fast_and_reports_the_commanded_impulses() -> None:
+    # the firmware turns m/s into impulses with the nominal constants: the left wheel, 1.5 % larger, really runs 1.5 % fast
+    robot = SimRobot(RobotParams.with_wheel_scales(1.015, 1.0))
+    send(robot, wire.set_velocity(0.2, 0.2), 0.0)  # right, left
+    readings = [send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.01 * i)[1] for i in range(1, 501)]
+    lefts = [r.left for r in readings]  # type: ignore[union-attr]
+    assert sum(lefts) / len(lefts) == pytest.approx(0.2 * facts.IMPULSES_PER_METER_LEFT, abs=2e-3)
+    assert robot.travel_left == pytest.approx(0.2 * 1.015 * 5.0) and robot.travel_right == pytest.approx(1.0)
+    assert robot.yaw < 0  # the larger left wheel turns the robot to the right
+
+
 def test_position_command_moves_each_wheel_by_its_impulses() -> None:
     robot = SimRobot()
     left_imp = round(0.3 * facts.IMPULSES_PER_METER_LEFT)

@@ -19,6 +19,7 @@ import zenoh
 
 from blackmetal import robot_model as model
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
+from blackmetal.runtime.settings import read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, unavailable_reason, zenoh_settings
 from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose, require_extra
@@ -152,6 +153,8 @@ def run(args: argparse.Namespace) -> int:
             require_extra("blackmetal up --ros2", "ros2", "rosbags")
         if args.foxglove:
             require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
+        if args.settings:
+            read_settings_file(args.settings)  # a missing or broken file: one sentence now, not two failing children
         settings = zenoh_settings(args)
         if not settings.listen:
             settings.listen = [DEFAULT_LISTEN]
