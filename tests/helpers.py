@@ -106,3 +106,32 @@ class SimProcess(Child):
         self.host = info["host"]
         self.control_port = int(info["control_port"])
         self.log_port = int(info["log_port"])
+
+
+def start_robot(
+    children: list[Child],
+    zport: int,
+    sim_args: tuple[str, ...] = (),
+    gateway_args: tuple[str, ...] = (),
+    odometry_args: tuple[str, ...] = (),
+) -> tuple[SimProcess, Child, Child]:
+    """The simulator listening on ``zport`` (the hub), a gateway and an odometry as its clients; all ready, all in ``children``."""
+    sim = SimProcess(*sim_args, *zenoh_listen_args(zport))
+    children.append(sim)
+    gateway = Child(
+        [
+            "-m",
+            "gateway",
+            "--control-port",
+            str(sim.control_port),
+            "--log-port",
+            str(sim.log_port),
+            *gateway_args,
+            *zenoh_connect_args(zport),
+        ]
+    )
+    odometry = Child(["-m", "odometry_service", *odometry_args, *zenoh_connect_args(zport)])
+    children.extend([gateway, odometry])
+    gateway.ready()
+    odometry.ready()
+    return sim, gateway, odometry

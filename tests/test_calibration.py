@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from helpers import Child, SimProcess, free_port, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, free_port, start_robot, zenoh_connect_args
 
 from blackmetal import robot_model as model
 from blackmetal.bench.synth import square_legs, synth_log
@@ -154,14 +154,13 @@ def test_bad_recordings_end_in_one_sentence_and_write_nothing(tmp_path: Path, ki
 def drive_squares(children: list[Child], tmp_path: Path, name: str, settings: list[str]) -> tuple[Path, dict[str, float]]:
     """Sim (left wheel 1.5 % large, wheelbase 0.515 m), gateway, odometry; `square --both --size 2 --record`: true closures (m)."""
     zport = free_port()
-    sim = SimProcess("--left-wheel-scale", "1.015", "--wheel-separation", "0.515", *zenoh_listen_args(zport))
-    gateway = Child(
-        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *settings, *zenoh_connect_args(zport)]
+    sim, gateway, odometry = start_robot(
+        children,
+        zport,
+        sim_args=("--left-wheel-scale", "1.015", "--wheel-separation", "0.515"),
+        gateway_args=tuple(settings),
+        odometry_args=tuple(settings),
     )
-    odometry = Child(["-m", "odometry_service", *settings, *zenoh_connect_args(zport)])
-    children.extend([sim, gateway, odometry])
-    gateway.ready()
-    odometry.ready()
     recording = tmp_path / f"{name}.mcap"
     proc = subprocess.run(
         [sys.executable, "-m", "blackmetal", "square", "--both", "--size", "2", "--speed", "0.5", "--turn-rate", "1.2", "--record", str(recording), *zenoh_connect_args(zport)],

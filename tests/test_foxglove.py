@@ -13,7 +13,7 @@ from typing import Any
 import pytest
 import zenoh
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from helpers import Child, SimProcess, client_config, free_port, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, client_config, free_port, start_robot, zenoh_connect_args
 from mcap.reader import make_reader
 from websockets.sync.client import connect
 
@@ -48,15 +48,10 @@ def protobuf_class(channel: dict[str, Any]) -> Any:
 @pytest.mark.integration
 def test_foxglove_client_sees_the_robot_drive(children: list[Child], tmp_path: Path) -> None:
     zport = free_port()
-    sim = SimProcess(*zenoh_listen_args(zport))
-    children.append(sim)
-    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zenoh_connect_args(zport)])
-    odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
+    start_robot(children, zport)
     mcap_path = tmp_path / "view.mcap"
     view = Child(["-m", "blackmetal", "foxglove", "--port", "0", "--mcap", str(mcap_path), *zenoh_connect_args(zport)])
-    children.extend([gateway, odometry, view])
-    gateway.ready()
-    odometry.ready()
+    children.append(view)
     url = view.ready()["url"]
     with connect(url, subprotocols=SUBPROTOCOLS, open_timeout=20) as ws, zenoh.open(client_config(zport)) as session:  # type: ignore[arg-type]
         assert ws.subprotocol in SUBPROTOCOLS

@@ -12,7 +12,7 @@ import time
 import numpy as np
 import pytest
 import zenoh
-from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_listen_args
 
 from blackmetal.bench.synth import exact_pose, square_legs, synth_log
 from odometry_service.core import Odometry, OdometryParams
@@ -89,27 +89,7 @@ def test_replay_names_a_bad_line(tmp_path) -> None:  # type: ignore[no-untyped-d
 @pytest.mark.integration
 def test_drive_the_simulator_and_the_pose_follows_the_truth(children: list[Child]) -> None:
     zport = free_port()
-    sim = SimProcess(*zenoh_listen_args(zport))
-    children.append(sim)
-    gateway = Child(
-        [
-            "-m",
-            "gateway",
-            "--control-port",
-            str(sim.control_port),
-            "--log-port",
-            str(sim.log_port),
-            "--cmd-timeout",
-            "1.0",
-            "--poll-hz",
-            "50",
-            *zenoh_connect_args(zport),
-        ]
-    )
-    odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
-    children.extend([gateway, odometry])
-    gateway.ready()
-    odometry.ready()
+    _, _, odometry = start_robot(children, zport, gateway_args=("--cmd-timeout", "1.0", "--poll-hz", "50"))
     with zenoh.open(client_config(zport)) as session:
         poses: list[Pose] = []
         session.declare_subscriber("robot/pose", lambda s: poses.append(decode(Pose, s.payload.to_bytes())))

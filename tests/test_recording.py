@@ -13,7 +13,7 @@ from pathlib import Path
 import jsonschema
 import pytest
 import zenoh
-from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 from mcap.reader import NonSeekingReader, make_reader
 
 from blackmetal.recording.reader import read_mcap, topic_lines
@@ -86,25 +86,7 @@ def drive(session: zenoh.Session, seconds: float, v: float = 0.25, w: float = 0.
 @pytest.mark.integration
 def test_record_a_drive_then_replay_it(children: list[Child], tmp_path: Path) -> None:
     zport = free_port()
-    sim = SimProcess(*zenoh_listen_args(zport))
-    children.append(sim)
-    gateway = Child(
-        [
-            "-m",
-            "gateway",
-            "--control-port",
-            str(sim.control_port),
-            "--log-port",
-            str(sim.log_port),
-            "--poll-hz",
-            "100",
-            *zenoh_connect_args(zport),
-        ]
-    )
-    odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
-    children.extend([gateway, odometry])
-    gateway.ready()
-    odometry.ready()
+    start_robot(children, zport, gateway_args=("--poll-hz", "100"))
     full, killed = tmp_path / "drive.mcap", tmp_path / "killed.mcap"
     with zenoh.open(client_config(zport)) as session:
         seen: dict[str, list[bytes]] = {"robot/wheels/impulses": [], "robot/pose": []}

@@ -15,7 +15,7 @@ import time
 
 import pytest
 import zenoh
-from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args, zenoh_listen_args
+from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 
 from blackmetal.robot_model import Encoders
 from blackmetal.ros2.adapter import AdapterOptions, Ros2Adapter
@@ -268,28 +268,6 @@ def encode_impulses(seq: int, stamp: float, left: int, right: int) -> bytes:
 
 
 # ------------------------------------------------------------------ on Zenoh, with the simulator, gateway and odometry
-def robot_rig(children: list[Child], zport: int) -> None:
-    sim = SimProcess(*zenoh_listen_args(zport))
-    children.append(sim)
-    gateway = Child(
-        [
-            "-m",
-            "gateway",
-            "--control-port",
-            str(sim.control_port),
-            "--log-port",
-            str(sim.log_port),
-            "--poll-hz",
-            "50",
-            *zenoh_connect_args(zport),
-        ]
-    )
-    odometry = Child(["-m", "odometry_service", *zenoh_connect_args(zport)])
-    children.extend([gateway, odometry])
-    gateway.ready()
-    odometry.ready()
-
-
 def truth(session: zenoh.Session) -> Pose:
     replies = [r for r in session.get("robot/sim/truth", timeout=5) if r.ok is not None]
     assert replies, "no answer from the simulator"
@@ -311,7 +289,7 @@ def drives(session: zenoh.Session, key: str, payload: bytes, with_attachment: bo
 @pytest.mark.integration
 def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) -> None:
     zport = free_port()
-    robot_rig(children, zport)
+    start_robot(children, zport, gateway_args=("--poll-hz", "50"))
     ros2 = Child(["-m", "blackmetal.ros2", *zenoh_connect_args(zport)])
     children.append(ros2)
     ready = ros2.ready()
@@ -377,7 +355,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
 @pytest.mark.integration
 def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -> None:
     zport = free_port()
-    robot_rig(children, zport)
+    start_robot(children, zport, gateway_args=("--poll-hz", "50"))
     bridge = Child(["-m", "blackmetal", "ros2", "--flavor", "bridge", *zenoh_connect_args(zport)])
     bridge_ns = Child(["-m", "blackmetal", "ros2", "--flavor", "bridge", "--namespace", "r1", *zenoh_connect_args(zport)])
     rmw_ns = Child(["-m", "blackmetal", "ros2", "--namespace", "r1", "--no-tf", *zenoh_connect_args(zport)])
