@@ -21,6 +21,7 @@ from .messages import (
     Vector3,
     WheelImpulses,
     make_pose,
+    stamp_parts,
     wrap_angle,
     yaw_quaternion,
 )
@@ -58,6 +59,7 @@ __all__ = [
     "json_schemas",
     "make_pose",
     "require_extra",
+    "stamp_parts",
     "to_bytes",
     "validate_prefix",
     "wrap_angle",

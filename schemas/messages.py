@@ -119,6 +119,15 @@ def yaw_quaternion(yaw: float) -> Quaternion:
     return Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half))
 
 
+def stamp_parts(stamp: float) -> tuple[int, int]:
+    """Unix seconds -> (sec, nanosec), as ROS and Foxglove timestamps hold them (whole seconds first: no 1e18 rounding)."""
+    sec = math.floor(stamp)
+    nanosec = round((stamp - sec) * 1e9)
+    if nanosec >= 1_000_000_000:
+        sec, nanosec = sec + 1, nanosec - 1_000_000_000
+    return int(sec), int(nanosec)
+
+
 def make_pose(stamp: float, x: float, y: float, yaw: float, v: float = 0.0, w: float = 0.0) -> Pose:
     """Build a :class:`Pose` with the yaw wrapped and its quaternion filled in."""
     yaw = wrap_angle(float(yaw))

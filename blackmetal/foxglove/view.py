@@ -11,7 +11,7 @@
 | ``/status``, ``/health``, ``/errors`` | blackmetal JSON messages, as published | their keys |
 | ``/log`` | ``foxglove.Log``, one per error report (the Log panel) | ``<prefix>/errors`` |
 
-Payloads that do not decode are skipped and counted; the view never
+Payloads that do not decode are skipped; the view never
 crashes on what a key carries.
 """
 
@@ -23,7 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 from blackmetal.robot_model import Encoders
-from schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, RobotStatus, WheelImpulses, decode, json_schemas
+from schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, RobotStatus, WheelImpulses, decode, json_schemas, stamp_parts
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -46,8 +46,8 @@ WHEELS_SCHEMA: dict[str, Any] = {
 def timestamp(stamp: float) -> Any:
     from foxglove.messages import Timestamp
 
-    sec = int(stamp // 1)
-    return Timestamp(sec=sec, nsec=min(round((stamp - sec) * 1e9), 999_999_999))
+    sec, nsec = stamp_parts(stamp)
+    return Timestamp(sec=sec, nsec=nsec)
 
 
 def _pose(pose: Pose) -> Any:
@@ -86,7 +86,6 @@ class LiveView:
         self.keys = keys
         self.frame, self.base = frame, base
         self.encoders = encoders or Encoders()
-        self.skipped = 0
         schemas = json_schemas()
 
         def json_channel(topic: str, schema: dict[str, Any]) -> Any:
@@ -123,7 +122,6 @@ class LiveView:
         try:
             return decode(message_type, payload)
         except PayloadError:
-            self.skipped += 1
             return None
 
     def _forward(self, channel: Any, message_type: type[Any], payload: bytes) -> None:

@@ -34,14 +34,6 @@ class Recorded:
     truncated: str | None = None
     metadata: list[tuple[str, dict[str, str]]] = field(default_factory=list)
 
-    def find(self, suffix: str) -> Channel | None:
-        """The one channel whose key ends with ``/suffix`` (``wheels/impulses``), None if there is none."""
-        found = [c for topic, c in self.channels.items() if topic == suffix or topic.endswith("/" + suffix)]
-        if len(found) > 1:
-            names = ", ".join(c.topic for c in found)
-            raise ConfigError(f"{self.path} holds several {suffix} channels ({names}): choose one with --prefix")
-        return found[0] if found else None
-
 
 def is_mcap(path: str | Path) -> bool:
     try:

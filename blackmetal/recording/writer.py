@@ -61,7 +61,6 @@ def message_name_for(keys: Keys, key: str) -> str | None:
 @dataclass
 class ChannelStats:
     messages: int = 0
-    bytes: int = 0
 
 
 @dataclass
@@ -122,7 +121,6 @@ class McapRecording:
         channel = self._channel(key)
         stats = self.stats.setdefault(key, ChannelStats())
         stats.messages += 1
-        stats.bytes += len(payload)
         self.total_bytes += len(payload)
         self._writer.add_message(
             channel_id=channel,

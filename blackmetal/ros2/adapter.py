@@ -87,52 +87,42 @@ class Ros2Adapter:
         self.codec = codec
         self.reporter = ErrorReporter("ros2", output.error, clock, wallclock)
         self.joints = WheelJoints(options.encoders, options.wheel_radius)
-        self.counts = {"odom": 0, "tf": 0, "joint_states": 0, "cmd_vel": 0, "estop": 0, "rejected": 0}
 
     # --------------------------------------------------------------- blackmetal -> ROS
     def on_pose(self, payload: bytes) -> None:
         try:
             pose = decode(Pose, payload)
         except PayloadError as exc:
-            self._reject(self.keys.pose, str(exc), exc.excerpt)
+            self.reporter.report(self.keys.pose, str(exc), exc.excerpt)
             return
         o = self.options
         self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
-        self.counts["odom"] += 1
         if o.publish_tf:
             self.output.ros("tf", self.codec.transform(pose, o.frames))
-            self.counts["tf"] += 1
 
     def on_impulses(self, payload: bytes) -> None:
         try:
             sample = decode(WheelImpulses, payload)
         except PayloadError as exc:
-            self._reject(self.keys.impulses, str(exc), exc.excerpt)
+            self.reporter.report(self.keys.impulses, str(exc), exc.excerpt)
             return
         self.joints.feed(sample)
         cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
         self.output.ros("joint_states", cdr)
-        self.counts["joint_states"] += 1
 
     # --------------------------------------------------------------- ROS -> blackmetal
     def on_cmd_vel(self, cdr: bytes) -> None:
         try:
             twist = self.codec.twist(cdr, stamped=self.options.twist_stamped)
         except PayloadError as exc:
-            self._reject(self.options.cmd_vel_key, str(exc), exc.excerpt)
+            self.reporter.report(self.options.cmd_vel_key, str(exc), exc.excerpt)
             return
         self.output.blackmetal(self.keys.cmd_vel, encode(twist))
-        self.counts["cmd_vel"] += 1
 
     def on_estop(self, cdr: bytes) -> None:
         try:
             estop = self.codec.estop(cdr)
         except PayloadError as exc:
-            self._reject(self.options.estop_key, str(exc), exc.excerpt)
+            self.reporter.report(self.options.estop_key, str(exc), exc.excerpt)
             return
         self.output.blackmetal(self.keys.estop, encode(estop))
-        self.counts["estop"] += 1
-
-    def _reject(self, where: str, reason: str, snippet: str) -> None:
-        self.counts["rejected"] += 1
-        self.reporter.report(where, reason, snippet)

@@ -15,7 +15,7 @@ import math
 from dataclasses import dataclass
 from typing import Any
 
-from schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra
+from schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra, stamp_parts
 
 TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"
@@ -46,15 +46,6 @@ def excerpt(payload: bytes) -> str:
 class Frames:
     odom: str = "odom"
     base: str = "base_link"
-
-
-def stamp_parts(stamp: float) -> tuple[int, int]:
-    """Unix seconds -> (sec, nanosec) as builtin_interfaces/Time holds them (whole seconds first: no 1e18 rounding)."""
-    sec = math.floor(stamp)
-    nanosec = round((stamp - sec) * 1e9)
-    if nanosec >= 1_000_000_000:
-        sec, nanosec = sec + 1, nanosec - 1_000_000_000
-    return int(sec), int(nanosec)
 
 
 class RosCodec:
