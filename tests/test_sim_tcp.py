@@ -133,7 +133,8 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
         client.request(wire.set_velocity(0.1, 0.1))
         client.speeds()  # partial interval
         for _ in range(30):
-            assert client.speeds().left in (0, 101, 102)
+            client.request(wire.set_velocity(0.1, 0.1))  # feed the 1.5 s watchdog: the speed stays constant
+            assert client.speeds().left in (101, 102)
         assert client.malformed > 0  # garbage was seen, skipped, and every reply still arrived
         set_faults(garbage=0.0, split=0.0, glue=0.0, delay=0.3)
         start = time.monotonic()
@@ -152,9 +153,11 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
             client.speeds()
         set_faults(disconnect=0.0, delay=0.0)
     client.close()
-    # the robot accepts a new client after a disconnect
+    # the robot accepts a new client after a disconnect; the reading is the mean rate since the
+    # previous one, so on a slow machine the robot's 10 s watchdog may have stopped it on the way
     again = RobotClient(proc.host, proc.control_port)
-    assert again.speeds().left in (0, 101, 102)
+    reading = again.speeds()
+    assert 0 <= reading.left <= 102 and 0 <= -reading.right <= 106  # 0.1 m/s is 101-102 | 105-106 impulses/s
     again.close()
 
 
