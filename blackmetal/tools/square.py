@@ -209,19 +209,24 @@ def report(run: Run) -> str:
 
 
 def umbmark_figure(runs: list[Run]) -> str | None:
-    """UMBmark's E_max,syst from the true end points (None without the simulator's truth), and how to calibrate from them."""
+    """UMBmark's E_max,syst (None without the simulator's truth), and how to calibrate from it.
+
+    Each end point is UMBmark's return position error: the true end minus the
+    end the odometry computed, both in the robot's frame at the start, so the
+    driver's own stopping error (larger on a loaded machine) is not counted.
+    """
     ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     for run in runs:
         if run.truth is None:
             return None
-        ends[run.direction].append((run.truth.dx, run.truth.dy))
+        ends[run.direction].append((run.truth.dx - run.odometry.dx, run.truth.dy - run.odometry.dy))
     if not ends["clockwise"] or not ends["counter-clockwise"]:
         return None
     cg = {d: (sum(p[0] for p in pts) / len(pts), sum(p[1] for p in pts) / len(pts)) for d, pts in ends.items()}
     e_max = max(math.hypot(*cg["clockwise"]), math.hypot(*cg["counter-clockwise"]))
     cw, ccw = cg["clockwise"], cg["counter-clockwise"]
     return (
-        f"UMBmark E_max,syst {1000 * e_max:.1f} mm (true end points' centres of gravity: clockwise ({1000 * cw[0]:+.1f}, {1000 * cw[1]:+.1f}) mm, "
+        f"UMBmark E_max,syst {1000 * e_max:.1f} mm (centres of gravity of the true ends minus the odometry's: clockwise ({1000 * cw[0]:+.1f}, {1000 * cw[1]:+.1f}) mm, "
         f"counter-clockwise ({1000 * ccw[0]:+.1f}, {1000 * ccw[1]:+.1f}) mm, {len(ends['clockwise'])} run(s) each way)\n"
         f"  UMBmark correction: blackmetal calibrate RECORDING --cw-end={cw[0]:.4f},{cw[1]:.4f} --ccw-end={ccw[0]:.4f},{ccw[1]:.4f}"
     )
