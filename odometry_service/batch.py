@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-from blackmetal.robot_model import arc_deltas, wheels_to_twist
+from blackmetal.robot_model import arc_deltas, arc_path, both, wheels_to_twist
 
 from .core import OdometryParams, SampleOrder
 from .errors import SampleRejected
@@ -99,22 +99,32 @@ def _acceptance(
     return accepted, new_epoch[accepted], rejected, events, gaps, restarts, missed
 
 
-def linear_scan(a: F, b: F, tol: float = 1e-18) -> F:
+#: The unit roundoff of float64: a carried factor below it changes no result by as much as its last bit.
+UNIT_ROUNDOFF = 2.0**-53
+
+
+def linear_scan(a: F, b: F, tol: float = UNIT_ROUNDOFF) -> F:
     """``y[k] = a[k] * y[k-1] + b[k]`` with ``y[-1] = 0``, as a parallel prefix scan.
 
-    Stops once every remaining carried factor is below ``tol`` (its effect on
-    ``y`` is then far below floating-point resolution of the result).
+    Stops once every remaining carried factor is below ``tol`` (what it would
+    still add is below the floating-point resolution of the values it
+    multiplies): the factors carried after a round are products of
+    ``2 * shift`` of the ``a``, so ``max|a| ** (2 * shift)`` bounds them
+    without looking.
     """
     a = a.copy()
     y = b.copy()
     n = len(y)
+    scratch = np.empty(n)
+    bound = float(np.max(np.abs(a))) if n else 0.0
     shift = 1
-    while shift < n:
+    while shift < n and bound >= tol:
         carried = a[shift:]
-        if not carried.size or float(np.max(np.abs(carried))) < tol:
-            break
-        y[shift:] = y[shift:] + carried * y[:-shift]
-        a[shift:] = carried * a[:-shift]
+        term = np.multiply(carried, y[:-shift], out=scratch[: n - shift])
+        y[shift:] += term
+        bound *= bound
+        if 2 * shift < n and bound >= tol:  # another round follows
+            carried *= a[:-shift]  # numpy reads the overlapping operand as it was
         shift *= 2
     return y
 
@@ -129,64 +139,85 @@ def _prev(values: np.ndarray, fill: object) -> np.ndarray:
 
 def _clean(x: F, x_other: F, new_epoch: B, limit: float) -> tuple[F, int]:
     """Spikes replaced by the last trustworthy reading (not a spike, not a first zero; 0 at an
-    epoch start), scaled by how the other wheel changed since when it can tell."""
-    index = np.arange(len(x))
+    epoch start), scaled by how the other wheel changed since when it can tell.
+
+    Spikes are rare: the masks cover the whole log, the repair only the spikes.
+    """
     valid = np.abs(x) <= limit
-    valid_o = np.abs(x_other) <= limit
+    if valid.all():  # no spike on this wheel: nothing to replace
+        return x, 0
     raw_prev = _prev(x, 0.0)
     raw_prev[new_epoch] = 0.0
-    anchor = (valid & ~((x == 0.0) & (raw_prev != 0.0))) | new_epoch
-    last = np.maximum.accumulate(np.where(anchor, index, 0))
-    # an epoch start that is itself not trustworthy anchors at 0 (the streaming reset state)
-    trusted = valid[last] & ~((x[last] == 0.0) & (raw_prev[last] != 0.0))
+    first_zero = (x == 0.0) & (raw_prev != 0.0)
+    anchors = np.flatnonzero((valid & ~first_zero) | new_epoch)
+    spikes = np.flatnonzero(~valid)
+    # the last anchor at or before each spike (0 when there is none, the streaming reset state)
+    before = np.searchsorted(anchors, spikes, side="right") - 1
+    last = np.where(before >= 0, anchors[before] if anchors.size else 0, 0)
+    # an epoch start that is itself not trustworthy anchors at 0
+    trusted = valid[last] & ~first_zero[last]
     base = np.where(trusted, x[last], 0.0)
     other_base = np.where(trusted, x_other[last], 0.0)
-    other_ok = trusted & valid_o[last]
-    scale = ~valid & valid_o & other_ok & (x_other != 0.0) & (other_base != 0.0)
+    other_now = x_other[spikes]
+    scale = (np.abs(other_now) <= limit) & trusted & (np.abs(x_other[last]) <= limit) & (other_now != 0.0) & (other_base != 0.0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        scaled = np.clip(base * x_other / np.where(scale, other_base, 1.0), -limit, limit)
-    clean = np.where(valid, x, np.where(scale, scaled, base))
-    return clean, int(np.count_nonzero(~valid))
+        scaled = np.clip(base * other_now / np.where(scale, other_base, 1.0), -limit, limit)
+    clean = x.copy()
+    clean[spikes] = np.where(scale, scaled, base)
+    return clean, len(spikes)
 
 
-def _zero_run_before(zero: B, new_epoch: B) -> NDArray[np.int8]:
-    """Consecutive zeros (capped at 2) after the previous sample; 2 at an epoch start."""
-    prev_nonzero = ~_prev(zero, True) & ~new_epoch
-    zr_after = np.where(zero, np.where(prev_nonzero, 1, 2), 0).astype(np.int8)
-    zr_before = _prev(zr_after, 2)
-    zr_before[new_epoch] = 2
-    return zr_before
+def _zero_runs_before(zero: B, new_epoch: B) -> tuple[B, B, B]:
+    """Where the samples just before are: a reading (run 0), one zero after a reading (run 1),
+    or more zeros, or nothing in the epoch (run 2: "from rest"). Boolean masks, no int arrays."""
+    zero_before = _prev(zero, True)  # the previous sample read zero (or there is none)
+    reading_before = ~zero_before & ~new_epoch
+    # the previous sample was a first zero: it read zero after a reading within its epoch
+    first_zero_before = _prev(zero & ~_prev(zero, True) & ~new_epoch, False) & ~new_epoch
+    return reading_before, first_zero_before, ~(reading_before | first_zero_before)
 
 
-def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.float64], B, int]:
-    """One wheel's speeds to integrate, filtered speeds, the revision of the previous step decided
-    at each sample (NaN = none), and its dropout count; the rules of
-    :class:`~odometry_service.core.Glitches`."""
+def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.intp], F, int]:
+    """One wheel's speeds to integrate, filtered speeds, the revisions of earlier steps (sample
+    ``k`` revises step ``k - 1``: indices ``k`` and values), and its dropout count; the rules of
+    :class:`~odometry_service.core.Glitches`.
+
+    The rules act at a few samples (first zeros, stops, starts), so they are
+    worked out at those indices only; whole-array work is kept to the masks.
+    """
     zero = c == 0.0
     zero_o = c_other == 0.0
-    zr_before = _zero_run_before(zero, new_epoch)
-    prev_c, prev_co = _prev(c, 0.0), _prev(c_other, 0.0)
-    prev_zero_o = _prev(zero_o, True)
-    first_zero = zero & (zr_before == 0)
-    estimate = first_zero & ~prev_zero_o & ~zero_o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        est_value = np.clip(np.where(estimate, prev_c * c_other / np.where(estimate, prev_co, 1.0), 0.0), -limit, limit)
-    u = np.where(zero, np.where(first_zero, np.where(estimate, est_value, prev_c), 0.0), c)
+    run0, run1, reset = _zero_runs_before(zero, new_epoch)
+    # a first zero in motion: a dropout until the next sample says otherwise; held, or scaled by
+    # how the other wheel changed when it can tell (k >= 1: an epoch start is from rest)
+    first = np.flatnonzero(zero & run0)
+    u = c.copy()
+    if first.size:
+        held = c[first - 1]
+        estimate = ~zero_o[first - 1] & ~zero_o[first]
+        k = first[estimate]
+        held[estimate] = np.clip(c[k - 1] * c_other[k] / c_other[k - 1], -limit, limit)
+        u[first] = held
     moving = u != 0.0
-    reset = zr_before >= 2
-    a = np.where(moving & ~reset, alpha, 0.0)
-    b = np.where(moving, np.where(reset, u, (1.0 - alpha) * u), 0.0)
+    a = (moving & ~reset) * alpha
+    b = u * (1.0 - alpha)  # 0 where not moving: u is 0 there
+    from_rest = np.flatnonzero(moving & reset)
+    b[from_rest] = u[from_rest]  # from rest: no slow ramp
     y = linear_scan(a, b)
-    # revisions of step k-1, decided at k (only where steps k-1 and k exist: two previous samples in the epoch)
-    started = ~new_epoch
-    started2 = started & _prev(started, False)
-    retract = started2 & zero & (zr_before == 1) & ~(~prev_zero_o & zero_o)
-    late = started2 & ~retract & ~zero & (zr_before >= 2) & _prev(prev_zero_o, True) & ~prev_zero_o & ~zero_o
-    with np.errstate(divide="ignore", invalid="ignore"):
-        late_value = np.clip(np.where(late, c * prev_co / np.where(late, c_other, 1.0), 0.0), -limit, limit)
-    revision = np.where(retract, 0.0, np.where(late, late_value, np.nan))
-    dropouts = int(np.count_nonzero(first_zero)) - int(np.count_nonzero(retract))
-    return u, y, revision, retract | late, dropouts
+    # revisions, where two previous samples exist in the epoch: a second zero was a real stop
+    # (unless the other wheel stops only now), or a start's first reading was dropped
+    second = np.flatnonzero(zero & run1)
+    second = second[second >= 1]
+    second = second[~new_epoch[second] & ~new_epoch[second - 1] & ~(~zero_o[second - 1] & zero_o[second])]
+    start = np.flatnonzero(~zero & reset)
+    start = start[start >= 1]
+    other_still_before = np.where(start >= 2, zero_o[start - 2], True)
+    start = start[~new_epoch[start] & ~new_epoch[start - 1] & other_still_before & ~zero_o[start - 1] & ~zero_o[start]]
+    late = np.clip(c[start] * c_other[start - 1] / c_other[start], -limit, limit)
+    revised = np.concatenate([second, start])  # disjoint: a second zero reads 0, a start does not
+    values = np.concatenate([np.zeros(len(second)), late])
+    dropouts = len(first) - len(second)
+    return u, y, revised, values, dropouts
 
 
 def run_batch(
@@ -215,40 +246,33 @@ def run_batch(
     x_left, x_right = p.encoders.to_speeds(left_imp, right_imp)
     c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
     c_right, spikes_r = _clean(x_right, x_left, new_epoch, p.spike_limit)
-    u_left, y_left, rev_left, fix_l, drops_l = _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit)
-    u_right, y_right, rev_right, fix_r, drops_r = _glitches(c_right, c_left, new_epoch, p.filter_alpha, p.spike_limit)
+    (u_left, y_left, fix_l, rev_left, drops_l), (u_right, y_right, fix_r, rev_right, drops_r) = both(
+        lambda: _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit),
+        lambda: _glitches(c_right, c_left, new_epoch, p.filter_alpha, p.spike_limit),
+        n,
+    )
 
     dt = np.zeros(n)
     if n > 1:
         dt[1:] = np.diff(time)
-    dt[new_epoch] = 0.0
-    has_step = ~new_epoch
-    revised_at = fix_l | fix_r  # sample k revises step k-1
-    s_left = u_left.copy()
-    s_right = u_right.copy()
-    fix_left = np.zeros(n, bool)
-    fix_right = np.zeros(n, bool)
-    fix_left[:-1] = fix_l[1:]
-    fix_right[:-1] = fix_r[1:]
-    s_left[fix_left] = rev_left[1:][fix_l[1:]]
-    s_right[fix_right] = rev_right[1:][fix_r[1:]]
-    d_left = np.where(has_step, s_left * dt, 0.0)
-    d_right = np.where(has_step, s_right * dt, 0.0)
+    dt[new_epoch] = 0.0  # no step into an epoch's first sample
+    # sample k revises step k - 1; the live service first published the step as held
+    provisional = np.union1d(fix_l, fix_r) - 1
+    held_l, held_r = u_left[provisional] * dt[provisional], u_right[provisional] * dt[provisional]
+    u_left[fix_l - 1] = rev_left
+    u_right[fix_r - 1] = rev_right
+    d_left = u_left * dt
+    d_right = u_right * dt
 
     x, y, yaw = integrate(d_left, d_right, p.wheel_separation)
 
     # what the live service published at a first zero later shown to be a stop: the held step
-    provisional = np.flatnonzero(fix_left | fix_right)
     if provisional.size:
         k = provisional
         x_prev = np.where(k > 0, x[k - 1], 0.0)
         y_prev = np.where(k > 0, y[k - 1], 0.0)
         yaw_prev = np.where(k > 0, yaw[k - 1], 0.0)
-        held_l, held_r = u_left[k] * dt[k], u_right[k] * dt[k]
         pdx, pdy, pdth = arc_deltas(yaw_prev, held_l, held_r, p.wheel_separation)
-        x = x.copy()
-        y = y.copy()
-        yaw = yaw.copy()
         x[k], y[k], yaw[k] = x_prev + pdx, y_prev + pdy, yaw_prev + pdth
 
     v, w = wheels_to_twist(y_left, y_right, p.wheel_separation)
@@ -263,7 +287,7 @@ def run_batch(
         events=events,
         spikes=spikes_l + spikes_r,
         dropouts=drops_l + drops_r,
-        retractions=int(np.count_nonzero(revised_at)),
+        retractions=len(provisional),
         gaps=gaps,
         restarts=restarts,
         missed=missed,
@@ -278,10 +302,4 @@ def integrate(d_left: F, d_right: F, separation: float) -> tuple[F, F, F]:
     The whole of the odometry's geometry; a calibration calls it many times
     with rescaled travels and another separation.
     """
-    yaw = np.cumsum(wheels_to_twist(d_left, d_right, separation)[1])  # turn of each step
-    yaw_before = np.empty(len(yaw))
-    if len(yaw):
-        yaw_before[0] = 0.0
-        yaw_before[1:] = yaw[:-1]
-    dx, dy, _ = arc_deltas(yaw_before, d_left, d_right, separation)
-    return np.cumsum(dx), np.cumsum(dy), yaw
+    return arc_path(d_left, d_right, separation)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from blackmetal import robot_model as facts
 from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
-from blackmetal.robot_model import Encoders, arc_step
+from blackmetal.robot_model import PARALLEL_MIN, Encoders, arc_step
 from odometry_service.batch import linear_scan, run_batch
 from odometry_service.core import Glitches, Odometry, OdometryParams
 from odometry_service.errors import SampleRejected
@@ -229,6 +229,19 @@ def test_batch_equals_streaming_on_a_faulty_square(alpha: float) -> None:
     got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
     assert got.shape == expected.shape
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
+    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
+
+
+def test_batch_equals_streaming_on_a_log_long_enough_for_two_threads() -> None:
+    """From PARALLEL_MIN samples the wheels and the trigonometry run on two threads: same poses."""
+    params = OdometryParams()
+    legs = square_legs(side=0.5) * 60
+    log = synth_log(legs, dropout=0.02, spike=0.01, seed=5)
+    assert len(log) >= PARALLEL_MIN
+    poses, odo = stream(log.messages(), params)
+    batch = run_batch(log.seq, log.stamp, log.left, log.right, params)
+    got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
+    np.testing.assert_allclose(got, np.array(poses), rtol=0, atol=1e-9)
     assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
 
 
