@@ -4,7 +4,7 @@
 |---|---|
 | cmd_vel put -> bytes at the robot socket, p50/p99 | one plain Zenoh hop between two Python processes |
 | e-stop put -> EMG_STOP at the robot socket, p50/p99 | cmd_vel's figure |
-| ROS 2 /cmd_vel (CDR, rmw_zenoh key) through ``blackmetal ros2`` -> robot socket | cmd_vel's figure and one Zenoh hop |
+| ROS 2 /cmd_vel (CDR, rmw_zenoh key) through ``blackmetal ros2`` -> robot socket: publisher -> adapter -> gateway, and routed publisher -> gateway -> adapter -> gateway | cmd_vel's figure and one Zenoh hop |
 | /odom samples per second from ``blackmetal ros2`` at 100 Hz polling | poses per second in the same window |
 | impulse reply at the gateway -> Pose at a client | two Zenoh hops (a ping-pong round trip) |
 | sustained poll rate and worst gap at 100 and 200 Hz | the asked rate |
@@ -64,18 +64,19 @@ def measure(quick: bool, progress: Any = print) -> dict[str, Any]:
         "noisy": _noisy(cmds) or _noisy(hops),
     }
     progress("latency: ROS 2 /cmd_vel through blackmetal ros2 -> robot socket, against cmd_vel and one Zenoh hop ...")
-    ros_cmds, ros_p99 = [], []
-    for _ in range(rounds):
-        ros = figures.cmd_latency(samples // 2, via_ros2=True)
-        ros_cmds.append(ros["p50_ms"])
-        ros_p99.append(ros["p99_ms"])
-    extra = statistics.median(ros_cmds) - statistics.median(cmds)
-    out["ros2_cmd_vel_to_robot_ms"] = {
-        "p50": _spread(ros_cmds),
-        "p99": _spread(ros_p99),
-        "p50_over_cmd_vel": statistics.median(ros_cmds) / statistics.median(cmds),
-        "extra_hops": extra / statistics.median(hops),
-    }
+    for name, in_line in (("ros2_cmd_vel_to_robot_ms", True), ("ros2_routed_cmd_vel_to_robot_ms", False)):
+        ros_cmds, ros_p99 = [], []
+        for _ in range(rounds):
+            ros = figures.cmd_latency(samples, via_ros2=True, ros2_in_line=in_line)
+            ros_cmds.append(ros["p50_ms"])
+            ros_p99.append(ros["p99_ms"])
+        extra = statistics.median(ros_cmds) - statistics.median(cmds)
+        out[name] = {
+            "p50": _spread(ros_cmds),
+            "p99": _spread(ros_p99),
+            "p50_over_cmd_vel": statistics.median(ros_cmds) / statistics.median(cmds),
+            "extra_hops": extra / statistics.median(hops),
+        }
     progress("ROS 2 /odom rate at 100 Hz polling, against the pose rate ...")
     out["ros2_odom"] = figures.ros2_odom_rate(2.0 if quick else 10.0)
     progress("latency: e-stop -> EMG_STOP at the robot socket, against cmd_vel ...")
@@ -151,10 +152,15 @@ def table(f: dict[str, Any]) -> str:
     ]
     ros = f["ros2_cmd_vel_to_robot_ms"]
     rows.append(
-        ("ROS /cmd_vel -> robot p50 (ros2)", ms(ros["p50"]), f"cmd_vel p50 {ms(cmd['p50'])}",
+        ("ROS /cmd_vel -> robot p50 (ros2 in line)", ms(ros["p50"]), f"cmd_vel p50 {ms(cmd['p50'])}",
          f"{ros['p50_over_cmd_vel']:.2f}x; +{ros['extra_hops']:.2f} Zenoh hops (<= 1 more hop{met(ros['extra_hops'] <= 1.0)})")
     )  # fmt: skip
-    rows.append(("ROS /cmd_vel -> robot p99 (ros2)", ms(ros["p99"]), f"cmd_vel p99 {ms(cmd['p99'])}", ""))
+    rows.append(("ROS /cmd_vel -> robot p99 (ros2 in line)", ms(ros["p99"]), f"cmd_vel p99 {ms(cmd['p99'])}", ""))
+    routed = f["ros2_routed_cmd_vel_to_robot_ms"]
+    rows.append(
+        ("ROS /cmd_vel -> robot p50, routed via the gateway", ms(routed["p50"]), f"cmd_vel p50 {ms(cmd['p50'])}",
+         f"{routed['p50_over_cmd_vel']:.2f}x; +{routed['extra_hops']:.2f} Zenoh hops (report: two more transits by construction)")
+    )  # fmt: skip
     o = f["ros2_odom"]
     rows.append(
         ("/odom rate at 100 Hz polling", f"{o['odom_hz']:.1f} Hz; adapter CPU {o['adapter_cpu_pct']:.1f}%", f"pose {o['pose_hz']:.1f} Hz",
