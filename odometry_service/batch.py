@@ -244,8 +244,9 @@ def run_batch(
         stamp, time, left_imp, right_imp = stamp[accepted], time[accepted], left_imp[accepted], right_imp[accepted]
     n = len(stamp)
     x_left, x_right = p.encoders.to_speeds(left_imp, right_imp)
-    c_left, spikes_l = _clean(x_left, x_right, new_epoch, p.spike_limit)
-    c_right, spikes_r = _clean(x_right, x_left, new_epoch, p.spike_limit)
+    (c_left, spikes_l), (c_right, spikes_r) = both(
+        lambda: _clean(x_left, x_right, new_epoch, p.spike_limit), lambda: _clean(x_right, x_left, new_epoch, p.spike_limit), n
+    )
     (u_left, y_left, fix_l, rev_left, drops_l), (u_right, y_right, fix_r, rev_right, drops_r) = both(
         lambda: _glitches(c_left, c_right, new_epoch, p.filter_alpha, p.spike_limit),
         lambda: _glitches(c_right, c_left, new_epoch, p.filter_alpha, p.spike_limit),
