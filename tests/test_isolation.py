@@ -29,6 +29,17 @@ def _truth(session: zenoh.Session) -> Pose:
     return pose
 
 
+def drive_one_not_the_other(mover: zenoh.Session, other: zenoh.Session) -> None:
+    """cmd_vel through ``mover`` moves its simulator; the other demo's truth does not change."""
+    start = _truth(other)
+    for _ in range(15):
+        mover.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
+        time.sleep(0.1)
+    wait_for(lambda: _truth(mover).x > 0.2, what="the driven demo to move")
+    end = _truth(other)
+    assert (end.x, end.y) == (start.x, start.y)  # the other demo never moved
+
+
 @contextlib.contextmanager
 def two_demos() -> Iterator[tuple[int, int]]:
     """Two `blackmetal up` on one host with default flags; their Zenoh ports."""
@@ -48,13 +59,7 @@ def test_two_demos_on_one_host_are_independent() -> None:
     with two_demos() as ports, zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
         poses_a: list[bytes] = []
         a.declare_subscriber(KEYS.pose, lambda s: poses_a.append(s.payload.to_bytes()))
-        start_b = _truth(b)
-        for _ in range(15):
-            a.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
-            time.sleep(0.1)
-        wait_for(lambda: _truth(a).x > 0.2, what="demo A to move")
-        end_b = _truth(b)
-        assert (end_b.x, end_b.y) == (start_b.x, start_b.y)  # demo B never moved
+        drive_one_not_the_other(a, b)
         alive = [str(r.ok.key_expr) for r in a.liveliness().get("**/alive/**", timeout=2) if r.ok is not None]
         assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim})  # each once: A's only
         time.sleep(1.0)
@@ -126,10 +131,4 @@ def test_a_peer_that_met_two_demos_does_not_link_them() -> None:
             time.sleep(2.0)
         time.sleep(1.0)
         with zenoh.open(client_config(ports[0])) as a, zenoh.open(client_config(ports[1])) as b:
-            start_a = _truth(a)
-            for _ in range(15):
-                b.put(KEYS.cmd_vel, b'{"linear":{"x":0.3}}')
-                time.sleep(0.1)
-            wait_for(lambda: _truth(b).x > 0.2, what="demo B to move")
-            end_a = _truth(a)
-            assert (end_a.x, end_a.y) == (start_a.x, start_a.y)  # demo A never moved
+            drive_one_not_the_other(b, a)

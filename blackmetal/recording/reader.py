@@ -196,15 +196,17 @@ def _chunks_as_lines(chunks: list[bytes], wanted: Callable[[str], bool], ids: se
     chosen = np.isin(channel_ids, np.array(sorted(ids), np.uint16))
     messages, sizes = messages[chosen], sizes[chosen]
     order = np.argsort(messages)  # file order
-    first = messages[order] + 9 + _MESSAGE_HEADER
-    last = messages[order] + 9 + sizes[order]
+    messages, sizes = messages[order], sizes[order]
+    first = messages + 9 + _MESSAGE_HEADER
+    last = messages + 9 + sizes
     # keep each payload and the header byte before it, which becomes the line's newline
     edges = np.empty(2 * len(first) + 2, np.int64)
     edges[0], edges[-1] = 0, len(data)
     edges[1:-1:2], edges[2:-1:2] = first - 1, last
     keep = np.repeat(np.arange(len(edges) - 1) % 2 == 1, np.diff(edges))
     lines = raw[keep]
-    lines[np.cumsum(last - first + 1) - (last - first + 1)] = ord("\n")
+    kept = last - first + 1
+    lines[np.cumsum(kept) - kept] = ord("\n")
     return lines.tobytes()
 
 
