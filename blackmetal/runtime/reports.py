@@ -7,6 +7,7 @@ reports of the same key were suppressed since the last one published.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 
@@ -41,6 +42,11 @@ class ReportLimiter:
         self._suppressed[key] = self._suppressed.get(key, 0) + 1
         return False, 0
 
+    @property
+    def pending(self) -> bool:
+        """Some reports were suppressed and not yet summarised."""
+        return bool(self._suppressed)
+
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
         """Keys whose suppressed count can be announced now (a token is free), with the count."""
         due: list[tuple[str, int]] = []
@@ -54,28 +60,37 @@ class ReportLimiter:
         return due
 
 
+#: How often suppressed-report summaries go out, at most (s).
+SUMMARY_PERIOD_S = 1.0
+
+
 class ErrorReporter:
-    """Builds ErrorReports and hands the admitted ones to ``publish``; call :meth:`flush` about once a second."""
+    """Builds ErrorReports and hands the admitted ones to ``publish``; the one owner of suppressed-report summaries.
+
+    Every core owns one reporter, passes its ``now`` to :meth:`report` and
+    :meth:`tick`, and counts :meth:`next_deadline` among its own deadlines:
+    so no host keeps a timer of its own for summaries, and no clock is read
+    behind the core's back.
+    """
 
     def __init__(
         self,
         source: str,
         publish: Callable[[ErrorReport], None],
-        clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
         limiter: ReportLimiter | None = None,
+        summary_period: float = SUMMARY_PERIOD_S,
     ) -> None:
         self.source = source
         self.publish = publish
-        self.clock = clock
         self.wallclock = wallclock
         self.limiter = limiter or ReportLimiter()
-        self.reported = 0
+        self.summary_period = summary_period
+        self._next_summary = -math.inf
 
-    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None) -> None:
-        """Report one rejected input or fault on ``key`` (published unless rate-limited)."""
-        self.reported += 1
-        admitted, suppressed = self.limiter.admit(key, self.clock())
+    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float) -> None:
+        """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited)."""
+        admitted, suppressed = self.limiter.admit(key, now)
         if admitted:
             self.publish(
                 ErrorReport(
@@ -87,10 +102,19 @@ class ErrorReporter:
                     suppressed=suppressed,
                 )
             )
+        elif self._next_summary == -math.inf:
+            self._next_summary = now + self.summary_period
 
-    def flush(self) -> None:
-        """Publish how many reports were suppressed, for each key that has a token again."""
-        for key, suppressed in self.limiter.due_summaries(self.clock()):
+    def next_deadline(self) -> float:
+        """When :meth:`tick` has a summary to consider (inf: nothing was suppressed)."""
+        return self._next_summary if self.limiter.pending else math.inf
+
+    def tick(self, now: float) -> None:
+        """Publish how many reports were suppressed, for each key that has a token again (at most once a period)."""
+        if now < self._next_summary or not self.limiter.pending:
+            return
+        self._next_summary = now + self.summary_period
+        for key, suppressed in self.limiter.due_summaries(now):
             self.publish(
                 ErrorReport(
                     stamp=self.wallclock(),
@@ -100,3 +124,5 @@ class ErrorReporter:
                     suppressed=suppressed,
                 )
             )
+        if not self.limiter.pending:
+            self._next_summary = -math.inf
