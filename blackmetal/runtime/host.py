@@ -1,0 +1,78 @@
+"""The timer every service host runs its pure core on: one asyncio timer at the core's next deadline.
+
+A core (the gateway's robot connection, the odometry, the ROS 2 adapter) is
+pure and clock-injected: it is fed inputs with ``now``, runs its due timers
+in ``tick(now)`` and says in ``next_deadline()`` when that must happen next.
+:class:`DeadlineTimer` is the one piece of asyncio they share: it calls
+``tick`` at the deadline, then ``after_tick`` (the host moves what the core
+produced), and after each input the host calls :meth:`DeadlineTimer.poke`
+so a deadline that came earlier is honoured. The timer is moved only when a
+deadline comes earlier, so a flood of inputs costs no timer churn.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+from collections.abc import Callable
+from typing import Protocol
+
+#: A deadline further away than this is slept in steps (asyncio's call_later wants a finite delay).
+MAX_SLEEP_S = 3600.0
+
+
+class Core(Protocol):
+    """What a host needs of a pure core to run its timers."""
+
+    def tick(self, now: float) -> None: ...
+    def next_deadline(self) -> float: ...
+
+
+class DeadlineTimer:
+    """Runs ``core.tick`` at ``core.next_deadline()`` on the running loop; see the module docstring."""
+
+    def __init__(self, core: Core, clock: Callable[[], float] = time.monotonic, after_tick: Callable[[], None] | None = None) -> None:
+        self.core = core
+        self.clock = clock
+        self.after_tick = after_tick
+        self._timer: asyncio.TimerHandle | None = None
+        self._timer_at = math.inf
+        self._running = False
+
+    def start(self) -> None:
+        """Run the core's due timers now and keep running them at each deadline until :meth:`stop`."""
+        self._running = True
+        self._fire()
+
+    def stop(self) -> None:
+        self._running = False
+        if self._timer is not None:
+            self._timer.cancel()
+            self._timer = None
+        self._timer_at = math.inf
+
+    def poke(self) -> None:
+        """An input reached the core: move the timer if its deadline came earlier."""
+        if self._running:
+            deadline = self.core.next_deadline()
+            if deadline < self._timer_at:
+                self._schedule(deadline)
+
+    def _schedule(self, deadline: float) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+        self._timer_at = deadline
+        delay = min(max(deadline - self.clock(), 0.0), MAX_SLEEP_S)
+        self._timer = asyncio.get_running_loop().call_later(delay, self._fire)
+
+    def _fire(self) -> None:
+        self._timer = None
+        self._timer_at = math.inf
+        if not self._running:
+            return
+        self.core.tick(self.clock())
+        if self.after_tick is not None:
+            self.after_tick()  # may poke: then the timer is already set
+        if self._timer is None and self._running:
+            self._schedule(self.core.next_deadline())
