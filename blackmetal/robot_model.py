@@ -39,23 +39,47 @@ LOG_PORT = 664
 Num = TypeVar("Num", float, "NDArray[np.float64]")
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class WheelSpeeds:
-    """Wheel rim speeds in m/s, natural sign (forward positive on both wheels)."""
+    """Wheel rim speeds in m/s, natural sign (forward positive on both wheels).
 
-    right: float
+    Left, then right, and keyword-only, like every wheel pair in blackmetal:
+    a positional slip cannot swap the wheels. The robot's right-then-left
+    wire order lives only in :mod:`blackmetal.wire`.
+    """
+
     left: float
+    right: float
 
     def rounded(self) -> "WheelSpeeds":
         """As the wire carries them (6 decimals), so equal commands compare equal."""
-        return WheelSpeeds(round(self.right, 6) + 0.0, round(self.left, 6) + 0.0)
+        return WheelSpeeds(left=round(self.left, 6) + 0.0, right=round(self.right, 6) + 0.0)
+
+    def scaled(self, gain: "WheelGain") -> "WheelSpeeds":
+        """Each wheel multiplied by its own gain."""
+        return WheelSpeeds(left=self.left * gain.left, right=self.right * gain.right)
 
     @property
     def is_zero(self) -> bool:
         return self.right == 0.0 and self.left == 0.0
 
 
-STANDSTILL = WheelSpeeds(0.0, 0.0)
+STANDSTILL = WheelSpeeds(left=0.0, right=0.0)
+
+
+@dataclass(frozen=True, slots=True, kw_only=True)
+class WheelGain:
+    """A per-wheel factor (left, right), e.g. calibrated over nominal impulses per metre."""
+
+    left: float = 1.0
+    right: float = 1.0
+
+    @property
+    def is_unity(self) -> bool:
+        return self.left == 1.0 and self.right == 1.0
+
+
+UNITY_GAIN = WheelGain()
 
 
 @dataclass(frozen=True, slots=True)
@@ -97,9 +121,9 @@ def twist_to_wheels(v: float, w: float, separation: float, max_wheel_speed: floa
     left = v - half
     peak = max(abs(right), abs(left))
     if peak <= max_wheel_speed:
-        return WheelSpeeds(right, left), False
+        return WheelSpeeds(left=left, right=right), False
     scale = max_wheel_speed / peak
-    return WheelSpeeds(right * scale, left * scale), True
+    return WheelSpeeds(left=left * scale, right=right * scale), True
 
 
 def wheels_to_twist(left: Num, right: Num, separation: float) -> tuple[Num, Num]:

@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from enum import IntEnum
 from typing import Any, Generic, TypeVar
 
@@ -84,21 +84,26 @@ def replies_expected(command: CommandCode) -> int:
 
 @dataclass(frozen=True, slots=True)
 class Request:
-    """One command to the robot. ``right``/``left`` are wheel speeds (m/s) for
-    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None."""
+    """One command to the robot. ``left``/``right`` are wheel speeds (m/s) for
+    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None.
+
+    The wheels are keyword-only, left then right, as everywhere in blackmetal;
+    only :func:`encode_request` writes them in the robot's right-then-left order.
+    """
 
     command: CommandCode
-    right: float | int | None = None
+    _: KW_ONLY
     left: float | int | None = None
+    right: float | int | None = None
     user_id: int = USER_ID
 
 
-def set_velocity(right: float, left: float) -> Request:
-    return Request(CommandCode.SET_LR_WHEEL_VELOCITY, float(right), float(left))
+def set_velocity(*, left: float, right: float) -> Request:
+    return Request(CommandCode.SET_LR_WHEEL_VELOCITY, left=float(left), right=float(right))
 
 
-def set_position(right: int, left: int) -> Request:
-    return Request(CommandCode.SET_LR_WHEEL_POSITION, int(right), int(left))
+def set_position(*, left: int, right: int) -> Request:
+    return Request(CommandCode.SET_LR_WHEEL_POSITION, left=int(left), right=int(right))
 
 
 def simple(command: CommandCode) -> Request:
@@ -162,7 +167,7 @@ class StatusReply:
         return self.status == STATUS_FULL_BUFFER
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class SpeedReading:
     """Data reply to GET_LR_WHEEL_VELOCITY: impulses per second, right mirrored."""
 
@@ -170,7 +175,7 @@ class SpeedReading:
     right: int
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True, slots=True, kw_only=True)
 class PositionReading:
     """Data reply to GET_LR_WHEEL_POSITION: cumulative impulses, right mirrored."""
 
@@ -202,12 +207,12 @@ def encode_status(status: str = STATUS_OK) -> bytes:
     return f'{{"status":"{status}"}}'.encode("ascii")
 
 
-def encode_wheel_speeds(left: int, right: int, separator: str = " ") -> bytes:
+def encode_wheel_speeds(*, left: int, right: int, separator: str = " ") -> bytes:
     """The robot's JSON-like speed reply; ``separator`` is " " or "," (both occur)."""
     return _encode_pair("LeftWheelSpeed", left, "RightWheelSpeed", right, separator)
 
 
-def encode_wheel_positions(left: int, right: int, separator: str = " ") -> bytes:
+def encode_wheel_positions(*, left: int, right: int, separator: str = " ") -> bytes:
     return _encode_pair("LeftWheelPosition", left, "RightWheelPosition", right, separator)
 
 
@@ -306,10 +311,20 @@ def _parse_pairs(frame: bytes) -> dict[str, str | int] | None:
     return fields
 
 
-_PAIR_REPLIES: dict[frozenset[str], tuple[type, str, str]] = {
-    frozenset({"LeftWheelSpeed", "RightWheelSpeed"}): (SpeedReading, "LeftWheelSpeed", "RightWheelSpeed"),
-    frozenset({"LeftWheelPosition", "RightWheelPosition"}): (PositionReading, "LeftWheelPosition", "RightWheelPosition"),
-    frozenset({"state", "direction"}): (LogReport, "state", "direction"),
+_PAIR_REPLIES: dict[frozenset[str], tuple[str, str, str, Callable[[int, int], Reply]]] = {
+    frozenset({"LeftWheelSpeed", "RightWheelSpeed"}): (
+        "SpeedReading",
+        "LeftWheelSpeed",
+        "RightWheelSpeed",
+        lambda left, right: SpeedReading(left=left, right=right),
+    ),
+    frozenset({"LeftWheelPosition", "RightWheelPosition"}): (
+        "PositionReading",
+        "LeftWheelPosition",
+        "RightWheelPosition",
+        lambda left, right: PositionReading(left=left, right=right),
+    ),
+    frozenset({"state", "direction"}): ("LogReport", "state", "direction", LogReport),
 }
 
 
@@ -326,13 +341,13 @@ def parse_reply(frame: bytes) -> Reply | Malformed:
     shape = _PAIR_REPLIES.get(frozenset(fields))
     if shape is None:
         return Malformed(f"unknown reply fields {sorted(fields)}", frame)
-    cls, first, second = shape
+    name, first, second, build = shape
     a, b = fields[first], fields[second]
     if not isinstance(a, int) or not isinstance(b, int):
-        return Malformed(f"{cls.__name__} values must be integers", frame)
+        return Malformed(f"{name} values must be integers", frame)
     if not (INT32_MIN <= a <= INT32_MAX and INT32_MIN <= b <= INT32_MAX):
-        return Malformed(f"{cls.__name__} values beyond 32 bits", frame)
-    return cls(a, b)
+        return Malformed(f"{name} values beyond 32 bits", frame)
+    return build(a, b)
 
 
 class _FramedDecoder(Generic[M]):
@@ -400,14 +415,14 @@ def parse_request(frame: bytes) -> Request | Malformed:
         for value in (right, left):
             if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
                 return Malformed("SET_LR_WHEEL_VELOCITY needs finite RightWheelSpeed and LeftWheelSpeed", frame)
-        return Request(command, float(right), float(left), user_id)  # type: ignore[arg-type]
+        return Request(command, left=float(left), right=float(right), user_id=user_id)  # type: ignore[arg-type]
     if command is CommandCode.SET_LR_WHEEL_POSITION:
         right, left = fields.get("RightWheelPosition"), fields.get("LeftWheelPosition")
         for value in (right, left):
             if not isinstance(value, int) or isinstance(value, bool) or not INT32_MIN <= value <= INT32_MAX:
                 return Malformed("SET_LR_WHEEL_POSITION needs integer RightWheelPosition and LeftWheelPosition", frame)
-        return Request(command, right, left, user_id)
-    return Request(command, None, None, user_id)
+        return Request(command, left=left, right=right, user_id=user_id)
+    return Request(command, user_id=user_id)
 
 
 class RequestDecoder(_FramedDecoder[Request]):

@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from blackmetal.wire import (
     DATA_COMMANDS,
     CommandCode,
-    LogReport,
     Malformed,
     PositionReading,
     Reply,
@@ -68,7 +67,6 @@ class Exchange:
     #: How long a request reported lost still waits for a late reply (s).
     late_horizon: float = 1.5
     outstanding: deque[Pending] = field(default_factory=deque)
-    unexpected: int = 0
 
     def sent(self, request: Request, now: float) -> None:
         self.outstanding.append(Pending(request, now))
@@ -88,8 +86,7 @@ class Exchange:
             while self.outstanding and self.outstanding[0].status is not None:
                 out.append(Lost(self.outstanding.popleft().request, "data reply missing"))
             if not self.outstanding:
-                self.unexpected += 1
-                return out
+                return out  # a status nobody asked for: nothing to pair it with
             head = self.outstanding[0]
             head.status, head.status_at = item, now
             if not (item.ok and head.request.command in DATA_COMMANDS):
@@ -98,14 +95,11 @@ class Exchange:
         elif isinstance(item, (SpeedReading, PositionReading)):
             waiting = self.outstanding[0] if self.outstanding else None
             if waiting is None or waiting.status is None or _DATA_KIND.get(waiting.request.command) is not type(item):
-                self.unexpected += 1
-                return out
+                return out  # data nobody waits for: ignored, the pairing stays exact
             self.outstanding.popleft()
             assert waiting.status_at is not None
             out.append(Completed(waiting.request, waiting.status, item, waiting.status_at - waiting.sent_at, waiting.expired))
-        elif isinstance(item, LogReport):
-            self.unexpected += 1
-        return out
+        return out  # a log report or garbage on the control port pairs with nothing
 
     def expire(self, now: float) -> list[Lost]:
         """Requests past their reply timeout, reported once each; those past the late horizon are forgotten."""

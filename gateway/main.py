@@ -14,7 +14,7 @@ from blackmetal.runtime.zenoh_setup import open_session
 from blackmetal.transport import TcpConnector
 from schemas import Keys
 
-from .service import GatewayService
+from .host import GatewayHost
 from .settings import GatewaySettings
 from .zenoh_edge import GatewayZenoh
 
@@ -30,7 +30,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     with open_session(settings.zenoh) as session:
         refuse_if_taken(session, keys.alive_gateway, "gateway", keys.prefix)
         edge = GatewayZenoh(session, keys)
-        service = GatewayService(settings, connector, edge)
+        service = GatewayHost(settings, connector, edge)
         edge.attach(service, asyncio.get_running_loop())
         print(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "

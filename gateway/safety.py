@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from enum import Enum
 
-from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, WHEEL_SEPARATION, WheelSpeeds, twist_to_wheels
+from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, UNITY_GAIN, WHEEL_SEPARATION, WheelGain, WheelSpeeds, twist_to_wheels
 from schemas import Twist
 
 #: Pause before the first re-send of a command the robot did not take; it doubles up to RETRY_CAP_S.
@@ -56,17 +57,26 @@ class SafetySettings:
     full_buffer_retries: int = 5
     #: At most this many velocity commands per second reach the robot; a flood is coalesced to the latest.
     max_command_hz: float = 500.0
-    #: Per-wheel correction (left, right) of the commanded m/s: calibrated impulses per metre over the
+    #: Per-wheel correction of the commanded m/s: calibrated impulses per metre over the
     #: nominal ones the robot's firmware uses, so a wheel larger than its drawing is asked for less.
-    wheel_gain: tuple[float, float] = (1.0, 1.0)
+    wheel_gain: WheelGain = UNITY_GAIN
+
+
+class CommandReason(Enum):
+    """Why a velocity command goes out; the connection counts and reports by it."""
+
+    NEW = "new"  # the wanted wheel speeds changed
+    KEEPALIVE = "keepalive"  # unchanged motion, repeated before the robot's watchdog fires
+    RETRY = "retry"  # the robot did not take the previous one
+    STOP_AGAIN = "stop-again"  # the wheels still turn although the robot accepted a stop
 
 
 @dataclass(frozen=True, slots=True)
 class VelocityCommand:
-    """A velocity to send now, and why (``new``, ``keepalive``, ``retry``, ``stop-again``)."""
+    """A velocity to send now, and why."""
 
     wheels: WheelSpeeds
-    reason: str
+    reason: CommandReason
 
 
 class Governor:
@@ -94,7 +104,6 @@ class Governor:
         self._attempts = 0  # re-sends of _last_sent so far
         self._retry_at: float | None = None
         self._moving = False
-        self._moving_since = -math.inf
         #: When a rate-limited command may go out (None: nothing is waiting).
         self.hold_until: float | None = None
 
@@ -192,10 +201,7 @@ class Governor:
 
     def observe_motion(self, left: float, right: float, now: float) -> None:
         """The wheels' rim speeds as polled (m/s)."""
-        moving = max(abs(left), abs(right)) > STANDING_SPEED
-        if moving and not self._moving:
-            self._moving_since = now
-        self._moving = moving
+        self._moving = max(abs(left), abs(right)) > STANDING_SPEED
 
     # ------------------------------------------------------------------ output
 
@@ -238,8 +244,8 @@ class Governor:
         self.current = self._ramp(self.current, self.target, dt)
         s = self.settings
         wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
-        if s.wheel_gain != (1.0, 1.0):
-            wheels = WheelSpeeds(wheels.right * s.wheel_gain[1], wheels.left * s.wheel_gain[0])
+        if not s.wheel_gain.is_unity:
+            wheels = wheels.scaled(s.wheel_gain)
         wheels = wheels.rounded()
         if congested and not wheels.is_zero:
             return None
@@ -251,18 +257,18 @@ class Governor:
             self.hold_until = None
             self._attempts = 0
             self._retry_at = None
-            return self._sent(wheels, now, "new")
+            return self._sent(wheels, now, CommandReason.NEW)
         self.hold_until = None
         if self._retry_at is not None and now >= self._retry_at:
             self._retry_at = None
-            return self._sent(wheels, now, "retry")
+            return self._sent(wheels, now, CommandReason.RETRY)
         if self.unwanted_motion(now):
-            return self._sent(wheels, now, "stop-again")
+            return self._sent(wheels, now, CommandReason.STOP_AGAIN)
         if not wheels.is_zero and now >= self._last_sent_at + s.keepalive:
-            return self._sent(wheels, now, "keepalive")
+            return self._sent(wheels, now, CommandReason.KEEPALIVE)
         return None
 
-    def _sent(self, wheels: WheelSpeeds, now: float, reason: str) -> VelocityCommand:
+    def _sent(self, wheels: WheelSpeeds, now: float, reason: CommandReason) -> VelocityCommand:
         self._last_sent = wheels
         self._last_sent_at = now
         return VelocityCommand(wheels, reason)

@@ -90,5 +90,7 @@ class GatewaySettings:
             linear_accel=self.linear_accel,
             angular_accel=self.angular_accel,
             max_command_hz=self.max_command_hz,
-            wheel_gain=(self.impulses_left / model.IMPULSES_PER_METER_LEFT, self.impulses_right / model.IMPULSES_PER_METER_RIGHT),
+            wheel_gain=model.WheelGain(
+                left=self.impulses_left / model.IMPULSES_PER_METER_LEFT, right=self.impulses_right / model.IMPULSES_PER_METER_RIGHT
+            ),
         )

@@ -18,7 +18,7 @@ from schemas import ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses
 if TYPE_CHECKING:
     import zenoh
 
-    from .service import GatewayService
+    from .host import GatewayHost
 
 
 class GatewayZenoh(ZenohEdge):
@@ -45,7 +45,7 @@ class GatewayZenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def attach(self, service: "GatewayService", loop: asyncio.AbstractEventLoop) -> Handover:
+    def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Handover:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
         handover = Handover(loop)
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
@@ -57,7 +57,7 @@ class GatewayZenoh(ZenohEdge):
         self.token(self.keys.alive_gateway)
         return handover
 
-    def _answer_health(self, service: "GatewayService", query: "zenoh.Query") -> None:
+    def _answer_health(self, service: "GatewayHost", query: "zenoh.Query") -> None:
         import zenoh
 
         with query:

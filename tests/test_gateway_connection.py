@@ -19,7 +19,8 @@ from helpers import TRUE_ESTOPS
 from blackmetal import wire
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, Request
-from gateway.connection import DropLink, RobotConnection
+from gateway.core import RobotConnection
+from gateway.links import DropLink
 from gateway.settings import GatewaySettings
 from schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 
@@ -102,8 +103,8 @@ class Bench:
         self.run(0.005)
 
     def velocity(self) -> list[tuple[float, float, float]]:
-        """(time, right, left) of every velocity command the robot received."""
-        return [(t, r.right, r.left) for t, r in self.requests if r.command is CommandCode.SET_LR_WHEEL_VELOCITY]  # type: ignore[misc]
+        """(time, left, right) of every velocity command the robot received."""
+        return [(t, r.left, r.right) for t, r in self.requests if r.command is CommandCode.SET_LR_WHEEL_VELOCITY]  # type: ignore[misc]
 
     def count(self, code: CommandCode) -> int:
         return sum(1 for _, r in self.requests if r.command is code)
@@ -131,7 +132,7 @@ def test_a_left_arc_reaches_the_robot_as_wheel_speeds() -> None:
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
     bench.cmd(b'{"linear":{"x":0.2},"angular":{"z":0.4}}')
-    assert bench.velocity()[-1][1:] == pytest.approx((0.3, 0.1))  # right faster: a left turn
+    assert bench.velocity()[-1][1:] == pytest.approx((0.1, 0.3))  # (left, right): right faster, a left turn
     bench.run(1.0)
     impulses = bench.of(WheelImpulses)[-1]
     assert impulses.left > 0 and impulses.right < 0  # the right encoder is mirrored
@@ -144,8 +145,8 @@ def test_command_timeout_brakes_exactly_at_the_timeout() -> None:
     sent_at = bench.t
     bench.cmd(b'{"linear":{"x":0.2}}')
     bench.run(2.0)
-    t_brake, right, left = bench.velocity()[-1]
-    assert (right, left) == (0.0, 0.0)
+    t_brake, left, right = bench.velocity()[-1]
+    assert (left, right) == (0.0, 0.0)
     assert 0.5 <= t_brake - sent_at <= 0.501  # on its own deadline, not at the next poll
     assert bench.conn.health(bench.t).cmd_timeout_active
 
@@ -158,14 +159,14 @@ def test_keepalive_carries_a_long_run_past_the_robot_watchdog() -> None:
     bench.robot.advance(bench.t)
     assert bench.robot.moving and bench.robot.counters["watchdog_stops"] == 0
     assert bench.conn.counters.keepalives == 5
-    times = [t for t, r, _ in bench.velocity() if r == 0.1]
+    times = [t for t, left, _ in bench.velocity() if left == 0.1]
     assert all(4.99 <= b - a <= 5.01 for a, b in itertools.pairwise(times))
 
 
 def test_without_keepalive_the_robot_watchdog_would_stop_it() -> None:
     """The counterpart of the test above: the watchdog is real, so the keep-alive is what keeps it going."""
     robot = SimRobot(RobotParams(), now=0.0, seed=3)
-    robot.handle(wire.set_velocity(0.1, 0.1), 0.0)
+    robot.handle(wire.set_velocity(left=0.1, right=0.1), 0.0)
     robot.advance(10.5)
     assert not robot.moving and robot.counters["watchdog_stops"] == 1
 
@@ -211,7 +212,7 @@ def test_reconnect_prepares_again_and_never_resumes_old_motion() -> None:
     assert bench.count(CommandCode.PREPARE_WHEEL_CONTROLLER) == 2
     bench.run(1.0)
     assert bench.velocity()[-1][1:] == (0.0, 0.0)
-    assert all(r != 0.3 for _, r, _ in bench.velocity())
+    assert all(left != 0.3 for _, left, _ in bench.velocity())
     assert bench.conn.health(bench.t).control.reconnects == 1
 
 
@@ -274,7 +275,7 @@ def test_hostile_cmd_vel_is_rejected_and_never_reaches_the_robot() -> None:
         bench.cmd(payload)
     assert bench.conn.counters.rejected_inputs == 6
     assert bench.velocity()[-1][1:] == pytest.approx((0.1, 0.1))
-    assert all(abs(r) <= 0.8 and abs(lw) <= 0.8 for _, r, lw in bench.velocity())
+    assert all(abs(left) <= 0.8 and abs(right) <= 0.8 for _, left, right in bench.velocity())
 
 
 def test_shutdown_leaves_the_robot_standing() -> None:
@@ -301,7 +302,7 @@ def test_a_short_full_buffer_burst_cannot_lose_the_brake() -> None:
     bench.run(1.0)
     bench.robot.advance(bench.t)
     assert bench.robot.target_left == 0.0 and not bench.robot.moving
-    zeros = [t for t, r, _ in bench.velocity() if r == 0.0 and t > last_cmd]
+    zeros = [t for t, left, _ in bench.velocity() if left == 0.0 and t > last_cmd]
     assert len(zeros) >= 2 and zeros[1] - zeros[0] >= 0.005  # re-sent, spaced
     assert bench.conn.health(bench.t).wheel_speeds == (0.0, 0.0)  # what the robot accepted
 
@@ -388,7 +389,7 @@ def test_losing_and_regaining_the_log_link_is_reported() -> None:
 
 
 def test_reconnect_backoff_is_not_reset_by_connections_that_die_at_once() -> None:
-    from gateway.connection import ReconnectBackoff
+    from gateway.links import ReconnectBackoff
 
     backoff, now, attempts = ReconnectBackoff(first=0.05, cap=2.0, stable=5.0), 0.0, 0
     while now < 10.0:  # a robot that accepts and closes at once, for 10 s

@@ -21,7 +21,7 @@ from blackmetal.sim.memory import MemoryConnector
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
 from blackmetal.transport import TcpConnector
-from gateway.service import GatewayService, RecordingOutput
+from gateway.host import GatewayHost, RecordingOutput
 from gateway.settings import GatewaySettings
 from schemas import SimFaults
 
@@ -32,7 +32,7 @@ TIMEOUT = 20.0
 class Rig:
     robot: SimRobot
     server: SimServer
-    service: GatewayService
+    service: GatewayHost
     output: RecordingOutput
     stop: asyncio.Event
     task: asyncio.Task[None]
@@ -65,7 +65,7 @@ async def start_rig(transport: str, params: RobotParams | None = None, seed: int
     gw_settings = GatewaySettings(**settings)
     gw_settings.check()
     output = RecordingOutput()
-    service = GatewayService(gw_settings, connector, output)
+    service = GatewayHost(gw_settings, connector, output)
     stop = asyncio.Event()
     task = asyncio.create_task(service.run(stop))
     rig = Rig(robot, server, service, output, stop, task)

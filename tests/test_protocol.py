@@ -32,19 +32,19 @@ from blackmetal.wire import (
         (wire.simple(CommandCode.EMG_STOP), b'{"UserID":1,"Command":1}'),
         (wire.simple(CommandCode.NORMAL_STOP), b'{"UserID":1,"Command":2}'),
         (
-            wire.set_velocity(0.25, 0.25),
+            wire.set_velocity(left=0.25, right=0.25),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":0.250000,"LeftWheelSpeed":0.250000}',
         ),
         (
-            wire.set_velocity(-0.8, 0.1234567),
+            wire.set_velocity(left=0.1234567, right=-0.8),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":-0.800000,"LeftWheelSpeed":0.123457}',
         ),
         (
-            wire.set_velocity(-0.0, -1e-9),
+            wire.set_velocity(left=-1e-9, right=-0.0),
             b'{"UserID":1,"Command":3,"RightWheelSpeed":0.000000,"LeftWheelSpeed":0.000000}',
         ),
         (
-            wire.set_position(1200, -1200),
+            wire.set_position(left=-1200, right=1200),
             b'{"UserID":1,"Command":4,"RightWheelPosition":1200,"LeftWheelPosition":-1200}',
         ),
         (wire.simple(CommandCode.NOT_IMPLEMENTED_5), b'{"UserID":1,"Command":5}'),
@@ -67,13 +67,13 @@ def test_every_command_encodes_to_the_robots_bytes(request_: Request, wire: byte
 )
 def test_velocity_the_robot_must_never_see_is_refused(right: object, left: object) -> None:
     with pytest.raises(ProtocolError):
-        encode_request(Request(CommandCode.SET_LR_WHEEL_VELOCITY, right, left))  # type: ignore[arg-type]
+        encode_request(Request(CommandCode.SET_LR_WHEEL_VELOCITY, left=left, right=right))  # type: ignore[arg-type]
 
 
 @pytest.mark.parametrize("value", [2**31, -(2**31) - 1, 1.5, None])
 def test_positions_must_be_32_bit_integers(value: object) -> None:
     with pytest.raises(ProtocolError):
-        encode_request(Request(CommandCode.SET_LR_WHEEL_POSITION, value, 0))  # type: ignore[arg-type]
+        encode_request(Request(CommandCode.SET_LR_WHEEL_POSITION, left=0, right=value))  # type: ignore[arg-type]
 
 
 def test_replies_expected() -> None:
@@ -88,11 +88,11 @@ def test_replies_expected() -> None:
         (b'{"status":"RECIEVE_OK"}', StatusReply("RECIEVE_OK")),
         (b'{"status":"FULL_BUFFER"}', StatusReply("FULL_BUFFER")),
         (b'{"status": "RECIEVE_OK" }', StatusReply("RECIEVE_OK")),
-        (b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}', SpeedReading(150, -148)),
-        (b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}', SpeedReading(150, -148)),
-        (b'{"RightWheelSpeed"=-1, "LeftWheelSpeed"=0}', SpeedReading(0, -1)),
-        (b'{"LeftWheelSpeed":150,"RightWheelSpeed":-148}', SpeedReading(150, -148)),
-        (b'{"LeftWheelPosition"=1200 "RightWheelPosition"=-1190}', PositionReading(1200, -1190)),
+        (b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}', SpeedReading(left=150, right=-148)),
+        (b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}', SpeedReading(left=150, right=-148)),
+        (b'{"RightWheelSpeed"=-1, "LeftWheelSpeed"=0}', SpeedReading(left=0, right=-1)),
+        (b'{"LeftWheelSpeed":150,"RightWheelSpeed":-148}', SpeedReading(left=150, right=-148)),
+        (b'{"LeftWheelPosition"=1200 "RightWheelPosition"=-1190}', PositionReading(left=1200, right=-1190)),
         (b'{"state":1,"direction":1}', LogReport(1, 1)),
         (b'{"state":3, "direction":4}', LogReport(3, 4)),
     ],
@@ -139,7 +139,7 @@ def test_glued_split_and_garbage_stream() -> None:
     assert out[1:] == [StatusReply("RECIEVE_OK")]
     assert decoder.pending > 0
     out = decoder.feed(b'WheelSpeed"=-148}  {"stat')
-    assert out == [SpeedReading(150, -148)]
+    assert out == [SpeedReading(left=150, right=-148)]
     out = decoder.feed(b'us":"FULL_BUFFER"}}}{"state":1,"direction":1}')
     assert out == [StatusReply("FULL_BUFFER"), Malformed("bytes outside any {...} message", b"}}"), LogReport(1, 1)]
     assert decoder.garbage_bytes == len(b"\x00\xffjunk") + 2
@@ -187,11 +187,11 @@ def test_request_decoder_rejects_what_a_robot_must_not_act_on() -> None:
 
 def test_reply_encoders_match_the_robots_format() -> None:
     assert wire.encode_status() == b'{"status":"RECIEVE_OK"}'
-    assert wire.encode_wheel_speeds(150, -148) == b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}'
-    assert wire.encode_wheel_speeds(150, -148, ",") == b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}'
+    assert wire.encode_wheel_speeds(left=150, right=-148) == b'{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}'
+    assert wire.encode_wheel_speeds(left=150, right=-148, separator=",") == b'{"LeftWheelSpeed"=150,"RightWheelSpeed"=-148}'
     assert wire.encode_log_report(1, 1) == b'{"state":1,"direction":1}'
     with pytest.raises(ProtocolError):
-        wire.encode_wheel_speeds(1, 1, ";")
+        wire.encode_wheel_speeds(left=1, right=1, separator=";")
 
 
 # ----------------------------------------------------------------------------- properties
@@ -199,8 +199,8 @@ def test_reply_encoders_match_the_robots_format() -> None:
 int32 = st.integers(min_value=-(2**31), max_value=2**31 - 1)
 replies = st.one_of(
     st.sampled_from([StatusReply("RECIEVE_OK"), StatusReply("FULL_BUFFER")]),
-    st.builds(SpeedReading, int32, int32),
-    st.builds(PositionReading, int32, int32),
+    st.builds(SpeedReading, left=int32, right=int32),
+    st.builds(PositionReading, left=int32, right=int32),
     st.builds(LogReport, st.integers(0, 4), st.integers(1, 4)),
 )
 
@@ -209,9 +209,9 @@ def _encode_reply(reply: object, separator: str) -> bytes:
     if isinstance(reply, StatusReply):
         return wire.encode_status(reply.status)
     if isinstance(reply, SpeedReading):
-        return wire.encode_wheel_speeds(reply.left, reply.right, separator)
+        return wire.encode_wheel_speeds(left=reply.left, right=reply.right, separator=separator)
     if isinstance(reply, PositionReading):
-        return wire.encode_wheel_positions(reply.left, reply.right, separator)
+        return wire.encode_wheel_positions(left=reply.left, right=reply.right, separator=separator)
     assert isinstance(reply, LogReport)
     return wire.encode_log_report(reply.state, reply.direction)
 
@@ -257,7 +257,7 @@ def test_garbage_before_a_reply_is_skipped_and_counted(garbage: bytes, reply: ob
 
 @given(st.floats(min_value=-1.0, max_value=1.0), st.floats(min_value=-1.0, max_value=1.0))
 def test_any_legal_velocity_round_trips_to_six_decimals(right: float, left: float) -> None:
-    (decoded,) = RequestDecoder().feed(encode_request(wire.set_velocity(right, left)))
+    (decoded,) = RequestDecoder().feed(encode_request(wire.set_velocity(left=left, right=right)))
     assert isinstance(decoded, Request)
     assert decoded.right == pytest.approx(right, abs=5e-7)
     assert decoded.left == pytest.approx(left, abs=5e-7)

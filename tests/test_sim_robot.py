@@ -21,7 +21,7 @@ def send(robot: SimRobot, request: wire.Request, now: float) -> list[object]:
 
 def test_straight_line_is_exact() -> None:
     robot = SimRobot()
-    assert send(robot, wire.set_velocity(0.2, 0.2), 0.0) == [StatusReply("RECIEVE_OK")]
+    assert send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0) == [StatusReply("RECIEVE_OK")]
     robot.advance(5.0)
     assert robot.x == pytest.approx(1.0, abs=1e-12)
     assert robot.y == pytest.approx(0.0, abs=1e-12)
@@ -32,7 +32,7 @@ def test_straight_line_is_exact() -> None:
 def test_left_turn_on_a_circle_matches_the_closed_form() -> None:
     robot = SimRobot()
     v_r, v_l, sep = 0.3, 0.1, facts.WHEEL_SEPARATION
-    send(robot, wire.set_velocity(v_r, v_l), 0.0)
+    send(robot, wire.set_velocity(left=v_l, right=v_r), 0.0)
     w = (v_r - v_l) / sep
     radius = 0.5 * (v_r + v_l) / w
     for t in (0.37, 1.0, 2.5, 7.9):
@@ -50,7 +50,7 @@ def test_arc_step_straight_limit_is_continuous() -> None:
 
 def test_watchdog_stops_the_robot_ten_seconds_after_the_last_motion_command() -> None:
     robot = SimRobot()
-    send(robot, wire.set_velocity(0.1, 0.1), 0.0)
+    send(robot, wire.set_velocity(left=0.1, right=0.1), 0.0)
     for t in range(1, 9):  # polls do not count as commands for the watchdog
         send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), float(t))
     robot.advance(9.999)
@@ -64,14 +64,14 @@ def test_watchdog_stops_the_robot_ten_seconds_after_the_last_motion_command() ->
 def test_repeating_the_command_keeps_the_robot_going() -> None:
     robot = SimRobot()
     for t in range(0, 30, 5):
-        send(robot, wire.set_velocity(0.1, 0.1), float(t))
+        send(robot, wire.set_velocity(left=0.1, right=0.1), float(t))
     robot.advance(30.0)
     assert robot.moving and robot.x == pytest.approx(3.0)
 
 
 def test_emergency_stop_is_immediate_even_with_an_acceleration_limit() -> None:
     robot = SimRobot(RobotParams(accel_limit=0.5))
-    send(robot, wire.set_velocity(0.4, 0.4), 0.0)
+    send(robot, wire.set_velocity(left=0.4, right=0.4), 0.0)
     robot.advance(2.0)
     assert robot.speed_left == pytest.approx(0.4)
     send(robot, wire.simple(CommandCode.EMG_STOP), 2.0)
@@ -83,7 +83,7 @@ def test_emergency_stop_is_immediate_even_with_an_acceleration_limit() -> None:
 
 def test_acceleration_limit_ramps_and_normal_stop_decelerates() -> None:
     robot = SimRobot(RobotParams(accel_limit=0.5))
-    send(robot, wire.set_velocity(0.4, 0.4), 0.0)
+    send(robot, wire.set_velocity(left=0.4, right=0.4), 0.0)
     robot.advance(0.4)
     assert robot.speed_left == pytest.approx(0.2, abs=1e-9)
     robot.advance(2.0)
@@ -99,14 +99,14 @@ def test_acceleration_limit_ramps_and_normal_stop_decelerates() -> None:
 
 def test_wheel_speed_is_clamped_to_the_robots_limit() -> None:
     robot = SimRobot()
-    send(robot, wire.set_velocity(1.0, -1.0), 0.0)
+    send(robot, wire.set_velocity(left=-1.0, right=1.0), 0.0)
     assert robot.speed_right == facts.MAX_WHEEL_SPEED
     assert robot.speed_left == -facts.MAX_WHEEL_SPEED
 
 
 def test_speed_reply_reports_mirrored_integer_impulses_without_bias() -> None:
     robot = SimRobot()
-    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
+    send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0)
     readings = [send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.005 * i)[1] for i in range(1, 1001)]
     assert all(isinstance(r, SpeedReading) for r in readings)
     lefts = [r.left for r in readings]  # type: ignore[union-attr]
@@ -118,8 +118,8 @@ def test_speed_reply_reports_mirrored_integer_impulses_without_bias() -> None:
 
 def test_a_wheel_larger_than_its_drawing_runs_fast_and_reports_the_commanded_impulses() -> None:
     # the firmware turns m/s into impulses with the nominal constants: the left wheel, 1.5 % larger, really runs 1.5 % fast
-    robot = SimRobot(RobotParams.with_wheel_scales(1.015, 1.0))
-    send(robot, wire.set_velocity(0.2, 0.2), 0.0)  # right, left
+    robot = SimRobot(RobotParams.with_wheel_scales(left=1.015, right=1.0))
+    send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0)
     readings = [send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.01 * i)[1] for i in range(1, 501)]
     lefts = [r.left for r in readings]  # type: ignore[union-attr]
     assert sum(lefts) / len(lefts) == pytest.approx(0.2 * facts.IMPULSES_PER_METER_LEFT, abs=2e-3)
@@ -131,14 +131,14 @@ def test_position_command_moves_each_wheel_by_its_impulses() -> None:
     robot = SimRobot()
     left_imp = round(0.3 * facts.IMPULSES_PER_METER_LEFT)
     right_imp = round(0.3 * facts.IMPULSES_PER_METER_RIGHT)
-    send(robot, wire.set_position(right_imp, left_imp), 0.0)
+    send(robot, wire.set_position(left=left_imp, right=right_imp), 0.0)
     robot.advance(0.5)
     assert robot.moving
     robot.advance(3.0)
     assert not robot.moving
     assert robot.x == pytest.approx(0.3, abs=1e-3)
     replies = send(robot, wire.simple(CommandCode.GET_LR_WHEEL_POSITION), 3.0)
-    assert replies[1] == PositionReading(left_imp, -right_imp)
+    assert replies[1] == PositionReading(left=left_imp, right=-right_imp)
 
 
 def test_status_reply_for_every_command_and_data_only_for_gets() -> None:
@@ -154,17 +154,17 @@ def test_status_reply_for_every_command_and_data_only_for_gets() -> None:
 def test_full_buffer_fault_drops_the_command() -> None:
     robot = SimRobot(seed=1)
     robot.faults = SimFaults(full_buffer=1.0)
-    assert send(robot, wire.set_velocity(0.2, 0.2), 0.0) == [StatusReply("FULL_BUFFER")]
+    assert send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0) == [StatusReply("FULL_BUFFER")]
     assert send(robot, wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), 0.0) == [StatusReply("FULL_BUFFER")]
     assert not robot.moving
     robot.faults = SimFaults()
-    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
+    send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0)
     assert robot.moving
 
 
 def test_dropout_and_spike_faults_corrupt_readings_only() -> None:
     robot = SimRobot(seed=3)
-    send(robot, wire.set_velocity(0.2, 0.2), 0.0)
+    send(robot, wire.set_velocity(left=0.2, right=0.2), 0.0)
     robot.faults = SimFaults(dropout=1.0)
     assert robot.read_impulses() == (0, 0)
     robot.faults = SimFaults(spike=1.0)

@@ -71,9 +71,9 @@ def test_drive_poll_and_watch_the_truth_move(sim: tuple[SimProcess, int]) -> Non
         wait_for(lambda: len(truths) > 5, what="truth samples")
         client = RobotClient(proc.host, proc.control_port)
         assert client.request(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER)) == [StatusReply("RECIEVE_OK")]
-        assert client.speeds() == SpeedReading(0, 0)
+        assert client.speeds() == SpeedReading(left=0, right=0)
         # a left turn: right wheel faster
-        assert client.request(wire.set_velocity(0.3, 0.2)) == [StatusReply("RECIEVE_OK")]
+        assert client.request(wire.set_velocity(left=0.2, right=0.3)) == [StatusReply("RECIEVE_OK")]
         client.speeds()  # a reading is the mean rate since the previous one: this one is partial
         time.sleep(0.02)
         speeds = client.speeds()
@@ -86,9 +86,9 @@ def test_drive_poll_and_watch_the_truth_move(sim: tuple[SimProcess, int]) -> Non
         assert rate >= 40, rate  # 50 Hz nominal; slack for a loaded machine
         # the watchdog (1.5 s here) stops the robot when commands stop, polls do not count
         deadline = time.monotonic() + TIMEOUT
-        while time.monotonic() < deadline and client.speeds() != SpeedReading(0, 0):
+        while time.monotonic() < deadline and client.speeds() != SpeedReading(left=0, right=0):
             time.sleep(0.1)
-        assert client.speeds() == SpeedReading(0, 0)
+        assert client.speeds() == SpeedReading(left=0, right=0)
         x = truths[-1].x
         time.sleep(0.3)
         assert truths[-1].x == pytest.approx(x, abs=1e-9)
@@ -128,12 +128,12 @@ def test_faults_set_at_run_time_over_zenoh(sim: tuple[SimProcess, int]) -> None:
             wait_for(applied, interval=0.2, what=f"faults {faults}")
 
         set_faults(full_buffer=1.0)
-        assert client.request(wire.set_velocity(0.1, 0.1)) == [StatusReply("FULL_BUFFER")]
+        assert client.request(wire.set_velocity(left=0.1, right=0.1)) == [StatusReply("FULL_BUFFER")]
         set_faults(full_buffer=0.0, garbage=1.0, split=1.0, glue=0.5)
-        client.request(wire.set_velocity(0.1, 0.1))
+        client.request(wire.set_velocity(left=0.1, right=0.1))
         client.speeds()  # partial interval
         for _ in range(30):
-            client.request(wire.set_velocity(0.1, 0.1))  # feed the 1.5 s watchdog: the speed stays constant
+            client.request(wire.set_velocity(left=0.1, right=0.1))  # feed the 1.5 s watchdog: the speed stays constant
             assert client.speeds().left in (101, 102)
         assert client.malformed > 0  # garbage was seen, skipped, and every reply still arrived
         set_faults(garbage=0.0, split=0.0, glue=0.0, delay=0.3)
@@ -166,7 +166,7 @@ def test_a_new_control_client_takes_over(sim: tuple[SimProcess, int]) -> None:
     first = RobotClient(proc.host, proc.control_port)
     first.speeds()
     second = RobotClient(proc.host, proc.control_port)
-    assert second.speeds() == SpeedReading(0, 0)
+    assert second.speeds() == SpeedReading(left=0, right=0)
     with pytest.raises((ConnectionError, OSError)):
         first.speeds()
     second.close()
@@ -192,7 +192,7 @@ def test_plain_sim_needs_no_zenoh(children: list[Child]) -> None:
     proc = SimProcess()
     children.append(proc)
     client = RobotClient(proc.host, proc.control_port)
-    client.request(wire.set_velocity(0.2, 0.2))
+    client.request(wire.set_velocity(left=0.2, right=0.2))
     client.speeds()  # partial interval
     time.sleep(0.02)
     assert client.speeds().left in (202, 203)

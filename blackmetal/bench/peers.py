@@ -132,7 +132,7 @@ class MiniRobot:
                             self.emg_stops.append(now)
                     elif request.command is CommandCode.GET_LR_WHEEL_VELOCITY:
                         self.poll_times.append(now)
-                        out += wire.encode_wheel_speeds(0, 0)
+                        out += wire.encode_wheel_speeds(left=0, right=0)
                 try:
                     sock.sendall(out)
                 except OSError:

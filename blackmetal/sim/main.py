@@ -82,8 +82,8 @@ class SimSettings:
 async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
     """Serve until ``stop`` is set; then close everything within a second or two."""
     params = RobotParams.with_wheel_scales(
-        settings.left_wheel_scale,
-        settings.right_wheel_scale,
+        left=settings.left_wheel_scale,
+        right=settings.right_wheel_scale,
         wheel_separation=settings.wheel_separation,
         accel_limit=settings.accel_limit,
         watchdog=settings.watchdog,

@@ -17,7 +17,7 @@ from typing import Any
 
 from blackmetal import robot_model as model
 from blackmetal import wire
-from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
+from blackmetal.robot_model import NOMINAL_ENCODERS, UNITY_GAIN, Encoders, WheelGain, arc_step, wheels_to_twist
 from blackmetal.wire import CommandCode, Request
 from schemas import Pose, SimFaults, make_pose
 
@@ -32,13 +32,15 @@ class RobotParams:
     #: Real travel per impulse relative to the nominal constant, per wheel (left, right): the firmware
     #: turns a commanded m/s into impulses with the nominal constants, so a wheel with scale 1.015 really
     #: runs 1.5 % faster than commanded while reporting the commanded impulses. Use :meth:`with_wheel_scales`.
-    wheel_scale: tuple[float, float] = (1.0, 1.0)
+    wheel_scale: WheelGain = UNITY_GAIN
 
     @classmethod
-    def with_wheel_scales(cls, left: float, right: float, **others: Any) -> "RobotParams":
+    def with_wheel_scales(cls, *, left: float, right: float, **others: Any) -> "RobotParams":
         """A robot whose wheels are not their drawing: true encoders follow from the scales."""
-        encoders = Encoders(model.IMPULSES_PER_METER_LEFT / left, model.IMPULSES_PER_METER_RIGHT / right)
-        return cls(encoders=encoders, wheel_scale=(left, right), **others)
+        encoders = Encoders(
+            impulses_per_meter_left=model.IMPULSES_PER_METER_LEFT / left, impulses_per_meter_right=model.IMPULSES_PER_METER_RIGHT / right
+        )
+        return cls(encoders=encoders, wheel_scale=WheelGain(left=left, right=right), **others)
 
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
     #: Motor acceleration limit per wheel (m/s^2); None = wheels follow at once.
@@ -232,9 +234,9 @@ class SimRobot:
             self.counters["velocity_commands"] += 1
             limit = self.params.max_wheel_speed
             self._position_left = self._position_right = None
-            scale_left, scale_right = self.params.wheel_scale
-            self.target_right = max(-limit, min(limit, float(request.right or 0.0))) * scale_right
-            self.target_left = max(-limit, min(limit, float(request.left or 0.0))) * scale_left
+            scale = self.params.wheel_scale
+            self.target_left = max(-limit, min(limit, float(request.left or 0.0))) * scale.left
+            self.target_right = max(-limit, min(limit, float(request.right or 0.0))) * scale.right
             if self.params.accel_limit is None:
                 self.speed_left, self.speed_right = self.target_left, self.target_right
             self._deadline = now + self.params.watchdog
@@ -248,7 +250,9 @@ class SimRobot:
             self.counters["prepare"] += 1
         elif command is CommandCode.GET_LR_WHEEL_VELOCITY:
             self.counters["polls"] += 1
-            replies.append(wire.encode_wheel_speeds(*self.read_impulses(now), separator=separator))
+            left, right = self.read_impulses(now)
+            replies.append(wire.encode_wheel_speeds(left=left, right=right, separator=separator))
         elif command is CommandCode.GET_LR_WHEEL_POSITION:
-            replies.append(wire.encode_wheel_positions(*self.read_positions(), separator=separator))
+            left, right = self.read_positions()
+            replies.append(wire.encode_wheel_positions(left=left, right=right, separator=separator))
         return replies

@@ -37,7 +37,7 @@ def stop_robot(host: str, port: int, timeout: float = 3.0) -> str | None:
     with sock:
         sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         decoder = wire.ReplyDecoder()
-        for request in (wire.set_velocity(0.0, 0.0), wire.simple(CommandCode.NORMAL_STOP)):
+        for request in (wire.set_velocity(left=0.0, right=0.0), wire.simple(CommandCode.NORMAL_STOP)):
             pause = RETRY_FIRST_S
             while True:
                 if time.monotonic() >= deadline:

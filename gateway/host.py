@@ -1,11 +1,12 @@
 """The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
 
-All decisions are in :class:`~gateway.connection.RobotConnection`; this
+All decisions are in :class:`~gateway.core.RobotConnection`; this
 module opens the robot's streams through an injected
 :class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
 pipe in tests), reconnects with backoff, feeds what it reads, writes what
 the connection wants written, hands messages to a :class:`GatewayOutput`,
-and sleeps until the connection's next deadline or the next input.
+and sleeps until the connection's next deadline or the next input
+(:class:`~blackmetal.runtime.host.DeadlineTimer`, shared by every service).
 """
 
 from __future__ import annotations
@@ -17,10 +18,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.transport import ByteStream, Connector
 from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
-from .connection import Counters, DropLink, LinkName, LinkState, ReconnectBackoff, RobotConnection
+from .core import RobotConnection
+from .health import Counters
+from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
 from .settings import GatewaySettings
 
 log = logging.getLogger("blackmetal.gateway")
@@ -61,7 +65,7 @@ class RecordingOutput:
         self.error_log.append(message)
 
 
-class GatewayService:
+class GatewayHost:
     """Runs one :class:`RobotConnection` on the running asyncio loop; see the module docstring."""
 
     def __init__(
@@ -76,13 +80,11 @@ class GatewayService:
         self.connector = connector
         self.output = output
         self.clock = clock
-        robot = {name: f"robot:{connector.describe(name)}" for name in ("control", "log")}
+        robot = {name: f"robot:{connector.describe(name)}" for name in LINKS}
         self.connection = RobotConnection(settings, clock(), wallclock, robot)
-        self._streams: dict[LinkName, ByteStream | None] = {"control": None, "log": None}
+        self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
-        self._timer: asyncio.TimerHandle | None = None
-        self._timer_at = float("inf")
-        self._running = False
+        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush)
 
     # ------------------------------------------------------------------ what tests and the edge see
 
@@ -134,26 +136,7 @@ class GatewayService:
                     log.warning("%s link: dropping connection: %s", event.link, event.reason)
                     self._drop_reason[event.link] = event.reason
                     stream.close()
-        if self._running:
-            deadline = conn.next_deadline()
-            if deadline < self._timer_at:
-                self._schedule(deadline)
-
-    def _schedule(self, deadline: float) -> None:
-        """Run the connection's timers at ``deadline`` (one timer, moved only when a deadline comes earlier)."""
-        if self._timer is not None:
-            self._timer.cancel()
-        self._timer_at = deadline
-        delay = min(max(deadline - self.clock(), 0.0), 3600.0)
-        self._timer = asyncio.get_running_loop().call_later(delay, self._on_timer)
-
-    def _on_timer(self) -> None:
-        self._timer = None
-        self._timer_at = float("inf")
-        self.connection.tick(self.clock())
-        self._flush()
-        if self._timer is None:
-            self._schedule(self.connection.next_deadline())
+        self._timer.poke()
 
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
@@ -205,16 +188,12 @@ class GatewayService:
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
-        tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in ("control", "log")]
-        self._running = True
-        self._on_timer()
+        tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
+        self._timer.start()
         try:
             await stop.wait()
         finally:
-            self._running = False
-            if self._timer is not None:
-                self._timer.cancel()
-                self._timer = None
+            self._timer.stop()
             await self._stop_robot()
             link_stop.set()
             for stream in self._streams.values():

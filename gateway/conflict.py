@@ -1,0 +1,78 @@
+"""Two gateways on one prefix, sans I/O: noticed from each other's health reports, held while they last.
+
+Every gateway publishes its health with its run id (``source``) and listens
+on its own health key. A report from another run means two gateways would
+drive one robot: both brake and refuse ``cmd_vel`` until the other has been
+silent for CONFLICT_HOLD_S. A pure part of the robot connection with its own
+deadline (the hold's end, and the next reminder on ``<prefix>/errors``).
+"""
+
+from __future__ import annotations
+
+import math
+from enum import Enum, auto
+
+#: A conflict holds this long after the other gateway's last health report (s).
+CONFLICT_HOLD_S = 3.0
+#: While it holds, the conflict is reported again this often (s).
+REMIND_S = 1.0
+
+
+class ConflictNews(Enum):
+    """What :meth:`GatewayConflict.tick` has to say."""
+
+    REMIND = auto()  # the conflict holds: report it (again)
+    RESOLVED = auto()  # the other gateway is gone
+
+
+class GatewayConflict:
+    """Another gateway seen on this prefix: who, until when, and when to say so again."""
+
+    def __init__(self, own_source: str, prefix: str) -> None:
+        self.own_source = own_source
+        self.prefix = prefix
+        #: The other gateway's run id while a conflict holds or is yet to be declared over.
+        self.other: str | None = None
+        self._until = -math.inf
+        self._reminded = -math.inf
+
+    def seen(self, source: str | None, now: float) -> bool:
+        """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once)."""
+        if source is None or source == self.own_source:
+            return False
+        new = now >= self._until
+        if new:
+            self._reminded = -math.inf
+        self.other = source
+        self._until = now + CONFLICT_HOLD_S
+        return new
+
+    def active(self, now: float) -> bool:
+        return now < self._until
+
+    def with_whom(self, now: float) -> str | None:
+        """The other run's id while the conflict holds (for health)."""
+        return self.other if self.active(now) else None
+
+    def reason(self) -> str:
+        return (
+            f"another gateway (run {self.other}) serves prefix {self.prefix}: both brake and refuse cmd_vel "
+            "until one leaves; give one of them another --prefix"
+        )
+
+    def tick(self, now: float) -> ConflictNews | None:
+        """What to report at ``now``, if anything."""
+        if self.active(now):
+            if now >= self._reminded + REMIND_S:
+                self._reminded = now
+                return ConflictNews.REMIND
+            return None
+        if self.other is not None:
+            self.other = None
+            return ConflictNews.RESOLVED
+        return None
+
+    def next_deadline(self) -> float:
+        if self.other is None:
+            return math.inf
+        return min(self._until, self._reminded + REMIND_S)

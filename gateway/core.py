@@ -1,0 +1,367 @@
+"""The gateway's core, sans I/O (as h11 is for HTTP): bytes, commands and ``now`` in; bytes, messages and a deadline out.
+
+Everything the gateway decides lives here, with no sockets, no Zenoh and no
+clock of its own. It composes small pure parts, each with its own timer:
+the safety :class:`~gateway.safety.Governor`, the request/reply
+:class:`~gateway.exchange.Exchange`, the :class:`~gateway.polling.PollSchedule`,
+the :class:`~gateway.links.Links` and their silence rules, the
+:class:`~gateway.prepare.PrepareRetry`, the :class:`~gateway.conflict.GatewayConflict`
+with a second gateway, the :class:`~gateway.log_port.LogPort`, and the
+rate-limited :class:`~blackmetal.runtime.reports.ErrorReporter`.
+
+The host (:mod:`gateway.host`) feeds it :meth:`link_up`, :meth:`link_down`,
+:meth:`receive`, :meth:`on_cmd_vel`, :meth:`on_estop`, :meth:`on_health_seen`
+and :meth:`tick`, each with ``now``; writes :meth:`take_outgoing` to each
+link, publishes :meth:`take_events`, and sleeps until :meth:`next_deadline`.
+"""
+
+from __future__ import annotations
+
+import secrets
+from collections.abc import Callable
+
+from blackmetal import wire
+from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
+from schemas import ErrorReport, GatewayHealth, Keys, PayloadError, RobotStatus, Twist, WheelImpulses, decode, excerpt
+
+from .conflict import ConflictNews, GatewayConflict
+from .estop import read_estop
+from .exchange import Completed, Exchange, Lost
+from .health import Counters, health_report
+from .links import DropLink, LinkName, Links
+from .log_port import LogPort
+from .polling import PollSchedule
+from .prepare import PrepareRetry
+from .safety import CommandReason, Governor
+from .settings import GatewaySettings
+
+#: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
+MAX_IN_FLIGHT = 8
+
+Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DropLink
+
+
+def _is_stop(request: wire.Request) -> bool:
+    if request.command in (CommandCode.EMG_STOP, CommandCode.NORMAL_STOP):
+        return True
+    return request.command is CommandCode.SET_LR_WHEEL_VELOCITY and request.left == 0.0 and request.right == 0.0
+
+
+def _wheels(request: wire.Request) -> WheelSpeeds:
+    return WheelSpeeds(left=float(request.left or 0.0), right=float(request.right or 0.0))
+
+
+class RobotConnection:
+    """See the module docstring. ``robot`` names the robot's control and log ends in reports."""
+
+    def __init__(
+        self,
+        settings: GatewaySettings,
+        now: float,
+        wallclock: Callable[[], float],
+        robot: dict[LinkName, str] | None = None,
+        source: str | None = None,
+    ) -> None:
+        self.settings = settings
+        self.wallclock = wallclock
+        self.keys = Keys(settings.prefix)
+        self.counters = Counters()
+        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
+        self.source = source or secrets.token_hex(6)
+        self.governor = Governor(settings.safety(), now)
+        self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
+        self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
+        self.polls = PollSchedule(settings.poll_hz)
+        self.prepare = PrepareRetry()
+        self.conflict = GatewayConflict(self.source, self.keys.prefix)
+        self._events: list[Event] = []
+        self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
+        self.last_rtt: float | None = None
+        self.seq = 0
+        self.stopping = False
+        self._robot = robot or {"control": "robot:control", "log": "robot:log"}
+        self._replies = ReplyDecoder()
+        self._log_port = LogPort()
+        self._outgoing = bytearray()  # to the control link; nothing is ever written to the log link
+        self._next_health = now
+
+    # ------------------------------------------------------------------ outputs
+
+    def take_outgoing(self, link: LinkName) -> bytes:
+        """Bytes to write to ``link`` now (each request complete, in order)."""
+        data = self._outgoing
+        if link != "control" or not data:
+            return b""
+        out = bytes(data)
+        data.clear()
+        return out
+
+    def take_events(self) -> list[Event]:
+        """Messages to publish and links to drop, in the order they arose (write the outgoing bytes first)."""
+        events, self._events[:] = list(self._events), []
+        return events
+
+    def next_deadline(self) -> float:
+        """When :meth:`tick` must run next, at the latest (monotonic seconds): the earliest of the parts' deadlines."""
+        deadline = min(
+            self._next_health,
+            self.exchange.next_expiry(),
+            self.governor.next_deadline(self._congested()),
+            self.links.next_deadline(),
+            self.conflict.next_deadline(),
+            self.reporter.next_deadline(),
+        )
+        if self.links.control.connected:
+            deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
+        return deadline
+
+    # ------------------------------------------------------------------ link events
+
+    def link_connecting(self, link: LinkName) -> None:
+        self.links.connecting(link)
+
+    def link_up(self, link: LinkName, now: float) -> None:
+        """``link`` is connected (again): start clean."""
+        down_for = self.links.up(link, now, self.wallclock())
+        (self._replies if link == "control" else self._log_port.decoder).reset()
+        if link == "control":
+            self._outgoing.clear()
+        if down_for is not None:
+            self._report_robot(link, f"{link} link up again after {down_for:.1f} s", now)
+        if link == "control":
+            self.exchange.clear("reconnected")
+            self.prepare.reset()
+            self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
+            self.governor.on_link_up(now)
+            self.polls.start(now)
+            self._pump(now)
+
+    def link_down(self, link: LinkName, reason: str, now: float) -> None:
+        """``link`` closed, or could not be opened."""
+        was_up = self.links.down(link, now)
+        if link == "control":
+            self._outgoing.clear()
+        if was_up and not self.stopping:
+            self._report_robot(link, f"{link} link down: {reason}", now)
+        if link == "control" and was_up:
+            self.governor.on_link_down()
+            self.counters.lost_replies += len(self.exchange.clear(reason))
+            self.polls.stop()
+            self.prepare.cancel()
+
+    def receive(self, link: LinkName, data: bytes, now: float) -> None:
+        """Bytes read from ``link``."""
+        self.links.received(link, now)
+        if link == "control":
+            self._receive_control(data, now)
+        else:
+            self._receive_log(data, now)
+
+    # ------------------------------------------------------------------ Zenoh inputs
+
+    def on_cmd_vel(self, payload: bytes, now: float) -> None:
+        """A payload put on ``<prefix>/cmd_vel``: decoded, checked, sent or reported."""
+        try:
+            twist = decode(Twist, payload)
+        except PayloadError as exc:
+            self.reject(self.keys.cmd_vel, str(exc), now, exc.excerpt)
+            return
+        if self.conflict.active(now):
+            self.reject(self.keys.cmd_vel, self.conflict.reason(), now, excerpt(payload))
+            return
+        reason = self.governor.on_twist(twist, now)
+        if reason is not None:
+            self.reject(self.keys.cmd_vel, reason, now, excerpt(payload))
+            return
+        self._pump(now)
+
+    def on_estop(self, payload: bytes, now: float) -> None:
+        """A payload put on ``<prefix>/estop``: anything but a valid release engages (see :mod:`gateway.estop`)."""
+        engaged, complaint = read_estop(payload)
+        if complaint is not None:
+            self.reject(self.keys.estop, complaint, now, excerpt(payload))
+        self.governor.on_estop(engaged, now)
+        self._pump(now)
+        # the host writes the EMG_STOP before it publishes events, so this report follows the stop on the wire
+        self._events.append(self.health(now))
+
+    def on_health_seen(self, payload: bytes, now: float) -> None:
+        """A health report on our own key: one from another gateway run means two gateways share this prefix."""
+        try:
+            other = decode(GatewayHealth, payload).source
+        except PayloadError:
+            return
+        if self.conflict.seen(other, now):  # a new conflict: stop driving at once
+            self.governor.brake()
+        if self.conflict.other is not None:
+            self._conflict_news(self.conflict.tick(now), now)
+            self._pump(now)
+
+    def reject(self, key: str, reason: str, now: float, snippet: str = "") -> None:
+        """An input refused: counted and reported on ``<prefix>/errors``."""
+        self.counters.rejected_inputs += 1
+        self.reporter.report(key, reason, snippet, now=now)
+
+    # ------------------------------------------------------------------ time
+
+    def tick(self, now: float) -> None:
+        """Run every part's timer that is due at ``now``."""
+        for lost in self.exchange.expire(now):
+            self._on_result(lost, now)
+        self._events.extend(self.links.due(now))
+        control_up = self.links.control.connected
+        if control_up and self.prepare.due(now):
+            self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
+        if control_up and self.polls.due(now):
+            self._poll(now)
+        self._conflict_news(self.conflict.tick(now), now)
+        if now >= self._next_health:
+            self._events.append(self.health(now))
+            self._next_health = now + self.settings.health_period
+        self.reporter.tick(now)
+        self._pump(now)
+
+    def stop_robot(self, now: float) -> None:
+        """Leave the robot standing: zero velocity and NORMAL_STOP, ahead of nothing else."""
+        self.stopping = True
+        if self.links.control.connected:
+            self._send(wire.set_velocity(left=0.0, right=0.0), now)
+            self._send(wire.simple(CommandCode.NORMAL_STOP), now)
+            self.counters.commands_sent += 2
+
+    @property
+    def idle(self) -> bool:
+        """No request is waiting for its reply."""
+        return not self.exchange.outstanding
+
+    # ------------------------------------------------------------------ health and reports
+
+    def health(self, now: float) -> GatewayHealth:
+        return health_report(self, now)
+
+    @property
+    def garbage_bytes(self) -> int:
+        return self._replies.garbage_bytes + self._log_port.decoder.garbage_bytes
+
+    def _report_robot(self, link: LinkName, reason: str, now: float, snippet: str = "") -> None:
+        """A fault of the robot's, reported under the robot's end of ``link``."""
+        self.reporter.report(self._robot[link], reason, snippet, "robot", now=now)
+
+    def _conflict_news(self, news: ConflictNews | None, now: float) -> None:
+        if news is ConflictNews.REMIND:
+            self.reporter.report(self.keys.health, self.conflict.reason(), source="gateway", now=now)
+        elif news is ConflictNews.RESOLVED:
+            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
+
+    # ------------------------------------------------------------------ sending
+
+    def _send(self, request: wire.Request, now: float) -> bool:
+        if not self.links.control.connected:
+            return False
+        data = wire.encode_request(request)  # raises on anything the robot must not see
+        if self.exchange.in_doubt and _is_stop(request):
+            # a stop cannot wait for doubtful replies to settle: give them up, so the stop's own reply pairs with it
+            self.counters.lost_replies += self.exchange.forget_expired()
+        self._outgoing += data
+        self.exchange.sent(request, now)
+        self.links.request_sent(now)
+        return True
+
+    def _pump(self, now: float) -> None:
+        """Send whatever the safety state wants sent now: EMG_STOP first, then velocity."""
+        if not self.links.control.connected or self.stopping:
+            return
+        gov = self.governor
+        if gov.emg_stop_due(now) and self._send(wire.simple(CommandCode.EMG_STOP), now):
+            gov.on_emg_stop_sent()
+            self.counters.commands_sent += 1
+        command = gov.next_command(now, congested=self._congested())
+        if command is None or not self._send(wire.set_velocity(left=command.wheels.left, right=command.wheels.right), now):
+            return
+        self.counters.commands_sent += 1
+        if command.reason is CommandReason.KEEPALIVE:
+            self.counters.keepalives += 1
+        elif command.reason is CommandReason.RETRY:
+            self.counters.full_buffer_retries += 1
+        elif command.reason is CommandReason.STOP_AGAIN:
+            self._report_robot("control", "robot wheels still turn although it accepted a stop: asking it to stop again", now)
+
+    def _congested(self) -> bool:
+        """Only stops go out: the robot is behind, or a reply is in doubt (late or lost) and pairing must settle."""
+        return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
+
+    def _poll(self, now: float) -> None:
+        if self.exchange.polls_in_flight() or self._congested():
+            self.counters.polls_skipped += 1  # never build a backlog of polls
+            return
+        if self._send(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY), now):
+            self.counters.polls += 1
+
+    # ------------------------------------------------------------------ receiving
+
+    def _receive_control(self, data: bytes, now: float) -> None:
+        for item in self._replies.feed(data):
+            if isinstance(item, Malformed):
+                self.counters.malformed_replies += 1
+                self._report_robot("control", f"malformed reply from the robot: {item.reason}", now, excerpt(item.raw))
+                continue
+            self.counters.replies += 1
+            for result in self.exchange.received(item, now):
+                self._on_result(result, now)
+        self._pump(now)
+
+    def _on_result(self, result: Completed | Lost, now: float) -> None:
+        request = result.request
+        command = request.command
+        if isinstance(result, Lost):
+            self.counters.lost_replies += 1
+            self._not_taken(request, now)
+            return
+        self.last_rtt = result.rtt
+        if result.late:
+            self._report_robot(
+                "control",
+                f"robot slow: a reply came {1000 * result.rtt:.0f} ms after its request "
+                f"(reply timeout {1000 * self.settings.reply_timeout:.0f} ms); polling waits for it",
+                now,
+            )
+        if result.status.full_buffer:
+            self.counters.full_buffer += 1
+            self._not_taken(request, now)
+            return
+        if not result.status.ok:
+            self._report_robot("control", f"unknown status {result.status.status!r} from the robot", now)
+        if command is CommandCode.SET_LR_WHEEL_VELOCITY:
+            self.governor.on_accepted(_wheels(request), now)
+        elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
+            self.prepare.taken()
+        elif isinstance(result.data, wire.SpeedReading):
+            reading = result.data
+            self._events.append(
+                WheelImpulses(seq=self.seq, stamp=self.wallclock(), left=reading.left, right=reading.right, mono=now, source=self.source)
+            )
+            self.seq += 1
+            self.polls.reading(now)
+            self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)
+
+    def _not_taken(self, request: wire.Request, now: float) -> None:
+        """The robot dropped ``request`` (FULL_BUFFER) or did not answer in time: re-send what must be re-sent, spaced."""
+        command = request.command
+        if command is CommandCode.SET_LR_WHEEL_VELOCITY:
+            reason = self.governor.on_dropped(_wheels(request), now)
+            if reason is not None:
+                self._report_robot("control", reason, now)
+        elif command is CommandCode.EMG_STOP:
+            self.governor.on_emg_stop_dropped(now)
+        elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
+            self.prepare.dropped(now)
+
+    def _receive_log(self, data: bytes, now: float) -> None:
+        for item in self._log_port.feed(data, self.wallclock()):
+            if isinstance(item, RobotStatus):
+                self._events.append(item)
+            else:
+                self.counters.malformed_replies += 1
+                self._report_robot("log", f"log port: {item.reason}", now, excerpt(item.raw))

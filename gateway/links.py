@@ -1,0 +1,163 @@
+"""The robot's two TCP links as the gateway's core sees them: state, silence timers and reconnect pacing, sans I/O.
+
+:class:`Links` is a pure part of the robot connection, like
+:class:`~gateway.safety.Governor` and :class:`~gateway.exchange.Exchange`:
+fed ``now`` on every event, it says which link must be dropped because the
+robot went silent (:meth:`Links.due`) and when that may next happen
+(:meth:`Links.next_deadline`). The host reconnects with
+:class:`ReconnectBackoff`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from enum import StrEnum
+from typing import Literal
+
+from schemas import LinkHealth
+
+LinkName = Literal["control", "log"]
+LINKS: tuple[LinkName, LinkName] = ("control", "log")
+
+
+class LinkStatus(StrEnum):
+    """Where a link stands; the value is what health reports carry."""
+
+    DOWN = "down"
+    CONNECTING = "connecting"
+    CONNECTED = "connected"
+
+
+@dataclass(frozen=True, slots=True)
+class DropLink:
+    """The host must close this link (it reconnects by itself)."""
+
+    link: LinkName
+    reason: str
+
+
+@dataclass
+class LinkState:
+    """What the connection knows of one link: up or not, since when, how often."""
+
+    status: LinkStatus = LinkStatus.DOWN
+    connected_since: float | None = None  # Unix time, for health
+    connections: int = 0
+    last_rx: float = 0.0
+    #: The first request sent since the last bytes received (None: nothing awaited).
+    waiting_since: float | None = None
+    #: When a link that was up went down (None: up, or never up).
+    down_since: float | None = None
+
+    @property
+    def connected(self) -> bool:
+        return self.status is LinkStatus.CONNECTED
+
+    @property
+    def reconnects(self) -> int:
+        return max(0, self.connections - 1)
+
+    def health(self) -> LinkHealth:
+        return LinkHealth(self.status.value, self.connected_since, self.reconnects)
+
+
+class Links:
+    """Both links' states and the silence rules that drop them."""
+
+    def __init__(self, silence_timeout: float, log_silence_timeout: float) -> None:
+        #: Requests unanswered this long: the control link is dropped.
+        self.silence_timeout = silence_timeout
+        #: No state report this long: the log link is dropped.
+        self.log_silence_timeout = log_silence_timeout
+        self.control = LinkState()
+        self.log = LinkState()
+
+    def __getitem__(self, name: LinkName) -> LinkState:
+        return self.control if name == "control" else self.log
+
+    def connecting(self, name: LinkName) -> None:
+        self[name].status = LinkStatus.CONNECTING
+
+    def up(self, name: LinkName, now: float, wall: float) -> float | None:
+        """``name`` connected at ``now``: how long it had been down, if it was up before (for the report)."""
+        state = self[name]
+        state.status = LinkStatus.CONNECTED
+        state.connected_since = wall
+        state.connections += 1
+        state.last_rx = now
+        state.waiting_since = None
+        down_for = None if state.down_since is None else now - state.down_since
+        state.down_since = None
+        return down_for
+
+    def down(self, name: LinkName, now: float) -> bool:
+        """``name`` closed or could not be opened: whether it had been up."""
+        state = self[name]
+        was_up = state.connected
+        state.status = LinkStatus.DOWN
+        state.connected_since = None
+        state.waiting_since = None
+        if was_up:
+            state.down_since = now
+        return was_up
+
+    def received(self, name: LinkName, now: float) -> None:
+        state = self[name]
+        state.last_rx = now
+        state.waiting_since = None
+
+    def request_sent(self, now: float) -> None:
+        """A request went out on the control link: its silence clock runs from the first unanswered one."""
+        if self.control.waiting_since is None:
+            self.control.waiting_since = now
+
+    def due(self, now: float) -> list[DropLink]:
+        """Links to drop at ``now`` because the robot went silent on them."""
+        drops: list[DropLink] = []
+        control, log = self.control, self.log
+        if control.connected and control.waiting_since is not None and now >= control.waiting_since + self.silence_timeout:
+            drops.append(DropLink("control", f"robot silent: no reply for {self.silence_timeout:.3g} s"))
+            control.waiting_since = None
+        if log.connected and now >= log.last_rx + self.log_silence_timeout:
+            drops.append(DropLink("log", f"no state report for {self.log_silence_timeout:.3g} s"))
+            log.last_rx = now
+        return drops
+
+    def next_deadline(self) -> float:
+        """When :meth:`due` may next drop a link (inf: no silence clock runs)."""
+        deadline = math.inf
+        control, log = self.control, self.log
+        if control.connected and control.waiting_since is not None:
+            deadline = control.waiting_since + self.silence_timeout
+        if log.connected:
+            deadline = min(deadline, log.last_rx + self.log_silence_timeout)
+        return deadline
+
+
+class ReconnectBackoff:
+    """How long to wait before the next connection attempt: doubling, capped, reset only by a stable connection.
+
+    A connection that the robot closes within ``stable`` seconds of opening
+    counts as a failure, so a robot that accepts and at once closes or resets
+    gets attempts at the capped pace, not a storm.
+    """
+
+    def __init__(self, first: float = 0.05, cap: float = 2.0, stable: float = 5.0) -> None:
+        self.first = first
+        self.cap = cap
+        self.stable = stable
+        self.delay = first
+        self._opened_at: float | None = None
+
+    def opened(self, now: float) -> None:
+        self._opened_at = now
+
+    def failed(self, now: float) -> float:
+        """A connection attempt failed, or a connection ended: the pause before the next attempt."""
+        if self._opened_at is not None and now - self._opened_at >= self.stable:
+            self.delay = self.first  # that connection was a good one: start over
+        wait = self.delay
+        self.delay = min(self.cap, self.delay * 2)
+        self._opened_at = None
+        return wait

@@ -1,0 +1,55 @@
+"""When the gateway polls the wheel speeds, and how fast it really did, sans I/O.
+
+A pure part of the robot connection with its own deadline: polls start when
+the control link comes up, fall on a fixed grid of ``1 / poll_hz``, and
+resynchronise without a burst when a loaded machine falls behind. The rate
+reported in health is measured from the readings that came back.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+
+#: The measured poll rate is taken over this window of readings (s).
+RATE_WINDOW_S = 2.0
+
+
+class PollSchedule:
+    """The poll grid and the measured rate; see the module docstring."""
+
+    def __init__(self, poll_hz: float) -> None:
+        self.period = 1.0 / poll_hz
+        self._next = math.inf
+        self._readings: deque[float] = deque(maxlen=4096)
+
+    def start(self, now: float) -> None:
+        """The control link is up: the first poll is due at once."""
+        self._next = now
+
+    def stop(self) -> None:
+        """The control link is down: no polls until :meth:`start`."""
+        self._next = math.inf
+
+    def due(self, now: float) -> bool:
+        """Whether a poll is due at ``now``; if so, the grid moves on (the caller polls or counts a skip)."""
+        if now < self._next:
+            return False
+        self._next += self.period
+        if self._next < now - self.period:  # fell behind (loaded machine): resynchronise, no burst
+            self._next = now + self.period
+        return True
+
+    def next_deadline(self) -> float:
+        return self._next
+
+    def reading(self, now: float) -> None:
+        """A wheel-speed reading came back at ``now``."""
+        self._readings.append(now)
+
+    def rate(self, now: float) -> float:
+        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two)."""
+        window = [t for t in self._readings if now - t <= RATE_WINDOW_S]
+        if len(window) < 2:
+            return 0.0
+        return (len(window) - 1) / max(window[-1] - window[0], 1e-9)

@@ -1,0 +1,48 @@
+"""PREPARE_WHEEL_CONTROLLER after every connect, re-sent when the robot does not take it, sans I/O.
+
+A pure part of the robot connection with its own deadline: a PREPARE the
+robot dropped (FULL_BUFFER, or no reply) is sent again after the same
+growing pause as any command (:func:`gateway.safety.retry_delay`).
+"""
+
+from __future__ import annotations
+
+import math
+
+from .safety import retry_delay
+
+
+class PrepareRetry:
+    """When PREPARE_WHEEL_CONTROLLER is to be sent again."""
+
+    def __init__(self) -> None:
+        self.attempts = 0
+        self._at: float | None = None
+
+    def reset(self) -> None:
+        """A new connection: a fresh PREPARE goes out, with no retries behind it."""
+        self.attempts = 0
+        self._at = None
+
+    def cancel(self) -> None:
+        """The link went down: nothing to re-send on it."""
+        self._at = None
+
+    def taken(self) -> None:
+        self.attempts = 0
+
+    def dropped(self, now: float) -> None:
+        """The robot did not take it: plan a re-send (unless one is planned)."""
+        if self._at is None:
+            self.attempts += 1
+            self._at = now + retry_delay(self.attempts)
+
+    def due(self, now: float) -> bool:
+        """Whether to send it again now (once per planned re-send)."""
+        if self._at is None or now < self._at:
+            return False
+        self._at = None
+        return True
+
+    def next_deadline(self) -> float:
+        return math.inf if self._at is None else self._at
