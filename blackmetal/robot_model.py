@@ -142,7 +142,7 @@ def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, sepa
     ds = 0.5 * (d_left + d_right)
     dth = (d_right - d_left) / separation
     half = 0.5 * dth
-    chord = ds * (math.sin(half) / half if abs(half) > 1e-6 else 1.0 - half * half / 6.0)
+    chord = ds * sin_ratio(half)
     heading = yaw + half
     return x + chord * math.cos(heading), y + chord * math.sin(heading), yaw + dth
 
@@ -213,8 +213,16 @@ def both(first: Callable[[], _First], second: Callable[[], _Second], size: int) 
 _SIN_RATIO_SERIES = 0.05
 
 
+def sin_ratio(half: float) -> float:
+    """sin(h)/h, 1 at 0: the same polynomial and threshold as the numpy form, so streaming and batch agree to the bit."""
+    if abs(half) > _SIN_RATIO_SERIES:
+        return math.sin(half) / half
+    h2 = half * half
+    return (((h2 * (1.0 / 362880.0) - 1.0 / 5040.0) * h2 + 1.0 / 120.0) * h2 - 1.0 / 6.0) * h2 + 1.0
+
+
 def _sin_ratio(half: "NDArray[np.float64]") -> "NDArray[np.float64]":
-    """sin(h)/h, 1 at 0: a polynomial for the small half-turns of odometry steps (ten times cheaper than sin), sin/h beyond."""
+    """:func:`sin_ratio` over an array, in place-friendly steps (ten times cheaper than sin for odometry's small half-turns)."""
     import numpy as np
 
     h2 = half * half
