@@ -1,4 +1,4 @@
-"""The odometry pipeline of :mod:`odometry_service.core`, vectorised with numpy for replays.
+"""The odometry pipeline of :mod:`odometry_service.integrator`, vectorised with numpy for replays.
 
 Same rules, same arithmetic order where it matters, so the poses agree with
 the streaming path to 1e-9 (the filter recursion runs as a parallel prefix
@@ -17,8 +17,9 @@ from numpy.typing import NDArray
 
 from blackmetal.robot_model import arc_deltas, arc_path, both, wheels_to_twist
 
-from .core import OdometryParams, SampleOrder
 from .errors import SampleRejected
+from .params import OdometryParams
+from .sample_order import EpochTally, SampleOrder, gap_event
 
 F = NDArray[np.float64]
 B = NDArray[np.bool_]
@@ -52,14 +53,14 @@ class BatchResult:
 
 def _acceptance(
     seq: NDArray[np.int64], stamp: F, time: F, sources: list[str | None] | None, max_gap: float
-) -> tuple[B, B, list[str], list[str], int, int, int]:
+) -> tuple[B, B, list[str], list[str], EpochTally]:
     """Which samples are accepted and which start a new epoch, by the live rules (:class:`SampleOrder`).
 
     ``time`` is what intervals are measured on (``mono`` when the log has it, else the stamps).
     """
     n = len(seq)
     if n == 0:
-        return np.zeros(0, bool), np.zeros(0, bool), [], [], 0, 0, 0
+        return np.zeros(0, bool), np.zeros(0, bool), [], [], EpochTally()
     dseq = np.diff(seq)
     dtime = np.diff(time)
     one_source = sources is None or len(set(sources)) == 1
@@ -69,34 +70,29 @@ def _acceptance(
         new_epoch[0] = True
         new_epoch[1:] = dtime > max_gap
         gap_idx = np.flatnonzero(new_epoch[1:]) + 1
-        events = [f"gap of {time[k] - time[k - 1]:.3f} s before seq {seq[k]} exceeds {max_gap} s: not integrated" for k in gap_idx]
-        return accepted, new_epoch, [], events, len(gap_idx), 0, int(np.sum(dseq - 1))
+        events = [gap_event(float(time[k] - time[k - 1]), int(seq[k]), max_gap) for k in gap_idx]
+        return accepted, new_epoch, [], events, EpochTally(gaps=len(gap_idx), missed=int(np.sum(dseq - 1)))
     # an irregular log: the live rules, sample by sample
     order = SampleOrder(max_gap)
     accepted = np.zeros(n, bool)
     new_epoch = np.zeros(n, bool)
     rejected: list[str] = []
     events = []
-    gaps = restarts = missed = 0
+    tally = EpochTally()
     uses_mono = time is not stamp
     for k in range(n):
-        previous = order.seq
         source = None if sources is None else sources[k]
         try:
             verdict = order.check(int(seq[k]), float(stamp[k]), float(time[k]) if uses_mono else None, source, None)
         except SampleRejected as exc:
             rejected.append(str(exc))
             continue
-        restart = verdict.event is not None and "gap" not in verdict.event
+        tally.count(verdict)
         if verdict.event is not None:
             events.append(verdict.event)
-            restarts += restart
-            gaps += not restart
-        if previous is not None and not restart and seq[k] > previous + 1:
-            missed += int(seq[k]) - previous - 1
         accepted[k] = True
         new_epoch[k] = verdict.new_epoch
-    return accepted, new_epoch[accepted], rejected, events, gaps, restarts, missed
+    return accepted, new_epoch[accepted], rejected, events, tally
 
 
 #: The unit roundoff of float64: a carried factor below it changes no result by as much as its last bit.
@@ -180,7 +176,7 @@ def _zero_runs_before(zero: B, new_epoch: B) -> tuple[B, B, B]:
 def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.intp], F, int]:
     """One wheel's speeds to integrate, filtered speeds, the revisions of earlier steps (sample
     ``k`` revises step ``k - 1``: indices ``k`` and values), and its dropout count; the rules of
-    :class:`~odometry_service.core.Glitches`.
+    :class:`~odometry_service.glitches.Glitches`.
 
     The rules act at a few samples (first zeros, stops, starts), so they are
     worked out at those indices only; whole-array work is kept to the masks.
@@ -237,7 +233,7 @@ def run_batch(
     seq = np.asarray(seq, np.int64)
     stamp = np.asarray(stamp, np.float64)
     time = stamp if mono is None else np.asarray(mono, np.float64)
-    accepted, new_epoch, rejected, events, gaps, restarts, missed = _acceptance(seq, stamp, time, sources, p.max_gap)
+    accepted, new_epoch, rejected, events, tally = _acceptance(seq, stamp, time, sources, p.max_gap)
     left_imp = np.asarray(left, np.float64)
     right_imp = np.asarray(right, np.float64)
     if not accepted.all():
@@ -289,9 +285,9 @@ def run_batch(
         spikes=spikes_l + spikes_r,
         dropouts=drops_l + drops_r,
         retractions=len(provisional),
-        gaps=gaps,
-        restarts=restarts,
-        missed=missed,
+        gaps=tally.gaps,
+        restarts=tally.restarts,
+        missed=tally.missed,
         d_left=d_left,
         d_right=d_right,
     )

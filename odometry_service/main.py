@@ -12,34 +12,24 @@ from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_session
 from schemas import Keys
 
-from .service import OdometryService
+from .core import OdometryCore
+from .host import OdometryHost
 from .settings import OdometrySettings
 from .zenoh_edge import OdometryZenoh
 
-#: How often rate-limited error summaries are published (s).
-FLUSH_PERIOD_S = 1.0
-
 
 async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
+    """Open the Zenoh session, run the service until ``stop``, close everything."""
     keys = Keys(settings.prefix)
     with open_session(settings.zenoh) as session:
         refuse_if_taken(session, keys.alive_odometry, "odometry service", keys.prefix)
         edge = OdometryZenoh(session, keys)
-        service = OdometryService(settings.params(), keys, edge)
-        handover = edge.attach(service, asyncio.get_running_loop())
+        host = OdometryHost(OdometryCore(settings.params(), keys, edge))
+        handover = edge.attach(host, asyncio.get_running_loop())
         print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
         announce_ready("odometry", prefix=settings.prefix)
-        dropped = 0
         try:
-            while not stop.is_set():
-                try:
-                    await asyncio.wait_for(stop.wait(), FLUSH_PERIOD_S)
-                except TimeoutError:
-                    now_dropped = handover.stats()["impulses"][1]
-                    if now_dropped > dropped:
-                        service.on_dropped(now_dropped - dropped)
-                        dropped = now_dropped
-                    service.reporter.flush()
+            await host.run(stop, dropped=lambda: handover.stats()["impulses"][1])
         finally:
             edge.close()
 

@@ -21,8 +21,8 @@ from numpy.typing import NDArray
 from schemas import Pose, WheelImpulses, make_pose
 
 from .batch import BatchResult, run_batch
-from .core import OdometryParams
 from .errors import ReplayError
+from .params import OdometryParams
 
 
 class _Row(msgspec.Struct, gc=False):

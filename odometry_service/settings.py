@@ -10,8 +10,8 @@ from blackmetal.runtime.settings import setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
-from .core import OdometryParams
 from .errors import OdometryError
+from .params import OdometryParams
 
 
 @dataclass(slots=True)

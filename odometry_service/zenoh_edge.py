@@ -1,4 +1,4 @@
-"""Zenoh edge of the odometry service: declarations only, inputs handed over to the service's loop."""
+"""Zenoh edge of the odometry service: declarations only, inputs handed over to the host on the service's loop."""
 
 from __future__ import annotations
 
@@ -8,14 +8,14 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.edge import Handover, ZenohEdge
 from schemas import ErrorReport, Keys, PayloadError, Pose, encode
 
-from .service import OdometryService
+from .host import OdometryHost
 
 if TYPE_CHECKING:
     import zenoh
 
 
 class OdometryZenoh(ZenohEdge):
-    """Publishes poses and errors; feeds impulses, pose queries and resets to a service."""
+    """Publishes poses and errors; feeds impulses, pose queries and resets to the host."""
 
     def __init__(self, session: "zenoh.Session", keys: Keys) -> None:
         super().__init__(session)
@@ -30,27 +30,27 @@ class OdometryZenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def attach(self, service: OdometryService, loop: asyncio.AbstractEventLoop) -> Handover:
+    def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Handover:
         handover = Handover(loop)
-        self.subscriber(self.keys.impulses, handover.channel("impulses", service.on_impulses, capacity=4096))
-        self.queryable(self.keys.pose, handover.channel("pose?", lambda q: self._answer_pose(service, q)))
-        self.queryable(self.keys.odometry_reset, handover.channel("reset?", lambda q: self._answer_reset(service, q)))
+        self.subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=4096))
+        self.queryable(self.keys.pose, handover.channel("pose?", lambda q: self._answer_pose(host, q)))
+        self.queryable(self.keys.odometry_reset, handover.channel("reset?", lambda q: self._answer_reset(host, q)))
         self.token(self.keys.alive_odometry)
         return handover
 
-    def _answer_pose(self, service: OdometryService, query: "zenoh.Query") -> None:
+    def _answer_pose(self, host: OdometryHost, query: "zenoh.Query") -> None:
         import zenoh
 
         with query:
-            query.reply(self.keys.pose, encode(service.latest()), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(self.keys.pose, encode(host.latest()), encoding=zenoh.Encoding.APPLICATION_JSON)
 
-    def _answer_reset(self, service: OdometryService, query: "zenoh.Query") -> None:
+    def _answer_reset(self, host: OdometryHost, query: "zenoh.Query") -> None:
         import zenoh
 
         with query:
             payload = None if query.payload is None else bytes(query.payload.to_bytes())
             try:
-                pose = service.on_reset(payload)
+                pose = host.on_reset(payload)
             except PayloadError as exc:
                 query.reply_err(str(exc).encode())
                 return

@@ -13,8 +13,11 @@ from blackmetal import robot_model as facts
 from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
 from blackmetal.robot_model import PARALLEL_MIN, Encoders, arc_step
 from odometry_service.batch import linear_scan, run_batch
-from odometry_service.core import Glitches, Odometry, OdometryParams
 from odometry_service.errors import SampleRejected
+from odometry_service.glitches import Glitches
+from odometry_service.integrator import Odometry
+from odometry_service.params import OdometryParams
+from odometry_service.sample_order import EpochStart, EpochTally, SampleOrder, Verdict
 from schemas import WheelImpulses
 
 IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
@@ -190,6 +193,45 @@ def test_a_long_gap_is_reported_not_guessed() -> None:
     assert odo.x == x and odo.gaps == 1 and "gap" in odo.events[-1]
     odo.feed(imp(3, 2.2, 0.2, 0.2))  # 0.2 s: within the bound, integrated
     assert odo.x == pytest.approx(x + 0.04, abs=1e-3)
+
+
+def test_sample_order_names_why_an_epoch_starts() -> None:
+    order = SampleOrder(max_gap=0.5)
+    kinds = [
+        order.check(0, 1.0, None, None, None).start,
+        order.check(1, 1.01, None, None, None).start,
+        order.check(2, 2.0, None, None, None).start,  # 0.99 s later
+        order.check(0, 2.01, None, None, None).start,  # no sources: the sequence started over
+    ]
+    assert kinds == [EpochStart.FIRST, None, EpochStart.GAP, EpochStart.SEQUENCE_RESTART]
+    order = SampleOrder(max_gap=0.5)
+    order.check(7, 1.0, 1.0, "gw-a", None)
+    assert order.check(0, 1.01, 0.01, "gw-b", None).start is EpochStart.GATEWAY_RESTART  # gw-a silent (no arrivals: a log)
+
+
+def test_gaps_and_restarts_are_counted_by_kind_never_by_text() -> None:
+    tally = EpochTally()
+    tally.count(Verdict(EpochStart.GAP, 0.0, missed=2, event="gateway restart, it seems"))
+    tally.count(Verdict(EpochStart.GATEWAY_RESTART, 0.0, event="a gap, a gap"))
+    tally.count(Verdict(EpochStart.SEQUENCE_RESTART, 0.0, event=None))
+    tally.count(Verdict(EpochStart.FIRST, 0.0, event="gap"))
+    assert (tally.gaps, tally.restarts, tally.missed) == (1, 2, 2)
+    # gateways whose ids contain "gap": the take-over is a restart, live and in a replay
+    samples = [WheelImpulses(seq=100 + k, stamp=0.02 * k, left=203, right=-211, mono=0.02 * k, source="gap-a") for k in range(10)]
+    samples += [WheelImpulses(seq=k, stamp=5.0 + 0.02 * k, left=203, right=-211, mono=0.02 * k, source="gap-b") for k in range(10)]
+    odo = Odometry()
+    for sample in samples:
+        odo.feed(sample)
+    batch = run_batch(
+        np.array([m.seq for m in samples]),
+        np.array([m.stamp for m in samples]),
+        np.array([m.left for m in samples]),
+        np.array([m.right for m in samples]),
+        mono=np.array([m.mono for m in samples]),
+        sources=[m.source for m in samples],
+    )
+    assert (odo.restarts, odo.gaps, odo.missed) == (batch.restarts, batch.gaps, batch.missed) == (1, 0, 0)
+    assert "gap-b" in odo.events[-1] and batch.events == odo.events
 
 
 def test_reset_to_a_given_pose() -> None:

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from odometry_service.batch import run_batch
-from odometry_service.core import Odometry
 from odometry_service.errors import OdometryError, SampleRejected
+from odometry_service.integrator import Odometry
 from schemas import WheelImpulses
 
 WALL = 1_800_000_000.0

@@ -1,7 +1,8 @@
-"""Odometry service: its core loop with recorded output, the replay command, and the full chain on Zenoh."""
+"""Odometry service: its core with recorded output, its host on a loop, the replay command, and the full chain on Zenoh."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 import signal
@@ -15,25 +16,27 @@ import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_listen_args
 
 from blackmetal.bench.synth import exact_pose, square_legs, synth_log
-from odometry_service.core import Odometry, OdometryParams
-from odometry_service.service import OdometryService, RecordingOdometryOutput
+from odometry_service.core import DROPPED_REPORT_PERIOD_S, OdometryCore, RecordingOdometryOutput
+from odometry_service.host import OdometryHost
+from odometry_service.integrator import Odometry
+from odometry_service.params import OdometryParams
 from schemas import Keys, PayloadError, Pose, decode, encode
 
 
-def service() -> tuple[OdometryService, RecordingOdometryOutput]:
+def service() -> tuple[OdometryCore, RecordingOdometryOutput]:
     out = RecordingOdometryOutput()
-    return OdometryService(OdometryParams(), Keys("robot"), out), out
+    return OdometryCore(OdometryParams(), Keys("robot"), out), out
 
 
 def test_every_sample_publishes_a_pose_and_bad_input_is_reported() -> None:
     svc, out = service()
     log = synth_log(square_legs(side=0.5), seed=1)
     for msg in log.messages()[:200]:
-        svc.on_impulses(encode(msg) + b"\n")
+        svc.on_impulses(encode(msg) + b"\n", msg.stamp)
     assert len(out.poses) == 200
     for bad in (b"", b"garbage", b'{"seq":1}', b'{"seq":-1,"stamp":1,"left":0,"right":0}', b'{"seq":5,"stamp":NaN,"left":0,"right":0}'):
-        svc.on_impulses(bad)
-    svc.on_impulses(encode(log.messages()[150]))  # a duplicate from the past
+        svc.on_impulses(bad, 100.0)
+    svc.on_impulses(encode(log.messages()[150]), 100.0)  # a duplicate from the past
     assert len(out.poses) == 200
     assert svc.rejected == 6
     assert all(e.source == "odometry" and e.reason for e in out.errors)
@@ -44,13 +47,72 @@ def test_reset_to_zero_or_to_a_given_pose() -> None:
     svc, _ = service()
     log = synth_log(square_legs(side=0.5), seed=1)
     for msg in log.messages()[:300]:
-        svc.on_impulses(encode(msg))
+        svc.on_impulses(encode(msg), msg.stamp)
     assert svc.latest().x != 0.0
-    assert svc.on_reset(None).x == 0.0
-    pose = svc.on_reset(b'{"x": 1.5, "y": -2, "yaw": 4.0}')
+    assert svc.on_reset(None, 100.0).x == 0.0
+    pose = svc.on_reset(b'{"x": 1.5, "y": -2, "yaw": 4.0}', 100.0)
     assert (pose.x, pose.y) == (1.5, -2.0) and pose.yaw == pytest.approx(4.0 - 2 * math.pi)
     with pytest.raises(PayloadError):
-        svc.on_reset(b'{"x": "far"}')
+        svc.on_reset(b'{"x": "far"}', 100.0)
+
+
+def test_the_core_publishes_summaries_and_dropped_counts_in_its_own_tick() -> None:
+    svc, out = service()
+    assert svc.next_deadline() == math.inf
+    for _ in range(25):  # a flood at one instant: the burst is published, the rest is summarised later
+        svc.on_impulses(b"garbage", 10.0)
+    assert len(out.errors) == 10 and svc.rejected == 25
+    deadline = svc.next_deadline()
+    assert 10.0 < deadline < math.inf
+    svc.tick(deadline - 0.001)
+    assert len(out.errors) == 10
+    svc.tick(deadline + 5.0)
+    assert out.errors[-1].suppressed == 15 and "rate-limited" in out.errors[-1].reason
+    assert svc.next_deadline() == math.inf
+    svc.on_dropped(3, 20.0)
+    svc.on_dropped(4, 20.1)
+    assert svc.next_deadline() <= 20.1
+    svc.tick(20.1)
+    assert out.errors[-1].reason.startswith("7 impulse samples dropped")
+    svc.on_dropped(2, 20.2)  # at most one dropped-count report a period, the counts summed
+    assert svc.next_deadline() == pytest.approx(20.1 + DROPPED_REPORT_PERIOD_S)
+    svc.tick(20.3)
+    assert out.errors[-1].reason.startswith("7 ")
+    svc.tick(20.1 + DROPPED_REPORT_PERIOD_S)
+    assert out.errors[-1].reason.startswith("2 impulse samples dropped")
+    assert svc.next_deadline() == math.inf
+
+
+def test_the_host_stamps_inputs_and_runs_the_cores_timers_on_the_loop() -> None:
+    async def scenario() -> RecordingOdometryOutput:
+        svc, out = service()
+        svc.reporter.summary_period = 0.02  # summaries come from the core's tick, not from a host timer
+        host = OdometryHost(svc)
+        stop = asyncio.Event()
+        dropped = [0]
+        running = asyncio.create_task(host.run(stop, dropped=lambda: dropped[0]))
+        await asyncio.sleep(0)
+        for msg in synth_log(square_legs(side=0.5), seed=1).messages()[:20]:
+            host.on_impulses(encode(msg))
+        dropped[0] = 5  # the bounded input dropped five samples while these waited
+        host.on_impulses(b"garbage")
+        await asyncio.sleep(0.01)  # the core's tick reports them at once
+        for _ in range(12):
+            host.on_impulses(b"garbage")
+        assert host.on_reset(None).x == 0.0
+        for _ in range(200):  # a token comes back after 1/rate = 0.2 s; then the next tick summarises
+            if any("were rate-limited" in e.reason for e in out.errors):
+                break
+            await asyncio.sleep(0.01)
+        stop.set()
+        await running
+        return out
+
+    out = asyncio.run(scenario())
+    assert len(out.poses) == 20
+    reasons = [e.reason for e in out.errors]
+    assert any(r.startswith("5 impulse samples dropped") for r in reasons)
+    assert any("were rate-limited" in r for r in reasons)
 
 
 def test_replay_command_prints_the_final_pose_and_writes_every_pose(tmp_path) -> None:  # type: ignore[no-untyped-def]

@@ -264,7 +264,7 @@ print(len(result), t2 - t1)
 
 _STREAM_SNIPPET = """
 import sys, time, msgspec
-from odometry_service.core import Odometry
+from odometry_service.integrator import Odometry
 from schemas import WheelImpulses, encode
 decoder = msgspec.json.Decoder(WheelImpulses)
 lines = open(sys.argv[1], "rb").read().splitlines()[: int(sys.argv[2])]

@@ -1,0 +1,58 @@
+"""The odometry's asyncio host: stamps each input with the clock, runs the core's timers, counts dropped input.
+
+All decisions are in :class:`~odometry_service.core.OdometryCore`; the Zenoh
+edge hands payloads and queries over to this host on the loop
+(:mod:`blackmetal.runtime.edge`), the host passes them on with ``now`` and
+pokes the shared :class:`~blackmetal.runtime.host.DeadlineTimer`, which runs
+``core.tick`` at the core's next deadline. No timer of its own.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import Callable
+
+from blackmetal.runtime.host import DeadlineTimer
+from schemas import Pose
+
+from .core import OdometryCore
+
+
+class OdometryHost:
+    """Runs one :class:`OdometryCore` on the running asyncio loop; see the module docstring."""
+
+    def __init__(self, core: OdometryCore, clock: Callable[[], float] = time.monotonic) -> None:
+        self.core = core
+        self.clock = clock
+        self.timer = DeadlineTimer(core, clock)
+        self._dropped: Callable[[], int] = lambda: 0
+        self._dropped_seen = 0
+
+    def on_impulses(self, payload: bytes) -> None:
+        now = self.clock()
+        self.core.on_impulses(payload, now)
+        dropped = self._dropped()  # samples are dropped only while others wait: the next one counts them
+        if dropped > self._dropped_seen:
+            self.core.on_dropped(dropped - self._dropped_seen, now)
+            self._dropped_seen = dropped
+        self.timer.poke()
+
+    def on_reset(self, payload: bytes | None) -> Pose:
+        """The core's reset; PayloadError (reported by the core) for a payload that is not a usable pose."""
+        try:
+            return self.core.on_reset(payload, self.clock())
+        finally:
+            self.timer.poke()
+
+    def latest(self) -> Pose:
+        return self.core.latest()
+
+    async def run(self, stop: asyncio.Event, dropped: Callable[[], int] = lambda: 0) -> None:
+        """Run the core's timers until ``stop``; ``dropped``: how many impulse samples the input has dropped so far."""
+        self._dropped = dropped
+        self.timer.start()
+        try:
+            await stop.wait()
+        finally:
+            self.timer.stop()

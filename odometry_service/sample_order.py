@@ -1,0 +1,158 @@
+"""Which impulse samples may be integrated, and over which interval: one rule set for live odometry and replay.
+
+Every decision about a sample is made on typed values (:class:`EpochStart`,
+the interval, the count of missed samples); the text of an accepted
+sample's event is for reports only, so rewording a message cannot change
+what is counted or integrated.
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+
+from .errors import SampleRejected
+
+#: Samples may claim at most this much more time than their arrivals show, in total over an epoch (s).
+SPACING_TOLERANCE_S = 0.1
+#: How far the receiver's estimate of the smallest delivery delay may settle below the first sample's (s).
+SETTLE_S = 0.5
+#: Impulses from another gateway are taken over only after the followed one was silent this long (s).
+FOLLOW_TIMEOUT_S = 1.0
+
+
+def gap_event(dt: float, seq: int, max_gap: float) -> str:
+    """The report of a gap not integrated across (one wording for live odometry and replay)."""
+    return f"gap of {dt:.3f} s before seq {seq} exceeds {max_gap} s: not integrated"
+
+
+class EpochStart(enum.Enum):
+    """Why a sample starts a new epoch: it is not integrated from the previous one."""
+
+    #: The first sample since the start or a reset.
+    FIRST = "first"
+    #: The previous sample is further back than ``max_gap``.
+    GAP = "gap"
+    #: Another gateway (a new ``source``) took over from a silent one.
+    GATEWAY_RESTART = "gateway restart"
+    #: A log without sources: the sequence went back while the stamps moved on.
+    SEQUENCE_RESTART = "sequence restart"
+
+    @property
+    def restart(self) -> bool:
+        """The gateway started over (a new sequence), as opposed to a first sample or a gap."""
+        return self is EpochStart.GATEWAY_RESTART or self is EpochStart.SEQUENCE_RESTART
+
+
+@dataclass(frozen=True, slots=True)
+class Verdict:
+    """What :class:`SampleOrder` decided about one accepted sample."""
+
+    #: Why the sample starts a new epoch; None: it continues the epoch and is integrated over ``dt``.
+    start: EpochStart | None
+    #: Seconds since the previous sample (0 for a new epoch).
+    dt: float
+    #: Samples the gateway numbered between the previous one and this one that never arrived.
+    missed: int = 0
+    #: Worth reporting, though accepted: the text of a report, never decided on.
+    event: str | None = None
+
+    @property
+    def new_epoch(self) -> bool:
+        """Do not integrate from the previous sample."""
+        return self.start is not None
+
+
+@dataclass(slots=True)
+class EpochTally:
+    """Gaps, restarts and missed samples counted from verdicts' kinds: the one count for live odometry and replay."""
+
+    gaps: int = 0
+    restarts: int = 0
+    missed: int = 0
+
+    def count(self, verdict: Verdict) -> None:
+        if verdict.start is EpochStart.GAP:
+            self.gaps += 1
+        elif verdict.start is not None and verdict.start.restart:
+            self.restarts += 1
+        self.missed += verdict.missed
+
+
+@dataclass(slots=True)
+class SampleOrder:
+    """Accepts or rejects impulse samples one by one; see the module docstring.
+
+    The interval is the gateway's monotonic time (``mono``) when the sample
+    carries it, so a wall-clock step (NTP) or a stamp from the future cannot
+    freeze or stretch the pose; older logs without it use the wall stamps.
+    A sample is rejected (:class:`SampleRejected`, with the reason) when it
+    repeats or goes back in sequence from the same gateway, goes back in
+    time, claims more time than its arrival shows, or comes from another
+    gateway while the followed one is alive. A gateway that restarts (new
+    ``source``) or a gap longer than ``max_gap`` starts a new epoch.
+
+    The arrival check is cumulative, so delivery jitter on a loaded machine
+    cannot trip it: ``arrival - mono`` (``arrival`` on the receiver's
+    monotonic clock; replay has none) is the delivery delay plus a constant
+    and never falls below its smallest value, unless samples claim time that
+    did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
+    """
+
+    max_gap: float
+    seq: int | None = None
+    time: float | None = None
+    source: str | None = None
+    arrival: float | None = None
+    #: arrival - time of this epoch's first sample, and the smallest since (delivery delay plus a constant).
+    first_offset: float | None = None
+    least_offset: float | None = None
+
+    def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
+        """Accept (and remember) the sample, or raise SampleRejected and remember nothing."""
+        time = stamp if mono is None else mono
+        if mono is None:
+            arrival = None  # wall stamps may step: arrivals are compared with the gateway's monotonic time only
+        if self.seq is None or self.time is None:
+            return self._accept(seq, time, source, arrival, Verdict(EpochStart.FIRST, 0.0))
+        if source != self.source:
+            silent = arrival is None or self.arrival is None or arrival - self.arrival >= FOLLOW_TIMEOUT_S
+            if not silent:
+                raise SampleRejected(
+                    f"impulses from gateway {source} while following gateway {self.source}: "
+                    "two gateways publish on this prefix; only one is integrated"
+                )
+            if source is not None and self.source is not None:
+                event = f"gateway {source} took over from gateway {self.source} (a restart): not integrating across it"
+                return self._accept(seq, time, source, arrival, Verdict(EpochStart.GATEWAY_RESTART, 0.0, event=event))
+        if seq <= self.seq:
+            if source is None and time > self.time:  # a log without sources: a later stamp means a restart
+                event = f"sequence restarted at {seq} after {self.seq} (gateway restart): not integrating across it"
+                return self._accept(seq, time, source, arrival, Verdict(EpochStart.SEQUENCE_RESTART, 0.0, event=event))
+            raise SampleRejected(f"duplicate or out-of-order sample: seq {seq} after seq {self.seq} from the same gateway")
+        if time < self.time:
+            clock = "stamp" if mono is None else "monotonic time"
+            raise SampleRejected(f"{clock} went backwards: seq {seq} at {time:.6f} after seq {self.seq} at {self.time:.6f}")
+        dt = time - self.time
+        if arrival is not None and self.least_offset is not None and arrival - time < self.least_offset - SPACING_TOLERANCE_S:
+            ahead = self.least_offset - (arrival - time)
+            raise SampleRejected(
+                f"seq {seq} claims {dt:.3f} s since the previous sample, {ahead:.3f} s more than the samples' arrivals allow"
+            )
+        missed = seq - self.seq - 1
+        if dt > self.max_gap:
+            return self._accept(seq, time, source, arrival, Verdict(EpochStart.GAP, 0.0, missed, gap_event(dt, seq, self.max_gap)))
+        return self._accept(seq, time, source, arrival, Verdict(None, dt, missed))
+
+    def _accept(self, seq: int, time: float, source: str | None, arrival: float | None, verdict: Verdict) -> Verdict:
+        self.seq, self.time, self.source, self.arrival = seq, time, source, arrival
+        if arrival is None:
+            self.first_offset = self.least_offset = None
+        elif verdict.new_epoch or self.first_offset is None or self.least_offset is None:
+            self.first_offset = self.least_offset = arrival - time
+        else:  # the smallest delivery delay seen, allowed to settle at most SETTLE_S below the first sample's
+            self.least_offset = max(min(self.least_offset, arrival - time), self.first_offset - SETTLE_S)
+        return verdict
+
+    def forget(self) -> None:
+        self.seq = self.time = self.source = self.arrival = self.first_offset = self.least_offset = None
