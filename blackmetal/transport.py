@@ -76,7 +76,15 @@ class TcpConnector:
         self.timeout = timeout
 
     async def open(self, port: str) -> ByteStream:
-        reader, writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.ports[port]), self.timeout)
+        """Connect, or raise OSError/TimeoutError whose text names the reason (never empty)."""
+        try:
+            reader, writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.ports[port]), self.timeout)
+        except TimeoutError:
+            raise TimeoutError(f"no answer within {self.timeout:g} s (is the robot on, and is {self.host} its address?)") from None
+        except ConnectionRefusedError:
+            raise ConnectionRefusedError(f"connection refused (nothing listens on port {self.ports[port]})") from None
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror or str(exc) or type(exc).__name__) from None
         return TcpStream(reader, writer)
 
     def describe(self, port: str) -> str:

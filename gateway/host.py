@@ -148,7 +148,7 @@ class GatewayHost:
             try:
                 stream = await self.connector.open(name)
             except (OSError, TimeoutError) as exc:
-                reason = f"cannot connect to {self.connector.describe(name)}: {exc or type(exc).__name__}"
+                reason = f"cannot connect to {self.connector.describe(name)}: {_reason(exc)}"
                 conn.link_down(name, reason, self.clock())
                 if first_failure:
                     log.warning("%s link: %s; retrying", name, reason)
@@ -217,6 +217,13 @@ class GatewayHost:
         deadline = self.clock() + 0.3
         while not self.connection.idle and self.clock() < deadline and self._streams["control"] is not None:
             await asyncio.sleep(0.01)
+
+
+def _reason(exc: BaseException) -> str:
+    """An exception as the reason of a failure, never empty (a bare TimeoutError has no text)."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return exc.strerror
+    return str(exc) or type(exc).__name__
 
 
 async def _sleep_or_stop(stop: asyncio.Event, delay: float) -> None:

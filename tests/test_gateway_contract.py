@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
+from helpers import free_port
 
 from blackmetal.sim.memory import MemoryConnector
 from blackmetal.sim.physics import RobotParams, SimRobot
@@ -335,3 +336,24 @@ async def test_status_from_the_log_port(transport: str) -> None:
         await until(lambda: len(rig.output.health_log) >= 2, "periodic health")
     finally:
         await rig.close()
+
+
+def test_an_unreachable_robot_is_reported_with_its_reason(caplog: pytest.LogCaptureFixture) -> None:
+    """Nothing listens on the robot's port: the warning names the address and why, never an empty reason."""
+    from gateway.host import _reason
+
+    port = free_port()
+
+    async def body() -> None:
+        settings = GatewaySettings(control_port=port, log_port=port)
+        host = GatewayHost(settings, TcpConnector("127.0.0.1", port, port, timeout=0.5), RecordingOutput())
+        stop = asyncio.Event()
+        task = asyncio.create_task(host.run(stop))
+        await until(lambda: caplog.text.count("cannot connect") >= 2, "both links to report")
+        stop.set()
+        await asyncio.wait_for(task, 5.0)
+
+    with caplog.at_level("WARNING", logger="blackmetal.gateway"):
+        asyncio.run(body())
+    assert f"cannot connect to 127.0.0.1:{port}: connection refused (nothing listens on port {port}); retrying" in caplog.text
+    assert _reason(TimeoutError()) == "TimeoutError" and _reason(OSError(113, "No route to host")) == "No route to host"
