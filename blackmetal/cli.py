@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -75,6 +76,17 @@ def _plain(doc: str | None) -> str | None:
 
 
 def main(argv: list[str] | None = None) -> int:
+    """Run one subcommand; output piped into a reader that stops early (``| head``) ends quietly."""
+    try:
+        return _main(argv)
+    except BrokenPipeError:
+        # the reader is gone: point stdout at nothing so the interpreter's final flush cannot fail again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return 0
+
+
+def _main(argv: list[str] | None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     only = argv[0] if argv and argv[0] in COMMANDS else None
     parser = build_parser(only)

@@ -14,7 +14,7 @@ from schemas import ANY_GATEWAY_ALIVE, Keys
 from .client import connect, tool, where
 
 
-def alive_robots(session: zenoh.Session, timeout: float = 3.0) -> list[str]:
+def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
     """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway.
 
     A liveliness subscriber with history collects the tokens for ``timeout``
@@ -51,6 +51,6 @@ def run(args: argparse.Namespace) -> int:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="blackmetal robots", description=__doc__)
-    parser.add_argument("--wait", type=float, default=3.0, help="seconds to collect answers (default 3)")
+    parser.add_argument("--wait", type=float, default=5.0, help="seconds to collect answers (default 5, like every tool)")
     add_zenoh_arguments(parser)
     return parser
