@@ -53,15 +53,32 @@ def compare(result: BatchResult, path: str, prefix: str | None) -> str:
     live = msgspec.json.Decoder(Pose).decode_lines(text) if text.strip() else []
     if not live:
         return f"--compare: {path} holds no poses to compare with"
-    index = {float(s): k for k, s in enumerate(result.stamp)}
+    return compare_poses(result.stamp, result.x, result.y, result.yaw, live)
+
+
+def compare_poses(stamp: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, live: list[Pose]) -> str:
+    """Replayed poses against live ones of the same stamps, the replay moved onto the live pose at the first match.
+
+    A replay starts at (0, 0, 0) while the live odometry may have run (or been
+    reset elsewhere) before the recording began: both are compared as motion
+    from the first stamp they share, so only a difference in how they moved counts.
+    """
+    index = {float(s): k for k, s in enumerate(stamp)}
     pairs = [(pose, index[pose.stamp]) for pose in live if pose.stamp in index]
     if not pairs:
         return f"--compare: none of the {len(live)} live poses has the stamp of a replayed one"
-    dist = np.array([math.hypot(p.x - result.x[k], p.y - result.y[k]) for p, k in pairs])
-    dyaw = np.array([abs(math.remainder(p.yaw - result.yaw[k], math.tau)) for p, k in pairs])
+    start, k0 = pairs[0]
+    turn = start.yaw - float(yaw[k0])
+    c, s = math.cos(turn), math.sin(turn)
+    ks = np.array([k for _, k in pairs])
+    dx, dy = x[ks] - x[k0], y[ks] - y[k0]
+    ax, ay = start.x + c * dx - s * dy, start.y + s * dx + c * dy
+    dist = np.hypot(np.array([p.x for p, _ in pairs]) - ax, np.array([p.y for p, _ in pairs]) - ay)
+    dyaw = np.abs(np.remainder(np.array([p.yaw for p, _ in pairs]) - (yaw[ks] + turn) + math.pi, math.tau) - math.pi)
     worst = int(np.argmax(dist))
     return (
-        f"--compare: {len(pairs)} of {len(live)} live poses matched by stamp; largest difference "
+        f"--compare: {len(pairs)} of {len(live)} live poses matched by stamp, compared as motion from the first "
+        f"(live pose there x {start.x:.3f} m, y {start.y:.3f} m, yaw {start.yaw:.3f} rad); largest difference "
         f"{1e3 * dist.max():.3f} mm (at stamp {pairs[worst][0].stamp:.3f}), {1e3 * dyaw.max():.3f} mrad"
     )
 
