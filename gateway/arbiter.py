@@ -1,0 +1,230 @@
+"""Which commander drives: named command sources with priorities, and locks, as twist_mux does it, sans I/O.
+
+A robot in use has several commanders at once (navigation, a joystick, a
+Foxglove panel, a fleet manager). Each publishes on its own key
+``<prefix>/cmd_vel/<name>`` (plain ``<prefix>/cmd_vel`` is the source
+``default``); the arbiter, a pure part of the gateway's core with its own
+deadline, says which one drives:
+
+* a source is **live** while its last command is younger than its timeout;
+* the **active** source is the live one of highest priority that no engaged
+  lock blocks; on a tie, the one already active keeps control until it times
+  out (no flapping between equals);
+* a **lock** ``<prefix>/lock/<name>`` engaged (``{"locked": true}``) blocks
+  every source of equal or lower priority (twist_mux masks only lower ones;
+  equal is blocked here so a lock always outranks the sources it names). A
+  lock with a timeout is also engaged while it has not been refreshed within
+  it, from the start: a supervisor's heartbeat, so the robot stops when the
+  supervisor dies and does not move before it is there;
+* commands of sources that do not drive are dropped quietly and counted.
+
+The gateway's governor still applies the limits, the command timeout and the
+e-stop, which stays above everything.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from enum import Enum
+
+from schemas import ConfigError, Twist
+
+#: The source of plain ``<prefix>/cmd_vel``.
+DEFAULT_SOURCE = "default"
+#: A source or lock name: one key chunk, no wildcards.
+_NAME_FORBIDDEN = set("*$?#/ ")
+
+
+@dataclass(frozen=True, slots=True)
+class SourceSpec:
+    """A configured command source: its name (the key chunk), priority 0-255 and timeout (s)."""
+
+    name: str
+    priority: int
+    timeout: float = 0.5
+
+
+@dataclass(frozen=True, slots=True)
+class LockSpec:
+    """A configured lock: its name, the priority up to which it blocks, and an optional heartbeat timeout (s)."""
+
+    name: str
+    priority: int
+    timeout: float | None = None
+
+
+#: The sources a gateway knows unless its settings say otherwise (twist_mux-like priorities).
+DEFAULT_SOURCES: tuple[SourceSpec, ...] = (
+    SourceSpec("teleop", 100),
+    SourceSpec("foxglove", 90),
+    SourceSpec(DEFAULT_SOURCE, 50),
+    SourceSpec("ros2", 50),
+    SourceSpec("nav", 10),
+)
+
+
+def check_name(kind: str, name: str) -> str:
+    if not name or _NAME_FORBIDDEN & set(name) or name.startswith("@"):
+        raise ConfigError(f"{kind} name {name!r} must be one key chunk: no '/', spaces, wildcards or leading '@'")
+    return name
+
+
+def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) -> None:
+    """ConfigError naming the first source or lock that cannot work."""
+    if not sources:
+        raise ConfigError("at least one command source must be configured (e.g. the source 'default')")
+    for kind, specs in (("source", sources), ("lock", locks)):
+        names = [spec.name for spec in specs]
+        for spec in specs:
+            check_name(kind, spec.name)
+            if names.count(spec.name) > 1:
+                raise ConfigError(f"{kind} {spec.name!r} is configured twice")
+            if isinstance(spec.priority, bool) or not isinstance(spec.priority, int) or not 0 <= spec.priority <= 255:
+                raise ConfigError(f"{kind} {spec.name!r}: priority must be an integer 0-255, got {spec.priority!r}")
+            timeout = spec.timeout
+            if timeout is not None and (not isinstance(timeout, (int, float)) or not math.isfinite(timeout) or timeout <= 0):
+                raise ConfigError(f"{kind} {spec.name!r}: timeout must be a positive number of seconds, got {timeout!r}")
+
+
+class Admission(Enum):
+    """What became of one command offered to the arbiter."""
+
+    DRIVES = "drives"  # its source is the active one: the command becomes the target
+    DROPPED = "dropped"  # another source drives, or a lock blocks this one: counted, not reported
+    UNKNOWN = "unknown"  # no such source is configured: refused and reported
+
+
+@dataclass(slots=True)
+class _Source:
+    spec: SourceSpec
+    heard_at: float = -math.inf
+    twist: Twist | None = None
+    dropped: int = 0
+    #: When it falls silent, until :meth:`Arbiter.update` has seen that (then inf: no deadline of its own).
+    due: float = math.inf
+
+    def live(self, now: float) -> bool:
+        return now - self.heard_at < self.spec.timeout
+
+
+@dataclass(slots=True)
+class _Lock:
+    spec: LockSpec
+    locked: bool = False
+    heard_at: float = -math.inf
+    #: When its heartbeat is missed, until :meth:`Arbiter.update` has seen that.
+    due: float = math.inf
+
+    def engaged(self, now: float) -> bool:
+        timeout = self.spec.timeout
+        return self.locked or (timeout is not None and now - self.heard_at >= timeout)
+
+
+@dataclass(frozen=True, slots=True)
+class Handover:
+    """The active source changed: who drives now (None: nobody) and the command to take over with.
+
+    ``blocked``: nobody drives because a lock blocks every live source, so the
+    robot must brake now; when the sources merely fell silent, the gateway's
+    command timeout brakes as it always did.
+    """
+
+    source: str | None
+    twist: Twist | None
+    heard_at: float
+    blocked: bool = False
+
+
+@dataclass(slots=True)
+class Arbiter:
+    """See the module docstring."""
+
+    sources: tuple[SourceSpec, ...] = DEFAULT_SOURCES
+    locks: tuple[LockSpec, ...] = ()
+    _sources: dict[str, _Source] = field(init=False)
+    _locks: dict[str, _Lock] = field(init=False)
+    #: The source that drives (None: nobody has since the start or the last hand-over to nobody).
+    active: str | None = field(init=False, default=None)
+
+    def __post_init__(self) -> None:
+        check_specs(self.sources, self.locks)
+        self._sources = {spec.name: _Source(spec) for spec in self.sources}
+        self._locks = {spec.name: _Lock(spec) for spec in self.locks}
+
+    @property
+    def names(self) -> list[str]:
+        return list(self._sources)
+
+    @property
+    def lock_names(self) -> list[str]:
+        return list(self._locks)
+
+    # ------------------------------------------------------------------ inputs
+
+    def offer(self, name: str, twist: Twist, now: float) -> Admission:
+        """A valid command from source ``name`` at ``now``: whether it drives."""
+        source = self._sources.get(name)
+        if source is None:
+            return Admission.UNKNOWN
+        source.heard_at, source.twist, source.due = now, twist, now + source.spec.timeout
+        self.active = self._winner(now)
+        if self.active == name:
+            return Admission.DRIVES
+        source.dropped += 1
+        return Admission.DROPPED
+
+    def set_lock(self, name: str, locked: bool, now: float) -> bool:
+        """Lock ``name`` engaged or released (a refresh either way); False if no such lock is configured."""
+        lock = self._locks.get(name)
+        if lock is None:
+            return False
+        lock.locked, lock.heard_at = locked, now
+        lock.due = math.inf if lock.spec.timeout is None else now + lock.spec.timeout
+        return True
+
+    def update(self, now: float) -> Handover | None:
+        """The hand-over due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
+        for item in self._timed():
+            if now >= item.due:
+                item.due = math.inf  # seen: its deadline is spent
+        winner = self._winner(now)
+        if winner == self.active:
+            return None
+        self.active = winner
+        if winner is None:
+            return Handover(None, None, -math.inf, blocked=any(s.live(now) for s in self._sources.values()))
+        source = self._sources[winner]
+        return Handover(winner, source.twist, source.heard_at)
+
+    def next_deadline(self) -> float:
+        """When :meth:`update` may next have a hand-over without a new input: a live source's or a lock's timeout."""
+        return min((item.due for item in self._timed()), default=math.inf)
+
+    def _timed(self) -> list[_Source | _Lock]:
+        return [*self._sources.values(), *self._locks.values()]
+
+    # ------------------------------------------------------------------ state
+
+    def lock_priority(self, now: float) -> int:
+        """The highest priority an engaged lock blocks (-1: none engaged)."""
+        return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
+
+    def _winner(self, now: float) -> str | None:
+        blocked_up_to = self.lock_priority(now)
+        live = [s for s in self._sources.values() if s.live(now) and s.spec.priority > blocked_up_to]
+        if not live:
+            return None
+        top = max(s.spec.priority for s in live)
+        tied = [s.spec.name for s in live if s.spec.priority == top]
+        if self.active in tied:
+            return self.active  # no flapping between equals: the driver keeps control until it times out
+        return max(tied, key=lambda name: self._sources[name].heard_at)
+
+    def source_ages(self, now: float) -> dict[str, tuple[float | None, int]]:
+        """Per source: seconds since its last command (None: never heard) and commands dropped."""
+        return {name: (None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped) for name, s in self._sources.items()}
+
+    def lock_states(self, now: float) -> dict[str, bool]:
+        """Per lock: engaged or not at ``now``."""
+        return {name: lock.engaged(now) for name, lock in self._locks.items()}

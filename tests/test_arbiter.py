@@ -1,0 +1,130 @@
+"""The command arbiter on a fake clock: priorities, ties without flapping, timeouts, locks with and without heartbeats."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
+from schemas import ConfigError, Twist, Vector3
+
+
+def twist(v: float) -> Twist:
+    return Twist(linear=Vector3(x=v))
+
+
+def test_the_defaults_are_twist_mux_like() -> None:
+    assert [(s.name, s.priority, s.timeout) for s in DEFAULT_SOURCES] == [
+        ("teleop", 100, 0.5),
+        ("foxglove", 90, 0.5),
+        ("default", 50, 0.5),
+        ("ros2", 50, 0.5),
+        ("nav", 10, 0.5),
+    ]
+    assert Arbiter().lock_names == []
+
+
+def test_the_highest_live_priority_drives_and_the_others_are_dropped_and_counted() -> None:
+    arb = Arbiter()
+    assert arb.offer("nav", twist(0.3), 0.0) is Admission.DRIVES
+    assert arb.offer("teleop", twist(0.0), 0.05) is Admission.DRIVES  # the operator takes over at once
+    for k in range(1, 10):
+        assert arb.offer("nav", twist(0.3), 0.05 + 0.05 * k) is Admission.DROPPED
+        assert arb.offer("teleop", twist(0.0), 0.06 + 0.05 * k) is Admission.DRIVES
+    ages = arb.source_ages(0.6)
+    assert ages["nav"] == (pytest.approx(0.1), 9) and ages["teleop"][1] == 0 and ages["foxglove"] == (None, 0)
+    assert arb.active == "teleop"
+
+
+def test_a_tie_keeps_the_driver_until_it_times_out() -> None:
+    arb = Arbiter()
+    assert arb.offer("default", twist(0.1), 0.0) is Admission.DRIVES
+    for t in (0.1, 0.2, 0.3, 0.4):  # ros2 has the same priority: it waits, however often it publishes
+        assert arb.offer("ros2", twist(0.2), t) is Admission.DROPPED
+        assert arb.offer("default", twist(0.1), t + 0.01) is Admission.DRIVES
+    assert arb.offer("ros2", twist(0.25), 0.45) is Admission.DROPPED
+    assert arb.update(0.9) is None  # default heard at 0.41: live until 0.91
+    handover = arb.update(0.91)
+    assert handover is not None and handover.source == "ros2" and handover.twist == twist(0.25) and handover.heard_at == 0.45
+    assert arb.offer("default", twist(0.1), 0.95) is Admission.DROPPED  # now ros2 keeps it, equally
+
+
+def test_when_the_driver_falls_silent_the_next_live_source_takes_over_on_its_deadline() -> None:
+    arb = Arbiter()
+    arb.offer("nav", twist(0.3), 0.0)
+    arb.offer("teleop", twist(0.0), 0.0)
+    arb.offer("nav", twist(0.3), 0.3)
+    assert arb.next_deadline() == 0.5  # teleop's timeout
+    handover = arb.update(0.5)
+    assert handover is not None and (handover.source, handover.twist, handover.blocked) == ("nav", twist(0.3), False)
+    assert arb.next_deadline() == pytest.approx(0.8)
+    last = arb.update(0.8)
+    assert last is not None and last.source is None and not last.blocked  # nobody live: the command timeout brakes
+    assert arb.next_deadline() == math.inf  # nothing more will change without a new input
+    assert arb.update(5.0) is None
+
+
+def test_an_unknown_source_is_refused() -> None:
+    arb = Arbiter()
+    assert arb.offer("joystick", twist(0.1), 0.0) is Admission.UNKNOWN
+    assert arb.active is None and "joystick" not in arb.source_ages(0.0)
+
+
+def test_an_engaged_lock_blocks_equal_and_lower_priorities_until_released() -> None:
+    arb = Arbiter(locks=(LockSpec("pause", 50),))
+    assert arb.lock_states(0.0) == {"pause": False}
+    arb.offer("default", twist(0.2), 0.0)
+    assert arb.set_lock("pause", True, 0.1)
+    handover = arb.update(0.1)
+    assert handover is not None and handover.source is None and handover.blocked  # the robot must brake now
+    assert arb.offer("default", twist(0.2), 0.2) is Admission.DROPPED  # equal priority: blocked
+    assert arb.offer("nav", twist(0.2), 0.2) is Admission.DROPPED  # lower: blocked
+    assert arb.offer("foxglove", twist(0.1), 0.25) is Admission.DRIVES  # higher: drives through the lock
+    assert arb.set_lock("pause", False, 0.3) and arb.lock_states(0.3) == {"pause": False}
+    assert not arb.set_lock("nosuchlock", True, 0.3)
+
+
+def test_a_heartbeat_lock_is_engaged_until_refreshed_and_again_when_its_supervisor_dies() -> None:
+    arb = Arbiter(locks=(LockSpec("supervisor", 255, timeout=0.2),))
+    assert arb.lock_states(0.0) == {"supervisor": True}  # no heartbeat yet: nothing moves
+    assert arb.offer("teleop", twist(0.1), 0.0) is Admission.DROPPED
+    arb.set_lock("supervisor", False, 0.05)
+    assert arb.offer("teleop", twist(0.1), 0.06) is Admission.DRIVES
+    for t in (0.15, 0.25):
+        arb.set_lock("supervisor", False, t)
+        arb.offer("teleop", twist(0.1), t)
+    assert arb.next_deadline() == pytest.approx(0.45)  # the heartbeat is due by then
+    assert arb.update(0.44) is None
+    handover = arb.update(0.45)
+    assert handover is not None and handover.source is None and handover.blocked
+
+
+def test_lock_priority_and_a_higher_source_drive_through() -> None:
+    arb = Arbiter(locks=(LockSpec("low", 10), LockSpec("mid", 60)))
+    arb.set_lock("low", True, 0.0)
+    arb.set_lock("mid", True, 0.0)
+    assert arb.lock_priority(0.0) == 60
+    arb.set_lock("mid", False, 0.1)
+    assert arb.lock_priority(0.1) == 10
+    assert arb.offer("nav", twist(0.1), 0.1) is Admission.DROPPED and arb.offer("ros2", twist(0.1), 0.1) is Admission.DRIVES
+
+
+@pytest.mark.parametrize(
+    ("sources", "locks", "match"),
+    [
+        ((), (), "at least one"),
+        ((SourceSpec("a", 1), SourceSpec("a", 2)), (), "twice"),
+        ((SourceSpec("a/b", 1),), (), "one key chunk"),
+        ((SourceSpec("*", 1),), (), "one key chunk"),
+        ((SourceSpec("a", 256),), (), "0-255"),
+        ((SourceSpec("a", True),), (), "0-255"),  # type: ignore[arg-type]
+        ((SourceSpec("a", 1, 0.0),), (), "positive"),
+        ((SourceSpec("a", 1, math.nan),), (), "positive"),
+        ((SourceSpec("a", 1),), (LockSpec("l", -1),), "0-255"),
+        ((SourceSpec("a", 1),), (LockSpec("l", 1, -2.0),), "positive"),
+    ],
+)
+def test_unusable_sources_and_locks_are_named(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...], match: str) -> None:
+    with pytest.raises(ConfigError, match=match):
+        Arbiter(sources, locks)
