@@ -73,7 +73,7 @@ def _acceptance(
         events = [gap_event(float(time[k] - time[k - 1]), int(seq[k]), max_gap) for k in gap_idx]
         return accepted, new_epoch, [], events, EpochTally(gaps=len(gap_idx), missed=int(np.sum(dseq - 1)))
     # an irregular log: the live rules, sample by sample
-    order = SampleOrder(max_gap)
+    order = SampleOrder(max_gap, live=False)  # a log: older ones lack mono and source
     accepted = np.zeros(n, bool)
     new_epoch = np.zeros(n, bool)
     rejected: list[str] = []

@@ -44,7 +44,12 @@ class RecordingOdometryOutput:
 
 
 class OdometryCore:
-    """Turns impulse payloads into published poses; reports everything it rejects."""
+    """Turns impulse payloads into published poses; reports everything it rejects.
+
+    Its input is live, so every sample must carry ``mono`` and ``source``
+    (:class:`~odometry_service.sample_order.SampleOrder` with ``live``); logs
+    without them are for :mod:`odometry_service.replay`.
+    """
 
     def __init__(
         self,
@@ -53,7 +58,8 @@ class OdometryCore:
         output: OdometryOutput,
         wallclock: Callable[[], float] = time.time,
     ) -> None:
-        self.odometry = Odometry(params)
+        # live: samples without mono or source are rejected here, where they would switch the checks off
+        self.odometry = Odometry(params, live=True)
         self.keys = keys
         self.output = output
         self.reporter = ErrorReporter("odometry", output.error, wallclock)

@@ -13,5 +13,9 @@ class SampleRejected(OdometryError):
     """An impulse sample that cannot be used (duplicate, out of order, stamp going backwards)."""
 
 
+class UnstampedSample(SampleRejected):
+    """A live impulse sample without ``mono`` or ``source``: no interval, arrival or one-gateway check could hold it."""
+
+
 class ReplayError(OdometryError):
     """A recording that cannot be replayed; the text names the line."""

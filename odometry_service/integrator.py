@@ -47,6 +47,8 @@ class Odometry:
     """Streaming odometry: :meth:`feed` one WheelImpulses, get the pose after it."""
 
     params: OdometryParams = field(default_factory=OdometryParams)
+    #: Live input (the service): every sample needs ``mono``, ``source`` and ``arrival``; False: a log, which may lack them.
+    live: bool = field(default=False, kw_only=True)
     x: float = 0.0
     y: float = 0.0
     yaw: float = 0.0  # unwrapped
@@ -64,7 +66,7 @@ class Odometry:
 
     def __post_init__(self) -> None:
         self._glitches = Glitches(self.params.filter_alpha, self.params.spike_limit)
-        self._order = SampleOrder(self.params.max_gap)
+        self._order = SampleOrder(self.params.max_gap, live=self.live)
 
     @property
     def spikes(self) -> int:
@@ -108,7 +110,8 @@ class Odometry:
     def feed(self, sample: WheelImpulses, arrival: float | None = None) -> Pose:
         """One impulse sample in, the updated pose out. Raises SampleRejected for unusable samples.
 
-        ``arrival``: when the sample arrived, on the receiver's monotonic clock (None in replays).
+        ``arrival``: when the sample arrived, on the receiver's monotonic clock (None in replays;
+        required when ``live``, where a sample without ``mono`` or ``source`` raises UnstampedSample).
         """
         verdict = self._order.check(sample.seq, sample.stamp, sample.mono, sample.source, arrival)
         new_epoch, dt = verdict.new_epoch, verdict.dt

@@ -4,6 +4,10 @@ Every decision about a sample is made on typed values (:class:`EpochStart`,
 the interval, the count of missed samples); the text of an accepted
 sample's event is for reports only, so rewording a message cannot change
 what is counted or integrated.
+
+Live input and logs differ in one typed flag, :attr:`SampleOrder.live`: the
+optional ``mono`` and ``source`` exist so that older logs replay, and live
+they are required, since each check leans on one of them.
 """
 
 from __future__ import annotations
@@ -11,7 +15,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-from .errors import SampleRejected
+from .errors import SampleRejected, UnstampedSample
 
 #: Samples may claim at most this much more time than their arrivals show, in total over an epoch (s).
 SPACING_TOLERANCE_S = 0.1
@@ -24,6 +28,15 @@ FOLLOW_TIMEOUT_S = 1.0
 def gap_event(dt: float, seq: int, max_gap: float) -> str:
     """The report of a gap not integrated across (one wording for live odometry and replay)."""
     return f"gap of {dt:.3f} s before seq {seq} exceeds {max_gap} s: not integrated"
+
+
+def unstamped_reason(mono: float | None, source: str | None) -> str:
+    """The report of a live sample without ``mono`` and/or ``source``: what is missing and what to upgrade."""
+    missing = " and ".join(name for name, value in (("mono", mono), ("source", source)) if value is None)
+    return (
+        f"impulses without {missing}: the sender is a gateway older than this odometry or a foreign publisher; "
+        "live odometry needs a gateway that stamps mono and source (upgrade the gateway; logs without them still replay)"
+    )
 
 
 class EpochStart(enum.Enum):
@@ -97,9 +110,17 @@ class SampleOrder:
     monotonic clock; replay has none) is the delivery delay plus a constant
     and never falls below its smallest value, unless samples claim time that
     did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
+
+    ``live`` (samples arriving now, with ``arrival``): a sample without
+    ``mono`` or ``source`` is rejected (:class:`UnstampedSample`), because
+    without them the wall stamps would set the interval, the arrival check
+    would be off and any publisher would pass the one-gateway rule. Logs
+    (``live`` False) keep the fallbacks, so older recordings replay.
     """
 
     max_gap: float
+    #: Live input: ``mono``, ``source`` and ``arrival`` required; False for logs, which may lack them.
+    live: bool
     seq: int | None = None
     time: float | None = None
     source: str | None = None
@@ -109,7 +130,15 @@ class SampleOrder:
     least_offset: float | None = None
 
     def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
-        """Accept (and remember) the sample, or raise SampleRejected and remember nothing."""
+        """Accept (and remember) the sample, or raise SampleRejected and remember nothing.
+
+        ValueError if ``live`` and ``arrival`` is None: a caller's bug, not a bad sample.
+        """
+        if self.live:
+            if arrival is None:
+                raise ValueError("live impulse samples need their arrival time")
+            if mono is None or source is None:
+                raise UnstampedSample(unstamped_reason(mono, source))
         time = stamp if mono is None else mono
         if mono is None:
             arrival = None  # wall stamps may step: arrivals are compared with the gateway's monotonic time only
@@ -122,11 +151,11 @@ class SampleOrder:
                     f"impulses from gateway {source} while following gateway {self.source}: "
                     "two gateways publish on this prefix; only one is integrated"
                 )
-            if source is not None and self.source is not None:
+            if source is not None and self.source is not None:  # always, live
                 event = f"gateway {source} took over from gateway {self.source} (a restart): not integrating across it"
                 return self._accept(seq, time, source, arrival, Verdict(EpochStart.GATEWAY_RESTART, 0.0, event=event))
         if seq <= self.seq:
-            if source is None and time > self.time:  # a log without sources: a later stamp means a restart
+            if source is None and time > self.time:  # a log without sources (never live): a later stamp means a restart
                 event = f"sequence restarted at {seq} after {self.seq} (gateway restart): not integrating across it"
                 return self._accept(seq, time, source, arrival, Verdict(EpochStart.SEQUENCE_RESTART, 0.0, event=event))
             raise SampleRejected(f"duplicate or out-of-order sample: seq {seq} after seq {self.seq} from the same gateway")
@@ -155,4 +184,5 @@ class SampleOrder:
         return verdict
 
     def forget(self) -> None:
+        """Start over (a reset): the next sample is the first of an epoch; ``live`` stays."""
         self.seq = self.time = self.source = self.arrival = self.first_offset = self.least_offset = None

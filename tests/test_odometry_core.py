@@ -196,7 +196,7 @@ def test_a_long_gap_is_reported_not_guessed() -> None:
 
 
 def test_sample_order_names_why_an_epoch_starts() -> None:
-    order = SampleOrder(max_gap=0.5)
+    order = SampleOrder(max_gap=0.5, live=False)
     kinds = [
         order.check(0, 1.0, None, None, None).start,
         order.check(1, 1.01, None, None, None).start,
@@ -204,7 +204,7 @@ def test_sample_order_names_why_an_epoch_starts() -> None:
         order.check(0, 2.01, None, None, None).start,  # no sources: the sequence started over
     ]
     assert kinds == [EpochStart.FIRST, None, EpochStart.GAP, EpochStart.SEQUENCE_RESTART]
-    order = SampleOrder(max_gap=0.5)
+    order = SampleOrder(max_gap=0.5, live=False)
     order.check(7, 1.0, 1.0, "gw-a", None)
     assert order.check(0, 1.01, 0.01, "gw-b", None).start is EpochStart.GATEWAY_RESTART  # gw-a silent (no arrivals: a log)
 

@@ -10,17 +10,18 @@ import subprocess
 import sys
 import time
 
+import msgspec
 import numpy as np
 import pytest
 import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_listen_args
 
-from blackmetal.bench.synth import exact_pose, square_legs, synth_log
+from blackmetal.bench.synth import SynthLog, exact_pose, square_legs, synth_log
 from odometry_service.core import DROPPED_REPORT_PERIOD_S, OdometryCore, RecordingOdometryOutput
 from odometry_service.host import OdometryHost
 from odometry_service.integrator import Odometry
 from odometry_service.params import OdometryParams
-from schemas import Keys, PayloadError, Pose, decode, encode
+from schemas import Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 
 def service() -> tuple[OdometryCore, RecordingOdometryOutput]:
@@ -28,15 +29,22 @@ def service() -> tuple[OdometryCore, RecordingOdometryOutput]:
     return OdometryCore(OdometryParams(), Keys("robot"), out), out
 
 
+def live(log: SynthLog, pace: float = 1.0) -> list[WheelImpulses]:
+    """The log's samples as a live gateway stamps them (``mono``, ``source``); ``pace`` < 1 squeezes their ``mono``."""
+    start = float(log.stamp[0])
+    return [msgspec.structs.replace(m, mono=(m.stamp - start) * pace, source="gw-test") for m in log.messages()]
+
+
 def test_every_sample_publishes_a_pose_and_bad_input_is_reported() -> None:
     svc, out = service()
-    log = synth_log(square_legs(side=0.5), seed=1)
-    for msg in log.messages()[:200]:
-        svc.on_impulses(encode(msg) + b"\n", msg.stamp)
+    messages = live(synth_log(square_legs(side=0.5), seed=1))
+    for msg in messages[:200]:
+        assert msg.mono is not None
+        svc.on_impulses(encode(msg) + b"\n", msg.mono)
     assert len(out.poses) == 200
     for bad in (b"", b"garbage", b'{"seq":1}', b'{"seq":-1,"stamp":1,"left":0,"right":0}', b'{"seq":5,"stamp":NaN,"left":0,"right":0}'):
         svc.on_impulses(bad, 100.0)
-    svc.on_impulses(encode(log.messages()[150]), 100.0)  # a duplicate from the past
+    svc.on_impulses(encode(messages[150]), 100.0)  # a duplicate from the past
     assert len(out.poses) == 200
     assert svc.rejected == 6
     assert all(e.source == "odometry" and e.reason for e in out.errors)
@@ -45,9 +53,9 @@ def test_every_sample_publishes_a_pose_and_bad_input_is_reported() -> None:
 
 def test_reset_to_zero_or_to_a_given_pose() -> None:
     svc, _ = service()
-    log = synth_log(square_legs(side=0.5), seed=1)
-    for msg in log.messages()[:300]:
-        svc.on_impulses(encode(msg), msg.stamp)
+    for msg in live(synth_log(square_legs(side=0.5), seed=1))[:300]:
+        assert msg.mono is not None
+        svc.on_impulses(encode(msg), msg.mono)
     assert svc.latest().x != 0.0
     assert svc.on_reset(None, 100.0).x == 0.0
     pose = svc.on_reset(b'{"x": 1.5, "y": -2, "yaw": 4.0}', 100.0)
@@ -92,7 +100,7 @@ def test_the_host_stamps_inputs_and_runs_the_cores_timers_on_the_loop() -> None:
         dropped = [0]
         running = asyncio.create_task(host.run(stop, dropped=lambda: dropped[0]))
         await asyncio.sleep(0)
-        for msg in synth_log(square_legs(side=0.5), seed=1).messages()[:20]:
+        for msg in live(synth_log(square_legs(side=0.5), seed=1), pace=1e-3)[:20]:  # delivered at once: mono barely moves
             host.on_impulses(encode(msg))
         dropped[0] = 5  # the bounded input dropped five samples while these waited
         host.on_impulses(b"garbage")
