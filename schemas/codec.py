@@ -59,6 +59,18 @@ def to_bytes(payload: Any) -> bytes:
     raise TypeError(f"cannot read a payload from {type(payload).__name__}")
 
 
+def payload_bytes(sample: Any) -> bytes:
+    """A Zenoh sample's payload as bytes; empty if it cannot be read.
+
+    Duck-typed (``sample.payload.to_bytes()``), so this layer needs no Zenoh;
+    it never raises, because Zenoh callbacks call it on Zenoh's threads.
+    """
+    try:
+        return bytes(sample.payload.to_bytes())
+    except Exception:
+        return b""
+
+
 def decode(message_type: type[T], payload: Any, max_bytes: int = MAX_PAYLOAD_BYTES) -> T:
     """Decode one JSON message of ``message_type`` from ``payload``.
 

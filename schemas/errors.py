@@ -2,7 +2,9 @@
 
 Every error a blackmetal module raises on purpose derives from
 :class:`BlackmetalError`; a command catches that root and prints one
-sentence instead of a traceback. The whole tree::
+sentence instead of a traceback. The whole tree, each class with the module
+that defines it (``tests/test_error_tree.py`` checks the drawing against the
+classes, so a new class, a new parent or a moved module is drawn here)::
 
     BlackmetalError                      schemas.errors
     ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
@@ -10,10 +12,14 @@ sentence instead of a traceback. The whole tree::
     ├── ZenohUnavailable                 schemas.errors: no Zenoh session (router down, port in use, credentials)
     ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
+    ├── ChildFailed                      blackmetal.runtime.harness: a child process exited or was not ready in time; its last lines
     ├── OdometryError                    odometry_service.errors
-    │   ├── SampleRejected               an impulse sample that cannot be integrated
-    │   └── ReplayError                  a recording that cannot be replayed; names the line
+    │   ├── SampleRejected               odometry_service.errors: an impulse sample that cannot be integrated
+    │   │   └── UnstampedSample          odometry_service.errors: a live sample without ``mono`` or ``source``
+    │   ├── ReplayError                  odometry_service.errors: a recording that cannot be replayed; names the line
+    │   └── CalibrationError             odometry_service.calibration: recordings that cannot calibrate anything
     └── ToolError                        blackmetal.tools.client: a user tool cannot do its job; says what to check
+        └── Cancelled                    blackmetal.tools.square: the square was stopped (Ctrl-C); the robot is stopped
 """
 
 from __future__ import annotations

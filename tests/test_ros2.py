@@ -18,7 +18,7 @@ import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 
 from blackmetal.robot_model import Encoders
-from blackmetal.ros2.adapter import AdapterOptions, Ros2Adapter
+from blackmetal.ros2.core import Ros2Core, Ros2Options
 from blackmetal.ros2.messages import Frames, RosCodec
 from blackmetal.ros2.naming import (
     Direction,
@@ -160,7 +160,7 @@ def test_without_the_extra_one_sentence_names_it() -> None:
         assert "Traceback" not in proc.stderr
 
 
-# ------------------------------------------------------------------ the adapter's core, no Zenoh
+# ------------------------------------------------------------------ the adapter's core, no Zenoh, on a fake clock
 class Recorder:
     def __init__(self) -> None:
         self.ros_out: list[tuple[str, bytes]] = []
@@ -177,9 +177,9 @@ class Recorder:
         self.errors.append(message)
 
 
-def make_adapter(codec: RosCodec, stamped: bool = False) -> tuple[Ros2Adapter, Recorder]:
+def make_adapter(codec: RosCodec, stamped: bool = False) -> tuple[Ros2Core, Recorder]:
     out = Recorder()
-    options = AdapterOptions(
+    options = Ros2Options(
         frames=Frames(),
         pose_covariance=diagonal_matrix("0.1,0.2,0,0,0,0.3", "p"),
         twist_covariance=diagonal_matrix("0.01,0,0,0,0,0.02", "t"),
@@ -190,7 +190,7 @@ def make_adapter(codec: RosCodec, stamped: bool = False) -> tuple[Ros2Adapter, R
         encoders=Encoders(),
         cmd_vel_key=TWIST_KEY,
     )
-    return Ros2Adapter(options, Keys(), out, codec), out
+    return Ros2Core(options, Keys(), out, codec, wallclock=lambda: 1_700_000_000.0), out
 
 
 def test_bad_cmd_vel_is_reported_and_never_forwarded(codec: RosCodec) -> None:
@@ -206,27 +206,27 @@ def test_bad_cmd_vel_is_reported_and_never_forwarded(codec: RosCodec) -> None:
         "too long": good + b"\x00" * 64,
     }
     for payload in bad.values():
-        adapter.on_cmd_vel(payload)
+        adapter.on_cmd_vel(payload, now=1.0)
     assert out.forwarded == []
     assert len(out.errors) == len(bad)
     reasons = [e.reason for e in out.errors]
     assert all(e.key == TWIST_KEY and e.source == "ros2" for e in out.errors)
     assert "encapsulation header 07 07 00 00" in reasons[1]
     assert "linear.x must be finite" in reasons[3] and "angular.z must be finite" in reasons[4]
-    adapter.on_cmd_vel(good)
+    adapter.on_cmd_vel(good, now=1.0)
     assert [key for key, _ in out.forwarded] == ["robot/cmd_vel"]
     assert decode(Twist, out.forwarded[0][1]).linear.x == 0.2
 
 
 def test_twist_stamped_and_estop(codec: RosCodec) -> None:
     adapter, out = make_adapter(codec, stamped=True)
-    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4, stamp=1_700_000_000.5, frame_id="base_link"))
-    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4))  # a plain Twist where TwistStamped is expected
+    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4, stamp=1_700_000_000.5, frame_id="base_link"), now=1.0)
+    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4), now=1.0)  # a plain Twist where TwistStamped is expected
     assert len(out.forwarded) == 1 and len(out.errors) == 1
     twist = decode(Twist, out.forwarded[0][1])
     assert (twist.linear.x, twist.angular.z) == (0.3, -0.4)
-    adapter.on_estop(codec.encode_bool(True))
-    adapter.on_estop(b"\x00\x01\x00\x00")  # no data byte
+    adapter.on_estop(codec.encode_bool(True), now=1.0)
+    adapter.on_estop(b"\x00\x01\x00\x00", now=1.0)  # no data byte
     assert decode(EStop, out.forwarded[-1][1]).engaged is True and out.forwarded[-1][0] == "robot/estop"
     assert len(out.errors) == 2
 
@@ -234,8 +234,8 @@ def test_twist_stamped_and_estop(codec: RosCodec) -> None:
 def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
     adapter, out = make_adapter(codec)
     pose = make_pose(1_700_000_000.25, 1.5, -0.5, 0.7, v=0.3, w=0.1)
-    adapter.on_pose(encode(pose))
-    adapter.on_pose(b'{"x": "nope"}')
+    adapter.on_pose(encode(pose), now=1.0)
+    adapter.on_pose(b'{"x": "nope"}', now=1.0)
     assert [t for t, _ in out.ros_out] == ["odom", "tf"] and len(out.errors) == 1
     odom = read_odometry(out.ros_out[0][1])
     assert odom["frame"] == "odom" and odom["child"] == "base_link"
@@ -255,12 +255,30 @@ def test_joint_states_integrate_the_wheels(codec: RosCodec) -> None:
     enc = Encoders()
     left, right = enc.to_impulses(0.2, 0.2)  # both wheels forward at 0.2 m/s
     for i in range(11):  # 1 s at 10 Hz
-        adapter.on_impulses(encode_impulses(i, 100.0 + 0.1 * i, round(left), round(right)))
-    adapter.on_impulses(encode_impulses(11, 105.0, round(left), round(right)))  # after a 3.9 s gap: not integrated
+        adapter.on_impulses(encode_impulses(i, 100.0 + 0.1 * i, round(left), round(right)), now=1.0)
+    adapter.on_impulses(encode_impulses(11, 105.0, round(left), round(right)), now=1.0)  # after a 3.9 s gap: not integrated
     state = codec.decode(out.ros_out[-1][1], "sensor_msgs/msg/JointState")
     assert list(state.name) == ["left_wheel_joint", "right_wheel_joint"]
     assert state.position == pytest.approx([2.0, 2.0], rel=3e-3)  # 0.2 m / 0.1 m radius (impulses are whole numbers)
     assert state.velocity == pytest.approx([2.0, 2.0], rel=3e-3)
+
+
+def test_a_flood_of_bad_input_is_summarised_by_the_cores_tick(codec: RosCodec) -> None:
+    adapter, out = make_adapter(codec)
+    assert adapter.next_deadline() == math.inf  # nothing suppressed: no timer
+    for _ in range(50):  # one instant: the burst is published, the rest suppressed
+        adapter.on_cmd_vel(b"", now=10.0)
+    published = len(out.errors)
+    assert 0 < published < 50 and out.forwarded == []
+    deadline = adapter.next_deadline()
+    assert 10.0 < deadline < math.inf
+    adapter.tick(deadline - 0.01)  # not yet due: nothing
+    assert len(out.errors) == published
+    adapter.tick(deadline)
+    summary = out.errors[-1]
+    assert len(out.errors) == published + 1 and summary.suppressed == 50 - published
+    assert summary.key == TWIST_KEY and summary.source == "ros2" and "rate-limited" in summary.reason
+    assert adapter.next_deadline() == math.inf
 
 
 def encode_impulses(seq: int, stamp: float, left: int, right: int) -> bytes:

@@ -23,6 +23,7 @@ from schemas import (
     excerpt,
     json_schemas,
     make_pose,
+    payload_bytes,
     wrap_angle,
 )
 from schemas.codec import MAX_PAYLOAD_BYTES
@@ -146,6 +147,26 @@ def test_excerpt_is_short_and_printable() -> None:
     text = excerpt(b"\x00\x01" + "é".encode() + b"x" * 500)
     assert len(text) <= 80 and text.isprintable() and text.endswith("...")
     assert excerpt(b'{"a":1}') == '{"a":1}'
+
+
+def test_payload_bytes_reads_a_sample_and_never_raises() -> None:
+    class ZBytes:
+        def __init__(self, data: object) -> None:
+            self.data = data
+
+        def to_bytes(self) -> object:
+            if isinstance(self.data, Exception):
+                raise self.data
+            return self.data
+
+    class Sample:
+        def __init__(self, data: object) -> None:
+            self.payload = ZBytes(data)
+
+    assert payload_bytes(Sample(b'{"a":1}')) == b'{"a":1}'
+    assert payload_bytes(Sample(bytearray(b"xy"))) == b"xy" and type(payload_bytes(Sample(bytearray(b"xy")))) is bytes
+    assert payload_bytes(Sample(RuntimeError("freed"))) == b""  # what Zenoh cannot give is empty, on Zenoh's thread
+    assert payload_bytes(object()) == b""
 
 
 def test_json_schema_for_every_message_validates_its_examples() -> None:

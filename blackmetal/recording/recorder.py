@@ -14,6 +14,8 @@ import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
+from schemas import payload_bytes
+
 from .writer import McapRecording
 
 if TYPE_CHECKING:
@@ -38,11 +40,7 @@ class SessionRecorder:
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         arrival = time.time_ns()
-        try:
-            payload = bytes(sample.payload.to_bytes())
-        except Exception:  # never raise into Zenoh's thread
-            payload = b""
-        self._queue.append((str(sample.key_expr), payload, arrival))
+        self._queue.append((str(sample.key_expr), payload_bytes(sample), arrival))
 
     def note(self, name: str, data: dict[str, str]) -> None:
         """An MCAP metadata record (e.g. where a run starts and ends), written by the writer thread."""

@@ -1,6 +1,8 @@
 """``blackmetal ros2``: the robot as a native ROS 2 node over Zenoh (rmw_zenoh or zenoh-bridge-ros2dds), no ROS installed.
 
-A plain client of the robot's keys, beside the services: ``naming`` (keys,
-tokens, attachments), ``messages`` (CDR through rosbags), ``adapter`` (the
-pure translation), ``zenoh_edge`` and ``main``.
+A plain client of the robot's keys, beside the services, in the services'
+shape: :mod:`.core` (the translation, pure and clock-injected), :mod:`.host`
+(asyncio), :mod:`.zenoh_edge` (declarations), :mod:`.main` (the command),
+:mod:`.settings`; with :mod:`.naming` (keys, tokens, attachments, the node's
+topics) and :mod:`.messages` (CDR through rosbags).
 """

@@ -16,17 +16,16 @@ from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_session
 from schemas import Keys
 
-from .adapter import AdapterOptions, Ros2Adapter
-from .messages import Frames, RosCodec
-from .naming import Flavor, full_topic, normalise_namespace
-from .settings import Ros2Settings, diagonal_matrix
-from .zenoh_edge import Ros2Zenoh, topics
-
-#: How often rate-limited error summaries are published (s).
-FLUSH_PERIOD_S = 1.0
+from .core import Ros2Core
+from .host import Ros2Host
+from .messages import RosCodec
+from .naming import Direction, Flavor, full_topic, normalise_namespace, topics
+from .settings import Ros2Settings
+from .zenoh_edge import Ros2Zenoh
 
 
 async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
+    """Open the Zenoh session, run the adapter until ``stop``, close everything."""
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     keys = Keys(settings.prefix)
     flavor = Flavor(settings.flavor)
@@ -34,32 +33,16 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
     ros_topics = topics(settings.tf, settings.twist_stamped)
     with open_session(settings.zenoh) as session:
         edge = Ros2Zenoh(session, keys, codec, flavor, settings.domain_id, namespace, settings.node_name, ros_topics)
-        options = AdapterOptions(
-            frames=Frames(settings.odom_frame, settings.base_frame),
-            pose_covariance=diagonal_matrix(settings.pose_covariance_diagonal, "pose_covariance_diagonal"),
-            twist_covariance=diagonal_matrix(settings.twist_covariance_diagonal, "twist_covariance_diagonal"),
-            publish_tf=settings.tf,
-            twist_stamped=settings.twist_stamped,
-            joint_names=(settings.left_joint, settings.right_joint),
-            wheel_radius=settings.wheel_radius,
-            encoders=settings.encoders,
-            cmd_vel_key=edge.data_keys["cmd_vel"],
-            estop_key=edge.data_keys["estop"],
-        )
-        adapter = Ros2Adapter(options, keys, edge, codec)
-        edge.attach(adapter, asyncio.get_running_loop())
+        host = Ros2Host(Ros2Core(settings.options(edge.data_keys), keys, edge, codec))
+        edge.attach(host, asyncio.get_running_loop())
         node = full_topic(namespace, settings.node_name)
         print(f"blackmetal ros2 ready: node {node} ({flavor.value}, domain {settings.domain_id}) <-> prefix {keys.prefix}", flush=True)
         for topic in ros_topics:
-            way = "ROS -> robot" if topic.direction.value == "MS" else "robot -> ROS"
+            way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
             print(f"  {full_topic(namespace, topic.name):<20} {topic.ros_type:<28} {way}  on {edge.data_keys[topic.name]}", flush=True)
         announce_ready("ros2", prefix=keys.prefix, node=node, flavor=flavor.value, keys=edge.data_keys, tokens=edge.tokens)
         try:
-            while not stop.is_set():
-                try:
-                    await asyncio.wait_for(stop.wait(), FLUSH_PERIOD_S)
-                except TimeoutError:
-                    adapter.reporter.flush()
+            await host.run(stop)
         finally:
             edge.close()
 

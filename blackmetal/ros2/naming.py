@@ -16,6 +16,8 @@ follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp`` and
 
 zenoh-bridge-ros2dds instead puts raw CDR on the topic name without its
 leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token.
+
+:func:`topics` lists the node's topics: name, ROS type and direction.
 """
 
 from __future__ import annotations
@@ -26,6 +28,8 @@ from dataclasses import dataclass
 from enum import StrEnum
 
 from schemas import ConfigError
+
+from . import messages as ros
 
 ADMIN_SPACE = "@ros2_lv"
 ATTACHMENT_SIZE = 33
@@ -161,3 +165,25 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
 def split_token(token: str) -> list[str]:
     """The parts rmw_zenoh's parser splits a token into (``Entity::make``)."""
     return token.split("/")
+
+
+@dataclass(frozen=True, slots=True)
+class RosTopic:
+    """One ROS topic of the node: its name relative to the namespace, its type, and which way it flows."""
+
+    name: str
+    ros_type: str
+    direction: Direction
+
+
+def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
+    """The node's topics, in the order their entities are numbered."""
+    out = [
+        RosTopic("cmd_vel", ros.TWIST_STAMPED if twist_stamped else ros.TWIST, Direction.SUBSCRIBE),
+        RosTopic("estop", ros.BOOL, Direction.SUBSCRIBE),
+        RosTopic("odom", ros.ODOMETRY, Direction.PUBLISH),
+    ]
+    if publish_tf:
+        out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH))
+    out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
+    return out

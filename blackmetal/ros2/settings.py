@@ -12,6 +12,8 @@ from blackmetal.runtime.settings import setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
+from .core import Ros2Options
+from .messages import Frames
 from .naming import Flavor, check_ros_name, normalise_namespace
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
@@ -81,3 +83,18 @@ class Ros2Settings:
     @property
     def encoders(self) -> Encoders:
         return Encoders(self.impulses_left, self.impulses_right)
+
+    def options(self, data_keys: dict[str, str]) -> Ros2Options:
+        """The core's options; ``data_keys``: the Zenoh key of each ROS topic, which error reports name."""
+        return Ros2Options(
+            frames=Frames(self.odom_frame, self.base_frame),
+            pose_covariance=diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal"),
+            twist_covariance=diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal"),
+            publish_tf=self.tf,
+            twist_stamped=self.twist_stamped,
+            joint_names=(self.left_joint, self.right_joint),
+            wheel_radius=self.wheel_radius,
+            encoders=self.encoders,
+            cmd_vel_key=data_keys["cmd_vel"],
+            estop_key=data_keys["estop"],
+        )

@@ -1,30 +1,29 @@
-"""Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics on the other.
+"""Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics on the other; declarations only.
 
 For ``rmw_zenoh`` every ROS publication carries rmw_zenoh's attachment and
 every entity holds its liveliness token, so ``ros2 node list`` and ``ros2
 topic list`` show the node; for ``bridge`` the topics are plain keys, as
-zenoh-bridge-ros2dds maps them. Inputs are handed over to the adapter's
-asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is decoded on a Zenoh
-thread.
+zenoh-bridge-ros2dds maps them. Inputs are handed over to the host on the
+adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is decoded
+on a Zenoh thread.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
-from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Handover, ZenohEdge
 from schemas import ErrorReport, Keys, encode
 
-from . import messages as ros
-from .adapter import Ros2Adapter
+from .host import Ros2Host
 from .naming import (
     Direction,
     Flavor,
     NodeIdentity,
     Qos,
+    RosTopic,
     attachment,
     bridge_data_key,
     full_topic,
@@ -36,27 +35,6 @@ if TYPE_CHECKING:
     import zenoh
 
     from .messages import RosCodec
-
-
-@dataclass(frozen=True, slots=True)
-class RosTopic:
-    """One ROS topic of the node: its name relative to the namespace, its type, and which way it flows."""
-
-    name: str
-    ros_type: str
-    direction: Direction
-
-
-def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
-    out = [
-        RosTopic("cmd_vel", ros.TWIST_STAMPED if twist_stamped else ros.TWIST, Direction.SUBSCRIBE),
-        RosTopic("estop", ros.BOOL, Direction.SUBSCRIBE),
-        RosTopic("odom", ros.ODOMETRY, Direction.PUBLISH),
-    ]
-    if publish_tf:
-        out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH))
-    out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
-    return out
 
 
 class _RosPublisher:
@@ -93,20 +71,18 @@ class Ros2Zenoh(ZenohEdge):
 
         super().__init__(session)
         self.keys = keys
-        self.flavor = flavor
-        self.node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace)
+        node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace)
         self.data_keys: dict[str, str] = {}
         self.tokens: list[str] = []
-        self._topics = ros_topics
         self._publishers: dict[str, _RosPublisher] = {}
         if flavor is Flavor.RMW_ZENOH:
-            self.tokens.append(self.node.node_token())
+            self.tokens.append(node.node_token())
         for entity_id, topic in enumerate(ros_topics, start=1):
             name = full_topic(namespace, topic.name)
             if flavor is Flavor.RMW_ZENOH:
                 type_hash = codec.type_hash(topic.ros_type)
                 key = rmw_zenoh_data_key(domain_id, name, topic.ros_type, type_hash)
-                token = self.node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, Qos())
+                token = node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, Qos())
                 self.tokens.append(token)
                 gid: bytes | None = gid_of(token)
             else:
@@ -122,7 +98,7 @@ class Ros2Zenoh(ZenohEdge):
         self._estop = self.publisher(keys.estop)  # blocking congestion control: a stop is never dropped
         self._errors = self.publisher(keys.errors)
 
-    # AdapterOutput
+    # Ros2Output
     def ros(self, topic: str, cdr: bytes) -> None:
         self._publishers[topic].put(cdr)
 
@@ -132,12 +108,12 @@ class Ros2Zenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def attach(self, adapter: Ros2Adapter, loop: asyncio.AbstractEventLoop) -> Handover:
+    def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Handover:
         handover = Handover(loop)
-        self.subscriber(self.data_keys["estop"], handover.channel("estop", adapter.on_estop, capacity=64, priority=10))
-        self.subscriber(self.data_keys["cmd_vel"], handover.channel("cmd_vel", adapter.on_cmd_vel, latest=True, priority=5))
-        self.subscriber(self.keys.pose, handover.channel("pose", adapter.on_pose, capacity=256))
-        self.subscriber(self.keys.impulses, handover.channel("impulses", adapter.on_impulses, capacity=256))
+        self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))
+        self.subscriber(self.data_keys["cmd_vel"], handover.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
+        self.subscriber(self.keys.pose, handover.channel("pose", host.on_pose, capacity=256))
+        self.subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=256))
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
         return handover

@@ -21,6 +21,8 @@ import time
 from collections import deque
 from typing import Any
 
+from schemas import BlackmetalError
+
 READY_FD_ENV = "BLACKMETAL_READY_FD"
 
 
@@ -37,8 +39,8 @@ def announce_ready(service: str, **info: Any) -> None:
         pass  # the parent went away or passed nonsense: running on is still right
 
 
-class ChildFailed(Exception):
-    """A child exited or did not become ready in time; the text carries its last lines."""
+class ChildFailed(BlackmetalError):
+    """A child exited, did not become ready or did not answer in time; the text carries its last lines."""
 
     def __init__(self, child: "ServiceProcess", what: str) -> None:
         self.child = child

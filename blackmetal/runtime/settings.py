@@ -54,14 +54,28 @@ def _fields(cls: type) -> list[dataclasses.Field[Any]]:
     return [f for f in dataclasses.fields(cls) if f.name != "zenoh"]
 
 
-def _default_text(f: dataclasses.Field[Any]) -> str:
+def _default(f: dataclasses.Field[Any]) -> Any:
     if f.default is not dataclasses.MISSING:
-        value = f.default
-    elif f.default_factory is not dataclasses.MISSING:
-        value = f.default_factory()
-    else:
-        return ""
-    if value is None or value == [] or value is False:
+        return f.default
+    if f.default_factory is not dataclasses.MISSING:
+        return f.default_factory()
+    return dataclasses.MISSING
+
+
+def default_of(cls: type, name: str) -> Any:
+    """The default of setting ``name`` of the settings dataclass ``cls``: for a tool that starts the service and shows it."""
+    for f in dataclasses.fields(cls):
+        if f.name == name:
+            value = _default(f)
+            if value is dataclasses.MISSING:
+                raise ValueError(f"{cls.__name__}.{name} has no default")
+            return value
+    raise ValueError(f"{cls.__name__} has no setting {name!r}")
+
+
+def _default_text(f: dataclasses.Field[Any]) -> str:
+    value = _default(f)
+    if value is dataclasses.MISSING or value is None or value == [] or value is False:
         return ""
     return f" (default {value:g})" if isinstance(value, float) else f" (default {value})"
 

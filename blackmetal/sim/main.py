@@ -113,7 +113,7 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
         try:
             while not stop.is_set():
                 if edge is not None:
-                    edge.publish_truth()
+                    edge.tick()  # the truth, and error summaries when due
                 else:
                     robot.advance(server.clock())
                 next_tick += period

@@ -1,10 +1,13 @@
 """Zenoh edge of the simulator: ground truth out, faults in.
 
 Publishes the true pose on ``<prefix>/sim/truth`` when the simulator's loop
-asks (at a fixed rate), answers ``get`` on ``<prefix>/sim/truth`` and
+ticks it (at a fixed rate), answers ``get`` on ``<prefix>/sim/truth`` and
 ``<prefix>/sim/faults``, and takes partial fault settings put on
 ``<prefix>/sim/faults``; inputs go through the one hand-over of
 :mod:`blackmetal.runtime.edge`, so no work runs inside a Zenoh callback.
+A fault setting that cannot be used is reported on ``<prefix>/errors``;
+summaries of rate-limited reports go out on the same tick, every report and
+tick stamped with the simulator's monotonic clock.
 """
 
 from __future__ import annotations
@@ -54,7 +57,6 @@ class SimZenoh(ZenohEdge):
         self._truth = self.publisher(keys.sim_truth)
         errors = self.publisher(keys.errors)
         self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
-        self.published = 0
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> Handover:
         handover = Handover(loop)
@@ -64,12 +66,14 @@ class SimZenoh(ZenohEdge):
         self.token(self.keys.alive_sim)
         return handover
 
-    def publish_truth(self) -> None:
-        self._truth.put(self._truth_payload())
-        self.published += 1
+    def tick(self) -> None:
+        """The simulator's periodic step: publish the true pose, and summaries of rate-limited reports when due."""
+        now = self.clock()
+        self._truth.put(self._truth_payload(now))
+        self.reporter.tick(now)
 
-    def _truth_payload(self) -> bytes:
-        self.robot.advance(self.clock())
+    def _truth_payload(self, now: float) -> bytes:
+        self.robot.advance(now)
         return encode(self.robot.pose(time.time()))
 
     def _on_faults(self, payload: bytes) -> None:
@@ -78,7 +82,7 @@ class SimZenoh(ZenohEdge):
             log.info("faults now %s", self.robot.faults)
         except PayloadError as exc:
             log.warning("%s", exc)
-            self.reporter.report(self.keys.sim_faults, str(exc), exc.excerpt)
+            self.reporter.report(self.keys.sim_faults, str(exc), exc.excerpt, now=self.clock())
 
     def _answer_faults(self, query: "zenoh.Query") -> None:
         with query:
@@ -86,4 +90,4 @@ class SimZenoh(ZenohEdge):
 
     def _answer_truth(self, query: "zenoh.Query") -> None:
         with query:
-            query.reply(self.keys.sim_truth, self._truth_payload())
+            query.reply(self.keys.sim_truth, self._truth_payload(self.clock()))

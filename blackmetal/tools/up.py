@@ -17,14 +17,17 @@ import time
 
 import zenoh
 
-from blackmetal import robot_model as model
+from blackmetal.foxglove.settings import FoxgloveSettings
+from blackmetal.ros2.naming import Flavor
+from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
-from blackmetal.runtime.settings import read_settings_file
+from blackmetal.runtime.settings import default_of, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, unavailable_reason, zenoh_settings
-from schemas import DEFAULT_PREFIX, BlackmetalError, ErrorReport, GatewayHealth, Keys, Pose, require_extra
+from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, open_session, zenoh_settings
+from gateway.settings import GatewaySettings
+from schemas import DEFAULT_PREFIX, ErrorReport, GatewayHealth, Keys, Pose, require_extra
 
-from .client import Latest
+from .client import Latest, tool
 from .stop_robot import stop_robot
 
 DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
@@ -118,56 +121,57 @@ class StatusLine:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+    """up's own options; the defaults of those it passes on are the services' settings defaults."""
+    control_port, log_port = default_of(GatewaySettings, "control_port"), default_of(GatewaySettings, "log_port")
     parser = parser or argparse.ArgumentParser(prog="blackmetal up", description=__doc__)
     parser.add_argument("--robot", metavar="HOST", help="drive a real robot at HOST instead of the simulator")
-    parser.add_argument(
-        "--control-port", type=int, default=model.CONTROL_PORT, help=f"robot control port with --robot (default {model.CONTROL_PORT})"
-    )
-    parser.add_argument("--log-port", type=int, default=model.LOG_PORT, help=f"robot log port with --robot (default {model.LOG_PORT})")
+    parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
+    parser.add_argument("--log-port", type=int, default=log_port, help=f"robot log port with --robot (default {log_port})")
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
-    parser.add_argument("--poll-hz", type=float, default=50.0, help="wheel polls per second (default 50)")
+    parser.add_argument(
+        "--poll-hz",
+        type=float,
+        default=None,  # not given: the gateway's own default (or the --settings file) applies
+        help=f"wheel polls per second (default {default_of(GatewaySettings, 'poll_hz'):g})",
+    )
     parser.add_argument("--seed", type=int, help="simulator fault seed")
     parser.add_argument(
         "--settings", metavar="FILE", help="settings file for the gateway and the odometry (e.g. from blackmetal calibrate)"
     )
     parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
+    flavor = default_of(Ros2Settings, "flavor")
+    others = " or ".join(f.value for f in Flavor if f.value != flavor)
     parser.add_argument(
         "--ros2",
         nargs="?",
-        const="rmw_zenoh",
-        choices=["rmw_zenoh", "bridge"],
+        const=flavor,
+        choices=[f.value for f in Flavor],
         metavar="FLAVOR",
-        help="also run the ROS 2 adapter (blackmetal ros2), rmw_zenoh (default) or bridge",
+        help=f"also run the ROS 2 adapter (blackmetal ros2), {flavor} (default) or {others}",
     )
+    foxglove_port = default_of(FoxgloveSettings, "port")
     parser.add_argument("--foxglove", action="store_true", help="also serve a live Foxglove view (blackmetal foxglove)")
-    parser.add_argument("--foxglove-port", type=int, default=8765, help="its WebSocket port (default 8765)")
+    parser.add_argument("--foxglove-port", type=int, default=foxglove_port, help=f"its WebSocket port (default {foxglove_port})")
     parser.add_argument("-v", "--verbose", action="store_true", help="show the services' own log lines")
     add_zenoh_arguments(parser)
     return parser
 
 
+@tool("up")
 def run(args: argparse.Namespace) -> int:
-    try:
-        keys = Keys(args.prefix)
-        if args.ros2:
-            require_extra("blackmetal up --ros2", "ros2", "rosbags")
-        if args.foxglove:
-            require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
-        if args.settings:
-            read_settings_file(args.settings)  # a missing or broken file: one sentence now, not two failing children
-        settings = zenoh_settings(args)
-        if not settings.listen:
-            settings.listen = [DEFAULT_LISTEN]
-        conf = settings.to_config()
-    except BlackmetalError as exc:
-        print(f"blackmetal up: {exc}", file=sys.stderr)
-        return 2
+    """Exit 2 for a setting up cannot use, 1 when Zenoh or a child fails; one sentence each."""
+    keys = Keys(args.prefix)
+    if args.ros2:
+        require_extra("blackmetal up --ros2", "ros2", "rosbags")
+    if args.foxglove:
+        require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
+    if args.settings:
+        read_settings_file(args.settings)  # a missing or broken file: one sentence now, not two failing children
+    settings = zenoh_settings(args)
+    if not settings.listen:
+        settings.listen = [DEFAULT_LISTEN]
     hub = _hub_endpoint(settings.listen[0])
-    try:
-        session = zenoh.open(conf)
-    except Exception as exc:  # zenoh raises ZError with the OS reason
-        print(f"blackmetal up: {unavailable_reason(settings, str(exc))}", file=sys.stderr)
-        return 1
+    session = open_session(settings)
     stop = stop_on_signals()
     children: list[ServiceProcess] = []
     try:
@@ -194,6 +198,7 @@ def _run(
 ) -> int:
     zargs = _child_zenoh_args(args, hub)
     settings_args = ["--settings", os.path.abspath(args.settings)] if args.settings else []
+    poll_args = ["--poll-hz", str(args.poll_hz)] if args.poll_hz is not None else []
     prefix = keys.prefix
     try:
         if args.robot:
@@ -210,7 +215,7 @@ def _run(
             children,
             "gateway",
             ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
-             "--prefix", prefix, "--poll-hz", str(args.poll_hz), *settings_args, *zargs],
+             "--prefix", prefix, *poll_args, *settings_args, *zargs],
             args.verbose,
         )  # fmt: skip
         odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *settings_args, *zargs], args.verbose)

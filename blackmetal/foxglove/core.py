@@ -1,4 +1,4 @@
-"""What the Foxglove view shows, built from the robot's payloads: Foxglove's own types where a panel needs them, JSON elsewhere.
+"""The Foxglove view's core: what it shows, built from the robot's payloads: Foxglove's own types where a panel needs them, JSON elsewhere.
 
 | Foxglove topic | schema | from |
 |---|---|---|
@@ -12,7 +12,9 @@
 | ``/log`` | ``foxglove.Log``, one per error report (the Log panel) | ``<prefix>/errors`` |
 
 Payloads that do not decode are skipped; the view never
-crashes on what a key carries.
+crashes on what a key carries. No clock and no timers: the paths are
+throttled on the messages' own stamps, so nothing is due later and the view
+has no ``tick``/``next_deadline`` (its host needs no deadline timer).
 """
 
 from __future__ import annotations
