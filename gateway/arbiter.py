@@ -87,6 +87,37 @@ def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) ->
                 raise ConfigError(f"{kind} {spec.name!r}: timeout must be a positive number of seconds, got {timeout!r}")
 
 
+def _parse(kind: str, text: str) -> tuple[str, int, float | None]:
+    parts = str(text).split(":")
+    example = f"{kind} {'teleop:100:0.5' if kind == 'source' else 'supervisor:200:0.3'}"
+    if not 2 <= len(parts) <= 3:
+        raise ConfigError(f"{kind} {text!r} must be NAME:PRIORITY or NAME:PRIORITY:TIMEOUT, e.g. {example}")
+    try:
+        priority = int(parts[1])
+        timeout = float(parts[2]) if len(parts) == 3 else None
+    except ValueError:
+        raise ConfigError(f"{kind} {text!r}: the priority must be an integer and the timeout a number, e.g. {example}") from None
+    return parts[0], priority, timeout
+
+
+def parse_source(text: str) -> SourceSpec:
+    """``NAME:PRIORITY[:TIMEOUT]`` (timeout 0.5 s if left out), as the settings write a source."""
+    name, priority, timeout = _parse("source", text)
+    return SourceSpec(name, priority, 0.5 if timeout is None else timeout)
+
+
+def parse_lock(text: str) -> LockSpec:
+    """``NAME:PRIORITY[:TIMEOUT]`` (no timeout if left out), as the settings write a lock."""
+    name, priority, timeout = _parse("lock", text)
+    return LockSpec(name, priority, timeout)
+
+
+def spec_text(spec: SourceSpec | LockSpec) -> str:
+    """The settings' way of writing a source or lock (the inverse of :func:`parse_source`/:func:`parse_lock`)."""
+    tail = "" if spec.timeout is None else f":{spec.timeout:g}"
+    return f"{spec.name}:{spec.priority}{tail}"
+
+
 class Admission(Enum):
     """What became of one command offered to the arbiter."""
 

@@ -24,8 +24,9 @@ from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
-from schemas import ErrorReport, GatewayHealth, Keys, PayloadError, RobotStatus, Twist, WheelImpulses, decode, excerpt
+from schemas import ErrorReport, GatewayHealth, Keys, Lock, PayloadError, RobotStatus, Twist, WheelImpulses, decode, excerpt
 
+from .arbiter import DEFAULT_SOURCE, Admission
 from .conflict import ConflictNews, GatewayConflict
 from .estop import read_estop
 from .exchange import Completed, Exchange, Lost
@@ -76,6 +77,7 @@ class RobotConnection:
         self.polls = PollSchedule(settings.poll_hz)
         self.prepare = PrepareRetry()
         self.conflict = GatewayConflict(self.source, self.keys.prefix)
+        self.arbiter = settings.arbiter()
         self._events: list[Event] = []
         self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
         self.last_rtt: float | None = None
@@ -112,6 +114,7 @@ class RobotConnection:
             self.links.next_deadline(),
             self.conflict.next_deadline(),
             self.reporter.next_deadline(),
+            self.arbiter.next_deadline(),
         )
         if self.links.control.connected:
             deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
@@ -161,21 +164,52 @@ class RobotConnection:
 
     # ------------------------------------------------------------------ Zenoh inputs
 
-    def on_cmd_vel(self, payload: bytes, now: float) -> None:
-        """A payload put on ``<prefix>/cmd_vel``: decoded, checked, sent or reported."""
+    def on_cmd_vel(self, payload: bytes, now: float, source: str = DEFAULT_SOURCE) -> None:
+        """A payload from command source ``source`` (``<prefix>/cmd_vel[/<source>]``): checked, arbitrated, sent or reported."""
+        key = self.keys.cmd_vel_of(source)
         try:
             twist = decode(Twist, payload)
         except PayloadError as exc:
-            self.reject(self.keys.cmd_vel, str(exc), now, exc.excerpt)
+            self.reject(key, str(exc), now, exc.excerpt)
             return
-        if self.conflict.active(now):
-            self.reject(self.keys.cmd_vel, self.conflict.reason(), now, excerpt(payload))
-            return
-        reason = self.governor.on_twist(twist, now)
+        if source not in self.arbiter.names:
+            reason: str | None = (
+                f"unknown command source {source!r}: the gateway's sources are {', '.join(self.arbiter.names)} (see --source)"
+            )
+        else:
+            reason = self.conflict.reason() if self.conflict.active(now) else self.governor.refusal(twist)
         if reason is not None:
-            self.reject(self.keys.cmd_vel, reason, now, excerpt(payload))
+            self.reject(key, reason, now, excerpt(payload))
             return
+        self._arbitrate(now)  # a source that timed out hands over before the new command is weighed
+        if self.arbiter.offer(source, twist, now) is Admission.DRIVES:
+            self.governor.on_twist(twist, now)
+            self._pump(now)
+
+    def on_lock(self, name: str, payload: bytes, now: float) -> None:
+        """A payload on ``<prefix>/lock/<name>``: engages or releases (and refreshes) that lock, or is reported."""
+        key = self.keys.lock_of(name)
+        try:
+            locked = decode(Lock, payload).locked
+        except PayloadError as exc:  # not a refresh: a heartbeat lock times out and engages
+            self.reject(key, f'{exc}; send {{"locked": true}} or {{"locked": false}}', now, exc.excerpt)
+            return
+        if not self.arbiter.set_lock(name, locked, now):
+            known = ", ".join(self.arbiter.lock_names) or "none"
+            self.reject(key, f"unknown lock {name!r}: the gateway's locks are {known} (see --lock)", now, excerpt(payload))
+            return
+        self._arbitrate(now)
         self._pump(now)
+
+    def _arbitrate(self, now: float) -> None:
+        """Hand control over when the active source timed out, or a lock engaged or released."""
+        handover = self.arbiter.update(now)
+        if handover is None:
+            return
+        if handover.twist is not None:
+            self.governor.on_twist(handover.twist, handover.heard_at)  # through the acceleration limits, timed from its command
+        elif handover.blocked:
+            self.governor.brake()  # a lock stops the robot now; silence is the command timeout's to brake
 
     def on_estop(self, payload: bytes, now: float) -> None:
         """A payload put on ``<prefix>/estop``: anything but a valid release engages (see :mod:`gateway.estop`)."""
@@ -217,6 +251,7 @@ class RobotConnection:
         if control_up and self.polls.due(now):
             self._poll(now)
         self._conflict_news(self.conflict.tick(now), now)
+        self._arbitrate(now)
         if now >= self._next_health:
             self._events.append(self.health(now))
             self._next_health = now + self.settings.health_period

@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from schemas import GatewayHealth
+from schemas import GatewayHealth, SourceHealth
 
 if TYPE_CHECKING:
     from .core import RobotConnection
@@ -57,4 +57,10 @@ def health_report(conn: "RobotConnection", now: float) -> GatewayHealth:
         wheel_speeds=(0.0, 0.0) if accepted is None else (accepted.left, accepted.right),
         source=conn.source,
         conflict_with=conn.conflict.with_whom(now),
+        active_source=conn.arbiter.active,
+        sources={
+            name: SourceHealth(priority=spec.priority, age=age, dropped=dropped)
+            for spec, (name, (age, dropped)) in zip(conn.arbiter.sources, conn.arbiter.source_ages(now).items(), strict=True)
+        },
+        locks=conn.arbiter.lock_states(now),
     )

@@ -22,6 +22,7 @@ from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.transport import ByteStream, Connector
 from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
+from .arbiter import DEFAULT_SOURCE
 from .core import RobotConnection
 from .health import Counters
 from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
@@ -99,8 +100,17 @@ class GatewayHost:
     def health(self) -> GatewayHealth:
         return self.connection.health(self.clock())
 
-    def on_cmd_vel(self, payload: bytes) -> None:
-        self.connection.on_cmd_vel(payload, self.clock())
+    def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
+        self.connection.on_cmd_vel(payload, self.clock(), source)
+        self._flush()
+
+    def on_source_cmd_vel(self, item: tuple[str, bytes]) -> None:
+        """``(source, payload)`` from ``<prefix>/cmd_vel/<source>``."""
+        self.on_cmd_vel(item[1], item[0])
+
+    def on_named_lock(self, item: tuple[str, bytes]) -> None:
+        """``(name, payload)`` from ``<prefix>/lock/<name>``."""
+        self.connection.on_lock(item[0], item[1], self.clock())
         self._flush()
 
     def on_estop(self, payload: bytes) -> None:

@@ -110,7 +110,15 @@ class Governor:
     # ------------------------------------------------------------------ inputs
 
     def on_twist(self, twist: Twist, now: float) -> str | None:
-        """Accept a velocity command, or return why it is refused (the robot's command stays as it was)."""
+        """Accept a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
+        reason = self.refusal(twist)
+        if reason is None:
+            self.target = (twist.linear.x, twist.angular.z)
+            self.last_cmd_at = now
+        return reason
+
+    def refusal(self, twist: Twist) -> str | None:
+        """Why a velocity command would be refused now, if it would."""
         if self.estop:
             return 'emergency stop is engaged: cmd_vel refused until {"engaged": false} is put on estop'
         if not self.link_up:
@@ -121,8 +129,6 @@ class Governor:
             return f"linear.x {v!r} m/s is beyond any plausible command (|v| <= {s.plausible_linear})"
         if abs(w) > s.plausible_angular:
             return f"angular.z {w!r} rad/s is beyond any plausible command (|w| <= {s.plausible_angular})"
-        self.target = (v, w)
-        self.last_cmd_at = now
         return None
 
     def on_estop(self, engaged: bool, now: float) -> None:

@@ -9,6 +9,7 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
+from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
 from .safety import SafetySettings
 
 
@@ -43,6 +44,18 @@ class GatewaySettings:
     )
     connect_timeout: float = setting(1.0, "TCP connect timeout to the robot", metavar="S")
     health_period: float = setting(1.0, "seconds between health reports", metavar="S")
+    source: list[str] = setting(
+        help="a command source NAME:PRIORITY[:TIMEOUT] on <prefix>/cmd_vel/NAME ('default' is plain cmd_vel); "
+        "repeat for each; given at all, it replaces the defaults",
+        factory=lambda: [spec_text(spec) for spec in DEFAULT_SOURCES],
+        metavar="NAME:PRIO[:S]",
+    )
+    lock: list[str] = setting(
+        help="a lock NAME:PRIORITY[:TIMEOUT] on <prefix>/lock/NAME: engaged, it blocks sources of that priority and below; "
+        "with a timeout it is also engaged until refreshed within it (a heartbeat); repeat for each",
+        factory=list,
+        metavar="NAME:PRIO[:S]",
+    )
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
     def check(self) -> None:
@@ -80,6 +93,11 @@ class GatewaySettings:
             if not 1 <= getattr(self, name) <= 65535:
                 raise ConfigError(f"{name} must be a TCP port 1-65535")
         validate_prefix(self.prefix)
+        check_specs(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
+
+    def arbiter(self) -> Arbiter:
+        """The command arbiter these settings describe."""
+        return Arbiter(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
 
     def safety(self) -> SafetySettings:
         return SafetySettings(

@@ -51,6 +51,11 @@ class GatewayZenoh(ZenohEdge):
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
         self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
         self.subscriber(self.keys.cmd_vel, handover.channel("cmd_vel", service.on_cmd_vel, capacity=64, priority=1))
+        # every named source shares one bounded channel: a flood from one cannot grow memory, nor pass the e-stop
+        self.named_subscriber(
+            self.keys.any_cmd_vel_source, handover.channel("cmd_vel/*", service.on_source_cmd_vel, capacity=64, priority=1)
+        )
+        self.named_subscriber(self.keys.any_lock, handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1))
         self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
         self.subscriber(self.keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))

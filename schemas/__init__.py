@@ -1,6 +1,6 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
-from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, to_bytes
+from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, require_extra
 from .jsonschema import json_schemas
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
@@ -12,11 +12,13 @@ from .messages import (
     EStop,
     GatewayHealth,
     LinkHealth,
+    Lock,
     Pose,
     PoseReset,
     Quaternion,
     RobotStatus,
     SimFaults,
+    SourceHealth,
     Twist,
     Vector3,
     WheelImpulses,
@@ -42,6 +44,7 @@ __all__ = [
     "KeySpec",
     "Keys",
     "LinkHealth",
+    "Lock",
     "MissingExtra",
     "PayloadError",
     "Pose",
@@ -49,6 +52,7 @@ __all__ = [
     "Quaternion",
     "RobotStatus",
     "SimFaults",
+    "SourceHealth",
     "Twist",
     "Vector3",
     "WheelImpulses",
@@ -58,6 +62,7 @@ __all__ = [
     "excerpt",
     "json_schemas",
     "make_pose",
+    "payload_bytes",
     "require_extra",
     "stamp_parts",
     "to_bytes",

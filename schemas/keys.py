@@ -16,6 +16,7 @@ from .messages import (
     ErrorReport,
     EStop,
     GatewayHealth,
+    Lock,
     Pose,
     PoseReset,
     RobotStatus,
@@ -28,7 +29,11 @@ DEFAULT_PREFIX = "robot"
 
 
 class KeySpec(NamedTuple):
-    """One key below the prefix: the attribute that names it, what travels on it, who uses it."""
+    """One key below the prefix: the attribute that names it, what travels on it, who uses it.
+
+    A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name:
+    :meth:`Keys.cmd_vel_of` and :meth:`Keys.lock_of` fill it in.
+    """
 
     name: str
     suffix: str
@@ -39,7 +44,9 @@ class KeySpec(NamedTuple):
 
 #: Every key, in the order the README's table lists them.
 KEY_SPECS: tuple[KeySpec, ...] = (
-    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway"),
+    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway (the command source 'default')"),
+    KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", "a named commander -> gateway"),
+    KeySpec("lock", "lock/<name>", Lock, "publication", "a supervisor -> gateway"),
     KeySpec("estop", "estop", EStop, "publication", "any client -> gateway"),
     KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->"),
     KeySpec("status", "status", RobotStatus, "publication", "gateway ->"),
@@ -73,6 +80,8 @@ class Keys:
     """The key expressions of the robot under ``prefix``; ``Keys("fleet/a").pose == "fleet/a/pose"``."""
 
     cmd_vel: str
+    cmd_vel_source: str
+    lock: str
     estop: str
     impulses: str
     status: str
@@ -91,6 +100,22 @@ class Keys:
         for spec in KEY_SPECS:
             setattr(self, spec.name, f"{prefix}/{spec.suffix}")
 
+    def cmd_vel_of(self, source: str) -> str:
+        """The key of the command source ``source`` (``default`` is plain ``cmd_vel``)."""
+        return self.cmd_vel if source == "default" else f"{self.prefix}/cmd_vel/{source}"
+
+    def lock_of(self, name: str) -> str:
+        return f"{self.prefix}/lock/{name}"
+
+    @property
+    def any_cmd_vel_source(self) -> str:
+        """Every named command source's key (not plain ``cmd_vel``)."""
+        return f"{self.prefix}/cmd_vel/*"
+
+    @property
+    def any_lock(self) -> str:
+        return f"{self.prefix}/lock/*"
+
     @property
     def everything(self) -> str:
         """Every key of this robot (for recorders and viewers)."""
@@ -98,8 +123,12 @@ class Keys:
 
     def message_for(self, key: str) -> type[msgspec.Struct] | None:
         """The message type carried on ``key`` (None for liveliness keys and keys not ours)."""
+        if not key.startswith(self.prefix + "/"):
+            return None
+        chunks = key[len(self.prefix) + 1 :].split("/")
         for spec in KEY_SPECS:
-            if key == f"{self.prefix}/{spec.suffix}":
+            pattern = spec.suffix.split("/")
+            if len(pattern) == len(chunks) and all(p == c or p.startswith("<") for p, c in zip(pattern, chunks, strict=True)):
                 return spec.message
         return None
 

@@ -52,6 +52,12 @@ class EStop(msgspec.Struct, forbid_unknown_fields=True):
     engaged: bool
 
 
+class Lock(msgspec.Struct, forbid_unknown_fields=True):
+    """A lock on ``<prefix>/lock/<name>``: ``{"locked": true}`` blocks the command sources of its priority and below."""
+
+    locked: bool
+
+
 class WheelImpulses(msgspec.Struct):
     """One wheel-speed reading, exactly as the robot reported it.
 
@@ -62,8 +68,9 @@ class WheelImpulses(msgspec.Struct):
     the same instant on the gateway's monotonic clock (seconds, arbitrary
     origin): the odometry integrates over its differences, which no clock
     step can bend. ``source`` names the gateway run that published the
-    sample; it changes when the gateway restarts. Both are optional so that
-    older recordings still replay.
+    sample; it changes when the gateway restarts. Both are optional only so
+    that older recordings still replay: the live odometry rejects (and
+    reports) a sample without them.
     """
 
     seq: Annotated[int, msgspec.Meta(ge=0)]
@@ -166,6 +173,14 @@ class LinkHealth(msgspec.Struct):
     reconnects: int = 0
 
 
+class SourceHealth(msgspec.Struct):
+    """One command source in the gateway's health: ``age`` is None until it has sent a command."""
+
+    priority: int
+    age: float | None = None
+    dropped: int = 0
+
+
 class GatewayHealth(msgspec.Struct):
     """The gateway's periodic self-report: links, counters, safety state."""
 
@@ -194,6 +209,12 @@ class GatewayHealth(msgspec.Struct):
     source: str | None = None
     #: The run id of another gateway seen on this prefix (commands are refused until it leaves).
     conflict_with: str | None = None
+    #: The command source that drives (None: nobody, or nobody since the last hand-over to nobody).
+    active_source: str | None = None
+    #: Every configured command source: its priority, seconds since its last command, commands dropped.
+    sources: dict[str, SourceHealth] = {}
+    #: Every configured lock: engaged or not.
+    locks: dict[str, bool] = {}
 
 
 class ErrorReport(msgspec.Struct):
@@ -245,6 +266,7 @@ class SimFaults(msgspec.Struct, forbid_unknown_fields=True):
 MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "Twist": Twist,
     "EStop": EStop,
+    "Lock": Lock,
     "WheelImpulses": WheelImpulses,
     "Pose": Pose,
     "RobotStatus": RobotStatus,

@@ -430,3 +430,89 @@ def test_a_second_gateway_on_the_prefix_brakes_both_until_one_leaves() -> None:
     own = encode(bench.conn.health(bench.t))
     bench.conn.on_health_seen(own, bench.t)  # its own reports are no conflict
     assert bench.conn.health(bench.t).conflict_with is None
+
+
+# ---------------------------------------------------------------------- several commanders
+
+
+def twist_payload(v: float, w: float = 0.0) -> bytes:
+    return f'{{"linear":{{"x":{v}}},"angular":{{"z":{w}}}}}'.encode()
+
+
+def test_the_operator_holds_the_robot_while_navigation_publishes_and_nothing_jumps() -> None:
+    bench = Bench()
+    bench.connect()
+    for k in range(100):  # 5 s: nav at 20 Hz wants 0.3 m/s, the operator at 10 Hz holds 0
+        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
+        if k % 2 == 0:
+            bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+        bench.settle()
+        bench.run(0.05)
+    assert all(left == right == 0.0 for _, left, right in bench.velocity())  # not one motion command
+    bench.robot.advance(bench.t)
+    assert math.hypot(bench.robot.x, bench.robot.y) == 0.0
+    health = bench.conn.health(bench.t)
+    assert health.active_source == "teleop" and health.sources["nav"].dropped >= 99 and health.sources["teleop"].dropped == 0
+    assert health.sources["foxglove"].age is None and not bench.of(ErrorReport)  # dropped quietly
+
+
+def test_when_the_operator_lets_go_navigation_takes_over_through_the_acceleration_limit() -> None:
+    bench = Bench(linear_accel=1.0)
+    bench.connect()
+    for _ in range(10):
+        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
+        bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+        bench.settle()
+        bench.run(0.05)
+    released = bench.t  # the operator stops publishing; nav goes on
+    for _ in range(30):
+        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
+        bench.settle()
+        bench.run(0.05)
+    moving = [(t, left) for t, left, _ in bench.velocity() if left > 0]
+    assert moving and moving[0][0] - released <= 0.5 + 0.05  # within the operator's timeout
+    assert bench.conn.health(bench.t).active_source == "nav"
+    speeds = [(t, left) for t, left, _ in bench.velocity() if t >= released]
+    for (t0, a), (t1, b) in itertools.pairwise(speeds):
+        assert b - a <= 1.0 * (t1 - t0) + 1e-6  # never faster than the 1 m/s^2 limit
+    assert speeds[-1][1] == pytest.approx(0.3)
+
+
+def test_the_estop_is_above_every_source_and_unknown_sources_are_named() -> None:
+    bench = Bench()
+    bench.connect()
+    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+    bench.settle()
+    bench.run(0.2)
+    assert bench.count(CommandCode.EMG_STOP) == 1 and any("emergency stop is engaged" in e.reason for e in bench.of(ErrorReport))
+    bench.conn.on_cmd_vel(twist_payload(0.1), bench.t, "joystick")
+    bench.settle()
+    unknown = [e for e in bench.of(ErrorReport) if e.key == "robot/cmd_vel/joystick"]
+    assert unknown and "teleop, foxglove, default, ros2, nav" in unknown[0].reason
+
+
+def test_a_heartbeat_lock_that_is_not_refreshed_stops_the_robot_within_its_timeout() -> None:
+    bench = Bench(lock=["supervisor:255:0.3"], cmd_timeout=0.0)
+    bench.connect()
+    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+    bench.settle()
+    assert all(left == 0.0 for _, left, _ in bench.velocity())  # no heartbeat yet: the lock holds the robot
+    for _ in range(10):
+        bench.conn.on_lock("supervisor", b'{"locked": false}', bench.t)
+        bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+        bench.settle()
+        bench.run(0.1)
+    assert bench.velocity()[-1][1:] == (0.2, 0.2)
+    last_beat = bench.t - 0.1
+    bench.run(1.0)  # the supervisor died; teleop would go on, the lock stops it
+    stop = next(t for t, left, _ in bench.velocity() if t > last_beat and left == 0.0)
+    assert stop - last_beat <= 0.3 + 1e-6
+    assert bench.conn.health(bench.t).locks == {"supervisor": True}
+    bench.conn.on_lock("nosuch", b'{"locked": true}', bench.t)
+    bench.conn.on_lock("supervisor", b'{"locked": "yes"}', bench.t)
+    bench.settle()
+    reasons = [e.reason for e in bench.of(ErrorReport)]
+    assert any("unknown lock 'nosuch': the gateway's locks are supervisor" in r for r in reasons)
+    assert any('send {"locked": true} or {"locked": false}' in r for r in reasons)

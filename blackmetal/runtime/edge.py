@@ -19,7 +19,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from schemas import ConfigError
+from schemas import ConfigError, payload_bytes
 
 if TYPE_CHECKING:
     import zenoh
@@ -102,14 +102,6 @@ def refuse_if_taken(session: "zenoh.Session", token: str, role: str, prefix: str
         )
 
 
-def payload_bytes(sample: "zenoh.Sample") -> bytes:
-    """The payload as bytes; empty if Zenoh cannot give it (never raises into Zenoh's thread)."""
-    try:
-        return bytes(sample.payload.to_bytes())
-    except Exception:
-        return b""
-
-
 class ZenohEdge:
     """Declares a service's Zenoh entities on an open session and undeclares them, newest first."""
 
@@ -132,6 +124,14 @@ class ZenohEdge:
     def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
         """Payload bytes of every sample on ``key`` go to ``put`` (a Handover channel)."""
         self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))
+
+    def named_subscriber(self, key: str, put: Callable[[tuple[str, bytes]], None]) -> None:
+        """``(last key chunk, payload)`` of every sample on ``key`` (e.g. ``robot/cmd_vel/*``) go to ``put``."""
+
+        def on_sample(sample: "zenoh.Sample") -> None:
+            put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
+
+        self._entities.append(self.session.declare_subscriber(key, on_sample))
 
     def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
         """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""

@@ -2,8 +2,10 @@
 
 Arrows or WASD drive, space stops, ``e`` toggles the emergency stop, ``+``/``-``
 change the speed, ``q`` quits. While a key is held (the terminal repeats it)
-``cmd_vel`` goes out at 10 Hz; when it is released, one zero command. The
-terminal is restored on any exit.
+a command goes out at 10 Hz on ``cmd_vel/teleop`` (the command source
+``teleop``, priority 100: it overrides navigation); when it is released, one
+zero command. The status line says which source drives. The terminal is
+restored on any exit.
 """
 
 from __future__ import annotations
@@ -127,6 +129,7 @@ def _status(teleop: Teleop, pose: Pose | None, health: GatewayHealth | None) -> 
         parts.append(f"pose x={pose.x:+.3f} y={pose.y:+.3f} yaw={math.degrees(pose.yaw):+6.1f}°")
     if health is not None:
         parts.append(f"link {health.control.state}")
+        parts.append(f"driving: {health.active_source or 'nobody'}")
         parts.append("E-STOP ENGAGED: commands refused, e releases" if health.estop else "e-stop off")
     return " | ".join(parts)
 
@@ -141,7 +144,7 @@ def run(args: argparse.Namespace) -> int:
         health0 = require_gateway(session, keys, settings, args.wait)
         teleop = Teleop(speed=args.speed, turn_rate=args.turn_rate, hold=args.hold, estop=health0.estop)
         publishers = {
-            "cmd_vel": session.declare_publisher(keys.cmd_vel, express=True),
+            "cmd_vel": session.declare_publisher(keys.cmd_vel_of(args.source), express=True),
             "estop": session.declare_publisher(keys.estop, express=True),
         }
         pose = Latest(session, keys.pose, Pose)
@@ -195,5 +198,8 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
     parser.add_argument("--turn-rate", type=float, default=0.8, help="turn rate, rad/s (default 0.8)")
     parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
+    parser.add_argument(
+        "--source", default="teleop", help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"
+    )
     add_client_arguments(parser)
     return parser

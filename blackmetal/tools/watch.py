@@ -30,6 +30,19 @@ def _fmt_pose(pose: Pose | None) -> str:
     return f"x={pose.x:+8.3f} m  y={pose.y:+8.3f} m  yaw={math.degrees(pose.yaw):+7.2f}°  v={pose.v:+.3f} m/s  w={pose.w:+.3f} rad/s"
 
 
+def describe_sources(health: GatewayHealth) -> str:
+    """Who drives, who else spoke lately (age, dropped commands), and the locks: one line for people."""
+    heard = sorted(
+        ((name, s) for name, s in health.sources.items() if s.age is not None and s.age < 10.0), key=lambda item: -item[1].priority
+    )
+    parts = [f"{health.active_source or 'nobody'} drives"]
+    parts += [f"{name} ({s.priority}) {s.age:.1f} s ago, {s.dropped} dropped" for name, s in heard if name != health.active_source]
+    engaged = [name for name, on in health.locks.items() if on]
+    if health.locks:
+        parts.append("locks: " + (", ".join(f"{name} ENGAGED" for name in engaged) if engaged else "all released"))
+    return "; ".join(parts)
+
+
 def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, health: GatewayHealth | None,
            errors: list[ErrorReport], pose_rate: float) -> list[str]:  # fmt: skip
     lines = [f"pose    {_fmt_pose(pose)}   ({pose_rate:.0f}/s)"]
@@ -46,6 +59,7 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
             f"poll {h.poll_hz:.1f} Hz, rtt {rtt}; e-stop {'ENGAGED' if h.estop else 'off'}; "
             f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}"
         )
+        lines.append(f"drivers {describe_sources(h)}")
         lines.append(
             f"counts  commands {h.commands_sent}, polls {h.polls}, replies {h.replies}, full-buffer {h.full_buffer}, "
             f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}"
