@@ -12,6 +12,7 @@ and sleeps until the connection's next deadline or the next input
 from __future__ import annotations
 
 import asyncio
+import gc
 import logging
 import time
 from collections.abc import Callable
@@ -199,6 +200,9 @@ class GatewayHost:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
+        # everything built so far (modules, Zenoh, the core) lives as long as the process: out of the collector's
+        # sight, a full collection walks only what the command path allocates, not 100k objects of start-up
+        gc.freeze()
         self._timer.start()
         try:
             await stop.wait()

@@ -15,6 +15,8 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.edge import Handover, ZenohEdge
 from schemas import ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
 
+from .arbiter import DEFAULT_SOURCE
+
 if TYPE_CHECKING:
     import zenoh
 
@@ -50,11 +52,11 @@ class GatewayZenoh(ZenohEdge):
         handover = Handover(loop)
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
         self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
-        self.subscriber(self.keys.cmd_vel, handover.channel("cmd_vel", service.on_cmd_vel, capacity=64, priority=1))
-        # every named source shares one bounded channel: a flood from one cannot grow memory, nor pass the e-stop
-        self.named_subscriber(
-            self.keys.any_cmd_vel_source, handover.channel("cmd_vel/*", service.on_source_cmd_vel, capacity=64, priority=1)
-        )
+        # commands wait in Zenoh's ring buffers and reach the loop at its pace: a flood can neither grow memory
+        # nor take the GIL from the e-stop's callback; plain cmd_vel is the source 'default'
+        commands = handover.channel("cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1)
+        self.pumped(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover)
+        self.pumped(self.keys.any_cmd_vel_source, commands, handover)
         self.named_subscriber(self.keys.any_lock, handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1))
         self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway

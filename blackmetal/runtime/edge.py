@@ -7,7 +7,9 @@ inside a Zenoh callback, and never block Zenoh. Channels are bounded: a
 ``latest`` channel keeps only the newest item (a newer command supersedes an
 older one), a queue keeps at most ``capacity`` items and drops the oldest,
 counting what it dropped. Channels with a higher ``priority`` are drained
-first, so an emergency stop is handled before a backlog of anything else.
+first and looked at again after every item, and a drain takes no more than
+was waiting when it began, so an emergency stop is handled before a backlog
+(or a flood) of anything else.
 :class:`ZenohEdge` keeps every declared entity and undeclares them in
 reverse order of declaration.
 """
@@ -15,6 +17,7 @@ reverse order of declaration.
 from __future__ import annotations
 
 import asyncio
+import threading
 from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -52,6 +55,8 @@ class Handover:
         self.loop = loop
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
+        #: Set after every drain: a pump thread waits on it before it hands over more (see ZenohEdge.pumped).
+        self.drained = threading.Event()
 
     def channel(
         self, name: str, handler: Callable[[T], None], *, capacity: int = 1024, latest: bool = False, priority: int = 0
@@ -77,15 +82,33 @@ class Handover:
         return put
 
     def _drain(self) -> None:
+        """Handle the items waiting now, one at a time, the highest-priority channel first after every item.
+
+        Each lower channel is served at most as many items as it held when the
+        drain began: a flood that refills it while the drain runs waits for
+        the next drain (which its ``put`` schedules), so it can neither keep
+        the loop from its timers and sockets nor hold a newer e-stop behind
+        it. The top channel is always served at once.
+        """
         self._scheduled = False
-        for channel in self._channels:
-            items = channel.items
-            while items:
-                try:
-                    item = items.popleft()
-                except IndexError:
+        channels = self._channels
+        if not channels:
+            return
+        top = channels[0].priority
+        budget = [len(channel.items) for channel in channels]
+        while True:
+            for index, channel in enumerate(channels):
+                if channel.items and (budget[index] > 0 or channel.priority == top):
+                    try:
+                        item = channel.items.popleft()
+                    except IndexError:
+                        continue
+                    budget[index] -= 1
+                    channel.handler(item)
                     break
-                channel.handler(item)
+            else:
+                self.drained.set()
+                return
 
     def stats(self) -> dict[str, tuple[int, int]]:
         """Per channel: items received and items dropped because the channel was full."""
@@ -132,6 +155,36 @@ class ZenohEdge:
             put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
 
         self._entities.append(self.session.declare_subscriber(key, on_sample))
+
+    def pumped(self, key: str, put: Callable[[tuple[str, bytes]], None], handover: Handover, capacity: int = 64) -> None:
+        """``(last key chunk, payload)`` of samples on ``key`` go to ``put`` at the pace the loop takes them; for inputs that may flood.
+
+        The samples wait in Zenoh's own ring buffer (``capacity`` newest, the
+        oldest dropped without touching Python), and one thread moves what is
+        there to ``put`` and waits for the loop's next drain before it takes
+        more. A flood then costs Python the loop's own pace, not one callback
+        per sample: the GIL stays free for the e-stop's callback, the robot
+        link and the timers.
+        """
+        import zenoh
+
+        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self._entities.append(subscriber)
+
+        def pump() -> None:
+            while True:
+                try:
+                    batch = [subscriber.recv()]  # blocks without the GIL
+                    while (more := subscriber.try_recv()) is not None:
+                        batch.append(more)
+                except Exception:  # undeclared: the edge is closing
+                    return
+                handover.drained.clear()
+                for sample in batch:
+                    put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
+                handover.drained.wait(0.1)
+
+        threading.Thread(target=pump, name=f"pump {key}", daemon=True).start()
 
     def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
         """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""
