@@ -17,7 +17,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.transport import ByteStream, Connector
@@ -86,7 +86,8 @@ class GatewayHost:
         self.connection = RobotConnection(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
-        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush)
+        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush, on_error=self.fail)
+        self._failure: asyncio.Future[None] | None = None
 
     # ------------------------------------------------------------------ what tests and the edge see
 
@@ -100,6 +101,12 @@ class GatewayHost:
 
     def health(self) -> GatewayHealth:
         return self.connection.health(self.clock())
+
+    def fail(self, exc: BaseException) -> None:
+        """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
+        log.error("%s: %r", self.connection.keys.prefix, exc, exc_info=exc)
+        if self._failure is not None and not self._failure.done():
+            self._failure.set_exception(exc)
 
     def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
         self.connection.on_cmd_vel(payload, self.clock(), source)
@@ -200,13 +207,21 @@ class GatewayHost:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
+        failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._failure = failure
+        for task in tasks:
+            task.add_done_callback(self._link_done)
         # everything built so far (modules, Zenoh, the core) lives as long as the process: out of the collector's
         # sight, a full collection walks only what the command path allocates, not 100k objects of start-up
         gc.freeze()
         self._timer.start()
+        stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
         try:
-            await stop.wait()
+            await asyncio.wait({stopped, failure}, return_when=asyncio.FIRST_COMPLETED)
+            if failure.done():
+                failure.result()  # raises the failure, after the finally below has stopped the robot
         finally:
+            stopped.cancel()
             self._timer.stop()
             await self._stop_robot()
             link_stop.set()
@@ -216,6 +231,11 @@ class GatewayHost:
             await asyncio.wait(tasks, timeout=1.0)
             for task in tasks:
                 task.cancel()
+
+    def _link_done(self, task: asyncio.Task[None]) -> None:
+        """A link task that dies of a bug fails the host: it must not leave the robot unserved, silently."""
+        if not task.cancelled() and task.exception() is not None:
+            self.fail(task.exception())  # type: ignore[arg-type]
 
     async def _stop_robot(self) -> None:
         """Zero velocity and NORMAL_STOP, so the robot is left standing; wait briefly for the replies."""

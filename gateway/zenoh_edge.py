@@ -49,7 +49,7 @@ class GatewayZenoh(ZenohEdge):
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Handover:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
-        handover = Handover(loop)
+        handover = Handover(loop, on_error=service.fail)  # a bug in handling one input fails this robot's host, visibly
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
         self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
         # commands wait in Zenoh's ring buffers and reach the loop at its pace: a flood can neither grow memory

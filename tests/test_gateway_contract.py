@@ -357,3 +357,33 @@ def test_an_unreachable_robot_is_reported_with_its_reason(caplog: pytest.LogCapt
         asyncio.run(body())
     assert f"cannot connect to 127.0.0.1:{port}: connection refused (nothing listens on port {port}); retrying" in caplog.text
     assert _reason(TimeoutError()) == "TimeoutError" and _reason(OSError(113, "No route to host")) == "No route to host"
+
+
+@pytest.mark.parametrize("where", ["timer", "handler"])
+def test_a_bug_in_handling_fails_the_host_visibly_and_leaves_the_robot_standing(where: str) -> None:
+    """A core that raises (a bug) ends run() with the exception, for a supervisor, after stopping the robot."""
+
+    async def body() -> None:
+        rig = await start_rig("memory", cmd_timeout=0.0)
+        rig.service.on_cmd_vel(b'{"linear":{"x":0.2}}')
+        await until(lambda: rig.robot.moving, "the robot to move")
+
+        def broken(*_: object) -> None:
+            raise RuntimeError("a bug")
+
+        if where == "timer":
+            rig.service.connection.tick = broken  # type: ignore[method-assign]
+        else:
+            rig.service.connection.on_cmd_vel = broken  # type: ignore[method-assign]
+            handover_fail = rig.service.fail
+            try:
+                rig.service.on_cmd_vel(b'{"linear":{"x":0.3}}')
+            except RuntimeError as exc:
+                handover_fail(exc)  # what the Zenoh edge's Handover does with a handler's exception
+        with pytest.raises(RuntimeError, match="a bug"):
+            await asyncio.wait_for(rig.task, 5.0)
+        rig.robot.advance(time.monotonic())
+        assert rig.robot.counters["normal_stops"] >= 1 and not rig.robot.moving
+        await rig.server.close()
+
+    asyncio.run(body())

@@ -51,8 +51,10 @@ class Handover:
     one; at worst a drain finds nothing to do.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop) -> None:
+    def __init__(self, loop: asyncio.AbstractEventLoop, on_error: Callable[[BaseException], None] | None = None) -> None:
         self.loop = loop
+        #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
+        self.on_error = on_error
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
         #: Set after every drain: a pump thread waits on it before it hands over more (see ZenohEdge.pumped).
@@ -104,7 +106,12 @@ class Handover:
                     except IndexError:
                         continue
                     budget[index] -= 1
-                    channel.handler(item)
+                    try:
+                        channel.handler(item)
+                    except Exception as exc:
+                        if self.on_error is None:
+                            raise
+                        self.on_error(exc)
                     break
             else:
                 self.drained.set()

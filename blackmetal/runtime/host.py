@@ -32,10 +32,18 @@ class Core(Protocol):
 class DeadlineTimer:
     """Runs ``core.tick`` at ``core.next_deadline()`` on the running loop; see the module docstring."""
 
-    def __init__(self, core: Core, clock: Callable[[], float] = time.monotonic, after_tick: Callable[[], None] | None = None) -> None:
+    def __init__(
+        self,
+        core: Core,
+        clock: Callable[[], float] = time.monotonic,
+        after_tick: Callable[[], None] | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
+    ) -> None:
         self.core = core
         self.clock = clock
         self.after_tick = after_tick
+        #: Called (and the timer stopped) when tick or after_tick raise: a host supervises its core through it.
+        self.on_error = on_error
         self._timer: asyncio.TimerHandle | None = None
         self._timer_at = math.inf
         self._running = False
@@ -71,8 +79,15 @@ class DeadlineTimer:
         self._timer_at = math.inf
         if not self._running:
             return
-        self.core.tick(self.clock())
-        if self.after_tick is not None:
-            self.after_tick()  # may poke: then the timer is already set
+        try:
+            self.core.tick(self.clock())
+            if self.after_tick is not None:
+                self.after_tick()  # may poke: then the timer is already set
+        except Exception as exc:
+            if self.on_error is None:
+                raise
+            self.stop()
+            self.on_error(exc)
+            return
         if self._timer is None and self._running:
             self._schedule(self.core.next_deadline())
