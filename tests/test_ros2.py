@@ -148,6 +148,17 @@ def test_covariance_diagonal() -> None:
             diagonal_matrix(bad, "pose")
 
 
+def test_help_says_each_default_once() -> None:
+    import re
+
+    from blackmetal.ros2.main import build_parser
+
+    text = " ".join(build_parser().format_help().split())
+    for option in re.findall(r"(--[a-z-]+ [A-Z]+ .*?)(?= --[a-z-]+ |$)", text):
+        assert option.count("default") <= 1, option
+    assert "(default /)" in text and "(default ros2)" in text and "(default 2)" in text
+
+
 def test_without_the_extra_one_sentence_names_it() -> None:
     import subprocess
     import sys
@@ -214,7 +225,7 @@ def test_bad_cmd_vel_is_reported_and_never_forwarded(codec: RosCodec) -> None:
     assert "encapsulation header 07 07 00 00" in reasons[1]
     assert "linear.x must be finite" in reasons[3] and "angular.z must be finite" in reasons[4]
     adapter.on_cmd_vel(good, now=1.0)
-    assert [key for key, _ in out.forwarded] == ["robot/cmd_vel"]
+    assert [key for key, _ in out.forwarded] == ["robot/cmd_vel/ros2"]  # the command source ros2
     assert decode(Twist, out.forwarded[0][1]).linear.x == 0.2
 
 
@@ -265,20 +276,21 @@ def test_joint_states_integrate_the_wheels(codec: RosCodec) -> None:
 
 def test_a_flood_of_bad_input_is_summarised_by_the_cores_tick(codec: RosCodec) -> None:
     adapter, out = make_adapter(codec)
-    assert adapter.next_deadline() == math.inf  # nothing suppressed: no timer
+    assert adapter.reporter.next_deadline() == math.inf  # nothing suppressed: no summary due
+    adapter.tick(9.5)  # the first diagnostics; the next are due at 10.5
     for _ in range(50):  # one instant: the burst is published, the rest suppressed
         adapter.on_cmd_vel(b"", now=10.0)
     published = len(out.errors)
     assert 0 < published < 50 and out.forwarded == []
-    deadline = adapter.next_deadline()
-    assert 10.0 < deadline < math.inf
+    deadline = adapter.reporter.next_deadline()
+    assert 10.0 < deadline < math.inf and adapter.next_deadline() == min(deadline, 10.5)
     adapter.tick(deadline - 0.01)  # not yet due: nothing
     assert len(out.errors) == published
     adapter.tick(deadline)
     summary = out.errors[-1]
     assert len(out.errors) == published + 1 and summary.suppressed == 50 - published
     assert summary.key == TWIST_KEY and summary.source == "ros2" and "rate-limited" in summary.reason
-    assert adapter.next_deadline() == math.inf
+    assert adapter.reporter.next_deadline() == math.inf
 
 
 def encode_impulses(seq: int, stamp: float, left: int, right: int) -> bytes:
@@ -340,19 +352,21 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         sequences = [parse_attachment(att)[0] for _, att in odoms if att is not None]
         assert sequences == sorted(sequences) and len(set(sequences)) == len(sequences)
 
-        # the ROS graph: one node token, one token per topic, each as rmw_zenoh's parser splits it
+        # the ROS graph: one node token, one token per topic and service, each as rmw_zenoh's parser splits it
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
         nodes = [t for t in tokens if split_token(t)[5] == "NN"]
-        entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS")]
+        entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
-        assert len(entities) == 5
+        assert len(entities) == len(tokens) - 1 == 8
         for token in tokens:
             assert all(split_token(token)), token
         for token in entities:
             assert len(split_token(token)) == 13, token
         published = {split_token(t)[9] for t in entities if split_token(t)[5] == "MP"}
         subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
-        assert published == {"%odom", "%tf", "%joint_states"} and subscribed == {"%cmd_vel", "%estop"}
+        served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
+        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics"} and subscribed == {"%cmd_vel", "%estop"}
+        assert served == {"%set_estop", "%reset_odometry"}
 
         # /cmd_vel from a ROS publisher drives the robot, with or without the attachment
         twist = codec.encode_twist(0.3, 0.0)
@@ -361,6 +375,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
 
         # a bad /cmd_vel is reported and never reaches the gateway
         forwarded: list[bytes] = []
+        session.declare_subscriber("robot/cmd_vel/**", lambda s: forwarded.append(s.payload.to_bytes()))
         session.declare_subscriber("robot/cmd_vel", lambda s: forwarded.append(s.payload.to_bytes()))
         time.sleep(0.3)  # let the subscription propagate; then nothing valid is sent
         for n, bad in enumerate([b"\x00\x01\x00\x00" + struct.pack("<6d", math.nan, 0, 0, 0, 0, 0), twist[:30]], start=1):
@@ -393,4 +408,6 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        assert len(tokens) == 5 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 4 topics, no tokens from the bridges
+        assert len(tokens) == 8 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 5 topics + 2 services, none from the bridges
+        names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
+        assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

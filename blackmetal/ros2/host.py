@@ -42,6 +42,28 @@ class Ros2Host:
         self.core.on_estop(cdr, self.clock())
         self.timer.poke()
 
+    def on_health(self, payload: bytes) -> None:
+        self.core.on_health(payload, self.clock())
+        self.timer.poke()
+
+    def on_error_report(self, payload: bytes) -> None:
+        self.core.on_error_report(payload, self.clock())
+
+    def on_alive(self, who: str, alive: bool) -> None:
+        self.core.on_alive(who, alive, self.clock())
+
+    def on_service_request(self, service: str, call: int, cdr: bytes, attachment: bytes | None) -> None:
+        self.core.on_service_request(service, call, cdr, attachment, self.clock())
+        self.timer.poke()
+
+    def on_query_reply(self, tag: int, ok: bool, payload: bytes) -> None:
+        self.core.on_query_reply(tag, ok, payload, self.clock())
+        self.timer.poke()
+
+    def on_query_done(self, tag: int) -> None:
+        self.core.on_query_done(tag, self.clock())
+        self.timer.poke()
+
     async def run(self, stop: asyncio.Event) -> None:
         """Run the core's timers until ``stop``."""
         self.timer.start()

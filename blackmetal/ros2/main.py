@@ -1,4 +1,8 @@
-"""``blackmetal ros2`` / ``python -m blackmetal.ros2``: the robot as a ROS 2 node (/cmd_vel, /estop in; /odom, /tf, /joint_states out).
+"""``blackmetal ros2`` / ``python -m blackmetal.ros2``: the robot as a ROS 2 node.
+
+/cmd_vel, /estop in; /odom, /tf, /joint_states, /diagnostics out; services
+set_estop (std_srvs/SetBool) and reset_odometry (std_srvs/Trigger),
+answered once the gateway or the odometry confirms.
 
 With ROS 2's Zenoh middleware (``--flavor rmw_zenoh``, the default) connect
 to its router: ``blackmetal ros2 -m client -e tcp/localhost:7447``. With
@@ -13,13 +17,13 @@ import asyncio
 from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
-from blackmetal.runtime.zenoh_setup import open_session
+from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys
 
 from .core import Ros2Core
 from .host import Ros2Host
 from .messages import RosCodec
-from .naming import Direction, Flavor, full_topic, normalise_namespace, topics
+from .naming import Direction, Flavor, full_topic, normalise_namespace, services, topics
 from .settings import Ros2Settings
 from .zenoh_edge import Ros2Zenoh
 
@@ -31,16 +35,31 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
     flavor = Flavor(settings.flavor)
     namespace = normalise_namespace(settings.namespace)
     ros_topics = topics(settings.tf, settings.twist_stamped)
-    with open_session(settings.zenoh) as session:
-        edge = Ros2Zenoh(session, keys, codec, flavor, settings.domain_id, namespace, settings.node_name, ros_topics)
-        host = Ros2Host(Ros2Core(settings.options(edge.data_keys), keys, edge, codec))
+    ros_services = services()
+    with await open_service_session(settings.zenoh, stop, "ros2") as session:
+        edge = Ros2Zenoh(
+            session, keys, codec, flavor, settings.domain_id, namespace, settings.node_name, ros_topics, ros_services, settings.source
+        )
+        host = Ros2Host(Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec))
         edge.attach(host, asyncio.get_running_loop())
         node = full_topic(namespace, settings.node_name)
         print(f"blackmetal ros2 ready: node {node} ({flavor.value}, domain {settings.domain_id}) <-> prefix {keys.prefix}", flush=True)
         for topic in ros_topics:
             way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
-            print(f"  {full_topic(namespace, topic.name):<20} {topic.ros_type:<28} {way}  on {edge.data_keys[topic.name]}", flush=True)
-        announce_ready("ros2", prefix=keys.prefix, node=node, flavor=flavor.value, keys=edge.data_keys, tokens=edge.tokens)
+            print(f"  {topic.full_name(namespace):<20} {topic.ros_type:<35} {way}  on {edge.data_keys[topic.name]}", flush=True)
+        for service in ros_services:
+            name, key = full_topic(namespace, service.name), edge.service_keys[service.name]
+            print(f"  {name:<20} {service.ros_type:<35} service       on {key}", flush=True)
+        print(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}", flush=True)
+        announce_ready(
+            "ros2",
+            prefix=keys.prefix,
+            node=node,
+            flavor=flavor.value,
+            keys=edge.data_keys,
+            services=edge.service_keys,
+            tokens=edge.tokens,
+        )
         try:
             await host.run(stop)
         finally:

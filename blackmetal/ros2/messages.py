@@ -1,18 +1,28 @@
 """ROS 2 messages as CDR bytes, both ways, with the ``rosbags`` package's Jazzy type store.
 
 The adapter's whole contact with ROS types: blackmetal messages in, CDR
-bytes out (``/odom``, ``/tf``, ``/joint_states``), and CDR bytes in,
-blackmetal messages out (``/cmd_vel``, ``/estop``). Decoding is strict: a
-payload that is not exactly one valid message of the expected type, or
-that carries a non-finite number, is a :class:`PayloadError` saying why.
-Type hashes (``RIHS01_...``) are computed by rosbags from the type
-definitions, never copied by hand.
+bytes out (``/odom``, ``/tf``, ``/joint_states``, ``/diagnostics``, service
+responses), and CDR bytes in, blackmetal messages out (``/cmd_vel``,
+``/estop``, service requests). Decoding is strict: a payload that is not
+exactly one valid message of the expected type, or that carries a
+non-finite number, is a :class:`PayloadError` saying why. Type hashes
+(``RIHS01_...``) are computed by rosbags from the type definitions, never
+copied by hand.
+
+rosbags' store has no ``std_srvs``: the two services are registered here
+from their ``.srv`` text, with the service-level type rosidl hashes
+(``request_message``, ``response_message``, ``event_message``), and the
+store's ``char`` fields are read as ``uint8``, as rosidl maps them (this
+is what makes ``service_msgs/msg/ServiceEventInfo``, and so every service
+hash, match ROS 2's).
 """
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from enum import IntEnum
 from typing import Any
 
 from schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra, stamp_parts
@@ -23,6 +33,15 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
+DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
+SET_BOOL = "std_srvs/srv/SetBool"
+TRIGGER = "std_srvs/srv/Trigger"
+
+#: The services' .srv text (request, response), as std_srvs defines them; an empty request gets rosidl's placeholder.
+SERVICE_DEFINITIONS = {
+    SET_BOOL: ("bool data", "bool success\nstring message"),
+    TRIGGER: ("", "bool success\nstring message"),
+}
 
 #: CDR encapsulation headers ROS 2 writes: plain CDR, little- or big-endian.
 CDR_HEADERS = (b"\x00\x01", b"\x00\x00")
@@ -33,7 +52,79 @@ def _store() -> Any:
     require_extra("blackmetal ros2", "ros2", "xxhash")
     from rosbags.typesys import Stores, get_typestore
 
-    return get_typestore(Stores.ROS2_JAZZY)
+    store = get_typestore(Stores.ROS2_JAZZY)  # a fresh store: what is changed below stays in it
+    _char_is_uint8(store)
+    _register_services(store)
+    return store
+
+
+def _char_is_uint8(store: Any) -> None:
+    """rosidl maps a .msg ``char`` to ``uint8`` (same one byte in CDR); rosbags keeps ``char``, which changes the hashes."""
+    from rosbags.typesys.base import Nodetype
+
+    def fix(desc: Any) -> Any:
+        kind, rest = desc
+        if kind == Nodetype.BASE and rest[0] == "char":
+            return (kind, ("uint8", rest[1]))
+        if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            return (kind, (fix(rest[0]), rest[1]))
+        return desc
+
+    for name, (consts, fields) in list(store.fielddefs.items()):
+        store.fielddefs[name] = (consts, [(fname, fix(desc)) for fname, desc in fields])
+
+
+def _register_services(store: Any) -> None:
+    """``<srv>_Request``, ``_Response``, ``_Event`` and the service type itself, as rosidl describes a service."""
+    from rosbags.typesys import get_types_from_msg
+    from rosbags.typesys.base import Nodetype
+
+    def name_of(typename: str) -> str:  # rosbags reads "pkg/srv/Name" as "pkg/srv/msg/Name"
+        return typename.replace("/srv/msg/", "/srv/")
+
+    def fix(desc: Any) -> Any:
+        kind, rest = desc
+        if kind == Nodetype.NAME:
+            return (kind, name_of(rest))
+        if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
+            return (kind, (fix(rest[0]), rest[1]))
+        return desc
+
+    types: dict[str, Any] = {}
+
+    def add(typename: str, text: str) -> None:
+        for name, (consts, fields) in get_types_from_msg(text, typename).items():
+            types[name_of(name)] = (consts, [(fname, fix(desc)) for fname, desc in fields])
+
+    for service, (request, response) in SERVICE_DEFINITIONS.items():
+        add(f"{service}_Request", request or "uint8 structure_needs_at_least_one_member")
+        add(f"{service}_Response", response)
+        add(
+            f"{service}_Event",
+            f"service_msgs/msg/ServiceEventInfo info\n{service}_Request[<=1] request\n{service}_Response[<=1] response",
+        )
+        add(service, f"{service}_Request request_message\n{service}_Response response_message\n{service}_Event event_message")
+    store.register(types)
+
+
+class Level(IntEnum):
+    """diagnostic_msgs/DiagnosticStatus levels."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+@dataclass(frozen=True, slots=True)
+class Diagnostic:
+    """One diagnostic_msgs/DiagnosticStatus: a level, a name, a message, the hardware, key/value pairs."""
+
+    level: Level
+    name: str
+    message: str
+    hardware_id: str = ""
+    values: tuple[tuple[str, str], ...] = field(default=())
 
 
 def excerpt(payload: bytes) -> str:
@@ -61,6 +152,8 @@ class RosCodec:
         self._TwistCov, self._Odometry = t["geometry_msgs/msg/TwistWithCovariance"], t[ODOMETRY]
         self._Transform, self._TransformStamped = t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/TransformStamped"]
         self._TF, self._JointState = t[TF_MESSAGE], t[JOINT_STATE]
+        self._DiagArray, self._DiagStatus = t[DIAGNOSTIC_ARRAY], t["diagnostic_msgs/msg/DiagnosticStatus"]
+        self._KeyValue = t["diagnostic_msgs/msg/KeyValue"]
 
     def type_hash(self, ros_type: str) -> str:
         return str(self.store.hash_rihs01(ros_type))
@@ -120,6 +213,28 @@ class RosCodec:
         )
         return self._serialize(message, JOINT_STATE)
 
+    def diagnostics(self, stamp: float, statuses: Sequence[Diagnostic]) -> bytes:
+        """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
+        message = self._DiagArray(
+            header=self._header(stamp, ""),
+            status=[
+                self._DiagStatus(
+                    level=int(d.level),
+                    name=d.name,
+                    message=d.message,
+                    hardware_id=d.hardware_id,
+                    values=[self._KeyValue(key=k, value=v) for k, v in d.values],
+                )
+                for d in statuses
+            ],
+        )
+        return self._serialize(message, DIAGNOSTIC_ARRAY)
+
+    def service_response(self, service: str, success: bool, message: str) -> bytes:
+        """The ``<service>_Response`` (SetBool's and Trigger's are both ``bool success, string message``)."""
+        response = self.store.types[f"{service}_Response"](success=success, message=message)
+        return self._serialize(response, f"{service}_Response")
+
     # --------------------------------------------------------------- in
     def _decode(self, payload: bytes, ros_type: str) -> Any:
         short = ros_type.rsplit("/", 1)[-1]
@@ -161,7 +276,21 @@ class RosCodec:
         message = self._decode(payload, BOOL)
         return EStop(engaged=bool(message.data))
 
+    def set_bool(self, payload: bytes) -> bool:
+        """std_srvs/SetBool request CDR -> its ``data``."""
+        return bool(self._decode(payload, f"{SET_BOOL}_Request").data)
+
+    def trigger(self, payload: bytes) -> None:
+        """std_srvs/Trigger request CDR (one placeholder byte): PayloadError unless it is one."""
+        self._decode(payload, f"{TRIGGER}_Request")
+
     # --------------------------------------------------------------- for tests and tools playing the ROS side
+    def encode_request(self, service: str, **fields: Any) -> bytes:
+        """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields)."""
+        if service == TRIGGER:
+            fields = {"structure_needs_at_least_one_member": 0}
+        return self._serialize(self.store.types[f"{service}_Request"](**fields), f"{service}_Request")
+
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
         twist = self._Twist(linear=self._Vector3(x=linear_x, y=0.0, z=0.0), angular=self._Vector3(x=0.0, y=0.0, z=angular_z))
         if stamp is None:

@@ -5,19 +5,29 @@ follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp`` and
 ``attachment_helpers.cpp`` (Jazzy >= 0.2.5, Kilted, Rolling):
 
 * data key: ``<domain>/<topic without outer slashes>/<DDS type>/<type hash>``;
-* liveliness token: ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS>/
-  <enclave>/<namespace>/<node>[/<topic>/<DDS type>/<type hash>/<qos>]``,
+* service key: the same, with the service type (``std_srvs::srv::dds_::SetBool_``,
+  ``rmw_service_data.cpp`` strips ``Response_`` from the response type) and
+  the service type hash; the server is a *complete* queryable on it (the
+  client's ``get`` targets ``ALL_COMPLETE``);
+* liveliness token: ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS|SS|SC>/
+  <enclave>/<namespace>/<node>[/<topic or service>/<DDS type>/<type hash>/<qos>]``,
   every ``/`` inside a name replaced by ``%`` (so ``/`` becomes ``%``);
 * QoS: ``reliability:durability:history,depth:deadline s,ns:lifespan s,ns:
   liveliness,lease s,ns``, each value left empty when it equals rmw_zenoh's
   default (reliable, volatile, keep-last 42, infinite durations, automatic);
 * attachment: int64 LE sequence number, int64 LE source timestamp (ns),
   one length byte (16), the 16-byte GID = XXH3-128 of the entity's token.
+  A service request carries the client's (its sequence number, its GID); the
+  reply carries the same sequence number and client GID with the server's
+  timestamp (``rmw_client_data.cpp``, ``rmw_service_data.cpp``).
 
 zenoh-bridge-ros2dds instead puts raw CDR on the topic name without its
-leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token.
+leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token; a
+service is a queryable on its name (``r1/set_estop``) that takes the CDR
+request and answers the CDR response (``route_service_cli.rs``).
 
-:func:`topics` lists the node's topics: name, ROS type and direction.
+:func:`topics` lists the node's topics: name, ROS type and direction;
+:func:`services` its services.
 """
 
 from __future__ import annotations
@@ -54,6 +64,11 @@ class Flavor(StrEnum):
 class Direction(StrEnum):
     PUBLISH = "MP"  # we publish: a ROS publisher in the graph
     SUBSCRIBE = "MS"  # we subscribe: a ROS subscription
+
+
+class ServiceRole(StrEnum):
+    SERVER = "SS"  # we answer: a ROS service server in the graph
+    CLIENT = "SC"  # a ROS service client (what tests play)
 
 
 @dataclass(frozen=True, slots=True)
@@ -138,8 +153,9 @@ class NodeIdentity:
     def node_token(self) -> str:
         return self._head(self.node_id, "NN")
 
-    def entity_token(self, entity_id: int, direction: Direction, topic: str, ros_type: str, type_hash: str, qos: Qos) -> str:
-        return f"{self._head(entity_id, direction.value)}/{mangle(topic)}/{dds_type(ros_type)}/{type_hash}/{qos.keyexpr()}"
+    def entity_token(self, entity_id: int, kind: Direction | ServiceRole, topic: str, ros_type: str, type_hash: str, qos: Qos) -> str:
+        """A topic's (``MP``/``MS``) or a service's (``SS``/``SC``) token; ``topic``: the fully qualified name."""
+        return f"{self._head(entity_id, kind.value)}/{mangle(topic)}/{dds_type(ros_type)}/{type_hash}/{qos.keyexpr()}"
 
 
 def gid_of(token: str) -> bytes:
@@ -169,15 +185,31 @@ def split_token(token: str) -> list[str]:
 
 @dataclass(frozen=True, slots=True)
 class RosTopic:
-    """One ROS topic of the node: its name relative to the namespace, its type, and which way it flows."""
+    """One ROS topic of the node: its name (relative to the namespace unless ``absolute``), its type, which way it flows."""
 
     name: str
     ros_type: str
     direction: Direction
+    absolute: bool = False
+
+    def full_name(self, namespace: str) -> str:
+        return f"/{self.name}" if self.absolute else full_topic(namespace, self.name)
+
+
+@dataclass(frozen=True, slots=True)
+class RosService:
+    """One ROS service the node serves: its name relative to the namespace and its service type."""
+
+    name: str
+    ros_type: str
 
 
 def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
-    """The node's topics, in the order their entities are numbered."""
+    """The node's topics, in the order their entities are numbered.
+
+    ``/diagnostics`` is absolute, as diagnostic_updater publishes it: one
+    aggregator sees every robot, told apart by the statuses' names.
+    """
     out = [
         RosTopic("cmd_vel", ros.TWIST_STAMPED if twist_stamped else ros.TWIST, Direction.SUBSCRIBE),
         RosTopic("estop", ros.BOOL, Direction.SUBSCRIBE),
@@ -186,4 +218,21 @@ def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
     if publish_tf:
         out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH))
     out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
+    out.append(RosTopic("diagnostics", ros.DIAGNOSTIC_ARRAY, Direction.PUBLISH, absolute=True))
     return out
+
+
+SET_ESTOP = "set_estop"
+RESET_ODOMETRY = "reset_odometry"
+
+
+def services() -> list[RosService]:
+    """The node's services, numbered after its topics."""
+    return [RosService(SET_ESTOP, ros.SET_BOOL), RosService(RESET_ODOMETRY, ros.TRIGGER)]
+
+
+def check_source_name(name: str) -> str:
+    """A command source name: one key chunk, as the gateway's ``--source NAME:PRIO`` takes it."""
+    if not re.match(r"^[A-Za-z0-9_-]+$", name):
+        raise ConfigError(f"source {name!r} must be letters, digits, '_' or '-' (one key chunk, e.g. ros2)")
+    return name

@@ -8,13 +8,13 @@ from dataclasses import dataclass, field
 
 from blackmetal import robot_model as model
 from blackmetal.robot_model import Encoders
-from blackmetal.runtime.settings import setting
+from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 from .core import Ros2Options
 from .messages import Frames
-from .naming import Flavor, check_ros_name, normalise_namespace
+from .naming import Flavor, check_ros_name, check_source_name, full_topic, normalise_namespace
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
 DEFAULT_COVARIANCE = "0.001,0.001,0.001,0.001,0.001,0.01"
@@ -46,10 +46,18 @@ class Ros2Settings:
     flavor: str = setting(
         Flavor.RMW_ZENOH.value, "rmw_zenoh (ROS 2's Zenoh middleware) or bridge (zenoh-bridge-ros2dds)", choices=["rmw_zenoh", "bridge"]
     )
-    domain_id: int = setting(factory=_domain_default, help="ROS domain id (default ROS_DOMAIN_ID, else 0)", metavar="N")
-    namespace: str = setting("", "ROS namespace of the node and its topics, e.g. r1 (default none)", metavar="NS")
+    # the helper appends "(default X)" to every help text: none of these says it again
+    domain_id: int = setting(factory=_domain_default, help="ROS domain id; ROS_DOMAIN_ID when set, else 0", metavar="N")
+    namespace: str = setting("/", "ROS namespace of the node, its topics and services, e.g. r1 (/ is none)", metavar="NS")
     node_name: str = setting("blackmetal", "ROS node name", metavar="NAME")
     prefix: str = setting(DEFAULT_PREFIX, "blackmetal key-expression prefix of the robot, e.g. fleet/a")
+    source: str = setting(
+        "ros2", "command source /cmd_vel drives as: <prefix>/cmd_vel/NAME (the gateway must know it: its --source)", metavar="NAME"
+    )
+    service_timeout: float = setting(2.0, "set_estop and reset_odometry answer success=false unless confirmed within this", metavar="S")
+    expected_poll_hz: float = setting(
+        50.0, "the gateway's --poll-hz, which /diagnostics holds the measured poll rate against", metavar="HZ"
+    )
     odom_frame: str = setting("odom", "frame of /odom and parent of the transform", metavar="FRAME")
     base_frame: str = setting("base_link", "child frame of /odom and of the transform", metavar="FRAME")
     tf: bool = setting(True, "do not publish /tf (when another node publishes odom -> base_link)", flag="--no-tf", const=False)
@@ -71,6 +79,8 @@ class Ros2Settings:
             raise ConfigError(f"ROS domain id must be 0..232, got {self.domain_id} (check --domain-id or ROS_DOMAIN_ID)")
         check_ros_name("node name", self.node_name)
         normalise_namespace(self.namespace)
+        check_source_name(self.source)
+        check_positive(service_timeout=self.service_timeout, expected_poll_hz=self.expected_poll_hz)
         diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
         diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
         for name in ("wheel_radius", "impulses_left", "impulses_right"):
@@ -84,8 +94,8 @@ class Ros2Settings:
     def encoders(self) -> Encoders:
         return Encoders(self.impulses_left, self.impulses_right)
 
-    def options(self, data_keys: dict[str, str]) -> Ros2Options:
-        """The core's options; ``data_keys``: the Zenoh key of each ROS topic, which error reports name."""
+    def options(self, data_keys: dict[str, str], service_keys: dict[str, str] | None = None) -> Ros2Options:
+        """The core's options; ``data_keys``/``service_keys``: the Zenoh key of each ROS topic/service, which error reports name."""
         return Ros2Options(
             frames=Frames(self.odom_frame, self.base_frame),
             pose_covariance=diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal"),
@@ -97,4 +107,11 @@ class Ros2Settings:
             encoders=self.encoders,
             cmd_vel_key=data_keys["cmd_vel"],
             estop_key=data_keys["estop"],
+            source=self.source,
+            service_timeout=self.service_timeout,
+            expected_poll_hz=self.expected_poll_hz,
+            node=full_topic(normalise_namespace(self.namespace), self.node_name),
+            flavor=self.flavor,
+            domain_id=self.domain_id,
+            service_keys=dict(service_keys or {}),
         )

@@ -1,17 +1,21 @@
-"""Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics on the other; declarations only.
+"""Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics and services on the other; declarations only.
 
 For ``rmw_zenoh`` every ROS publication carries rmw_zenoh's attachment and
-every entity holds its liveliness token, so ``ros2 node list`` and ``ros2
-topic list`` show the node; for ``bridge`` the topics are plain keys, as
-zenoh-bridge-ros2dds maps them. Inputs are handed over to the host on the
-adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is decoded
-on a Zenoh thread.
+every entity holds its liveliness token, so ``ros2 node list``, ``ros2 topic
+list`` and ``ros2 service list`` show the node; each service is a complete
+queryable on its rmw_zenoh key, answered with the reply attachment the
+core builds. For ``bridge`` the topics and services are plain keys, as
+zenoh-bridge-ros2dds maps them. Inputs (samples, service calls, replies to
+the adapter's own queries, liveliness changes) are handed over to the host
+on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is
+decoded on a Zenoh thread.
 """
 
 from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Handover, ZenohEdge
@@ -23,7 +27,9 @@ from .naming import (
     Flavor,
     NodeIdentity,
     Qos,
+    RosService,
     RosTopic,
+    ServiceRole,
     attachment,
     bridge_data_key,
     full_topic,
@@ -66,6 +72,8 @@ class Ros2Zenoh(ZenohEdge):
         namespace: str,
         node_name: str,
         ros_topics: list[RosTopic],
+        ros_services: list[RosService] | None = None,
+        source: str = "ros2",
     ) -> None:
         import zenoh
 
@@ -73,12 +81,15 @@ class Ros2Zenoh(ZenohEdge):
         self.keys = keys
         node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace)
         self.data_keys: dict[str, str] = {}
+        self.service_keys: dict[str, str] = {}
         self.tokens: list[str] = []
         self._publishers: dict[str, _RosPublisher] = {}
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
-        for entity_id, topic in enumerate(ros_topics, start=1):
-            name = full_topic(namespace, topic.name)
+        entity_id = 0
+        for topic in ros_topics:
+            entity_id += 1
+            name = topic.full_name(namespace)
             if flavor is Flavor.RMW_ZENOH:
                 type_hash = codec.type_hash(topic.ros_type)
                 key = rmw_zenoh_data_key(domain_id, name, topic.ros_type, type_hash)
@@ -94,9 +105,23 @@ class Ros2Zenoh(ZenohEdge):
                 )
                 self._entities.append(publisher)
                 self._publishers[topic.name] = _RosPublisher(publisher, gid)
-        self._cmd_vel = self.publisher(keys.cmd_vel, express=True)
+        for service in ros_services or []:
+            entity_id += 1
+            name = full_topic(namespace, service.name)
+            if flavor is Flavor.RMW_ZENOH:
+                type_hash = codec.type_hash(service.ros_type)
+                key = rmw_zenoh_data_key(domain_id, name, service.ros_type, type_hash)
+                self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, Qos()))
+            else:
+                key = bridge_data_key(name)
+            self.service_keys[service.name] = key
+        self._cmd_vel = self.publisher(keys.cmd_vel_of(source), express=True)
         self._estop = self.publisher(keys.estop)  # blocking congestion control: a stop is never dropped
         self._errors = self.publisher(keys.errors)
+        self._calls: dict[int, tuple["zenoh.Query", str]] = {}
+        self._next_call = 0
+        self._host: Ros2Host | None = None
+        self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
     # Ros2Output
     def ros(self, topic: str, cdr: bytes) -> None:
@@ -108,12 +133,98 @@ class Ros2Zenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
+    def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
+        entry = self._calls.pop(call, None)
+        if entry is not None:
+            query, key = entry
+            with query:
+                query.reply(key, cdr, attachment=attachment)
+
+    def service_refuse(self, call: int, reason: str) -> None:
+        entry = self._calls.pop(call, None)
+        if entry is not None:
+            with entry[0] as query:
+                query.reply_err(reason.encode())
+
+    def query(self, key: str, payload: bytes | None, tag: int, timeout: float) -> None:
+        import zenoh
+
+        put = self._put_query_event
+        assert put is not None, "attach() first"
+
+        def on_reply(reply: "zenoh.Reply") -> None:
+            if reply.ok is not None:
+                put((tag, True, bytes(reply.ok.payload.to_bytes())))
+            elif reply.err is not None:
+                put((tag, False, bytes(reply.err.payload.to_bytes())))
+
+        def on_done() -> None:
+            put((tag, None, b""))
+
+        self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
+
+    # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Handover:
         handover = Handover(loop)
+        self._host = host
+        self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))
         self.subscriber(self.data_keys["cmd_vel"], handover.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
         self.subscriber(self.keys.pose, handover.channel("pose", host.on_pose, capacity=256))
         self.subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=256))
+        self.subscriber(self.keys.health, handover.channel("health", host.on_health, latest=True, priority=8))
+        self.subscriber(self.keys.errors, handover.channel("errors", host.on_error_report, capacity=256))
+        for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
+            self._alive(key, handover.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
+        for service, key in self.service_keys.items():
+            take = handover.channel(f"{service}?", self._on_call(service), capacity=16, priority=9)
+            # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
+            self._entities.append(self.session.declare_queryable(key, take, complete=True))
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
         return handover
+
+    def _alive(self, key: str, put: Callable[[bool], None]) -> None:
+        """Whether a liveliness token on ``key`` is present, now (history) and at each change."""
+        import zenoh
+
+        def on_sample(sample: "zenoh.Sample") -> None:
+            put(sample.kind == zenoh.SampleKind.PUT)
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
+
+    @staticmethod
+    def _on_alive(host: Ros2Host, who: str) -> Callable[[bool], None]:
+        def handler(alive: bool) -> None:
+            host.on_alive(who, alive)
+
+        return handler
+
+    def _on_call(self, service: str) -> Callable[["zenoh.Query"], None]:
+        def handler(query: "zenoh.Query") -> None:
+            self._take_call(service, query)
+
+        return handler
+
+    def _take_call(self, service: str, query: "zenoh.Query") -> None:
+        """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
+        assert self._host is not None
+        self._next_call += 1
+        self._calls[self._next_call] = (query, self.service_keys[service])
+        payload = b"" if query.payload is None else bytes(query.payload.to_bytes())
+        extra = None if query.attachment is None else bytes(query.attachment.to_bytes())
+        self._host.on_service_request(service, self._next_call, payload, extra)
+
+    def _on_query_event(self, event: tuple[int, bool | None, bytes]) -> None:
+        assert self._host is not None
+        tag, ok, payload = event
+        if ok is None:
+            self._host.on_query_done(tag)
+        else:
+            self._host.on_query_reply(tag, ok, payload)
+
+    def close(self) -> None:
+        for query, _ in self._calls.values():  # unanswered calls end with the adapter
+            query.drop()
+        self._calls.clear()
+        super().close()
