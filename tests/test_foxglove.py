@@ -7,6 +7,7 @@ import itertools
 import json
 import struct
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +32,7 @@ EXPECTED = {
     "/wheels": "WheelSpeeds",
     "/status": "RobotStatus",
     "/health": "GatewayHealth",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
     "/errors": "ErrorReport",
     "/log": "foxglove.Log",
 }
@@ -101,24 +103,63 @@ def test_foxglove_client_sees_the_robot_drive(children: list[Child], tmp_path: P
     assert {"/pose", "/tf", "/path", "/odometry", "/wheels"} <= topics
 
 
-def test_the_shipped_layout_uses_the_views_topics() -> None:
+def panels(node: Any) -> Iterator[dict[str, Any]]:
+    """Every panel of a layout (Foxglove's layout format: splits, tabs, stacks of panels)."""
+    if isinstance(node, dict):
+        if node.get("type") == "panel":
+            yield node
+        for value in node.values():
+            yield from panels(value)
+    elif isinstance(node, list):
+        for item in node:
+            yield from panels(item)
+
+
+def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> None:
     layout = json.loads((Path(__file__).parent.parent / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
-    used: set[str] = set()
+    shown: set[str] = set()
+    published: dict[str, list[dict[str, Any]]] = {}
+    called: dict[str, dict[str, Any]] = {}
+    kinds: set[str] = set()
+    for panel in panels(layout):
+        kind, config = panel["panelType"], panel["config"]
+        kinds.add(kind)
+        if kind == "ThreeDee":
+            shown.update(config["topics"])
+            assert config["followTf"] == "base_link"
+        elif kind == "Plot":
+            shown.update(path["value"].split(".")[0] for path in config["paths"])
+        elif kind in ("Log", "DiagnosticsSummary"):
+            shown.add(config["topicToRender"])
+        elif kind == "RawMessages":
+            shown.add(config["topicPath"].split(".")[0])
+        elif kind == "Teleop":
+            published.setdefault(config["topic"], []).append(config)
+            assert config["publishRate"] >= 5, "the gateway's source timeout is 0.5 s: the panel must publish faster than that"
+        elif kind == "Publish":
+            published.setdefault(config["topicName"], []).append(config)
+        elif kind == "ServiceCall":
+            called[config["serviceName"]] = json.loads(config["requestPayload"])
+    assert shown and shown <= set(EXPECTED), shown - set(EXPECTED)
+    assert {"/odometry", "/log", "/path", "/diagnostics"} <= shown
+    assert {"Teleop", "Publish", "DiagnosticsSummary"} <= kinds
+    assert set(published) == {"/cmd_vel", "/estop"}
+    (stop_button,) = published["/estop"]
+    assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
+    assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
 
-    def walk(node: Any) -> None:
-        if isinstance(node, dict):
-            for key, value in node.items():
-                if key == "topics" and isinstance(value, dict):
-                    used.update(value)
-                elif key in ("value", "topicToRender", "topicPath") and isinstance(value, str):
-                    used.add(value.split(".")[0])
-                elif key == "followTf":
-                    assert value == "base_link"
-                walk(value)
-        elif isinstance(node, list):
-            for item in node:
-                walk(item)
 
-    walk(layout)
-    assert used and used <= set(EXPECTED), used - set(EXPECTED)
-    assert {"/odometry", "/log", "/path"} <= used
+def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
+    from blackmetal.foxglove.core import DiagnosticLevel, diagnostics
+    from schemas import GatewayHealth, LinkHealth
+
+    health = GatewayHealth(stamp=12.5, control=LinkHealth("connected"), log=LinkHealth("down"), estop=True, active_source="foxglove")
+    array = diagnostics(health, "robot")
+    levels = {status["name"]: status["level"] for status in array["status"]}
+    assert array["header"]["stamp"] == {"sec": 12, "nsec": 500_000_000}
+    assert levels["gateway: e-stop"] == levels["gateway: log link"] == DiagnosticLevel.ERROR
+    assert levels["gateway: control link"] == DiagnosticLevel.OK
+    assert all(
+        status["hardware_id"] == "robot" and all(isinstance(v["value"], str) for v in status["values"]) for status in array["status"]
+    )
+    assert "driven by foxglove" in {status["message"] for status in array["status"]}

@@ -1,7 +1,10 @@
 """``blackmetal foxglove``: a live Foxglove view of the robot (WebSocket server from the ``foxglove-sdk`` package), optionally written to MCAP.
 
-In the services' shape, as far as a view without timers needs it:
-:mod:`.core` (what each channel shows, from the robot's payloads),
-:mod:`.host` (the WebSocket server and the MCAP file), :mod:`.zenoh_edge`
+Clients (Foxglove, Lichtblick) may also drive: ``/cmd_vel`` as the command
+source ``foxglove``, ``/estop``, and the services ``set_estop`` and
+``reset_odometry``. In the services' shape: :mod:`.core` (what each channel
+shows; what clients may do, pure and clock-injected), :mod:`.host` (the
+WebSocket server behind a thin front that also serves the older subprotocol
+``foxglove.websocket.v1``, and the MCAP file), :mod:`.zenoh_edge`
 (declarations), :mod:`.main` (the command), :mod:`.settings`.
 """

@@ -1,4 +1,7 @@
-"""The Foxglove view's core: what it shows, built from the robot's payloads: Foxglove's own types where a panel needs them, JSON elsewhere.
+"""The Foxglove view's core: what it shows (:class:`LiveView`) and what its clients may do (:class:`Controls`).
+
+What it shows, built from the robot's payloads: Foxglove's own types where a
+panel needs them, JSON elsewhere.
 
 | Foxglove topic | schema | from |
 |---|---|---|
@@ -9,23 +12,64 @@
 | ``/odometry`` | blackmetal ``Pose`` (JSON, with v and w for plots) | ``<prefix>/pose`` |
 | ``/wheels`` | wheel speeds in m/s and impulses/s (JSON) | ``<prefix>/wheels/impulses`` |
 | ``/status``, ``/health``, ``/errors`` | blackmetal JSON messages, as published | their keys |
+| ``/diagnostics`` | ``diagnostic_msgs/msg/DiagnosticArray`` (JSON) from the gateway's health | ``<prefix>/gateway/health`` |
 | ``/log`` | ``foxglove.Log``, one per error report (the Log panel) | ``<prefix>/errors`` |
 
-Payloads that do not decode are skipped; the view never
-crashes on what a key carries. No clock and no timers: the paths are
-throttled on the messages' own stamps, so nothing is due later and the view
-has no ``tick``/``next_deadline`` (its host needs no deadline timer).
+Payloads that do not decode are skipped; the view never crashes on what a
+key carries. The view has no clock and no timers: the paths are throttled on
+the messages' own stamps.
+
+What clients may do (client publish and services, JSON only):
+
+| from the client | schema | to the robot |
+|---|---|---|
+| topic ``/cmd_vel`` | ``geometry_msgs/msg/Twist`` (or ``geometry_msgs/Twist``) | ``<prefix>/cmd_vel/foxglove``: the command source ``foxglove`` |
+| topic ``/estop`` | ``std_msgs/msg/Bool``: ``{"data": true}`` engages, ``{"data": false}`` releases | ``<prefix>/estop`` |
+| service ``set_estop`` | ``std_srvs/srv/SetBool`` | ``<prefix>/estop``; answers once the gateway's health confirms |
+| service ``reset_odometry`` | ``blackmetal/srv/ResetOdometry`` (x, y, yaw; all optional) | a ``get`` on ``<prefix>/odometry/reset``; answers with the odometry's pose |
+
+:class:`Controls` is pure and clock-injected like every core: each input
+comes with ``now``; what is due later (a service call's time limit, the
+re-sent engage of a ``set_estop``, summaries of rate-limited error reports)
+runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refused
+client message is answered with a status message to that client and
+reported on ``<prefix>/errors``; a failed service call is answered with a
+service call failure and reported.
 """
 
 from __future__ import annotations
 
 import json
+import math
+import time
 from collections import deque
 from collections.abc import Callable
-from typing import Any
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+from typing import Any, Protocol
+
+import msgspec
 
 from blackmetal.robot_model import Encoders
-from schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, RobotStatus, WheelImpulses, decode, json_schemas, stamp_parts
+from blackmetal.runtime.reports import ErrorReporter
+from schemas import (
+    ErrorReport,
+    EStop,
+    GatewayHealth,
+    Keys,
+    LinkHealth,
+    PayloadError,
+    Pose,
+    PoseReset,
+    RobotStatus,
+    Twist,
+    WheelImpulses,
+    decode,
+    encode,
+    excerpt,
+    json_schemas,
+    stamp_parts,
+)
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -43,6 +87,104 @@ WHEELS_SCHEMA: dict[str, Any] = {
     },
     "required": ["stamp", "left_mps", "right_mps", "left_impulses", "right_impulses"],
 }
+
+_TIME_SCHEMA: dict[str, Any] = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+
+#: ROS's diagnostic_msgs/msg/DiagnosticArray as JSON, the shape the Diagnostics panels read.
+DIAGNOSTICS_SCHEMA: dict[str, Any] = {
+    "title": "diagnostic_msgs/msg/DiagnosticArray",
+    "description": "the gateway's health as ROS diagnostics, from <prefix>/gateway/health",
+    "type": "object",
+    "properties": {
+        "header": {"type": "object", "properties": {"stamp": _TIME_SCHEMA, "frame_id": {"type": "string"}}},
+        "status": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "level": {"type": "integer", "description": "0 OK, 1 WARN, 2 ERROR, 3 STALE"},
+                    "name": {"type": "string"},
+                    "message": {"type": "string"},
+                    "hardware_id": {"type": "string"},
+                    "values": {
+                        "type": "array",
+                        "items": {"type": "object", "properties": {"key": {"type": "string"}, "value": {"type": "string"}}},
+                    },
+                },
+            },
+        },
+    },
+}
+
+
+class DiagnosticLevel(IntEnum):
+    """diagnostic_msgs/msg/DiagnosticStatus levels."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+
+
+_LINK_LEVELS = {"connected": DiagnosticLevel.OK, "connecting": DiagnosticLevel.WARN}
+
+
+def _diagnostic(name: str, level: DiagnosticLevel, message: str, hardware_id: str, **values: Any) -> dict[str, Any]:
+    shown = [{"key": key, "value": "" if value is None else str(value)} for key, value in values.items()]
+    return {"level": int(level), "name": name, "message": message, "hardware_id": hardware_id, "values": shown}
+
+
+def _link(name: str, link: LinkHealth, hardware_id: str) -> dict[str, Any]:
+    level = _LINK_LEVELS.get(link.state, DiagnosticLevel.ERROR)
+    return _diagnostic(name, level, link.state, hardware_id, connected_since=link.connected_since, reconnects=link.reconnects)
+
+
+def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
+    """The gateway's health as a diagnostic_msgs/msg/DiagnosticArray (JSON): e-stop, links, commands, robot exchange."""
+    sec, nsec = stamp_parts(health.stamp)
+    driver = health.active_source or "nobody"
+    if health.conflict_with:
+        command = _diagnostic(
+            "gateway: commands", DiagnosticLevel.ERROR, f"refused: another gateway ({health.conflict_with}) on this prefix", hardware_id
+        )
+    else:
+        command = _diagnostic(
+            "gateway: commands",
+            DiagnosticLevel.OK,
+            f"driven by {driver}",
+            hardware_id,
+            active_source=health.active_source,
+            cmd_timeout_active=health.cmd_timeout_active,
+            commands_sent=health.commands_sent,
+            rejected_inputs=health.rejected_inputs,
+            **{f"source {name}": f"priority {s.priority}, age {s.age}, dropped {s.dropped}" for name, s in health.sources.items()},
+            **{f"lock {name}": engaged for name, engaged in health.locks.items()},
+        )
+    lost = health.lost_replies + health.malformed_replies
+    status = [
+        _diagnostic(
+            "gateway: e-stop",
+            DiagnosticLevel.ERROR if health.estop else DiagnosticLevel.OK,
+            "ENGAGED" if health.estop else "released",
+            hardware_id,
+            estop=health.estop,
+        ),
+        _link("gateway: control link", health.control, hardware_id),
+        _link("gateway: log link", health.log, hardware_id),
+        command,
+        _diagnostic(
+            "gateway: robot exchange",
+            DiagnosticLevel.WARN if lost else DiagnosticLevel.OK,
+            f"{health.poll_hz:g} Hz polls, rtt {health.last_rtt_ms} ms",
+            hardware_id,
+            polls=health.polls,
+            replies=health.replies,
+            lost_replies=health.lost_replies,
+            malformed_replies=health.malformed_replies,
+            full_buffer=health.full_buffer,
+            wheel_speeds=health.wheel_speeds,
+        ),
+    ]
+    return {"header": {"stamp": {"sec": sec, "nsec": nsec}, "frame_id": ""}, "status": status}
 
 
 def timestamp(stamp: float) -> Any:
@@ -103,6 +245,7 @@ class LiveView:
         self.wheels = json_channel("/wheels", WHEELS_SCHEMA)
         self.status = json_channel("/status", schemas["RobotStatus"])
         self.health = json_channel("/health", schemas["GatewayHealth"])
+        self.diagnostics = json_channel("/diagnostics", DIAGNOSTICS_SCHEMA)
         self.errors = json_channel("/errors", schemas["ErrorReport"])
         self.log = LogChannel("/log")
         self._trail = Trail(path_length)
@@ -116,7 +259,7 @@ class LiveView:
             k.sim_truth: self.on_truth,
             k.impulses: self.on_impulses,
             k.status: lambda p: self._forward(self.status, RobotStatus, p),
-            k.health: lambda p: self._forward(self.health, GatewayHealth, p),
+            k.health: self.on_health,
             k.errors: self.on_error,
         }
 
@@ -161,6 +304,13 @@ class LiveView:
         if pose is not None:
             self._poses(pose, self.truth, self.truth_path, self._truth_trail)
 
+    def on_health(self, payload: bytes) -> None:
+        health = self._decode(GatewayHealth, payload)
+        if health is None:
+            return
+        self.health.log(payload)
+        self.diagnostics.log(json.dumps(diagnostics(health, self.keys.prefix)).encode())
+
     def on_impulses(self, payload: bytes) -> None:
         sample = self._decode(WheelImpulses, payload)
         if sample is None:
@@ -185,3 +335,347 @@ class LiveView:
         self.log.log(
             Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
         )
+
+
+# --------------------------------------------------------------------------- what clients may do
+
+#: The command source the view's clients drive as (``<prefix>/cmd_vel/foxglove``).
+COMMAND_SOURCE = "foxglove"
+#: The one message encoding clients may publish and call services in.
+CLIENT_ENCODING = "json"
+#: A set_estop call re-sends its engage and asks the gateway's health this often (s) until confirmed.
+ASK_PERIOD_S = 0.2
+#: A refused client channel gets at most one status message this often (s); every refusal is still counted in reports.
+STATUS_PERIOD_S = 1.0
+RELEASE_HINT = 'only {"data": false} releases the e-stop'
+
+
+class Control(Enum):
+    """The topics a client may publish on."""
+
+    CMD_VEL = "/cmd_vel"
+    ESTOP = "/estop"
+
+
+#: The schema names a client may advertise each control topic with (ROS 2 and ROS 1 spellings).
+CONTROL_SCHEMAS: dict[Control, tuple[str, ...]] = {
+    Control.CMD_VEL: ("geometry_msgs/msg/Twist", "geometry_msgs/Twist"),
+    Control.ESTOP: ("std_msgs/msg/Bool", "std_msgs/Bool"),
+}
+TAKES = f"{Control.CMD_VEL.value} ({CONTROL_SCHEMAS[Control.CMD_VEL][0]}) and {Control.ESTOP.value} ({CONTROL_SCHEMAS[Control.ESTOP][0]}), JSON-encoded"
+
+
+class Service(Enum):
+    """The services the view offers."""
+
+    SET_ESTOP = "set_estop"
+    RESET_ODOMETRY = "reset_odometry"
+
+
+class RosBool(msgspec.Struct, forbid_unknown_fields=True):
+    """std_msgs/msg/Bool and the std_srvs/srv/SetBool request, as JSON: ``{"data": true}``."""
+
+    data: bool
+
+
+def _object(properties: dict[str, Any], required: list[str] | None = None) -> dict[str, Any]:
+    return {"type": "object", "properties": properties, "required": required or [], "additionalProperties": False}
+
+
+_NUMBER = {"type": "number"}
+_QUATERNION_SCHEMA = _object({name: _NUMBER for name in ("x", "y", "z", "w")})
+_POSE_SCHEMA = _object({**{name: _NUMBER for name in ("stamp", "x", "y", "yaw", "v", "w")}, "orientation": _QUATERNION_SCHEMA})
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceSpec:
+    """A service as the protocol advertises it: its type, and the JSON Schemas (titled with their names) of request and response."""
+
+    type: str
+    request: dict[str, Any]
+    response: dict[str, Any]
+
+
+SERVICE_SPECS: dict[Service, ServiceSpec] = {
+    Service.SET_ESTOP: ServiceSpec(
+        "std_srvs/srv/SetBool",
+        {"title": "std_srvs/srv/SetBool_Request", **_object({"data": {"type": "boolean"}}, ["data"])},
+        {"title": "std_srvs/srv/SetBool_Response", **_object({"success": {"type": "boolean"}, "message": {"type": "string"}})},
+    ),
+    Service.RESET_ODOMETRY: ServiceSpec(
+        "blackmetal/srv/ResetOdometry",
+        {"title": "blackmetal/srv/ResetOdometry_Request", **_object({"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER})},
+        {
+            "title": "blackmetal/srv/ResetOdometry_Response",
+            **_object({"success": {"type": "boolean"}, "message": {"type": "string"}, "pose": _POSE_SCHEMA}),
+        },
+    ),
+}
+
+
+class StatusLevel(IntEnum):
+    """A status message's level in the Foxglove WebSocket protocol."""
+
+    INFO = 0
+    WARNING = 1
+    ERROR = 2
+
+
+class ServerRefusal(Enum):
+    """What the WebSocket server itself sent a client when it refused something (the view saw it go out)."""
+
+    STATUS = "status"
+    SERVICE_CALL_FAILURE = "serviceCallFailure"
+
+
+class ControlsOutput(Protocol):
+    """Where :class:`Controls` sends what it decides: the robot's keys, the clients, the error reports."""
+
+    def command(self, key: str, payload: bytes) -> None: ...
+    def ask_health(self) -> None: ...
+    def ask_reset(self, call: int, payload: bytes) -> None: ...
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
+    def error(self, message: ErrorReport) -> None: ...
+
+
+@dataclass(slots=True)
+class ClientTopic:
+    """A channel a client advertised: what it controls, or why its messages are refused."""
+
+    topic: str
+    control: Control | None
+    refusal: str | None
+    drove: bool = False
+
+
+@dataclass(slots=True)
+class EstopCall:
+    """A set_estop call waiting for the gateway's health to show ``engage``."""
+
+    client: int
+    engage: bool
+    deadline: float
+    next_ask: float
+
+
+@dataclass(slots=True)
+class ResetCall:
+    """A reset_odometry call waiting for the odometry's answer."""
+
+    client: int
+    deadline: float
+
+
+def _state(engage: bool) -> str:
+    return "engaged" if engage else "released"
+
+
+class Controls:
+    """Client publications and service calls -> the robot's keys, with confirmations and refusals; see the module docstring.
+
+    Clients are the WebSocket server's client ids; ``call`` numbers service
+    calls (the host's numbering, unique while the view runs).
+    """
+
+    def __init__(self, keys: Keys, output: ControlsOutput, call_timeout: float = 2.0, wallclock: Callable[[], float] = time.time) -> None:
+        self.keys = keys
+        self.output = output
+        self.call_timeout = call_timeout
+        self.reporter = ErrorReporter("foxglove", output.error, wallclock)
+        self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
+        self._topics: dict[tuple[int, int], ClientTopic] = {}
+        self._estop_calls: dict[int, EstopCall] = {}
+        self._reset_calls: dict[int, ResetCall] = {}
+        self._last_status: dict[tuple[int | None, str], float] = {}
+        #: The e-stop state in the gateway's last health (None: no health seen yet).
+        self.estop_seen: bool | None = None
+
+    # --------------------------------------------------------------- client publish
+    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
+        """A client advertised a channel: note what it controls, or refuse it at once (status and report)."""
+        control = next((c for c in Control if c.value == topic), None)
+        refusal = None
+        if control is None:
+            refusal = f"topic {topic!r} is not taken here: clients publish {TAKES}"
+        elif encoding != CLIENT_ENCODING:
+            refusal = f"{topic} must be {CLIENT_ENCODING}-encoded, not {encoding!r}"
+        elif schema_name and schema_name not in CONTROL_SCHEMAS[control]:
+            refusal = f"{topic} carries {' or '.join(CONTROL_SCHEMAS[control])}, not {schema_name!r}"
+        self._topics[(client, channel)] = ClientTopic(topic, control, refusal)
+        if refusal is not None:
+            self._refuse(client, topic, f"{refusal}; its messages are refused", "", now)
+
+    def on_unadvertise(self, client: int, channel: int, now: float) -> None:
+        """A client stopped publishing on a channel: a /cmd_vel that drove sends one zero command, so the robot stops now rather than at the timeout."""
+        topic = self._topics.pop((client, channel), None)
+        if topic is not None and topic.control is Control.CMD_VEL and topic.drove:
+            self.output.command(self.cmd_vel_key, encode(Twist()))
+
+    def on_client_gone(self, client: int, now: float) -> None:
+        """A client disconnected: its channels are unadvertised."""
+        for key in [key for key in self._topics if key[0] == client]:
+            self.on_unadvertise(client, key[1], now)
+        for status_key in [key for key in self._last_status if key[0] == client]:
+            del self._last_status[status_key]
+
+    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
+        """One message a client published: a command, an e-stop, or a refusal (status to that client, report)."""
+        topic = self._topics.get((client, channel))
+        if topic is None:
+            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
+            return
+        if topic.refusal is not None:
+            self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
+            return
+        if topic.control is Control.CMD_VEL:
+            try:
+                twist = decode(Twist, data)
+            except PayloadError as exc:
+                self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
+                return
+            topic.drove = True
+            self.output.command(self.cmd_vel_key, encode(twist))
+        elif topic.control is Control.ESTOP:
+            try:
+                wish = decode(RosBool, data)
+            except PayloadError as exc:
+                self._estop(True, now)  # fails safe, as the gateway does: whoever published here meant the stop
+                self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+                return
+            self._estop(wish.data, now)
+
+    def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
+        """Put the e-stop; a pending set_estop call that wants the other state is superseded (its re-sends would undo this)."""
+        self.output.command(self.keys.estop, encode(EStop(engaged=engage)))
+        for other, pending in list(self._estop_calls.items()):
+            if other != call and pending.engage != engage:
+                self._fail(
+                    other, pending.client, Service.SET_ESTOP, f"superseded: the e-stop was {_state(engage)} since this call", "", now
+                )
+
+    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
+        """A status message to that client (at most once per STATUS_PERIOD_S per topic) and a report (rate-limited)."""
+        last = self._last_status.get((client, topic), -math.inf)
+        if now - last >= STATUS_PERIOD_S:
+            self._last_status[(client, topic)] = now
+            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
+        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
+
+    # --------------------------------------------------------------- services
+    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
+        """A service call; it is answered later through ``output.answer``: on confirmation, failure or at the time limit."""
+        known = next((s for s in Service if s.value == service), None)
+        if known is Service.SET_ESTOP:
+            try:
+                wish = decode(RosBool, payload)
+            except PayloadError as exc:
+                self._estop(True, now)
+                self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+                return
+            self._estop_calls[call] = EstopCall(client, wish.data, now + self.call_timeout, now + ASK_PERIOD_S)
+            self._estop(wish.data, now, call)
+            self.output.ask_health()  # asked after the put: the gateway takes its e-stop samples first
+        elif known is Service.RESET_ODOMETRY:
+            try:
+                target = PoseReset() if not payload.strip() else decode(PoseReset, payload)
+            except PayloadError as exc:
+                self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
+                return
+            self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
+            self.output.ask_reset(call, encode(target))
+        else:
+            self.output.answer(call, None, f"unknown service {service!r}: this view offers {', '.join(s.value for s in Service)}")
+            self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+
+    def on_health(self, payload: bytes, now: float) -> None:
+        """The gateway's health (published or asked for): it confirms the set_estop calls that wanted what it shows."""
+        try:
+            health = decode(GatewayHealth, payload)
+        except PayloadError:
+            return  # the gateway's own key: the view shows what it can, the gateway reports its own
+        self.estop_seen = health.estop
+        for call, pending in list(self._estop_calls.items()):
+            if pending.engage == health.estop:
+                del self._estop_calls[call]
+                message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
+                self.output.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
+
+    def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        """The odometry's answer to a reset: its pose, or its reason for refusing."""
+        pending = self._reset_calls.pop(call, None)
+        if pending is None:
+            return
+        if ok is None:
+            reason = (err or b"").decode("utf-8", errors="replace") or "no reason given"
+            self._fail(call, pending.client, Service.RESET_ODOMETRY, f"the odometry refused the reset: {reason}", "", now)
+            return
+        try:
+            pose = decode(Pose, ok)
+        except PayloadError as exc:
+            self._fail(
+                call, pending.client, Service.RESET_ODOMETRY, f"the odometry answered something else than a pose: {exc}", exc.excerpt, now
+            )
+            return
+        message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
+        self.output.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
+
+    def on_reset_done(self, call: int, now: float) -> None:
+        """The reset's query ended: a call still waiting got no answer at all."""
+        pending = self._reset_calls.pop(call, None)
+        if pending is not None:
+            reason = f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
+            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
+
+    def _fail(self, call: int, client: int, service: Service, reason: str, text: str, now: float) -> None:
+        self._estop_calls.pop(call, None)
+        self._reset_calls.pop(call, None)
+        self.output.answer(call, None, reason)
+        self.reporter.report(f"foxglove:{service.value}", f"client {client}: {reason}", text, now=now)
+
+    # --------------------------------------------------------------- refusals the server made itself
+    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
+        """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
+
+        A status message already told the client; a service call failure is
+        followed by a status message, so the refusal shows where the client
+        shows its problems.
+        """
+        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
+        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
+
+    # --------------------------------------------------------------- timers
+    def tick(self, now: float) -> None:
+        """Time limits of the waiting calls, the set_estop engage re-sent and health asked again, report summaries."""
+        for call, pending in list(self._estop_calls.items()):
+            if now >= pending.deadline:
+                seen = (
+                    "no health from the gateway" if self.estop_seen is None else f"its health says the e-stop is {_state(self.estop_seen)}"
+                )
+                reason = (
+                    f"the gateway did not confirm the e-stop {_state(pending.engage)} within {self.call_timeout:g} s ({seen}); "
+                    f"is blackmetal gateway running on prefix {self.keys.prefix!r}?"
+                )
+                self._fail(call, pending.client, Service.SET_ESTOP, reason, "", now)
+            elif now >= pending.next_ask:
+                pending.next_ask = now + ASK_PERIOD_S
+                if pending.engage:  # an engage is safe to repeat; a release is sent once, never over someone's later stop
+                    self.output.command(self.keys.estop, encode(EStop(engaged=True)))
+                self.output.ask_health()
+        for call, reset in list(self._reset_calls.items()):
+            if now >= reset.deadline:
+                reason = f"the odometry did not answer within {self.call_timeout:g} s on {self.keys.odometry_reset}"
+                self._fail(call, reset.client, Service.RESET_ODOMETRY, reason, "", now)
+        self.reporter.tick(now)
+
+    def next_deadline(self) -> float:
+        deadlines = [self.reporter.next_deadline()]
+        deadlines += [min(p.deadline, p.next_ask) for p in self._estop_calls.values()]
+        deadlines += [p.deadline for p in self._reset_calls.values()]
+        return min(deadlines)
+
+    @property
+    def waiting(self) -> int:
+        """Service calls not answered yet."""
+        return len(self._estop_calls) + len(self._reset_calls)

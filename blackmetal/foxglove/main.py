@@ -1,9 +1,12 @@
 """``blackmetal foxglove``: a live Foxglove view of the robot: pose, transform, path, truth, wheels, status, health, errors.
 
-Open Foxglove (app or desktop), "Open connection", Foxglove WebSocket, and
-the URL this prints; then import the layout shipped in
-``deploy/foxglove/blackmetal.layout.json``. ``--mcap FILE`` writes the same
-channels to an MCAP file as they are sent.
+Open Foxglove (app or desktop) or Lichtblick, "Open connection", Foxglove
+WebSocket, and the URL this prints; then import the layout shipped in
+``deploy/foxglove/blackmetal.layout.json``. Clients may drive: ``/cmd_vel``
+(geometry_msgs/msg/Twist, as the command source ``foxglove``), ``/estop``
+(std_msgs/msg/Bool) and the services ``set_estop`` and ``reset_odometry``,
+all JSON. ``--mcap FILE`` writes the view's channels to an MCAP file as they
+are sent.
 """
 
 from __future__ import annotations
@@ -14,35 +17,49 @@ import asyncio
 from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
-from blackmetal.runtime.zenoh_setup import open_session
+from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys, require_extra
 
-from .core import LiveView
-from .host import FoxgloveHost
+from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
+from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
 from .settings import FoxgloveSettings
 from .zenoh_edge import FoxgloveZenoh
 
 
 async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
-    """Start the server (and the MCAP file), open the Zenoh session, show the robot until ``stop``, close everything."""
+    """Start the server (and the MCAP file), open the Zenoh session, show the robot and take its clients' commands until ``stop``, close everything."""
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     keys = Keys(settings.prefix)
     host = FoxgloveHost(settings)
     try:
+        await host.start()  # the port is taken before Zenoh opens: a port in use is one sentence, at once
         view = LiveView(keys, path_length=settings.path_length)
-        with open_session(settings.zenoh) as session:
-            edge = FoxgloveZenoh(session)
-            edge.attach(view, asyncio.get_running_loop())
+        host.attach(Controls(keys, host, call_timeout=settings.call_timeout))
+        with await open_service_session(settings.zenoh, stop, "foxglove") as session:
+            edge = FoxgloveZenoh(session, keys, query_timeout=settings.call_timeout)
+            edge.attach(view, host, asyncio.get_running_loop())
+            host.connect(edge)
             address = host.url
             print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
             print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
             print(f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}", flush=True)
+            print(f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})", flush=True)
+            print(f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}", flush=True)
+            print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
             if settings.mcap:
                 print(f"  writing the same channels to {settings.mcap}", flush=True)
-            announce_ready("foxglove", url=address, port=host.server.port, prefix=keys.prefix)
+            announce_ready(
+                "foxglove",
+                url=address,
+                port=host.port,
+                prefix=keys.prefix,
+                subprotocols=list(SUBPROTOCOLS),
+                services=[s.value for s in Service],
+            )
             try:
                 await host.run(stop)
             finally:
+                host.connect(None)
                 edge.close()
     finally:
         host.close()
