@@ -348,3 +348,79 @@ with zenoh.open(conf) as s:
     seen = json.loads(result.stdout.strip().splitlines()[-1])
     assert seen["pose"]["x"] > 0.1, seen
     assert abs(seen["pose"]["x"] - seen["truth"]["x"]) < 0.02
+
+
+# ----------------------------------------------------------------------------- start order, and the README's fleet recipe
+
+
+def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[Child], tmp_path: Path) -> None:
+    """deploy/zenoh/gateway.json5 and odometry.json5 (as systemd runs them): started before the router, they join it."""
+    import re
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+
+    def point(data: dict) -> None:  # type: ignore[type-arg]
+        data["connect"]["endpoints"] = [endpoint]
+
+    sim = SimProcess()  # the robot, without Zenoh
+    children.append(sim)
+    gateway = Child(["-m", "blackmetal", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port),
+                     "-c", str(config_copy("gateway.json5", tmp_path, point))])  # fmt: skip
+    odometry = Child(["-m", "blackmetal", "odometry", "-c", str(config_copy("odometry.json5", tmp_path, point))])
+    children.extend([gateway, odometry])
+    for child in (gateway, odometry):
+        child.wait_line(rf"waiting for {re.escape(endpoint)} \(router or hub\)")
+    children.append(Router(config_copy("router.json5", tmp_path), endpoint))
+    for child in (gateway, odometry):
+        child.ready()
+    with zenoh.open(client_conf(endpoint)) as session:
+        wait_for(lambda: get_pose(session, "robot/pose") is not None, what="the odometry through the router")
+        wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway's health")
+
+
+def _two_free_ports() -> int:
+    """A port P with P and P + 1 free (the recipe numbers its robots' ports from a base)."""
+    import socket
+
+    for _ in range(50):
+        base = free_port()
+        with socket.socket() as probe:
+            try:
+                probe.bind(("127.0.0.1", base + 1))
+            except OSError:
+                continue
+        return base
+    raise AssertionError("no two consecutive free ports")
+
+
+def readme_block(after: str) -> str:
+    """The first ```sh block of the README after the text ``after``."""
+    text = (ROOT / "README.md").read_text()
+    start = text.index("```sh\n", text.index(after)) + len("```sh\n")
+    return text[start : text.index("```", start)]
+
+
+def test_the_readme_fleet_recipe_works_as_written(tmp_path: Path) -> None:
+    """The Fleet recipe, verbatim but for free ports and without its interactive teleop: both robots listed, nothing exited."""
+    import signal
+
+    recipe = readme_block("**Fleet.**")
+    zport, control, log = free_port(), _two_free_ports(), _two_free_ports()
+    script = recipe.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{zport}").replace("6650", str(control)).replace("6640", str(log))
+    script = "\n".join(line for line in script.splitlines() if not line.startswith("blackmetal teleop"))
+    assert "blackmetal robots" in script and script.count("&") == 4
+    # after the recipe: how many of its background processes still run, then stop them
+    script += '\necho "running: $(jobs -rp | wc -l)"\nkill $(jobs -p)\nwait\n'
+    env = {**os.environ, "PATH": f"{Path(sys.executable).parent}{os.pathsep}{os.environ.get('PATH', '')}"}
+    proc = subprocess.Popen(["bash", "-c", script], cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True)  # fmt: skip
+    try:
+        out, err = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait(10)
+    listed = [line for line in out.splitlines() if line.startswith("fleet/")]  # the services print their own lines too
+    assert listed == ["fleet/a", "fleet/b"], out + err
+    assert "running: 7" in out, out + err  # the router and three services per robot, none exited
+    assert "Traceback" not in err, err

@@ -22,9 +22,10 @@ T = TypeVar("T")
 def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Event], Awaitable[None]]) -> int:
     """Load settings, then ``serve(settings, stop)`` until SIGINT/SIGTERM sets ``stop``.
 
-    Exit codes: 0 after a requested stop; 2 for a setting or configuration
-    the service cannot use; 1 when the operating system refuses (a port in
-    use, an address not ours). Every failure is one line on stderr.
+    Exit codes: 0 after a requested stop (also while it still waited for its
+    router or hub); 2 for a setting or configuration the service cannot use;
+    1 when the operating system refuses (a port in use, an address not
+    ours). Every failure is one line on stderr.
     """
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s")
 
@@ -34,6 +35,8 @@ def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Ev
     try:
         with asyncio.Runner(loop_factory=loop_factory()) as runner:
             runner.run(_main(load()))
+    except asyncio.CancelledError:
+        pass  # stopped while it still waited for its router or hub (open_service_session): a requested stop
     except ZenohUnavailable as exc:
         print(f"blackmetal {name}: {exc}", file=sys.stderr)
         return 1

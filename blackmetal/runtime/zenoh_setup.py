@@ -14,13 +14,31 @@ given with ``-c`` decides for itself. Without gossip, a session that listens
 is a hub that routes for the sessions connected to it as clients, so a
 process given ``-e`` and no ``-l`` (and no ``-m``) connects as a client of
 exactly that endpoint.
+
+One default for every process: given no endpoint, no config file and no
+discovery, a process is a client of :data:`DEFAULT_ENDPOINT`
+(``tcp/127.0.0.1:7447``), where ``blackmetal up`` and ``blackmetal router``
+listen; a process that listens (``-l``) is itself a hub and connects to
+nothing it was not given.
+
+Start order: a service (:func:`open_service_session`, :func:`open_when_reachable`)
+whose endpoint does not answer yet says once that it waits for it and joins
+when it comes up; once joined it rides out the router restarting. Zenoh's own
+settings do both (``connect/timeout_ms: -1``, ``connect/exit_on_failure:
+false``, a short ``connect/retry``); ``zenoh.open`` then blocks (client) or
+returns unconnected (peer), so it runs on a daemon thread that Ctrl-C need
+not interrupt. The user tools use :func:`open_session`, which fails at once
+with one sentence.
 """
 
 from __future__ import annotations
 
 import argparse
+import asyncio
 import json
 import os
+import threading
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -31,6 +49,13 @@ if TYPE_CHECKING:
     import zenoh
 
 MODES = ("peer", "client", "router")
+#: Where every process connects when told nothing else: the hub of ``blackmetal up`` and ``blackmetal router``.
+DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
+#: Zenoh's connect retry for services (Zenoh's default, 1 s doubling to 4 s, is too slow to join a router
+#: within 2 s of it coming up). It also paces reconnecting after the router restarts.
+SERVICE_RETRY = "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}"
+#: How long a service tries quietly before it says that it waits.
+WAIT_NOTICE_S = 0.5
 
 
 def _env(name: str) -> str | None:
@@ -65,18 +90,42 @@ class ZenohSettings:
         """True when any Zenoh flag was set."""
         return bool(self.mode or self.connect or self.listen or self.config or self.no_multicast_scouting or self.multicast_scouting)
 
+    @property
+    def defaulted(self) -> bool:
+        """No endpoint, config file or discovery given: the session is a client of :data:`DEFAULT_ENDPOINT`."""
+        return not (self.connect or self.listen or self.config is not None or self.discovers) and self.mode != "router"
+
+    @property
+    def endpoints(self) -> list[str]:
+        """The endpoints this session connects to: those given, or the default one."""
+        return [DEFAULT_ENDPOINT] if self.defaulted else list(self.connect)
+
+    @property
+    def is_hub(self) -> bool:
+        """A session that listens (or a router): others join it; it does not wait for anyone."""
+        return bool(self.listen) or self.mode == "router"
+
     def where(self) -> str:
         """Where this session looks for others, for messages."""
-        if self.connect:
-            return ", ".join(self.connect)
-        return "multicast scouting" if self.discovers else "no endpoint"
+        if self.endpoints:
+            return ", ".join(self.endpoints)
+        if self.listen:
+            return "listening on " + ", ".join(self.listen)
+        if self.discovers:
+            return "multicast scouting"
+        return f"as {self.config} says" if self.config is not None else "no endpoint"
 
     @property
     def discovers(self) -> bool:
         """Whether this session looks for peers by multicast and gossip."""
         return self.multicast_scouting and not self.no_multicast_scouting
 
-    def to_config(self) -> "zenoh.Config":
+    def to_config(self, wait: bool = False) -> "zenoh.Config":
+        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services).
+
+        A config file that sets ``connect/timeout_ms`` itself keeps its own
+        connect behaviour.
+        """
         import zenoh
 
         if self.config is not None:
@@ -91,12 +140,17 @@ class ZenohSettings:
             conf = zenoh.Config()
         try:
             mode = self.mode
-            if mode is None and self.config is None and self.connect and not self.listen and not self.discovers:
+            connect = self.endpoints
+            if mode is None and self.config is None and connect and not self.listen and not self.discovers:
                 mode = "client"  # isolated: talk to exactly the endpoint given, through it to the rest
             if mode is not None:
                 conf.insert_json5("mode", json.dumps(mode))
-            if self.connect:
-                conf.insert_json5("connect/endpoints", json.dumps(self.connect))
+            if connect:
+                conf.insert_json5("connect/endpoints", json.dumps(connect))
+            if wait and not _file_sets_connect_timeout(self.config):
+                conf.insert_json5("connect/timeout_ms", "-1")  # wait for the endpoints for ever...
+                conf.insert_json5("connect/exit_on_failure", "false")  # ...never give up on them...
+                conf.insert_json5("connect/retry", SERVICE_RETRY)  # ...and try every 0.1-0.5 s
             if self.listen:
                 conf.insert_json5("listen/endpoints", json.dumps(self.listen))
             if self.config is None or self.multicast_scouting or self.no_multicast_scouting:
@@ -115,6 +169,20 @@ class ZenohSettings:
         return conf
 
 
+def _file_sets_connect_timeout(path: str | None) -> bool:
+    """Whether the Zenoh config file at ``path`` chooses its own ``connect/timeout_ms``."""
+    if path is None:
+        return False
+    import json5
+
+    try:
+        data = json5.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return False  # zenoh has read it already; a file it accepts but json5 does not keeps our settings
+    connect = data.get("connect") if isinstance(data, dict) else None
+    return isinstance(connect, dict) and "timeout_ms" in connect
+
+
 def check_endpoint(endpoint: str) -> str:
     """``tcp/HOST:PORT`` (or another Zenoh protocol); ConfigError with an example otherwise."""
     protocol, slash, address = endpoint.partition("/")
@@ -126,16 +194,20 @@ def check_endpoint(endpoint: str) -> str:
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the shared Zenoh flags to ``parser`` (unset flags stay None, so settings files can fill them)."""
     group = parser.add_argument_group("Zenoh")
-    group.add_argument("-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: peer)")
+    group.add_argument(
+        "-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: client with -e and no -l, else peer)"
+    )
     group.add_argument(
         "-e",
         "--connect",
         action="append",
         default=None,
         metavar="ENDPOINT",
-        help="endpoint to connect to, e.g. tcp/127.0.0.1:7447 (repeatable)",
+        help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT} unless -l, -c or --multicast-scouting)",
     )
-    group.add_argument("-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on (repeatable)")
+    group.add_argument(
+        "-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on, as a hub (repeatable)"
+    )
     group.add_argument("-c", "--config", default=None, metavar="FILE", help="Zenoh configuration file (JSON5)")
     group.add_argument(
         "--multicast-scouting",
@@ -166,7 +238,7 @@ def zenoh_settings(args: argparse.Namespace | Any) -> ZenohSettings:
 
 
 def open_session(settings: ZenohSettings) -> "zenoh.Session":
-    """Open a session; ZenohUnavailable with what to check instead of Zenoh's own traceback."""
+    """Open a session at once (the user tools); ZenohUnavailable with what to check instead of Zenoh's own traceback."""
     import zenoh
 
     conf = settings.to_config()
@@ -174,6 +246,151 @@ def open_session(settings: ZenohSettings) -> "zenoh.Session":
         return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError carries the reason as text
         raise ZenohUnavailable(unavailable_reason(settings, str(exc))) from None
+
+
+class PendingSession:
+    """``zenoh.open`` of a service's config on a daemon thread, and whether the session has joined its endpoints.
+
+    With the service settings (:meth:`ZenohSettings.to_config` ``wait=True``)
+    a client's ``zenoh.open`` blocks until its router answers, and a peer's
+    returns at once and connects in the background; neither can be
+    interrupted, so the opening runs here while the caller watches its stop
+    request. A session opened after the caller gave up is closed.
+    """
+
+    def __init__(self, settings: ZenohSettings) -> None:
+        self.settings = settings
+        self._conf = settings.to_config(wait=True)
+        self._lock = threading.Lock()
+        self._done = threading.Event()
+        self._session: zenoh.Session | None = None
+        self._error: str | None = None
+        self._abandoned = False
+        threading.Thread(target=self._open, name="zenoh-open", daemon=True).start()
+
+    def _open(self) -> None:
+        import zenoh
+
+        try:
+            session = zenoh.open(self._conf)
+        except Exception as exc:  # zenoh.ZError carries the reason as text
+            self._error = str(exc)
+            self._done.set()
+            return
+        with self._lock:
+            if self._abandoned:
+                session.close()
+                return
+            self._session = session
+        self._done.set()
+
+    @property
+    def endpoints(self) -> list[str]:
+        """What it connects to, for people: the flags' endpoints, or the config file's."""
+        if self.settings.endpoints:
+            return self.settings.endpoints
+        try:
+            found = json.loads(self._conf.get_json("connect/endpoints"))
+        except Exception:
+            return []
+        return [str(e) for e in found] if isinstance(found, list) else []
+
+    def ready(self) -> "zenoh.Session | None":
+        """The session once it is open and (unless it is a hub) connected; ZenohUnavailable if it cannot open."""
+        if not self._done.is_set():
+            return None
+        if self._error is not None:
+            raise ZenohUnavailable(unavailable_reason(self.settings, self._error))
+        session = self._session
+        assert session is not None
+        if self.is_hub or not self.endpoints:
+            return session
+        info = session.info
+        return session if list(info.routers_zid()) or list(info.peers_zid()) else None
+
+    def abandon(self) -> None:
+        """The caller stops waiting: close the session now or when it opens."""
+        with self._lock:
+            self._abandoned = True
+            session, self._session = self._session, None
+        if session is not None:
+            session.close()
+
+    @property
+    def is_hub(self) -> bool:
+        """It listens (or routes): it serves at once and connects to its endpoints in the background."""
+        try:
+            mode = json.loads(self._conf.get_json("mode"))
+        except Exception:
+            mode = None
+        return self.settings.is_hub or mode == "router"
+
+    def status(self) -> str:
+        """One line for people: where the open session is."""
+        where = ", ".join(self.endpoints)
+        if self.is_hub:
+            listen = ", ".join(self.settings.listen) or "the endpoints of its config"
+            return f"listening on {listen} (a hub)" + (f", connecting to {where}" if where else "")
+        return f"connected to {where}" if where else f"Zenoh {self.settings.where()}"
+
+
+class _Waiter:
+    """The wait both openers share: the pending session, the one "waiting for" line, the final status line."""
+
+    def __init__(self, settings: ZenohSettings, name: str) -> None:
+        self.name = name
+        self.pending = PendingSession(settings)
+        self.started = time.monotonic()
+        self.waited = False
+
+    def step(self) -> "zenoh.Session | None":
+        session = self.pending.ready()
+        if session is not None:
+            self._say(self.pending.status())
+        elif not self.waited and time.monotonic() - self.started >= WAIT_NOTICE_S:
+            self.waited = True
+            self._say(f"waiting for {', '.join(self.pending.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
+        return session
+
+    def _say(self, line: str) -> None:
+        print(f"blackmetal {self.name}: {line}", flush=True)
+
+
+async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, name: str, poll: float = 0.02) -> "zenoh.Session":
+    """A service's session, once it has joined its router or hub (a hub: at once).
+
+    Says once which endpoint it waits for when that does not answer within
+    :data:`WAIT_NOTICE_S`, then "connected to ..." when it joins. When
+    ``stop`` is set first the service is cancelled (asyncio.CancelledError:
+    ``run_service`` exits 0); ZenohUnavailable when the session cannot open
+    at all (a port in use, a bad config).
+    """
+    waiter = _Waiter(settings, name)
+    try:
+        while (session := waiter.step()) is None:
+            try:
+                await asyncio.wait_for(stop.wait(), timeout=poll)
+            except TimeoutError:
+                continue
+            raise asyncio.CancelledError(f"{name} stopped while it waited for its router or hub")
+    except BaseException:
+        waiter.pending.abandon()
+        raise
+    return session
+
+
+def open_when_reachable(settings: ZenohSettings, stop: threading.Event, name: str, poll: float = 0.02) -> "zenoh.Session | None":
+    """:func:`open_service_session` for a thread-based process (the recorder, ``up``); None when ``stop`` came first."""
+    waiter = _Waiter(settings, name)
+    try:
+        while (session := waiter.step()) is None:
+            if stop.wait(poll):
+                waiter.pending.abandon()
+                return None
+    except BaseException:
+        waiter.pending.abandon()
+        raise
+    return session
 
 
 def unavailable_reason(settings: ZenohSettings, text: str) -> str:
@@ -184,15 +401,16 @@ def unavailable_reason(settings: ZenohSettings, text: str) -> str:
             "(another `blackmetal up`, a router or a service?); stop it, or choose another port with -l tcp/127.0.0.1:PORT"
         )
     if "Unable to connect" in text:
+        endpoints = ", ".join(settings.endpoints) or "the config's endpoints"
         credentials = (
             "that BLACKMETAL_ZENOH_USER and BLACKMETAL_ZENOH_PASSWORD are right for it"
             if settings.user is not None
             else "whether it asks for a user and password (set BLACKMETAL_ZENOH_USER and BLACKMETAL_ZENOH_PASSWORD)"
         )
         return (
-            f"cannot reach {', '.join(settings.connect)}: check that a router or `blackmetal up` runs there, "
+            f"cannot reach {endpoints}: check that a router or `blackmetal up` runs there, "
             f"that the address and port are right (-e tcp/HOST:PORT), and {credentials}"
         )
     if "lookup address" in text:
-        return f"cannot resolve an address in {', '.join(settings.connect + settings.listen)}: check the host name"
+        return f"cannot resolve an address in {', '.join(settings.endpoints + settings.listen)}: check the host name"
     return f"cannot open a Zenoh session ({settings.where()}): {text.split(' at /')[0]}"

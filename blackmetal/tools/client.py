@@ -1,8 +1,10 @@
 """What every user tool needs: a Zenoh session with sensible defaults, latest values, clear failures.
 
-Tools (teleop, watch, square) default to the demo's endpoint
-``tcp/127.0.0.1:7447`` when no Zenoh flag is given, and fail with a message
-that says what to check, not a traceback, when nothing answers.
+Tools (teleop, watch, square) connect, like every process, to
+``tcp/127.0.0.1:7447`` when given no endpoint (the demo's and the router's
+default; see :data:`blackmetal.runtime.zenoh_setup.DEFAULT_ENDPOINT`), and
+fail at once with a message that says what to check, not a traceback, when
+nothing answers. The recorder, a service, waits for its endpoint instead.
 """
 
 from __future__ import annotations
@@ -18,10 +20,15 @@ from typing import Any, TypeVar
 import msgspec
 import zenoh
 
-from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, zenoh_settings
+from blackmetal.runtime.zenoh_setup import (
+    ZenohSettings,
+    add_zenoh_arguments,
+    open_session,
+    open_when_reachable,
+    zenoh_settings,
+)
 from schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
 
-DEMO_ENDPOINT = "tcp/127.0.0.1:7447"
 T = TypeVar("T", bound=msgspec.Struct)
 
 
@@ -36,11 +43,8 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def client_settings(args: argparse.Namespace) -> ZenohSettings:
-    """The Zenoh flags; the demo's endpoint when no endpoint (and no config file) was given."""
-    settings = zenoh_settings(args)
-    if not settings.connect and settings.config is None and not settings.discovers:
-        settings.connect = [DEMO_ENDPOINT]
-    return settings
+    """The Zenoh flags (no endpoint, no config file, no discovery: a client of the default endpoint)."""
+    return zenoh_settings(args)
 
 
 def where(settings: ZenohSettings) -> str:
@@ -129,6 +133,13 @@ def connect(args: argparse.Namespace) -> tuple[Keys, ZenohSettings, zenoh.Sessio
     keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
     settings = client_settings(args)
     return keys, settings, open_session(settings)
+
+
+def connect_waiting(args: argparse.Namespace, stop: threading.Event, name: str) -> tuple[Keys, ZenohSettings, zenoh.Session | None]:
+    """As :func:`connect`, for a tool that runs as a service (the recorder): waits for its endpoint; None if stopped first."""
+    keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
+    settings = client_settings(args)
+    return keys, settings, open_when_reachable(settings, stop, name)
 
 
 def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:

@@ -8,10 +8,15 @@ import time
 
 import zenoh
 
-from blackmetal.runtime.zenoh_setup import add_zenoh_arguments
-from schemas import ANY_GATEWAY_ALIVE, Keys
+from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
+from schemas import ANY_GATEWAY_ALIVE, Keys, ZenohUnavailable
 
 from .client import connect, tool, where
+
+#: How often the router is tried again while --wait lasts.
+RETRY_S = 0.2
+#: Tokens are collected at least this long once connected (a router that came up late still gets its answers).
+MIN_COLLECT_S = 1.0
 
 
 def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
@@ -36,11 +41,27 @@ def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
     return sorted(prefixes)
 
 
+def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSettings, zenoh.Session]:
+    """The tool's session; a router that comes up before ``deadline`` is still met (scripts start it just before).
+
+    When nothing answers by then, the same one sentence as every tool.
+    """
+    while True:
+        try:
+            _, settings, session = connect(args)
+            return settings, session
+        except ZenohUnavailable as exc:
+            if "cannot reach" not in str(exc) or time.monotonic() + RETRY_S > deadline:
+                raise
+        time.sleep(RETRY_S)
+
+
 @tool("robots")
 def run(args: argparse.Namespace) -> int:
-    _, settings, session = connect(args)
+    deadline = time.monotonic() + args.wait
+    settings, session = connect_within(args, deadline)
     with session:
-        robots = alive_robots(session, args.wait)
+        robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S))
     if not robots:
         print(f"blackmetal robots: no live gateway found via {where(settings)} within {args.wait:g} s", file=sys.stderr)
         return 1
@@ -51,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="blackmetal robots", description=__doc__)
-    parser.add_argument("--wait", type=float, default=5.0, help="seconds to collect answers (default 5, like every tool)")
+    parser.add_argument(
+        "--wait", type=float, default=5.0, help="seconds to reach the router and collect answers (default 5, like every tool)"
+    )
     add_zenoh_arguments(parser)
     return parser

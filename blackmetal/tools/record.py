@@ -19,7 +19,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from schemas import ConfigError, require_extra
 
-from .client import add_client_arguments, connect, tool, where
+from .client import add_client_arguments, connect_waiting, tool, where
 
 
 def default_name() -> str:
@@ -33,9 +33,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--duration must be positive, got {args.duration}")
     if args.split_size is not None and not args.split_size > 0:
         raise ConfigError(f"--split-size must be positive (MB), got {args.split_size}")
-    keys, settings, session = connect(args)
-    path = Path(args.output or default_name())
     stop = stop_on_signals()
+    keys, settings, session = connect_waiting(args, stop, "record")
+    if session is None:
+        return 0  # stopped while it waited for its router or hub
+    path = Path(args.output or default_name())
     with session:
         keyexprs = args.key or [keys.everything]
         split = None if args.split_size is None else int(args.split_size * 1e6)

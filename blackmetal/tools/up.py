@@ -2,18 +2,25 @@
 
 Each runs as its own process; this one holds the Zenoh endpoint that clients
 connect to (``tcp/127.0.0.1:7447`` unless ``-l`` says otherwise), prints how
-to drive the robot, then a live one-line status. Ctrl-C stops everything
-within 3 s; a child that dies is reported with its last lines.
+to drive the robot, then a live one-line status. Given a router with ``-e``
+and no ``-l`` (ROS 2's ``rmw_zenohd``, a fleet's router), it holds no
+endpoint: every process of the demo is a client of that router. Ctrl-C stops
+everything within 3 s; a child that dies is reported with its last lines.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import json
 import math
 import os
 import sys
+import tempfile
 import threading
 import time
+from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -21,30 +28,157 @@ from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.ros2.naming import Flavor
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
-from blackmetal.runtime.settings import default_of, read_settings_file
+from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, open_session, zenoh_settings
+from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, ZenohSettings, add_zenoh_arguments, open_when_reachable, zenoh_settings
+from blackmetal.sim.main import SimSettings
 from gateway.settings import GatewaySettings
-from schemas import DEFAULT_PREFIX, ErrorReport, GatewayHealth, Keys, Pose, require_extra
+from odometry_service.settings import OdometrySettings
+from schemas import DEFAULT_PREFIX, ConfigError, ErrorReport, GatewayHealth, Keys, Pose, require_extra, validate_prefix
 
 from .client import Latest, tool
 from .stop_robot import stop_robot
 
-DEFAULT_LISTEN = "tcp/127.0.0.1:7447"
+DEFAULT_LISTEN = DEFAULT_ENDPOINT
 STOP_BUDGET_S = 3.0
 READY_TIMEOUT_S = 30.0
 #: How often the children are checked: a dead gateway's robot is stopped within about this long.
 CHILD_CHECK_S = 0.05
 
 
-def _child_zenoh_args(args: argparse.Namespace, hub: str) -> list[str]:
-    """Children are clients of our session, which routes between them and the tools (plus any routers given with -e)."""
-    out = ["-m", "client", "-e", hub]
-    for endpoint in args.connect or []:
-        out += ["-e", endpoint]
-    if args.config:
-        out += ["-c", args.config]
-    return out
+#: The services ``up --settings FILE`` can configure, by section name.
+SERVICES: dict[str, type] = {
+    "gateway": GatewaySettings,
+    "odometry": OdometrySettings,
+    "sim": SimSettings,
+    "ros2": Ros2Settings,
+    "foxglove": FoxgloveSettings,
+}
+#: Keys outside a section go to every one of these that has the setting. Not to the simulator: its wheel
+#: settings are the true robot's, not a calibration's; a key only the simulator knows still goes to it.
+SHARED = ("gateway", "odometry", "ros2", "foxglove")
+#: What up decides itself, whatever a settings file says: the robot (simulator or --robot) and the Zenoh endpoints.
+UP_DECIDES = frozenset({"robot", "control_port", "log_port"}) | {
+    f.name for f in dataclasses.fields(ZenohSettings) if f.metadata.get("cli", True)
+}
+
+
+def _setting_names(cls: type) -> set[str]:
+    return {f.name for f in dataclasses.fields(cls) if f.name != "zenoh"}
+
+
+def split_settings(path: str) -> tuple[dict[str, dict[str, Any]], list[str]]:
+    """A settings file with any service's keys -> each service's own keys, and the keys up decides itself.
+
+    Keys at the top level go to every service (gateway, odometry, ROS 2
+    adapter, Foxglove view) that has the setting, or to the simulator if
+    only it has it; ``[gateway]``, ``[odometry]``, ``[sim]``, ``[ros2]`` and
+    ``[foxglove]`` sections go to that service alone. A key no service has
+    is a ConfigError naming it.
+    """
+    data = read_settings_file(path)
+    own: dict[str, dict[str, Any]] = {name: {} for name in SERVICES}
+    unknown: list[str] = []
+    decided: list[str] = []
+
+    def place(key: str, value: Any, names: tuple[str, ...], label: str) -> None:
+        if key in UP_DECIDES:
+            decided.append(label)
+            return
+        takers = [name for name in names if key in _setting_names(SERVICES[name])]
+        if not takers and names == SHARED and key in _setting_names(SimSettings):
+            takers = ["sim"]
+        if not takers:
+            unknown.append(label)
+        for name in takers:
+            own[name][key] = value
+
+    for key, value in data.items():
+        if key in SERVICES and isinstance(value, dict):
+            for sub, sub_value in value.items():
+                sub = str(sub).replace("-", "_")
+                place(sub, sub_value, (key,), f"{key}.{sub}")
+        else:
+            place(key, value, SHARED, key)
+    if unknown:
+        raise ConfigError(
+            f"settings file {path}: unknown settings {sorted(unknown)}: no service ({', '.join(SERVICES)}) has them; "
+            "`blackmetal SERVICE --help` lists each one's, and a [SERVICE] section gives a key to one service only"
+        )
+    return own, decided
+
+
+class ServiceFiles:
+    """Each service's part of ``up --settings FILE``, written as its own JSON file for its ``--settings``."""
+
+    def __init__(self, path: str | None, services: list[str]) -> None:
+        self._dir: tempfile.TemporaryDirectory[str] | None = None
+        self.files: dict[str, str] = {}
+        self.prefix: str | None = None
+        self.decided: list[str] = []
+        if not path:
+            return
+        own, self.decided = split_settings(path)
+        prefixes = {str(values["prefix"]) for values in own.values() if "prefix" in values}
+        if len(prefixes) > 1:
+            raise ConfigError(f"settings file {path}: one demo has one prefix, got {sorted(prefixes)}")
+        self.prefix = prefixes.pop() if prefixes else None
+        self._dir = tempfile.TemporaryDirectory(prefix="blackmetal-up-")
+        for name in services:
+            if not own[name]:
+                continue
+            file = Path(self._dir.name) / f"{name}.json"
+            file.write_text(json.dumps(own[name], default=str))
+            load_settings(SERVICES[name], {}, settings_file=str(file))  # a bad value: one sentence now, not a failed child
+            self.files[name] = str(file)
+
+    def args(self, name: str) -> list[str]:
+        return ["--settings", self.files[name]] if name in self.files else []
+
+    def close(self) -> None:
+        if self._dir is not None:
+            self._dir.cleanup()
+
+
+class Topology:
+    """Where up's session and its children meet.
+
+    No flags or ``-l``: up listens (a hub) and the children are its clients.
+    ``-e ROUTER`` without ``-l``: no hub; up and every child are clients of
+    the router, which routes for clients (ROS 2's ``rmw_zenohd`` does not
+    route between peers, so a hub peer of it would never reach a ROS node).
+    ``-l`` and ``-e``: up's hub is a Zenoh router connected to those routers,
+    which route to it as to any router.
+    """
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.settings = zenoh_settings(args)
+        self.routers = list(self.settings.connect)
+        self.hub = bool(self.settings.listen) or not self.routers
+        if self.hub:
+            if not self.settings.listen:
+                self.settings.listen = [DEFAULT_LISTEN]
+            if self.routers and self.settings.mode is None:
+                self.settings.mode = "router"
+            self.endpoint = _hub_endpoint(self.settings.listen[0])
+            self.child_endpoints = [self.endpoint]
+        else:
+            self.endpoint = self.routers[0]
+            self.child_endpoints = self.routers
+        self.config = args.config
+
+    def child_args(self) -> list[str]:
+        out = ["-m", "client"]
+        for endpoint in self.child_endpoints:
+            out += ["-e", endpoint]
+        if self.config:
+            out += ["-c", self.config]
+        return out
+
+    def describe(self) -> str:
+        if not self.hub:
+            return f"Zenoh via the router at {self.endpoint} (every process its client)"
+        return f"Zenoh on {self.endpoint}" + (f" (a router, connected to {', '.join(self.routers)})" if self.routers else "")
 
 
 def _hub_endpoint(listen: str) -> str:
@@ -127,7 +261,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--robot", metavar="HOST", help="drive a real robot at HOST instead of the simulator")
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
     parser.add_argument("--log-port", type=int, default=log_port, help=f"robot log port with --robot (default {log_port})")
-    parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
+    parser.add_argument(
+        "--prefix", default=None, help=f"key-expression prefix (default: the --settings file's prefix, else {DEFAULT_PREFIX})"
+    )
     parser.add_argument(
         "--poll-hz",
         type=float,
@@ -136,7 +272,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     )
     parser.add_argument("--seed", type=int, help="simulator fault seed")
     parser.add_argument(
-        "--settings", metavar="FILE", help="settings file for the gateway and the odometry (e.g. from blackmetal calibrate)"
+        "--settings",
+        metavar="FILE",
+        help="settings file with any service's keys, each service takes its own (e.g. from blackmetal calibrate); "
+        "or sections [gateway], [odometry], [sim], [ros2], [foxglove]",
     )
     parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
     flavor = default_of(Ros2Settings, "flavor")
@@ -160,26 +299,35 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 @tool("up")
 def run(args: argparse.Namespace) -> int:
     """Exit 2 for a setting up cannot use, 1 when Zenoh or a child fails; one sentence each."""
-    keys = Keys(args.prefix)
     if args.ros2:
         require_extra("blackmetal up --ros2", "ros2", "rosbags")
     if args.foxglove:
         require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
-    if args.settings:
-        read_settings_file(args.settings)  # a missing or broken file: one sentence now, not two failing children
-    settings = zenoh_settings(args)
-    if not settings.listen:
-        settings.listen = [DEFAULT_LISTEN]
-    hub = _hub_endpoint(settings.listen[0])
-    session = open_session(settings)
-    stop = stop_on_signals()
-    children: list[ServiceProcess] = []
+    services = ["gateway", "odometry", *([] if args.robot else ["sim"]), *(["ros2"] if args.ros2 else []),
+                *(["foxglove"] if args.foxglove else [])]  # fmt: skip
+    files = ServiceFiles(args.settings, services)  # a missing or broken file: one sentence now, not failing children
     try:
-        return _run(args, keys, session, hub, children, stop)
+        if files.decided:
+            print(
+                f"blackmetal up: {args.settings}: {', '.join(files.decided)} left to up's own options "
+                "(--robot, --control-port, --log-port, -l, -e, -c)",
+                flush=True,
+            )
+        keys = Keys(validate_prefix(args.prefix or files.prefix or DEFAULT_PREFIX))
+        topology = Topology(args)
+        stop = stop_on_signals()
+        session = open_when_reachable(topology.settings, stop, "up")
+        if session is None:
+            return 0  # Ctrl-C while waiting for the router
+        children: list[ServiceProcess] = []
+        try:
+            return _run(args, keys, session, topology, files, children, stop)
+        finally:
+            # odometry and gateway first (the gateway stops the robot), then the simulator
+            stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)
+            session.close()
     finally:
-        # odometry and gateway first (the gateway stops the robot), then the simulator
-        stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)
-        session.close()
+        files.close()
 
 
 def _start(children: list[ServiceProcess], name: str, command: list[str], verbose: bool) -> ServiceProcess:
@@ -192,12 +340,13 @@ def _run(
     args: argparse.Namespace,
     keys: Keys,
     session: zenoh.Session,
-    hub: str,
+    topology: Topology,
+    files: ServiceFiles,
     children: list[ServiceProcess],
     stop: threading.Event,
 ) -> int:
-    zargs = _child_zenoh_args(args, hub)
-    settings_args = ["--settings", os.path.abspath(args.settings)] if args.settings else []
+    zargs = topology.child_args()
+    hub = topology.endpoint
     poll_args = ["--poll-hz", str(args.poll_hz)] if args.poll_hz is not None else []
     prefix = keys.prefix
     try:
@@ -205,7 +354,7 @@ def _run(
             host, control_port, log_port = args.robot, args.control_port, args.log_port
             where = f"robot {host}:{control_port}/{log_port}"
         else:
-            sim_args = ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *zargs]
+            sim_args = ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *files.args("sim"), *zargs]
             if args.seed is not None:
                 sim_args += ["--seed", str(args.seed)]
             ready = _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
@@ -215,22 +364,23 @@ def _run(
             children,
             "gateway",
             ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
-             "--prefix", prefix, *poll_args, *settings_args, *zargs],
+             "--prefix", prefix, *poll_args, *files.args("gateway"), *zargs],
             args.verbose,
         )  # fmt: skip
-        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *settings_args, *zargs], args.verbose)
-        ros2 = _start(children, "ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *zargs], args.verbose) if args.ros2 else None
+        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *files.args("odometry"), *zargs], args.verbose)
+        ros2_args = ["ros2", "--flavor", args.ros2, "--prefix", prefix, *files.args("ros2"), *zargs]
+        ros2 = _start(children, "ros2", ros2_args, args.verbose) if args.ros2 else None
         gateway.wait_ready(READY_TIMEOUT_S)
         odometry.wait_ready(READY_TIMEOUT_S)
         ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
         view = None
         if args.foxglove:
-            view_args = ["foxglove", "--prefix", prefix, "--port", str(args.foxglove_port), *zargs]
+            view_args = ["foxglove", "--prefix", prefix, "--port", str(args.foxglove_port), *files.args("foxglove"), *zargs]
             view = _start(children, "foxglove", view_args, args.verbose).wait_ready(READY_TIMEOUT_S)["url"]
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
-    print(f"blackmetal is up: {where}, Zenoh on {hub}, prefix {prefix}", flush=True)
+    print(f"blackmetal is up: {where}, {topology.describe()}, prefix {prefix}", flush=True)
     if ros2_node:
         print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
     if view:
