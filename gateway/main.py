@@ -8,12 +8,14 @@ import sys
 
 from blackmetal.runtime.edge import refuse_if_taken
 from blackmetal.runtime.entry import run_service, service_parser
+from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
-from blackmetal.runtime.zenoh_setup import open_session
+from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.transport import TcpConnector
 from schemas import Keys
 
+from .fleet import fleet_settings, serve_fleet
 from .host import GatewayHost
 from .settings import GatewaySettings
 from .zenoh_edge import GatewayZenoh
@@ -27,7 +29,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
     connector = TcpConnector(settings.robot, settings.control_port, settings.log_port, settings.connect_timeout)
     keys = Keys(settings.prefix)
-    with open_session(settings.zenoh) as session:
+    with await open_service_session(settings.zenoh, stop, "gateway") as session:
         refuse_if_taken(session, keys.alive_gateway, "gateway", keys.prefix)
         edge = GatewayZenoh(session, keys)
         service = GatewayHost(settings, connector, edge)
@@ -45,11 +47,27 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    return service_parser("blackmetal gateway", __doc__, GatewaySettings, parser)
+    parser = service_parser("blackmetal gateway", __doc__, GatewaySettings, parser)
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="serve every robot of this fleet file (TOML [[robot]] tables) in this one process, on one Zenoh session; "
+        "the other options are every robot's defaults",
+    )
+    return parser
 
 
 def run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)
+    if getattr(args, "fleet", None):
+
+        def load_fleet_settings() -> tuple[GatewaySettings, list[FleetRobot]]:
+            base = load_settings(GatewaySettings, args)
+            robots = load_fleet(args.fleet)
+            fleet_settings(base, robots)  # every robot's settings checked before Zenoh is opened
+            return base, robots
+
+        return run_service("gateway", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
     return run_service("gateway", lambda: load_settings(GatewaySettings, args), serve)
 
 

@@ -9,7 +9,7 @@ from blackmetal.runtime.edge import refuse_if_taken
 from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
-from blackmetal.runtime.zenoh_setup import open_session
+from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys
 
 from .core import OdometryCore
@@ -21,7 +21,7 @@ from .zenoh_edge import OdometryZenoh
 async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
     keys = Keys(settings.prefix)
-    with open_session(settings.zenoh) as session:
+    with await open_service_session(settings.zenoh, stop, "odometry") as session:
         refuse_if_taken(session, keys.alive_odometry, "odometry service", keys.prefix)
         edge = OdometryZenoh(session, keys)
         host = OdometryHost(OdometryCore(settings.params(), keys, edge))
@@ -35,10 +35,26 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    return service_parser("blackmetal odometry", __doc__, OdometrySettings, parser)
+    parser = service_parser("blackmetal odometry", __doc__, OdometrySettings, parser)
+    parser.add_argument(
+        "--fleet", metavar="FILE", help="run the odometry of every robot of this fleet file in this one process, on one Zenoh session"
+    )
+    return parser
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "fleet", None):
+        from blackmetal.runtime.fleet import FleetRobot, load_fleet
+
+        from .fleet import fleet_settings, serve_fleet
+
+        def load_fleet_settings() -> tuple[OdometrySettings, list[FleetRobot]]:
+            base = load_settings(OdometrySettings, args)
+            robots = load_fleet(args.fleet)
+            fleet_settings(base, robots)  # every robot's settings checked before Zenoh is opened
+            return base, robots
+
+        return run_service("odometry", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
     return run_service("odometry", lambda: load_settings(OdometrySettings, args), serve)
 
 

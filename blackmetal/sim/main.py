@@ -14,7 +14,7 @@ from blackmetal import robot_model as model
 from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import check_positive, load_settings, setting
-from blackmetal.runtime.zenoh_setup import ZenohSettings, open_session
+from blackmetal.runtime.zenoh_setup import ZenohSettings, open_service_session
 from schemas import DEFAULT_PREFIX, ConfigError, Keys, SimFaults, validate_prefix
 
 from .physics import RobotParams, SimRobot
@@ -98,7 +98,7 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
         if settings.uses_zenoh:
             from .zenoh_edge import SimZenoh
 
-            session = stack.enter_context(open_session(settings.zenoh))
+            session = stack.enter_context(await open_service_session(settings.zenoh, stop, "sim"))
             edge = SimZenoh(session, keys, robot, server.clock)
             stack.callback(edge.close)
             edge.attach(asyncio.get_running_loop())
@@ -130,10 +130,28 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    return service_parser("blackmetal sim", __doc__, SimSettings, parser)
+    parser = service_parser("blackmetal sim", __doc__, SimSettings, parser)
+    fleet = parser.add_mutually_exclusive_group()
+    fleet.add_argument("--robots", type=int, metavar="N", help="simulate N robots r1..rN under fleet/<id>, each on free ports")
+    fleet.add_argument("--fleet", metavar="FILE", help="simulate the robots of this fleet file, each on its ports")
+    parser.add_argument("--write-fleet", metavar="FILE", help="with --robots or --fleet: write the fleet file with the bound ports")
+    return parser
 
 
 def run(args: argparse.Namespace) -> int:
+    robots = getattr(args, "robots", None)
+    fleet = getattr(args, "fleet", None)
+    if robots is not None or fleet:
+        from blackmetal.runtime.fleet import FleetRobot, load_fleet, numbered_fleet
+
+        from .fleet import serve_fleet
+
+        def load_fleet_settings() -> tuple[SimSettings, list[FleetRobot]]:
+            base = load_settings(SimSettings, args)
+            members = load_fleet(fleet) if fleet else numbered_fleet(int(robots or 0), host=base.host)
+            return base, members
+
+        return run_service("sim", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop, args.write_fleet))
     return run_service("sim", lambda: load_settings(SimSettings, args), serve)
 
 
