@@ -1,11 +1,64 @@
-"""Shared fixtures: every process a test starts is stopped when it ends."""
+"""Shared fixtures, the two tiers of the suite, and how they share two workers.
+
+``python -m pytest -m "not slow"`` is the fast tier, run before each commit: unit, property, contract
+and fake-clock tests. ``python -m pytest`` (what CI runs) runs everything, ``slow`` included. A test
+is ``slow`` when it is ``integration`` (starts real processes or Zenoh sessions; any test that uses
+the ``children`` fixture is one, marked or not), or when it is marked ``slow`` itself because it
+takes seconds. A fast-tier test that took longer than ``FAST_TEST_BUDGET_S`` is named at the end of
+the run, so that the tier stays fast.
+
+With pytest-xdist (``-n 2 --dist loadscope`` in pyproject.toml) each module runs on one worker, so
+module fixtures start once, and the two workers run two modules at a time. Fast-tier tests still run
+one at a time (a lock the workers share), so its CPU-bound tests (type checks, property tests) never
+overlap its real-clock contract tests; a slow test may run beside them, as on any loaded machine.
+"""
 
 from __future__ import annotations
 
+import fcntl
+import os
 from collections.abc import Iterator
 
 import pytest
 from helpers import Child
+
+#: A test that takes longer than this (s) belongs in the slow tier.
+FAST_TEST_BUDGET_S = 5.0
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` selects on the markers
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if "children" in getattr(item, "fixturenames", ()) and item.get_closest_marker("integration") is None:
+            item.add_marker(pytest.mark.integration)
+        if item.get_closest_marker("integration") is not None and item.get_closest_marker("slow") is None:
+            item.add_marker(pytest.mark.slow)
+
+
+@pytest.fixture(autouse=True)
+def _fast_tier_one_at_a_time(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Under xdist, a fast-tier test holds a lock shared by the workers of this run (their common temp folder)."""
+    if "PYTEST_XDIST_WORKER" not in os.environ or request.node.get_closest_marker("slow") is not None:
+        yield
+        return
+    with open(tmp_path_factory.getbasetemp().parent / "fast-tier.lock", "a") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
+        yield
+
+
+_over_budget: list[tuple[str, float]] = []
+
+
+def pytest_runtest_logreport(report: pytest.TestReport) -> None:
+    if report.when == "call" and "slow" not in report.keywords and report.duration > FAST_TEST_BUDGET_S:
+        _over_budget.append((report.nodeid, report.duration))
+
+
+def pytest_terminal_summary(terminalreporter: pytest.TerminalReporter) -> None:
+    if _over_budget:
+        terminalreporter.section("fast tier over budget")
+        for nodeid, seconds in _over_budget:
+            terminalreporter.line(f"{seconds:.1f} s  {nodeid}: not slow, but over {FAST_TEST_BUDGET_S:g} s; make it faster or mark it slow")
 
 
 @pytest.fixture

@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from helpers import TIMEOUT, Child, SimProcess, free_port, wait_for
 
-from schemas import Pose, decode
+from schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
 
@@ -55,8 +55,8 @@ def client_conf(endpoint: str, user: str | None = None, password: str | None = N
 
 
 def start_robot(children: list[Child], endpoint: str, prefix: str = "robot", creds: dict[str, str] | None = None,
-                extra: tuple[str, ...] = ()) -> SimProcess:  # fmt: skip
-    """Simulator, gateway and odometry, each a Zenoh client of the router."""
+                extra: tuple[str, ...] = (), gateway_extra: tuple[str, ...] = ()) -> SimProcess:  # fmt: skip
+    """Simulator, gateway and odometry, each a Zenoh client of the router; ``gateway_extra`` goes to the gateway alone."""
     zargs = ["-m", "client", "-e", endpoint, "--no-multicast-scouting", "--prefix", prefix, *extra]
 
     def env(user: str) -> dict[str, str]:
@@ -73,7 +73,10 @@ def start_robot(children: list[Child], endpoint: str, prefix: str = "robot", cre
             else:
                 os.environ[key] = value
     children.append(sim)
-    gateway = Child(["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], env=env("gateway"))
+    gateway = Child(
+        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs, *gateway_extra],
+        env=env("gateway"),
+    )
     odometry = Child(["-m", "odometry_service", *zargs], env=env("odometry"))
     children.extend([gateway, odometry])
     gateway.ready()
@@ -88,10 +91,12 @@ def get_pose(session: zenoh.Session, key: str) -> Pose | None:
     return None
 
 
-def drive(session: zenoh.Session, prefix: str, seconds: float = 1.5, v: float = 0.2, w: float = 0.0) -> None:
+def drive(session: zenoh.Session, prefix: str, seconds: float = 1.5, v: float = 0.2, w: float = 0.0, source: str = "") -> None:
+    """Publish a Twist at 10 Hz on ``<prefix>/cmd_vel``, or ``<prefix>/cmd_vel/<source>``."""
+    key = f"{prefix}/cmd_vel/{source}" if source else f"{prefix}/cmd_vel"
     end = time.monotonic() + seconds
     while time.monotonic() < end:
-        session.put(f"{prefix}/cmd_vel", json.dumps({"linear": {"x": v}, "angular": {"z": w}}))
+        session.put(key, json.dumps({"linear": {"x": v}, "angular": {"z": w}}))
         time.sleep(0.1)
 
 
@@ -118,6 +123,13 @@ def test_router_config_carries_a_client_mode_drive(children: list[Child], tmp_pa
         assert math.hypot(truth.x - pose.x, truth.y - pose.y) < 0.02
 
 
+def health(session: zenoh.Session, prefix: str = "robot") -> GatewayHealth | None:
+    for reply in session.get(f"{prefix}/gateway/health", timeout=3):
+        if reply.ok is not None:
+            return decode(GatewayHealth, reply.ok.payload.to_bytes())
+    return None
+
+
 def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(children: list[Child], tmp_path: Path) -> None:
     creds = {user: f"pw-{user}-{os.getpid()}" for user in ("operator", "viewer", "gateway", "odometry", "sim")}
     cred_file = tmp_path / "credentials.txt"
@@ -128,7 +140,7 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
-    start_robot(children, endpoint, creds=creds)
+    start_robot(children, endpoint, creds=creds, gateway_extra=("--lock", "pause:200"))
     with (
         zenoh.open(client_conf(endpoint, "operator", creds["operator"])) as operator,
         zenoh.open(client_conf(endpoint, "viewer", creds["viewer"])) as viewer,
@@ -158,6 +170,24 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
         assert reset and decode(Pose, reset[0].ok.payload.to_bytes()).x == 0.0  # the operator's did
         faults = [r for r in operator.get("robot/sim/faults", timeout=5) if r.ok is not None]
         assert faults  # and the operator may read and set the simulator's faults
+        # a named command source and a lock are rights to move or stop the robot, like cmd_vel
+        wait_for(lambda: (h := health(operator)) is not None and h.locks == {"pause": False}, what="the gateway's lock 'pause'")
+        start = wait_for(
+            lambda: (p := get_pose(viewer, "robot/sim/truth")) is not None and p.v == p.w == 0.0 and p, what="the robot to stop"
+        )
+        viewer.put("robot/lock/pause", json.dumps({"locked": True}))
+        drive(viewer, "robot", seconds=1.5, source="teleop")
+        time.sleep(0.5)
+        still = get_pose(viewer, "robot/sim/truth")
+        assert still is not None and math.hypot(still.x - start.x, still.y - start.y) < 1e-9
+        drive(operator, "robot", seconds=1.5, source="teleop")
+        wait_for(
+            lambda: (p := get_pose(operator, "robot/sim/truth")) is not None and p.x - start.x > 0.1, what="the operator's teleop drive"
+        )
+        h = health(operator)
+        assert h is not None and h.locks == {"pause": False}  # the viewer's lock, put before the drive, never arrived
+        operator.put("robot/lock/pause", json.dumps({"locked": True}))
+        wait_for(lambda: (h := health(operator)) is not None and h.locks == {"pause": True}, what="the operator's lock")
     with pytest.raises(zenoh.ZError):
         zenoh.open(client_conf(endpoint, "operator", "wrong-password"))
     for user, password in (("operator", "wrong-password"), (None, None)):  # a wrong password, and none at all

@@ -78,7 +78,20 @@ def test_watch_shows_pose_status_health_and_errors(up: Up) -> None:
 
 
 def test_square_reports_a_closure_that_agrees_with_the_truth(up: Up) -> None:
-    result = tool("square", "-e", up.endpoint, "--no-multicast-scouting", "--size", "0.5", "--speed", "0.3", "--json", timeout=240)
+    result = tool(
+        "square",
+        "-e",
+        up.endpoint,
+        "--no-multicast-scouting",
+        "--size",
+        "0.5",
+        "--speed",
+        "0.3",
+        "--turn-rate",
+        "1.2",
+        "--json",
+        timeout=240,
+    )
     assert result.returncode == 0, result.stdout + result.stderr
     assert "odometry closure" in result.stdout and "truth    closure" in result.stdout
     (run,) = json.loads(result.stdout.strip().splitlines()[-1])
@@ -198,7 +211,7 @@ def test_up_reports_a_child_that_dies() -> None:
         for pid in pids:
             os.kill(pid, signal.SIGKILL)
         assert demo.wait(20) == 1
-        assert re.search(r"odometry exited with code -9; its last lines:\n\s+.*odometry ready", demo.output())
+        assert re.search(r"odometry exited with code -9; its last lines:\n(\s+.*\n)*?\s+.*odometry ready", demo.output())
     finally:
         demo.stop()
 
@@ -267,3 +280,26 @@ def test_small_things_a_new_user_meets(tmp_path) -> None:  # type: ignore[no-unt
     except ImportError:  # --plot without matplotlib fails before driving anything, not after the whole route
         plot = tool("square", "--plot", str(tmp_path / "p.png"), "-e", f"tcp/127.0.0.1:{free_port()}", timeout=60)
         assert plot.returncode == 1 and "pip install 'blackmetal[plot]'" in plot.stderr
+
+
+def test_up_settings_file_gives_each_service_its_own_keys(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    """The README's gateway.toml keys (its addresses made loopback) go to the gateway alone; sections go to one service."""
+    gateway_toml = tmp_path / "gateway.toml"
+    gateway_toml.write_text(
+        f'robot = "127.0.0.1"\npoll_hz = 100\ncmd_timeout = 0.5\nconnect = ["tcp/127.0.0.1:{free_port()}"]\nmode = "client"\n'
+        "[odometry]\nfilter_alpha = 0.2\n[sim]\nwatchdog = 8\n"
+    )
+    demo = Up("--settings", str(gateway_toml))
+    try:
+        demo.wait_line(r"gateway\.toml: robot, connect, mode left to up's own options")
+        with zenoh.open(client_config(demo.zport)) as session:
+            wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.poll_hz > 90,
+                     what="the gateway polling at the file's 100 Hz")  # fmt: skip
+            assert get(session, "robot/pose", Pose) is not None  # the odometry took its own keys, not the gateway's
+    finally:
+        demo.stop()
+    bad = tmp_path / "bad.toml"
+    bad.write_text("poll_hz = 100\nbogus = 1\n[sim]\nnot_a_sim_setting = 2\n[gateway]\nfilter_alpha = 0.2\n")
+    result = tool("up", "--settings", str(bad), "-l", f"tcp/127.0.0.1:{free_port()}", timeout=60)
+    assert result.returncode == 2 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert "['bogus', 'gateway.filter_alpha', 'sim.not_a_sim_setting']" in result.stderr, result.stderr

@@ -154,8 +154,11 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
     return percentiles(latencies)
 
 
-def ros2_odom_rate(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
-    """Poses on ``<prefix>/pose`` and ``/odom`` samples from ``blackmetal ros2`` counted over the same window."""
+def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
+    """Poses on ``<prefix>/pose`` and ``/odom`` samples from ``blackmetal ros2`` counted over the same window.
+
+    ``warmup`` is waited before the window, and is also the window of the adapter's CPU share.
+    """
     import zenoh
 
     robot = RobotProcess()
@@ -170,14 +173,14 @@ def ros2_odom_rate(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
             odom_key = adapter.wait_ready()["keys"]["odom"]
             session.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
             wait_polls(robot)
-            time.sleep(1.0)
+            time.sleep(warmup)
             start = dict(counts)
             started = time.monotonic()
             time.sleep(seconds)
             end, elapsed = dict(counts), time.monotonic() - started
-            cpu = cpu_seconds(adapter.proc.pid)
-            time.sleep(1.0)
-            cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / 1.0
+            cpu, cpu_started = cpu_seconds(adapter.proc.pid), time.monotonic()
+            time.sleep(warmup)
+            cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / (time.monotonic() - cpu_started)
     finally:
         adapter.stop()
         odo.stop()
@@ -215,13 +218,13 @@ def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
     return percentiles(samples)
 
 
-def poll_rate(poll_hz: float, seconds: float) -> dict[str, float]:
+def poll_rate(poll_hz: float, seconds: float, warmup: float = 0.5) -> dict[str, float]:
     """Sustained poll rate and worst gap, as the robot sees them."""
     robot = RobotProcess()
     gw = gateway(robot, free_port(), poll_hz)
     try:
         wait_polls(robot)
-        time.sleep(0.5)
+        time.sleep(warmup)
         start = len(robot.dump()["polls"])
         time.sleep(seconds)
         window = robot.dump()["polls"][start:]
@@ -349,7 +352,7 @@ def calibration_speed(samples: int) -> dict[str, float]:
     }
 
 
-def recorder_load(poll_hz: float, seconds: float) -> dict[str, float]:
+def recorder_load(poll_hz: float, seconds: float, warmup: float = 1.0) -> dict[str, float]:
     """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
     robot = RobotProcess()
     zport = free_port()
@@ -360,7 +363,7 @@ def recorder_load(poll_hz: float, seconds: float) -> dict[str, float]:
         recorder = _service("record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
         try:
             wait_polls(robot)
-            time.sleep(1.0)
+            time.sleep(warmup)
             cpu0, size0, t0 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
             time.sleep(seconds)
             cpu1, size1, t1 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
@@ -410,7 +413,7 @@ def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
 _BARE_SNIPPET = "import zenoh, time, sys; print('ready', flush=True); time.sleep(float(sys.argv[1]))"
 
 
-def memory_and_cpu(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
+def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
     """Resident memory of gateway and odometry after ``seconds`` at ``poll_hz``; the gateway's CPU share."""
     bare = subprocess.Popen([sys.executable, "-c", _BARE_SNIPPET, "30"], stdout=subprocess.PIPE, text=True)
     assert bare.stdout is not None
@@ -425,7 +428,7 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0) -> dict[str, float]:
     odo = odometry(zport)
     try:
         wait_polls(robot)
-        time.sleep(1.0)
+        time.sleep(warmup)
         start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
         cpu0, t0 = cpu_seconds(gw.proc.pid), time.monotonic()
         odo_cpu0 = cpu_seconds(odo.proc.pid)

@@ -8,8 +8,9 @@ Two modes:
   least squares of the replayed odometry against it along the whole path;
 * UMBmark (``--cw-end DX,DY --ccw-end DX,DY``, repeatable): the true end
   points of the clockwise and counter-clockwise squares, measured in the
-  start frame (x along the first side, y to the left), give the wheel
-  diameter ratio and the wheelbase in closed form (Borenstein and Feng 1996).
+  start frame (x along the first side, y to the left), less where the
+  recorded odometry ended them, give the wheel diameter ratio and the
+  wheelbase in closed form (Borenstein and Feng 1996).
 
 Recordings are MCAP files from ``blackmetal square --record`` (which marks
 each square) or ``blackmetal record``, or JSON lines of impulses (one run
@@ -223,6 +224,15 @@ def trajectory(recordings: list[Recording], used: Constants, reference: str) -> 
     return fit.constants, lines
 
 
+def odometry_end(rec: Recording, run: Run) -> tuple[float, float]:
+    """Where the replayed odometry ended ``run``, in the robot's frame at its start (x ahead, y to the left), m."""
+    r = rec.result
+    first, last = run.start, run.end - 1
+    dx, dy = float(r.x[last] - r.x[first]), float(r.y[last] - r.y[first])
+    c, s = math.cos(float(r.yaw[first])), math.sin(float(r.yaw[first]))
+    return c * dx + s * dy, -s * dx + c * dy
+
+
 def umbmark_mode(
     recordings: list[Recording], used: Constants, cw: list[tuple[float, float]], ccw: list[tuple[float, float]], side: float | None
 ) -> tuple[Constants, list[str]]:
@@ -238,11 +248,22 @@ def umbmark_mode(
         if len(sides) != 1:
             raise CalibrationError("give the squares' side with --size (the recordings do not say it, or say several)")
         side = sides.pop()
-    cw_cg, ccw_cg = centre_of_gravity(cw), centre_of_gravity(ccw)
-    result = umbmark(cw_cg, ccw_cg, side, used)
-    lines = [
-        f"UMBmark, {side:g} m squares, {len(cw)} clockwise and {len(ccw)} counter-clockwise end points",
-        f"  centres of gravity: clockwise ({cw_cg[0]:+.4f}, {cw_cg[1]:+.4f}) m, counter-clockwise ({ccw_cg[0]:+.4f}, {ccw_cg[1]:+.4f}) m",
+    # UMBmark's return position error is the true end minus where the odometry says the robot ended;
+    # the driver stops the robot where the odometry says the start is, give or take its own stopping
+    # error, which is no business of the constants. The recordings say where the odometry ended.
+    measured = {"clockwise": centre_of_gravity(cw), "counter-clockwise": centre_of_gravity(ccw)}
+    believed = {
+        d: centre_of_gravity([odometry_end(rec, run) for rec in recordings for run in rec.runs if run.direction == d]) for d in measured
+    }
+    error = {d: (measured[d][0] - believed[d][0], measured[d][1] - believed[d][1]) for d in measured}
+    result = umbmark(error["clockwise"], error["counter-clockwise"], side, used)
+    lines = [f"UMBmark, {side:g} m squares, {len(cw)} clockwise and {len(ccw)} counter-clockwise end points"]
+    for d in measured:
+        lines.append(
+            f"  {d}: measured end ({measured[d][0]:+.4f}, {measured[d][1]:+.4f}) m, the odometry's ({believed[d][0]:+.4f}, {believed[d][1]:+.4f}) m, "
+            f"return error ({error[d][0]:+.4f}, {error[d][1]:+.4f}) m"
+        )
+    lines += [
         f"  E_max,syst {1000 * result.e_max_syst:.1f} mm; alpha {math.degrees(result.alpha):+.3f} deg, beta {math.degrees(result.beta):+.3f} deg",
         f"  E_d (right/left diameter) {result.e_d:.5f}, E_b (wheelbase) {result.e_b:.5f}",
         _show("used    ", used, used),

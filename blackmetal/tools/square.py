@@ -44,6 +44,14 @@ from .client import (
 RATE_HZ = 20.0
 #: Commanding motion for this long without the pose changing means the commands have no effect (s).
 NO_EFFECT_S = 5.0
+#: The robot stands still this long before each leg and turn (s).
+SETTLE_S = 0.3
+#: Near the end of a leg or a turn, speed is this many times the distance or angle left (1/s), with a
+#: floor that still moves the wheels. No more than 2: if this tool stalls, the last command runs until
+#: the gateway's command timeout (0.5 s by default) and must not carry the robot past the corner.
+APPROACH_GAIN = 2.0
+MIN_SPEED = 0.03
+MIN_TURN_RATE = 0.08
 
 
 @dataclass
@@ -77,7 +85,7 @@ class Run:
     truth_path: list[tuple[float, float]] = field(default_factory=list)
 
 
-class Cancelled(Exception):
+class Cancelled(ToolError):
     pass
 
 
@@ -96,8 +104,11 @@ class Driver:
         self.truth_path: list[tuple[float, float]] = []
         self._moved_at = time.monotonic()
         self._last_pose: tuple[float, float, float] | None = None
+        self._rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
 
     def _send(self, v: float, w: float) -> None:
+        if v or w:
+            self._rest = None
         self.publisher.put(encode(Twist(linear=Vector3(x=v), angular=Vector3(z=w))))
 
     def _check_effect(self, pose: Pose) -> None:
@@ -127,7 +138,9 @@ class Driver:
         return pose
 
     def settle(self) -> Pose:
-        """Zero velocity until the odometry has stood still for 0.3 s."""
+        """Zero velocity until the odometry has stood still for SETTLE_S; at once if it has since the last motion."""
+        if self._rest is not None:
+            return self._rest
         still_since = None
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline:
@@ -135,7 +148,8 @@ class Driver:
             pose = self._step()
             if abs(pose.v) < 1e-6 and abs(pose.w) < 1e-6:
                 still_since = still_since or time.monotonic()
-                if time.monotonic() - still_since >= 0.3:
+                if time.monotonic() - still_since >= SETTLE_S:
+                    self._rest = pose
                     return pose
             else:
                 still_since = None
@@ -150,7 +164,7 @@ class Driver:
             remaining = distance - along
             if remaining <= 0.001:
                 break
-            v = max(0.03, min(self.speed, 1.5 * remaining))
+            v = max(MIN_SPEED, min(self.speed, APPROACH_GAIN * remaining))
             w = max(-0.5, min(0.5, 2.0 * math.remainder(heading - pose.yaw, math.tau)))
             self._send(v, w)
             self._check_effect(pose)
@@ -164,7 +178,7 @@ class Driver:
             error = math.remainder(target - pose.yaw, math.tau)
             if abs(error) <= 0.002 or error * angle < 0:
                 break
-            w = math.copysign(max(0.08, min(self.turn_rate, 2.0 * abs(error))), error)
+            w = math.copysign(max(MIN_TURN_RATE, min(self.turn_rate, APPROACH_GAIN * abs(error))), error)
             self._send(0.0, w)
             self._check_effect(pose)
         self.settle()
@@ -209,26 +223,35 @@ def report(run: Run) -> str:
 
 
 def umbmark_figure(runs: list[Run]) -> str | None:
-    """UMBmark's E_max,syst (None without the simulator's truth), and how to calibrate from it.
+    """UMBmark's E_max,syst (None without the simulator's truth), and the calibrate command that uses it.
 
-    Each end point is UMBmark's return position error: the true end minus the
-    end the odometry computed, both in the robot's frame at the start, so the
-    driver's own stopping error (larger on a loaded machine) is not counted.
+    Each return position error is the true end minus the end the odometry
+    computed, both in the robot's frame at the start, so the driver's own
+    stopping error (larger on a loaded machine) is not counted. The command
+    gives calibrate the true ends, what a tape would measure on a real robot;
+    calibrate takes the odometry's ends from the recording, as here.
     """
+    errors: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     for run in runs:
         if run.truth is None:
             return None
-        ends[run.direction].append((run.truth.dx - run.odometry.dx, run.truth.dy - run.odometry.dy))
-    if not ends["clockwise"] or not ends["counter-clockwise"]:
+        errors[run.direction].append((run.truth.dx - run.odometry.dx, run.truth.dy - run.odometry.dy))
+        ends[run.direction].append((run.truth.dx, run.truth.dy))
+    if not errors["clockwise"] or not errors["counter-clockwise"]:
         return None
-    cg = {d: (sum(p[0] for p in pts) / len(pts), sum(p[1] for p in pts) / len(pts)) for d, pts in ends.items()}
-    e_max = max(math.hypot(*cg["clockwise"]), math.hypot(*cg["counter-clockwise"]))
-    cw, ccw = cg["clockwise"], cg["counter-clockwise"]
+
+    def cg(points: list[tuple[float, float]]) -> tuple[float, float]:
+        return sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points)
+
+    cw, ccw = cg(errors["clockwise"]), cg(errors["counter-clockwise"])
+    e_max = max(math.hypot(*cw), math.hypot(*ccw))
+    cw_end = " ".join(f"--cw-end={x:.4f},{y:.4f}" for x, y in ends["clockwise"])
+    ccw_end = " ".join(f"--ccw-end={x:.4f},{y:.4f}" for x, y in ends["counter-clockwise"])
     return (
         f"UMBmark E_max,syst {1000 * e_max:.1f} mm (centres of gravity of the true ends minus the odometry's: clockwise ({1000 * cw[0]:+.1f}, {1000 * cw[1]:+.1f}) mm, "
-        f"counter-clockwise ({1000 * ccw[0]:+.1f}, {1000 * ccw[1]:+.1f}) mm, {len(ends['clockwise'])} run(s) each way)\n"
-        f"  UMBmark correction: blackmetal calibrate RECORDING --cw-end={cw[0]:.4f},{cw[1]:.4f} --ccw-end={ccw[0]:.4f},{ccw[1]:.4f}"
+        f"counter-clockwise ({1000 * ccw[0]:+.1f}, {1000 * ccw[1]:+.1f}) mm, {len(errors['clockwise'])} run(s) each way)\n"
+        f"  UMBmark correction from the true ends: blackmetal calibrate RECORDING {cw_end} {ccw_end}"
     )
 
 
