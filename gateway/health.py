@@ -52,6 +52,7 @@ def health_report(conn: "RobotConnection", now: float) -> GatewayHealth:
         polls_skipped=c.polls_skipped,
         estop=governor.estop,
         cmd_timeout_active=governor.link_up and governor.timed_out(now),
+        cmd_timeout=governor.settings.cmd_timeout,
         last_rtt_ms=None if rtt is None else round(rtt * 1000, 3),
         poll_hz=round(conn.polls.rate(now), 2),
         wheel_speeds=(0.0, 0.0) if accepted is None else (accepted.left, accepted.right),

@@ -202,6 +202,8 @@ class GatewayHealth(msgspec.Struct):
     polls_skipped: int = 0
     estop: bool = False
     cmd_timeout_active: bool = False
+    #: The command timeout (s; 0: none): a client that stalls has its last command run this long at most.
+    cmd_timeout: float = 0.5
     last_rtt_ms: float | None = None
     poll_hz: float = 0.0
     wheel_speeds: tuple[float, float] = (0.0, 0.0)

@@ -8,6 +8,7 @@ import subprocess
 import sys
 import tomllib
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pytest
@@ -151,50 +152,69 @@ def test_bad_recordings_end_in_one_sentence_and_write_nothing(tmp_path: Path, ki
 
 
 # ------------------------------------------------------------------ the whole loop on the simulator
-#: The squares' side (m). With these wheels, nominal odometry misses the truth at the end of a 0.5 m
-#: square by 28.5 mm clockwise and 71 mm counter-clockwise (square_end); a calibrated one by about
-#: 0.1 mm. A 2 m square misses by more, but takes four times as long to drive on the simulator.
-LOOP_SIDE = "0.5"
+#: The squares' side (m). With these wheels, nominal odometry misses the truth at the end of a 0.3 m
+#: square by about 17 mm clockwise and 43 mm counter-clockwise (square_end); a calibrated one by
+#: about 0.1 mm. A larger square misses by more, but takes longer to drive in real time.
+LOOP_SIDE = "0.3"
+#: The gateways' command timeout (s): square approaches each corner at the distance left over it
+#: (see square.approach_gain), so a short one makes the loop faster; 20 Hz commands keep it fed.
+LOOP_CMD_TIMEOUT = "0.15"
+CLOSURE = r"^{direction}: odometry closure .*\(dx ([-+\d.]+), dy ([-+\d.]+)\).*\n\s+truth\s+closure .*\(dx ([-+\d.]+), dy ([-+\d.]+)\).*\n\s+odometry error ([\d.]+) mm"
 
 
-def drive_squares(children: list[Child], tmp_path: Path, name: str, settings: list[str]) -> tuple[Path, dict[str, float], str]:
-    """Sim (left wheel 1.5 % large, wheelbase 0.515 m), gateway, odometry; `square --both --record`.
+class Squares(NamedTuple):
+    recordings: list[Path]
+    closures: dict[str, float]  # direction: odometry against the truth at the end (m)
+    odometry_end: dict[str, tuple[float, float]]  # direction: where the odometry ended, start frame (m)
+    true_end: dict[str, tuple[float, float]]  # direction: where the robot truly ended, start frame (m)
 
-    Returns the recording, the closure errors against the truth (m), and what square printed.
-    """
-    zport = free_port()
-    sim, gateway, odometry = start_robot(
-        children,
-        zport,
-        sim_args=("--left-wheel-scale", "1.015", "--wheel-separation", "0.515"),
-        gateway_args=tuple(settings),
-        odometry_args=tuple(settings),
-    )
-    recording = tmp_path / f"{name}.mcap"
-    proc = subprocess.run(
-        [sys.executable, "-m", "blackmetal", "square", "--both", "--size", LOOP_SIDE, "--speed", "0.5", "--turn-rate", "1.2", "--record", str(recording), *zenoh_connect_args(zport)],
-        capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-    # UMBmark's closure error: where the robot truly ended against where its odometry believes it
-    # ended. The truth's own closure also holds the square driver's stopping error, which grows on a
-    # loaded machine and is no business of the odometry's constants.
-    closures = {}
-    for direction in ("counter-clockwise", "clockwise"):
-        match = re.search(rf"^{direction}: .*\n\s+truth\s+closure .*\n\s+odometry error ([\d.]+) mm", proc.stdout, re.M)
-        assert match, proc.stdout
-        closures[direction] = float(match.group(1)) / 1000
-    assert "UMBmark E_max,syst" in proc.stdout
-    for child in (odometry, gateway, sim):
-        child.stop()
-    return recording, closures, proc.stdout
+
+def drive_squares(children: list[Child], tmp_path: Path, name: str, settings: list[str]) -> Squares:
+    """Two simulated robots (left wheel 1.5 % large, wheelbase 0.515 m), each with a gateway and an odometry,
+    drive a counter-clockwise and a clockwise square at the same time (`square --record`)."""
+    robots = []
+    for _ in ("counter-clockwise", "clockwise"):
+        zport = free_port()
+        processes = start_robot(
+            children,
+            zport,
+            sim_args=("--left-wheel-scale", "1.015", "--wheel-separation", "0.515"),
+            gateway_args=("--cmd-timeout", LOOP_CMD_TIMEOUT, *settings),
+            odometry_args=tuple(settings),
+        )
+        robots.append((zport, processes))
+    squares = Squares([], {}, {}, {})
+    drivers = []
+    for direction, (zport, _) in zip(("counter-clockwise", "clockwise"), robots, strict=True):
+        recording = tmp_path / f"{name}-{direction}.mcap"
+        turn = ["--clockwise"] if direction == "clockwise" else []
+        command = [sys.executable, "-m", "blackmetal", "square", *turn, "--size", LOOP_SIDE, "--speed", "0.5", "--turn-rate", "2.0",
+                   "--record", str(recording), *zenoh_connect_args(zport)]  # fmt: skip
+        drivers.append((direction, subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)))
+        squares.recordings.append(recording)
+    for direction, proc in drivers:
+        out, _ = proc.communicate(timeout=300)
+        assert proc.returncode == 0, out
+        # UMBmark's closure error: where the robot truly ended against where its odometry believes it
+        # ended. The truth's own closure also holds the square driver's stopping error, which grows on
+        # a loaded machine and is no business of the odometry's constants.
+        match = re.search(CLOSURE.format(direction=direction), out, re.M)
+        assert match, out
+        odo_x, odo_y, true_x, true_y, error = (float(v) / 1000 for v in match.groups())
+        squares.closures[direction] = error
+        squares.odometry_end[direction] = (odo_x, odo_y)
+        squares.true_end[direction] = (true_x, true_y)
+    for _, processes in robots:
+        for child in reversed(processes):
+            child.stop()
+    return squares
 
 
 @pytest.mark.integration
 def test_calibrate_then_drive_again(children: list[Child], tmp_path: Path) -> None:
-    before_run, before, printed = drive_squares(children, tmp_path, "before", [])
+    before = drive_squares(children, tmp_path, "before", [])
     calibration = tmp_path / "calibration.toml"
-    proc = cli("calibrate", str(before_run), "-o", str(calibration))
+    proc = cli("calibrate", *map(str, before.recordings), "-o", str(calibration))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     fitted = tomllib.loads(calibration.read_text())
     truth = {
@@ -204,18 +224,43 @@ def test_calibrate_then_drive_again(children: list[Child], tmp_path: Path) -> No
     }
     for name, value in truth.items():
         assert fitted[name] == pytest.approx(value, rel=3e-3), (name, fitted[name], value)
-    # UMBmark as square prints it: the true ends (a tape's), of which calibrate subtracts the odometry's
-    # ends from the recording, so both report the same E_max,syst
-    square_e_max = float(re.search(r"UMBmark E_max,syst ([\d.]+) mm", printed).group(1))  # type: ignore[union-attr]
-    ends = re.search(r"UMBmark correction from the true ends: blackmetal calibrate RECORDING (.*)$", printed, re.M)
-    assert ends, printed
-    umb = cli("calibrate", str(before_run), *ends.group(1).split())
+    # UMBmark from the true ends, what a tape measures: calibrate subtracts the odometry's ends, which it
+    # replays from the recordings, so its E_max,syst is the true ends less the odometry's, as square says
+    cw, ccw = before.true_end["clockwise"], before.true_end["counter-clockwise"]
+    umb = cli("calibrate", *map(str, before.recordings), f"--cw-end={cw[0]},{cw[1]}", f"--ccw-end={ccw[0]},{ccw[1]}")
     assert umb.returncode == 0, umb.stdout + umb.stderr
-    calibrate_e_max = float(re.search(r"E_max,syst ([\d.]+) mm", umb.stdout).group(1))  # type: ignore[union-attr]
-    assert calibrate_e_max == pytest.approx(square_e_max, abs=0.5), umb.stdout
+    e_max = max(math.dist(before.true_end[d], before.odometry_end[d]) for d in before.true_end)
+    calibrate_e_max = float(re.search(r"E_max,syst ([\d.]+) mm", umb.stdout).group(1)) / 1000  # type: ignore[union-attr]
+    assert calibrate_e_max == pytest.approx(e_max, abs=0.5e-3), umb.stdout
     e_d = float(re.search(r"E_d \(right/left diameter\) ([\d.]+)", umb.stdout).group(1))  # type: ignore[union-attr]
-    assert e_d == pytest.approx(1 / 1.015, rel=2e-3), umb.stdout
-    _, after, _ = drive_squares(children, tmp_path, "after", ["--settings", str(calibration)])
-    print(f"closure error against the truth before {before}, after {after}; UMBmark:\n{umb.stdout}")
-    for direction in before:
-        assert after[direction] * 10 <= before[direction], (direction, before[direction], after[direction])
+    assert e_d == pytest.approx(1 / 1.015, rel=3e-3), umb.stdout
+    after = drive_squares(children, tmp_path, "after", ["--settings", str(calibration)])
+    print(f"closure error against the truth before {before.closures}, after {after.closures}; UMBmark:\n{umb.stdout}")
+    for direction in before.closures:
+        assert after.closures[direction] * 10 <= before.closures[direction], (direction, before.closures, after.closures)
+
+
+def test_square_prints_the_true_ends_and_umbmarks_return_error() -> None:
+    """`square --both`: E_max,syst from the true ends less the odometry's, and a calibrate command with the true ends."""
+    from blackmetal.tools.square import Closure, Run, umbmark_figure
+
+    runs = [
+        Run("counter-clockwise", odometry=Closure(0.002, 0.001, 0.0), truth=Closure(-0.022, 0.029, 0.0)),
+        Run("clockwise", odometry=Closure(0.001, 0.002, 0.0), truth=Closure(-0.014, -0.014, 0.0)),
+    ]
+    figure = umbmark_figure(runs)
+    assert figure is not None
+    assert "UMBmark E_max,syst 36.9 mm" in figure  # hypot(-0.024, 0.028), not the true end's 36.4 mm
+    assert figure.endswith("blackmetal calibrate RECORDING --cw-end=-0.0140,-0.0140 --ccw-end=-0.0220,0.0290")
+    assert umbmark_figure(runs[:1]) is None  # one direction only
+    assert umbmark_figure([Run("clockwise", odometry=Closure(0, 0, 0), truth=None), runs[0]]) is None  # no truth
+
+
+def test_square_approaches_a_corner_no_faster_than_the_command_timeout_allows() -> None:
+    """A stalled square's last command runs for the gateway's command timeout: at gain 1/timeout it ends at the corner."""
+    from blackmetal.tools.square import MAX_APPROACH_GAIN, approach_gain
+
+    assert approach_gain(0.5) == 2.0
+    assert approach_gain(0.15) == pytest.approx(1 / 0.15)
+    assert approach_gain(0.0) == 2.0  # no timeout: the default's gain, not an unbounded one
+    assert approach_gain(0.01) == MAX_APPROACH_GAIN

@@ -44,12 +44,15 @@ from .client import (
 RATE_HZ = 20.0
 #: Commanding motion for this long without the pose changing means the commands have no effect (s).
 NO_EFFECT_S = 5.0
-#: The robot stands still this long before each leg and turn (s).
-SETTLE_S = 0.3
-#: Near the end of a leg or a turn, speed is this many times the distance or angle left (1/s), with a
-#: floor that still moves the wheels. No more than 2: if this tool stalls, the last command runs until
-#: the gateway's command timeout (0.5 s by default) and must not carry the robot past the corner.
-APPROACH_GAIN = 2.0
+#: The robot stands still this long before each leg and turn (s): ten poses at 50 Hz.
+SETTLE_S = 0.2
+#: Near the end of a leg or a turn, speed is the distance or angle left over the gateway's command
+#: timeout (from its health), with a floor that still moves the wheels: if this tool stalls, the last
+#: command runs until that timeout and must not carry the robot past the corner. A gateway without a
+#: timeout gets the gain of the default 0.5 s; above MAX_APPROACH_GAIN the 20 Hz loop, fed poses a
+#: poll or two old, would overshoot.
+DEFAULT_APPROACH_GAIN = 2.0
+MAX_APPROACH_GAIN = 8.0
 MIN_SPEED = 0.03
 MIN_TURN_RATE = 0.08
 
@@ -85,6 +88,13 @@ class Run:
     truth_path: list[tuple[float, float]] = field(default_factory=list)
 
 
+def approach_gain(cmd_timeout: float) -> float:
+    """Speed per distance left (1/s) such that a last command run for ``cmd_timeout`` stops at the corner."""
+    if not cmd_timeout > 0:
+        return DEFAULT_APPROACH_GAIN
+    return min(MAX_APPROACH_GAIN, 1.0 / cmd_timeout)
+
+
 class Cancelled(ToolError):
     pass
 
@@ -93,8 +103,9 @@ class Driver:
     """Closed-loop legs on the odometry pose, publishing cmd_vel at 20 Hz."""
 
     def __init__(self, publisher: zenoh.Publisher, pose: Latest, truth: Latest | None, speed: float, turn_rate: float,
-                 stop: threading.Event) -> None:  # fmt: skip
+                 stop: threading.Event, cmd_timeout: float = 0.5) -> None:  # fmt: skip
         self.publisher = publisher
+        self.approach_gain = approach_gain(cmd_timeout)
         self.pose = pose
         self.truth = truth
         self.speed = speed
@@ -164,7 +175,7 @@ class Driver:
             remaining = distance - along
             if remaining <= 0.001:
                 break
-            v = max(MIN_SPEED, min(self.speed, APPROACH_GAIN * remaining))
+            v = max(MIN_SPEED, min(self.speed, self.approach_gain * remaining))
             w = max(-0.5, min(0.5, 2.0 * math.remainder(heading - pose.yaw, math.tau)))
             self._send(v, w)
             self._check_effect(pose)
@@ -178,7 +189,7 @@ class Driver:
             error = math.remainder(target - pose.yaw, math.tau)
             if abs(error) <= 0.002 or error * angle < 0:
                 break
-            w = math.copysign(max(MIN_TURN_RATE, min(self.turn_rate, APPROACH_GAIN * abs(error))), error)
+            w = math.copysign(max(MIN_TURN_RATE, min(self.turn_rate, self.approach_gain * abs(error))), error)
             self._send(0.0, w)
             self._check_effect(pose)
         self.settle()
@@ -312,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
             has_truth = truth.wait(2.0) is not None
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
-            driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop)
+            driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
             print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {where(settings)}", flush=True)
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
