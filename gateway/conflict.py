@@ -25,6 +25,10 @@ class ConflictNews(Enum):
     RESOLVED = auto()  # the other gateway is gone
 
 
+#: Stands for the run id of a gateway that published health without one (a version before run ids).
+UNNAMED_RUN = "<no run id>"
+
+
 class GatewayConflict:
     """Another gateway seen on this prefix: who, until when, and when to say so again."""
 
@@ -37,9 +41,14 @@ class GatewayConflict:
         self._reminded = -math.inf
 
     def seen(self, source: str | None, now: float) -> bool:
-        """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once)."""
-        if source is None or source == self.own_source:
+        """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once).
+
+        A report without a run id is another gateway too: this one always names its own, so only an
+        older version (or a forger) leaves it out, and a missing field must not switch the check off.
+        """
+        if source == self.own_source:
             return False
+        source = UNNAMED_RUN if source is None else source
         new = now >= self._until
         if new:
             self._reminded = -math.inf
@@ -55,6 +64,11 @@ class GatewayConflict:
         return self.other if self.active(now) else None
 
     def reason(self) -> str:
+        if self.other == UNNAMED_RUN:
+            return (
+                f"another gateway serves prefix {self.prefix}, one too old to name its run (its health has no source): "
+                "both brake and refuse cmd_vel until one leaves; upgrade it, or give one of them another --prefix"
+            )
         return (
             f"another gateway (run {self.other}) serves prefix {self.prefix}: both brake and refuse cmd_vel "
             "until one leaves; give one of them another --prefix"

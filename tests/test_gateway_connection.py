@@ -432,6 +432,22 @@ def test_a_second_gateway_on_the_prefix_brakes_both_until_one_leaves() -> None:
     assert bench.conn.health(bench.t).conflict_with is None
 
 
+def test_a_gateway_too_old_to_name_its_run_is_a_conflict_too() -> None:
+    """A health without ``source`` on our prefix comes from another gateway: a missing field switches no check off."""
+    from schemas import GatewayHealth, encode
+
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.cmd(b'{"linear":{"x":0.3}}')
+    mine = bench.conn.health(bench.t)
+    bench.conn.on_health_seen(encode(GatewayHealth(stamp=mine.stamp, control=mine.control, log=mine.log)), bench.t)
+    bench.settle()
+    bench.run(0.2)
+    bench.robot.advance(bench.t)
+    assert not bench.robot.moving
+    assert any("too old to name its run" in e.reason and "upgrade it" in e.reason for e in bench.of(ErrorReport))
+
+
 # ---------------------------------------------------------------------- several commanders
 
 
