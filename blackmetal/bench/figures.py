@@ -5,16 +5,19 @@ from __future__ import annotations
 import itertools
 import os
 import random
+import signal
 import statistics
 import subprocess
 import sys
 import tempfile
 import time
+from contextlib import ExitStack
 from pathlib import Path
 
 from blackmetal.runtime.harness import ServiceProcess
 from schemas import Keys
 
+from .children import spawn, spawn_blackmetal
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
 from .synth import square_legs, synth_log
 
@@ -35,39 +38,49 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
 
 
-def _service(name: str, command: list[str]) -> ServiceProcess:
-    child = ServiceProcess.blackmetal(name, command)
+# Every figure starts its processes on an ExitStack: each is stopped when the figure ends, however it ends
+# (in reverse order: clients, then the gateway, then the robot), from the moment it exists.
+
+
+def _service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
+    child = spawn_blackmetal(name, command)
+    stack.callback(child.stop)
     child.wait_ready()
     return child
 
 
-def gateway(robot: RobotProcess, zport: int, poll_hz: float, listen: bool = True) -> ServiceProcess:
+def mini_robot(stack: ExitStack) -> RobotProcess:
+    return stack.enter_context(RobotProcess())
+
+
+def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float, listen: bool = True) -> ServiceProcess:
     zenoh_args = ["--no-multicast-scouting", "-l" if listen else "-e", f"tcp/127.0.0.1:{zport}"]
     return _service(
+        stack,
         "gateway",
         ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
          "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *zenoh_args],
     )  # fmt: skip
 
 
-def odometry(zport: int, listen: int | None = None) -> ServiceProcess:
+def odometry(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
     """The odometry, a client of the gateway's endpoint; with ``listen``, a peer that clients can reach directly."""
     zenoh_args = ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
-    return _service("odometry", ["odometry", *zenoh_args])
+    return _service(stack, "odometry", ["odometry", *zenoh_args])
 
 
 def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
     deadline = time.monotonic() + timeout
     while not robot.dump()["polls"]:
         if time.monotonic() > deadline:
-            raise RuntimeError("the gateway never polled the robot")
+            raise TimeoutError(f"the gateway did not poll the robot within {timeout:g} s")
         time.sleep(0.1)
 
 
-def ros2_adapter(zport: int, listen: int | None = None) -> ServiceProcess:
+def ros2_adapter(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
     """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint; with ``listen``, a peer ROS nodes reach directly."""
     zenoh_args = ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
-    return _service("ros2", ["ros2", *zenoh_args])
+    return _service(stack, "ros2", ["ros2", *zenoh_args])
 
 
 def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros2_in_line: bool = False) -> dict[str, float]:
@@ -83,45 +96,40 @@ def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros
     """
     import zenoh
 
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, poll_hz)
-    adapter_port = free_port() if ros2_in_line else None
-    adapter = ros2_adapter(zport, adapter_port) if via_ros2 else None
-    try:
-        with zenoh.open(_zenoh_conf(connect=adapter_port or zport)) as session:
-            if adapter is not None:
-                from blackmetal.ros2.messages import RosCodec
-
-                codec = RosCodec()
-                pub = session.declare_publisher(adapter.wait_ready()["keys"]["cmd_vel"], express=EXPRESS)
-
-                def payload(speed: float) -> bytes:
-                    return codec.encode_twist(speed, 0.0)
-            else:
-                pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
-
-                def payload(speed: float) -> bytes:
-                    return b'{"linear":{"x":%.6f}}' % speed
-
-            wait_polls(robot)
-            time.sleep(0.3)
-            sent: dict[float, float] = {}
-            for i in range(samples + 30):
-                speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
-                data = payload(speed)
-                start = time.time()
-                pub.put(data)
-                if i >= 30:  # warm-up
-                    sent[speed] = start
-                time.sleep(random.uniform(*COMMAND_GAP_S))
-            time.sleep(0.3)
-            arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
-    finally:
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gateway(stack, robot, zport, poll_hz)
+        adapter_port = free_port() if ros2_in_line else None
+        adapter = ros2_adapter(stack, zport, adapter_port) if via_ros2 else None
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=adapter_port or zport)))
         if adapter is not None:
-            adapter.stop()
-        gw.stop()
-        robot.close()
+            from blackmetal.ros2.messages import RosCodec
+
+            codec = RosCodec()
+            pub = session.declare_publisher(adapter.wait_ready()["keys"]["cmd_vel"], express=EXPRESS)
+
+            def payload(speed: float) -> bytes:
+                return codec.encode_twist(speed, 0.0)
+        else:
+            pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+
+            def payload(speed: float) -> bytes:
+                return b'{"linear":{"x":%.6f}}' % speed
+
+        wait_polls(robot)
+        time.sleep(0.3)
+        sent: dict[float, float] = {}
+        for i in range(samples + 30):
+            speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
+            data = payload(speed)
+            start = time.time()
+            pub.put(data)
+            if i >= 30:  # warm-up
+                sent[speed] = start
+            time.sleep(random.uniform(*COMMAND_GAP_S))
+        time.sleep(0.3)
+        arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
 
 
@@ -129,28 +137,24 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
     """``{"engaged": true}`` put on estop -> EMG_STOP bytes at the robot's socket (kernel receive stamp)."""
     import zenoh
 
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, poll_hz)
-    latencies: list[float] = []
-    try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
-            pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
-            wait_polls(robot)
-            time.sleep(0.3)
-            starts = []
-            for _ in range(samples + 10):
-                time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
-                starts.append(time.time())
-                pub.put(b'{"engaged": true}')
-                time.sleep(random.uniform(*COMMAND_GAP_S))
-                pub.put(b'{"engaged": false}')
-            time.sleep(0.3)
-            stops = robot.dump()["emg_stops"]  # one EMG_STOP per engage, in order (the robot takes every command)
-            latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
-    finally:
-        gw.stop()
-        robot.close()
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gateway(stack, robot, zport, poll_hz)
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
+        wait_polls(robot)
+        time.sleep(0.3)
+        starts = []
+        for _ in range(samples + 10):
+            time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
+            starts.append(time.time())
+            pub.put(b'{"engaged": true}')
+            time.sleep(random.uniform(*COMMAND_GAP_S))
+            pub.put(b'{"engaged": false}')
+        time.sleep(0.3)
+        stops = robot.dump()["emg_stops"]  # one EMG_STOP per engage, in order (the robot takes every command)
+    latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
     return percentiles(latencies)
 
 
@@ -161,31 +165,26 @@ def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
     """
     import zenoh
 
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, poll_hz)
-    odo = odometry(zport)
-    adapter = ros2_adapter(zport)
     counts = {"pose": 0, "odom": 0}
-    try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
-            session.declare_subscriber(KEYS.pose, lambda s: counts.__setitem__("pose", counts["pose"] + 1))
-            odom_key = adapter.wait_ready()["keys"]["odom"]
-            session.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
-            wait_polls(robot)
-            time.sleep(warmup)
-            start = dict(counts)
-            started = time.monotonic()
-            time.sleep(seconds)
-            end, elapsed = dict(counts), time.monotonic() - started
-            cpu, cpu_started = cpu_seconds(adapter.proc.pid), time.monotonic()
-            time.sleep(warmup)
-            cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / (time.monotonic() - cpu_started)
-    finally:
-        adapter.stop()
-        odo.stop()
-        gw.stop()
-        robot.close()
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gateway(stack, robot, zport, poll_hz)
+        odometry(stack, zport)
+        adapter = ros2_adapter(stack, zport)
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        session.declare_subscriber(KEYS.pose, lambda s: counts.__setitem__("pose", counts["pose"] + 1))
+        odom_key = adapter.wait_ready()["keys"]["odom"]
+        session.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
+        wait_polls(robot)
+        time.sleep(warmup)
+        start = dict(counts)
+        started = time.monotonic()
+        time.sleep(seconds)
+        end, elapsed = dict(counts), time.monotonic() - started
+        cpu, cpu_started = cpu_seconds(adapter.proc.pid), time.monotonic()
+        time.sleep(warmup)
+        cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / (time.monotonic() - cpu_started)
     pose_hz = (end["pose"] - start["pose"]) / elapsed
     odom_hz = (end["odom"] - start["odom"]) / elapsed
     return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
@@ -197,40 +196,37 @@ def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
 
     from schemas import Pose, decode
 
-    robot = RobotProcess()
-    zport, oport = free_port(), free_port()
-    gw = gateway(robot, zport, poll_hz)
-    odo = odometry(zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
     latencies: list[float] = []
-    try:
-        with zenoh.open(_zenoh_conf(connect=oport)) as session:
-            session.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
-            deadline = time.monotonic() + 20
-            while len(latencies) < 20 and time.monotonic() < deadline:
-                time.sleep(0.05)
-            latencies.clear()  # warm-up
-            time.sleep(seconds)
-            samples = list(latencies)
-    finally:
-        odo.stop()
-        gw.stop()
-        robot.close()
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport, oport = free_port(), free_port()
+        gateway(stack, robot, zport, poll_hz)
+        odometry(stack, zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=oport)))
+        session.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
+        deadline = time.monotonic() + 20
+        while len(latencies) < 20 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        latencies.clear()  # warm-up
+        time.sleep(seconds)
+        samples = list(latencies)
+    if not samples:
+        raise TimeoutError(f"no Pose reached the client in {seconds:g} s")
     return percentiles(samples)
 
 
 def poll_rate(poll_hz: float, seconds: float, warmup: float = 0.5) -> dict[str, float]:
     """Sustained poll rate and worst gap, as the robot sees them."""
-    robot = RobotProcess()
-    gw = gateway(robot, free_port(), poll_hz)
-    try:
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        gateway(stack, robot, free_port(), poll_hz)
         wait_polls(robot)
         time.sleep(warmup)
         start = len(robot.dump()["polls"])
         time.sleep(seconds)
         window = robot.dump()["polls"][start:]
-    finally:
-        gw.stop()
-        robot.close()
+    if len(window) < 3:
+        raise TimeoutError(f"the gateway polled the robot {len(window)} times in {seconds:g} s at {poll_hz:g} Hz")
     gaps = [b - a for a, b in itertools.pairwise(window)]
     rate = (len(window) - 1) / (window[-1] - window[0])
     return {
@@ -354,29 +350,26 @@ def calibration_speed(samples: int) -> dict[str, float]:
 
 def recorder_load(poll_hz: float, seconds: float, warmup: float = 1.0) -> dict[str, float]:
     """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, poll_hz)
-    odo = odometry(zport)
-    with tempfile.TemporaryDirectory() as folder:
-        path = Path(folder) / "bench.mcap"
-        recorder = _service("record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
-        try:
-            wait_polls(robot)
-            time.sleep(warmup)
-            cpu0, size0, t0 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
-            time.sleep(seconds)
-            cpu1, size1, t1 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
-        finally:
-            recorder.stop()
-            odo.stop()
-            gw.stop()
-            robot.close()
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gateway(stack, robot, zport, poll_hz)
+        odometry(stack, zport)
+        path = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "bench.mcap"
+        recorder = _service(stack, "record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
+        wait_polls(robot)
+        time.sleep(warmup)
+        cpu0, size0, t0 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
+        time.sleep(seconds)
+        cpu1, size1, t1 = cpu_seconds(recorder.proc.pid), path.stat().st_size, time.monotonic()
     return {"poll_hz": poll_hz, "cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0), "bytes_per_s": (size1 - size0) / (t1 - t0)}
 
 
-def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
-    """``blackmetal replay`` (file reading included) against the streaming path, per sample, each in a fresh process."""
+def replay_throughput(samples: int, stream_samples: int, mcap: bool = True) -> dict[str, float]:
+    """``blackmetal replay`` (file reading included) against the streaming path, per sample, each in a fresh process.
+
+    With ``mcap`` (it needs the record extra), also the same samples replayed from an MCAP recording.
+    """
     legs = square_legs(side=2.0) * max(1, samples // 3900 + 1)
     log = synth_log(legs, dropout=0.01, spike=0.005, seed=1)
     with tempfile.TemporaryDirectory() as folder:
@@ -394,13 +387,15 @@ def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
 
         replay_runs = [fresh(_REPLAY_SNIPPET) for _ in range(3)]
         stream_count, stream_seconds = fresh(_STREAM_SNIPPET, str(stream_samples))
-        mcap_runs = mcap_replay(path)
+        mcap_runs = mcap_replay(path) if mcap else []
     rates = [count / seconds for count, seconds in replay_runs]
     stream_rate = stream_count / stream_seconds
-    mcap_rates = [count / seconds for count, seconds in mcap_runs]
+    mcap_figures = {}
+    if mcap_runs:
+        mcap_rate = statistics.median(count / seconds for count, seconds in mcap_runs)
+        mcap_figures = {"mcap_replay_per_s": mcap_rate, "mcap_over_jsonl": mcap_rate / statistics.median(rates)}
     return {
-        "mcap_replay_per_s": statistics.median(mcap_rates),
-        "mcap_over_jsonl": statistics.median(mcap_rates) / statistics.median(rates),
+        **mcap_figures,
         "samples": replay_runs[0][0],
         "replay_per_s": statistics.median(rates),
         "replay_min_per_s": min(rates),
@@ -410,23 +405,27 @@ def replay_throughput(samples: int, stream_samples: int) -> dict[str, float]:
     }
 
 
-_BARE_SNIPPET = "import zenoh, time, sys; print('ready', flush=True); time.sleep(float(sys.argv[1]))"
+#: A bare Python process with zenoh imported; it says it is ready as a harness child does (without importing ours).
+_BARE_SNIPPET = (
+    "import os, sys, time, zenoh; os.write(int(os.environ['BLACKMETAL_READY_FD']), b'{\"service\": \"bare-zenoh\"}\\n'); "
+    "time.sleep(float(sys.argv[1]))"
+)
 
 
 def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
     """Resident memory of gateway and odometry after ``seconds`` at ``poll_hz``; the gateway's CPU share."""
-    bare = subprocess.Popen([sys.executable, "-c", _BARE_SNIPPET, "30"], stdout=subprocess.PIPE, text=True)
-    assert bare.stdout is not None
-    bare.stdout.readline()
-    time.sleep(0.5)
-    baseline = rss_mb(bare.pid)
-    bare.kill()
-    bare.wait()
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, poll_hz)
-    odo = odometry(zport)
+    bare = spawn("bare-zenoh", ["-c", _BARE_SNIPPET, "30"])
     try:
+        bare.wait_ready()
+        time.sleep(0.5)
+        baseline = rss_mb(bare.proc.pid)
+    finally:
+        bare.stop(signal.SIGKILL)
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gw = gateway(stack, robot, zport, poll_hz)
+        odo = odometry(stack, zport)
         wait_polls(robot)
         time.sleep(warmup)
         start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
@@ -436,10 +435,6 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
         cpu1, t1 = cpu_seconds(gw.proc.pid), time.monotonic()
         odo_cpu1 = cpu_seconds(odo.proc.pid)
         end_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
-    finally:
-        odo.stop()
-        gw.stop()
-        robot.close()
     return {
         "bare_zenoh_mb": baseline,
         "gateway_mb": end_rss[0],
@@ -458,40 +453,37 @@ def flood(rate_hz: float, seconds: float) -> dict[str, float]:
     """``cmd_vel`` at ``rate_hz`` for ``seconds``: gateway memory, and how soon the last command reaches the robot."""
     import zenoh
 
-    robot = RobotProcess()
-    zport = free_port()
-    gw = gateway(robot, zport, 50.0)
-    try:
-        with zenoh.open(_zenoh_conf(connect=zport)) as session:
-            pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
-            wait_polls(robot)
-            time.sleep(0.3)
-            rss_before = rss_mb(gw.proc.pid)
-            period = 1.0 / rate_hz
-            count = int(rate_hz * seconds)
-            start = time.monotonic()
-            for i in range(count):
-                target = start + i * period
-                while time.monotonic() < target:
-                    pass
-                pub.put(b'{"linear":{"x":%.6f}}' % (0.1 + 0.3 * (i % 1000) / 1000))
-            last_value = round(0.1 + 0.3 * ((count - 1) % 1000) / 1000, 6)
-            final = round(-0.123456, 6)
-            t_final = time.time()
-            pub.put(b'{"linear":{"x":%.6f}}' % final)
-            deadline = time.monotonic() + 5
-            arrivals: dict[float, float] = {}
-            while time.monotonic() < deadline:
-                arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
-                if final in arrivals:
-                    break
-                time.sleep(0.02)
-            achieved = count / (time.monotonic() - start)
-            rss_after = rss_mb(gw.proc.pid)
-            commands = robot.dump()["commands"]
-    finally:
-        gw.stop()
-        robot.close()
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gw = gateway(stack, robot, zport, 50.0)
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
+        wait_polls(robot)
+        time.sleep(0.3)
+        rss_before = rss_mb(gw.proc.pid)
+        period = 1.0 / rate_hz
+        count = int(rate_hz * seconds)
+        start = time.monotonic()
+        for i in range(count):
+            target = start + i * period
+            while time.monotonic() < target:
+                pass
+            pub.put(b'{"linear":{"x":%.6f}}' % (0.1 + 0.3 * (i % 1000) / 1000))
+        last_value = round(0.1 + 0.3 * ((count - 1) % 1000) / 1000, 6)
+        final = round(-0.123456, 6)
+        t_final = time.time()
+        pub.put(b'{"linear":{"x":%.6f}}' % final)
+        deadline = time.monotonic() + 5
+        arrivals: dict[float, float] = {}
+        while time.monotonic() < deadline:
+            arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
+            if final in arrivals:
+                break
+            time.sleep(0.02)
+        achieved = count / (time.monotonic() - start)
+        rss_after = rss_mb(gw.proc.pid)
+        commands = robot.dump()["commands"]
     return {
         "asked_hz": rate_hz,
         "sent_hz": achieved,

@@ -22,8 +22,10 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from blackmetal import wire
-from blackmetal.runtime.harness import ServiceProcess, announce_ready
+from blackmetal.runtime.harness import announce_ready
 from blackmetal.wire import CommandCode, Request, RequestDecoder
+
+from .children import spawn
 
 if TYPE_CHECKING:
     import zenoh
@@ -147,7 +149,18 @@ class MiniRobot:
 
 
 def _robot_main() -> None:
-    """Child process: a MiniRobot; announces its ports, then prints its arrivals and polls as JSON on 'dump'."""
+    """Child process: a MiniRobot; announces its ports, then prints its arrivals and polls as JSON on 'dump'.
+
+    It ends on 'quit', when the bench closes its stdin (the bench is gone) and on SIGINT (Ctrl-C reaches
+    the whole process group), quietly.
+    """
+    try:
+        _robot_serve()
+    except KeyboardInterrupt:
+        pass
+
+
+def _robot_serve() -> None:
     robot = MiniRobot().start()
     announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
     for line in sys.stdin:
@@ -173,9 +186,19 @@ class RobotProcess:
     """A MiniRobot in its own process, so its thread never competes with the client for the GIL."""
 
     def __init__(self) -> None:
-        self.child = ServiceProcess("mini-robot", ["-m", "blackmetal.bench", "robot"], interactive=True)
-        ports = self.child.wait_ready()
+        self.child = spawn("mini-robot", ["-m", "blackmetal.bench", "robot"], interactive=True)
+        try:
+            ports = self.child.wait_ready()
+        except BaseException:
+            self.child.stop(timeout=3)
+            raise
         self.control_port, self.log_port = ports["control"], ports["log"]
+
+    def __enter__(self) -> "RobotProcess":
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
     def dump(self) -> dict[str, Any]:
         result: dict[str, Any] = json.loads(self.child.request("dump"))
@@ -192,13 +215,22 @@ class RobotProcess:
 
 
 def _percentiles(samples: list[float]) -> dict[str, float]:
+    if not samples:
+        raise TimeoutError("not one sample arrived in the measuring window")
     ordered = sorted(samples)
     pick = lambda q: ordered[min(len(ordered) - 1, int(q * len(ordered)))]  # noqa: E731
     return {"p50_ms": pick(0.5) * 1e3, "p99_ms": pick(0.99) * 1e3, "max_ms": ordered[-1] * 1e3, "n": len(ordered)}
 
 
 def _echo_main(port: int) -> None:
-    """Child process: answer every ping with a pong, from the main thread (not the callback)."""
+    """Child process: answer every ping with a pong, from the main thread (not the callback); SIGINT ends it quietly."""
+    try:
+        _echo_serve(port)
+    except KeyboardInterrupt:
+        pass
+
+
+def _echo_serve(port: int) -> None:
     import zenoh
 
     inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
@@ -227,7 +259,7 @@ def zenoh_hop(samples: int = 300, gap: tuple[float, float] = COMMAND_GAP_S) -> d
     import zenoh
 
     port = free_port()
-    child = ServiceProcess("echo", ["-m", "blackmetal.bench", "echo", str(port)])
+    child = spawn("echo", ["-m", "blackmetal.bench", "echo", str(port)])
     try:
         child.wait_ready()
         got = threading.Event()

@@ -1,0 +1,154 @@
+"""Every child process the bench starts, and how they all stop: none outlives the bench.
+
+A child is started with :func:`spawn` (a :class:`ServiceProcess`, known here
+from the moment it exists) and each figure stops its own children in a
+``finally``. :func:`stop_all` is the net under those: it stops whatever still
+runs (SIGINT, then SIGKILL after a grace period); :func:`shutdown`, at the
+very end, also stops any process whose parent is the bench that was started
+some other way.
+
+:func:`stopping_on_signals` makes SIGTERM behave as Ctrl-C does: the first
+SIGINT or SIGTERM raises ``KeyboardInterrupt`` in the main thread, so every
+``finally`` runs, and :func:`stop_signal` tells which signal it was. Later
+signals are ignored while the bench stops, so its cleanup is never cut
+short; a signal that comes while a child is being started or stopped is held
+until that is done.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from types import FrameType
+from typing import Any
+
+from blackmetal.runtime.harness import ServiceProcess, stop_in_order
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+#: How long children get to stop after SIGINT before they are killed.
+GRACE_S = 5.0
+
+_children: list[ServiceProcess] = []
+
+
+class _State:
+    signum: int | None = None  # the signal that asked the bench to stop
+    held: bool = False  # that signal came while it had to wait
+    holding: int = 0  # depth of sections a signal must not interrupt
+    closing: bool = False  # shutting down: signals are only noted
+
+
+_state = _State()
+
+
+def _on_signal(signum: int, frame: FrameType | None) -> None:
+    if _state.signum is not None:
+        return  # already stopping: let the cleanup run to its end
+    _state.signum = signum
+    if _state.holding or _state.closing:
+        _state.held = True
+        return
+    raise KeyboardInterrupt
+
+
+@contextmanager
+def _held() -> Iterator[None]:
+    """A section that a stop signal does not interrupt; a signal that came meanwhile is raised at its end."""
+    _state.holding += 1
+    try:
+        yield
+    finally:
+        _state.holding -= 1
+    if _state.held and not _state.holding and not _state.closing:
+        _state.held = False
+        raise KeyboardInterrupt
+
+
+def stop_signal() -> int | None:
+    """The signal (SIGINT or SIGTERM) that asked the bench to stop, if one did."""
+    return _state.signum
+
+
+@contextmanager
+def stopping_on_signals() -> Iterator[None]:
+    """SIGINT and SIGTERM raise KeyboardInterrupt once (in the main thread); the former handlers come back at the end."""
+    _state.signum, _state.held, _state.closing = None, False, False
+    previous = {sig: signal.signal(sig, _on_signal) for sig in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+
+
+def spawn(name: str, args: list[str], **kwargs: Any) -> ServiceProcess:
+    """A child process (``python ARGS``), stopped by :func:`stop_all` at the latest."""
+    with _held():
+        child = ServiceProcess(name, args, **kwargs)
+        _children.append(child)
+    return child
+
+
+def spawn_blackmetal(name: str, command: list[str], **kwargs: Any) -> ServiceProcess:
+    """``python -m blackmetal COMMAND ...``, as :func:`spawn`."""
+    return spawn(name, ["-m", "blackmetal", *command], **kwargs)
+
+
+def stop_all(grace: float = GRACE_S) -> None:
+    """Stop every child that :func:`spawn` started and that still runs: SIGINT, SIGKILL after ``grace`` seconds."""
+    with _held():
+        live = [child for child in _children if child.poll() is None]
+        stop_in_order([live], grace)
+        for child in _children:
+            child.stop(timeout=1.0)  # exited by now: reaps it, joins its output reader, closes its pipes
+        _children.clear()
+
+
+def shutdown(grace: float = GRACE_S) -> None:
+    """The bench ends: from here signals are only noted; every child is stopped, and any other process whose parent we are."""
+    _state.closing = True
+    stop_all(grace)
+    strays = _own_children()
+    for pid in strays:
+        _signal(pid, signal.SIGTERM)
+    deadline = time.monotonic() + grace
+    while strays and time.monotonic() < deadline:
+        strays = [pid for pid in strays if not _reaped(pid)]
+        time.sleep(0.02)
+    for pid in strays:
+        _signal(pid, signal.SIGKILL)
+        _reaped(pid, block=True)
+
+
+def _own_children() -> list[int]:
+    """Processes whose parent is this one and that still run (zombies left out), from /proc."""
+    me, found = os.getpid(), []
+    for entry in os.listdir("/proc"):
+        if not entry.isdigit():
+            continue
+        try:
+            fields = Path(f"/proc/{entry}/stat").read_text().rsplit(")", 1)[1].split()
+        except (OSError, IndexError):
+            continue
+        if int(fields[1]) == me and fields[0] != "Z":
+            found.append(int(entry))
+    return found
+
+
+def _signal(pid: int, sig: int) -> None:
+    try:
+        os.kill(pid, sig)
+    except ProcessLookupError:
+        pass
+
+
+def _reaped(pid: int, block: bool = False) -> bool:
+    try:
+        done, _ = os.waitpid(pid, 0 if block else os.WNOHANG)
+    except ChildProcessError:
+        return True  # reaped elsewhere
+    return done == pid
