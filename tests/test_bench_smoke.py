@@ -78,7 +78,17 @@ def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no
     ):
         assert row in proc.stdout
     figures = json.loads(out.read_text())
-    assert set(figures) >= {"cmd_vel_to_robot_ms", "zenoh_hop_ms", "impulse_to_pose_ms", "two_hops_ms", "poll", "replay", "memory", "flood"}
+    assert set(figures) >= {
+        "cmd_vel_to_robot_ms",
+        "zenoh_hop_ms",
+        "impulse_to_pose_ms",
+        "two_hops_ms",
+        "poll",
+        "replay",
+        "memory",
+        "flood",
+        "arbiter",
+    }
     assert figures["poll"]["100"]["rate_hz"] > 0 and figures["replay"]["replay_per_s"] > 0
     assert figures["skipped"] == {} and figures["failed"] == {}
 

@@ -190,6 +190,10 @@ def _calibration(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
     return {"calibration": figures.calibration_speed(plan.count(200_000, 2_000_000))}
 
 
+def _arbiter(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
+    return {"arbiter": figures.arbiter_cost(plan.count(5_000, 50_000))}
+
+
 def _recorder(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
     return {"recorder": {str(int(hz)): figures.recorder_load(hz, plan.seconds(0.5, 10.0), **plan.warmups) for hz in (100.0, 200.0)}}
 
@@ -231,6 +235,8 @@ FIGURES = (
     Figure("poll", "poll rate", "poll rate at 100 and 200 Hz ...", ("poll",), _poll),
     Figure("replay", "replay throughput", "replay throughput against the streaming path ...", ("replay",), _replay),
     Figure("calibration", "calibration speed", "calibration: the batch odometry on parsed columns, one fit ...", ("calibration",), _calibration),
+    Figure("arbiter", "arbiter cost", "the arbiter's cost per command, against the gateway core's whole cmd_vel handling ...",
+           ("arbiter",), _arbiter),
     Figure("recorder", "recorder load", "recorder CPU and bytes/s at 100 and 200 Hz ...", ("recorder",), _recorder, extra="record"),
     Figure("memory", "memory and CPU", "memory and CPU at 100 Hz ...", ("memory",), _memory),
     Figure("flood", "cmd_vel flood", "cmd_vel flood ...", ("flood",), _flood),
@@ -408,6 +414,14 @@ def _calibration_rows(f: dict[str, Any]) -> list[Row]:
     ]  # fmt: skip
 
 
+def _arbiter_rows(f: dict[str, Any]) -> list[Row]:
+    a = f["arbiter"]
+    return [
+        ("arbiter per command (5 sources)", f"{a['arbiter_us']:.2f} us", f"core cmd_vel handling {a['core_us']:.2f} us", f"{100 * a['arbiter_share']:.0f}% of it (report)"),
+        ("arbiter per command (+3 locks)", f"{a['arbiter_locks_us']:.2f} us", f"core cmd_vel handling {a['core_us']:.2f} us", f"{100 * a['arbiter_locks_share']:.0f}% of it (report)"),
+    ]  # fmt: skip
+
+
 def _recorder_rows(f: dict[str, Any]) -> list[Row]:
     return [
         (f"recorder at {hz} Hz polling", f"CPU {rec['cpu_pct']:.1f}% of a core, {rec['bytes_per_s'] / 1e3:.1f} kB/s", "-", "report")
@@ -442,6 +456,7 @@ ROWS: dict[str, Callable[[dict[str, Any]], list[Row]]] = {
     "poll": _poll_rows,
     "replay": _replay_rows,
     "calibration": _calibration_rows,
+    "arbiter": _arbiter_rows,
     "recorder": _recorder_rows,
     "memory": _memory_rows,
     "flood": _flood_rows,

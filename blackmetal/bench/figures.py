@@ -11,6 +11,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
 
@@ -495,3 +496,60 @@ def flood(rate_hz: float, seconds: float) -> dict[str, float]:
         "last_command_latency_ms": (arrivals[final] - t_final) * 1e3 if final in arrivals else float("nan"),
         "last_flood_value_seen": float(last_value in arrivals),
     }
+
+
+def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
+    """The arbiter's own cost per command (µs), against the gateway core's whole handling of one cmd_vel, alternating.
+
+    Pure and on a fake clock: the arbiter choosing among the five default sources (and with three locks
+    configured), and ``RobotConnection.on_cmd_vel`` (decode, arbiter, limits, encoding the robot's
+    command) for the same commands from ``teleop``.
+    """
+    from gateway.arbiter import Arbiter, LockSpec
+    from gateway.core import RobotConnection
+    from gateway.settings import GatewaySettings
+    from schemas import Twist, Vector3
+
+    twist = Twist(linear=Vector3(x=0.2), angular=Vector3(z=0.1))
+    plain = Arbiter()
+    locked = Arbiter(locks=(LockSpec("pause", 200, None), LockSpec("supervisor", 60, 0.5), LockSpec("dock", 5, None)))
+    settings = GatewaySettings()
+    settings.check()
+    conn = RobotConnection(settings, 0.0, wallclock=time.time)
+    conn.link_up("control", 0.0)
+    conn.link_up("log", 0.0)
+    conn.take_outgoing("control")
+    payloads = [f'{{"linear":{{"x":{0.1 + (i % 7) * 0.01}}},"angular":{{"z":0.1}}}}'.encode() for i in range(commands)]
+
+    def per_command(run: Callable[[int], None]) -> float:
+        started = time.perf_counter()
+        for i in range(commands):
+            run(i)
+        return 1e6 * (time.perf_counter() - started) / commands
+
+    clock = [1.0]
+
+    def core(i: int) -> None:
+        clock[0] += 0.01  # 100 Hz: each command goes on to the robot (no coalescing)
+        conn.on_cmd_vel(payloads[i], clock[0], "teleop")
+        conn.take_outgoing("control")
+        conn.take_events()
+
+    timings: dict[str, list[float]] = {"arbiter_us": [], "arbiter_locks_us": [], "core_us": []}
+
+    def offering(arbiter: Arbiter, base: float) -> Callable[[int], None]:
+        def offer(i: int) -> None:
+            arbiter.offer("teleop", twist, base + i * 0.01)
+
+        return offer
+
+    for r in range(rounds):
+        base = r * commands * 0.01
+        timings["arbiter_us"].append(per_command(offering(plain, base)))
+        timings["arbiter_locks_us"].append(per_command(offering(locked, base)))
+        timings["core_us"].append(per_command(core))
+    out = {name: statistics.median(values) for name, values in timings.items()}
+    out["arbiter_share"] = out["arbiter_us"] / out["core_us"]
+    out["arbiter_locks_share"] = out["arbiter_locks_us"] / out["core_us"]
+    out["commands"] = commands
+    return out
