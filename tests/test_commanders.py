@@ -78,11 +78,13 @@ def test_the_operator_holds_the_robot_against_navigation_then_navigation_takes_o
         assert health.active_source == "teleop" and health.sources["nav"].dropped > 50, health
         moved = math.hypot(held[-1].x - held[0].x, held[-1].y - held[0].y)
         jumps = sum(1 for a, b in itertools.pairwise(held) if abs(b.v - a.v) > 0.05)
+        print(f"operator holds: moved {1000 * moved:.2f} mm, {jumps} speed jumps")
         assert moved < 0.01 and jumps == 0, (moved, jumps)
 
         released = operator.stop()  # the operator lets go: navigation takes over within 1 s
         wait_for(lambda: truth[-1].v > 0.25, timeout=10, what="navigation to take over")
         took_over = next(p.stamp for p in truth if p.stamp > released and p.v > 0.25)
+        print(f"navigation took over {took_over - released:.3f} s after the operator stopped")
         assert took_over - released < 1.0, took_over - released
         assert _health(session).active_source == "nav"
         nav.stop()
@@ -107,6 +109,7 @@ def test_a_heartbeat_lock_that_is_not_refreshed_stops_the_robot_within_its_timeo
         last_beat = supervisor.stop()  # the supervisor dies; the driver goes on
         wait_for(lambda: abs(truth[-1].v) < 1e-9 and truth[-1].stamp > last_beat, what="the lock to stop the robot")
         stopped = next(p.stamp for p in truth if p.stamp > last_beat and abs(p.v) < 1e-9)
+        print(f"stopped {stopped - last_beat:.3f} s after the last heartbeat (lock timeout 0.3 s)")
         assert stopped - last_beat <= 0.3 + 0.1, stopped - last_beat
         assert _health(session).locks == {"supervisor": True}
         driver.stop()
