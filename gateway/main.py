@@ -39,7 +39,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
             f"prefix {settings.prefix}, polling at {settings.poll_hz:g} Hz",
             flush=True,
         )
-        announce_ready("gateway", prefix=settings.prefix)
+        announce_ready("gateway", prefix=settings.prefix, cmd_timeout=settings.cmd_timeout)
         try:
             await service.run(stop)
         finally:

@@ -64,6 +64,7 @@ def test_up_prints_a_command_line_that_drives_the_robot(up: Up) -> None:
         assert moved > 0.3  # 3 s at 0.2 m/s on an arc
         assert abs(math.remainder(pose.yaw - before.yaw, math.tau)) > 0.5
     wait_for(lambda: re.search(r"link connected/connected \| poll \d+ Hz", up.output()), what="the live status line")
+    assert re.search(r"\| default drives \|", up.output()), up.output()[-2000:]  # who drove: plain cmd_vel is the source default
 
 
 def test_watch_shows_pose_status_health_and_errors(up: Up) -> None:
@@ -286,12 +287,13 @@ def test_up_settings_file_gives_each_service_its_own_keys(tmp_path) -> None:  # 
     """The README's gateway.toml keys (its addresses made loopback) go to the gateway alone; sections go to one service."""
     gateway_toml = tmp_path / "gateway.toml"
     gateway_toml.write_text(
-        f'robot = "127.0.0.1"\npoll_hz = 100\ncmd_timeout = 0.5\nconnect = ["tcp/127.0.0.1:{free_port()}"]\nmode = "client"\n'
+        f'robot = "127.0.0.1"\npoll_hz = 100\ncmd_timeout = 0.25\nconnect = ["tcp/127.0.0.1:{free_port()}"]\nmode = "client"\n'
         "[odometry]\nfilter_alpha = 0.2\n[sim]\nwatchdog = 8\n"
     )
     demo = Up("--settings", str(gateway_toml))
     try:
         demo.wait_line(r"gateway\.toml: robot, connect, mode left to up's own options")
+        demo.wait_line(r"commands time out after 0\.25 s: publish at 10 Hz or more")  # the gateway's own timeout
         with zenoh.open(client_config(demo.zport)) as session:
             wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.poll_hz > 90,
                      what="the gateway polling at the file's 100 Hz")  # fmt: skip

@@ -1,15 +1,27 @@
-"""``blackmetal robots``: list the robots whose gateway is alive (liveliness ``**/alive/gateway``)."""
+"""``blackmetal robots``: the robots whose gateway is alive (liveliness ``**/alive/gateway``), one row each.
+
+Each row: the prefix, the robot link (control/log), the poll rate, the pose
+(x, y, yaw), the e-stop and the command source that drives, from the
+gateway's health and the odometry's pose. On a terminal (or with --table) a
+table; piped, one prefix a line, for scripts; --json, every row as JSON.
+"""
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import re
 import sys
 import time
+from dataclasses import dataclass
+from typing import Any
 
+import msgspec
 import zenoh
 
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
-from schemas import ANY_GATEWAY_ALIVE, Keys, ZenohUnavailable
+from schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
 
 from .client import connect, tool, where
 
@@ -17,6 +29,8 @@ from .client import connect, tool, where
 RETRY_S = 0.2
 #: Tokens are collected at least this long once connected (a router that came up late still gets its answers).
 MIN_COLLECT_S = 1.0
+#: How long the health and pose queries of the rows may take (all are asked at once).
+QUERY_S = 2.0
 
 
 def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
@@ -38,7 +52,75 @@ def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
                 prefixes.add(Keys.prefix_of_gateway_token(str(sample.key_expr)))
     finally:
         subscriber.undeclare()
-    return sorted(prefixes)
+    return sorted(prefixes, key=natural)
+
+
+def natural(prefix: str) -> list[Any]:
+    """Sort key: ``fleet/r2`` before ``fleet/r10``."""
+    return [int(chunk) if index % 2 else chunk for index, chunk in enumerate(re.split(r"(\d+)", prefix))]
+
+
+@dataclass(frozen=True, slots=True)
+class RobotRow:
+    """One live robot: its gateway's health and its odometry's pose (None: no answer)."""
+
+    prefix: str
+    health: GatewayHealth | None
+    pose: Pose | None
+
+    def as_json(self) -> dict[str, Any]:
+        h, p = self.health, self.pose
+        return {
+            "prefix": self.prefix,
+            "link": None if h is None else {"control": h.control.state, "log": h.log.state},
+            "poll_hz": None if h is None else h.poll_hz,
+            "pose": None if p is None else {"x": p.x, "y": p.y, "yaw": p.yaw},
+            "estop": None if h is None else h.estop,
+            "active_source": None if h is None else h.active_source,
+            "health": None if h is None else msgspec.to_builtins(h),
+        }
+
+
+def _first(replies: Any, message_type: type[msgspec.Struct]) -> Any:
+    for reply in replies:
+        if reply.ok is not None:
+            try:
+                return decode(message_type, to_bytes(reply.ok.payload))
+            except PayloadError:
+                continue
+    return None
+
+
+def robot_rows(session: zenoh.Session, prefixes: list[str], timeout: float = QUERY_S) -> list[RobotRow]:
+    """Each prefix's health and pose; every query is sent before any answer is awaited."""
+    asked = [(p, session.get(Keys(p).health, timeout=timeout), session.get(Keys(p).pose, timeout=timeout)) for p in prefixes]
+    return [RobotRow(prefix, _first(health, GatewayHealth), _first(pose, Pose)) for prefix, health, pose in asked]
+
+
+HEADER = ("prefix", "link (control/log)", "poll", "x (m)", "y (m)", "yaw (°)", "e-stop", "drives")
+#: Columns aligned right (numbers).
+RIGHT = {2, 3, 4, 5}
+
+
+def _cells(row: RobotRow) -> tuple[str, ...]:
+    """One table line, in HEADER's order; '-' where the gateway or the odometry did not answer."""
+    h, p = row.health, row.pose
+    link, poll, estop, drives = ("no health", "-", "-", "-")
+    if h is not None:
+        link, poll = f"{h.control.state}/{h.log.state}", f"{h.poll_hz:.0f} Hz"
+        estop, drives = ("ENGAGED" if h.estop else "off"), (h.active_source or "-")
+    pose = ("-", "-", "-") if p is None else (f"{p.x:+.3f}", f"{p.y:+.3f}", f"{math.degrees(p.yaw):+.1f}")
+    return (row.prefix, link, poll, *pose, estop, drives)
+
+
+def table(rows: list[RobotRow]) -> str:
+    """The rows as an aligned text table with a header line."""
+    lines = [HEADER, *(_cells(row) for row in rows)]
+    widths = [max(len(line[k]) for line in lines) for k in range(len(HEADER))]
+    return "\n".join(
+        "  ".join(cell.rjust(w) if k in RIGHT else cell.ljust(w) for k, (cell, w) in enumerate(zip(line, widths, strict=True))).rstrip()
+        for line in lines
+    )
 
 
 def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSettings, zenoh.Session]:
@@ -60,13 +142,20 @@ def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSett
 def run(args: argparse.Namespace) -> int:
     deadline = time.monotonic() + args.wait
     settings, session = connect_within(args, deadline)
+    output = "json" if args.json else "table" if args.table or sys.stdout.isatty() else "prefixes"
     with session:
         robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S))
+        rows = robot_rows(session, robots) if robots and output != "prefixes" else []
+    if output == "json":
+        print(json.dumps([row.as_json() for row in rows]))
     if not robots:
         print(f"blackmetal robots: no live gateway found via {where(settings)} within {args.wait:g} s", file=sys.stderr)
         return 1
-    for prefix in robots:
-        print(prefix)
+    if output == "table":
+        print(table(rows))
+    elif output == "prefixes":
+        for prefix in robots:
+            print(prefix)
     return 0
 
 
@@ -75,5 +164,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument(
         "--wait", type=float, default=5.0, help="seconds to reach the router and collect answers (default 5, like every tool)"
     )
+    shape = parser.add_mutually_exclusive_group()
+    shape.add_argument("--table", action="store_true", help="the table even when the output is not a terminal (piped: one prefix a line)")
+    shape.add_argument("--json", action="store_true", help="one JSON array: per robot its prefix, link, poll rate, pose, e-stop, "
+                       "active source and the whole health")  # fmt: skip
     add_zenoh_arguments(parser)
     return parser

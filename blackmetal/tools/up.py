@@ -6,19 +6,28 @@ to drive the robot, then a live one-line status. Given a router with ``-e``
 and no ``-l`` (ROS 2's ``rmw_zenohd``, a fleet's router), it holds no
 endpoint: every process of the demo is a client of that router. Ctrl-C stops
 everything within 3 s; a child that dies is reported with its last lines.
+
+With ``--robots N``: a fleet of N simulated robots r1 ... rN under
+``fleet/<id>``, in three processes whatever N (``sim --robots N``,
+``gateway --fleet``, ``odometry --fleet``, sharing the fleet file the
+simulator writes), and one live status line for the whole fleet.
 """
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
+import functools
 import json
 import math
 import os
+import statistics
 import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
@@ -27,6 +36,7 @@ import zenoh
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.ros2.naming import Flavor
 from blackmetal.ros2.settings import Ros2Settings
+from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
 from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
@@ -34,7 +44,20 @@ from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, ZenohSettings, add_
 from blackmetal.sim.main import SimSettings
 from gateway.settings import GatewaySettings
 from odometry_service.settings import OdometrySettings
-from schemas import DEFAULT_PREFIX, ConfigError, ErrorReport, GatewayHealth, Keys, Pose, require_extra, validate_prefix
+from schemas import (
+    ANY_GATEWAY_ALIVE,
+    DEFAULT_PREFIX,
+    ConfigError,
+    ErrorReport,
+    GatewayHealth,
+    Keys,
+    PayloadError,
+    Pose,
+    decode,
+    require_extra,
+    to_bytes,
+    validate_prefix,
+)
 
 from .client import Latest, tool
 from .stop_robot import stop_robot
@@ -44,6 +67,10 @@ STOP_BUDGET_S = 3.0
 READY_TIMEOUT_S = 30.0
 #: How often the children are checked: a dead gateway's robot is stopped within about this long.
 CHILD_CHECK_S = 0.05
+#: A fleet robot's health older than this (s; the gateway reports every second) counts as missing.
+HEALTH_STALE_S = 3.0
+#: The fleet status line names at most this many robots per item, then "+k".
+NAMED_AT_MOST = 5
 
 
 #: The services ``up --settings FILE`` can configure, by section name.
@@ -201,10 +228,17 @@ def python_snippet(keys: Keys, endpoint: str) -> str:
     return f"python3 -c '{code}'"
 
 
-def _drive_help(keys: Keys, endpoint: str) -> str:
+def _timeout_advice(cmd_timeout: float) -> str:
+    """How often a client must publish, given the gateway's command timeout (s; 0: none)."""
+    if not cmd_timeout > 0:
+        return "commands never time out: publish a zero to stop"
+    return f"commands time out after {cmd_timeout:g} s: publish at {math.ceil(2.5 / cmd_timeout):g} Hz or more"
+
+
+def _drive_help(keys: Keys, endpoint: str, cmd_timeout: float = 0.5) -> str:
     return "\n".join(
         [
-            "Drive it from any Zenoh client (commands time out after 0.5 s: publish at 5 Hz or more):",
+            f"Drive it from any Zenoh client ({_timeout_advice(cmd_timeout)}):",
             f"  blackmetal teleop -e {endpoint}",
             f"  {python_snippet(keys, endpoint)}",
             f'  z_put -e {endpoint} -k {keys.cmd_vel} -p \'{{"linear":{{"x":0.2}}}}\'   # zenoh\'s own CLI, if installed',
@@ -238,7 +272,9 @@ class StatusLine:
             parts.append(f"poll {h.poll_hz:.0f} Hz")
             if h.estop:
                 parts.append("E-STOP")
-            if h.cmd_timeout_active:
+            if h.active_source:
+                parts.append(f"{h.active_source} drives")
+            elif h.cmd_timeout_active:
                 parts.append("idle")
         p: Pose | None = self.pose.value
         if p is None:
@@ -254,11 +290,118 @@ class StatusLine:
         return " | ".join(parts)
 
 
+def _named(ids: list[str]) -> str:
+    """``r1, r3`` or, past NAMED_AT_MOST, ``r1, r2, r3, r4, r5 +7``."""
+    shown = ", ".join(ids[:NAMED_AT_MOST])
+    return shown + (f" +{len(ids) - NAMED_AT_MOST}" if len(ids) > NAMED_AT_MOST else "")
+
+
+class FleetStatus:
+    """Subscriptions for the fleet's one-line status: gateways alive, each robot's health, poses and errors.
+
+    The callbacks only store (a decoded health, a count); :meth:`render` does
+    the arithmetic. Poses are counted, not decoded: the line shows rates only.
+    """
+
+    def __init__(self, session: zenoh.Session, robots: list[FleetRobot]) -> None:
+        self.robots = robots
+        self.alive: set[str] = set()
+        self.health: dict[str, tuple[GatewayHealth, float]] = {}
+        self.poses = dict.fromkeys((r.prefix for r in robots), 0)
+        self.errors = dict.fromkeys((r.prefix for r in robots), 0)
+        self._last_poses = dict(self.poses)
+        self._last_time = time.monotonic()
+        prefixes = set(self.poses)
+        self._subs: list[Any] = [
+            session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, lambda s: self._on_token(s, prefixes), history=True)
+        ]
+        for robot in robots:
+            keys = Keys(robot.prefix)
+            self._subs += [
+                session.declare_subscriber(keys.health, functools.partial(self._on_health, robot.prefix)),
+                session.declare_subscriber(keys.pose, functools.partial(self._count, self.poses, robot.prefix)),
+                session.declare_subscriber(keys.errors, functools.partial(self._count, self.errors, robot.prefix)),
+            ]
+
+    def _on_token(self, sample: zenoh.Sample, prefixes: set[str]) -> None:
+        prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
+        if prefix not in prefixes:
+            return
+        if sample.kind == zenoh.SampleKind.PUT:
+            self.alive.add(prefix)
+        else:
+            self.alive.discard(prefix)
+
+    def _on_health(self, prefix: str, sample: zenoh.Sample) -> None:
+        try:
+            self.health[prefix] = (decode(GatewayHealth, to_bytes(sample.payload)), time.monotonic())
+        except PayloadError:  # a malformed report: the previous one stands until it goes stale
+            pass
+
+    @staticmethod
+    def _count(counts: dict[str, int], prefix: str, _sample: zenoh.Sample) -> None:
+        counts[prefix] += 1
+
+    def render(self) -> str:
+        now = time.monotonic()
+        elapsed = max(now - self._last_time, 1e-6)
+        poses = dict(self.poses)
+        rates = [(poses[r.prefix] - self._last_poses[r.prefix]) / elapsed for r in self.robots]
+        self._last_poses, self._last_time = poses, now
+        fresh = {p: h for p, (h, at) in list(self.health.items()) if now - at <= HEALTH_STALE_S}
+        polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
+        count = len(self.robots)
+        parts = [f"robots {len(self.alive)}/{count} up"]
+        missing = [r.id for r in self.robots if r.prefix not in fresh]
+        if missing:
+            parts.append(f"no health {len(missing)}: {_named(missing)}")
+        down = [r.id for r in self.robots if r.prefix in fresh and _links(fresh[r.prefix]) != "connected/connected"]
+        if down:
+            parts.append(f"link down {len(down)}: {_named(down)}")
+        parts.append(f"poll min {min(polls):.0f} median {statistics.median(polls):.0f} Hz")
+        parts.append(f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
+        stopped = [r.id for r in self.robots if r.prefix in fresh and fresh[r.prefix].estop]
+        parts.append(f"E-STOP {len(stopped)}/{count}: {_named(stopped)}" if stopped else f"e-stop 0/{count}")
+        driving = [f"{r.id} ({fresh[r.prefix].active_source})" for r in self.robots if r.prefix in fresh and fresh[r.prefix].active_source]
+        if driving:
+            parts.append(f"driving {_named(driving)}")
+        erring = [r.id for r in self.robots if self.errors[r.prefix]]
+        if erring:
+            parts.append(f"errors {sum(self.errors.values())}: {_named(erring)}")
+        return " | ".join(parts)
+
+
+def _links(health: GatewayHealth) -> str:
+    return f"{health.control.state}/{health.log.state}"
+
+
+def _fleet_drive_help(robots: list[FleetRobot], endpoint: str) -> str:
+    first = robots[0].prefix
+    return "\n".join(
+        [
+            f"Drive one robot from any Zenoh client, by its prefix ({first} ... {robots[-1].prefix}; "
+            "commands time out after 0.5 s: publish at 5 Hz or more):",
+            f"  blackmetal teleop --prefix {first} -e {endpoint}",
+            f"  {python_snippet(Keys(first), endpoint)}",
+            f"Watch one:  blackmetal watch --prefix {first} -e {endpoint}    All:  blackmetal robots -e {endpoint}",
+            f"Stop one:   blackmetal estop on --prefix {first} -e {endpoint}",
+            "Ctrl-C stops everything.",
+        ]
+    )
+
+
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     """up's own options; the defaults of those it passes on are the services' settings defaults."""
     control_port, log_port = default_of(GatewaySettings, "control_port"), default_of(GatewaySettings, "log_port")
     parser = parser or argparse.ArgumentParser(prog="blackmetal up", description=__doc__)
     parser.add_argument("--robot", metavar="HOST", help="drive a real robot at HOST instead of the simulator")
+    parser.add_argument(
+        "--robots",
+        type=int,
+        metavar="N",
+        help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway and one odometry "
+        "process (--fleet), with one status line for all",
+    )
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
     parser.add_argument("--log-port", type=int, default=log_port, help=f"robot log port with --robot (default {log_port})")
     parser.add_argument(
@@ -296,9 +439,29 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     return parser
 
 
+def check_fleet_options(args: argparse.Namespace) -> None:
+    """ConfigError, one sentence, for an option that makes no sense with ``--robots N``."""
+    count = args.robots
+    if count < 1:
+        raise ConfigError(f"--robots needs at least 1 robot, got {count}")
+    hint = "run it beside the fleet for one robot, e.g. `blackmetal {} --prefix fleet/r1 -e ENDPOINT`"
+    if args.robot:
+        raise ConfigError("--robot HOST drives one real robot and --robots N simulates N: give one or the other "
+                          "(real robots of a fleet: a fleet file for `blackmetal gateway --fleet FILE`)")  # fmt: skip
+    if args.prefix:
+        raise ConfigError(f"--prefix does not go with --robots: the fleet's prefixes are fleet/r1 ... fleet/r{count}")
+    if args.ros2:
+        raise ConfigError("--ros2 serves one robot and does not go with --robots; " + hint.format("ros2"))
+    if args.foxglove:
+        raise ConfigError("--foxglove shows one robot and does not go with --robots; " + hint.format("foxglove"))
+
+
 @tool("up")
 def run(args: argparse.Namespace) -> int:
     """Exit 2 for a setting up cannot use, 1 when Zenoh or a child fails; one sentence each."""
+    fleet = args.robots is not None
+    if fleet:
+        check_fleet_options(args)
     if args.ros2:
         require_extra("blackmetal up --ros2", "ros2", "rosbags")
     if args.foxglove:
@@ -313,6 +476,8 @@ def run(args: argparse.Namespace) -> int:
                 "(--robot, --control-port, --log-port, -l, -e, -c)",
                 flush=True,
             )
+        if fleet and files.prefix:
+            raise ConfigError(f"settings file {args.settings}: prefix {files.prefix!r} does not go with --robots (fleet/r1 ...)")
         keys = Keys(validate_prefix(args.prefix or files.prefix or DEFAULT_PREFIX))
         topology = Topology(args)
         stop = stop_on_signals()
@@ -321,6 +486,9 @@ def run(args: argparse.Namespace) -> int:
             return 0  # Ctrl-C while waiting for the router
         children: list[ServiceProcess] = []
         try:
+            if fleet:
+                with tempfile.TemporaryDirectory(prefix="blackmetal-fleet-") as workdir:
+                    return _run_fleet(args, session, topology, files, children, stop, Path(workdir) / "fleet.toml")
             return _run(args, keys, session, topology, files, children, stop)
         finally:
             # odometry and gateway first (the gateway stops the robot), then the simulator
@@ -370,7 +538,7 @@ def _run(
         odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *files.args("odometry"), *zargs], args.verbose)
         ros2_args = ["ros2", "--flavor", args.ros2, "--prefix", prefix, *files.args("ros2"), *zargs]
         ros2 = _start(children, "ros2", ros2_args, args.verbose) if args.ros2 else None
-        gateway.wait_ready(READY_TIMEOUT_S)
+        cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         odometry.wait_ready(READY_TIMEOUT_S)
         ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
         view = None
@@ -385,7 +553,7 @@ def _run(
         print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
     if view:
         print(f"Foxglove: open a Foxglove WebSocket connection to {view} (layout: deploy/foxglove/blackmetal.layout.json)", flush=True)
-    print(_drive_help(keys, hub), flush=True)
+    print(_drive_help(keys, hub, cmd_timeout), flush=True)
     announce_ready(
         "up",
         endpoint=hub,
@@ -396,6 +564,80 @@ def _run(
         children={child.name: child.proc.pid for child in children},
     )
     status = StatusLine(session, keys, with_truth=not args.robot)
+
+    def stop_the_robot() -> str:
+        reason = stop_robot(host, control_port, timeout=2.0)
+        return "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
+
+    return _live(args, children, stop, status.render, gateway, stop_the_robot)
+
+
+def _run_fleet(
+    args: argparse.Namespace,
+    session: zenoh.Session,
+    topology: Topology,
+    files: ServiceFiles,
+    children: list[ServiceProcess],
+    stop: threading.Event,
+    fleet_file: Path,
+) -> int:
+    """``--robots N``: one simulator for all, then the fleet gateway and odometry on the file it writes."""
+    zargs = topology.child_args()
+    hub = topology.endpoint
+    poll_args = ["--poll-hz", str(args.poll_hz)] if args.poll_hz is not None else []
+    try:
+        sim_args = ["sim", "--robots", str(args.robots), "--write-fleet", str(fleet_file), *files.args("sim"), *zargs]
+        if args.seed is not None:
+            sim_args += ["--seed", str(args.seed)]
+        _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
+        robots = load_fleet(fleet_file)  # with the ports the simulator bound
+        gateway = _start(children, "gateway", ["gateway", "--fleet", str(fleet_file), *poll_args, *files.args("gateway"), *zargs],
+                         args.verbose)  # fmt: skip
+        odometry = _start(children, "odometry", ["odometry", "--fleet", str(fleet_file), *files.args("odometry"), *zargs], args.verbose)
+        gateway.wait_ready(READY_TIMEOUT_S)
+        odometry.wait_ready(READY_TIMEOUT_S)
+    except ChildFailed as exc:
+        print(f"blackmetal up: {exc}", file=sys.stderr)
+        return 1
+    shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
+    print(
+        f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} "
+        f"(one simulator, one gateway, one odometry process), {topology.describe()}",
+        flush=True,
+    )
+    print(_fleet_drive_help(robots, hub), flush=True)
+    announce_ready(
+        "up",
+        endpoint=hub,
+        prefixes=[r.prefix for r in robots],
+        robots=[[r.id, r.prefix, r.host, r.control_port, r.log_port] for r in robots],
+        children={child.name: child.proc.pid for child in children},
+    )
+    status = FleetStatus(session, robots)
+    return _live(args, children, stop, status.render, gateway, lambda: _stop_fleet(robots))
+
+
+def _stop_fleet(robots: list[FleetRobot]) -> str:
+    """Zero velocity and NORMAL_STOP to every robot at once (their gateway is gone); what came of it, one sentence."""
+    with ThreadPoolExecutor(max_workers=min(len(robots), 16), thread_name_prefix="stop-robot") as pool:
+        reasons = list(pool.map(lambda r: stop_robot(r.host, r.control_port, timeout=2.0), robots))
+    failed = [(robot, reason) for robot, reason in zip(robots, reasons, strict=True) if reason is not None]
+    stopped = f"{len(robots) - len(failed)} of {len(robots)} robots were sent zero velocity and NORMAL_STOP"
+    if not failed:
+        return stopped
+    robot, reason = failed[0]
+    return f"{stopped}; {robot.id}: {reason}" + (f" (and {len(failed) - 1} more)" if len(failed) > 1 else "")
+
+
+def _live(
+    args: argparse.Namespace,
+    children: list[ServiceProcess],
+    stop: threading.Event,
+    render: Callable[[], str],
+    gateway: ServiceProcess,
+    stop_robots: Callable[[], str],
+) -> int:
+    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines)."""
     tty = sys.stdout.isatty()
     interval = args.status_interval if tty else max(args.status_interval, 2.0)
     next_status = time.monotonic() + interval
@@ -404,10 +646,8 @@ def _run(
             if child.poll() is not None:
                 if tty:
                     print()
-                if child is gateway:  # nobody is left to stop the robot: do it now
-                    reason = stop_robot(host, control_port, timeout=2.0)
-                    outcome = "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
-                    print(f"blackmetal up: gateway gone; {outcome}", file=sys.stderr, flush=True)
+                if child is gateway:  # nobody is left to stop the robots: do it now
+                    print(f"blackmetal up: gateway gone; {stop_robots()}", file=sys.stderr, flush=True)
                 print(
                     f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
                     file=sys.stderr,
@@ -417,7 +657,7 @@ def _run(
         if time.monotonic() < next_status:
             continue
         next_status += interval
-        line = status.render()
+        line = render()
         if tty:
             width = os.get_terminal_size().columns
             sys.stdout.write("\r\x1b[2K" + line[: max(width - 1, 20)])

@@ -1,0 +1,195 @@
+"""The fleet as a person meets it: ``blackmetal up --robots N``, its status line, and ``blackmetal robots``.
+
+One ``up --robots 5`` serves the module (started again if a test ended it);
+every check waits on what a person would read, the status line or the
+table, never on a fixed sleep alone.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from collections.abc import Callable, Iterator
+
+import pytest
+from helpers import Child, free_port, wait_for
+
+pytestmark = pytest.mark.integration
+
+N = 5
+PREFIXES = [f"fleet/r{k}" for k in range(1, N + 1)]
+#: The fleet's status line, e.g. ``robots 5/5 up | poll min 50 median 50 Hz | poses/s min 50 median 50 | e-stop 0/5``.
+STATUS = re.compile(
+    r"^robots (?P<up>\d+)/(?P<n>\d+) up .*?\| poll min (?P<poll_min>\d+) median (?P<poll_median>\d+) Hz "
+    r"\| poses/s min (?P<poses_min>\d+) median \d+ \| (?:e-stop 0/\d+|E-STOP (?P<estops>\d+)/\d+: (?P<stopped>[^|]+?))(?: \||$)"
+)
+
+
+class FleetUp(Child):
+    """``blackmetal up --robots n`` as a hub on a free loopback port; its children's pids once ready."""
+
+    def __init__(self, n: int) -> None:
+        self.endpoint = f"tcp/127.0.0.1:{free_port()}"
+        super().__init__(["-m", "blackmetal", "up", "--robots", str(n), "-l", self.endpoint, "--no-multicast-scouting"])
+        info = self.ready(timeout=60)
+        self.children: dict[str, int] = info["children"]
+        self.prefixes: list[str] = info["prefixes"]
+
+    def status(self, condition: Callable[[re.Match[str]], bool], after: int = 0, what: str = "a status line") -> re.Match[str]:
+        """The first status line from output line ``after`` on for which ``condition`` holds (lines come every 2 s)."""
+
+        def found() -> re.Match[str] | None:
+            for line in list(self.lines)[after:]:
+                match = STATUS.search(line)
+                if match and condition(match):
+                    return match
+            if self.poll() is not None:
+                raise AssertionError(f"up exited with {self.proc.returncode}:\n{self.output()}")
+            return None
+
+        try:
+            return wait_for(found, timeout=30, what=what)
+        except AssertionError as exc:
+            raise AssertionError(f"{exc}\noutput:\n{self.output()}") from None
+
+
+class Fleets:
+    """The module's fleet, started again when a test has ended it."""
+
+    def __init__(self) -> None:
+        self.current: FleetUp | None = None
+
+    def get(self) -> FleetUp:
+        if self.current is None or self.current.poll() is not None:
+            self.current = FleetUp(N)
+        return self.current
+
+
+@pytest.fixture(scope="module")
+def fleets() -> Iterator[Fleets]:
+    holder = Fleets()
+    yield holder
+    if holder.current is not None:
+        holder.current.stop()
+
+
+@pytest.fixture
+def fleet(fleets: Fleets) -> FleetUp:
+    return fleets.get()
+
+
+def blackmetal(*args: str) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "blackmetal", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+
+
+def finish(proc: subprocess.Popen[str], timeout: float = 60) -> tuple[int, str, str]:
+    try:
+        out, err = proc.communicate(timeout=timeout)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait(5)
+    return proc.returncode, out, err
+
+
+def robots(fleet: FleetUp, *flags: str) -> subprocess.Popen[str]:
+    return blackmetal("robots", *flags, "-e", fleet.endpoint, "--no-multicast-scouting", "--wait", "1.5")
+
+
+def outliving(fleet: FleetUp) -> list[str]:
+    """The children of an ended ``up`` that still run (up reaps each child it stops, so none should)."""
+    alive = []
+    for name, pid in fleet.children.items():
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            continue
+        alive.append(f"{name} (pid {pid})")
+    return alive
+
+
+def table_rows(out: str) -> dict[str, list[str]]:
+    """``blackmetal robots --table`` as prefix -> cells (the header line checked and left out)."""
+    header, *rows = out.strip().splitlines()
+    assert header.split()[:2] == ["prefix", "link"], out
+    return {row.split()[0]: row.split() for row in rows}
+
+
+def test_up_robots_comes_up_with_one_status_line_for_the_fleet(fleet: FleetUp) -> None:
+    assert sorted(fleet.children) == ["gateway", "odometry", "sim"]  # three processes, whatever N
+    assert fleet.prefixes == PREFIXES
+    fleet.wait_line(rf"^\s+blackmetal teleop --prefix fleet/r1 -e {re.escape(fleet.endpoint)}$")
+    line = fleet.status(
+        lambda m: m["up"] == m["n"] == str(N) and 45 <= int(m["poll_min"]) <= int(m["poll_median"]) <= 55 and int(m["poses_min"]) >= 40,
+        what="5/5 robots up, polled at about 50 Hz, posing",
+    )
+    assert line["estops"] is None, line.string
+
+
+def test_robots_lists_every_robot_of_the_fleet(fleet: FleetUp) -> None:
+    fleet.status(lambda m: m["up"] == str(N), what="5/5 robots up")
+    shown, listed, dumped = robots(fleet, "--table"), robots(fleet), robots(fleet, "--json")  # at once: each takes its --wait
+    (code, out, err), (plain_code, plain, _), (json_code, dump, _) = finish(shown), finish(listed), finish(dumped)
+    assert code == plain_code == json_code == 0, err
+    rows = table_rows(out)
+    assert list(rows) == PREFIXES, out
+    for cells in rows.values():  # prefix, link, poll, Hz, x, y, yaw, e-stop, drives
+        assert cells[1] == "connected/connected" and 45 <= int(cells[2]) <= 55 and cells[7] == "off", out
+    assert plain.split() == PREFIXES  # piped without --table: one prefix a line, for scripts
+    entries = json.loads(dump)
+    assert [e["prefix"] for e in entries] == PREFIXES and all(e["estop"] is False and e["pose"] is not None for e in entries)
+
+
+def test_an_estop_on_r3_shows_as_r3s_alone(fleet: FleetUp) -> None:
+    start = len(fleet.lines)
+    try:
+        code, out, err = finish(blackmetal("estop", "on", "--prefix", "fleet/r3", "-e", fleet.endpoint, "--no-multicast-scouting"))
+        assert code == 0 and "ENGAGED on fleet/r3" in out, out + err
+        line = fleet.status(lambda m: m["estops"] is not None, after=start, what="the e-stop in the status line")
+        assert line["estops"] == "1" and line["stopped"] == "r3", line.string
+        code, out, err = finish(robots(fleet, "--table"))
+        assert code == 0, err
+        assert {prefix: cells[7] for prefix, cells in table_rows(out).items()} == {
+            p: "ENGAGED" if p == "fleet/r3" else "off" for p in PREFIXES
+        }
+    finally:
+        code, out, err = finish(blackmetal("estop", "off", "--prefix", "fleet/r3", "-e", fleet.endpoint, "--no-multicast-scouting"))
+    assert code == 0 and "released" in out, out + err
+
+
+def test_a_killed_child_is_reported_and_nothing_is_left(fleet: FleetUp) -> None:
+    os.kill(fleet.children["gateway"], signal.SIGKILL)
+    assert fleet.wait(20) == 1
+    out = fleet.output()
+    assert f"gateway gone; {N} of {N} robots were sent zero velocity and NORMAL_STOP" in out, out
+    assert re.search(r"gateway exited with code -9; its last lines:\n(\s+.*\n)*?\s+.*gateway ready: a fleet of 5 robots", out), out
+    assert not outliving(fleet), "up stopped and reaped the others"
+
+
+def test_ctrl_c_stops_the_whole_fleet_within_three_seconds(fleet: FleetUp) -> None:
+    fleet.status(lambda m: m["up"] == str(N), what="5/5 robots up")
+    start = time.monotonic()
+    assert fleet.stop(signal.SIGINT) == 0
+    assert time.monotonic() - start < 3.0
+    assert not outliving(fleet)
+
+
+def test_options_for_one_robot_end_in_one_sentence() -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    cases = {
+        "--ros2": "--ros2 serves one robot and does not go with --robots",
+        "--foxglove": "--foxglove shows one robot and does not go with --robots",
+        "--robot=10.0.0.2": "--robot HOST drives one real robot and --robots N simulates N",
+        "--prefix=lab": "the fleet's prefixes are fleet/r1 ... fleet/r3",
+    }
+    started = {flag: blackmetal("up", "--robots", "3", flag, "-l", endpoint) for flag in cases}
+    started["--robots=0"] = blackmetal("up", "--robots", "0", "-l", endpoint)
+    cases["--robots=0"] = "--robots needs at least 1 robot, got 0"
+    for flag, proc in started.items():
+        code, _, err = finish(proc)
+        assert code == 2 and err.count("\n") == 1 and cases[flag] in err, (flag, err)
