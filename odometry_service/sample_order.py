@@ -177,7 +177,11 @@ class SampleOrder:
         self.seq, self.time, self.source, self.arrival = seq, time, source, arrival
         if arrival is None:
             self.first_offset = self.least_offset = None
-        elif verdict.new_epoch or self.first_offset is None or self.least_offset is None:
+        elif self.first_offset is None or self.least_offset is None or (verdict.new_epoch and verdict.start is not EpochStart.GAP):
+            # a new gateway, or the first sample: a new pair of clocks. A gap keeps the same pair (same
+            # source), so it keeps what the epochs before it learnt of the delivery delay: a sample that
+            # arrives late after a stall (a backlog) must not become the measure every punctual sample
+            # after it fails, which would reject them all for good
             self.first_offset = self.least_offset = arrival - time
         else:  # the smallest delivery delay seen, allowed to settle at most SETTLE_S below the first sample's
             self.least_offset = max(min(self.least_offset, arrival - time), self.first_offset - SETTLE_S)

@@ -155,6 +155,28 @@ def test_delivery_jitter_on_a_loaded_machine_is_never_mistaken_for_a_lie() -> No
     assert odo.samples == 2000
 
 
+def test_a_stalled_odometry_follows_again_after_its_backlog() -> None:
+    """The odometry stops for 5 s (a stalled host); Zenoh keeps the newest samples and drops the rest.
+
+    The backlog arrives late and starts a new epoch after the dropped ones (a gap); the punctual samples
+    after it must pass the arrival check again (they were rejected for good: a fleet robot at 0 poses/s).
+    """
+    odo = Odometry(live=True)
+    drive(odo, 1.0)
+    resumed = 6.0
+    for k in range(200, 300):  # the 2 s before the end of the stall, delivered at once in order; the 3 s before lost
+        odo.feed(sample(k, k * 0.02), arrival=resumed)
+    x_backlog = odo.x
+    rejected = 0
+    for k in range(300, 400):  # punctual again
+        try:
+            odo.feed(sample(k, k * 0.02), arrival=k * 0.02 + 0.001)
+        except SampleRejected:
+            rejected += 1
+    assert rejected == 0
+    assert odo.x - x_backlog == pytest.approx(0.2 * 2.0, rel=0.05)
+
+
 # ------------------------------------------------- live input without mono/source: a forger beside the gateway
 
 #: Delivery delay of the honest gateway's samples in the fake-clock scenes (s).
