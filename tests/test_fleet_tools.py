@@ -182,7 +182,6 @@ def test_ctrl_c_stops_the_whole_fleet_within_three_seconds(fleet: FleetUp) -> No
 def test_options_for_one_robot_end_in_one_sentence() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cases = {
-        "--ros2": "--ros2 serves one robot and does not go with --robots",
         "--foxglove": "--foxglove shows one robot and does not go with --robots",
         "--robot=10.0.0.2": "--robot HOST drives one real robot and --robots N simulates N",
         "--prefix=lab": "the fleet's prefixes are fleet/r1 ... fleet/r3",
@@ -193,3 +192,27 @@ def test_options_for_one_robot_end_in_one_sentence() -> None:
     for flag, proc in started.items():
         code, _, err = finish(proc)
         assert code == 2 and err.count("\n") == 1 and cases[flag] in err, (flag, err)
+
+
+def test_up_robots_with_ros2_serves_one_ros_node_per_robot() -> None:
+    """``up --robots 2 --ros2``: the adapter runs on the fleet file, one node per robot in its namespace."""
+    pytest.importorskip("rosbags")
+    import zenoh
+
+    up = Child(["-m", "blackmetal", "up", "--robots", "2", "--ros2", "-l", (endpoint := f"tcp/127.0.0.1:{free_port()}")])
+    try:
+        info = up.ready(timeout=60)
+        assert "ros2" in info["children"], info
+        conf = zenoh.Config.from_json5(
+            json.dumps({"mode": "client", "connect": {"endpoints": [endpoint]}, "scouting": {"multicast": {"enabled": False}}})
+        )
+        with zenoh.open(conf) as session:
+
+            def nodes() -> set[str]:
+                keys = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/**", timeout=3) if r.ok is not None]
+                return {ns for key in keys if "/NN/" in key for ns in ("%r1", "%r2") if f"/{ns}/blackmetal" in key}
+
+            wait_for(lambda: nodes() == {"%r1", "%r2"}, what="the nodes /r1/blackmetal and /r2/blackmetal")
+        assert re.search(r"ROS 2 \(rmw_zenoh\): one node per robot, /r1/blackmetal", up.output()), up.output()
+    finally:
+        up.stop()

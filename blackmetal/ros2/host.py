@@ -5,26 +5,44 @@ edge hands payloads over to this host on the loop
 (:mod:`blackmetal.runtime.edge`), the host passes them on with ``now`` and
 pokes the shared :class:`~blackmetal.runtime.host.DeadlineTimer`, which runs
 ``core.tick`` at the core's next deadline. No timer of its own.
+
+``supervised`` (``--fleet``, :mod:`blackmetal.ros2.fleet`): a bug in
+handling an input or in the core's timers ends :meth:`Ros2Host.run` with
+that exception, for the supervisor to report and start this robot again;
+the other robots of the process go on. Unsupervised (one robot), such an
+exception goes to the loop's handler as it always has.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Callable
+from typing import Any
 
 from blackmetal.runtime.host import DeadlineTimer
 
 from .core import Ros2Core
 
+log = logging.getLogger("blackmetal.ros2")
+
 
 class Ros2Host:
     """Runs one :class:`Ros2Core` on the running asyncio loop; see the module docstring."""
 
-    def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False) -> None:
         self.core = core
         self.clock = clock
-        self.timer = DeadlineTimer(core, clock)
+        self.supervised = supervised
+        self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None)
+        self._failure: asyncio.Future[None] | None = None
+
+    def fail(self, exc: BaseException) -> None:
+        """A bug in this robot's handling (supervised): :meth:`run` ends with it, for the supervisor to start it again."""
+        log.error("%s: %r", self.core.keys.prefix, exc, exc_info=exc)
+        if self._failure is not None and not self._failure.done():
+            self._failure.set_exception(exc)
 
     def on_pose(self, payload: bytes) -> None:
         self.core.on_pose(payload, self.clock())
@@ -65,9 +83,23 @@ class Ros2Host:
         self.timer.poke()
 
     async def run(self, stop: asyncio.Event) -> None:
-        """Run the core's timers until ``stop``."""
-        self.timer.start()
+        """Run the core's timers until ``stop`` (supervised: or until :meth:`fail`, raising the failure)."""
+        if not self.supervised:
+            self.timer.start()
+            try:
+                await stop.wait()
+            finally:
+                self.timer.stop()
+            return
+        failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+        self._failure = failure
+        stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
         try:
-            await stop.wait()
+            self.timer.start()
+            await asyncio.wait({stopped, failure}, return_when=asyncio.FIRST_COMPLETED)
+            if failure.done():
+                failure.result()
         finally:
+            stopped.cancel()
             self.timer.stop()
+            self._failure = None

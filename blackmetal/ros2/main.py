@@ -7,6 +7,8 @@ answered once the gateway or the odometry confirms.
 With ROS 2's Zenoh middleware (``--flavor rmw_zenoh``, the default) connect
 to its router: ``blackmetal ros2 -m client -e tcp/localhost:7447``. With
 zenoh-bridge-ros2dds (``--flavor bridge``) connect to the bridge.
+``--fleet FILE``: one node per robot of a fleet file, each under the
+namespace of its id (/r3/cmd_vel, /r3/odom, frames r3/odom, r3/base_link).
 """
 
 from __future__ import annotations
@@ -15,12 +17,14 @@ import argparse
 import asyncio
 
 from blackmetal.runtime.entry import run_service, service_parser
+from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys
 
 from .core import Ros2Core
+from .fleet import fleet_settings, refuse_single_robot_options, serve_fleet
 from .host import Ros2Host
 from .messages import RosCodec
 from .naming import Direction, Flavor, full_topic, normalise_namespace, services, topics
@@ -67,10 +71,27 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    return service_parser("blackmetal ros2", __doc__, Ros2Settings, parser)
+    parser = service_parser("blackmetal ros2", __doc__, Ros2Settings, parser)
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="one ROS node per robot of this fleet file (TOML [[robot]] tables), each under the namespace of its id and "
+        "on its prefix, in this one process on one Zenoh session; not with --namespace, --prefix, --node-name",
+    )
+    return parser
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "fleet", None):
+
+        def load_fleet_settings() -> tuple[Ros2Settings, list[FleetRobot]]:
+            base = load_settings(Ros2Settings, args)
+            refuse_single_robot_options(vars(args), base)
+            robots = load_fleet(args.fleet)
+            fleet_settings(base, robots)  # every robot's settings checked before Zenoh is opened
+            return base, robots
+
+        return run_service("ros2", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
     return run_service("ros2", lambda: load_settings(Ros2Settings, args), serve)
 
 

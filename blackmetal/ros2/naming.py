@@ -113,6 +113,17 @@ def full_topic(namespace: str, topic: str) -> str:
     return f"{base}/{topic.strip('/')}"
 
 
+def tf_frame_prefix(namespace: str) -> str:
+    """The frame prefix diff_drive_controller takes from its namespace (``tf_frame_prefix`` left empty,
+    ``tf_frame_prefix_enable`` true, the defaults): ``/r3`` -> ``r3/``, ``/`` -> none.
+
+    As ``diff_drive_controller.cpp`` (Jazzy) and ``controller_interface/tf_prefix.hpp``
+    (``resolve_tf_prefix``, Rolling) do it: a trailing ``/`` is ensured, the leading one removed.
+    """
+    prefix = namespace if namespace.endswith("/") else namespace + "/"
+    return prefix.removeprefix("/")
+
+
 def dds_type(ros_type: str) -> str:
     """``geometry_msgs/msg/Twist`` -> ``geometry_msgs::msg::dds_::Twist_`` (the name rmw_zenoh puts in keys)."""
     package, kind, name = ros_type.split("/")
@@ -204,11 +215,14 @@ class RosService:
     ros_type: str
 
 
-def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
+def topics(publish_tf: bool, twist_stamped: bool, absolute_tf: bool = False) -> list[RosTopic]:
     """The node's topics, in the order their entities are numbered.
 
     ``/diagnostics`` is absolute, as diagnostic_updater publishes it: one
     aggregator sees every robot, told apart by the statuses' names.
+    ``absolute_tf``: ``/tf`` whatever the namespace, as diff_drive_controller
+    publishes it (``DEFAULT_TRANSFORM_TOPIC = "/tf"``), one tree for every
+    robot, told apart by the frames' prefixes (``--fleet``).
     """
     out = [
         RosTopic("cmd_vel", ros.TWIST_STAMPED if twist_stamped else ros.TWIST, Direction.SUBSCRIBE),
@@ -216,7 +230,7 @@ def topics(publish_tf: bool, twist_stamped: bool) -> list[RosTopic]:
         RosTopic("odom", ros.ODOMETRY, Direction.PUBLISH),
     ]
     if publish_tf:
-        out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH))
+        out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf))
     out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
     out.append(RosTopic("diagnostics", ros.DIAGNOSTIC_ARRAY, Direction.PUBLISH, absolute=True))
     return out

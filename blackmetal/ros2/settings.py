@@ -94,10 +94,11 @@ class Ros2Settings:
     def encoders(self) -> Encoders:
         return Encoders(self.impulses_left, self.impulses_right)
 
-    def options(self, data_keys: dict[str, str], service_keys: dict[str, str] | None = None) -> Ros2Options:
-        """The core's options; ``data_keys``/``service_keys``: the Zenoh key of each ROS topic/service, which error reports name."""
+    def options(self, data_keys: dict[str, str], service_keys: dict[str, str] | None = None, frame_prefix: str = "") -> Ros2Options:
+        """The core's options; ``data_keys``/``service_keys``: the Zenoh key of each ROS topic/service, which error reports name;
+        ``frame_prefix`` goes before both frames (``r3/``: ``r3/odom``, ``r3/base_link``)."""
         return Ros2Options(
-            frames=Frames(self.odom_frame, self.base_frame),
+            frames=Frames(frame_prefix + self.odom_frame, frame_prefix + self.base_frame),
             pose_covariance=diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal"),
             twist_covariance=diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal"),
             publish_tf=self.tf,

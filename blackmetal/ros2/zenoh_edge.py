@@ -14,8 +14,9 @@ decoded on a Zenoh thread.
 from __future__ import annotations
 
 import asyncio
+import itertools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Handover, ZenohEdge
@@ -74,21 +75,24 @@ class Ros2Zenoh(ZenohEdge):
         ros_topics: list[RosTopic],
         ros_services: list[RosService] | None = None,
         source: str = "ros2",
+        ids: Iterator[int] | None = None,
     ) -> None:
+        """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
+        (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``) share it."""
         import zenoh
 
         super().__init__(session)
         self.keys = keys
-        node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace)
+        ids = itertools.count() if ids is None else ids
+        node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace, node_id=next(ids))
         self.data_keys: dict[str, str] = {}
         self.service_keys: dict[str, str] = {}
         self.tokens: list[str] = []
         self._publishers: dict[str, _RosPublisher] = {}
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
-        entity_id = 0
         for topic in ros_topics:
-            entity_id += 1
+            entity_id = next(ids)
             name = topic.full_name(namespace)
             if flavor is Flavor.RMW_ZENOH:
                 type_hash = codec.type_hash(topic.ros_type)
@@ -106,7 +110,7 @@ class Ros2Zenoh(ZenohEdge):
                 self._entities.append(publisher)
                 self._publishers[topic.name] = _RosPublisher(publisher, gid)
         for service in ros_services or []:
-            entity_id += 1
+            entity_id = next(ids)
             name = full_topic(namespace, service.name)
             if flavor is Flavor.RMW_ZENOH:
                 type_hash = codec.type_hash(service.ros_type)
@@ -165,7 +169,7 @@ class Ros2Zenoh(ZenohEdge):
 
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Handover:
-        handover = Handover(loop)
+        handover = Handover(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
         self._host = host
         self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))

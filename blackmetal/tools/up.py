@@ -450,8 +450,6 @@ def check_fleet_options(args: argparse.Namespace) -> None:
                           "(real robots of a fleet: a fleet file for `blackmetal gateway --fleet FILE`)")  # fmt: skip
     if args.prefix:
         raise ConfigError(f"--prefix does not go with --robots: the fleet's prefixes are fleet/r1 ... fleet/r{count}")
-    if args.ros2:
-        raise ConfigError("--ros2 serves one robot and does not go with --robots; " + hint.format("ros2"))
     if args.foxglove:
         raise ConfigError("--foxglove shows one robot and does not go with --robots; " + hint.format("foxglove"))
 
@@ -594,8 +592,14 @@ def _run_fleet(
         gateway = _start(children, "gateway", ["gateway", "--fleet", str(fleet_file), *poll_args, *files.args("gateway"), *zargs],
                          args.verbose)  # fmt: skip
         odometry = _start(children, "odometry", ["odometry", "--fleet", str(fleet_file), *files.args("odometry"), *zargs], args.verbose)
+        ros2 = None
+        if args.ros2:  # one ROS node per robot, /<id>/..., in one adapter process
+            ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *zargs]
+            ros2 = _start(children, "ros2", ros2_args, args.verbose)
         gateway.wait_ready(READY_TIMEOUT_S)
         odometry.wait_ready(READY_TIMEOUT_S)
+        if ros2 is not None:
+            ros2.wait_ready(READY_TIMEOUT_S)
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
@@ -605,6 +609,10 @@ def _run_fleet(
         f"(one simulator, one gateway, one odometry process), {topology.describe()}",
         flush=True,
     )
+    if args.ros2:
+        first = robots[0].id
+        print(f"ROS 2 ({args.ros2}): one node per robot, /{first}/blackmetal ... with /{first}/cmd_vel, /{first}/odom, "
+              f"frames {first}/odom -> {first}/base_link on /tf, services /{first}/set_estop, /{first}/reset_odometry", flush=True)  # fmt: skip
     print(_fleet_drive_help(robots, hub), flush=True)
     announce_ready(
         "up",
