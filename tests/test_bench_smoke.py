@@ -222,3 +222,23 @@ def test_a_stopped_bench_stops_every_process_it_started(tmp_path: Path, how: str
     assert code == 128 + sig, output
     assert "Traceback" not in output, output
     assert output.splitlines()[-1] == f"blackmetal bench: stopped by {sig.name} before it finished; every process it started is stopped"
+
+
+@pytest.mark.integration
+def test_bench_fleet_measures_a_fleet_with_a_probe_robot(tmp_path: Path) -> None:
+    """``bench --fleet 1,3 --quick``: a row per size, every robot posing, the probe's command and e-stop latencies."""
+    out = tmp_path / "fleet.json"
+    proc = subprocess.run(
+        [sys.executable, "-m", "blackmetal", "bench", "--fleet", "3,1", "--quick", "--json", str(out)],
+        capture_output=True, text=True, timeout=300,
+    )  # fmt: skip
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    runs = json.loads(out.read_text())["fleet"]
+    assert [run["robots"] for run in runs] == [1, 3]
+    for run in runs:
+        assert run["pose_hz_min"] > 25, run  # every robot poses (50 Hz asked; a loaded machine polls later)
+        assert set(run["cpu"]) == {"router", "gateway", "odometry"} | ({"sim"} if run["robots"] > 1 else set())
+        assert run["cmd_vel_ms"]["n"] == 40 and run["estop_ms"]["n"] == 20
+    assert "robots | CPU router+gateway+odometry" in proc.stdout
+    bad = subprocess.run([sys.executable, "-m", "blackmetal", "bench", "--fleet", "0"], capture_output=True, text=True, timeout=60)
+    assert bad.returncode == 2 and "at least 1 robot" in bad.stderr and "Traceback" not in bad.stderr

@@ -498,7 +498,25 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         type=_figure_names,
         help=f"measure only these figures (and the figures they need as baselines): {', '.join(FIGURE_NAMES)}",
     )
+    parser.add_argument(
+        "--fleet",
+        metavar="N[,N]",
+        nargs="?",
+        const="1,10,50,100",
+        type=_fleet_sizes,
+        help="instead of the figures above: fleets of N robots on one router, one fleet gateway and odometry (default 1,10,50,100)",
+    )
     return parser
+
+
+def _fleet_sizes(text: str) -> list[int]:
+    try:
+        sizes = [int(part) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"fleet sizes are whole numbers, e.g. 1,10,50,100; got {text!r}") from None
+    if not sizes or min(sizes) < 1:
+        raise argparse.ArgumentTypeError(f"fleet sizes are at least 1 robot each; got {text!r}")
+    return sorted(set(sizes))
 
 
 def _finite(value: Any) -> Any:
@@ -532,6 +550,8 @@ def run(args: argparse.Namespace) -> int:
         started = time.monotonic()
         result: dict[str, Any] | None = None
         try:
+            if args.fleet:
+                return _fleet(args, started)
             result = measure(args.quick, progress=_say, only=args.only)
         except KeyboardInterrupt:
             pass
@@ -543,6 +563,27 @@ def run(args: argparse.Namespace) -> int:
             return 128 + stopped_by
         result["duration_s"] = time.monotonic() - started
         return _report(result, args.json)
+
+
+def _fleet(args: argparse.Namespace, started: float) -> int:
+    """``--fleet``: one row per fleet size; a size that fails is one line, and the sizes after it are not measured."""
+    from .fleet import fleet_table, measure_fleet
+
+    try:
+        runs = measure_fleet(args.fleet, args.quick, progress=_say)
+    except (ChildFailed, TimeoutError, OSError) as exc:
+        _say(f"blackmetal bench: the fleet figure failed: {one_sentence(exc)}")
+        return 1
+    print(fleet_table(runs))
+    print(f"(took {time.monotonic() - started:.0f} s)", flush=True)
+    if args.json:
+        try:
+            with open(args.json, "w") as handle:
+                json.dump(_finite({"fleet": runs}), handle, indent=2, allow_nan=False)
+        except OSError as exc:
+            _say(f"blackmetal bench: cannot write {args.json}: {exc.strerror}")
+            return 1
+    return 0
 
 
 def _report(result: dict[str, Any], json_path: str | None) -> int:

@@ -14,6 +14,7 @@ import time
 from collections.abc import Callable
 from contextlib import ExitStack
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from blackmetal.runtime.harness import ServiceProcess
 from schemas import Keys
@@ -21,6 +22,9 @@ from schemas import Keys
 from .children import spawn, spawn_blackmetal
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
 from .synth import square_legs, synth_log
+
+if TYPE_CHECKING:
+    import zenoh
 
 KEYS = Keys()
 
@@ -114,23 +118,32 @@ def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros
                 return codec.encode_twist(speed, 0.0)
         else:
             pub = session.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
-
-            def payload(speed: float) -> bytes:
-                return b'{"linear":{"x":%.6f}}' % speed
+            payload = _json_twist
 
         wait_polls(robot)
-        time.sleep(0.3)
-        sent: dict[float, float] = {}
-        for i in range(samples + 30):
-            speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
-            data = payload(speed)
-            start = time.time()
-            pub.put(data)
-            if i >= 30:  # warm-up
-                sent[speed] = start
-            time.sleep(random.uniform(*COMMAND_GAP_S))
-        time.sleep(0.3)
-        arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
+        return command_latencies(pub, robot, samples, payload)
+
+
+def _json_twist(speed: float) -> bytes:
+    return b'{"linear":{"x":%.6f}}' % speed
+
+
+def command_latencies(
+    pub: "zenoh.Publisher", robot: RobotProcess, samples: int, payload: Callable[[float], bytes] = _json_twist
+) -> dict[str, float]:
+    """Commands put on ``pub`` (30 of warm-up, then ``samples``), each a distinct speed: put -> arrival at the robot's socket."""
+    time.sleep(0.3)
+    sent: dict[float, float] = {}
+    for i in range(samples + 30):
+        speed = round(0.0005 * (1 + i), 6) * (1 if i % 2 else -1)
+        data = payload(speed)
+        start = time.time()
+        pub.put(data)
+        if i >= 30:  # warm-up
+            sent[speed] = start
+        time.sleep(random.uniform(*COMMAND_GAP_S))
+    time.sleep(0.3)
+    arrivals = {float(k): v for k, v in robot.dump()["arrivals"]}
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
 
 
@@ -145,16 +158,21 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
         session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
         pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
         wait_polls(robot)
-        time.sleep(0.3)
-        starts = []
-        for _ in range(samples + 10):
-            time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
-            starts.append(time.time())
-            pub.put(b'{"engaged": true}')
-            time.sleep(random.uniform(*COMMAND_GAP_S))
-            pub.put(b'{"engaged": false}')
-        time.sleep(0.3)
-        stops = robot.dump()["emg_stops"]  # one EMG_STOP per engage, in order (the robot takes every command)
+        return estop_latencies(pub, robot, samples)
+
+
+def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int) -> dict[str, float]:
+    """Engage (then release) on ``pub``, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket."""
+    time.sleep(0.3)
+    starts = []
+    for _ in range(samples + 10):
+        time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
+        starts.append(time.time())
+        pub.put(b'{"engaged": true}')
+        time.sleep(random.uniform(*COMMAND_GAP_S))
+        pub.put(b'{"engaged": false}')
+    time.sleep(0.3)
+    stops = robot.dump()["emg_stops"][-(samples + 10) :]  # one EMG_STOP per engage, in order (the robot takes every command)
     latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
     return percentiles(latencies)
 

@@ -1,0 +1,131 @@
+"""``blackmetal bench --fleet``: one router, N robots behind one fleet gateway and one fleet odometry, measured together.
+
+At each size, N-1 robots are simulated (``sim --robots N-1``) and one is the
+bench's own mini robot (``fleet/probe``), which stamps command arrivals at its
+socket. All poll at 50 Hz. In one window: the CPU share of the router, the
+simulator (reported apart: it stands in for the robots), the fleet gateway
+and the fleet odometry; their resident memory; every robot's pose rate (min
+and median); the messages published into the router per second (impulses,
+poses, health and status, from the measured rates). Then, with the fleet
+still running, ``cmd_vel`` -> bytes at the probe's socket (p50/p99) and the
+e-stop -> EMG_STOP (p50/p99).
+"""
+
+from __future__ import annotations
+
+import collections
+import statistics
+import tempfile
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import Any
+
+from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
+from schemas import GatewayHealth, Keys, decode
+
+from .figures import _service, command_latencies, cpu_seconds, estop_latencies, mini_robot, rss_mb, wait_polls
+from .peers import EXPRESS, _zenoh_conf, free_port
+
+#: Every fleet robot's poll rate (Hz): the issue's figure.
+POLL_HZ = 50.0
+PROBE = "probe"
+
+
+def fleet_figure(robots: int, seconds: float, samples: int) -> dict[str, Any]:
+    """The figures of one fleet of ``robots`` (see the module docstring)."""
+    import zenoh
+
+    with ExitStack() as stack, tempfile.TemporaryDirectory(prefix="blackmetal-bench-fleet-") as folder:
+        zport = free_port()
+        endpoint = ["-e", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"]
+        processes = {"router": _service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
+        probe_robot = mini_robot(stack)
+        simulated: list[FleetRobot] = []
+        if robots > 1:
+            sim_file = Path(folder) / "simulated.toml"
+            processes["sim"] = _service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
+            simulated = load_fleet(sim_file)
+        probe = FleetRobot(robots, PROBE, "127.0.0.1", probe_robot.control_port, probe_robot.log_port, f"fleet/{PROBE}")
+        fleet_file = Path(folder) / "fleet.toml"
+        fleet_file.write_text(write_fleet([*simulated, probe]))
+        processes["gateway"] = _service(
+            stack, "gateway", ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *endpoint]
+        )
+        processes["odometry"] = _service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        poses: collections.Counter[str] = collections.Counter()
+        session.declare_subscriber("fleet/*/pose", lambda sample: poses.update((str(sample.key_expr),)))
+        wait_polls(probe_robot)
+        deadline = time.monotonic() + 60.0
+        while len(poses) < robots:
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"only {len(poses)} of {robots} robots posed within 60 s")
+            time.sleep(0.2)
+        time.sleep(1.0)
+
+        pids = {name: child.proc.pid for name, child in processes.items()}
+        cpu0, counts0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, dict(poses), time.monotonic()
+        time.sleep(seconds)
+        cpu1, counts1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, dict(poses), time.monotonic()
+        elapsed = t1 - t0
+        rates = sorted((counts1.get(key, 0) - counts0.get(key, 0)) / elapsed for key in {*counts0, *counts1})
+        rates += [0.0] * (robots - len(rates))
+        cpu = {name: (cpu1[name] - cpu0[name]) / elapsed for name in pids}
+        rss = {name: rss_mb(pid) for name, pid in pids.items()}
+        polls = [
+            decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz
+            for r in session.get("fleet/*/gateway/health", timeout=5)
+            if r.ok is not None
+        ]
+
+        probe_keys = Keys(probe.prefix)
+        cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
+        estop = estop_latencies(session.declare_publisher(probe_keys.estop, express=EXPRESS), probe_robot, samples // 2)
+    services = ("router", "gateway", "odometry")
+    return {
+        "robots": robots,
+        "seconds": elapsed,
+        "cpu": cpu,
+        "cpu_services": sum(cpu.get(name, 0.0) for name in services),
+        "cpu_with_sim": sum(cpu.values()),
+        "rss_mb": rss,
+        "rss_services_mb": sum(rss.get(name, 0.0) for name in services),
+        "pose_hz_min": rates[0],
+        "pose_hz_median": statistics.median(rates),
+        "poll_hz_min": min(polls, default=0.0),
+        # every poll publishes one impulse sample, every pose one pose; health and status once a second each
+        "messages_per_s": sum(polls) + sum(rates) + 2 * robots,
+        "cmd_vel_ms": cmd,
+        "estop_ms": estop,
+    }
+
+
+def measure_fleet(sizes: list[int], quick: bool, progress: Any = print) -> list[dict[str, Any]]:
+    out = []
+    for robots in sizes:
+        progress(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz ...")
+        out.append(fleet_figure(robots, 2.0 if quick else 10.0, 40 if quick else 400))
+    return out
+
+
+def fleet_table(runs: list[dict[str, Any]]) -> str:
+    """One row per fleet size; memory per added robot against the smallest fleet of the same run."""
+    first = runs[0]
+    header = (
+        "robots | CPU router+gateway+odometry (sim apart) | memory, per added robot | pose Hz min/median | "
+        "messages/s | cmd_vel p50/p99 | e-stop p50/p99"
+    )
+    lines = [header, "-" * len(header)]
+    for run in runs:
+        added = run["robots"] - first["robots"]
+        per_robot = f"{(run['rss_services_mb'] - first['rss_services_mb']) / added:.2f} MB" if added else "-"
+        cpu = run["cpu"]
+        lines.append(
+            f"{run['robots']:>6} | {run['cpu_services']:.2f} cores (router {cpu['router']:.2f}, gateway {cpu['gateway']:.2f}, "
+            f"odometry {cpu['odometry']:.2f}; sim {cpu.get('sim', 0.0):.2f}) | {run['rss_services_mb']:.0f} MB, {per_robot} | "
+            f"{run['pose_hz_min']:.1f}/{run['pose_hz_median']:.1f} | {run['messages_per_s']:.0f} | "
+            f"{run['cmd_vel_ms']['p50_ms']:.2f}/{run['cmd_vel_ms']['p99_ms']:.2f} ms | "
+            f"{run['estop_ms']['p50_ms']:.2f}/{run['estop_ms']['p99_ms']:.2f} ms"
+        )
+    return "\n".join(lines)
