@@ -59,7 +59,7 @@ class Member:
         keys = Keys(self.settings.prefix)
         while not stop.is_set():
             s = self.settings
-            edge = GatewayZenoh(session, keys)  # type: ignore[arg-type]
+            edge = GatewayZenoh(session, keys, batched=True)  # type: ignore[arg-type]
             self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge)
             edge.attach(self.host, loop)
             try:

@@ -187,7 +187,10 @@ class GatewayHost:
                         break
                     conn.receive(name, data, self.clock())
                     self._flush()
-                    await asyncio.sleep(0)  # a read returns at once while data is buffered: let the loop breathe
+                    if len(data) >= READ_SIZE:
+                        # more may be buffered, and a read returns at once while it is: let the loop breathe (a
+                        # shorter read took all there was, so the next read waits, and yields, by itself)
+                        await asyncio.sleep(0)
             except (ConnectionError, OSError) as exc:
                 reason = f"connection error: {exc}"
             finally:

@@ -48,8 +48,14 @@ class PollSchedule:
         self._readings.append(now)
 
     def rate(self, now: float) -> float:
-        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two)."""
-        window = [t for t in self._readings if now - t <= RATE_WINDOW_S]
-        if len(window) < 2:
+        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two).
+
+        Readings older than the window are forgotten here (``now`` only moves on), so a health report
+        looks at a window's worth of readings, not at the 4096 last ones.
+        """
+        readings = self._readings
+        while readings and now - readings[0] > RATE_WINDOW_S:
+            readings.popleft()
+        if len(readings) < 2:
             return 0.0
-        return (len(window) - 1) / max(window[-1] - window[0], 1e-9)
+        return (len(readings) - 1) / max(readings[-1] - readings[0], 1e-9)

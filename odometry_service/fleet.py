@@ -37,7 +37,7 @@ async def _supervise(session: object, robot: FleetRobot, settings: OdometrySetti
     keys = Keys(settings.prefix)
     pause = RESTART_FIRST_S
     while not stop.is_set():
-        edge = OdometryZenoh(session, keys)  # type: ignore[arg-type]
+        edge = OdometryZenoh(session, keys, batched=True)  # type: ignore[arg-type]
         host = OdometryHost(OdometryCore(settings.params(), keys, edge))
         handover = edge.attach(host, asyncio.get_running_loop())
         try:
