@@ -182,7 +182,6 @@ def test_ctrl_c_stops_the_whole_fleet_within_three_seconds(fleet: FleetUp) -> No
 def test_options_for_one_robot_end_in_one_sentence() -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     cases = {
-        "--foxglove": "--foxglove shows one robot and does not go with --robots",
         "--robot=10.0.0.2": "--robot HOST drives one real robot and --robots N simulates N",
         "--prefix=lab": "the fleet's prefixes are fleet/r1 ... fleet/r3",
     }
@@ -214,5 +213,20 @@ def test_up_robots_with_ros2_serves_one_ros_node_per_robot() -> None:
 
             wait_for(lambda: nodes() == {"%r1", "%r2"}, what="the nodes /r1/blackmetal and /r2/blackmetal")
         assert re.search(r"ROS 2 \(rmw_zenoh\): one node per robot, /r1/blackmetal", up.output()), up.output()
+    finally:
+        up.stop()
+
+
+def test_up_robots_with_foxglove_serves_every_robot_in_one_view() -> None:
+    """``up --robots 2 --foxglove``: one view on the fleet file, its URL printed."""
+    pytest.importorskip("foxglove")
+    port = free_port()
+    up = Child(
+        ["-m", "blackmetal", "up", "--robots", "2", "--foxglove", "--foxglove-port", str(port), "-l", f"tcp/127.0.0.1:{free_port()}"]
+    )
+    try:
+        info = up.ready(timeout=60)
+        assert "foxglove" in info["children"], info
+        wait_for(lambda: re.search(rf"Foxglove: every robot in one view at ws://127\.0\.0\.1:{port}", up.output()), what="the view's URL")
     finally:
         up.stop()

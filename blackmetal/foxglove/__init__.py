@@ -6,5 +6,6 @@ source ``foxglove``, ``/estop``, and the services ``set_estop`` and
 shows; what clients may do, pure and clock-injected), :mod:`.host` (the
 WebSocket server behind a thin front that also serves the older subprotocol
 ``foxglove.websocket.v1``, and the MCAP file), :mod:`.zenoh_edge`
-(declarations), :mod:`.main` (the command), :mod:`.settings`.
+(declarations), :mod:`.main` (the command), :mod:`.settings`, and
+:mod:`.fleet` (``--fleet FILE``: every robot of a fleet file in one view).
 """

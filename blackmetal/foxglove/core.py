@@ -35,6 +35,15 @@ runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refused
 client message is answered with a status message to that client and
 reported on ``<prefix>/errors``; a failed service call is answered with a
 service call failure and reported.
+
+A fleet in one view (``--fleet``): :class:`FleetView` is one
+:class:`LiveView` per robot with its topics under ``/<id>`` and its frames
+``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``, and ``/fleet/summary``
+(:class:`FleetSummary`); :class:`FleetControls` is one :class:`Controls` per
+robot (``/<id>/cmd_vel``, ``/<id>/estop``, services ``/<id>/set_estop``,
+``/<id>/reset_odometry``), each fed only what names its robot. The names are
+made in one place: :func:`robot_namespace`, :func:`robot_frame`,
+:func:`control_topic`, :func:`service_name`, :func:`robot_of`.
 """
 
 from __future__ import annotations
@@ -43,7 +52,7 @@ import json
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import Any, Protocol
@@ -218,36 +227,48 @@ class Trail:
         return False
 
 
+def json_channel(topic: str, schema: dict[str, Any]) -> Any:
+    """A JSON channel on the current Foxglove context, its schema the JSON Schema ``schema`` (named by its title)."""
+    import foxglove
+
+    full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
+    return foxglove.Channel(topic, schema=full, message_encoding="json")
+
+
 class LiveView:
     """Declares the view's channels on the current Foxglove context and logs into them from the robot's payloads."""
 
     def __init__(
-        self, keys: Keys, frame: str = "odom", base: str = "base_link", path_length: int = 2000, encoders: Encoders | None = None
+        self,
+        keys: Keys,
+        frame: str = "odom",
+        base: str = "base_link",
+        path_length: int = 2000,
+        encoders: Encoders | None = None,
+        namespace: str = "",
+        tf: Any = None,
     ) -> None:
-        import foxglove
+        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views (else ``<namespace>/tf``)."""
         from foxglove.channels import FrameTransformChannel, LogChannel, PoseInFrameChannel, PosesInFrameChannel
 
         self.keys = keys
         self.frame, self.base = frame, base
         self.encoders = encoders or Encoders()
         schemas = json_schemas()
+        ns = namespace
 
-        def json_channel(topic: str, schema: dict[str, Any]) -> Any:
-            full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
-            return foxglove.Channel(topic, schema=full, message_encoding="json")
-
-        self.pose = PoseInFrameChannel("/pose")
-        self.tf = FrameTransformChannel("/tf")
-        self.path = PosesInFrameChannel("/path")
-        self.truth = PoseInFrameChannel("/truth/pose")
-        self.truth_path = PosesInFrameChannel("/truth/path")
-        self.odometry = json_channel("/odometry", schemas["Pose"])
-        self.wheels = json_channel("/wheels", WHEELS_SCHEMA)
-        self.status = json_channel("/status", schemas["RobotStatus"])
-        self.health = json_channel("/health", schemas["GatewayHealth"])
-        self.diagnostics = json_channel("/diagnostics", DIAGNOSTICS_SCHEMA)
-        self.errors = json_channel("/errors", schemas["ErrorReport"])
-        self.log = LogChannel("/log")
+        self.pose = PoseInFrameChannel(f"{ns}/pose")
+        self.tf = tf if tf is not None else FrameTransformChannel(f"{ns}/tf")
+        self.path = PosesInFrameChannel(f"{ns}/path")
+        self.truth = PoseInFrameChannel(f"{ns}/truth/pose")
+        self.truth_path = PosesInFrameChannel(f"{ns}/truth/path")
+        self.odometry = json_channel(f"{ns}/odometry", schemas["Pose"])
+        self.wheels = json_channel(f"{ns}/wheels", WHEELS_SCHEMA)
+        self.status = json_channel(f"{ns}/status", schemas["RobotStatus"])
+        self.health = json_channel(f"{ns}/health", schemas["GatewayHealth"])
+        self.diagnostics = json_channel(f"{ns}/diagnostics", DIAGNOSTICS_SCHEMA)
+        self.errors = json_channel(f"{ns}/errors", schemas["ErrorReport"])
+        self.log = LogChannel(f"{ns}/log")
         self._trail = Trail(path_length)
         self._truth_trail = Trail(path_length)
 
@@ -362,7 +383,6 @@ CONTROL_SCHEMAS: dict[Control, tuple[str, ...]] = {
     Control.CMD_VEL: ("geometry_msgs/msg/Twist", "geometry_msgs/Twist"),
     Control.ESTOP: ("std_msgs/msg/Bool", "std_msgs/Bool"),
 }
-TAKES = f"{Control.CMD_VEL.value} ({CONTROL_SCHEMAS[Control.CMD_VEL][0]}) and {Control.ESTOP.value} ({CONTROL_SCHEMAS[Control.ESTOP][0]}), JSON-encoded"
 
 
 class Service(Enum):
@@ -370,6 +390,41 @@ class Service(Enum):
 
     SET_ESTOP = "set_estop"
     RESET_ODOMETRY = "reset_odometry"
+
+
+# --------------------------------------------------------------------------- names: one robot, or a robot of a fleet
+def robot_namespace(robot_id: str) -> str:
+    """The topics of a fleet's robot go under ``/<id>`` (``/r3/odometry``); one robot's view has none (``""``)."""
+    return f"/{robot_id}"
+
+
+def robot_frame(robot_id: str, frame: str) -> str:
+    """A fleet's robot's frame, prefixed as ``ros2 --fleet`` (diff_drive_controller) prefixes it: ``r3/odom``, ``r3/base_link``."""
+    return f"{robot_id}/{frame}"
+
+
+def control_topic(namespace: str, control: Control) -> str:
+    """The topic a client publishes ``control`` on: ``/cmd_vel``, or ``/r3/cmd_vel`` in the namespace ``/r3``."""
+    return f"{namespace}{control.value}"
+
+
+def service_name(namespace: str, service: Service) -> str:
+    """The name ``service`` is advertised under: ``set_estop`` for one robot, ``/r3/set_estop`` for a fleet's (as ROS names it)."""
+    return f"{namespace}/{service.value}" if namespace else service.value
+
+
+def takes(namespace: str = "") -> str:
+    """What clients may publish, for refusals and the startup lines."""
+    return " and ".join(f"{control_topic(namespace, c)} ({CONTROL_SCHEMAS[c][0]})" for c in Control) + ", JSON-encoded"
+
+
+def robot_of(name: str, robot_ids: Collection[str]) -> str | None:
+    """The robot a fleet topic or service name belongs to (``/r3/cmd_vel`` -> ``r3``), None when it names none of ``robot_ids``."""
+    head, slash, rest = name.removeprefix("/").partition("/")
+    return head if name.startswith("/") and slash and rest and head in robot_ids else None
+
+
+TAKES = takes()
 
 
 class RosBool(msgspec.Struct, forbid_unknown_fields=True):
@@ -478,8 +533,19 @@ class Controls:
     calls (the host's numbering, unique while the view runs).
     """
 
-    def __init__(self, keys: Keys, output: ControlsOutput, call_timeout: float = 2.0, wallclock: Callable[[], float] = time.time) -> None:
+    def __init__(
+        self,
+        keys: Keys,
+        output: ControlsOutput,
+        call_timeout: float = 2.0,
+        wallclock: Callable[[], float] = time.time,
+        namespace: str = "",
+    ) -> None:
         self.keys = keys
+        #: ``""``, or ``/<id>`` for a fleet's robot: it takes ``/<id>/cmd_vel``, ``/<id>/estop``, ``/<id>/set_estop``, ...
+        self.namespace = namespace
+        self._controls = {control_topic(namespace, c): c for c in Control}
+        self._services = {service_name(namespace, s): s for s in Service}
         self.output = output
         self.call_timeout = call_timeout
         self.reporter = ErrorReporter("foxglove", output.error, wallclock)
@@ -494,10 +560,10 @@ class Controls:
     # --------------------------------------------------------------- client publish
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
         """A client advertised a channel: note what it controls, or refuse it at once (status and report)."""
-        control = next((c for c in Control if c.value == topic), None)
+        control = self._controls.get(topic)
         refusal = None
         if control is None:
-            refusal = f"topic {topic!r} is not taken here: clients publish {TAKES}"
+            refusal = f"topic {topic!r} is not taken here: clients publish {takes(self.namespace)}"
         elif encoding != CLIENT_ENCODING:
             refusal = f"{topic} must be {CLIENT_ENCODING}-encoded, not {encoding!r}"
         elif schema_name and schema_name not in CONTROL_SCHEMAS[control]:
@@ -565,7 +631,7 @@ class Controls:
     # --------------------------------------------------------------- services
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
         """A service call; it is answered later through ``output.answer``: on confirmation, failure or at the time limit."""
-        known = next((s for s in Service if s.value == service), None)
+        known = self._services.get(service)
         if known is Service.SET_ESTOP:
             try:
                 wish = decode(RosBool, payload)
@@ -585,7 +651,7 @@ class Controls:
             self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
             self.output.ask_reset(call, encode(target))
         else:
-            self.output.answer(call, None, f"unknown service {service!r}: this view offers {', '.join(s.value for s in Service)}")
+            self.output.answer(call, None, f"unknown service {service!r}: this view offers {', '.join(self._services)}")
             self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
 
     def on_health(self, payload: bytes, now: float) -> None:
@@ -631,7 +697,7 @@ class Controls:
         self._estop_calls.pop(call, None)
         self._reset_calls.pop(call, None)
         self.output.answer(call, None, reason)
-        self.reporter.report(f"foxglove:{service.value}", f"client {client}: {reason}", text, now=now)
+        self.reporter.report(f"foxglove:{service_name(self.namespace, service)}", f"client {client}: {reason}", text, now=now)
 
     # --------------------------------------------------------------- refusals the server made itself
     def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
@@ -679,3 +745,267 @@ class Controls:
     def waiting(self) -> int:
         """Service calls not answered yet."""
         return len(self._estop_calls) + len(self._reset_calls)
+
+
+# --------------------------------------------------------------------------- a fleet in one view
+#: The fleet's own topics (``/fleet/summary``, ``/fleet/log``): a robot may not have this id in the fleet view.
+FLEET_NAMESPACE = "/fleet"
+#: A robot whose last health is this much older (s of message time) than the newest health of the fleet is shown stale.
+STALE_S = 3.0
+
+FLEET_SUMMARY_SCHEMA: dict[str, Any] = {
+    "title": "FleetSummary",
+    "description": "blackmetal: one row per robot of the fleet, from each <prefix>/gateway/health and <prefix>/pose",
+    "type": "object",
+    "properties": {
+        "stamp": {"type": "number", "description": "the newest health's stamp"},
+        "robots_up": {"type": "integer", "description": "robots with a fresh health and both links connected"},
+        "estop": {"type": "array", "items": {"type": "string"}, "description": "ids of the robots whose e-stop is engaged"},
+        "driving": {"type": "object", "additionalProperties": {"type": "string"}, "description": "id -> the command source that drives it"},
+        "robots": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {
+                    "id": {"type": "string"},
+                    "prefix": {"type": "string"},
+                    "link": {"type": "string", "description": "control/log link states, 'no health' or 'stale'"},
+                    "health_age": {"type": ["number", "null"], "description": "s behind the newest health of the fleet"},
+                    "poll_hz": {"type": "number"},
+                    "estop": {"type": ["boolean", "null"]},
+                    "active_source": {"type": ["string", "null"], "description": "who drives (null: nobody)"},
+                    "conflict_with": {"type": ["string", "null"]},
+                    "x": {"type": ["number", "null"]},
+                    "y": {"type": ["number", "null"]},
+                    "yaw": {"type": ["number", "null"]},
+                },
+            },
+        },
+    },
+}
+
+
+@dataclass(slots=True)
+class RobotRow:
+    """What the fleet summary knows of one robot: its last health and pose."""
+
+    id: str
+    prefix: str
+    health: GatewayHealth | None = None
+    pose: Pose | None = None
+
+
+class FleetSummary:
+    """The fleet at a glance, one row per robot; pure, on the messages' own stamps (a robot's health age is behind the newest of the fleet)."""
+
+    def __init__(self, robots: list[tuple[str, str]]) -> None:
+        """``robots``: (id, prefix) in the fleet file's order."""
+        self.rows = {robot_id: RobotRow(robot_id, prefix) for robot_id, prefix in robots}
+        self._newest = -math.inf
+
+    def on_health(self, robot_id: str, health: GatewayHealth) -> None:
+        self.rows[robot_id].health = health
+        self._newest = max(self._newest, health.stamp)
+
+    def on_pose(self, robot_id: str, pose: Pose) -> None:
+        self.rows[robot_id].pose = pose
+
+    def message(self) -> dict[str, Any]:
+        rows = []
+        for row in self.rows.values():
+            h, p = row.health, row.pose
+            age = None if h is None else max(self._newest - h.stamp, 0.0)
+            if h is None:
+                link = "no health"
+            elif age is not None and age > STALE_S:
+                link = "stale"
+            else:
+                link = f"{h.control.state}/{h.log.state}"
+            rows.append(
+                {
+                    "id": row.id,
+                    "prefix": row.prefix,
+                    "link": link,
+                    "health_age": age,
+                    "poll_hz": 0.0 if h is None or link == "stale" else h.poll_hz,
+                    "estop": None if h is None else h.estop,
+                    "active_source": None if h is None else h.active_source,
+                    "conflict_with": None if h is None else h.conflict_with,
+                    "x": None if p is None else p.x,
+                    "y": None if p is None else p.y,
+                    "yaw": None if p is None else p.yaw,
+                }
+            )
+        return {
+            "stamp": self._newest if self._newest > -math.inf else 0.0,
+            "robots_up": sum(1 for r in rows if r["link"] == "connected/connected"),
+            "estop": [r["id"] for r in rows if r["estop"]],
+            "driving": {r["id"]: r["active_source"] for r in rows if r["active_source"] and r["link"] != "stale"},
+            "robots": rows,
+        }
+
+
+class FleetView:
+    """One :class:`LiveView` per robot under ``/<id>/``, frames ``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``, and ``/fleet/summary``."""
+
+    def __init__(self, robots: list[tuple[str, Keys, Encoders | None, int]]) -> None:
+        """``robots``: (id, keys, its encoders or None for the defaults, its path length), in the fleet file's order."""
+        from foxglove.channels import FrameTransformChannel, LogChannel
+
+        self.tf = FrameTransformChannel("/tf")  # one tree for the fleet, as ros2 --fleet sends every robot's to the absolute /tf
+        self.views = {
+            robot_id: LiveView(
+                keys,
+                frame=robot_frame(robot_id, "odom"),
+                base=robot_frame(robot_id, "base_link"),
+                path_length=path_length,
+                encoders=encoders,
+                namespace=robot_namespace(robot_id),
+                tf=self.tf,
+            )
+            for robot_id, keys, encoders, path_length in robots
+        }
+        self.summary = FleetSummary([(robot_id, keys.prefix) for robot_id, keys, _, _ in robots])
+        self.summary_channel = json_channel(f"{FLEET_NAMESPACE}/summary", FLEET_SUMMARY_SCHEMA)
+        #: Refusals of client messages that name no robot (a topic outside every /<id>/, a refusal of the server itself).
+        self.log = LogChannel(f"{FLEET_NAMESPACE}/log")
+
+    def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:
+        """Key -> handler for one robot's keys: its own view, and the summary from its health and pose."""
+        view = self.views[robot_id]
+        handlers = view.handlers()
+        show_pose, show_health = handlers[view.keys.pose], handlers[view.keys.health]
+
+        def on_pose(payload: bytes) -> None:
+            show_pose(payload)
+            pose = view._decode(Pose, payload)
+            if pose is not None:
+                self.summary.on_pose(robot_id, pose)
+
+        def on_health(payload: bytes) -> None:
+            show_health(payload)
+            health = view._decode(GatewayHealth, payload)
+            if health is not None:
+                self.summary.on_health(robot_id, health)
+                self.summary_channel.log(json.dumps(self.summary.message()).encode())
+
+        handlers[view.keys.pose], handlers[view.keys.health] = on_pose, on_health
+        return handlers
+
+    def on_fleet_error(self, report: ErrorReport) -> None:
+        """A refusal no robot owns: on ``/fleet/log``."""
+        from foxglove.messages import Log, LogLevel
+
+        self.log.log(
+            Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
+        )
+
+
+class FleetOutput(Protocol):
+    """Where :class:`FleetControls` sends what no robot's :class:`Controls` owns."""
+
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
+
+
+class FleetControls:
+    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here.
+
+    A client's channel on ``/r3/...`` and a call of ``/r3/...`` go to r3's
+    controls alone, which act on r3's prefix and report on r3's errors key;
+    a topic outside every robot's namespace (or a refusal of the server
+    itself, which names no robot) is refused with a status to that client
+    and reported on ``fleet_error`` (the fleet's log), never on a robot's key.
+    """
+
+    def __init__(
+        self,
+        robots: dict[str, Controls],
+        output: FleetOutput,
+        fleet_error: Callable[[ErrorReport], None],
+        wallclock: Callable[[], float] = time.time,
+    ) -> None:
+        self.robots = robots
+        self.output = output
+        self.reporter = ErrorReporter("foxglove", fleet_error, wallclock)
+        #: (client, channel) -> the robot it names, or None with the topic it refused.
+        self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
+        self._last_status: dict[tuple[int | None, str], float] = {}
+
+    def _takes(self) -> str:
+        return f"{takes('/<id>')} for the robots {', '.join(self.robots)}"
+
+    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
+        last = self._last_status.get((client, topic), -math.inf)
+        if now - last >= STATUS_PERIOD_S:
+            self._last_status[(client, topic)] = now
+            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
+        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
+
+    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
+        robot_id = robot_of(topic, self.robots)
+        self._channels[(client, channel)] = (robot_id, topic)
+        if robot_id is not None:
+            self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
+        else:
+            self._refuse(
+                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes()}; its messages are refused", "", now
+            )
+
+    def on_unadvertise(self, client: int, channel: int, now: float) -> None:
+        robot_id, _ = self._channels.pop((client, channel), (None, ""))
+        if robot_id is not None:
+            self.robots[robot_id].on_unadvertise(client, channel, now)
+
+    def on_client_gone(self, client: int, now: float) -> None:
+        for key in [key for key in self._channels if key[0] == client]:
+            self.on_unadvertise(client, key[1], now)
+        for status_key in [key for key in self._last_status if key[0] == client]:
+            del self._last_status[status_key]
+        for controls in self.robots.values():
+            controls.on_client_gone(client, now)
+
+    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
+        known = self._channels.get((client, channel))
+        if known is None:
+            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
+        elif known[0] is None:
+            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes()}", excerpt(data), now)
+        else:
+            self.robots[known[0]].on_message(client, channel, data, now)
+
+    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
+        robot_id = robot_of(service, self.robots)
+        if robot_id is not None:
+            self.robots[robot_id].on_service_call(call, client, service, payload, now)
+            return
+        offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
+        self.output.answer(call, None, f"unknown service {service!r}: this view offers {offered} for the robots {', '.join(self.robots)}")
+        self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+
+    def on_health(self, robot_id: str, payload: bytes, now: float) -> None:
+        self.robots[robot_id].on_health(payload, now)
+
+    def on_reset_reply(self, robot_id: str, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        self.robots[robot_id].on_reset_reply(call, ok, err, now)
+
+    def on_reset_done(self, robot_id: str, call: int, now: float) -> None:
+        self.robots[robot_id].on_reset_done(call, now)
+
+    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
+        """The server refused a message itself: it names no robot, so it is reported on the fleet's log."""
+        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
+        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
+
+    def tick(self, now: float) -> None:
+        for controls in self.robots.values():
+            controls.tick(now)
+        self.reporter.tick(now)
+
+    def next_deadline(self) -> float:
+        return min([self.reporter.next_deadline(), *(c.next_deadline() for c in self.robots.values())])
+
+    @property
+    def waiting(self) -> int:
+        return sum(c.waiting for c in self.robots.values())

@@ -45,7 +45,7 @@ from blackmetal.runtime.edge import Handover
 from blackmetal.runtime.host import DeadlineTimer
 from schemas import BlackmetalError, ConfigError, ErrorReport
 
-from .core import CLIENT_ENCODING, SERVICE_SPECS, Controls, ServerRefusal, StatusLevel
+from .core import CLIENT_ENCODING, SERVICE_SPECS, Controls, ServerRefusal, Service, StatusLevel
 from .settings import FoxgloveSettings
 
 #: The subprotocol foxglove-sdk speaks, and the older name of the same protocol.
@@ -322,6 +322,19 @@ def _listener(put: Callable[[ClientEvent], None]) -> Any:
     return Listener()
 
 
+class ClientCore(Protocol):
+    """What the host feeds with the clients' doings: :class:`Controls` for one robot, ``FleetControls`` for a fleet."""
+
+    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None: ...
+    def on_unadvertise(self, client: int, channel: int, now: float) -> None: ...
+    def on_client_gone(self, client: int, now: float) -> None: ...
+    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None: ...
+    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None: ...
+    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None: ...
+    def tick(self, now: float) -> None: ...
+    def next_deadline(self) -> float: ...
+
+
 class ZenohSide(Protocol):
     """What the host needs of the Zenoh edge for :class:`Controls`."""
 
@@ -395,12 +408,16 @@ def start_server(settings: FoxgloveSettings, listener: Any = None, services: lis
 class FoxgloveHost:
     """The front, the SDK server (and the MCAP file) of one view; feeds :class:`Controls`; :meth:`close` stops them, the file first."""
 
-    def __init__(self, settings: FoxgloveSettings, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, settings: FoxgloveSettings, clock: Callable[[], float] = time.monotonic, services: dict[str, Service] | None = None
+    ) -> None:
+        """``services``: the name each service is advertised under (default: ``set_estop``, ``reset_odometry``; a fleet's ``/r3/set_estop``, ...)."""
         import foxglove
 
         self.settings = settings
         self.clock = clock
-        self.core: Controls | None = None
+        self.service_names = services if services is not None else {s.value: s for s in Service}
+        self.core: ClientCore | None = None
         self.timer: DeadlineTimer | None = None
         self._zenoh: ZenohSide | None = None
         self._handover = Handover(asyncio.get_running_loop())
@@ -434,11 +451,15 @@ class FoxgloveHost:
 
         return [
             foxglove.Service(
-                service.value,
-                schema=foxglove.ServiceSchema(spec.type, request=schema(spec.request), response=schema(spec.response)),
+                name,
+                schema=foxglove.ServiceSchema(
+                    SERVICE_SPECS[service].type,
+                    request=schema(SERVICE_SPECS[service].request),
+                    response=schema(SERVICE_SPECS[service].response),
+                ),
                 handler=self._handle_call,
             )
-            for service, spec in SERVICE_SPECS.items()
+            for name, service in self.service_names.items()
         ]
 
     async def start(self) -> None:
@@ -454,7 +475,7 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: Controls) -> None:
+    def attach(self, core: ClientCore) -> None:
         """Feed ``core`` from now on, and run its timers (until :meth:`close`)."""
         self.core = core
         self.timer = DeadlineTimer(core, self.clock)
@@ -484,7 +505,8 @@ class FoxgloveHost:
             self._writer = None
         self.server.stop()
 
-    def _poke(self) -> None:
+    def poke(self) -> None:
+        """An input reached the core (from outside the host too): move its timer if its deadline came earlier."""
         if self.timer is not None:
             self.timer.poke()
 
@@ -526,7 +548,7 @@ class FoxgloveHost:
                     self._by_client.pop(connection.client, None)
                     if self.core is not None:
                         self.core.on_client_gone(connection.client, self.clock())
-                        self._poke()
+                        self.poke()
 
     @staticmethod
     async def _copy(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -574,7 +596,7 @@ class FoxgloveHost:
         else:
             return
         self.core.on_server_refusal(connection.client, kind, message, self.clock())
-        self._poke()
+        self.poke()
 
     # --------------------------------------------------------------- from the SDK's threads, on the loop
     def _on_event(self, event: ClientEvent) -> None:
@@ -595,7 +617,7 @@ class FoxgloveHost:
             core.on_unadvertise(event.client, event.channel, now)
         else:
             core.on_message(event.client, event.channel, event.data, now)
-        self._poke()
+        self.poke()
 
     def _handle_call(self, request: Any) -> bytes:
         """The SDK's service handler, on its blocking thread: hand the call over and wait for the core's answer (bounded)."""
@@ -618,23 +640,23 @@ class FoxgloveHost:
         number = next(self._numbers)
         self._calls[number] = _Call(call.client, call.call_id, call.future)
         core.on_service_call(number, call.client, call.service, call.payload, self.clock())
-        self._poke()
+        self.poke()
 
     # --------------------------------------------------------------- from the Zenoh edge, on the loop
     def on_health(self, payload: bytes) -> None:
-        if self.core is not None:
+        if isinstance(self.core, Controls):
             self.core.on_health(payload, self.clock())
-            self._poke()
+            self.poke()
 
     def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None:
         """``(call, ok, None)`` or ``(call, None, err)`` per reply; ``(call, None, None)`` when the query ended."""
-        if self.core is not None:
+        if isinstance(self.core, Controls):
             call, ok, err = reply
             if ok is None and err is None:
                 self.core.on_reset_done(call, self.clock())
             else:
                 self.core.on_reset_reply(call, ok, err, self.clock())
-            self._poke()
+            self.poke()
 
     # --------------------------------------------------------------- ControlsOutput
     def command(self, key: str, payload: bytes) -> None:

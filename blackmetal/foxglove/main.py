@@ -6,7 +6,9 @@ WebSocket, and the URL this prints; then import the layout shipped in
 (geometry_msgs/msg/Twist, as the command source ``foxglove``), ``/estop``
 (std_msgs/msg/Bool) and the services ``set_estop`` and ``reset_odometry``,
 all JSON. ``--mcap FILE`` writes the view's channels to an MCAP file as they
-are sent.
+are sent. ``--fleet FILE``: every robot of a fleet file in one view, each
+under ``/<id>/`` (/r3/odometry, /r3/cmd_vel, /r3/set_estop; frames r3/odom,
+r3/base_link), with /fleet/summary.
 """
 
 from __future__ import annotations
@@ -15,12 +17,14 @@ import argparse
 import asyncio
 
 from blackmetal.runtime.entry import run_service, service_parser
+from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
+from .fleet import fleet_settings, refuse_single_robot_options, serve_fleet
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
 from .settings import FoxgloveSettings
 from .zenoh_edge import FoxgloveZenoh
@@ -66,10 +70,27 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    return service_parser("blackmetal foxglove", __doc__, FoxgloveSettings, parser)
+    parser = service_parser("blackmetal foxglove", __doc__, FoxgloveSettings, parser)
+    parser.add_argument(
+        "--fleet",
+        metavar="FILE",
+        help="show every robot of this fleet file (TOML [[robot]] tables) in one view on one port, each under /<id>/ "
+        "and on its prefix, with /fleet/summary; not with --prefix",
+    )
+    return parser
 
 
 def run(args: argparse.Namespace) -> int:
+    if getattr(args, "fleet", None):
+
+        def load_fleet_settings() -> tuple[FoxgloveSettings, list[FleetRobot]]:
+            base = load_settings(FoxgloveSettings, args)
+            refuse_single_robot_options(vars(args), base)
+            robots = load_fleet(args.fleet)
+            fleet_settings(base, robots)  # every robot's settings checked before the server starts
+            return base, robots
+
+        return run_service("foxglove", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
     return run_service("foxglove", lambda: load_settings(FoxgloveSettings, args), serve)
 
 

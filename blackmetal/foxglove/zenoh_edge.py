@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 from blackmetal.runtime.edge import Handover, ZenohEdge
 from schemas import ErrorReport, Keys, encode, payload_bytes
@@ -21,7 +21,12 @@ from .core import COMMAND_SOURCE, LiveView
 if TYPE_CHECKING:
     import zenoh
 
-    from .host import FoxgloveHost
+
+class Answers(Protocol):
+    """Who takes the gateway's health and the odometry's reset replies: the host, or a fleet's robot's port."""
+
+    def on_health(self, payload: bytes) -> None: ...
+    def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None: ...
 
 
 def _error_bytes(reply: "zenoh.Reply") -> bytes:
@@ -46,9 +51,17 @@ class FoxgloveZenoh(ZenohEdge):
         self._health_reply: Callable[[bytes], None] = lambda payload: None
         self._reset_reply: Callable[[tuple[int, bytes | None, bytes | None]], None] = lambda reply: None
 
-    def attach(self, view: LiveView, host: "FoxgloveHost", loop: asyncio.AbstractEventLoop) -> Handover:
-        handover = Handover(loop)
-        handlers = view.handlers()
+    def attach(
+        self,
+        view: LiveView,
+        host: Answers,
+        loop: asyncio.AbstractEventLoop,
+        handlers: dict[str, Callable[[bytes], None]] | None = None,
+        on_error: Callable[[BaseException], None] | None = None,
+    ) -> Handover:
+        """Subscribe ``handlers`` (default: the view's) on the loop; ``on_error`` takes what a handler raised (None: the loop's handler)."""
+        handover = Handover(loop, on_error)
+        handlers = dict(handlers if handlers is not None else view.handlers())
         show_health = handlers[self.keys.health]
 
         def on_health(payload: bytes) -> None:

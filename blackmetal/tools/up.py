@@ -444,14 +444,11 @@ def check_fleet_options(args: argparse.Namespace) -> None:
     count = args.robots
     if count < 1:
         raise ConfigError(f"--robots needs at least 1 robot, got {count}")
-    hint = "run it beside the fleet for one robot, e.g. `blackmetal {} --prefix fleet/r1 -e ENDPOINT`"
     if args.robot:
         raise ConfigError("--robot HOST drives one real robot and --robots N simulates N: give one or the other "
                           "(real robots of a fleet: a fleet file for `blackmetal gateway --fleet FILE`)")  # fmt: skip
     if args.prefix:
         raise ConfigError(f"--prefix does not go with --robots: the fleet's prefixes are fleet/r1 ... fleet/r{count}")
-    if args.foxglove:
-        raise ConfigError("--foxglove shows one robot and does not go with --robots; " + hint.format("foxglove"))
 
 
 @tool("up")
@@ -600,6 +597,10 @@ def _run_fleet(
         odometry.wait_ready(READY_TIMEOUT_S)
         if ros2 is not None:
             ros2.wait_ready(READY_TIMEOUT_S)
+        view = None
+        if args.foxglove:  # every robot in one view, /<id>/...
+            view_args = ["foxglove", "--fleet", str(fleet_file), "--port", str(args.foxglove_port), *files.args("foxglove"), *zargs]
+            view = _start(children, "foxglove", view_args, args.verbose).wait_ready(READY_TIMEOUT_S)["url"]
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
@@ -613,6 +614,9 @@ def _run_fleet(
         first = robots[0].id
         print(f"ROS 2 ({args.ros2}): one node per robot, /{first}/blackmetal ... with /{first}/cmd_vel, /{first}/odom, "
               f"frames {first}/odom -> {first}/base_link on /tf, services /{first}/set_estop, /{first}/reset_odometry", flush=True)  # fmt: skip
+    if view:
+        print(f"Foxglove: every robot in one view at {view}, topics /r1/... and /fleet/summary "
+              "(layout for r1-r3: deploy/foxglove/blackmetal-fleet.layout.json)", flush=True)  # fmt: skip
     print(_fleet_drive_help(robots, hub), flush=True)
     announce_ready(
         "up",

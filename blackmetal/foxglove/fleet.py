@@ -1,0 +1,233 @@
+"""``blackmetal foxglove --fleet FILE``: every robot of a fleet file in one view, on one WebSocket server, one Zenoh session.
+
+Each robot's channels are the single-robot view's under ``/<id>/``
+(``/r3/odometry``, ``/r3/path``, ``/r3/diagnostics``, ...), its transforms
+``<id>/odom`` -> ``<id>/base_link`` on the one ``/tf`` (frames named as
+``ros2 --fleet`` names them), and ``/fleet/summary`` has one row per robot
+(link, poll rate, e-stop, who drives, pose). Clients drive a robot on
+``/<id>/cmd_vel`` and ``/<id>/estop`` and call ``/<id>/set_estop`` and
+``/<id>/reset_odometry``; each acts on that robot's prefix alone, and a
+robot's bad input is refused and reported on its own ``<prefix>/errors``.
+What names no robot is refused too, and shown on ``/fleet/log``.
+
+What the robots share is the process, the loop, the server and the session;
+a bug in handling one robot's payload is reported on that robot's errors
+key (rate-limited) and the view goes on with the next payload.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+
+from blackmetal.robot_model import Encoders
+from blackmetal.runtime.fleet import FleetRobot
+from schemas import ConfigError, ErrorReport, Keys, require_extra
+
+from .core import (
+    COMMAND_SOURCE,
+    FLEET_NAMESPACE,
+    Controls,
+    FleetControls,
+    FleetView,
+    Service,
+    StatusLevel,
+    robot_frame,
+    robot_namespace,
+    service_name,
+    takes,
+)
+from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .settings import FoxgloveSettings
+from .zenoh_edge import FoxgloveZenoh
+
+log = logging.getLogger("blackmetal.foxglove")
+
+#: Options for one robot's view: with --fleet the fleet file decides them.
+SINGLE_ROBOT_OPTIONS = {"prefix": "each robot's channels read its prefix from the fleet file"}
+#: Settings of the one server: the same for every robot, so not in a [robot.foxglove] table.
+SERVER_SETTINGS = ("prefix", "host", "port", "mcap", "call_timeout")
+
+
+def refuse_single_robot_options(given: dict[str, object], loaded: FoxgloveSettings) -> None:
+    """ConfigError, one sentence, for --prefix with --fleet (from the command line, a settings file or the environment)."""
+    defaults = FoxgloveSettings()
+    for name, why in SINGLE_ROBOT_OPTIONS.items():
+        if given.get(name) is not None:
+            raise ConfigError(f"--{name} is for one robot and cannot be used with --fleet: {why}")
+        if getattr(loaded, name) != getattr(defaults, name):
+            raise ConfigError(
+                f"{name} (from the settings file or BLACKMETAL_{name.upper()}) is for one robot and cannot be used with --fleet: {why}"
+            )
+
+
+def fleet_settings(base: FoxgloveSettings, robots: list[FleetRobot]) -> list[FoxgloveSettings]:
+    """Each robot's view settings: the command line's, its prefix, its [robot.foxglove] table (path_length only)."""
+    out = []
+    for robot in robots:
+        if robot_namespace(robot.id) == FLEET_NAMESPACE:
+            raise ConfigError(
+                f"{robot.describe()}: the Foxglove fleet view keeps {FLEET_NAMESPACE}/ for its own topics; give the robot another id"
+            )
+        table = robot.tables.get("foxglove", {})
+        shared = sorted(set(table) & set(SERVER_SETTINGS))
+        if shared:
+            raise ConfigError(
+                f"{robot.describe()}: {shared[0]} is not a [robot.foxglove] setting; the fleet's one view takes it from its options"
+            )
+        out.append(robot.settings("foxglove", base, {"prefix": robot.prefix}))
+    return out
+
+
+def encoders(robot: FleetRobot) -> Encoders | None:
+    """The robot's own impulses per metre (its calibration in the fleet file) for its wheel speeds; None: the defaults."""
+    c = robot.calibration
+    if "impulses_left" not in c and "impulses_right" not in c:
+        return None
+    default = Encoders()
+    return Encoders(
+        impulses_per_meter_left=c.get("impulses_left", default.impulses_per_meter_left),
+        impulses_per_meter_right=c.get("impulses_right", default.impulses_per_meter_right),
+        mirror_right=default.mirror_right,
+    )
+
+
+class RobotPort:
+    """One robot's side of the fleet view: its controls' output (its Zenoh edge; the shared server), and its edge's answers in."""
+
+    def __init__(self, robot_id: str, host: FoxgloveHost) -> None:
+        self.robot_id = robot_id
+        self.host = host
+        self.core: FleetControls | None = None
+        self.edge: FoxgloveZenoh | None = None
+
+    # ControlsOutput: the robot's keys through its edge (nowhere before the session opens and after it closes), the clients through the host
+    def command(self, key: str, payload: bytes) -> None:
+        if self.edge is not None:
+            self.edge.command(key, payload)
+
+    def ask_health(self) -> None:
+        if self.edge is not None:
+            self.edge.ask_health()
+
+    def ask_reset(self, call: int, payload: bytes) -> None:
+        if self.edge is not None:
+            self.edge.ask_reset(call, payload)
+
+    def error(self, message: ErrorReport) -> None:
+        if self.edge is not None:
+            self.edge.error(message)
+
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None:
+        self.host.status(client, level, message)
+
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
+        self.host.answer(call, response, failure)
+
+    # Answers: from the edge, on the loop
+    def on_health(self, payload: bytes) -> None:
+        if self.core is not None:
+            self.core.on_health(self.robot_id, payload, self.host.clock())
+            self.host.poke()
+
+    def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None:
+        if self.core is not None:
+            call, ok, err = reply
+            if ok is None and err is None:
+                self.core.on_reset_done(self.robot_id, call, self.host.clock())
+            else:
+                self.core.on_reset_reply(self.robot_id, call, ok, err, self.host.clock())
+            self.host.poke()
+
+    def on_bug(self, exc: BaseException) -> None:
+        """A handler of this robot's payloads raised: reported on its errors key (rate-limited); the view goes on."""
+        log.error("fleet view of robot %s: handler failed: %r", self.robot_id, exc)
+        if self.core is not None:
+            controls = self.core.robots[self.robot_id]
+            controls.reporter.report("foxglove:view", f"showing {self.robot_id} failed: {exc!r}", now=self.host.clock())
+            self.host.poke()
+
+
+def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
+    def report(message: ErrorReport) -> None:
+        log.warning("%s: %s", message.key, message.reason)
+        view.on_fleet_error(message)
+
+    return report
+
+
+async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
+    """One server, one session: every robot's view and controls until ``stop``."""
+    from blackmetal.runtime.harness import announce_ready
+    from blackmetal.runtime.zenoh_setup import open_service_session
+
+    require_extra("blackmetal foxglove", "foxglove", "foxglove")
+    settings = fleet_settings(base, robots)
+    services = {service_name(robot_namespace(r.id), s): s for r in robots for s in Service}
+    host = FoxgloveHost(base, services=services)
+    try:
+        await host.start()  # the port is taken before Zenoh opens
+        view = FleetView([(r.id, Keys(s.prefix), encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)])
+        ports = {r.id: RobotPort(r.id, host) for r in robots}
+        controls = {
+            r.id: Controls(Keys(s.prefix), ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id))
+            for r, s in zip(robots, settings, strict=True)
+        }
+        core = FleetControls(controls, host, _fleet_error(view))
+        for port in ports.values():
+            port.core = core
+        host.attach(core)
+        with await open_service_session(base.zenoh, stop, "foxglove") as session:
+            loop = asyncio.get_running_loop()
+            edges: list[FoxgloveZenoh] = []
+            try:
+                for r, s in zip(robots, settings, strict=True):
+                    edge = FoxgloveZenoh(session, Keys(s.prefix), query_timeout=base.call_timeout)
+                    edges.append(edge)
+                    port = ports[r.id]
+                    edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug)
+                    port.edge = edge
+                address = host.url
+                print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
+                for r, s in zip(robots, settings, strict=True):
+                    ns = robot_namespace(r.id)
+                    print(
+                        f"  {ns + '/':<8} <-> prefix {s.prefix}, frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}",
+                        flush=True,
+                    )
+                print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
+                print(f"  {FLEET_NAMESPACE}/summary: one row per robot; transforms of all on /tf", flush=True)
+                print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
+                print(
+                    f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+                    flush=True,
+                )
+                print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
+                if base.mcap:
+                    print(f"  writing the same channels to {base.mcap}", flush=True)
+                announce_ready(
+                    "foxglove",
+                    url=address,
+                    port=host.port,
+                    prefix=robots[0].prefix,
+                    prefixes=[s.prefix for s in settings],
+                    subprotocols=list(SUBPROTOCOLS),
+                    services=list(services),
+                    robots={
+                        r.id: {
+                            "prefix": s.prefix,
+                            "namespace": robot_namespace(r.id),
+                            "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
+                        }
+                        for r, s in zip(robots, settings, strict=True)
+                    },
+                )
+                await host.run(stop)
+            finally:
+                for port in ports.values():
+                    port.edge = None
+                for edge in reversed(edges):
+                    edge.close()
+    finally:
+        host.close()
