@@ -446,6 +446,11 @@ def test_the_readme_fleet_recipe_works_as_written(tmp_path: Path) -> None:
                             start_new_session=True)  # fmt: skip
     try:
         out, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:  # say which of the recipe's processes still ran, and what they printed
+        left = subprocess.run(["ps", "-o", "pid,stat,etime,args", "-s", str(proc.pid)], capture_output=True, text=True).stdout
+        os.killpg(proc.pid, signal.SIGKILL)
+        out, err = proc.communicate(timeout=10)
+        pytest.fail(f"the recipe did not end within 120 s; still running:\n{left}\nstdout:\n{out}\nstderr:\n{err}")
     finally:
         if proc.poll() is None:
             os.killpg(proc.pid, signal.SIGKILL)
