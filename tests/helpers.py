@@ -135,3 +135,19 @@ def start_robot(
     gateway.ready()
     odometry.ready()
     return sim, gateway, odometry
+
+
+#: A process that puts cmd_vel on ``argv[2]`` at full speed for ``argv[3]`` s through the Zenoh endpoint on port ``argv[1]``
+#: (``argv[4]``: where its speeds start, so two flooders differ).
+FLOODER = """
+import sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s"]' % sys.argv[1])
+conf.insert_json5("scouting/multicast/enabled", "false")
+with zenoh.open(conf) as session:
+    publisher = session.declare_publisher(sys.argv[2])
+    end, i = time.monotonic() + float(sys.argv[3]), int(sys.argv[4])
+    while time.monotonic() < end:
+        publisher.put(b'{"linear":{"x":%.4f}}' % (0.1 + 0.0001 * (i % 500)))
+        i += 1
+"""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import pytest
 import zenoh
-from helpers import TRUE_ESTOPS, Child, client_config, free_port, wait_for
+from helpers import FLOODER, TRUE_ESTOPS, Child, client_config, free_port, wait_for
 from rogue_robot import Behaviour, RogueRobot
 
 from schemas import GatewayHealth, Keys, decode
@@ -169,20 +169,6 @@ def test_valid_log_reports_at_full_speed_do_not_slow_the_polls(rig_factory: list
     polls = [t for t, _ in rig.robot.commands(POLL, since=start) if t < start + 2.0]
     assert len(polls) >= 80  # 50 Hz asked (was 13 Hz)
     assert rig.estop_latency() <= 0.1
-
-
-FLOODER = """
-import sys, time, zenoh
-conf = zenoh.Config()
-conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s"]' % sys.argv[1])
-conf.insert_json5("scouting/multicast/enabled", "false")
-with zenoh.open(conf) as session:
-    publisher = session.declare_publisher(sys.argv[2])
-    end, i = time.monotonic() + float(sys.argv[3]), int(sys.argv[4])
-    while time.monotonic() < end:
-        publisher.put(b'{"linear":{"x":%.4f}}' % (0.1 + 0.0001 * (i % 500)))
-        i += 1
-"""
 
 
 def test_a_cmd_vel_flood_cannot_delay_the_estop_or_grow_memory(rig_factory: list[Rig]) -> None:
