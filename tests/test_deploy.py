@@ -18,7 +18,7 @@ from pathlib import Path
 import json5
 import pytest
 import zenoh
-from helpers import TIMEOUT, Child, SimProcess, free_port, wait_for
+from helpers import TIMEOUT, Child, SimProcess, free_port, free_ports, wait_for
 
 from schemas import GatewayHealth, Pose, decode
 
@@ -408,21 +408,6 @@ def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[C
         wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway's health")
 
 
-def _two_free_ports() -> int:
-    """A port P with P and P + 1 free (the recipe numbers its robots' ports from a base)."""
-    import socket
-
-    for _ in range(50):
-        base = free_port()
-        with socket.socket() as probe:
-            try:
-                probe.bind(("127.0.0.1", base + 1))
-            except OSError:
-                continue
-        return base
-    raise AssertionError("no two consecutive free ports")
-
-
 def readme_block(after: str) -> str:
     """The first ```sh block of the README after the text ``after``."""
     text = (ROOT / "README.md").read_text()
@@ -435,7 +420,7 @@ def test_the_readme_fleet_recipe_works_as_written(tmp_path: Path) -> None:
     import signal
 
     recipe = readme_block("**Fleet.**")
-    zport, control, log = free_port(), _two_free_ports(), _two_free_ports()
+    zport, control, log = free_port(), free_ports(2), free_ports(2)
     script = recipe.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{zport}").replace("6650", str(control)).replace("6640", str(log))
     script = "\n".join(line for line in script.splitlines() if not line.startswith("blackmetal teleop"))
     assert "blackmetal robots" in script and script.count("&") == 4
