@@ -29,6 +29,12 @@ if TYPE_CHECKING:
 
 T = TypeVar("T")
 
+#: How long closing waits for a pump thread to leave Zenoh (it wakes at once when its subscriber goes).
+PUMP_JOIN_S = 1.0
+
+#: How long closing waits for a pump thread to leave Zenoh (it wakes at once when its subscriber goes).
+PUMP_JOIN_S = 1.0
+
 
 class Channel(Generic[T]):
     """One input of a service: items from any thread, handled on the loop in arrival order."""
@@ -138,6 +144,7 @@ class ZenohEdge:
     def __init__(self, session: "zenoh.Session") -> None:
         self.session = session
         self._entities: list[Any] = []
+        self._pumps: list[threading.Thread] = []
 
     def publisher(self, key: str, *, express: bool = False, drop_when_congested: bool = False) -> "zenoh.Publisher":
         import zenoh
@@ -177,21 +184,27 @@ class ZenohEdge:
 
         subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
         self._entities.append(subscriber)
+        # Wait on the handler, not the subscriber: a thread blocked in
+        # ``subscriber.recv()`` holds the subscriber borrowed, so ``undeclare()``
+        # fails ("Already borrowed") and the pump never wakes.
+        samples = subscriber.handler
 
         def pump() -> None:
             while True:
                 try:
-                    batch = [subscriber.recv()]  # blocks without the GIL
-                    while (more := subscriber.try_recv()) is not None:
+                    batch = [samples.recv()]  # blocks without the GIL
+                    while (more := samples.try_recv()) is not None:
                         batch.append(more)
-                except Exception:  # undeclared: the edge is closing
+                except zenoh.ZError:  # "empty and closed": undeclared, the edge is closing
                     return
                 handover.drained.clear()
                 for sample in batch:
                     put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
                 handover.drained.wait(0.1)
 
-        threading.Thread(target=pump, name=f"pump {key}", daemon=True).start()
+        thread = threading.Thread(target=pump, name=f"pump {key}", daemon=True)
+        thread.start()
+        self._pumps.append(thread)
 
     def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
         """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""
@@ -202,9 +215,23 @@ class ZenohEdge:
         self._entities.append(self.session.liveliness().declare_token(key))
 
     def close(self) -> None:
+        import zenoh
+
         for entity in reversed(self._entities):
             try:
                 entity.undeclare()
-            except Exception:  # already undeclared by a closing session
+            except zenoh.ZError:  # already undeclared by a closing session
                 pass
         self._entities.clear()
+        # The pumps wake as their subscribers go; each must be out of Zenoh before the
+        # interpreter finalizes, or CPython ends it mid-unwind and the process aborts
+        # ("FATAL: exception not rethrown").
+        for thread in self._pumps:
+            thread.join(PUMP_JOIN_S)
+        self._pumps.clear()
+        # A pump woken by the undeclare must be out of Zenoh before the interpreter
+        # finalizes: a thread that takes the GIL back inside Zenoh's frames then is
+        # ended by CPython mid-unwind, and the process aborts ("FATAL: exception not rethrown").
+        for thread in self._pumps:
+            thread.join(PUMP_JOIN_S)
+        self._pumps.clear()
