@@ -111,5 +111,5 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
             f"{', ...' if len(robots) > 3 else ''}), polling at {base.poll_hz:g} Hz",
             flush=True,
         )
-        announce_ready("gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
+        announce_ready("gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout)
         await asyncio.gather(*tasks)

@@ -1,7 +1,7 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
-from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, require_extra
+from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra
 from .jsonschema import json_schemas
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
 from .messages import (
@@ -57,6 +57,7 @@ __all__ = [
     "Vector3",
     "WheelImpulses",
     "ZenohUnavailable",
+    "ZenohUnreachable",
     "decode",
     "encode",
     "excerpt",

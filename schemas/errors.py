@@ -10,6 +10,7 @@ classes, so a new class, a new parent or a moved module is drawn here)::
     ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
     │   └── MissingExtra                 schemas.errors: an optional extra (ros2, record, foxglove) is not installed
     ├── ZenohUnavailable                 schemas.errors: no Zenoh session (router down, port in use, credentials)
+    │   └── ZenohUnreachable             schemas.errors: nothing answers at the endpoints (yet: a router may still be starting)
     ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
     ├── ChildFailed                      blackmetal.runtime.harness: a child process exited or was not ready in time; its last lines
@@ -54,6 +55,10 @@ def require_extra(command: str, extra: str, module: str) -> None:
 
 class ZenohUnavailable(BlackmetalError):
     """A Zenoh session cannot be opened; the text says what to check (router address, port in use, credentials)."""
+
+
+class ZenohUnreachable(ZenohUnavailable):
+    """Nothing answers at the endpoints: unlike a port in use or a bad address, this may pass (a router still starting)."""
 
 
 class PayloadError(BlackmetalError, ValueError):

@@ -43,7 +43,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from schemas import ConfigError, ZenohUnavailable
+from schemas import ConfigError, ZenohUnavailable, ZenohUnreachable
 
 if TYPE_CHECKING:
     import zenoh
@@ -245,7 +245,7 @@ def open_session(settings: ZenohSettings) -> "zenoh.Session":
     try:
         return zenoh.open(conf)
     except Exception as exc:  # zenoh.ZError carries the reason as text
-        raise ZenohUnavailable(unavailable_reason(settings, str(exc))) from None
+        raise unavailable_error(settings, str(exc)) from None
 
 
 class PendingSession:
@@ -300,7 +300,7 @@ class PendingSession:
         if not self._done.is_set():
             return None
         if self._error is not None:
-            raise ZenohUnavailable(unavailable_reason(self.settings, self._error))
+            raise unavailable_error(self.settings, self._error)
         session = self._session
         assert session is not None
         if self.is_hub or not self.endpoints:
@@ -391,6 +391,12 @@ def open_when_reachable(settings: ZenohSettings, stop: threading.Event, name: st
         waiter.pending.abandon()
         raise
     return session
+
+
+def unavailable_error(settings: ZenohSettings, text: str) -> ZenohUnavailable:
+    """The error for Zenoh's failure text: :class:`ZenohUnreachable` when nothing answered, which a caller may retry."""
+    reason = unavailable_reason(settings, text)
+    return ZenohUnreachable(reason) if "Unable to connect" in text else ZenohUnavailable(reason)
 
 
 def unavailable_reason(settings: ZenohSettings, text: str) -> str:

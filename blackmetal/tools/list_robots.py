@@ -21,7 +21,7 @@ import msgspec
 import zenoh
 
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
-from schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
+from schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnreachable, decode, to_bytes
 
 from .client import connect, tool, where
 
@@ -132,8 +132,8 @@ def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSett
         try:
             _, settings, session = connect(args)
             return settings, session
-        except ZenohUnavailable as exc:
-            if "cannot reach" not in str(exc) or time.monotonic() + RETRY_S > deadline:
+        except ZenohUnreachable:
+            if time.monotonic() + RETRY_S > deadline:
                 raise
         time.sleep(RETRY_S)
 

@@ -375,12 +375,11 @@ def _links(health: GatewayHealth) -> str:
     return f"{health.control.state}/{health.log.state}"
 
 
-def _fleet_drive_help(robots: list[FleetRobot], endpoint: str) -> str:
+def _fleet_drive_help(robots: list[FleetRobot], endpoint: str, cmd_timeout: float) -> str:
     first = robots[0].prefix
     return "\n".join(
         [
-            f"Drive one robot from any Zenoh client, by its prefix ({first} ... {robots[-1].prefix}; "
-            "commands time out after 0.5 s: publish at 5 Hz or more):",
+            f"Drive one robot from any Zenoh client, by its prefix ({first} ... {robots[-1].prefix}; {_timeout_advice(cmd_timeout)}):",
             f"  blackmetal teleop --prefix {first} -e {endpoint}",
             f"  {python_snippet(Keys(first), endpoint)}",
             f"Watch one:  blackmetal watch --prefix {first} -e {endpoint}    All:  blackmetal robots -e {endpoint}",
@@ -593,7 +592,7 @@ def _run_fleet(
         if args.ros2:  # one ROS node per robot, /<id>/..., in one adapter process
             ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *zargs]
             ros2 = _start(children, "ros2", ros2_args, args.verbose)
-        gateway.wait_ready(READY_TIMEOUT_S)
+        cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         odometry.wait_ready(READY_TIMEOUT_S)
         if ros2 is not None:
             ros2.wait_ready(READY_TIMEOUT_S)
@@ -617,7 +616,7 @@ def _run_fleet(
     if view:
         print(f"Foxglove: every robot in one view at {view}, topics /r1/... and /fleet/summary "
               "(layout for r1-r3: deploy/foxglove/blackmetal-fleet.layout.json)", flush=True)  # fmt: skip
-    print(_fleet_drive_help(robots, hub), flush=True)
+    print(_fleet_drive_help(robots, hub, cmd_timeout), flush=True)
     announce_ready(
         "up",
         endpoint=hub,
