@@ -444,3 +444,4 @@ def test_the_readme_fleet_recipe_works_as_written(tmp_path: Path) -> None:
     assert listed == ["fleet/a", "fleet/b"], out + err
     assert "running: 7" in out, out + err  # the router and three services per robot, none exited
     assert "Traceback" not in err, err
+    assert "Aborted" not in err and "FATAL" not in err, err  # every service ends cleanly on SIGTERM
