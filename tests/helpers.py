@@ -3,16 +3,14 @@
 from __future__ import annotations
 
 import json
-import os
-import random
 import re
-import socket
 import time
 from collections.abc import Callable
 from typing import Any
 
 import zenoh
 
+from blackmetal.runtime import ports
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess
 
 #: Payloads on estop whose meaning is plainly "true", in the shapes clients send: each must engage the stop.
@@ -30,64 +28,14 @@ TRUE_ESTOPS = [
 TIMEOUT = 20.0
 
 
-def _ephemeral_low() -> int:
-    try:
-        with open("/proc/sys/net/ipv4/ip_local_port_range") as ranges:
-            return int(ranges.read().split()[0])
-    except (OSError, ValueError, IndexError):
-        return 32768  # Linux's default; macOS starts at 49152
-
-
-def _port_slice() -> range:
-    """This worker's own ports: below the kernel's ephemeral range, one slice per xdist worker."""
-    low, high = 10000, max(_ephemeral_low(), 12000)
-    worker = os.environ.get("PYTEST_XDIST_WORKER", "gw0").removeprefix("gw")
-    index = int(worker) % 8 if worker.isdigit() else 0
-    size = (high - low) // 8
-    return range(low + index * size, low + (index + 1) * size)
-
-
-_PORTS = _port_slice()
-_next_port = _PORTS.start + random.randrange(len(_PORTS))  # another run on this machine starts elsewhere
-
-
 def free_port() -> int:
-    """A port nothing listens on, and that no outgoing connection can take before the test binds it.
-
-    Asking the kernel for port 0 returns a port from its ephemeral range, which the
-    next connect() of any process may take as its local port in the moment before
-    the child binds it (CI saw "port in use" this way). Ports below that range are
-    never handed out by the kernel, and each xdist worker walks its own slice.
-    """
-    global _next_port
-    for _ in range(len(_PORTS)):
-        port = _next_port
-        _next_port = _PORTS.start + (port + 1 - _PORTS.start) % len(_PORTS)
-        if _bindable(port):
-            return port
-    raise AssertionError(f"no free port in {_PORTS.start}-{_PORTS.stop - 1}")
+    """A free loopback port below the kernel's ephemeral range, in this xdist worker's own slice."""
+    return ports.free_port()
 
 
 def free_ports(count: int) -> int:
     """A base port B with B ... B + count - 1 all free (recipes number their robots' ports from a base)."""
-    global _next_port
-    for _ in range(len(_PORTS)):
-        base = free_port()
-        if base + count > _PORTS.stop:
-            continue
-        if all(_bindable(port) for port in range(base + 1, base + count)):
-            _next_port = _PORTS.start + (base + count - _PORTS.start) % len(_PORTS)  # the next caller starts after the block
-            return base
-    raise AssertionError(f"no {count} consecutive free ports in {_PORTS.start}-{_PORTS.stop - 1}")
-
-
-def _bindable(port: int) -> bool:
-    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as sock:
-        try:
-            sock.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
+    return ports.free_port(count)
 
 
 def wait_for(condition: Callable[[], Any], timeout: float = TIMEOUT, interval: float = 0.02, what: str = "condition") -> Any:

@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 
 from blackmetal import wire
 from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.ports import free_port
 from blackmetal.wire import CommandCode, Request, RequestDecoder
 
 from .children import spawn
@@ -35,12 +36,6 @@ SO_TIMESTAMPNS = getattr(socket, "SO_TIMESTAMPNS", 35)
 
 #: Publish bench messages without batching (what a latency-minded client does).
 EXPRESS = os.environ.get("BLACKMETAL_BENCH_EXPRESS", "1") == "1"
-
-
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def _zenoh_conf(listen: int | None = None, connect: int | None = None) -> "zenoh.Config":
