@@ -23,6 +23,9 @@ SPACING_TOLERANCE_S = 0.1
 SETTLE_S = 0.5
 #: Impulses from another gateway are taken over only after the followed one was silent this long (s).
 FOLLOW_TIMEOUT_S = 1.0
+#: Every sample rejected by the arrival check for this long, all the same distance ahead: the epoch's
+#: measure of the delivery delay came from a late sample, and a new epoch starts from the punctual ones (s).
+RESYNC_S = 1.0
 
 
 def gap_event(dt: float, seq: int, max_gap: float) -> str:
@@ -50,6 +53,8 @@ class EpochStart(enum.Enum):
     GATEWAY_RESTART = "gateway restart"
     #: A log without sources: the sequence went back while the stamps moved on.
     SEQUENCE_RESTART = "sequence restart"
+    #: The epoch's delivery-delay measure came from a late sample: the steady samples after it start over.
+    RESYNC = "resync"
 
     @property
     def restart(self) -> bool:
@@ -110,6 +115,9 @@ class SampleOrder:
     monotonic clock; replay has none) is the delivery delay plus a constant
     and never falls below its smallest value, unless samples claim time that
     did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
+    If the epoch's first sample came late, every punctual one after it looks
+    ahead by the same amount: after RESYNC_S of such rejections at one steady
+    offset, a new epoch starts there (:attr:`EpochStart.RESYNC`).
 
     ``live`` (samples arriving now, with ``arrival``): a sample without
     ``mono`` or ``source`` is rejected (:class:`UnstampedSample`), because
@@ -128,9 +136,12 @@ class SampleOrder:
     #: arrival - time of this epoch's first sample, and the smallest since (delivery delay plus a constant).
     first_offset: float | None = None
     least_offset: float | None = None
+    #: The current run of samples rejected by the arrival check: the first one's arrival, and their offsets' range.
+    ahead_since: float | None = None
+    ahead_range: tuple[float, float] = (0.0, 0.0)
 
     def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
-        """Accept (and remember) the sample, or raise SampleRejected and remember nothing.
+        """Accept (and remember) the sample, or raise SampleRejected and remember only the run of rejections it extends.
 
         ValueError if ``live`` and ``arrival`` is None: a caller's bug, not a bad sample.
         """
@@ -163,18 +174,39 @@ class SampleOrder:
             clock = "stamp" if mono is None else "monotonic time"
             raise SampleRejected(f"{clock} went backwards: seq {seq} at {time:.6f} after seq {self.seq} at {self.time:.6f}")
         dt = time - self.time
+        missed = seq - self.seq - 1
         if arrival is not None and self.least_offset is not None and arrival - time < self.least_offset - SPACING_TOLERANCE_S:
             ahead = self.least_offset - (arrival - time)
+            if self._steadily_ahead(arrival, arrival - time):
+                event = (
+                    f"every sample for {RESYNC_S:g} s arrived {ahead:.3f} s earlier than the epoch's first one showed "
+                    "(it came late): the delivery delay is measured again from these, not integrated across"
+                )
+                return self._accept(seq, time, source, arrival, Verdict(EpochStart.RESYNC, 0.0, event=event))
             raise SampleRejected(
                 f"seq {seq} claims {dt:.3f} s since the previous sample, {ahead:.3f} s more than the samples' arrivals allow"
             )
-        missed = seq - self.seq - 1
         if dt > self.max_gap:
             return self._accept(seq, time, source, arrival, Verdict(EpochStart.GAP, 0.0, missed, gap_event(dt, seq, self.max_gap)))
         return self._accept(seq, time, source, arrival, Verdict(None, dt, missed))
 
+    def _steadily_ahead(self, arrival: float, offset: float) -> bool:
+        """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset.
+
+        Only a run without an accepted sample in it counts: while the followed
+        gateway's samples pass, a forger's run never grows. Samples that claim
+        ever more time (creep) move the offset and restart the run.
+        """
+        low, high = self.ahead_range
+        if self.ahead_since is None or max(high, offset) - min(low, offset) > SPACING_TOLERANCE_S:
+            self.ahead_since, self.ahead_range = arrival, (offset, offset)
+            return False
+        self.ahead_range = (min(low, offset), max(high, offset))
+        return arrival - self.ahead_since >= RESYNC_S
+
     def _accept(self, seq: int, time: float, source: str | None, arrival: float | None, verdict: Verdict) -> Verdict:
         self.seq, self.time, self.source, self.arrival = seq, time, source, arrival
+        self.ahead_since = None
         if arrival is None:
             self.first_offset = self.least_offset = None
         elif self.first_offset is None or self.least_offset is None or (verdict.new_epoch and verdict.start is not EpochStart.GAP):
@@ -189,4 +221,4 @@ class SampleOrder:
 
     def forget(self) -> None:
         """Start over (a reset): the next sample is the first of an epoch; ``live`` stays."""
-        self.seq = self.time = self.source = self.arrival = self.first_offset = self.least_offset = None
+        self.seq = self.time = self.source = self.arrival = self.first_offset = self.least_offset = self.ahead_since = None

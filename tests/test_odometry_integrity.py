@@ -177,6 +177,41 @@ def test_a_stalled_odometry_follows_again_after_its_backlog() -> None:
     assert odo.x - x_backlog == pytest.approx(0.2 * 2.0, rel=0.05)
 
 
+def test_an_odometry_whose_first_sample_came_late_follows_again_within_a_second() -> None:
+    """The first sample of an epoch arrives 2 s late (an odometry starting on a busy host).
+
+    Measured against it, every punctual sample after it looks 2 s ahead and was rejected for good;
+    after RESYNC_S of them at one steady offset a new epoch starts, reported, and the pose follows.
+    """
+    odo = Odometry(live=True)
+    odo.feed(sample(0, 0.0), arrival=2.0)
+    rejected = 0
+    for k in range(100, 300):  # the samples in between were dropped; 4 s of punctual ones
+        try:
+            odo.feed(sample(k, k * 0.02), arrival=k * 0.02 + 0.001)
+        except SampleRejected:
+            rejected += 1
+    assert 45 <= rejected <= 55  # RESYNC_S at 50 Hz, then no more
+    assert any("measured again" in event for event in odo.events), odo.events
+    assert odo.x == pytest.approx(0.2 * (200 - rejected - 1) * 0.02, rel=0.05)
+
+
+def test_a_forger_claiming_ever_more_time_never_earns_a_resync() -> None:
+    """Creep (each forged sample a little further ahead) keeps moving the offset: the run restarts, nothing is taken."""
+    odo = Odometry(live=True)
+    drive(odo, 1.0)
+    x_before, accepted = odo.x, 0
+    for k in range(50, 250):  # 4 s of forged samples at 50 Hz, each claiming 0.12 s more than the last
+        t = 1.0 + (k - 50) * 0.02
+        try:
+            odo.feed(sample(k, t + (k - 49) * 0.12), arrival=t)
+            accepted += 1
+        except SampleRejected:
+            pass
+    assert odo.x - x_before < 0.2 * 0.6 + 0.01  # at most the epoch's settling budget, never the 24 s claimed
+    assert accepted <= 6
+
+
 # ------------------------------------------------- live input without mono/source: a forger beside the gateway
 
 #: Delivery delay of the honest gateway's samples in the fake-clock scenes (s).
