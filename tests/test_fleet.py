@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 import zenoh
 from helpers import FLOODER, Child, client_config, free_port, wait_for
+from rogue_robot import Behaviour, RogueRobot
 
 from schemas import GatewayHealth, Pose, decode
 
@@ -75,7 +76,7 @@ def _estop_latency(session: zenoh.Session, robot: str) -> float:
         session.put(f"fleet/{robot}/estop", b'{"engaged": false}')
 
 
-def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path) -> None:
+def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, request: pytest.FixtureRequest) -> None:
     port = free_port()
     router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
     children.append(router)
@@ -84,6 +85,10 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path) 
     sim = Child(["-m", "blackmetal", "sim", "--robots", str(N), "--write-fleet", str(fleet), *_zargs(port)])
     children.append(sim)
     sim.ready()
+    rogue = RogueRobot(Behaviour()).start()  # one more robot, not the simulator: it floods on demand
+    request.addfinalizer(rogue.stop)
+    with fleet.open("a") as entries:
+        entries.write(f'\n[[robot]]\nid = "rogue"\nhost = "127.0.0.1"\ncontrol_port = {rogue.control_port}\nlog_port = {rogue.log_port}\n')
     gateway = Child(["-m", "gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
     odometry = Child(["-m", "odometry_service", "--fleet", str(fleet), *_zargs(port)])
     children += [gateway, odometry]
@@ -93,7 +98,7 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path) 
     with zenoh.open(client_config(port)) as session:
         poses: collections.Counter[str] = collections.Counter()
         session.declare_subscriber("fleet/*/pose", lambda s: poses.update([str(s.key_expr).split("/")[1]]))
-        wait_for(lambda: set(poses) == set(ids) and min(poses.values()) > 50, timeout=60, what="every robot to pose")
+        wait_for(lambda: set(ids) <= set(poses) and min(poses[rid] for rid in ids) > 50, timeout=60, what="every robot to pose")
 
         # a command to r7 moves only r7
         before = _truths(session)
@@ -144,6 +149,26 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path) 
             assert rates_flood[rid] == pytest.approx(rates_before[rid], rel=0.1), (rid, rates_before[rid], rates_flood[rid])
         assert latency_flood < max(0.25, 3 * latency_before), (latency_before, latency_flood)
         assert flooded.poll_hz > 45  # the flooded robot itself polls on too
+
+        # the rogue robot floods its log port, then its control port, with bytes that never make a message:
+        # the others poll on and stop as before (the rogue's own links are its business)
+        for flood in (Behaviour(log_flood=b"{"), Behaviour(control_flood=b"{")):
+            garbage_before = _health(session, "rogue").garbage_bytes
+            rogue.behaviour.log_flood, rogue.behaviour.control_flood = flood.log_flood, flood.control_flood
+            try:
+                time.sleep(2.5)
+                rates_rogue = {rid: _health(session, rid).poll_hz for rid in others}
+                latency_rogue = max(_estop_latency(session, rid) for rid in ("r1", "r12", "r20"))
+                garbage = _health(session, "rogue").garbage_bytes - garbage_before
+            finally:
+                rogue.behaviour.log_flood = rogue.behaviour.control_flood = b""
+            port_name = "log" if flood.log_flood else "control"
+            print(f"under the rogue's {port_name} flood ({garbage / 1e6:.1f} MB of garbage taken): poll rates "
+                  f"{sorted(rates_rogue.values())[::5]}, e-stop within {1e3 * latency_rogue:.1f} ms")  # fmt: skip
+            assert garbage > 100_000, f"the rogue's {port_name} flood never reached the gateway"
+            for rid in others:
+                assert rates_rogue[rid] == pytest.approx(rates_before[rid], rel=0.1), (port_name, rid, rates_before[rid], rates_rogue[rid])
+            assert latency_rogue < max(0.25, 3 * latency_before), (port_name, latency_before, latency_rogue)
 
 
 @pytest.mark.parametrize(
