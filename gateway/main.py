@@ -7,10 +7,8 @@ import asyncio
 import sys
 
 from blackmetal.runtime.edge import refuse_if_taken
-from blackmetal.runtime.entry import run_service, service_parser
-from blackmetal.runtime.fleet import FleetRobot, load_fleet
+from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.transport import TcpConnector
 from schemas import Keys
@@ -59,16 +57,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 def run(args: argparse.Namespace) -> int:
     sys.setswitchinterval(SWITCH_INTERVAL_S)
-    if getattr(args, "fleet", None):
-
-        def load_fleet_settings() -> tuple[GatewaySettings, list[FleetRobot]]:
-            base = load_settings(GatewaySettings, args)
-            robots = load_fleet(args.fleet)
-            fleet_settings(base, robots)  # every robot's settings checked before Zenoh is opened
-            return base, robots
-
-        return run_service("gateway", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
-    return run_service("gateway", lambda: load_settings(GatewaySettings, args), serve)
+    return run_single_or_fleet("gateway", args, GatewaySettings, serve, fleet_settings, serve_fleet)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -6,13 +6,13 @@ import argparse
 import asyncio
 
 from blackmetal.runtime.edge import refuse_if_taken
-from blackmetal.runtime.entry import run_service, service_parser
+from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys
 
 from .core import OdometryCore
+from .fleet import fleet_settings, serve_fleet
 from .host import OdometryHost
 from .settings import OdometrySettings
 from .zenoh_edge import OdometryZenoh
@@ -43,19 +43,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
-    if getattr(args, "fleet", None):
-        from blackmetal.runtime.fleet import FleetRobot, load_fleet
-
-        from .fleet import fleet_settings, serve_fleet
-
-        def load_fleet_settings() -> tuple[OdometrySettings, list[FleetRobot]]:
-            base = load_settings(OdometrySettings, args)
-            robots = load_fleet(args.fleet)
-            fleet_settings(base, robots)  # every robot's settings checked before Zenoh is opened
-            return base, robots
-
-        return run_service("odometry", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
-    return run_service("odometry", lambda: load_settings(OdometrySettings, args), serve)
+    return run_single_or_fleet("odometry", args, OdometrySettings, serve, fleet_settings, serve_fleet)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -50,18 +50,6 @@ SINGLE_ROBOT_OPTIONS = {"prefix": "each robot's channels read its prefix from th
 SERVER_SETTINGS = ("prefix", "host", "port", "mcap", "call_timeout")
 
 
-def refuse_single_robot_options(given: dict[str, object], loaded: FoxgloveSettings) -> None:
-    """ConfigError, one sentence, for --prefix with --fleet (from the command line, a settings file or the environment)."""
-    defaults = FoxgloveSettings()
-    for name, why in SINGLE_ROBOT_OPTIONS.items():
-        if given.get(name) is not None:
-            raise ConfigError(f"--{name} is for one robot and cannot be used with --fleet: {why}")
-        if getattr(loaded, name) != getattr(defaults, name):
-            raise ConfigError(
-                f"{name} (from the settings file or BLACKMETAL_{name.upper()}) is for one robot and cannot be used with --fleet: {why}"
-            )
-
-
 def fleet_settings(base: FoxgloveSettings, robots: list[FleetRobot]) -> list[FoxgloveSettings]:
     """Each robot's view settings: the command line's, its prefix, its [robot.foxglove] table (path_length only)."""
     out = []

@@ -16,15 +16,13 @@ from __future__ import annotations
 import argparse
 import asyncio
 
-from blackmetal.runtime.entry import run_service, service_parser
-from blackmetal.runtime.fleet import FleetRobot, load_fleet
+from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
-from .fleet import fleet_settings, refuse_single_robot_options, serve_fleet
+from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
 from .settings import FoxgloveSettings
 from .zenoh_edge import FoxgloveZenoh
@@ -81,17 +79,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
 
 
 def run(args: argparse.Namespace) -> int:
-    if getattr(args, "fleet", None):
-
-        def load_fleet_settings() -> tuple[FoxgloveSettings, list[FleetRobot]]:
-            base = load_settings(FoxgloveSettings, args)
-            refuse_single_robot_options(vars(args), base)
-            robots = load_fleet(args.fleet)
-            fleet_settings(base, robots)  # every robot's settings checked before the server starts
-            return base, robots
-
-        return run_service("foxglove", load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
-    return run_service("foxglove", lambda: load_settings(FoxgloveSettings, args), serve)
+    return run_single_or_fleet("foxglove", args, FoxgloveSettings, serve, fleet_settings, serve_fleet, SINGLE_ROBOT_OPTIONS)
 
 
 def main(argv: list[str] | None = None) -> int:

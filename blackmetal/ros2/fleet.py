@@ -52,19 +52,6 @@ SINGLE_ROBOT_OPTIONS = {
 }
 
 
-def refuse_single_robot_options(given: dict[str, object], loaded: Ros2Settings) -> None:
-    """ConfigError, one sentence, for an option that names one robot's node (from the command line, a file or the environment)."""
-    defaults = Ros2Settings()
-    for name, why in SINGLE_ROBOT_OPTIONS.items():
-        option = "--" + name.replace("_", "-")
-        if given.get(name) is not None:
-            raise ConfigError(f"{option} is for one robot and cannot be used with --fleet: {why}")
-        if getattr(loaded, name) != getattr(defaults, name):
-            raise ConfigError(
-                f"{name} (from the settings file or BLACKMETAL_{name.upper()}) is for one robot and cannot be used with --fleet: {why}"
-            )
-
-
 def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Settings]:
     """Each robot's adapter settings: the command line's, its prefix, the namespace of its id, its [robot.ros2] table."""
     out: list[Ros2Settings] = []

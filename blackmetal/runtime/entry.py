@@ -7,16 +7,18 @@ import asyncio
 import logging
 import os
 import sys
-from collections.abc import Awaitable, Callable
+from collections.abc import Awaitable, Callable, Mapping
 from typing import TypeVar
 
 from schemas import BlackmetalError, ZenohUnavailable
 
-from .settings import add_setting_arguments
+from .fleet import FleetRobot, load_fleet, refuse_single_robot_options
+from .settings import add_setting_arguments, load_settings
 from .signals import loop_stop_on_signals
 from .zenoh_setup import add_zenoh_arguments
 
 T = TypeVar("T")
+S = TypeVar("S")  # a service's settings
 
 
 def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Event], Awaitable[None]]) -> int:
@@ -48,6 +50,35 @@ def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Ev
         return 1
     logging.getLogger(f"blackmetal.{name}").info("stopped")
     return 0
+
+
+def run_single_or_fleet(
+    name: str,
+    args: argparse.Namespace,
+    kind: type[S],
+    serve: Callable[[S, asyncio.Event], Awaitable[None]],
+    fleet_settings: Callable[[S, list[FleetRobot]], object],
+    serve_fleet: Callable[[S, list[FleetRobot], asyncio.Event], Awaitable[None]],
+    single_robot: Mapping[str, str] | None = None,
+) -> int:
+    """:func:`run_service` for one robot, or with ``--fleet FILE`` for every robot of the file in this process.
+
+    With a fleet, the settings in ``single_robot`` (name -> why) are refused,
+    and every robot's settings (``fleet_settings``) are checked before the
+    service opens Zenoh or a port.
+    """
+    if not getattr(args, "fleet", None):
+        return run_service(name, lambda: load_settings(kind, args), serve)
+
+    def load_fleet_settings() -> tuple[S, list[FleetRobot]]:
+        base = load_settings(kind, args)
+        if single_robot:
+            refuse_single_robot_options(vars(args), base, single_robot)
+        robots = load_fleet(args.fleet)
+        fleet_settings(base, robots)
+        return base, robots
+
+    return run_service(name, load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
 
 
 def loop_factory() -> Callable[[], asyncio.AbstractEventLoop] | None:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import dataclasses
 import tomllib
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TypeVar
@@ -164,6 +165,22 @@ def load_fleet(path: str | Path) -> list[FleetRobot]:
     except tomllib.TOMLDecodeError as exc:
         raise ConfigError(f"fleet file {path} is not valid TOML: {exc}") from None
     return parse_fleet(data, f"fleet file {path}")
+
+
+def refuse_single_robot_options(given: Mapping[str, object], loaded: object, options: Mapping[str, str]) -> None:
+    """ConfigError, one sentence, for a setting in ``options`` (name -> why) that names one robot, given with --fleet.
+
+    ``given``: the command line's values (None: not given); ``loaded``: the
+    settings as loaded, so a settings file or the environment is caught too.
+    """
+    defaults = type(loaded)()
+    for name, why in options.items():
+        if given.get(name) is not None:
+            raise ConfigError(f"--{name.replace('_', '-')} is for one robot and cannot be used with --fleet: {why}")
+        if getattr(loaded, name) != getattr(defaults, name):
+            raise ConfigError(
+                f"{name} (from the settings file or BLACKMETAL_{name.upper()}) is for one robot and cannot be used with --fleet: {why}"
+            )
 
 
 def numbered_fleet(count: int, host: str = "127.0.0.1", first_port: int = 0) -> list[FleetRobot]:
