@@ -12,8 +12,15 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 def stop_on_signals() -> threading.Event:
     """An event set by SIGINT or SIGTERM (call from the main thread)."""
     stop = threading.Event()
+
+    def on_signal(*_: object) -> None:
+        # Not stop.set() here: the handler runs on the main thread, which may be inside
+        # stop.wait() holding the event's lock at that instant; set() would then wait for
+        # it forever. A thread sets it as soon as the main thread lets go.
+        threading.Thread(target=stop.set, name="stop-signal", daemon=True).start()
+
     for sig in STOP_SIGNALS:
-        signal.signal(sig, lambda *_: stop.set())
+        signal.signal(sig, on_signal)
     return stop
 
 

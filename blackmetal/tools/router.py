@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
+import threading
 
 import zenoh
 
@@ -17,6 +19,9 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import ZenohSettings, unavailable_reason
 from schemas import ConfigError
+
+#: How long the router waits for Zenoh to close before it exits without it (s).
+CLOSE_TIMEOUT_S = 5.0
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,7 +46,14 @@ def run(args: argparse.Namespace) -> int:
         announce_ready("router", zid=str(session.zid()), listen=listen)
         stop.wait()
     finally:
-        session.close()
+        # bounded: a router must end on SIGTERM even if Zenoh's close hangs while every client leaves at once
+        closing = threading.Thread(target=session.close, name="router-close", daemon=True)
+        closing.start()
+        closing.join(CLOSE_TIMEOUT_S)
+        if closing.is_alive():
+            print(f"blackmetal router: Zenoh did not close within {CLOSE_TIMEOUT_S:g} s; exiting anyway", file=sys.stderr, flush=True)
+            sys.stdout.flush()
+            os._exit(0)
     return 0
 
 
