@@ -233,6 +233,10 @@ class RobotConnection:
             self._conflict_news(self.conflict.tick(now), now)
             self._pump(now)
 
+    def note_input(self, key: str, reason: str, now: float) -> None:
+        """Something about an input that its publisher should know (a flood began or ended): reported, not counted."""
+        self.reporter.report(key, reason, now=now)
+
     def reject(self, key: str, reason: str, now: float, snippet: str = "") -> None:
         """An input refused: counted and reported on ``<prefix>/errors``."""
         self.counters.rejected_inputs += 1

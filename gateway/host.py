@@ -125,6 +125,11 @@ class GatewayHost:
         self.connection.on_estop(payload, self.clock())
         self._flush()
 
+    def on_input_flood(self, key: str, reason: str) -> None:
+        """An input began or stopped flooding (the edge changed how it takes it): reported on ``<prefix>/errors``."""
+        self.connection.note_input(key, reason, self.clock())
+        self._flush()
+
     def on_health_seen(self, payload: bytes) -> None:
         self.connection.on_health_seen(payload, self.clock())
         self._flush()

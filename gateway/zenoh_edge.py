@@ -59,12 +59,13 @@ class GatewayZenoh(ZenohEdge):
         handover = Handover(loop, on_error=service.fail)  # a bug in handling one input fails this robot's host, visibly
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
         self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
-        # commands wait in Zenoh's ring buffers and reach the loop at its pace: a flood can neither grow memory
-        # nor take the GIL from the e-stop's callback; plain cmd_vel is the source 'default'
+        # commands and locks a client may flood: while one floods, it waits in Zenoh's ring buffer and reaches
+        # the loop at its pace, so it can neither grow memory nor hold up the e-stop; plain cmd_vel is the source 'default'
         commands = handover.channel("cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1)
-        self.pumped(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover)
-        self.pumped(self.keys.any_cmd_vel_source, commands, handover)
-        self.named_subscriber(self.keys.any_lock, handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1))
+        self.guarded(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover, service.on_input_flood)
+        self.guarded(self.keys.any_cmd_vel_source, commands, handover, service.on_input_flood)
+        locks = handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1)
+        self.guarded(self.keys.any_lock, locks, handover, service.on_input_flood)
         self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
         self.subscriber(self.keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))

@@ -195,6 +195,9 @@ def test_a_cmd_vel_flood_cannot_delay_the_estop_or_grow_memory(rig_factory: list
     assert statistics.median(latencies) <= 0.1  # the target; measured alone: 35-56 ms
     assert max(latencies) <= 0.25  # three flooders saturate both cores of the machine, so allow scheduling noise
     assert rss_after - rss_before < 15
+    # the publisher is told, on errors: the flood and what it costs, then its end
+    assert any(f"on {KEYS.cmd_vel}: a publisher floods it" in e for e in rig.errors), rig.errors
+    wait_for(lambda: any(f"the flood on {KEYS.cmd_vel} is over" in e for e in rig.errors), timeout=20, what="the flood's end reported")
 
 
 def test_late_replies_are_paired_honestly_and_reported(rig_factory: list[Rig]) -> None:

@@ -1,4 +1,4 @@
-"""The Zenoh edge's own lifecycle: what it declares goes when it closes, and its pump threads end with it.
+"""The Zenoh edge's own lifecycle: what it declares goes when it closes, a flooded input changes over and back, pumps end.
 
 One in-process peer session, no endpoints: nothing leaves the process.
 """
@@ -13,7 +13,7 @@ import pytest
 import zenoh
 from helpers import wait_for
 
-from blackmetal.runtime.edge import PUMP_JOIN_S, Handover, ZenohEdge
+from blackmetal.runtime.edge import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput, Handover, ZenohEdge
 
 
 @pytest.fixture
@@ -36,27 +36,78 @@ def _pumps() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name.startswith("pump ")]
 
 
-def test_closing_the_edge_ends_its_pumps_and_undeclares_their_subscribers(session: zenoh.Session) -> None:
+@pytest.fixture
+def loop() -> Iterator[asyncio.AbstractEventLoop]:
+    """A running loop on its own thread, like a service's."""
+    running = asyncio.new_event_loop()
+    thread = threading.Thread(target=running.run_forever, daemon=True)
+    thread.start()
+    yield running
+    running.call_soon_threadsafe(running.stop)
+    thread.join(5)
+    running.close()
+
+
+def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+    """At sane rates there is no pump thread: zenoh-python wakes a blocked recv() ten times a second, GIL and all."""
+    handover = Handover(loop)
+    received: list[tuple[str, bytes]] = []
+    edge = ZenohEdge(session)
+    guarded = edge.guarded("edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover)
+    publisher = session.declare_publisher("edge/test/cmd_vel/nav")
+    for i in range(20):
+        publisher.put(f"{i}".encode())
+    wait_for(lambda: len(received) == 20, what="20 samples")
+    assert received[0] == ("nav", b"0") and not guarded.flooded and not _pumps()
+    edge.close()
+    assert not _matching(publisher), "the guarded subscriber is still declared"
+
+
+def test_a_flood_goes_through_the_ring_buffer_and_back_when_it_ends(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+    """A flood changes the input over to Zenoh's ring buffer and one pump; quiet again, it changes back; nothing is lost at either change."""
+    handover = Handover(loop)
+    received: list[tuple[str, bytes]] = []
+    reports: list[tuple[str, str]] = []
+    guarded = GuardedInput(session, "edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover,
+                           lambda key, reason: reports.append((key, reason)), quiet_s=0.3)  # fmt: skip
+    guarded.start()
+    publisher = session.declare_publisher("edge/test/cmd_vel/flood")
+    try:
+        for i in range(5 * FLOOD_SAMPLES):
+            publisher.put(f"{i}".encode())
+        wait_for(lambda: guarded.flooded, what="the change to the ring buffer")
+        assert [t.name for t in _pumps()] == ["pump edge/test/cmd_vel/*"]
+        assert reports and "floods" in reports[0][1] and reports[0][0] == "edge/test/cmd_vel/*", reports
+        publisher.put(b"last of the flood")  # through the ring and the pump
+        wait_for(lambda: received and received[-1] == ("flood", b"last of the flood"), what="the pumped sample")
+
+        wait_for(lambda: not guarded.flooded, timeout=10, what="the change back to a callback")
+        assert "over" in reports[-1][1], reports
+        wait_for(lambda: not _pumps(), what="the pump's end")
+        publisher.put(b"after")
+        wait_for(lambda: received[-1] == ("flood", b"after"), what="a sample by callback again")
+        assert not _pumps()
+    finally:
+        guarded.close()
+    assert not _matching(publisher)
+
+
+def test_closing_a_flooded_input_ends_its_pump_and_undeclares_it(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
     """A pump blocked on its subscriber must wake and end when the edge closes.
 
     It once waited on the subscriber itself, which kept the subscriber borrowed:
     ``undeclare()`` failed, the pump stayed inside Zenoh, and at exit CPython
     ended that thread mid-unwind, aborting the gateway ("FATAL: exception not rethrown").
     """
-    loop = asyncio.new_event_loop()
-    try:
-        received: list[tuple[str, bytes]] = []
-        edge = ZenohEdge(session)
-        edge.pumped("edge/test/cmd_vel/*", received.append, Handover(loop))
-        publisher = session.declare_publisher("edge/test/cmd_vel/nav")
-        publisher.put(b"first")
-        wait_for(lambda: received, what="the pumped sample")
-        assert received == [("nav", b"first")]
-        assert _matching(publisher)
-        assert len(_pumps()) == 1
+    handover = Handover(loop)
+    edge = ZenohEdge(session)
+    guarded = edge.guarded("edge/test/cmd_vel/*", handover.channel("cmd_vel", lambda item: None), handover)
+    publisher = session.declare_publisher("edge/test/cmd_vel/nav")
+    for i in range(5 * FLOOD_SAMPLES):
+        publisher.put(f"{i}".encode())
+    wait_for(lambda: guarded.flooded, what="the change to the ring buffer")
+    assert len(_pumps()) == 1 and _matching(publisher)
 
-        edge.close()
-        assert not _pumps(), f"pump threads still running {PUMP_JOIN_S} s after close: {_pumps()}"
-        assert not _matching(publisher), "the pumped subscriber is still declared"
-    finally:
-        loop.close()
+    edge.close()
+    assert not _pumps(), f"pump threads still running {PUMP_JOIN_S} s after close: {_pumps()}"
+    assert not _matching(publisher), "the pumped subscriber is still declared"

@@ -17,7 +17,9 @@ reverse order of declaration.
 from __future__ import annotations
 
 import asyncio
+import math
 import threading
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -32,8 +34,12 @@ T = TypeVar("T")
 #: How long closing waits for a pump thread to leave Zenoh (it wakes at once when its subscriber goes).
 PUMP_JOIN_S = 1.0
 
-#: How long closing waits for a pump thread to leave Zenoh (it wakes at once when its subscriber goes).
-PUMP_JOIN_S = 1.0
+#: More than FLOOD_SAMPLES on one guarded key within FLOOD_WINDOW_S (2,000 a second) is a flood: twenty
+#: commanders at 100 Hz stay under it, a publisher in a tight loop is over it within milliseconds.
+FLOOD_SAMPLES = 200
+FLOOD_WINDOW_S = 0.1
+#: A flooded key goes back to callbacks after this long without a sample.
+QUIET_S = 2.0
 
 
 class Channel(Generic[T]):
@@ -144,7 +150,7 @@ class ZenohEdge:
     def __init__(self, session: "zenoh.Session") -> None:
         self.session = session
         self._entities: list[Any] = []
-        self._pumps: list[threading.Thread] = []
+        self._guarded: list[GuardedInput] = []
 
     def publisher(self, key: str, *, express: bool = False, drop_when_congested: bool = False) -> "zenoh.Publisher":
         import zenoh
@@ -165,46 +171,20 @@ class ZenohEdge:
     def named_subscriber(self, key: str, put: Callable[[tuple[str, bytes]], None]) -> None:
         """``(last key chunk, payload)`` of every sample on ``key`` (e.g. ``robot/cmd_vel/*``) go to ``put``."""
 
-        def on_sample(sample: "zenoh.Sample") -> None:
-            put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
+        self._entities.append(self.session.declare_subscriber(key, lambda sample: put(_chunk_and_payload(sample))))
 
-        self._entities.append(self.session.declare_subscriber(key, on_sample))
-
-    def pumped(self, key: str, put: Callable[[tuple[str, bytes]], None], handover: Handover, capacity: int = 64) -> None:
-        """``(last key chunk, payload)`` of samples on ``key`` go to ``put`` at the pace the loop takes them; for inputs that may flood.
-
-        The samples wait in Zenoh's own ring buffer (``capacity`` newest, the
-        oldest dropped without touching Python), and one thread moves what is
-        there to ``put`` and waits for the loop's next drain before it takes
-        more. A flood then costs Python the loop's own pace, not one callback
-        per sample: the GIL stays free for the e-stop's callback, the robot
-        link and the timers.
-        """
-        import zenoh
-
-        subscriber = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-        self._entities.append(subscriber)
-        # Wait on the handler, not the subscriber: a thread blocked in
-        # ``subscriber.recv()`` holds the subscriber borrowed, so ``undeclare()``
-        # fails ("Already borrowed") and the pump never wakes.
-        samples = subscriber.handler
-
-        def pump() -> None:
-            while True:
-                try:
-                    batch = [samples.recv()]  # blocks without the GIL
-                    while (more := samples.try_recv()) is not None:
-                        batch.append(more)
-                except zenoh.ZError:  # "empty and closed": undeclared, the edge is closing
-                    return
-                handover.drained.clear()
-                for sample in batch:
-                    put((str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)))
-                handover.drained.wait(0.1)
-
-        thread = threading.Thread(target=pump, name=f"pump {key}", daemon=True)
-        thread.start()
-        self._pumps.append(thread)
+    def guarded(
+        self,
+        key: str,
+        put: Callable[[tuple[str, bytes]], None],
+        handover: Handover,
+        on_flood: Callable[[str, str], None] | None = None,
+    ) -> "GuardedInput":
+        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`)."""
+        guarded = GuardedInput(self.session, key, put, handover, on_flood)
+        guarded.start()
+        self._guarded.append(guarded)
+        return guarded
 
     def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
         """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""
@@ -215,23 +195,171 @@ class ZenohEdge:
         self._entities.append(self.session.liveliness().declare_token(key))
 
     def close(self) -> None:
+        for guarded in reversed(self._guarded):
+            guarded.close()
+        self._guarded.clear()
+        for entity in reversed(self._entities):
+            _undeclare(entity)
+        self._entities.clear()
+
+
+def _chunk_and_payload(sample: "zenoh.Sample") -> tuple[str, bytes]:
+    return str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)
+
+
+def _undeclare(entity: Any) -> None:
+    import zenoh
+
+    try:
+        entity.undeclare()
+    except zenoh.ZError:  # already undeclared by a closing session
+        pass
+
+
+class GuardedInput:
+    """An input that a client may flood: Python callbacks at sane rates, Zenoh's ring buffer while it floods.
+
+    A Python callback per sample is the quickest way in (no thread between
+    Zenoh and the loop), but Zenoh runs callbacks on the thread that reads
+    the link: a publisher flooding one key at full speed keeps that thread
+    in Python, and every other sample on the link (another robot's e-stop)
+    waits behind the flood. So a key that delivers more than FLOOD_SAMPLES
+    within FLOOD_WINDOW_S changes over to a subscriber with Zenoh's own ring
+    buffer (the ``capacity`` newest samples kept, the oldest dropped without
+    touching Python) and one pump thread that moves what is there to
+    ``put`` at the loop's pace (it waits for the loop's next drain before it
+    takes more). After QUIET_S without a sample it changes back: an idle
+    pump is not free (zenoh-python wakes a blocked ``recv`` ten times a
+    second to look for signals, and each wake takes the GIL from the loop),
+    which a fleet of 100 robots with two pumps each paid in command latency.
+
+    The changes are made on the loop, never in a callback, and
+    ``on_flood(key, reason)`` is told of each there. The new subscriber is
+    declared before the old one goes, so no sample is lost in between (one
+    may arrive twice; a newer command supersedes it anyway).
+    """
+
+    def __init__(
+        self,
+        session: "zenoh.Session",
+        key: str,
+        put: Callable[[tuple[str, bytes]], None],
+        handover: Handover,
+        on_flood: Callable[[str, str], None] | None = None,
+        *,
+        capacity: int = 64,
+        quiet_s: float = QUIET_S,
+    ) -> None:
+        self.session = session
+        self.key = key
+        self.put = put
+        self.handover = handover
+        self.on_flood = on_flood
+        self.capacity = capacity
+        self.quiet_s = quiet_s
+        self._subscriber: Any = None
+        self._pump: threading.Thread | None = None
+        self._window_start = -math.inf
+        self._window_count = 0
+        self._changing = False
+        self._last_sample = 0.0
+        self._quiet_check: asyncio.TimerHandle | None = None
+        self._closed = False
+
+    @property
+    def flooded(self) -> bool:
+        """Whether samples now come through the ring buffer and a pump thread."""
+        return self._pump is not None
+
+    def start(self) -> None:
+        self._subscriber = self.session.declare_subscriber(self.key, self._on_sample)
+
+    def _on_sample(self, sample: "zenoh.Sample") -> None:
+        """Zenoh's thread: hand the sample over, and count it against the flood limit."""
+        self.put(_chunk_and_payload(sample))
+        now = time.monotonic()
+        if now - self._window_start > FLOOD_WINDOW_S:
+            self._window_start, self._window_count = now, 0
+        self._window_count += 1
+        if self._window_count > FLOOD_SAMPLES and not self._changing:
+            self._changing = True
+            try:
+                self.handover.loop.call_soon_threadsafe(self._to_ring)
+            except RuntimeError:  # the loop is closed: the service is stopping
+                pass
+
+    def _to_ring(self) -> None:
+        """The loop: declare the ring-buffered subscriber and its pump, then undeclare the callback's."""
         import zenoh
 
-        for entity in reversed(self._entities):
+        if self._closed or self._pump is not None:
+            return
+        ring = self.session.declare_subscriber(self.key, zenoh.handlers.RingChannel(self.capacity))
+        callback, self._subscriber = self._subscriber, ring
+        self._last_sample = time.monotonic()
+        # The pump waits on the handler, not the subscriber: a thread blocked in ``subscriber.recv()``
+        # holds the subscriber borrowed, so ``undeclare()`` would fail ("Already borrowed").
+        self._pump = threading.Thread(target=self._run_pump, args=(ring.handler,), name=f"pump {self.key}", daemon=True)
+        self._pump.start()
+        _undeclare(callback)
+        self._changing = False
+        self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+        if self.on_flood is not None:
+            self.on_flood(
+                self.key,
+                f"more than {FLOOD_SAMPLES / FLOOD_WINDOW_S:.0f} samples/s on {self.key}: a publisher floods it; until it has "
+                f"been quiet for {self.quiet_s:g} s only the newest of each burst are taken (a commander needs 10-100 Hz: "
+                "check the publisher's loop)",
+            )
+
+    def _run_pump(self, samples: Any) -> None:
+        """The pump thread: move what the ring holds to ``put``, then wait for the loop's next drain."""
+        import zenoh
+
+        drained = self.handover.drained
+        while True:
             try:
-                entity.undeclare()
-            except zenoh.ZError:  # already undeclared by a closing session
-                pass
-        self._entities.clear()
-        # The pumps wake as their subscribers go; each must be out of Zenoh before the
-        # interpreter finalizes, or CPython ends it mid-unwind and the process aborts
-        # ("FATAL: exception not rethrown").
-        for thread in self._pumps:
-            thread.join(PUMP_JOIN_S)
-        self._pumps.clear()
-        # A pump woken by the undeclare must be out of Zenoh before the interpreter
-        # finalizes: a thread that takes the GIL back inside Zenoh's frames then is
-        # ended by CPython mid-unwind, and the process aborts ("FATAL: exception not rethrown").
-        for thread in self._pumps:
-            thread.join(PUMP_JOIN_S)
-        self._pumps.clear()
+                batch = [samples.recv()]  # blocks without the GIL
+                while (more := samples.try_recv()) is not None:
+                    batch.append(more)
+            except zenoh.ZError:  # "empty and closed": undeclared (the flood is over, or the edge closes)
+                return
+            self._last_sample = time.monotonic()
+            drained.clear()
+            for sample in batch:
+                self.put(_chunk_and_payload(sample))
+            drained.wait(0.1)
+
+    def _check_quiet(self) -> None:
+        """The loop: after ``quiet_s`` without a sample, back to a callback (the pump ends with its subscriber)."""
+        self._quiet_check = None
+        if self._closed or self._pump is None:
+            return
+        if time.monotonic() - self._last_sample < self.quiet_s:
+            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            return
+        ring, pump = self._subscriber, self._pump
+        self._window_start, self._window_count, self._changing = -math.inf, 0, False
+        self.start()
+        self._pump = None
+        _undeclare(ring)
+        pump.join(PUMP_JOIN_S)
+        if self.on_flood is not None:
+            self.on_flood(self.key, f"the flood on {self.key} is over: every sample is taken again")
+
+    def close(self) -> None:
+        """Undeclare; a pump wakes as its subscriber goes and is joined.
+
+        It must be out of Zenoh before the interpreter finalizes, or CPython
+        ends it mid-unwind and the process aborts ("FATAL: exception not rethrown").
+        """
+        self._closed = True
+        if self._quiet_check is not None:
+            self._quiet_check.cancel()
+            self._quiet_check = None
+        if self._subscriber is not None:
+            _undeclare(self._subscriber)
+            self._subscriber = None
+        if self._pump is not None:
+            self._pump.join(PUMP_JOIN_S)
+            self._pump = None
