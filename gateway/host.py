@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.inbox import take_waiting
 from blackmetal.transport import ByteStream, Connector
 from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
@@ -192,6 +193,7 @@ class GatewayHost:
                         break
                     conn.receive(name, data, self.clock())
                     self._flush()
+                    take_waiting()  # an e-stop handed over meanwhile goes before the other robots' replies
                     if len(data) >= READ_SIZE:
                         # more may be buffered, and a read returns at once while it is: let the loop breathe (a
                         # shorter read took all there was, so the next read waits, and yields, by itself)

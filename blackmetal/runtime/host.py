@@ -18,6 +18,8 @@ import time
 from collections.abc import Callable
 from typing import Protocol
 
+from .inbox import take_waiting
+
 #: A deadline further away than this is slept in steps (asyncio's call_later wants a finite delay).
 MAX_SLEEP_S = 3600.0
 
@@ -91,3 +93,4 @@ class DeadlineTimer:
             return
         if self._timer is None and self._running:
             self._schedule(self.core.next_deadline())
+        take_waiting()  # inputs handed over while this tick ran: now, not after the loop's other work
