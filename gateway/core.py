@@ -79,6 +79,8 @@ class RobotConnection:
         self.conflict = GatewayConflict(self.source, self.keys.prefix)
         self.arbiter = settings.arbiter()
         self._events: list[Event] = []
+        #: An e-stop's health report, built only once the EMG_STOP bytes are taken (see on_estop).
+        self._health_due: float | None = None
         self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
         self.last_rtt: float | None = None
         self.seq = 0
@@ -102,6 +104,9 @@ class RobotConnection:
 
     def take_events(self) -> list[Event]:
         """Messages to publish and links to drop, in the order they arose (write the outgoing bytes first)."""
+        if self._health_due is not None:
+            self._events.append(self.health(self._health_due))
+            self._health_due = None
         events, self._events[:] = list(self._events), []
         return events
 
@@ -218,8 +223,8 @@ class RobotConnection:
             self.reject(self.keys.estop, complaint, now, excerpt(payload))
         self.governor.on_estop(engaged, now)
         self._pump(now)
-        # the host writes the EMG_STOP before it publishes events, so this report follows the stop on the wire
-        self._events.append(self.health(now))
+        # a health report follows the stop: built when the host takes the events, after it has written the EMG_STOP
+        self._health_due = now
 
     def on_health_seen(self, payload: bytes, now: float) -> None:
         """A health report on our own key: one from another gateway run means two gateways share this prefix."""
