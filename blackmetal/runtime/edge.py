@@ -74,7 +74,7 @@ class Handover:
         self._scheduled = False
         self._inbox = inbox_of(loop)
         self._in_inbox = False
-        #: Set after every drain: a pump thread waits on it before it hands over more (see ZenohEdge.pumped).
+        #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
 
     def channel(
