@@ -36,8 +36,6 @@ class GatewayZenoh(ZenohEdge):
         """
         super().__init__(session)
         self.keys = keys
-        #: One robot: commands are handed over on the thread that reads the link (see GuardedInput.direct).
-        self.direct = not batched
         self._impulses = self.publisher(keys.impulses, express=not batched, drop_when_congested=True)
         self._status = self.publisher(keys.status)
         self._health = self.publisher(keys.health)
@@ -65,10 +63,10 @@ class GatewayZenoh(ZenohEdge):
         # the loop at its pace, so it can neither grow memory nor hold up the e-stop; plain cmd_vel is the source 'default'
         commands = handover.channel("cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1)
         flood = service.on_input_flood
-        self.guarded(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover, flood, direct=self.direct)
-        self.guarded(self.keys.any_cmd_vel_source, commands, handover, flood, direct=self.direct)
+        self.guarded(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover, flood)
+        self.guarded(self.keys.any_cmd_vel_source, commands, handover, flood)
         locks = handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1)
-        self.guarded(self.keys.any_lock, locks, handover, flood, direct=self.direct)
+        self.guarded(self.keys.any_lock, locks, handover, flood)
         self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
         self.subscriber(self.keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))

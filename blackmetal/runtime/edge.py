@@ -202,11 +202,9 @@ class ZenohEdge:
         put: Callable[[tuple[str, bytes]], None],
         handover: Handover,
         on_flood: Callable[[str, str], None] | None = None,
-        *,
-        direct: bool = False,
     ) -> "GuardedInput":
         """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`)."""
-        guarded = GuardedInput(self.session, key, put, handover, on_flood, direct=direct)
+        guarded = GuardedInput(self.session, key, put, handover, on_flood)
         guarded.start()
         self._guarded.append(guarded)
         return guarded
@@ -276,7 +274,6 @@ class GuardedInput:
         *,
         capacity: int = 64,
         quiet_s: float = QUIET_S,
-        direct: bool = False,
     ) -> None:
         self.session = session
         self.key = key
@@ -285,10 +282,6 @@ class GuardedInput:
         self.on_flood = on_flood
         self.capacity = capacity
         self.quiet_s = quiet_s
-        #: The callback runs on the thread that reads the link (zenoh's ``indirect=False``), not on a thread of
-        #: its own: one thread wake fewer per sample (15 us of a command's latency). For a session that serves
-        #: one robot; a fleet's one link to the router must not wait for the GIL on every robot's command.
-        self.direct = direct
         self._subscriber: Any = None
         self._pump: threading.Thread | None = None
         self._window_start = -math.inf
@@ -304,10 +297,7 @@ class GuardedInput:
         return self._pump is not None
 
     def start(self) -> None:
-        import zenoh
-
-        callback = zenoh.handlers.Callback(self._on_sample, indirect=not self.direct)
-        self._subscriber = self.session.declare_subscriber(self.key, callback)
+        self._subscriber = self.session.declare_subscriber(self.key, self._on_sample)
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
