@@ -7,7 +7,8 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Iterator
+import time
+from collections.abc import Callable, Iterator
 
 import pytest
 import zenoh
@@ -36,6 +37,17 @@ def _pumps() -> list[threading.Thread]:
     return [t for t in threading.enumerate() if t.name.startswith("pump ")]
 
 
+def _on_loop(loop: asyncio.AbstractEventLoop, call: Callable[[], None]) -> float:
+    """Run ``call`` on the loop's thread, as a service closes its edge; how long the loop was held."""
+
+    async def timed() -> float:
+        start = time.monotonic()
+        call()
+        return time.monotonic() - start
+
+    return asyncio.run_coroutine_threadsafe(timed(), loop).result(10)
+
+
 @pytest.fixture
 def loop() -> Iterator[asyncio.AbstractEventLoop]:
     """A running loop on its own thread, like a service's."""
@@ -59,7 +71,7 @@ def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: 
         publisher.put(f"{i}".encode())
     wait_for(lambda: len(received) == 20, what="20 samples")
     assert received[0] == ("nav", b"0") and not guarded.flooded and not _pumps()
-    edge.close()
+    _on_loop(loop, edge.close)
     assert not _matching(publisher), "the guarded subscriber is still declared"
 
 
@@ -79,8 +91,10 @@ def test_a_flood_goes_through_the_ring_buffer_and_back_when_it_ends(session: zen
         assert [t.name for t in _pumps()] == ["pump edge/test/cmd_vel/*"]
         assert "floods" in reports[0][1] and reports[0][0] == "edge/test/cmd_vel/*", reports
         publisher.put(b"last of the flood")  # through the ring and the pump
-        # (flood samples still queued for the old callback's thread may come after it: the order within a flood is not kept)
+        # the newest comes last: the pump waits for the old callback to hand over what it had queued
         wait_for(lambda: ("flood", b"last of the flood") in received, what="the pumped sample")
+        time.sleep(0.2)
+        assert received[-1] == ("flood", b"last of the flood"), received[-3:]
 
         wait_for(lambda: not guarded.flooded and len(reports) == 2, timeout=10, what="the change back to a callback, reported")
         assert "over" in reports[-1][1], reports
@@ -89,26 +103,33 @@ def test_a_flood_goes_through_the_ring_buffer_and_back_when_it_ends(session: zen
         wait_for(lambda: ("flood", b"after") in received, what="a sample by callback again")
         assert not _pumps()
     finally:
-        guarded.close()
+        _on_loop(loop, guarded.close)
     assert not _matching(publisher)
 
 
-def test_closing_a_flooded_input_ends_its_pump_and_undeclares_it(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
-    """A pump blocked on its subscriber must wake and end when the edge closes.
+def test_closing_flooded_inputs_ends_their_pumps_at_once(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
+    """A pump blocked on its subscriber must wake and end when the edge closes, without holding the loop.
 
     It once waited on the subscriber itself, which kept the subscriber borrowed:
     ``undeclare()`` failed, the pump stayed inside Zenoh, and at exit CPython
     ended that thread mid-unwind, aborting the gateway ("FATAL: exception not rethrown").
+    And closing once joined each pump while it waited up to 0.1 s for a drain that
+    only the (now blocked) loop could do: 0.2-0.3 s for three flooded inputs, in a
+    fleet a pause of every robot's e-stop.
     """
     handover = Handover(loop)
     edge = ZenohEdge(session)
-    guarded = edge.guarded("edge/test/cmd_vel/*", handover.channel("cmd_vel", lambda item: None), handover)
-    publisher = session.declare_publisher("edge/test/cmd_vel/nav")
-    for i in range(5 * FLOOD_SAMPLES):
-        publisher.put(f"{i}".encode())
-    wait_for(lambda: guarded.flooded, what="the change to the ring buffer")
-    assert len(_pumps()) == 1 and _matching(publisher)
+    inputs = [edge.guarded(f"edge/test/{i}/cmd_vel/*", handover.channel(f"cmd_vel {i}", lambda item: None), handover) for i in range(3)]
+    publishers = [session.declare_publisher(f"edge/test/{i}/cmd_vel/nav") for i in range(3)]
+    for publisher in publishers:
+        for i in range(5 * FLOOD_SAMPLES):
+            publisher.put(f"{i}".encode())
+    wait_for(lambda: all(guarded.flooded for guarded in inputs), what="the change to the ring buffers")
+    for publisher in publishers:
+        publisher.put(b"keep the pumps busy")
+    assert len(_pumps()) == 3 and all(_matching(publisher) for publisher in publishers)
 
-    edge.close()
+    held = _on_loop(loop, edge.close)
     assert not _pumps(), f"pump threads still running {PUMP_JOIN_S} s after close: {_pumps()}"
-    assert not _matching(publisher), "the pumped subscriber is still declared"
+    assert not any(_matching(publisher) for publisher in publishers), "a pumped subscriber is still declared"
+    assert held < 0.1, f"closing held the loop {held:.3f} s"

@@ -43,6 +43,8 @@ FLOOD_SAMPLES = 200
 FLOOD_WINDOW_S = 0.1
 #: A flooded key goes back to callbacks after this long without a sample.
 QUIET_S = 2.0
+#: How long a new pump waits for the old callback to hand over what it had queued before it hands over anything.
+CALLBACK_GONE_S = 1.0
 
 
 class Channel(Generic[T]):
@@ -74,6 +76,7 @@ class Handover:
         self._scheduled = False
         self._inbox = inbox_of(loop)
         self._in_inbox = False
+        self._serving = False
         #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
 
@@ -112,7 +115,7 @@ class Handover:
         fleet took the other robots from 50 to 30 Hz).
         """
         self._in_inbox = False
-        if self._scheduled:
+        if self._scheduled and not self._serving:  # never inside a handler of this hand-over
             self._serve(early=True)
 
     def _drain(self) -> None:
@@ -129,6 +132,13 @@ class Handover:
         self.drained.set()
 
     def _serve(self, early: bool) -> None:
+        self._serving = True
+        try:
+            self._serve_channels(early)
+        finally:
+            self._serving = False
+
+    def _serve_channels(self, early: bool) -> None:
         channels = self._channels
         if not channels:
             return
@@ -290,6 +300,10 @@ class GuardedInput:
         self._last_sample = 0.0
         self._quiet_check: asyncio.TimerHandle | None = None
         self._closed = False
+        #: Set by Zenoh once the callback subscriber is gone and its queued samples are all handed over.
+        self._callback_gone = threading.Event()
+        #: Tells the pump to end (its subscriber is going).
+        self._pump_stop = threading.Event()
 
     @property
     def flooded(self) -> bool:
@@ -297,7 +311,10 @@ class GuardedInput:
         return self._pump is not None
 
     def start(self) -> None:
-        self._subscriber = self.session.declare_subscriber(self.key, self._on_sample)
+        import zenoh
+
+        gone = self._callback_gone = threading.Event()
+        self._subscriber = self.session.declare_subscriber(self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set))
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
@@ -308,6 +325,7 @@ class GuardedInput:
         self._window_count += 1
         if self._window_count > FLOOD_SAMPLES and not self._changing:
             self._changing = True
+            inbox_of(self.handover.loop).add(self._to_ring)  # at the loop's next step, not after its turn
             try:
                 self.handover.loop.call_soon_threadsafe(self._to_ring)
             except RuntimeError:  # the loop is closed: the service is stopping
@@ -319,15 +337,23 @@ class GuardedInput:
 
         if self._closed or self._pump is not None:
             return
-        ring = self.session.declare_subscriber(self.key, zenoh.handlers.RingChannel(self.capacity))
+        try:
+            ring = self.session.declare_subscriber(self.key, zenoh.handlers.RingChannel(self.capacity))
+        finally:
+            self._changing = False  # a failure leaves the callback in place, and the next flood tries again
         callback, self._subscriber = self._subscriber, ring
         self._last_sample = time.monotonic()
+        self._pump_stop = threading.Event()
         # The pump waits on the handler, not the subscriber: a thread blocked in ``subscriber.recv()``
         # holds the subscriber borrowed, so ``undeclare()`` would fail ("Already borrowed").
-        self._pump = threading.Thread(target=self._run_pump, args=(ring.handler,), name=f"pump {self.key}", daemon=True)
+        self._pump = threading.Thread(
+            target=self._run_pump,
+            args=(ring.handler, self._callback_gone, self._pump_stop),
+            name=f"pump {self.key}",
+            daemon=True,
+        )
         self._pump.start()
         _undeclare(callback)
-        self._changing = False
         self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
         if self.on_flood is not None:
             self.on_flood(
@@ -337,23 +363,42 @@ class GuardedInput:
                 "check the publisher's loop)",
             )
 
-    def _run_pump(self, samples: Any) -> None:
-        """The pump thread: move what the ring holds to ``put``, then wait for the loop's next drain."""
+    def _run_pump(self, samples: Any, callback_gone: threading.Event, stop: threading.Event) -> None:
+        """The pump thread: move what the ring holds to ``put``, then wait for the loop's next drain.
+
+        It hands nothing over before the old callback has handed over all it
+        had queued: an older command must not come after a newer one (a flood
+        that ends on a stop would otherwise end on whatever came before it).
+        """
         import zenoh
 
         drained = self.handover.drained
-        while True:
+        callback_gone.wait(CALLBACK_GONE_S)
+        while not stop.is_set():
             try:
                 batch = [samples.recv()]  # blocks without the GIL
                 while (more := samples.try_recv()) is not None:
                     batch.append(more)
             except zenoh.ZError:  # "empty and closed": undeclared (the flood is over, or the edge closes)
                 return
+            if stop.is_set():
+                return
             self._last_sample = time.monotonic()
             drained.clear()
             for sample in batch:
                 self.put(_chunk_and_payload(sample))
             drained.wait(0.1)
+
+    def _end_pump(self) -> None:
+        """The loop: end the pump without waiting out its wait for a drain (the loop is what would end that wait)."""
+        pump, self._pump = self._pump, None
+        self._pump_stop.set()
+        self.handover.drained.set()
+        if self._subscriber is not None:
+            _undeclare(self._subscriber)
+            self._subscriber = None
+        if pump is not None:
+            pump.join(PUMP_JOIN_S)
 
     def _check_quiet(self) -> None:
         """The loop: after ``quiet_s`` without a sample, back to a callback (the pump ends with its subscriber)."""
@@ -363,12 +408,17 @@ class GuardedInput:
         if time.monotonic() - self._last_sample < self.quiet_s:
             self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
             return
-        ring, pump = self._subscriber, self._pump
+        ring = self._subscriber
         self._window_start, self._window_count, self._changing = -math.inf, 0, False
-        self.start()
-        self._pump = None
-        _undeclare(ring)
-        pump.join(PUMP_JOIN_S)
+        try:
+            self.start()
+        except Exception:
+            self._subscriber = ring  # the ring stays until a callback can be declared
+            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            raise
+        callback, self._subscriber = self._subscriber, ring
+        self._end_pump()
+        self._subscriber = callback
         if self.on_flood is not None:
             self.on_flood(self.key, f"the flood on {self.key} is over: every sample is taken again")
 
@@ -382,9 +432,4 @@ class GuardedInput:
         if self._quiet_check is not None:
             self._quiet_check.cancel()
             self._quiet_check = None
-        if self._subscriber is not None:
-            _undeclare(self._subscriber)
-            self._subscriber = None
-        if self._pump is not None:
-            self._pump.join(PUMP_JOIN_S)
-            self._pump = None
+        self._end_pump()

@@ -27,12 +27,13 @@ class LoopInbox:
     """What is waiting for one loop: a ``take`` per hand-over that has inputs waiting."""
 
     def __init__(self) -> None:
-        self._waiting: deque[Callable[[], None]] = deque()
+        # weak: an entry must not keep its hand-over, and through it the loop, alive (the inboxes are keyed by loop)
+        self._waiting: deque[weakref.WeakMethod[Callable[[], None]]] = deque()
         self._taking = False
 
     def add(self, take: Callable[[], None]) -> None:
-        """Any thread: ``take`` handles what a hand-over holds; run it at the loop's next step."""
-        self._waiting.append(take)
+        """Any thread: ``take`` (a bound method) handles what a hand-over holds; run it at the loop's next step."""
+        self._waiting.append(weakref.WeakMethod(take))
 
     def take_waiting(self) -> None:
         """The loop: handle what was handed over since the last step."""
@@ -41,7 +42,13 @@ class LoopInbox:
         self._taking = True
         try:
             while self._waiting:
-                self._waiting.popleft()()
+                take = self._waiting.popleft()()
+                if take is None:
+                    continue
+                try:
+                    take()
+                except Exception as exc:  # the step that took it goes on; the loop's handler reports it
+                    asyncio.get_running_loop().call_exception_handler({"message": "an input taken early failed", "exception": exc})
         finally:
             self._taking = False
 
