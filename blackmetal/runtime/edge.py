@@ -21,6 +21,7 @@ import asyncio
 import math
 import threading
 import time
+import weakref
 from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
@@ -76,6 +77,7 @@ class Handover:
         self._scheduled = False
         self._inbox = inbox_of(loop)
         self._in_inbox = False
+        self._take_early_ref = weakref.WeakMethod(self._take_early)
         self._serving = False
         #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
@@ -98,7 +100,7 @@ class Handover:
                 self._scheduled = True
                 if not self._in_inbox:  # the loop's next step of work may take it before the scheduled drain
                     self._in_inbox = True
-                    self._inbox.add(self._take_early)
+                    self._inbox.add(self._take_early_ref)
                 try:
                     self.loop.call_soon_threadsafe(self._drain)
                 except RuntimeError:  # the loop is closed: the service is stopping
@@ -304,6 +306,7 @@ class GuardedInput:
         self._callback_gone = threading.Event()
         #: Tells the pump to end (its subscriber is going).
         self._pump_stop = threading.Event()
+        self._to_ring_ref = weakref.WeakMethod(self._to_ring)
 
     @property
     def flooded(self) -> bool:
@@ -325,7 +328,7 @@ class GuardedInput:
         self._window_count += 1
         if self._window_count > FLOOD_SAMPLES and not self._changing:
             self._changing = True
-            inbox_of(self.handover.loop).add(self._to_ring)  # at the loop's next step, not after its turn
+            inbox_of(self.handover.loop).add(self._to_ring_ref)  # at the loop's next step, not after its turn
             try:
                 self.handover.loop.call_soon_threadsafe(self._to_ring)
             except RuntimeError:  # the loop is closed: the service is stopping

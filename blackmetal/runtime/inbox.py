@@ -31,9 +31,13 @@ class LoopInbox:
         self._waiting: deque[weakref.WeakMethod[Callable[[], None]]] = deque()
         self._taking = False
 
-    def add(self, take: Callable[[], None]) -> None:
-        """Any thread: ``take`` (a bound method) handles what a hand-over holds; run it at the loop's next step."""
-        self._waiting.append(weakref.WeakMethod(take))
+    def add(self, take: weakref.WeakMethod[Callable[[], None]]) -> None:
+        """Any thread: ``take`` handles what a hand-over holds; run it at the loop's next step.
+
+        A weak reference made once by its owner (one per input, not one per sample: at 5,000
+        samples a second a WeakMethod each cost the fleet odometry 0.05 cores).
+        """
+        self._waiting.append(take)
 
     def take_waiting(self) -> None:
         """The loop: handle what was handed over since the last step."""
