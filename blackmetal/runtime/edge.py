@@ -392,14 +392,13 @@ class GuardedInput:
                 self.put(_chunk_and_payload(sample))
             drained.wait(0.1)
 
-    def _end_pump(self) -> None:
-        """The loop: end the pump without waiting out its wait for a drain (the loop is what would end that wait)."""
+    def _end_pump(self, subscriber: Any) -> None:
+        """The loop: undeclare ``subscriber`` and end the pump, without waiting out its wait for a drain (only the loop ends that)."""
         pump, self._pump = self._pump, None
         self._pump_stop.set()
         self.handover.drained.set()
-        if self._subscriber is not None:
-            _undeclare(self._subscriber)
-            self._subscriber = None
+        if subscriber is not None:
+            _undeclare(subscriber)
         if pump is not None:
             pump.join(PUMP_JOIN_S)
 
@@ -415,13 +414,10 @@ class GuardedInput:
         self._window_start, self._window_count, self._changing = -math.inf, 0, False
         try:
             self.start()
-        except Exception:
-            self._subscriber = ring  # the ring stays until a callback can be declared
+        except Exception:  # the ring stays until a callback can be declared
             self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
             raise
-        callback, self._subscriber = self._subscriber, ring
-        self._end_pump()
-        self._subscriber = callback
+        self._end_pump(ring)
         if self.on_flood is not None:
             self.on_flood(self.key, f"the flood on {self.key} is over: every sample is taken again")
 
@@ -435,4 +431,5 @@ class GuardedInput:
         if self._quiet_check is not None:
             self._quiet_check.cancel()
             self._quiet_check = None
-        self._end_pump()
+        subscriber, self._subscriber = self._subscriber, None
+        self._end_pump(subscriber)
