@@ -9,8 +9,13 @@ way httpx swaps its transport, with nothing patched.
 from __future__ import annotations
 
 import asyncio
+import contextlib
+import os
 import socket
 from typing import Protocol
+
+#: send() flags for a write that must never block (and never raise SIGPIPE), where the platform has them.
+_SEND_NOW_FLAGS = getattr(socket, "MSG_DONTWAIT", 0) | getattr(socket, "MSG_NOSIGNAL", 0)
 
 
 class ByteStream(Protocol):
@@ -22,6 +27,16 @@ class ByteStream(Protocol):
 
     def write(self, data: bytes) -> None:
         """Queue ``data`` for sending now (never blocks)."""
+        ...
+
+    def write_now(self, data: bytes) -> int:
+        """Any thread: send ``data`` at once if nothing is queued before it; how many bytes went (0: none).
+
+        The caller sends the rest with :meth:`write`, on the loop. It must hold
+        whatever keeps :meth:`write` and :meth:`close` from running meanwhile
+        (the gateway's core lock). A stream that cannot send from another
+        thread returns 0, always.
+        """
         ...
 
     async def drain(self) -> None:
@@ -50,6 +65,10 @@ class TcpStream:
         sock = writer.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._fd = sock.fileno() if sock is not None and hasattr(socket, "MSG_DONTWAIT") else -1
+        #: Our own duplicate of the socket, made at the first write_now: the loop may close its descriptor
+        #: at any time (the robot reset the link), and a number it freed could name another socket by then.
+        self._own: socket.socket | None = None
 
     async def read(self, max_bytes: int) -> bytes:
         return await self._reader.read(max_bytes)
@@ -57,11 +76,26 @@ class TcpStream:
     def write(self, data: bytes) -> None:
         self._writer.write(data)
 
+    def write_now(self, data: bytes) -> int:
+        transport = self._writer.transport
+        if self._fd < 0 or transport.is_closing() or transport.get_write_buffer_size():
+            return 0  # queued bytes go first, and only the loop sends those
+        try:
+            if self._own is None:
+                self._own = socket.socket(fileno=os.dup(self._fd))
+            return self._own.send(data, _SEND_NOW_FLAGS)
+        except OSError:  # full (EAGAIN), or broken: the loop's write meets it and the link reports it
+            return 0
+
     async def drain(self) -> None:
         await self._writer.drain()
 
     def close(self) -> None:
         self._writer.close()
+        if self._own is not None:
+            with contextlib.suppress(OSError):
+                self._own.close()
+            self._own = None
 
     def is_closing(self) -> bool:
         return self._writer.is_closing()
@@ -120,6 +154,9 @@ class MemoryStream:
     def write(self, data: bytes) -> None:
         if not self._closed and self.peer is not None:
             self.peer._deliver(data)
+
+    def write_now(self, data: bytes) -> int:
+        return 0  # the peer's buffer belongs to the loop
 
     async def drain(self) -> None:
         if self._closed:

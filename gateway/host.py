@@ -7,6 +7,13 @@ pipe in tests), reconnects with backoff, feeds what it reads, writes what
 the connection wants written, hands messages to a :class:`GatewayOutput`,
 and sleeps until the connection's next deadline or the next input
 (:class:`~blackmetal.runtime.host.DeadlineTimer`, shared by every service).
+
+Commands and e-stops may also be taken on the Zenoh thread that delivers
+them (:meth:`GatewayHost.take_cmd_vel_now`, :meth:`GatewayHost.take_estop_now`):
+waking the loop cost a command a third of its way to the robot. The core
+and the streams' writes are therefore guarded by :attr:`GatewayHost.lock`,
+which the loop holds whenever it is in the core, and every ``now`` is read
+inside it, so the core never sees time go back.
 """
 
 from __future__ import annotations
@@ -14,6 +21,7 @@ from __future__ import annotations
 import asyncio
 import gc
 import logging
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -87,7 +95,13 @@ class GatewayHost:
         self.connection = RobotConnection(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
-        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush, on_error=self.fail)
+        #: Held by whoever is in the core or writes to a stream: the loop, or a Zenoh thread taking a command directly.
+        self.lock = threading.RLock()
+        #: Bytes the core produced that a direct take could not send at once; the loop sends them before anything newer.
+        self._unsent: dict[LinkName, bytes] = {}
+        self._flush_scheduled = False
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock)
         self._failure: asyncio.Future[None] | None = None
 
     # ------------------------------------------------------------------ what tests and the edge see
@@ -101,7 +115,8 @@ class GatewayHost:
         return self.connection.links["control"]
 
     def health(self) -> GatewayHealth:
-        return self.connection.health(self.clock())
+        with self.lock:
+            return self.connection.health(self.clock())
 
     def fail(self, exc: BaseException) -> None:
         """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
@@ -110,8 +125,9 @@ class GatewayHost:
             self._failure.set_exception(exc)
 
     def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
-        self.connection.on_cmd_vel(payload, self.clock(), source)
-        self._flush()
+        with self.lock:
+            self.connection.on_cmd_vel(payload, self.clock(), source)
+            self._flush()
 
     def on_source_cmd_vel(self, item: tuple[str, bytes]) -> None:
         """``(source, payload)`` from ``<prefix>/cmd_vel/<source>``."""
@@ -119,29 +135,78 @@ class GatewayHost:
 
     def on_named_lock(self, item: tuple[str, bytes]) -> None:
         """``(name, payload)`` from ``<prefix>/lock/<name>``."""
-        self.connection.on_lock(item[0], item[1], self.clock())
-        self._flush()
+        with self.lock:
+            self.connection.on_lock(item[0], item[1], self.clock())
+            self._flush()
 
     def on_estop(self, payload: bytes) -> None:
-        self.connection.on_estop(payload, self.clock())
-        self._flush()
+        with self.lock:
+            self.connection.on_estop(payload, self.clock())
+            self._flush()
 
     def on_input_flood(self, key: str, reason: str) -> None:
         """An input began or stopped flooding (the edge changed how it takes it): reported on ``<prefix>/errors``."""
-        self.connection.note_input(key, reason, self.clock())
-        self._flush()
+        with self.lock:
+            self.connection.note_input(key, reason, self.clock())
+            self._flush()
 
     def on_health_seen(self, payload: bytes) -> None:
-        self.connection.on_health_seen(payload, self.clock())
-        self._flush()
+        with self.lock:
+            self.connection.on_health_seen(payload, self.clock())
+            self._flush()
+
+    # ------------------------------------------------------------------ taken on a Zenoh thread (Handover direct)
+
+    def take_cmd_vel_now(self, item: tuple[str, bytes]) -> bool:
+        """Under :attr:`lock`, on the thread that delivered it: handle ``(source, payload)`` and send the result at once.
+
+        False (the loop takes it, as any input) until the host runs. What
+        the command produced besides the control link's bytes (reports, the
+        next deadline) waits for the loop's flush, scheduled here.
+        """
+        if self._loop is None:
+            return False
+        self.connection.on_cmd_vel(item[1], self.clock(), item[0])
+        self._send_now()
+        return True
+
+    def take_estop_now(self, payload: bytes) -> bool:
+        """As :meth:`take_cmd_vel_now`, for an e-stop: EMG_STOP leaves for the robot without waiting for the loop."""
+        if self._loop is None:
+            return False
+        self.connection.on_estop(payload, self.clock())
+        self._send_now()
+        return True
+
+    def _send_now(self) -> None:
+        """Under the lock, off the loop: the control link's bytes to its socket if it takes them now; the rest to the loop."""
+        data = self._unsent.pop("control", b"") + self.connection.take_outgoing("control")
+        if data:
+            stream = self._streams["control"]
+            sent = stream.write_now(data) if stream is not None and not stream.is_closing() else 0
+            if sent < len(data):
+                self._unsent["control"] = data[sent:]
+        if not self._flush_scheduled and self._loop is not None:
+            self._flush_scheduled = True
+            try:
+                self._loop.call_soon_threadsafe(self._flush_locked)
+            except RuntimeError:  # the loop is closed: the host is gone
+                pass
+
+    def _flush_locked(self) -> None:
+        with self.lock:
+            self._flush_scheduled = False
+            self._flush()
 
     # ------------------------------------------------------------------ moving bytes
 
     def _flush(self) -> None:
-        """Write what the connection wants written; publish its messages; act on drops."""
+        """Under the lock: write what the connection wants written; publish its messages; act on drops."""
         conn = self.connection
         for name, stream in self._streams.items():
             data = conn.take_outgoing(name)
+            if name in self._unsent:  # what a direct take could not send goes first
+                data = self._unsent.pop(name) + data
             if data and stream is not None and not stream.is_closing():
                 stream.write(data)
         for event in conn.take_events():
@@ -165,15 +230,18 @@ class GatewayHost:
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
         conn = self.connection
+        lock = self.lock
         backoff = ReconnectBackoff()
         first_failure = True
         while not stop.is_set():
-            conn.link_connecting(name)
+            with lock:
+                conn.link_connecting(name)
             try:
                 stream = await self.connector.open(name)
             except (OSError, TimeoutError) as exc:
                 reason = f"cannot connect to {self.connector.describe(name)}: {_reason(exc)}"
-                conn.link_down(name, reason, self.clock())
+                with lock:
+                    conn.link_down(name, reason, self.clock())
                 if first_failure:
                     log.warning("%s link: %s; retrying", name, reason)
                     first_failure = False
@@ -181,18 +249,20 @@ class GatewayHost:
                 continue
             first_failure = True
             backoff.opened(self.clock())
-            self._streams[name] = stream
             log.info("%s link: connected to %s", name, self.connector.describe(name))
-            conn.link_up(name, self.clock())
-            self._flush()
+            with lock:
+                self._streams[name] = stream
+                conn.link_up(name, self.clock())
+                self._flush()
             reason = "closed by the robot"
             try:
                 while True:
                     data = await stream.read(READ_SIZE)
                     if not data:
                         break
-                    conn.receive(name, data, self.clock())
-                    self._flush()
+                    with lock:
+                        conn.receive(name, data, self.clock())
+                        self._flush()
                     take_waiting()  # an e-stop handed over meanwhile goes before the other robots' replies
                     if len(data) >= READ_SIZE:
                         # more may be buffered, and a read returns at once while it is: let the loop breathe (a
@@ -201,21 +271,25 @@ class GatewayHost:
             except (ConnectionError, OSError) as exc:
                 reason = f"connection error: {exc}"
             finally:
-                self._streams[name] = None
-                stream.close()
+                with lock:  # nobody writes to it from now on, from any thread
+                    self._streams[name] = None
+                    self._unsent.pop(name, None)
+                    stream.close()
             reason = self._drop_reason.pop(name, reason)
             if stop.is_set():
                 reason = "gateway stopping"
             else:
                 log.warning("%s link: %s; reconnecting", name, reason)
-            conn.link_down(name, reason, self.clock())
-            self._flush()
+            with lock:
+                conn.link_down(name, reason, self.clock())
+                self._flush()
             if not stop.is_set():
                 await _sleep_or_stop(stop, backoff.failed(self.clock()))
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
         failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._failure = failure
@@ -235,9 +309,11 @@ class GatewayHost:
             self._timer.stop()
             await self._stop_robot()
             link_stop.set()
-            for stream in self._streams.values():
-                if stream is not None:
-                    stream.close()
+            with self.lock:
+                self._loop = None  # from now on the loop takes every input (and finds the links closed)
+                for stream in self._streams.values():
+                    if stream is not None:
+                        stream.close()
             await asyncio.wait(tasks, timeout=1.0)
             for task in tasks:
                 task.cancel()
@@ -249,9 +325,10 @@ class GatewayHost:
 
     async def _stop_robot(self) -> None:
         """Zero velocity and NORMAL_STOP, so the robot is left standing; wait briefly for the replies."""
-        self.connection.stop_robot(self.clock())
-        self._flush()
-        stream = self._streams["control"]
+        with self.lock:
+            self.connection.stop_robot(self.clock())
+            self._flush()
+            stream = self._streams["control"]
         if stream is None:
             return
         try:
@@ -259,7 +336,10 @@ class GatewayHost:
         except (ConnectionError, TimeoutError):
             return
         deadline = self.clock() + 0.3
-        while not self.connection.idle and self.clock() < deadline and self._streams["control"] is not None:
+        while self.clock() < deadline and self._streams["control"] is not None:
+            with self.lock:
+                if self.connection.idle:
+                    return
             await asyncio.sleep(0.01)
 
 

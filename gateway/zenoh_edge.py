@@ -4,7 +4,10 @@ Inputs go through the one hand-over of :mod:`blackmetal.runtime.edge`: the
 callbacks copy the payload and the service's loop runs the handlers, the
 e-stop channel ahead of everything else; each channel is bounded, so a
 flood of commands can neither grow memory nor delay an e-stop. Health queries are answered from
-the loop.
+the loop. A single robot's gateway takes commands and e-stops directly on
+the Zenoh thread that delivers them when its core is free (the hand-over's
+``direct``); a fleet host leaves them to its loop, so a hundred robots'
+commands never keep Zenoh's thread in Python.
 """
 
 from __future__ import annotations
@@ -32,10 +35,12 @@ class GatewayZenoh(ZenohEdge):
         One robot: express, the lowest latency. A fleet: an express put per impulse sample is a write of
         its own and a wake of Zenoh's tx thread each, which at 100 robots x 50 Hz was a quarter of the
         gateway's Python time and kept it from polling at 50 Hz (35 Hz; batched: 47 Hz, router CPU per
-        message halved). Zenoh still sends at once while the link is idle.
+        message halved). Zenoh still sends at once while the link is idle. A fleet also takes every input
+        on its loop (no direct takes).
         """
         super().__init__(session)
         self.keys = keys
+        self.direct = not batched
         self._impulses = self.publisher(keys.impulses, express=not batched, drop_when_congested=True)
         self._status = self.publisher(keys.status)
         self._health = self.publisher(keys.health)
@@ -56,12 +61,17 @@ class GatewayZenoh(ZenohEdge):
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Handover:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
-        handover = Handover(loop, on_error=service.fail)  # a bug in handling one input fails this robot's host, visibly
+        # a bug in handling one input fails this robot's host, visibly
+        handover = Handover(loop, on_error=service.fail, lock=service.lock if self.direct else None)
+        direct = self.direct
         # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
-        self.subscriber(self.keys.estop, handover.channel("estop", service.on_estop, capacity=64, priority=2))
+        estop = handover.channel("estop", service.on_estop, capacity=64, priority=2, direct=service.take_estop_now if direct else None)
+        self.subscriber(self.keys.estop, estop)
         # commands and locks a client may flood: while one floods, it waits in Zenoh's ring buffer and reaches
         # the loop at its pace, so it can neither grow memory nor hold up the e-stop; plain cmd_vel is the source 'default'
-        commands = handover.channel("cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1)
+        commands = handover.channel(
+            "cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1, direct=service.take_cmd_vel_now if direct else None
+        )
         flood = service.on_input_flood
         self.guarded(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover, flood)
         self.guarded(self.keys.any_cmd_vel_source, commands, handover, flood)

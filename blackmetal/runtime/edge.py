@@ -10,9 +10,12 @@ counting what it dropped. Channels with a higher ``priority`` are drained
 first and looked at again after every item, and a drain takes no more than
 was waiting when it began, so an emergency stop is handled before a backlog
 (or a flood) of anything else. A busy loop takes waiting inputs between
-two steps of its own work (:mod:`blackmetal.runtime.inbox`).
-:class:`ZenohEdge` keeps every declared entity and undeclares them in
-reverse order of declaration.
+two steps of its own work (:mod:`blackmetal.runtime.inbox`). A channel
+may also be taken ``direct``: in the putting thread, under the core's lock,
+when the core is free and nothing of its priority or higher waits; the
+gateway sends a command to the robot that way without waiting for its loop
+to wake (see :meth:`Handover.channel`). :class:`ZenohEdge` keeps every
+declared entity and undeclares them in reverse order of declaration.
 """
 
 from __future__ import annotations
@@ -46,6 +49,10 @@ FLOOD_WINDOW_S = 0.1
 QUIET_S = 2.0
 #: How long a new pump waits for the old callback to hand over what it had queued before it hands over anything.
 CALLBACK_GONE_S = 1.0
+#: A channel takes at most DIRECT_BURST items directly within DIRECT_WINDOW_S (200 a second); the rest wait for
+#: the loop. Commanders at 10-100 Hz are all taken directly, and a burst cannot keep Zenoh's thread in handlers.
+DIRECT_BURST = 20
+DIRECT_WINDOW_S = 0.1
 
 
 class Channel(Generic[T]):
@@ -58,21 +65,36 @@ class Channel(Generic[T]):
         self.items: deque[T] = deque(maxlen=capacity)
         self.dropped = 0
         self.received = 0
+        #: Items taken directly (in the putting thread), and the current window of the direct budget.
+        self.direct_taken = 0
+        self.window_start = -math.inf
+        self.window_direct = 0
 
 
 class Handover:
     """Thread-safe hand-over from Zenoh's threads to one asyncio loop.
 
-    Lock-free: ``deque.append``/``popleft`` are atomic, and the drain clears
-    its "scheduled" flag *before* it empties the channels, so an item that
-    arrives while a drain runs is either taken by it or schedules the next
-    one; at worst a drain finds nothing to do.
+    The channels are lock-free: ``deque.append``/``popleft`` are atomic, and
+    the drain clears its "scheduled" flag *before* it empties the channels,
+    so an item that arrives while a drain runs is either taken by it or
+    schedules the next one; at worst a drain finds nothing to do. The one
+    lock, when given, is the core's: drains hold it, and a ``direct``
+    channel's put takes it (never waiting for it) to handle an item at once.
     """
 
-    def __init__(self, loop: asyncio.AbstractEventLoop, on_error: Callable[[BaseException], None] | None = None) -> None:
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        on_error: Callable[[BaseException], None] | None = None,
+        lock: threading.RLock | None = None,
+        clock: Callable[[], float] = time.monotonic,
+    ) -> None:
         self.loop = loop
+        self.clock = clock
         #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
         self.on_error = on_error
+        #: The core's lock, for a service whose core other threads may drive: drains hold it, direct takes need it.
+        self.lock = lock
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
         self._inbox = inbox_of(loop)
@@ -83,15 +105,35 @@ class Handover:
         self.drained = threading.Event()
 
     def channel(
-        self, name: str, handler: Callable[[T], None], *, capacity: int = 1024, latest: bool = False, priority: int = 0
+        self,
+        name: str,
+        handler: Callable[[T], None],
+        *,
+        capacity: int = 1024,
+        latest: bool = False,
+        priority: int = 0,
+        direct: Callable[[T], bool] | None = None,
     ) -> Callable[[T], None]:
-        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item."""
+        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item.
+
+        ``direct(item)`` takes an item in the thread that puts it, under
+        :attr:`lock`, and says whether it did (False: it waits for the loop as
+        any other). It is tried only while the lock is free (the loop is not
+        in the core), nothing of this priority or higher waits (order is
+        kept: a drain pops and handles under the lock), and the channel is
+        within its direct budget (DIRECT_BURST per DIRECT_WINDOW_S). It must
+        not block, call Zenoh or touch the loop except by ``call_soon_threadsafe``.
+        """
+        if direct is not None and self.lock is None:
+            raise ValueError(f"channel {name!r}: a direct channel needs the hand-over's lock")
         channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)
         items = channel.items
 
         def put(item: T) -> None:
+            if direct is not None and self._take_direct(channel, direct, item):
+                return
             if len(items) == items.maxlen:
                 channel.dropped += 1
             items.append(item)
@@ -107,6 +149,47 @@ class Handover:
                     pass
 
         return put
+
+    def _take_direct(self, channel: Channel[T], direct: Callable[[T], bool], item: T) -> bool:
+        """The putting thread: ``direct(item)`` under the lock, if the rules of :meth:`channel` allow; whether it was taken."""
+        now = self.clock()
+        if now - channel.window_start > DIRECT_WINDOW_S:
+            channel.window_start, channel.window_direct = now, 0
+        lock = self.lock
+        if channel.window_direct >= DIRECT_BURST or lock is None or not lock.acquire(blocking=False):
+            return False
+        try:
+            if self._serving:
+                return False  # the loop's own handler put it: it waits for the drain, as it always did
+            for other in self._channels:  # highest priority first
+                if other.priority < channel.priority:
+                    break
+                if other.items:
+                    return False  # older items of this priority, or higher, wait: behind them, in order
+            try:
+                taken = direct(item)
+            except Exception as exc:  # reported on the loop, as a handler's failure in a drain is
+                self._report_soon(exc)
+                taken = True
+            if taken:
+                channel.received += 1
+                channel.direct_taken += 1
+                channel.window_direct += 1
+            return taken
+        finally:
+            lock.release()
+
+    def _report_soon(self, exc: BaseException) -> None:
+        def report() -> None:
+            if self.on_error is None:
+                self.loop.call_exception_handler({"message": "an input taken directly failed", "exception": exc})
+            else:
+                self.on_error(exc)
+
+        try:
+            self.loop.call_soon_threadsafe(report)
+        except RuntimeError:  # the loop is closed: the service is stopping
+            pass
 
     def _take_early(self) -> None:
         """The loop, between two steps of its own work (:mod:`blackmetal.runtime.inbox`): the top channel, one item of each other.
@@ -134,6 +217,13 @@ class Handover:
         self.drained.set()
 
     def _serve(self, early: bool) -> None:
+        if self.lock is None:
+            self._serve_locked(early)
+            return
+        with self.lock:  # a direct take must not come between an item's pop and its handling
+            self._serve_locked(early)
+
+    def _serve_locked(self, early: bool) -> None:
         self._serving = True
         try:
             self._serve_channels(early)
@@ -165,7 +255,7 @@ class Handover:
                 return
 
     def stats(self) -> dict[str, tuple[int, int]]:
-        """Per channel: items received and items dropped because the channel was full."""
+        """Per channel: items received (directly taken ones included) and items dropped because the channel was full."""
         return {c.name: (c.received, c.dropped) for c in self._channels}
 
 

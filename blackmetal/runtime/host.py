@@ -7,15 +7,19 @@ in ``tick(now)`` and says in ``next_deadline()`` when that must happen next.
 ``tick`` at the deadline, then ``after_tick`` (the host moves what the core
 produced), and after each input the host calls :meth:`DeadlineTimer.poke`
 so a deadline that came earlier is honoured. The timer is moved only when a
-deadline comes earlier, so a flood of inputs costs no timer churn.
+deadline comes earlier, so a flood of inputs costs no timer churn. A
+core that other threads also drive (the gateway's) gives its ``lock``: the
+timer holds it from ``tick`` to the next deadline.
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import time
 from collections.abc import Callable
+from contextlib import AbstractContextManager
 from typing import Protocol
 
 from .inbox import take_waiting
@@ -40,8 +44,10 @@ class DeadlineTimer:
         clock: Callable[[], float] = time.monotonic,
         after_tick: Callable[[], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
+        lock: AbstractContextManager[object] | None = None,
     ) -> None:
         self.core = core
+        self.lock = lock if lock is not None else contextlib.nullcontext()
         self.clock = clock
         self.after_tick = after_tick
         #: Called (and the timer stopped) when tick or after_tick raise: a host supervises its core through it.
@@ -82,15 +88,16 @@ class DeadlineTimer:
         if not self._running:
             return
         try:
-            self.core.tick(self.clock())
-            if self.after_tick is not None:
-                self.after_tick()  # may poke: then the timer is already set
+            with self.lock:
+                self.core.tick(self.clock())  # now read inside the lock: a core never sees time go back
+                if self.after_tick is not None:
+                    self.after_tick()  # may poke: then the timer is already set
+                if self._timer is None and self._running:
+                    self._schedule(self.core.next_deadline())
         except Exception as exc:
             if self.on_error is None:
                 raise
             self.stop()
             self.on_error(exc)
             return
-        if self._timer is None and self._running:
-            self._schedule(self.core.next_deadline())
         take_waiting()  # inputs handed over while this tick ran: now, not after the loop's other work
