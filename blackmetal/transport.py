@@ -59,16 +59,22 @@ class Connector(Protocol):
 class TcpStream:
     """A ByteStream over an asyncio TCP connection (Nagle off: commands leave at once)."""
 
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, *, write_now: bool = False) -> None:
+        """``write_now``: keep a duplicate of the socket so :meth:`write_now` can send from another thread.
+
+        It is made here, on the loop, while the descriptor is surely this
+        stream's: the loop may close its own at any time (the robot reset the
+        link), and a number it freed could name another socket by the time
+        another thread looked. Only :meth:`close` closes the duplicate.
+        """
         self._reader = reader
         self._writer = writer
         sock = writer.get_extra_info("socket")
         if sock is not None:
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._fd = sock.fileno() if sock is not None and hasattr(socket, "MSG_DONTWAIT") else -1
-        #: Our own duplicate of the socket, made at the first write_now: the loop may close its descriptor
-        #: at any time (the robot reset the link), and a number it freed could name another socket by then.
         self._own: socket.socket | None = None
+        if write_now and sock is not None and hasattr(socket, "MSG_DONTWAIT"):
+            self._own = socket.socket(fileno=os.dup(sock.fileno()))
 
     async def read(self, max_bytes: int) -> bytes:
         return await self._reader.read(max_bytes)
@@ -78,12 +84,11 @@ class TcpStream:
 
     def write_now(self, data: bytes) -> int:
         transport = self._writer.transport
-        if self._fd < 0 or transport.is_closing() or transport.get_write_buffer_size():
+        own = self._own
+        if own is None or transport.is_closing() or transport.get_write_buffer_size():
             return 0  # queued bytes go first, and only the loop sends those
         try:
-            if self._own is None:
-                self._own = socket.socket(fileno=os.dup(self._fd))
-            return self._own.send(data, _SEND_NOW_FLAGS)
+            return own.send(data, _SEND_NOW_FLAGS)
         except OSError:  # full (EAGAIN), or broken: the loop's write meets it and the link reports it
             return 0
 
@@ -119,7 +124,7 @@ class TcpConnector:
             raise ConnectionRefusedError(f"connection refused (nothing listens on port {self.ports[port]})") from None
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc) or type(exc).__name__) from None
-        return TcpStream(reader, writer)
+        return TcpStream(reader, writer, write_now=True)
 
     def describe(self, port: str) -> str:
         return f"{self.host}:{self.ports[port]}"

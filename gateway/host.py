@@ -100,7 +100,9 @@ class GatewayHost:
         #: Bytes the core produced that a direct take could not send at once; the loop sends them before anything newer.
         self._unsent: dict[LinkName, bytes] = {}
         self._flush_scheduled = False
+        #: The running loop, and its thread; None once the host stops or fails (every input goes to the loop then).
         self._loop: asyncio.AbstractEventLoop | None = None
+        self._loop_thread = 0
         self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock)
         self._failure: asyncio.Future[None] | None = None
 
@@ -121,6 +123,8 @@ class GatewayHost:
     def fail(self, exc: BaseException) -> None:
         """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
         log.error("%s: %r", self.connection.keys.prefix, exc, exc_info=exc)
+        with self.lock:
+            self._loop = None  # a core that raised is driven by nobody but the loop's stop from now on
         if self._failure is not None and not self._failure.done():
             self._failure.set_exception(exc)
 
@@ -164,7 +168,7 @@ class GatewayHost:
         the command produced besides the control link's bytes (reports, the
         next deadline) waits for the loop's flush, scheduled here.
         """
-        if self._loop is None:
+        if not self._takes_direct():
             return False
         self.connection.on_cmd_vel(item[1], self.clock(), item[0])
         self._send_now()
@@ -172,11 +176,15 @@ class GatewayHost:
 
     def take_estop_now(self, payload: bytes) -> bool:
         """As :meth:`take_cmd_vel_now`, for an e-stop: EMG_STOP leaves for the robot without waiting for the loop."""
-        if self._loop is None:
+        if not self._takes_direct():
             return False
         self.connection.on_estop(payload, self.clock())
         self._send_now()
         return True
+
+    def _takes_direct(self) -> bool:
+        """Under the lock: whether a direct take may drive the core now (the host runs, and this is not its loop's thread)."""
+        return self._loop is not None and threading.get_ident() != self._loop_thread
 
     def _send_now(self) -> None:
         """Under the lock, off the loop: the control link's bytes to its socket if it takes them now; the rest to the loop."""
@@ -194,9 +202,13 @@ class GatewayHost:
                 pass
 
     def _flush_locked(self) -> None:
-        with self.lock:
-            self._flush_scheduled = False
-            self._flush()
+        """The loop, after a direct take: its reports, the rest of its bytes, the next deadline; a failure fails the host."""
+        try:
+            with self.lock:
+                self._flush_scheduled = False
+                self._flush()
+        except Exception as exc:
+            self.fail(exc)
 
     # ------------------------------------------------------------------ moving bytes
 
@@ -289,7 +301,8 @@ class GatewayHost:
     async def run(self, stop: asyncio.Event) -> None:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
-        self._loop = asyncio.get_running_loop()
+        with self.lock:
+            self._loop, self._loop_thread = asyncio.get_running_loop(), threading.get_ident()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
         failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._failure = failure
@@ -305,12 +318,13 @@ class GatewayHost:
             if failure.done():
                 failure.result()  # raises the failure, after the finally below has stopped the robot
         finally:
+            with self.lock:
+                self._loop = None  # from now on the loop takes every input (and the core refuses motion once stopping)
             stopped.cancel()
             self._timer.stop()
             await self._stop_robot()
             link_stop.set()
             with self.lock:
-                self._loop = None  # from now on the loop takes every input (and finds the links closed)
                 for stream in self._streams.values():
                     if stream is not None:
                         stream.close()

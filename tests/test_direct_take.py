@@ -11,6 +11,7 @@ an e-stop still reach a robot on another thread.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import socket
 import threading
 import time
@@ -21,6 +22,7 @@ import pytest
 from helpers import wait_for
 
 from blackmetal.runtime.edge import DIRECT_BURST, DIRECT_WINDOW_S, Handover
+from blackmetal.runtime.entry import loop_factory
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
 from blackmetal.transport import TcpConnector, TcpStream
@@ -31,8 +33,8 @@ from gateway.settings import GatewaySettings
 class LoopThread:
     """A running loop on its own thread, like a service's, that a test can hold busy."""
 
-    def __init__(self) -> None:
-        self.loop = asyncio.new_event_loop()
+    def __init__(self, factory: Callable[[], asyncio.AbstractEventLoop] | None = None) -> None:
+        self.loop = (factory or asyncio.new_event_loop)()
         self.thread = threading.Thread(target=self.loop.run_forever, daemon=True)
         self.thread.start()
 
@@ -201,7 +203,7 @@ def test_a_tcp_stream_writes_now_from_another_thread_and_its_close_ends_the_link
 
         async def connect() -> TcpStream:
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
-            return TcpStream(reader, writer)
+            return TcpStream(reader, writer, write_now=True)
 
         stream = loop_thread.run(connect())
         peer, _ = server.accept()
@@ -220,7 +222,7 @@ def test_a_tcp_stream_sends_nothing_now_while_the_loop_has_bytes_queued(loop_thr
 
         async def connect_and_fill() -> TcpStream:
             reader, writer = await asyncio.open_connection("127.0.0.1", port)
-            stream = TcpStream(reader, writer)
+            stream = TcpStream(reader, writer, write_now=True)
             stream.write(b"x" * 20_000_000)  # far more than the socket buffers: the rest waits in the loop's queue
             return stream
 
@@ -255,15 +257,15 @@ class HalfNowConnector(TcpConnector):
 class GatewayRig:
     """The simulated robot on one loop thread, the gateway on another, inputs put from the test's thread as Zenoh's would be."""
 
-    def __init__(self, connector_type: type[TcpConnector] = TcpConnector) -> None:
+    def __init__(self, connector_type: type[TcpConnector] = TcpConnector, output: RecordingOutput | None = None) -> None:
         self.robot_thread = LoopThread()
-        self.gateway_thread = LoopThread()
+        self.gateway_thread = LoopThread(loop_factory())  # the services' own loop: uvloop where it is installed
         self.robot = SimRobot(RobotParams(), now=time.monotonic(), seed=1)
         self.server = SimServer(self.robot, "127.0.0.1", 0, 0, log_interval=0.2)
         self.robot_thread.run(self.server.start())
         settings = GatewaySettings(cmd_timeout=0.0)
         settings.check()
-        self.output = RecordingOutput()
+        self.output = output or RecordingOutput()
         host = self.host = GatewayHost(settings, connector_type("127.0.0.1", self.server.control_port, self.server.log_port), self.output)
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
@@ -274,9 +276,13 @@ class GatewayRig:
         self.handover = handover
         wait_for(lambda: host.control.connected and self.robot.counters["prepare"] >= 1, what="the gateway to connect")
 
+    def direct_taken(self) -> dict[str, int]:
+        return {channel.name: channel.direct_taken for channel in self.handover._channels}
+
     def close(self) -> None:
         self.gateway_thread.loop.call_soon_threadsafe(self.stop.set)
-        self.task.result(10)
+        with contextlib.suppress(Exception):  # a test that failed the host on purpose has seen its failure
+            self.task.result(10)
         self.robot_thread.run(self.server.close())
         self.gateway_thread.close()
         self.robot_thread.close()
@@ -302,6 +308,7 @@ def test_a_command_and_an_estop_reach_the_robot_while_the_gateways_loop_is_busy(
         release.set()
     wait_for(lambda: any(h.estop for h in rig.output.health_log), what="the e-stop's health report, from the loop")
     assert rig.handover.stats() == {"estop": (1, 0), "cmd_vel": (1, 0)}
+    assert rig.direct_taken() == {"estop": 1, "cmd_vel": 1}
     # and the e-stop latched in the one core, whichever thread took it
     rig.command(("default", b'{"linear":{"x":0.2}}'))
     wait_for(lambda: any("emergency stop" in e.reason for e in rig.output.error_log), what="the refused command's report")
@@ -322,6 +329,34 @@ def test_what_a_direct_take_could_not_send_goes_before_anything_newer() -> None:
             release.set()
         wait_for(lambda: rig.robot.counters["emergency_stops"] == 1, timeout=10, what="EMG_STOP at the robot")
         assert rig.server.malformed_requests == 0  # every request whole, and in order, however it was split
-        assert rig.handover.stats()["cmd_vel"] == (4, 0)
+        assert rig.direct_taken() == {"estop": 1, "cmd_vel": 4}
+    finally:
+        rig.close()
+
+
+class BrokenOutput(RecordingOutput):
+    """An output whose next health report fails once it is told to (a bug, or a broken session), once."""
+
+    broken = False
+
+    def health(self, message: Any) -> None:
+        if self.broken:
+            self.broken = False
+            raise RuntimeError("output broke")
+        super().health(message)
+
+
+def test_a_failure_in_the_flush_after_a_direct_take_fails_the_host_and_stops_direct_takes() -> None:
+    output = BrokenOutput()
+    rig = GatewayRig(output=output)
+    try:
+        output.broken = True
+        rig.estop(b'{"engaged": true}')  # taken directly; its health report, published by the loop's flush, fails
+        with pytest.raises(RuntimeError, match="output broke"):
+            rig.task.result(10)  # run() ends with the failure, for a supervisor to restart
+        assert rig.robot.counters["emergency_stops"] == 1
+        rig.command(("default", b'{"linear":{"x":0.2}}'))
+        assert rig.direct_taken()["cmd_vel"] == 0  # the failed host's core is driven by nobody any more
+        assert rig.robot.target_left == 0.0
     finally:
         rig.close()

@@ -152,13 +152,15 @@ class Handover:
 
     def _take_direct(self, channel: Channel[T], direct: Callable[[T], bool], item: T) -> bool:
         """The putting thread: ``direct(item)`` under the lock, if the rules of :meth:`channel` allow; whether it was taken."""
-        now = self.clock()
-        if now - channel.window_start > DIRECT_WINDOW_S:
-            channel.window_start, channel.window_direct = now, 0
         lock = self.lock
-        if channel.window_direct >= DIRECT_BURST or lock is None or not lock.acquire(blocking=False):
+        if lock is None or not lock.acquire(blocking=False):
             return False
         try:
+            now = self.clock()
+            if now - channel.window_start > DIRECT_WINDOW_S:
+                channel.window_start, channel.window_direct = now, 0
+            if channel.window_direct >= DIRECT_BURST:
+                return False
             if self._serving:
                 return False  # the loop's own handler put it: it waits for the drain, as it always did
             for other in self._channels:  # highest priority first

@@ -9,7 +9,8 @@ produced), and after each input the host calls :meth:`DeadlineTimer.poke`
 so a deadline that came earlier is honoured. The timer is moved only when a
 deadline comes earlier, so a flood of inputs costs no timer churn. A
 core that other threads also drive (the gateway's) gives its ``lock``: the
-timer holds it from ``tick`` to the next deadline.
+timer holds it while it ticks, moves what the tick produced and schedules
+the next deadline.
 """
 
 from __future__ import annotations
