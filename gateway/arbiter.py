@@ -187,6 +187,9 @@ class Arbiter:
     def names(self) -> list[str]:
         return list(self._sources)
 
+    def has_source(self, name: str) -> bool:
+        return name in self._sources
+
     @property
     def lock_names(self) -> list[str]:
         return list(self._locks)
@@ -216,9 +219,12 @@ class Arbiter:
 
     def update(self, now: float) -> Handover | None:
         """The hand-over due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
-        for item in self._timed():
-            if now >= item.due:
-                item.due = math.inf  # seen: its deadline is spent
+        for source in self._sources.values():
+            if now >= source.due:
+                source.due = math.inf  # seen: its deadline is spent
+        for lock in self._locks.values():
+            if now >= lock.due:
+                lock.due = math.inf
         winner = self._winner(now)
         if winner == self.active:
             return None
@@ -242,15 +248,29 @@ class Arbiter:
         return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
 
     def _winner(self, now: float) -> str | None:
-        blocked_up_to = self.lock_priority(now)
-        live = [s for s in self._sources.values() if s.live(now) and s.spec.priority > blocked_up_to]
-        if not live:
+        """The live source of the highest priority above every engaged lock; among equals the driver, else the latest.
+
+        One pass and no lists: it runs twice for every command.
+        """
+        blocked_up_to = self.lock_priority(now) if self._locks else -1
+        best: _Source | None = None
+        active_tied = False
+        for source in self._sources.values():
+            priority = source.spec.priority
+            if priority <= blocked_up_to or now - source.heard_at >= source.spec.timeout:
+                continue
+            if best is None or priority > best.spec.priority:
+                best, active_tied = source, source.spec.name == self.active
+            elif priority == best.spec.priority:
+                if source.spec.name == self.active:
+                    active_tied = True
+                if source.heard_at > best.heard_at:
+                    best = source
+        if best is None:
             return None
-        top = max(s.spec.priority for s in live)
-        tied = [s.spec.name for s in live if s.spec.priority == top]
-        if self.active in tied:
+        if active_tied:
             return self.active  # no flapping between equals: the driver keeps control until it times out
-        return max(tied, key=lambda name: self._sources[name].heard_at)
+        return best.spec.name
 
     def source_ages(self, now: float) -> dict[str, tuple[float | None, int]]:
         """Per source: seconds since its last command (None: never heard) and commands dropped."""

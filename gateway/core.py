@@ -171,20 +171,19 @@ class RobotConnection:
 
     def on_cmd_vel(self, payload: bytes, now: float, source: str = DEFAULT_SOURCE) -> None:
         """A payload from command source ``source`` (``<prefix>/cmd_vel[/<source>]``): checked, arbitrated, sent or reported."""
-        key = self.keys.cmd_vel_of(source)
         try:
             twist = decode(Twist, payload)
         except PayloadError as exc:
-            self.reject(key, str(exc), now, exc.excerpt)
+            self.reject(self.keys.cmd_vel_of(source), str(exc), now, exc.excerpt)
             return
-        if source not in self.arbiter.names:
+        if not self.arbiter.has_source(source):
             reason: str | None = (
                 f"unknown command source {source!r}: the gateway's sources are {', '.join(self.arbiter.names)} (see --source)"
             )
         else:
             reason = self.conflict.reason() if self.conflict.active(now) else self.governor.refusal(twist)
         if reason is not None:
-            self.reject(key, reason, now, excerpt(payload))
+            self.reject(self.keys.cmd_vel_of(source), reason, now, excerpt(payload))
             return
         self._arbitrate(now)  # a source that timed out hands over before the new command is weighed
         if self.arbiter.offer(source, twist, now) is Admission.DRIVES:

@@ -399,6 +399,11 @@ class GuardedInput:
         #: Tells the pump to end (its subscriber is going).
         self._pump_stop = threading.Event()
         self._to_ring_ref = weakref.WeakMethod(self._to_ring)
+        #: A key without wildcards has one last chunk: no key expression to turn into text per sample.
+        self._chunk = None if "*" in key else key.rpartition("/")[2]
+
+    def _item(self, sample: "zenoh.Sample") -> tuple[str, bytes]:
+        return _chunk_and_payload(sample) if self._chunk is None else (self._chunk, payload_bytes(sample))
 
     @property
     def flooded(self) -> bool:
@@ -413,7 +418,7 @@ class GuardedInput:
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
-        self.put(_chunk_and_payload(sample))
+        self.put(self._item(sample))
         now = time.monotonic()
         if now - self._window_start > FLOOD_WINDOW_S:
             self._window_start, self._window_count = now, 0
@@ -481,7 +486,7 @@ class GuardedInput:
             self._last_sample = time.monotonic()
             drained.clear()
             for sample in batch:
-                self.put(_chunk_and_payload(sample))
+                self.put(self._item(sample))
             drained.wait(0.1)
 
     def _end_pump(self, subscriber: Any) -> None:
