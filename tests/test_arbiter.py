@@ -5,6 +5,8 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 from gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
 from schemas import ConfigError, Twist, Vector3
@@ -128,3 +130,65 @@ def test_lock_priority_and_a_higher_source_drive_through() -> None:
 def test_unusable_sources_and_locks_are_named(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...], match: str) -> None:
     with pytest.raises(ConfigError, match=match):
         Arbiter(sources, locks)
+
+
+# --------------------------------------------------------------------------- against a plain model
+
+_specs = st.lists(st.tuples(st.sampled_from([10, 50, 90, 100]), st.sampled_from([0.2, 0.5])), min_size=1, max_size=5)
+_lock_specs = st.lists(st.tuples(st.sampled_from([10, 50, 90]), st.sampled_from([None, 0.3])), max_size=2)
+_events = st.lists(
+    st.tuples(st.sampled_from([0.0, 0.01, 0.1, 0.3]), st.sampled_from(["offer", "lock", "update"]), st.integers(0, 4), st.booleans()),
+    max_size=40,
+)
+
+
+class Model:
+    """The arbitration rules written as plainly as they read: whom the arbiter must pick, from what it was told."""
+
+    def __init__(self, sources: list[SourceSpec], locks: list[LockSpec]) -> None:
+        self.sources, self.locks = sources, locks
+        self.heard = {s.name: -math.inf for s in sources}
+        self.lock_state = {lock.name: (False, -math.inf) for lock in locks}
+        self.active: str | None = None
+
+    def winner(self, now: float) -> str | None:
+        engaged = [
+            lock.priority
+            for lock in self.locks
+            if self.lock_state[lock.name][0] or (lock.timeout is not None and now - self.lock_state[lock.name][1] >= lock.timeout)
+        ]
+        blocked = max(engaged, default=-1)
+        live = [s for s in self.sources if now - self.heard[s.name] < s.timeout and s.priority > blocked]
+        if not live:
+            return None
+        top = max(s.priority for s in live)
+        tied = [s for s in live if s.priority == top]
+        if self.active in [s.name for s in tied]:
+            return self.active
+        return max(tied, key=lambda s: self.heard[s.name]).name  # the latest; the first configured among equals
+
+
+@given(_specs, _lock_specs, _events)
+def test_the_arbiter_picks_whom_the_plain_rules_pick(
+    specs: list[tuple[int, float]], lock_specs: list[tuple[int, float | None]], events: list[tuple[float, str, int, bool]]
+) -> None:
+    sources = [SourceSpec(f"s{i}", priority, timeout) for i, (priority, timeout) in enumerate(specs)]
+    locks = [LockSpec(f"l{i}", priority, timeout) for i, (priority, timeout) in enumerate(lock_specs)]
+    arb, model = Arbiter(tuple(sources), tuple(locks)), Model(sources, locks)
+    now = 0.0
+    for step, kind, index, flag in events:
+        now += step
+        if kind == "offer":
+            name = sources[index % len(sources)].name
+            model.heard[name] = now
+            model.active = model.winner(now)
+            assert (arb.offer(name, twist(0.1), now) is Admission.DRIVES) == (model.active == name)
+        elif kind == "lock" and locks:
+            name = locks[index % len(locks)].name
+            model.lock_state[name] = (flag, now)
+            assert arb.set_lock(name, flag, now)
+        else:
+            before, model.active = model.active, model.winner(now)
+            handover = arb.update(now)
+            assert (handover is None) == (model.active == before)
+        assert arb.active == model.active
