@@ -188,7 +188,7 @@ class GatewayHost:
 
     def _send_now(self) -> None:
         """Under the lock, off the loop: the control link's bytes to its socket if it takes them now; the rest to the loop."""
-        data = self._unsent.pop("control", b"") + self.connection.take_outgoing("control")
+        data = self._pending("control")
         if data:
             stream = self._streams["control"]
             sent = stream.write_now(data) if stream is not None and not stream.is_closing() else 0
@@ -212,13 +212,17 @@ class GatewayHost:
 
     # ------------------------------------------------------------------ moving bytes
 
+    def _pending(self, name: LinkName) -> bytes:
+        """Under the lock: what link ``name`` is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes)."""
+        data = self.connection.take_outgoing(name)
+        rest = self._unsent.pop(name, None)
+        return data if rest is None else rest + data
+
     def _flush(self) -> None:
         """Under the lock: write what the connection wants written; publish its messages; act on drops."""
         conn = self.connection
         for name, stream in self._streams.items():
-            data = conn.take_outgoing(name)
-            if name in self._unsent:  # what a direct take could not send goes first
-                data = self._unsent.pop(name) + data
+            data = self._pending(name)
             if data and stream is not None and not stream.is_closing():
                 stream.write(data)
         for event in conn.take_events():
