@@ -3,11 +3,12 @@
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra
 from .jsonschema import json_schemas
-from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, validate_prefix
+from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, Sources, any_alive, validate_prefix
 from .messages import (
     DIRECTION_NAMES,
     MESSAGE_TYPES,
     STATE_NAMES,
+    DriverChange,
     ErrorReport,
     EStop,
     GatewayHealth,
@@ -38,6 +39,7 @@ __all__ = [
     "STATE_NAMES",
     "BlackmetalError",
     "ConfigError",
+    "DriverChange",
     "EStop",
     "ErrorReport",
     "GatewayHealth",
@@ -53,11 +55,13 @@ __all__ = [
     "RobotStatus",
     "SimFaults",
     "SourceHealth",
+    "Sources",
     "Twist",
     "Vector3",
     "WheelImpulses",
     "ZenohUnavailable",
     "ZenohUnreachable",
+    "any_alive",
     "decode",
     "encode",
     "excerpt",

@@ -13,6 +13,7 @@ import msgspec
 
 from .errors import ConfigError
 from .messages import (
+    DriverChange,
     ErrorReport,
     EStop,
     GatewayHealth,
@@ -47,10 +48,12 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway (the command source 'default')"),
     KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", "a named commander -> gateway"),
     KeySpec("lock", "lock/<name>", Lock, "publication", "a supervisor -> gateway"),
-    KeySpec("estop", "estop", EStop, "publication", "any client -> gateway"),
+    KeySpec("estop", "estop", EStop, "publication", "any client -> gateway (engages; a valid release releases unless --release-key-only)"),
+    KeySpec("estop_release", "estop/release", EStop, "publication", "a safety role -> gateway: releases (anything else engages)"),
     KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->"),
     KeySpec("status", "status", RobotStatus, "publication", "gateway ->"),
     KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get"),
+    KeySpec("driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why"),
     KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->"),
     KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get"),
     KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
@@ -61,8 +64,24 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("sim_faults", "sim/faults", SimFaults, "publication", "any client -> simulator, and get"),
 )
 
+
+class Sources:
+    """The command sources blackmetal's own commanders publish as (``<prefix>/cmd_vel/<source>``); the gateway's defaults."""
+
+    DEFAULT = "default"  # plain <prefix>/cmd_vel
+    TELEOP = "teleop"
+    FOXGLOVE = "foxglove"
+    ROS2 = "ros2"
+    NAV = "nav"
+
+
+def any_alive(role: str) -> str:
+    """The liveliness key expression that matches ``role``'s token (``gateway``, ``odometry``, ``sim``) under every prefix."""
+    return f"**/alive/{role}"
+
+
 #: Liveliness key expression that matches every robot's gateway, whatever its prefix.
-ANY_GATEWAY_ALIVE = "**/alive/gateway"
+ANY_GATEWAY_ALIVE = any_alive("gateway")
 
 
 def validate_prefix(prefix: str) -> str:
@@ -83,9 +102,11 @@ class Keys:
     cmd_vel_source: str
     lock: str
     estop: str
+    estop_release: str
     impulses: str
     status: str
     health: str
+    driver: str
     errors: str
     pose: str
     odometry_reset: str
@@ -102,7 +123,11 @@ class Keys:
 
     def cmd_vel_of(self, source: str) -> str:
         """The key of the command source ``source`` (``default`` is plain ``cmd_vel``)."""
-        return self.cmd_vel if source == "default" else f"{self.prefix}/cmd_vel/{source}"
+        return self.cmd_vel if source == Sources.DEFAULT else f"{self.prefix}/cmd_vel/{source}"
+
+    def alive(self, role: str) -> str:
+        """The liveliness token of ``role`` (``gateway``, ``odometry``, ``sim``) under this prefix."""
+        return f"{self.prefix}/alive/{role}"
 
     def lock_of(self, name: str) -> str:
         return f"{self.prefix}/lock/{name}"
@@ -135,7 +160,12 @@ class Keys:
     @staticmethod
     def prefix_of_gateway_token(key: str) -> str:
         """``fleet/a`` from the liveliness key ``fleet/a/alive/gateway``."""
-        return key.removesuffix("/alive/gateway")
+        return Keys.prefix_of_token(key, "gateway")
+
+    @staticmethod
+    def prefix_of_token(key: str, role: str) -> str:
+        """``fleet/a`` from the liveliness key ``fleet/a/alive/<role>``."""
+        return key.removesuffix(f"/alive/{role}")
 
     def __repr__(self) -> str:
         return f"Keys({self.prefix!r})"

@@ -180,7 +180,10 @@ class SourceHealth(msgspec.Struct):
 
     priority: int
     age: float | None = None
+    #: Commands the arbiter did not follow because another source drove or a lock blocked this one.
     dropped: int = 0
+    #: Commands superseded by a newer one of the same source before the gateway took them (it publishes too fast).
+    superseded: int = 0
 
 
 class GatewayHealth(msgspec.Struct):
@@ -219,6 +222,15 @@ class GatewayHealth(msgspec.Struct):
     sources: dict[str, SourceHealth] = {}
     #: Every configured lock: engaged or not.
     locks: dict[str, bool] = {}
+
+
+class DriverChange(msgspec.Struct):
+    """Who drives the robot now, who drove before, and why: one message on every change of driver."""
+
+    stamp: Finite
+    source: str | None
+    previous: str | None
+    reason: str
 
 
 class ErrorReport(msgspec.Struct):
@@ -276,6 +288,7 @@ MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "RobotStatus": RobotStatus,
     "GatewayHealth": GatewayHealth,
     "ErrorReport": ErrorReport,
+    "DriverChange": DriverChange,
     "SimFaults": SimFaults,
     "PoseReset": PoseReset,
 }
