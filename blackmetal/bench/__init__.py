@@ -4,6 +4,7 @@
 |---|---|
 | cmd_vel put -> bytes at the robot socket, p50/p99 | one plain Zenoh hop between two Python processes |
 | e-stop put -> EMG_STOP at the robot socket, p50/p99 | cmd_vel's figure |
+| e-stop while three processes flood cmd_vel/nav at full speed, p50/p99/max | <= 100 ms in every sample |
 | ROS 2 /cmd_vel (CDR, rmw_zenoh key) through ``blackmetal ros2`` -> robot socket: publisher -> adapter -> gateway, and routed publisher -> gateway -> adapter -> gateway | cmd_vel's figure and one Zenoh hop |
 | /odom samples per second from ``blackmetal ros2`` at 100 Hz polling | poses per second in the same window |
 | impulse reply at the gateway -> Pose at a client | two Zenoh hops (a ping-pong round trip) |
@@ -152,6 +153,10 @@ def _estop(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
     }
 
 
+def _estop_flood(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
+    return {"estop_under_flood_ms": figures.estop_under_flood(plan.count(10, 100))}
+
+
 def _pose(plan: Plan, out: dict[str, Any]) -> dict[str, Any]:
     rtts, poses, rtt_p99, pose_p99 = [], [], [], []
     for _ in range(plan.rounds):
@@ -230,6 +235,8 @@ FIGURES = (
            ("ros2_odom",), _ros2_odom, extra="ros2"),
     Figure("estop", "e-stop latency", "latency: e-stop -> EMG_STOP at the robot socket, against cmd_vel ...",
            ("estop_to_robot_ms",), _estop, needs=("cmd_vel",)),
+    Figure("estop_flood", "e-stop under a flood", "latency: e-stop while three processes flood cmd_vel/nav at full speed ...",
+           ("estop_under_flood_ms",), _estop_flood),
     Figure("pose", "impulse -> Pose latency", "latency: impulse reply -> Pose at a client, against two Zenoh hops ...",
            ("two_hops_ms", "impulse_to_pose_ms"), _pose),
     Figure("poll", "poll rate", "poll rate at 100 and 200 Hz ...", ("poll",), _poll),
@@ -353,6 +360,18 @@ def _estop_rows(f: dict[str, Any]) -> list[Row]:
     ]
 
 
+def _estop_flood_rows(f: dict[str, Any]) -> list[Row]:
+    e = f["estop_under_flood_ms"]
+    return [
+        (
+            f"e-stop under {e['flooders']} full-speed flooders, p50 / p99 / max",
+            f"{e['p50_ms']:.2f} / {e['p99_ms']:.2f} / {e['max_ms']:.2f} ms",
+            "the e-stop without a flood (above)",
+            f"max <= 100 ms{_met(e['max_ms'] <= 100.0)}; {e['n']} samples, {e['lost']} without EMG_STOP",
+        )
+    ]
+
+
 def _pose_rows(f: dict[str, Any]) -> list[Row]:
     pose, two = f["impulse_to_pose_ms"], f["two_hops_ms"]
     return [
@@ -456,6 +475,7 @@ def _flood_rows(f: dict[str, Any]) -> list[Row]:
 ROWS: dict[str, Callable[[dict[str, Any]], list[Row]]] = {
     "cmd_vel": _cmd_vel_rows,
     "estop": _estop_rows,
+    "estop_flood": _estop_flood_rows,
     "pose": _pose_rows,
     "ros2_cmd_vel": _ros2_cmd_vel_rows,
     "ros2_odom": _ros2_odom_rows,

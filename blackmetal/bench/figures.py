@@ -177,6 +177,42 @@ def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int) -
     return percentiles(latencies)
 
 
+def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:
+    """The e-stop's latency while ``flooders`` processes flood ``cmd_vel/nav`` at full speed (an attacker, or a runaway planner)."""
+    import zenoh
+
+    with ExitStack() as stack:
+        robot = mini_robot(stack)
+        zport = free_port()
+        gateway(stack, robot, zport, poll_hz)
+        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
+        wait_polls(robot)
+        seconds = 4.0 + samples * 0.05
+        children = [
+            spawn("flooder", ["-m", "blackmetal.bench", "flooder", str(zport), KEYS.cmd_vel_of("nav"), str(seconds)])
+            for _ in range(flooders)
+        ]
+        for child in children:
+            stack.callback(child.stop, 3)
+            child.wait_ready()
+        time.sleep(1.0)  # the flood is on: the gateway's nav input has changed over to its ring buffer
+        starts = []
+        for _ in range(samples):
+            time.sleep(random.uniform(0.02, 0.04))
+            starts.append(time.time())
+            pub.put(b'{"engaged": true}')
+            time.sleep(random.uniform(0.02, 0.04))
+            pub.put(b'{"engaged": false}')
+        time.sleep(0.5)
+        stops = robot.dump()["emg_stops"]
+    latencies = []
+    for start in starts:  # the first EMG_STOP at or after each engage
+        after = [stop for stop in stops if stop >= start]
+        latencies.append(min(after) - start if after else float("inf"))
+    return {**percentiles(latencies), "flooders": flooders, "lost": sum(1 for x in latencies if x == float("inf"))}
+
+
 def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
     """Poses on ``<prefix>/pose`` and ``/odom`` samples from ``blackmetal ros2`` counted over the same window.
 
@@ -520,11 +556,11 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
     """The arbiter's own cost per command (µs), against the gateway core's whole handling of one cmd_vel, alternating.
 
     Pure and on a fake clock: the arbiter choosing among the five default sources (and with three locks
-    configured), and ``RobotConnection.on_cmd_vel`` (decode, arbiter, limits, encoding the robot's
+    configured), and ``GatewayCore.on_cmd_vel`` (decode, arbiter, limits, encoding the robot's
     command) for the same commands from ``teleop``.
     """
     from gateway.arbiter import Arbiter, LockSpec
-    from gateway.core import RobotConnection
+    from gateway.core import GatewayCore
     from gateway.settings import GatewaySettings
     from schemas import Twist, Vector3
 
@@ -533,7 +569,7 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
     locked = Arbiter(locks=(LockSpec("pause", 200, None), LockSpec("supervisor", 60, 0.5), LockSpec("dock", 5, None)))
     settings = GatewaySettings()
     settings.check()
-    conn = RobotConnection(settings, 0.0, wallclock=time.time)
+    conn = GatewayCore(settings, 0.0, wallclock=time.time)
     conn.link_up("control", 0.0)
     conn.link_up("log", 0.0)
     conn.take_outgoing("control")

@@ -240,6 +240,25 @@ def _echo_serve(port: int) -> None:
             pub.put(payload)
 
 
+def _flooder_main(port: int, key: str, seconds: float) -> None:
+    """Child process: put a moving command on ``key`` in a tight loop for ``seconds`` (an attacker's flood); SIGINT ends it."""
+    try:
+        import zenoh
+
+        with zenoh.open(_zenoh_conf(connect=port)) as session:
+            pub = session.declare_publisher(key)
+            announce_ready("flooder")
+            end = time.monotonic() + seconds
+            sent = 0
+            while time.monotonic() < end:
+                for _ in range(100):
+                    pub.put(b'{"linear":{"x":0.5}}')
+                sent += 100
+            print(json.dumps({"sent": sent}), flush=True)
+    except KeyboardInterrupt:
+        pass
+
+
 def percentiles(samples: list[float]) -> dict[str, float]:
     return _percentiles(samples)
 
