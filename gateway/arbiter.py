@@ -28,10 +28,10 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from schemas import ConfigError, Twist
+from schemas import ConfigError, Sources, Twist
 
 #: The source of plain ``<prefix>/cmd_vel``.
-DEFAULT_SOURCE = "default"
+DEFAULT_SOURCE = Sources.DEFAULT
 #: A source or lock name: one key chunk, no wildcards.
 _NAME_FORBIDDEN = set("*$?#/ ")
 
@@ -56,11 +56,11 @@ class LockSpec:
 
 #: The sources a gateway knows unless its settings say otherwise (twist_mux-like priorities).
 DEFAULT_SOURCES: tuple[SourceSpec, ...] = (
-    SourceSpec("teleop", 100),
-    SourceSpec("foxglove", 90),
-    SourceSpec(DEFAULT_SOURCE, 50),
-    SourceSpec("ros2", 50),
-    SourceSpec("nav", 10),
+    SourceSpec(Sources.TELEOP, 100),
+    SourceSpec(Sources.FOXGLOVE, 90),
+    SourceSpec(Sources.DEFAULT, 50),
+    SourceSpec(Sources.ROS2, 50),
+    SourceSpec(Sources.NAV, 10),
 )
 
 
@@ -132,6 +132,7 @@ class _Source:
     heard_at: float = -math.inf
     twist: Twist | None = None
     dropped: int = 0
+    superseded: int = 0
     #: When it falls silent, until :meth:`Arbiter.update` has seen that (then inf: no deadline of its own).
     due: float = math.inf
 
@@ -152,9 +153,18 @@ class _Lock:
         return self.locked or (timeout is not None and now - self.heard_at >= timeout)
 
 
+class Why(Enum):
+    """Why the driver changed."""
+
+    OUTRANKS = "outranks"  # a live source of higher priority (or the first one) spoke
+    SILENT = "silent"  # the driver fell silent (its timeout ran out)
+    LOCKED = "locked"  # an engaged lock blocks the driver
+    UNLOCKED = "unlocked"  # a lock released, or its heartbeat came back: a blocked source drives again
+
+
 @dataclass(frozen=True, slots=True)
-class Handover:
-    """The active source changed: who drives now (None: nobody) and the command to take over with.
+class NewDriver:
+    """The active source changed: who drives now (None: nobody), who drove before, why, and the command to take over with.
 
     ``blocked``: nobody drives because a lock blocks every live source, so the
     robot must brake now; when the sources merely fell silent, the gateway's
@@ -164,6 +174,8 @@ class Handover:
     source: str | None
     twist: Twist | None
     heard_at: float
+    previous: str | None
+    why: Why
     blocked: bool = False
 
 
@@ -208,6 +220,12 @@ class Arbiter:
         source.dropped += 1
         return Admission.DROPPED
 
+    def superseded(self, name: str, count: int) -> None:
+        """``count`` commands of source ``name`` were replaced by newer ones before they reached the arbiter."""
+        source = self._sources.get(name)
+        if source is not None:
+            source.superseded += count
+
     def set_lock(self, name: str, locked: bool, now: float) -> bool:
         """Lock ``name`` engaged or released (a refresh either way); False if no such lock is configured."""
         lock = self._locks.get(name)
@@ -217,8 +235,8 @@ class Arbiter:
         lock.due = math.inf if lock.spec.timeout is None else now + lock.spec.timeout
         return True
 
-    def update(self, now: float) -> Handover | None:
-        """The hand-over due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
+    def update(self, now: float) -> NewDriver | None:
+        """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
         for source in self._sources.values():
             if now >= source.due:
                 source.due = math.inf  # seen: its deadline is spent
@@ -226,13 +244,27 @@ class Arbiter:
             if now >= lock.due:
                 lock.due = math.inf
         winner = self._winner(now)
-        if winner == self.active:
+        previous = self.active
+        if winner == previous:
             return None
         self.active = winner
+        if previous is not None and not self._sources[previous].live(now):
+            why = Why.SILENT
+        elif previous is not None and self._sources[previous].spec.priority <= self.lock_priority(now):
+            why = Why.LOCKED
+        else:
+            why = Why.UNLOCKED
         if winner is None:
-            return Handover(None, None, -math.inf, blocked=any(s.live(now) for s in self._sources.values()))
+            blocked = any(s.live(now) for s in self._sources.values())
+            return NewDriver(None, None, -math.inf, previous, why, blocked=blocked)
         source = self._sources[winner]
-        return Handover(winner, source.twist, source.heard_at)
+        return NewDriver(winner, source.twist, source.heard_at, previous, why)
+
+    def priority_of(self, name: str) -> int:
+        return self._sources[name].spec.priority
+
+    def timeout_of(self, name: str) -> float:
+        return self._sources[name].spec.timeout
 
     def next_deadline(self) -> float:
         """When :meth:`update` may next have a hand-over without a new input: a live source's or a lock's timeout."""
@@ -272,9 +304,12 @@ class Arbiter:
             return self.active  # no flapping between equals: the driver keeps control until it times out
         return best.spec.name
 
-    def source_ages(self, now: float) -> dict[str, tuple[float | None, int]]:
-        """Per source: seconds since its last command (None: never heard) and commands dropped."""
-        return {name: (None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped) for name, s in self._sources.items()}
+    def source_ages(self, now: float) -> dict[str, tuple[float | None, int, int]]:
+        """Per source: seconds since its last command (None: never heard), commands dropped and commands superseded."""
+        return {
+            name: (None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped, s.superseded)
+            for name, s in self._sources.items()
+        }
 
     def lock_states(self, now: float) -> dict[str, bool]:
         """Per lock: engaged or not at ``now``."""

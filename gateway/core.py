@@ -24,13 +24,26 @@ from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
-from schemas import ErrorReport, GatewayHealth, Keys, Lock, PayloadError, RobotStatus, Twist, WheelImpulses, decode, excerpt
+from schemas import (
+    DriverChange,
+    ErrorReport,
+    GatewayHealth,
+    Keys,
+    Lock,
+    PayloadError,
+    RobotStatus,
+    SourceHealth,
+    Twist,
+    WheelImpulses,
+    decode,
+    excerpt,
+)
 
-from .arbiter import DEFAULT_SOURCE, Admission
+from .arbiter import DEFAULT_SOURCE, Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
-from .estop import read_estop
+from .estop import RELEASE_HINT, read_estop
 from .exchange import Completed, Exchange, Lost
-from .health import Counters, health_report
+from .health import Counters
 from .links import DropLink, LinkName, Links
 from .log_port import LogPort
 from .polling import PollSchedule
@@ -41,7 +54,7 @@ from .settings import GatewaySettings
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
 
-Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DropLink
+Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | DropLink
 
 
 def _is_stop(request: wire.Request) -> bool:
@@ -54,7 +67,7 @@ def _wheels(request: wire.Request) -> WheelSpeeds:
     return WheelSpeeds(left=float(request.left or 0.0), right=float(request.right or 0.0))
 
 
-class RobotConnection:
+class GatewayCore:
     """See the module docstring. ``robot`` names the robot's control and log ends in reports."""
 
     def __init__(
@@ -144,7 +157,7 @@ class RobotConnection:
             self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
             self.governor.on_link_up(now)
             self.polls.start(now)
-            self._pump(now)
+            self._send_due(now)
 
     def link_down(self, link: LinkName, reason: str, now: float) -> None:
         """``link`` closed, or could not be opened."""
@@ -177,18 +190,31 @@ class RobotConnection:
             self.reject(self.keys.cmd_vel_of(source), str(exc), now, exc.excerpt)
             return
         if not self.arbiter.has_source(source):
-            reason: str | None = (
-                f"unknown command source {source!r}: the gateway's sources are {', '.join(self.arbiter.names)} (see --source)"
-            )
-        else:
-            reason = self.conflict.reason() if self.conflict.active(now) else self.governor.refusal(twist)
-        if reason is not None:
-            self.reject(self.keys.cmd_vel_of(source), reason, now, excerpt(payload))
+            reason = f"unknown command source {source!r}: the gateway's sources are {', '.join(self.arbiter.names)} (see --source)"
+            self.reject(self.keys.cmd_vel_of(source), reason, now, excerpt(payload), family=self.keys.any_cmd_vel_source)
+            return
+        refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.refusal(twist)
+        if refusal is not None:
+            self.reject(self.keys.cmd_vel_of(source), refusal, now, excerpt(payload))
             return
         self._arbitrate(now)  # a source that timed out hands over before the new command is weighed
-        if self.arbiter.offer(source, twist, now) is Admission.DRIVES:
-            self.governor.on_twist(twist, now)
-            self._pump(now)
+        previous = self.arbiter.active
+        admission = self.arbiter.offer(source, twist, now)
+        if self.arbiter.active != previous:
+            self._driver_changed(source, previous, Why.OUTRANKS)
+        if admission is Admission.DRIVES:
+            self.governor.take_twist(twist, now)  # refusal() was asked above, with the same state
+            self._send_due(now)
+
+    def on_superseded(self, source: str, count: int, now: float) -> None:
+        """``count`` commands of ``source`` were replaced by newer ones before the gateway took them: counted and reported."""
+        self.arbiter.superseded(source, count)
+        self.reporter.report(
+            self.keys.cmd_vel_of(source),
+            f"{count} commands from source {source!r} were superseded by newer ones before the gateway took them: it publishes "
+            "faster than the gateway takes commands (a commander needs 10-100 Hz; only its newest command counts)",
+            now=now,
+        )
 
     def on_lock(self, name: str, payload: bytes, now: float) -> None:
         """A payload on ``<prefix>/lock/<name>``: engages or releases (and refreshes) that lock, or is reported."""
@@ -200,28 +226,56 @@ class RobotConnection:
             return
         if not self.arbiter.set_lock(name, locked, now):
             known = ", ".join(self.arbiter.lock_names) or "none"
-            self.reject(key, f"unknown lock {name!r}: the gateway's locks are {known} (see --lock)", now, excerpt(payload))
+            reason = f"unknown lock {name!r}: the gateway's locks are {known} (see --lock)"
+            self.reject(key, reason, now, excerpt(payload), family=self.keys.any_lock)
             return
         self._arbitrate(now)
-        self._pump(now)
+        self._send_due(now)
 
     def _arbitrate(self, now: float) -> None:
         """Hand control over when the active source timed out, or a lock engaged or released."""
-        handover = self.arbiter.update(now)
-        if handover is None:
+        change: NewDriver | None = self.arbiter.update(now)
+        if change is None:
             return
-        if handover.twist is not None:
-            self.governor.on_twist(handover.twist, handover.heard_at)  # through the acceleration limits, timed from its command
-        elif handover.blocked:
+        self._driver_changed(change.source, change.previous, change.why)
+        if change.twist is not None:
+            self.governor.on_twist(change.twist, change.heard_at)  # through the acceleration limits, timed from its command
+        elif change.blocked:
             self.governor.brake()  # a lock stops the robot now; silence is the command timeout's to brake
 
-    def on_estop(self, payload: bytes, now: float) -> None:
-        """A payload put on ``<prefix>/estop``: anything but a valid release engages (see :mod:`gateway.estop`)."""
+    def _driver_changed(self, source: str | None, previous: str | None, why: Why) -> None:
+        """Publish who drives now, who drove before and why (``<prefix>/gateway/driver``)."""
+        arbiter = self.arbiter
+
+        def named(name: str | None) -> str:
+            return "nobody" if name is None else f"{name} (priority {arbiter.priority_of(name)})"
+
+        if why is Why.OUTRANKS:
+            reason = f"{named(source)} drives: nobody drove" if previous is None else f"{named(source)} outranks {named(previous)}"
+        elif why is Why.SILENT:
+            reason = f"{named(previous)} fell silent for {arbiter.timeout_of(previous or '')} s: {named(source)} drives"
+        elif why is Why.LOCKED:
+            reason = f"a lock blocks {named(previous)}: {named(source)} drives"
+        else:
+            reason = f"a lock released: {named(source)} drives"
+        self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
+
+    def on_estop(self, payload: bytes, now: float, release_key: bool = False) -> None:
+        """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages (see :mod:`gateway.estop`).
+
+        With ``release_key_only`` set, a release counts only on the release key: on ``estop`` it is refused (and the stop
+        stays as it is: a refused release must not engage a robot that someone released properly meanwhile).
+        """
         engaged, complaint = read_estop(payload)
+        key = self.keys.estop_release if release_key else self.keys.estop
         if complaint is not None:
-            self.reject(self.keys.estop, complaint, now, excerpt(payload))
+            self.reject(key, complaint, now, excerpt(payload))
+        elif not engaged and not release_key and self.settings.release_key_only:
+            reason = f"releases come on {self.keys.estop_release} here (--release-key-only), not on {key}: {RELEASE_HINT} there"
+            self.reject(key, reason, now, excerpt(payload))
+            return
         self.governor.on_estop(engaged, now)
-        self._pump(now)
+        self._send_due(now)
         # a health report follows the stop: built when the host takes the events, after it has written the EMG_STOP
         self._health_due = now
 
@@ -235,16 +289,16 @@ class RobotConnection:
             self.governor.brake()
         if self.conflict.other is not None:
             self._conflict_news(self.conflict.tick(now), now)
-            self._pump(now)
+            self._send_due(now)
 
     def note_input(self, key: str, reason: str, now: float) -> None:
         """Something about an input that its publisher should know (a flood began or ended): reported, not counted."""
         self.reporter.report(key, reason, now=now)
 
-    def reject(self, key: str, reason: str, now: float, snippet: str = "") -> None:
-        """An input refused: counted and reported on ``<prefix>/errors``."""
+    def reject(self, key: str, reason: str, now: float, snippet: str = "", family: str | None = None) -> None:
+        """An input refused: counted and reported on ``<prefix>/errors`` (rate-limited per key ``family``, default the key)."""
         self.counters.rejected_inputs += 1
-        self.reporter.report(key, reason, snippet, now=now)
+        self.reporter.report(key, reason, snippet, now=now, family=family)
 
     # ------------------------------------------------------------------ time
 
@@ -264,7 +318,7 @@ class RobotConnection:
             self._events.append(self.health(now))
             self._next_health = now + self.settings.health_period
         self.reporter.tick(now)
-        self._pump(now)
+        self._send_due(now)
 
     def stop_robot(self, now: float) -> None:
         """Leave the robot standing: zero velocity and NORMAL_STOP, ahead of nothing else."""
@@ -282,7 +336,45 @@ class RobotConnection:
     # ------------------------------------------------------------------ health and reports
 
     def health(self, now: float) -> GatewayHealth:
-        return health_report(self, now)
+        """The state at ``now``, as one health message (every ``health_period`` s, at once after an e-stop, and to a ``get``).
+
+        Wheel speeds are (left, right) like every wheel pair.
+        """
+        c = self.counters
+        governor = self.governor
+        accepted = governor.accepted
+        rtt = self.last_rtt
+        arbiter = self.arbiter
+        return GatewayHealth(
+            stamp=self.wallclock(),
+            control=self.links.control.health(),
+            log=self.links.log.health(),
+            commands_sent=c.commands_sent,
+            polls=c.polls,
+            replies=c.replies,
+            full_buffer=c.full_buffer,
+            full_buffer_retries=c.full_buffer_retries,
+            malformed_replies=c.malformed_replies,
+            garbage_bytes=self.garbage_bytes,
+            rejected_inputs=c.rejected_inputs,
+            keepalives=c.keepalives,
+            lost_replies=c.lost_replies,
+            polls_skipped=c.polls_skipped,
+            estop=governor.estop,
+            cmd_timeout_active=governor.link_up and governor.timed_out(now),
+            cmd_timeout=governor.settings.cmd_timeout,
+            last_rtt_ms=None if rtt is None else round(rtt * 1000, 3),
+            poll_hz=round(self.polls.rate(now), 2),
+            wheel_speeds=(0.0, 0.0) if accepted is None else (accepted.left, accepted.right),
+            source=self.source,
+            conflict_with=self.conflict.with_whom(now),
+            active_source=arbiter.active,
+            sources={
+                name: SourceHealth(priority=spec.priority, age=age, dropped=dropped, superseded=superseded)
+                for spec, (name, (age, dropped, superseded)) in zip(arbiter.sources, arbiter.source_ages(now).items(), strict=True)
+            },
+            locks=arbiter.lock_states(now),
+        )
 
     @property
     def garbage_bytes(self) -> int:
@@ -312,7 +404,7 @@ class RobotConnection:
         self.links.request_sent(now)
         return True
 
-    def _pump(self, now: float) -> None:
+    def _send_due(self, now: float) -> None:
         """Send whatever the safety state wants sent now: EMG_STOP first, then velocity."""
         if not self.links.control.connected or self.stopping:
             return
@@ -353,7 +445,7 @@ class RobotConnection:
             self.counters.replies += 1
             for result in self.exchange.received(item, now):
                 self._on_result(result, now)
-        self._pump(now)
+        self._send_due(now)
 
     def _on_result(self, result: Completed | Lost, now: float) -> None:
         request = result.request

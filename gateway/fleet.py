@@ -16,19 +16,18 @@ import logging
 import time
 from dataclasses import dataclass
 
-from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.edge import refuse_taken
+from blackmetal.runtime.entry import freeze_start_up
+from blackmetal.runtime.fleet import FleetRobot, supervise
+from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.transport import TcpConnector
-from schemas import ANY_GATEWAY_ALIVE, ConfigError, ErrorReport, Keys
+from schemas import ErrorReport, Keys
 
 from .host import GatewayHost
 from .settings import GatewaySettings
 from .zenoh_edge import GatewayZenoh
 
 log = logging.getLogger("blackmetal.gateway")
-
-#: A robot whose host failed is started again after this pause, doubling up to RESTART_CAP_S.
-RESTART_FIRST_S = 0.5
-RESTART_CAP_S = 10.0
 
 
 def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[GatewaySettings]:
@@ -45,56 +44,37 @@ def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[Gate
 
 @dataclass
 class Member:
-    """One robot of the fleet: its settings, and the host that serves it now."""
+    """One robot of the fleet: its settings, and the host that serves it now (a :class:`~blackmetal.runtime.fleet.Served`)."""
 
     robot: FleetRobot
     settings: GatewaySettings
+    session: object
+    inbox: LoopInbox
     host: GatewayHost | None = None
+    edge: GatewayZenoh | None = None
     restarts: int = 0
 
-    async def supervise(self, session: object, stop: asyncio.Event) -> None:
-        """Serve this robot until ``stop``; a host that fails of a bug is reported and started again."""
-        pause = RESTART_FIRST_S
-        loop = asyncio.get_running_loop()
-        keys = Keys(self.settings.prefix)
-        while not stop.is_set():
-            s = self.settings
-            edge = GatewayZenoh(session, keys, batched=True)  # type: ignore[arg-type]
-            self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge)
-            edge.attach(self.host, loop)
-            try:
-                await self.host.run(stop)
-                return
-            except Exception as exc:
-                self.restarts += 1
-                reason = f"gateway of {self.robot.describe()} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s"
-                log.error("%s", reason)
-                edge.error(ErrorReport(stamp=time.time(), source="gateway", key=keys.health, reason=reason))
-            finally:
-                edge.close()
-            try:
-                await asyncio.wait_for(stop.wait(), pause)
-            except TimeoutError:
-                pass
-            pause = min(pause * 2, RESTART_CAP_S)
+    def start(self) -> Member:
+        s = self.settings
+        self.edge = GatewayZenoh(self.session, Keys(s.prefix), batched=True)  # type: ignore[arg-type]
+        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge, inbox=self.inbox)
+        self.edge.attach(self.host, asyncio.get_running_loop())
+        return self
 
+    async def run(self, stop: asyncio.Event) -> None:
+        assert self.host is not None
+        await self.host.run(stop)
 
-def refuse_taken_prefixes(session: object, robots: list[FleetRobot], timeout: float = 0.5) -> None:
-    """ConfigError naming the first robot whose prefix already has a live gateway (one query for the whole fleet)."""
-    import zenoh
+    def failed(self, exc: Exception, pause: float) -> None:
+        assert self.edge is not None
+        self.restarts += 1
+        reason = f"gateway of {self.robot.describe()} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s"
+        log.error("%s", reason)
+        self.edge.error(ErrorReport(stamp=time.time(), source="gateway", key=self.edge.keys.health, reason=reason))
 
-    assert isinstance(session, zenoh.Session)
-    alive = {
-        Keys.prefix_of_gateway_token(str(reply.ok.key_expr))
-        for reply in session.liveliness().get(ANY_GATEWAY_ALIVE, timeout=timeout)
-        if reply.ok is not None
-    }
-    for robot in robots:
-        if robot.prefix in alive:
-            raise ConfigError(
-                f"{robot.describe()}: another gateway is already alive on prefix {robot.prefix!r}; "
-                "one robot per prefix: stop the other one, or give this robot another prefix"
-            )
+    def close(self) -> None:
+        if self.edge is not None:
+            self.edge.close()
 
 
 async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
@@ -102,10 +82,15 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
     from blackmetal.runtime.harness import announce_ready
     from blackmetal.runtime.zenoh_setup import open_service_session
 
-    members = [Member(robot, settings) for robot, settings in zip(robots, fleet_settings(base, robots), strict=True)]
     with await open_service_session(base.zenoh, stop, "gateway") as session:
-        refuse_taken_prefixes(session, robots)
-        tasks = [asyncio.create_task(m.supervise(session, stop), name=f"gateway {m.robot.id}") for m in members]
+        inbox = LoopInbox()  # the robots share the loop: an e-stop for one is taken between two steps of the others'
+        settings = fleet_settings(base, robots)
+        members = [Member(robot, s, session, inbox) for robot, s in zip(robots, settings, strict=True)]
+        by_prefix = {robot.prefix: robot.describe() for robot in robots}
+        refuse_taken(session, "gateway", list(by_prefix), describe=by_prefix.__getitem__)
+        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"gateway {m.robot.id}") for m in members]
+        await asyncio.sleep(0)  # every robot's edge, host and core are built in its task's first step
+        freeze_start_up()
         print(
             f"blackmetal gateway ready: a fleet of {len(members)} robots ({', '.join(r.prefix for r in robots[:3])}"
             f"{', ...' if len(robots) > 3 else ''}), polling at {base.poll_hz:g} Hz",

@@ -1,6 +1,6 @@
 """The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
 
-All decisions are in :class:`~gateway.core.RobotConnection`; this
+All decisions are in :class:`~gateway.core.GatewayCore`; this
 module opens the robot's streams through an injected
 :class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
 pipe in tests), reconnects with backoff, feeds what it reads, writes what
@@ -9,17 +9,19 @@ and sleeps until the connection's next deadline or the next input
 (:class:`~blackmetal.runtime.host.DeadlineTimer`, shared by every service).
 
 Commands and e-stops may also be taken on the Zenoh thread that delivers
-them (:meth:`GatewayHost.take_cmd_vel_now`, :meth:`GatewayHost.take_estop_now`):
+them (:meth:`GatewayHost.cmd_vel_direct`, :meth:`GatewayHost.estop_direct`):
 waking the loop cost a command a third of its way to the robot. The core
 and the streams' writes are therefore guarded by :attr:`GatewayHost.lock`,
 which the loop holds whenever it is in the core, and every ``now`` is read
-inside it, so the core never sees time go back.
+inside it, so the core never sees time go back. Messages are published
+only on the loop and never under that lock (:meth:`GatewayHost.publish`):
+a Zenoh put that blocks must not hold up an e-stop's direct take. The
+threads and locks are drawn in ``docs/threads.md``.
 """
 
 from __future__ import annotations
 
 import asyncio
-import gc
 import logging
 import threading
 import time
@@ -27,13 +29,13 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.runtime.inbox import take_waiting
+from blackmetal.runtime.host import CoreLock, DeadlineTimer
+from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.transport import ByteStream, Connector
-from schemas import ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
+from schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
 from .arbiter import DEFAULT_SOURCE
-from .core import RobotConnection
+from .core import Event, GatewayCore
 from .health import Counters
 from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
 from .settings import GatewaySettings
@@ -52,6 +54,7 @@ class GatewayOutput(Protocol):
     def status(self, message: RobotStatus) -> None: ...
     def health(self, message: GatewayHealth) -> None: ...
     def error(self, message: ErrorReport) -> None: ...
+    def driver(self, message: DriverChange) -> None: ...
 
 
 @dataclass
@@ -62,6 +65,7 @@ class RecordingOutput:
     status_log: list[RobotStatus] = field(default_factory=list)
     health_log: list[GatewayHealth] = field(default_factory=list)
     error_log: list[ErrorReport] = field(default_factory=list)
+    driver_log: list[DriverChange] = field(default_factory=list)
 
     def impulses(self, message: WheelImpulses) -> None:
         self.impulse_log.append(message)
@@ -75,9 +79,12 @@ class RecordingOutput:
     def error(self, message: ErrorReport) -> None:
         self.error_log.append(message)
 
+    def driver(self, message: DriverChange) -> None:
+        self.driver_log.append(message)
+
 
 class GatewayHost:
-    """Runs one :class:`RobotConnection` on the running asyncio loop; see the module docstring."""
+    """Runs one :class:`GatewayCore` on the running asyncio loop; see the module docstring."""
 
     def __init__(
         self,
@@ -86,24 +93,31 @@ class GatewayHost:
         output: GatewayOutput,
         clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
+        inbox: LoopInbox | None = None,
     ) -> None:
+        """``inbox``: the loop's, shared by every robot on it (see :mod:`blackmetal.runtime.inbox`); None: no early takes."""
         self.settings = settings
+        self.inbox = inbox
         self.connector = connector
         self.output = output
         self.clock = clock
         robot = {name: f"robot:{connector.describe(name)}" for name in LINKS}
-        self.connection = RobotConnection(settings, clock(), wallclock, robot)
+        self.connection = GatewayCore(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
         #: Held by whoever is in the core or writes to a stream: the loop, or a Zenoh thread taking a command directly.
-        self.lock = threading.RLock()
+        self.lock = CoreLock()
+        #: Messages the core produced, published by the loop once it holds no lock (:meth:`publish`).
+        self._outbox: list[Event] = []
         #: Bytes the core produced that a direct take could not send at once; the loop sends them before anything newer.
         self._unsent: dict[LinkName, bytes] = {}
         self._flush_scheduled = False
         #: The running loop, and its thread; None once the host stops or fails (every input goes to the loop then).
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread = 0
-        self._timer = DeadlineTimer(self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock)
+        self._timer = DeadlineTimer(
+            self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish, inbox=inbox
+        )
         self._failure: asyncio.Future[None] | None = None
 
     # ------------------------------------------------------------------ what tests and the edge see
@@ -128,40 +142,59 @@ class GatewayHost:
         if self._failure is not None and not self._failure.done():
             self._failure.set_exception(exc)
 
+    # The loop's inputs: each runs the core under the lock, then publishes what it produced once no lock is held.
+
     def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
         with self.lock:
             self.connection.on_cmd_vel(payload, self.clock(), source)
             self._flush()
+        self.publish()
 
     def on_source_cmd_vel(self, item: tuple[str, bytes]) -> None:
         """``(source, payload)`` from ``<prefix>/cmd_vel/<source>``."""
         self.on_cmd_vel(item[1], item[0])
+
+    def on_superseded(self, source: str, count: int) -> None:
+        """``count`` commands of ``source`` were superseded in the intake before the loop took them."""
+        with self.lock:
+            self.connection.on_superseded(source, count, self.clock())
+            self._flush()
+        self.publish()
 
     def on_named_lock(self, item: tuple[str, bytes]) -> None:
         """``(name, payload)`` from ``<prefix>/lock/<name>``."""
         with self.lock:
             self.connection.on_lock(item[0], item[1], self.clock())
             self._flush()
+        self.publish()
 
-    def on_estop(self, payload: bytes) -> None:
+    def on_estop(self, payload: bytes, release_key: bool = False) -> None:
+        """A payload on ``<prefix>/estop`` (``release_key``: on ``<prefix>/estop/release``)."""
         with self.lock:
-            self.connection.on_estop(payload, self.clock())
+            self.connection.on_estop(payload, self.clock(), release_key)
             self._flush()
+        self.publish()
+
+    def on_estop_input(self, item: tuple[bool, bytes]) -> None:
+        """``(release_key, payload)`` from the e-stop channel, which both e-stop keys feed."""
+        self.on_estop(item[1], item[0])
 
     def on_input_flood(self, key: str, reason: str) -> None:
         """An input began or stopped flooding (the edge changed how it takes it): reported on ``<prefix>/errors``."""
         with self.lock:
             self.connection.note_input(key, reason, self.clock())
             self._flush()
+        self.publish()
 
     def on_health_seen(self, payload: bytes) -> None:
         with self.lock:
             self.connection.on_health_seen(payload, self.clock())
             self._flush()
+        self.publish()
 
-    # ------------------------------------------------------------------ taken on a Zenoh thread (Handover direct)
+    # ------------------------------------------------------------------ taken on a Zenoh thread (Intake direct)
 
-    def take_cmd_vel_now(self, item: tuple[str, bytes]) -> bool:
+    def cmd_vel_direct(self, item: tuple[str, bytes]) -> bool:
         """Under :attr:`lock`, on the thread that delivered it: handle ``(source, payload)`` and send the result at once.
 
         False (the loop takes it, as any input) until the host runs. What
@@ -174,11 +207,11 @@ class GatewayHost:
         self._send_now()
         return True
 
-    def take_estop_now(self, payload: bytes) -> bool:
-        """As :meth:`take_cmd_vel_now`, for an e-stop: EMG_STOP leaves for the robot without waiting for the loop."""
+    def estop_direct(self, item: tuple[bool, bytes]) -> bool:
+        """As :meth:`cmd_vel_direct`, for ``(release_key, payload)``: EMG_STOP leaves for the robot without waiting for the loop."""
         if not self._takes_direct():
             return False
-        self.connection.on_estop(payload, self.clock())
+        self.connection.on_estop(item[1], self.clock(), item[0])
         self._send_now()
         return True
 
@@ -207,6 +240,7 @@ class GatewayHost:
             with self.lock:
                 self._flush_scheduled = False
                 self._flush()
+            self.publish()
         except Exception as exc:
             self.fail(exc)
 
@@ -219,29 +253,45 @@ class GatewayHost:
         return data if rest is None else rest + data
 
     def _flush(self) -> None:
-        """Under the lock: write what the connection wants written; publish its messages; act on drops."""
+        """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`."""
         conn = self.connection
         for name, stream in self._streams.items():
             data = self._pending(name)
             if data and stream is not None and not stream.is_closing():
                 stream.write(data)
         for event in conn.take_events():
-            if isinstance(event, WheelImpulses):
-                self.output.impulses(event)
-            elif isinstance(event, RobotStatus):
-                self.output.status(event)
-            elif isinstance(event, GatewayHealth):
-                self.output.health(event)
-            elif isinstance(event, ErrorReport):
-                log.warning("error on %s: %s", event.key, event.reason)
-                self.output.error(event)
-            elif isinstance(event, DropLink):
+            if isinstance(event, DropLink):
                 stream = self._streams[event.link]
                 if stream is not None and not stream.is_closing():
                     log.warning("%s link: dropping connection: %s", event.link, event.reason)
                     self._drop_reason[event.link] = event.reason
                     stream.close()
+            else:
+                self._outbox.append(event)
         self._timer.poke()
+
+    def publish(self) -> None:
+        """The loop, holding no lock: hand the core's messages to the output (a put may block; no e-stop waits on it).
+
+        Called while the loop still holds the lock (an input handled inside a
+        drain), it leaves them for the outermost holder, which calls it again.
+        """
+        if self.lock.held() or not self._outbox:
+            return
+        events, self._outbox = self._outbox, []
+        output = self.output
+        for event in events:
+            if isinstance(event, WheelImpulses):
+                output.impulses(event)
+            elif isinstance(event, RobotStatus):
+                output.status(event)
+            elif isinstance(event, GatewayHealth):
+                output.health(event)
+            elif isinstance(event, ErrorReport):
+                log.warning("error on %s: %s", event.key, event.reason)
+                output.error(event)
+            elif isinstance(event, DriverChange):
+                output.driver(event)
 
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
@@ -270,6 +320,7 @@ class GatewayHost:
                 self._streams[name] = stream
                 conn.link_up(name, self.clock())
                 self._flush()
+            self.publish()
             reason = "closed by the robot"
             try:
                 while True:
@@ -279,7 +330,9 @@ class GatewayHost:
                     with lock:
                         conn.receive(name, data, self.clock())
                         self._flush()
-                    take_waiting()  # an e-stop handed over meanwhile goes before the other robots' replies
+                    self.publish()
+                    if self.inbox is not None:
+                        self.inbox.take_waiting()  # an e-stop handed over meanwhile goes before the other robots' replies
                     if len(data) >= READ_SIZE:
                         # more may be buffered, and a read returns at once while it is: let the loop breathe (a
                         # shorter read took all there was, so the next read waits, and yields, by itself)
@@ -299,6 +352,7 @@ class GatewayHost:
             with lock:
                 conn.link_down(name, reason, self.clock())
                 self._flush()
+            self.publish()
             if not stop.is_set():
                 await _sleep_or_stop(stop, backoff.failed(self.clock()))
 
@@ -312,9 +366,6 @@ class GatewayHost:
         self._failure = failure
         for task in tasks:
             task.add_done_callback(self._link_done)
-        # everything built so far (modules, Zenoh, the core) lives as long as the process: out of the collector's
-        # sight, a full collection walks only what the command path allocates, not 100k objects of start-up
-        gc.freeze()
         self._timer.start()
         stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
         try:
@@ -347,6 +398,7 @@ class GatewayHost:
             self.connection.stop_robot(self.clock())
             self._flush()
             stream = self._streams["control"]
+        self.publish()
         if stream is None:
             return
         try:

@@ -6,9 +6,10 @@ import argparse
 import asyncio
 import sys
 
-from blackmetal.runtime.edge import refuse_if_taken
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
+from blackmetal.runtime.edge import refuse_taken
+from blackmetal.runtime.entry import freeze_start_up, run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.transport import TcpConnector
 from schemas import Keys
@@ -28,9 +29,9 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     connector = TcpConnector(settings.robot, settings.control_port, settings.log_port, settings.connect_timeout)
     keys = Keys(settings.prefix)
     with await open_service_session(settings.zenoh, stop, "gateway") as session:
-        refuse_if_taken(session, keys.alive_gateway, "gateway", keys.prefix)
+        refuse_taken(session, "gateway", [keys.prefix])
         edge = GatewayZenoh(session, keys)
-        service = GatewayHost(settings, connector, edge)
+        service = GatewayHost(settings, connector, edge, inbox=LoopInbox())
         edge.attach(service, asyncio.get_running_loop())
         print(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "
@@ -38,6 +39,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
             flush=True,
         )
         announce_ready("gateway", prefix=settings.prefix, cmd_timeout=settings.cmd_timeout)
+        freeze_start_up()
         try:
             await service.run(stop)
         finally:

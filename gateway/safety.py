@@ -62,6 +62,14 @@ class SafetySettings:
     wheel_gain: WheelGain = UNITY_GAIN
 
 
+class Mode(Enum):
+    """What the governor is doing; every decision starts from it."""
+
+    OFFLINE = "offline"  # no control link: nothing is sent and nothing is due
+    ESTOP = "estop"  # the e-stop is latched: EMG_STOP (again while the wheels still turn), never motion
+    DRIVING = "driving"  # limits, command timeout, coalescing, retries, keep-alive, confirmed stops
+
+
 class CommandReason(Enum):
     """Why a velocity command goes out; the connection counts and reports by it."""
 
@@ -113,9 +121,13 @@ class Governor:
         """Accept a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
         reason = self.refusal(twist)
         if reason is None:
-            self.target = (twist.linear.x, twist.angular.z)
-            self.last_cmd_at = now
+            self.take_twist(twist, now)
         return reason
+
+    def take_twist(self, twist: Twist, now: float) -> None:
+        """A command :meth:`refusal` has just passed becomes the target (the caller asked, with this state)."""
+        self.target = (twist.linear.x, twist.angular.z)
+        self.last_cmd_at = now
 
     def refusal(self, twist: Twist) -> str | None:
         """Why a velocity command would be refused now, if it would."""
@@ -211,6 +223,12 @@ class Governor:
 
     # ------------------------------------------------------------------ output
 
+    @property
+    def mode(self) -> Mode:
+        if not self.link_up:
+            return Mode.OFFLINE
+        return Mode.ESTOP if self.estop else Mode.DRIVING
+
     def timed_out(self, now: float) -> bool:
         """True while no valid cmd_vel arrived within the command timeout."""
         timeout = self.settings.cmd_timeout
@@ -228,6 +246,12 @@ class Governor:
             return math.inf
         return max(self.accepted_at + STOP_GRACE_S, self._last_sent_at + RETRY_CAP_S)
 
+    def _estop_recheck_at(self) -> float:
+        """With the e-stop latched: when to ask for EMG_STOP again because the wheels still turn (inf: not needed)."""
+        if self._moving and not self.emg_stop_needed:
+            return self._emg_at + STOP_GRACE_S
+        return math.inf
+
     def unwanted_motion(self, now: float) -> bool:
         return now >= self._unwanted_motion_at()
 
@@ -239,10 +263,11 @@ class Governor:
         """
         dt = max(0.0, now - self._last_update)
         self._last_update = now
-        if not self.link_up:
+        mode = self.mode
+        if mode is Mode.OFFLINE:
             return None
-        if self.estop:
-            if self._moving and now >= self._emg_at + STOP_GRACE_S and not self.emg_stop_needed:
+        if mode is Mode.ESTOP:
+            if now >= self._estop_recheck_at():
                 self.on_emg_stop_dropped(now)  # EMG_STOP taken but the wheels still turn: ask again
             return None
         if self.target != (0.0, 0.0) and self.timed_out(now):
@@ -284,13 +309,12 @@ class Governor:
 
         ``congested`` as for :meth:`next_command`: then only what a stop needs counts (motion waits for a reply).
         """
-        if not self.link_up:
+        mode = self.mode
+        if mode is Mode.OFFLINE:
             return math.inf
         deadline = self._emg_at if self.emg_stop_needed else math.inf
-        if self.estop:
-            if self._moving and not self.emg_stop_needed:
-                deadline = min(deadline, self._emg_at + STOP_GRACE_S)
-            return deadline
+        if mode is Mode.ESTOP:
+            return min(deadline, self._estop_recheck_at())
         s = self.settings
         if self.target != (0.0, 0.0) and s.cmd_timeout > 0:
             deadline = min(deadline, self.last_cmd_at + s.cmd_timeout)

@@ -56,6 +56,11 @@ class GatewaySettings:
         factory=list,
         metavar="NAME:PRIO[:S]",
     )
+    release_key_only: bool = setting(
+        False,
+        "only a put on <prefix>/estop/release releases the e-stop; a release on <prefix>/estop is refused and reported "
+        "(for a router whose access control gives releasing to a safety role alone)",
+    )
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
     def check(self) -> None:

@@ -1,29 +1,65 @@
 """Zenoh edge of the gateway: declarations only, no logic.
 
 Inputs go through the one hand-over of :mod:`blackmetal.runtime.edge`: the
-callbacks copy the payload and the service's loop runs the handlers, the
-e-stop channel ahead of everything else; each channel is bounded, so a
-flood of commands can neither grow memory nor delay an e-stop. Health queries are answered from
-the loop. A single robot's gateway takes commands and e-stops directly on
-the Zenoh thread that delivers them when its core is free (the hand-over's
-``direct``); a fleet host leaves them to its loop, so a hundred robots'
-commands never keep Zenoh's thread in Python.
+callbacks copy the payload and the service's loop runs the handlers. Each
+input has its own bounded intake, so a flood of one can neither delay,
+mask nor expire another:
+
+* the e-stop (``estop`` and ``estop/release``): one latest-state slot, ahead
+  of everything; an ON is kept until handled even if newer samples follow;
+  a storm changes over to Zenoh's ring buffer like any flooded input;
+* each configured command source and each configured lock: its own
+  subscriber (a flooded one changes over to Zenoh's ring buffer alone) and
+  its own latest slot; what a newer command supersedes is counted against
+  its source in health;
+* names nobody configured share one small queue and create no state per
+  name: they are refused and reported, rate-limited per key family.
+
+Health queries are answered from the loop. A single robot's gateway takes
+commands and e-stops directly on the Zenoh thread that delivers them when
+its core is free (the hand-over's ``direct``); a fleet host leaves them to
+its loop, so a hundred robots' commands never keep Zenoh's thread in Python.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Handover, ZenohEdge
-from schemas import ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
+from blackmetal.runtime.edge import Intake, Item, ZenohEdge, newest
+from schemas import DriverChange, ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
 
 from .arbiter import DEFAULT_SOURCE
+from .estop import read_estop
 
 if TYPE_CHECKING:
     import zenoh
 
     from .host import GatewayHost
+
+#: Inputs on names nobody configured, waiting to be refused: a flood of new names keeps the newest few.
+UNKNOWN_NAMES_CAPACITY = 8
+
+
+def _as_name(name: str, put: Callable[[tuple[str, bytes]], None]) -> Callable[[tuple[str, bytes]], None]:
+    """A put that hands ``(name, payload)`` over, whatever key chunk the sample came on."""
+    return lambda item: put((name, item[1]))
+
+
+def _engages(item: tuple[bool, bytes]) -> bool:
+    """An e-stop sample that engages: it is latched in the intake until handled (see Channel)."""
+    return read_estop(item[1])[0]
+
+
+def _estop_batch(batch: list[Item]) -> list[Item]:
+    """What a storm's pump hands over of a batch of e-stop samples: the first that engages, if the newest does not, and the newest."""
+    last = batch[-1]
+    if read_estop(last[1])[0]:
+        return [last]
+    first_on = next((item for item in batch if read_estop(item[1])[0]), None)
+    return [last] if first_on is None else [first_on, last]
 
 
 class GatewayZenoh(ZenohEdge):
@@ -45,6 +81,7 @@ class GatewayZenoh(ZenohEdge):
         self._status = self.publisher(keys.status)
         self._health = self.publisher(keys.health)
         self._errors = self.publisher(keys.errors)
+        self._driver = self.publisher(keys.driver)
 
     # GatewayOutput
     def impulses(self, message: WheelImpulses) -> None:
@@ -59,28 +96,60 @@ class GatewayZenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Handover:
+    def driver(self, message: DriverChange) -> None:
+        self._driver.put(encode(message))
+
+    def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
-        # a bug in handling one input fails this robot's host, visibly
-        handover = Handover(loop, on_error=service.fail, lock=service.lock if self.direct else None)
+        keys = self.keys
         direct = self.direct
-        # bounded: a flood keeps the newest 64 (the governor acts on the latest anyway); e-stop first, always
-        estop = handover.channel("estop", service.on_estop, capacity=64, priority=2, direct=service.take_estop_now if direct else None)
-        self.subscriber(self.keys.estop, estop)
-        # commands and locks a client may flood: while one floods, it waits in Zenoh's ring buffer and reaches
-        # the loop at its pace, so it can neither grow memory nor hold up the e-stop; plain cmd_vel is the source 'default'
-        commands = handover.channel(
-            "cmd_vel", service.on_source_cmd_vel, capacity=64, priority=1, direct=service.take_cmd_vel_now if direct else None
+        arbiter = service.connection.arbiter
+        # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
+        handover = Intake(
+            loop, on_error=service.fail, lock=service.lock if direct else None, after_drain=service.publish, inbox=service.inbox
+        )
+        estop = handover.channel(
+            "estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct if direct else None
         )
         flood = service.on_input_flood
-        self.guarded(self.keys.cmd_vel, lambda item: commands((DEFAULT_SOURCE, item[1])), handover, flood)
-        self.guarded(self.keys.any_cmd_vel_source, commands, handover, flood)
-        locks = handover.channel("lock/*", service.on_named_lock, capacity=64, priority=1)
-        self.guarded(self.keys.any_lock, locks, handover, flood)
-        self.queryable(self.keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
+        # guarded too: a storm of e-stop samples must not keep Zenoh's thread in Python while its final ON waits behind them
+        self.guarded(keys.estop, lambda item: estop((False, item[1])), handover, flood, pick=_estop_batch)
+        self.guarded(keys.estop_release, lambda item: estop((True, item[1])), handover, flood, pick=_estop_batch)
+        sources: dict[str, Callable[[tuple[str, bytes]], None]] = {}
+        for name in arbiter.names:
+            put = handover.channel(
+                f"cmd_vel/{name}",
+                service.on_source_cmd_vel,
+                latest=True,
+                priority=1,
+                direct=service.cmd_vel_direct if direct else None,
+                on_dropped=functools.partial(service.on_superseded, name),
+            )
+            sources[name] = put
+            self.guarded(keys.cmd_vel_of(name), _as_name(name, put), handover, flood, pick=newest)
+        unknown_source = handover.channel("cmd_vel/?", service.on_source_cmd_vel, capacity=UNKNOWN_NAMES_CAPACITY)
+        default = sources.get(DEFAULT_SOURCE)
+
+        def any_source(item: tuple[str, bytes]) -> None:
+            """``<prefix>/cmd_vel/<name>``: configured names come through their own subscriber (``cmd_vel/default`` here)."""
+            name = item[0]
+            if name == DEFAULT_SOURCE and default is not None:
+                default(item)
+            elif name not in sources:
+                unknown_source(item)
+
+        self.guarded(keys.any_cmd_vel_source, any_source, handover, flood)
+        locks: set[str] = set()
+        for name in arbiter.lock_names:
+            put_lock = handover.channel(f"lock/{name}", service.on_named_lock, latest=True, priority=1)
+            locks.add(name)
+            self.guarded(keys.lock_of(name), _as_name(name, put_lock), handover, flood, pick=newest)
+        unknown_lock = handover.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
+        self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), handover, flood)
+        self.queryable(keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
-        self.subscriber(self.keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))
-        self.token(self.keys.alive_gateway)
+        self.subscriber(keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))
+        self.token(keys.alive_gateway)
         return handover
 
     def _answer_health(self, service: "GatewayHost", query: "zenoh.Query") -> None:

@@ -12,9 +12,12 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
+from dataclasses import dataclass
 
-from blackmetal.runtime.fleet import FleetRobot
-from schemas import ConfigError, ErrorReport, Keys
+from blackmetal.runtime.edge import Intake, refuse_taken
+from blackmetal.runtime.fleet import FleetRobot, supervise
+from blackmetal.runtime.inbox import LoopInbox
+from schemas import ErrorReport, Keys
 
 from .core import OdometryCore
 from .host import OdometryHost
@@ -23,37 +26,45 @@ from .zenoh_edge import OdometryZenoh
 
 log = logging.getLogger("blackmetal.odometry")
 
-#: A robot whose odometry failed is started again after this pause, doubling up to RESTART_CAP_S.
-RESTART_FIRST_S = 0.5
-RESTART_CAP_S = 10.0
-
 
 def fleet_settings(base: OdometrySettings, robots: list[FleetRobot]) -> list[OdometrySettings]:
     """Each robot's odometry settings: the command line's, its prefix, its constants and [robot.odometry]."""
     return [robot.settings("odometry", base, {"prefix": robot.prefix}) for robot in robots]
 
 
-async def _supervise(session: object, robot: FleetRobot, settings: OdometrySettings, stop: asyncio.Event) -> None:
-    keys = Keys(settings.prefix)
-    pause = RESTART_FIRST_S
-    while not stop.is_set():
-        edge = OdometryZenoh(session, keys, batched=True)  # type: ignore[arg-type]
-        host = OdometryHost(OdometryCore(settings.params(), keys, edge))
-        handover = edge.attach(host, asyncio.get_running_loop())
-        try:
-            await host.run(stop, dropped=lambda h=handover: h.stats()["impulses"][1])  # type: ignore[misc]
-            return
-        except Exception as exc:
-            reason = f"odometry of {robot.describe()} failed ({exc!r}): starting again from zero in {pause:g} s"
-            log.error("%s", reason)
-            edge.error(ErrorReport(stamp=time.time(), source="odometry", key=keys.pose, reason=reason))
-        finally:
-            edge.close()
-        try:
-            await asyncio.wait_for(stop.wait(), pause)
-        except TimeoutError:
-            pass
-        pause = min(pause * 2, RESTART_CAP_S)
+@dataclass
+class Member:
+    """One robot's odometry in the fleet process (a :class:`~blackmetal.runtime.fleet.Served`): started again from zero after a bug."""
+
+    robot: FleetRobot
+    settings: OdometrySettings
+    session: object
+    inbox: LoopInbox
+    edge: OdometryZenoh | None = None
+    host: OdometryHost | None = None
+    handover: Intake | None = None
+
+    def start(self) -> Member:
+        keys = Keys(self.settings.prefix)
+        self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
+        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge), inbox=self.inbox)
+        self.handover = self.edge.attach(self.host, asyncio.get_running_loop())
+        return self
+
+    async def run(self, stop: asyncio.Event) -> None:
+        assert self.host is not None and self.handover is not None
+        handover = self.handover
+        await self.host.run(stop, dropped=lambda: handover.stats()["impulses"][1])
+
+    def failed(self, exc: Exception, pause: float) -> None:
+        assert self.edge is not None
+        reason = f"odometry of {self.robot.describe()} failed ({exc!r}): starting again from zero in {pause:g} s"
+        log.error("%s", reason)
+        self.edge.error(ErrorReport(stamp=time.time(), source="odometry", key=self.edge.keys.pose, reason=reason))
+
+    def close(self) -> None:
+        if self.edge is not None:
+            self.edge.close()
 
 
 async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
@@ -65,14 +76,12 @@ async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: as
 
     settings = fleet_settings(base, robots)
     with await open_service_session(base.zenoh, stop, "odometry") as session:
-        alive = {str(r.ok.key_expr) for r in session.liveliness().get("**/alive/odometry", timeout=0.5) if r.ok is not None}
-        for robot in robots:
-            if Keys(robot.prefix).alive_odometry in alive:
-                raise ConfigError(f"{robot.describe()}: another odometry service is already alive on prefix {robot.prefix!r}")
+        by_prefix = {robot.prefix: robot.describe() for robot in robots}
+        refuse_taken(session, "odometry", list(by_prefix), what="odometry service", describe=by_prefix.__getitem__)
         assert isinstance(session, zenoh.Session)
-        tasks = [
-            asyncio.create_task(_supervise(session, r, s, stop), name=f"odometry {r.id}") for r, s in zip(robots, settings, strict=True)
-        ]
+        inbox = LoopInbox()  # the robots share the loop: one's samples are taken between two steps of the others'
+        members = [Member(r, s, session, inbox) for r, s in zip(robots, settings, strict=True)]
+        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"odometry {m.robot.id}") for m in members]
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
         await asyncio.gather(*tasks)

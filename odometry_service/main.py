@@ -5,9 +5,10 @@ from __future__ import annotations
 import argparse
 import asyncio
 
-from blackmetal.runtime.edge import refuse_if_taken
+from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
 from schemas import Keys
 
@@ -22,9 +23,9 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
     keys = Keys(settings.prefix)
     with await open_service_session(settings.zenoh, stop, "odometry") as session:
-        refuse_if_taken(session, keys.alive_odometry, "odometry service", keys.prefix)
+        refuse_taken(session, "odometry", [keys.prefix], what="odometry service")
         edge = OdometryZenoh(session, keys)
-        host = OdometryHost(OdometryCore(settings.params(), keys, edge))
+        host = OdometryHost(OdometryCore(settings.params(), keys, edge), inbox=LoopInbox())
         handover = edge.attach(host, asyncio.get_running_loop())
         print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
         announce_ready("odometry", prefix=settings.prefix)

@@ -6,7 +6,7 @@ import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Handover, ZenohEdge
+from blackmetal.runtime.edge import Intake, ZenohEdge
 from schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
 
 from .host import OdometryHost
@@ -36,8 +36,8 @@ class OdometryZenoh(ZenohEdge):
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Handover:
-        handover = Handover(loop)
+    def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Intake:
+        handover = Intake(loop, inbox=host.inbox)
         self._direct_subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=4096))
         self.queryable(self.keys.pose, handover.channel("pose?", lambda q: self._answer_pose(host, q)))
         self.queryable(self.keys.odometry_reset, handover.channel("reset?", lambda q: self._answer_reset(host, q)))

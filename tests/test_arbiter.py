@@ -35,7 +35,7 @@ def test_the_highest_live_priority_drives_and_the_others_are_dropped_and_counted
         assert arb.offer("nav", twist(0.3), 0.05 + 0.05 * k) is Admission.DROPPED
         assert arb.offer("teleop", twist(0.0), 0.06 + 0.05 * k) is Admission.DRIVES
     ages = arb.source_ages(0.6)
-    assert ages["nav"] == (pytest.approx(0.1), 9) and ages["teleop"][1] == 0 and ages["foxglove"] == (None, 0)
+    assert ages["nav"] == (pytest.approx(0.1), 9, 0) and ages["teleop"][1] == 0 and ages["foxglove"] == (None, 0, 0)
     assert arb.active == "teleop"
 
 

@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 from helpers import wait_for
 
-from blackmetal.runtime.edge import DIRECT_BURST, DIRECT_WINDOW_S, Handover
+from blackmetal.runtime.edge import DIRECT_BURST, DIRECT_WINDOW_S, Intake
 from blackmetal.runtime.entry import loop_factory
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
@@ -91,7 +91,7 @@ class Rig:
         self.lock = threading.RLock()
         self.clock = FakeClock()
         self.errors: list[BaseException] = []
-        self.handover = Handover(loop_thread.loop, on_error=self.errors.append, lock=self.lock, clock=self.clock)
+        self.handover = Intake(loop_thread.loop, on_error=self.errors.append, lock=self.lock, clock=self.clock)
         self.order: list[tuple[str, str]] = []  # (how, item) in the order they were handled
         self.fail_direct = False
         self.estop = self.handover.channel("estop", self._handled, priority=2, direct=self._direct)
@@ -191,7 +191,7 @@ def test_a_direct_take_that_fails_is_reported_on_the_loop(loop_thread: LoopThrea
 
 def test_a_direct_channel_needs_the_lock(loop_thread: LoopThread) -> None:
     with pytest.raises(ValueError, match="lock"):
-        Handover(loop_thread.loop).channel("cmd", print, direct=lambda item: True)
+        Intake(loop_thread.loop).channel("cmd", print, direct=lambda item: True)
 
 
 # --------------------------------------------------------------------------- a TCP stream's immediate write
@@ -270,9 +270,10 @@ class GatewayRig:
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
         # wired as GatewayZenoh.attach wires a single robot's gateway
-        handover = Handover(self.gateway_thread.loop, on_error=host.fail, lock=host.lock)
-        self.estop = handover.channel("estop", host.on_estop, capacity=64, priority=2, direct=host.take_estop_now)
-        self.command = handover.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.take_cmd_vel_now)
+        handover = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock)
+        estop = handover.channel("estop", host.on_estop_input, latest=True, priority=2, direct=host.estop_direct)
+        self.estop = lambda payload: estop((False, payload))
+        self.command = handover.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.cmd_vel_direct)
         self.handover = handover
         wait_for(lambda: host.control.connected and self.robot.counters["prepare"] >= 1, what="the gateway to connect")
 

@@ -19,7 +19,7 @@ from helpers import TRUE_ESTOPS
 from blackmetal import wire
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, Request
-from gateway.core import RobotConnection
+from gateway.core import GatewayCore
 from gateway.links import DropLink
 from gateway.settings import GatewaySettings
 from schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
@@ -28,14 +28,14 @@ WALL0 = 1_800_000_000.0
 
 
 class Bench:
-    """A RobotConnection wired to a SimRobot through a fake clock."""
+    """A GatewayCore wired to a SimRobot through a fake clock."""
 
     def __init__(self, robot: SimRobot | None = None, **settings: Any) -> None:
         self.t = 0.0
         config = GatewaySettings(**settings)
         config.check()
         self.robot = robot or SimRobot(RobotParams(), now=0.0, seed=3)
-        self.conn = RobotConnection(config, 0.0, wallclock=lambda: WALL0 + self.t)
+        self.conn = GatewayCore(config, 0.0, wallclock=lambda: WALL0 + self.t)
         self.decoder = wire.RequestDecoder()
         self.requests: list[tuple[float, Request]] = []
         self.events: list[Any] = []

@@ -379,7 +379,7 @@ def test_a_bug_in_handling_fails_the_host_visibly_and_leaves_the_robot_standing(
             try:
                 rig.service.on_cmd_vel(b'{"linear":{"x":0.3}}')
             except RuntimeError as exc:
-                handover_fail(exc)  # what the Zenoh edge's Handover does with a handler's exception
+                handover_fail(exc)  # what the Zenoh edge's Intake does with a handler's exception
         with pytest.raises(RuntimeError, match="a bug"):
             await asyncio.wait_for(rig.task, 5.0)
         rig.robot.advance(time.monotonic())

@@ -13,8 +13,9 @@ import threading
 import time
 from collections.abc import Callable
 
-from blackmetal.runtime.edge import Handover
+from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.inbox import LoopInbox
 
 TIMERS = 40
 STEP_S = 0.002
@@ -48,11 +49,10 @@ def _ticks_at_handling(take_early: bool) -> dict[str, list[int]]:
 
     async def main() -> None:
         loop = asyncio.get_running_loop()
-        handover = Handover(loop)
+        inbox = LoopInbox() if take_early else None  # no inbox: the plain hand-over, drained at the end of the turn
+        handover = Intake(loop, inbox=inbox)
         estop = handover.channel("estop", lambda item: handled["estop"].append(len(ticks)), priority=2)
         cmd_vel = handover.channel("cmd_vel", lambda item: handled["cmd_vel"].append(len(ticks)), priority=1)
-        if not take_early:
-            handover._inbox.add = lambda take: None  # type: ignore[method-assign]  # the plain hand-over
 
         def put_inputs() -> None:
             for i in range(10):
@@ -64,7 +64,7 @@ def _ticks_at_handling(take_early: bool) -> dict[str, list[int]]:
         for _ in range(TIMERS):
             core = BusyCore(ticks, put_inputs)
             core.due = time.monotonic()
-            timer = DeadlineTimer(core)
+            timer = DeadlineTimer(core, inbox=inbox)
             timer._running = True
             timer._timer = loop.call_at(at, timer._fire)
             timers.append(timer)

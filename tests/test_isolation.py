@@ -145,7 +145,7 @@ def test_one_default_endpoint_for_services_and_tools() -> None:
     from blackmetal.ros2.settings import Ros2Settings
     from blackmetal.runtime.settings import load_settings
     from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, zenoh_settings
-    from blackmetal.sim.main import SimSettings
+    from blackmetal.sim.settings import SimSettings
     from gateway.settings import GatewaySettings
     from odometry_service.settings import OdometrySettings
 

@@ -22,7 +22,7 @@ from blackmetal import wire
 from blackmetal.robot_model import WHEEL_SEPARATION, twist_to_wheels
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, RequestDecoder
-from gateway.core import RobotConnection
+from gateway.core import GatewayCore
 from gateway.settings import GatewaySettings
 from schemas import Pose, WheelImpulses, decode
 
@@ -38,7 +38,7 @@ def test_one_wheel_commands_reach_the_wire_and_the_robot_as_that_wheel() -> None
     for (v, w), moving in ((LEFT_ONLY, "left"), (RIGHT_ONLY, "right")):
         wheels, _ = twist_to_wheels(v, w, WHEEL_SEPARATION, 0.8)
         assert getattr(wheels, moving) == pytest.approx(0.2) and getattr(wheels, "right" if moving == "left" else "left") == 0.0
-        conn = RobotConnection(GatewaySettings(cmd_timeout=0.0), 0.0, wallclock=lambda: 0.0)
+        conn = GatewayCore(GatewaySettings(cmd_timeout=0.0), 0.0, wallclock=lambda: 0.0)
         robot = SimRobot(RobotParams(), now=0.0)
         conn.link_up("control", 0.0)
         conn.on_cmd_vel(json.dumps({"linear": {"x": v}, "angular": {"z": w}}).encode(), 0.01)

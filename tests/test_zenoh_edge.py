@@ -14,7 +14,7 @@ import pytest
 import zenoh
 from helpers import wait_for
 
-from blackmetal.runtime.edge import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput, Handover, ZenohEdge
+from blackmetal.runtime.edge import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput, Intake, ZenohEdge
 
 
 @pytest.fixture
@@ -62,7 +62,7 @@ def loop() -> Iterator[asyncio.AbstractEventLoop]:
 
 def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
     """At sane rates there is no pump thread: zenoh-python wakes a blocked recv() ten times a second, GIL and all."""
-    handover = Handover(loop)
+    handover = Intake(loop)
     received: list[tuple[str, bytes]] = []
     edge = ZenohEdge(session)
     guarded = edge.guarded("edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover)
@@ -77,7 +77,7 @@ def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: 
 
 def test_a_flood_goes_through_the_ring_buffer_and_back_when_it_ends(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
     """A flood changes the input over to Zenoh's ring buffer and one pump; quiet again, it changes back; nothing is lost at either change."""
-    handover = Handover(loop)
+    handover = Intake(loop)
     received: list[tuple[str, bytes]] = []
     reports: list[tuple[str, str]] = []
     guarded = GuardedInput(session, "edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover,
@@ -117,7 +117,7 @@ def test_closing_flooded_inputs_ends_their_pumps_at_once(session: zenoh.Session,
     only the (now blocked) loop could do: 0.2-0.3 s for three flooded inputs, in a
     fleet a pause of every robot's e-stop.
     """
-    handover = Handover(loop)
+    handover = Intake(loop)
     edge = ZenohEdge(session)
     inputs = [edge.guarded(f"edge/test/{i}/cmd_vel/*", handover.channel(f"cmd_vel {i}", lambda item: None), handover) for i in range(3)]
     publishers = [session.declare_publisher(f"edge/test/{i}/cmd_vel/nav") for i in range(3)]

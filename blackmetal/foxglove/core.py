@@ -71,6 +71,7 @@ from schemas import (
     Pose,
     PoseReset,
     RobotStatus,
+    Sources,
     Twist,
     WheelImpulses,
     decode,
@@ -361,7 +362,7 @@ class LiveView:
 # --------------------------------------------------------------------------- what clients may do
 
 #: The command source the view's clients drive as (``<prefix>/cmd_vel/foxglove``).
-COMMAND_SOURCE = "foxglove"
+COMMAND_SOURCE = Sources.FOXGLOVE
 #: The one message encoding clients may publish and call services in.
 CLIENT_ENCODING = "json"
 #: A set_estop call re-sends its engage and asks the gateway's health this often (s) until confirmed.

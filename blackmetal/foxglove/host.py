@@ -41,7 +41,7 @@ from typing import Any, Protocol
 
 import msgspec
 
-from blackmetal.runtime.edge import Handover
+from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import DeadlineTimer
 from schemas import BlackmetalError, ConfigError, ErrorReport
 
@@ -420,7 +420,7 @@ class FoxgloveHost:
         self.core: ClientCore | None = None
         self.timer: DeadlineTimer | None = None
         self._zenoh: ZenohSide | None = None
-        self._handover = Handover(asyncio.get_running_loop())
+        self._handover = Intake(asyncio.get_running_loop())
         self._put_event = self._handover.channel("client events", self._on_event, capacity=4096)
         self._put_call = self._handover.channel("service calls", self._on_call, capacity=256)
         self._connections: dict[str, _Connection] = {}

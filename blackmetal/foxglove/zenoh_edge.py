@@ -13,7 +13,7 @@ import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
-from blackmetal.runtime.edge import Handover, ZenohEdge
+from blackmetal.runtime.edge import Intake, ZenohEdge
 from schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .core import COMMAND_SOURCE, LiveView
@@ -58,9 +58,9 @@ class FoxgloveZenoh(ZenohEdge):
         loop: asyncio.AbstractEventLoop,
         handlers: dict[str, Callable[[bytes], None]] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
-    ) -> Handover:
+    ) -> Intake:
         """Subscribe ``handlers`` (default: the view's) on the loop; ``on_error`` takes what a handler raised (None: the loop's handler)."""
-        handover = Handover(loop, on_error)
+        handover = Intake(loop, on_error)
         handlers = dict(handlers if handlers is not None else view.handlers())
         show_health = handlers[self.keys.health]
 

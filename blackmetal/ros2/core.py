@@ -38,7 +38,7 @@ from typing import Protocol
 
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.reports import ErrorReporter
-from schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
+from schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, Sources, WheelImpulses, decode, encode
 
 from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, excerpt
 from .naming import RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
@@ -105,7 +105,7 @@ class Ros2Options:
     cmd_vel_key: str = "cmd_vel"
     estop_key: str = "estop"
     #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
-    source: str = "ros2"
+    source: str = Sources.ROS2
     #: A service call not confirmed within this (s) is answered success=false.
     service_timeout: float = 2.0
     #: The gateway's --poll-hz, which the robot link's measured poll rate is held against.

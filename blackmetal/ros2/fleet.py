@@ -28,7 +28,8 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
-from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.fleet import FleetRobot, supervise
+from blackmetal.runtime.inbox import LoopInbox
 from schemas import ConfigError, ErrorReport, Keys
 
 from .core import Ros2Core
@@ -39,10 +40,6 @@ from .settings import Ros2Settings
 from .zenoh_edge import Ros2Zenoh
 
 log = logging.getLogger("blackmetal.ros2")
-
-#: A robot whose node failed is started again after this pause, doubling up to RESTART_CAP_S.
-RESTART_FIRST_S = 0.5
-RESTART_CAP_S = 10.0
 
 #: Options for one robot's node: with --fleet each robot's entry decides them.
 SINGLE_ROBOT_OPTIONS = {
@@ -80,22 +77,26 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
 
 @dataclass
 class Member:
-    """One robot's node: its settings, and the host that serves it now."""
+    """One robot's node: its settings, and the host that serves it now (a :class:`~blackmetal.runtime.fleet.Served`)."""
 
     robot: FleetRobot
     settings: Ros2Settings
+    session: object
+    codec: RosCodec
+    ids: Iterator[int]
+    inbox: LoopInbox
     host: Ros2Host | None = None
     edge: Ros2Zenoh | None = None
     restarts: int = 0
 
-    def start(self, session: object, codec: RosCodec, ids: Iterator[int], loop: asyncio.AbstractEventLoop) -> Ros2Zenoh:
+    def declare(self) -> Ros2Zenoh:
         """Declare this robot's node (new entity ids on each start, as a node created again has), its host, and attach them."""
         s = self.settings
         namespace = normalise_namespace(s.namespace)
         edge = Ros2Zenoh(
-            session,  # type: ignore[arg-type]
+            self.session,  # type: ignore[arg-type]
             Keys(s.prefix),
-            codec,
+            self.codec,
             Flavor(s.flavor),
             s.domain_id,
             namespace,
@@ -103,37 +104,35 @@ class Member:
             topics(s.tf, s.twist_stamped, absolute_tf=True),
             services(),
             s.source,
-            ids,
+            self.ids,
         )
         options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace))
-        self.host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=True)
+        self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True, inbox=self.inbox)
         self.edge = edge
-        edge.attach(self.host, loop)
+        edge.attach(self.host, asyncio.get_running_loop())
         return edge
 
-    async def supervise(self, session: object, codec: RosCodec, ids: Iterator[int], stop: asyncio.Event) -> None:
-        """Serve this robot's node until ``stop``; a node that fails of a bug is reported and started again."""
-        pause = RESTART_FIRST_S
-        loop = asyncio.get_running_loop()
-        while not stop.is_set():
-            edge = self.edge if self.edge is not None and self.host is not None else self.start(session, codec, ids, loop)
-            assert self.host is not None
-            try:
-                await self.host.run(stop)
-                return
-            except Exception as exc:
-                self.restarts += 1
-                reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}); starting it again in {pause:g} s"
-                log.error("%s", reason)
-                edge.error(ErrorReport(stamp=time.time(), source="ros2", key=edge.keys.errors, reason=reason))
-            finally:
-                edge.close()
-                self.edge = self.host = None
-            try:
-                await asyncio.wait_for(stop.wait(), pause)
-            except TimeoutError:
-                pass
-            pause = min(pause * 2, RESTART_CAP_S)
+    def start(self) -> Member:
+        """The node declared before the fleet was announced serves first; after a failure, a new one."""
+        if self.edge is None or self.host is None:
+            self.declare()
+        return self
+
+    async def run(self, stop: asyncio.Event) -> None:
+        assert self.host is not None
+        await self.host.run(stop)
+
+    def failed(self, exc: Exception, pause: float) -> None:
+        assert self.edge is not None
+        self.restarts += 1
+        reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}); starting it again in {pause:g} s"
+        log.error("%s", reason)
+        self.edge.error(ErrorReport(stamp=time.time(), source="ros2", key=self.edge.keys.errors, reason=reason))
+
+    def close(self) -> None:
+        if self.edge is not None:
+            self.edge.close()
+        self.edge = self.host = None
 
 
 async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
@@ -142,12 +141,13 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
     from blackmetal.runtime.zenoh_setup import open_service_session
 
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
-    members = [Member(robot, settings) for robot, settings in zip(robots, fleet_settings(base, robots), strict=True)]
+    settings = fleet_settings(base, robots)
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
     with await open_service_session(base.zenoh, stop, "ros2") as session:
-        loop = asyncio.get_running_loop()
+        inbox = LoopInbox()  # the nodes share the loop: one's e-stop is taken between two steps of the others'
+        members = [Member(robot, s, session, codec, ids, inbox) for robot, s in zip(robots, settings, strict=True)]
         for member in members:  # every node declared and serving before the fleet is announced
-            member.start(session, codec, ids, loop)
+            member.declare()
         print(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})", flush=True)
         nodes: dict[str, dict[str, object]] = {}
         for m in members:
@@ -167,7 +167,7 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
                 "frames": dataclasses.asdict(frames),
             }
         announce_ready("ros2", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], flavor=base.flavor, nodes=nodes)
-        tasks = [asyncio.create_task(m.supervise(session, codec, ids, stop), name=f"ros2 {m.robot.id}") for m in members]
+        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"ros2 {m.robot.id}") for m in members]
         try:
             await asyncio.gather(*tasks)
         finally:

@@ -10,7 +10,7 @@ from blackmetal import robot_model as model
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
+from schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
 from .core import Ros2Options
 from .messages import Frames
@@ -52,7 +52,7 @@ class Ros2Settings:
     node_name: str = setting("blackmetal", "ROS node name", metavar="NAME")
     prefix: str = setting(DEFAULT_PREFIX, "blackmetal key-expression prefix of the robot, e.g. fleet/a")
     source: str = setting(
-        "ros2", "command source /cmd_vel drives as: <prefix>/cmd_vel/NAME (the gateway must know it: its --source)", metavar="NAME"
+        Sources.ROS2, "command source /cmd_vel drives as: <prefix>/cmd_vel/NAME (the gateway must know it: its --source)", metavar="NAME"
     )
     service_timeout: float = setting(2.0, "set_estop and reset_odometry answer success=false unless confirmed within this", metavar="S")
     expected_poll_hz: float = setting(

@@ -19,8 +19,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Handover, ZenohEdge
-from schemas import ErrorReport, Keys, encode
+from blackmetal.runtime.edge import Intake, ZenohEdge
+from schemas import ErrorReport, Keys, Sources, encode
 
 from .host import Ros2Host
 from .naming import (
@@ -74,7 +74,7 @@ class Ros2Zenoh(ZenohEdge):
         node_name: str,
         ros_topics: list[RosTopic],
         ros_services: list[RosService] | None = None,
-        source: str = "ros2",
+        source: str = Sources.ROS2,
         ids: Iterator[int] | None = None,
     ) -> None:
         """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
@@ -168,8 +168,10 @@ class Ros2Zenoh(ZenohEdge):
         self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
 
     # wiring
-    def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Handover:
-        handover = Handover(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
+    def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
+        handover = Intake(
+            loop, on_error=host.fail if host.supervised else None, inbox=host.inbox
+        )  # supervised: a bug fails this node alone
         self._host = host
         self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))

@@ -14,7 +14,7 @@ two steps of its own work (:mod:`blackmetal.runtime.inbox`). A channel
 may also be taken ``direct``: in the putting thread, under the core's lock,
 when the core is free and nothing of its priority or higher waits; the
 gateway sends a command to the robot that way without waiting for its loop
-to wake (see :meth:`Handover.channel`). :class:`ZenohEdge` keeps every
+to wake (see :meth:`Intake.channel`). :class:`ZenohEdge` keeps every
 declared entity and undeclares them in reverse order of declaration.
 """
 
@@ -26,12 +26,13 @@ import threading
 import time
 import weakref
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from schemas import ConfigError, payload_bytes
+from schemas import ConfigError, Keys, any_alive, payload_bytes
 
-from .inbox import inbox_of
+from .host import CoreLock
+from .inbox import LoopInbox
 
 if TYPE_CHECKING:
     import zenoh
@@ -49,6 +50,19 @@ FLOOD_WINDOW_S = 0.1
 QUIET_S = 2.0
 #: How long a new pump waits for the old callback to hand over what it had queued before it hands over anything.
 CALLBACK_GONE_S = 1.0
+#: A pump hands a batch over at most this often: a flood costs the loop at most 500 hand-overs a second.
+PUMP_PERIOD_S = 0.002
+
+Item = tuple[str, bytes]
+#: What of a batch a pump hands over (all of it unless said otherwise): a latest-slot input needs only its newest.
+Pick = Callable[[list[Item]], list[Item]]
+
+
+def newest(batch: list[Item]) -> list[Item]:
+    """A :data:`Pick` for an input of which only the newest sample counts (a command source, a lock)."""
+    return batch[-1:]
+
+
 #: A channel takes at most DIRECT_BURST items directly within DIRECT_WINDOW_S (200 a second); the rest wait for
 #: the loop. Commanders at 10-100 Hz are all taken directly, and a burst cannot keep Zenoh's thread in handlers.
 DIRECT_BURST = 20
@@ -56,50 +70,101 @@ DIRECT_WINDOW_S = 0.1
 
 
 class Channel(Generic[T]):
-    """One input of a service: items from any thread, handled on the loop in arrival order."""
+    """One input of a service: items from any thread, handled on the loop in arrival order.
 
-    def __init__(self, name: str, handler: Callable[[T], None], capacity: int, priority: int) -> None:
+    ``latest``: one slot, a newer item supersedes the waiting one (counted in
+    ``dropped``). ``latch(item)`` true marks an item that must be handled even
+    when newer ones supersede it (an e-stop ON): the first such item since the
+    last take waits in its own slot, is handled first, and drops every older
+    item; the newest item still follows it (an OFF newer than the ON).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        handler: Callable[[T], None],
+        capacity: int,
+        priority: int,
+        latch: Callable[[T], bool] | None = None,
+        on_dropped: Callable[[int], None] | None = None,
+    ) -> None:
         self.name = name
         self.handler = handler
         self.priority = priority
+        self.latch = latch
+        self.on_dropped = on_dropped
         self.items: deque[T] = deque(maxlen=capacity)
+        self.latched: T | None = None
         self.dropped = 0
+        #: Dropped since the handler was last told (``on_dropped``).
+        self.unreported = 0
         self.received = 0
         #: Items taken directly (in the putting thread), and the current window of the direct budget.
         self.direct_taken = 0
         self.window_start = -math.inf
         self.window_direct = 0
 
+    def waiting(self) -> bool:
+        return self.latched is not None or bool(self.items)
 
-class Handover:
-    """Thread-safe hand-over from Zenoh's threads to one asyncio loop.
+    def add(self, item: T) -> None:
+        """Under the hand-over's lock: keep ``item`` (see the class docstring for what it supersedes)."""
+        items = self.items
+        if self.latch is not None and self.latched is None and self.latch(item):
+            superseded = len(items)
+            items.clear()
+            self.latched = item
+        else:
+            superseded = 1 if len(items) == items.maxlen else 0
+            items.append(item)
+        self.dropped += superseded
+        self.unreported += superseded
+        self.received += 1
 
-    The channels are lock-free: ``deque.append``/``popleft`` are atomic, and
-    the drain clears its "scheduled" flag *before* it empties the channels,
-    so an item that arrives while a drain runs is either taken by it or
-    schedules the next one; at worst a drain finds nothing to do. The one
-    lock, when given, is the core's: drains hold it, and a ``direct``
-    channel's put takes it (never waiting for it) to handle an item at once.
+    def pop(self) -> T | None:
+        """Under the hand-over's lock: the next item to handle (a latched one first), or None."""
+        if self.latched is not None:
+            item, self.latched = self.latched, None
+            return item
+        return self.items.popleft() if self.items else None
+
+
+class Intake:
+    """Thread-safe hand-over from Zenoh's threads to one asyncio loop: the service's one intake.
+
+    Every channel's items, its counters and the "drain scheduled" flag are
+    guarded by :attr:`guard`, a plain lock held only to add or pop one item
+    (never while a handler runs), so nothing here relies on the GIL. The
+    second lock, when given, is the core's (:attr:`lock`): drains hold it
+    while they handle items, and a ``direct`` channel's put takes it (never
+    waiting for it) to handle an item at once.
     """
 
     def __init__(
         self,
         loop: asyncio.AbstractEventLoop,
         on_error: Callable[[BaseException], None] | None = None,
-        lock: threading.RLock | None = None,
+        lock: CoreLock | None = None,
         clock: Callable[[], float] = time.monotonic,
+        after_drain: Callable[[], None] | None = None,
+        inbox: LoopInbox | None = None,
     ) -> None:
         self.loop = loop
+        #: The loop's inbox: its busy steps take what waits here early (None: at the end of the loop's turn only).
+        self.inbox = inbox
         self.clock = clock
         #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
         self.on_error = on_error
         #: The core's lock, for a service whose core other threads may drive: drains hold it, direct takes need it.
         self.lock = lock
+        #: Called on the loop after every drain, outside :attr:`lock` (the gateway publishes what the inputs produced).
+        self.after_drain = after_drain
+        #: Guards the channels' contents and counters, ``_scheduled`` and ``_in_inbox``; never held while a handler runs.
+        self.guard = threading.Lock()
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
-        self._inbox = inbox_of(loop)
         self._in_inbox = False
-        self._take_early_ref = weakref.WeakMethod(self._take_early)
+        self._serve_early_ref = weakref.WeakMethod(self._serve_early)
         self._serving = False
         #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
@@ -111,11 +176,15 @@ class Handover:
         *,
         capacity: int = 1024,
         latest: bool = False,
+        latch: Callable[[T], bool] | None = None,
         priority: int = 0,
         direct: Callable[[T], bool] | None = None,
+        on_dropped: Callable[[int], None] | None = None,
     ) -> Callable[[T], None]:
-        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item.
+        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item, ``latch`` see :class:`Channel`.
 
+        ``on_dropped(n)`` is called on the loop, before the next item is
+        handled, with how many items were dropped since it was last called.
         ``direct(item)`` takes an item in the thread that puts it, under
         :attr:`lock`, and says whether it did (False: it waits for the loop as
         any other). It is tried only while the lock is free (the loop is not
@@ -126,57 +195,64 @@ class Handover:
         """
         if direct is not None and self.lock is None:
             raise ValueError(f"channel {name!r}: a direct channel needs the hand-over's lock")
-        channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority)
+        channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority, latch, on_dropped)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)
-        items = channel.items
+        guard = self.guard
+        inbox = self.inbox
 
         def put(item: T) -> None:
-            if direct is not None and self._take_direct(channel, direct, item):
+            if direct is not None and self._try_direct(channel, direct, item):
+                self.drained.set()  # handled: a pump that put it need not wait for a drain that nothing scheduled
                 return
-            if len(items) == items.maxlen:
-                channel.dropped += 1
-            items.append(item)
-            channel.received += 1
-            if not self._scheduled:
+            with guard:
+                channel.add(item)
+                if self._scheduled:
+                    return
                 self._scheduled = True
-                if not self._in_inbox:  # the loop's next step of work may take it before the scheduled drain
+                early = inbox is not None and not self._in_inbox
+                if early:
                     self._in_inbox = True
-                    self._inbox.add(self._take_early_ref)
-                try:
-                    self.loop.call_soon_threadsafe(self._drain)
-                except RuntimeError:  # the loop is closed: the service is stopping
-                    pass
+            if early and inbox is not None:  # the loop's next step of work may take it before the scheduled drain
+                inbox.add(self._serve_early_ref)
+            try:
+                self.loop.call_soon_threadsafe(self._drain)
+            except RuntimeError:  # the loop is closed: the service is stopping
+                pass
 
         return put
 
-    def _take_direct(self, channel: Channel[T], direct: Callable[[T], bool], item: T) -> bool:
+    def _try_direct(self, channel: Channel[T], direct: Callable[[T], bool], item: T) -> bool:
         """The putting thread: ``direct(item)`` under the lock, if the rules of :meth:`channel` allow; whether it was taken."""
         lock = self.lock
         if lock is None or not lock.acquire(blocking=False):
             return False
         try:
-            now = self.clock()
-            if now - channel.window_start > DIRECT_WINDOW_S:
-                channel.window_start, channel.window_direct = now, 0
-            if channel.window_direct >= DIRECT_BURST:
-                return False
             if self._serving:
                 return False  # the loop's own handler put it: it waits for the drain, as it always did
-            for other in self._channels:  # highest priority first
-                if other.priority < channel.priority:
-                    break
-                if other.items:
-                    return False  # older items of this priority, or higher, wait: behind them, in order
+            with self.guard:
+                now = self.clock()
+                if now - channel.window_start > DIRECT_WINDOW_S:
+                    channel.window_start, channel.window_direct = now, 0
+                if channel.window_direct >= DIRECT_BURST:
+                    return False
+                for other in self._channels:  # highest priority first
+                    if other.priority < channel.priority:
+                        break
+                    if other.waiting():
+                        return False  # older items of this priority, or higher (an e-stop), wait: behind them, in order
+                channel.received += 1
+                channel.direct_taken += 1
+                channel.window_direct += 1
             try:
                 taken = direct(item)
             except Exception as exc:  # reported on the loop, as a handler's failure in a drain is
                 self._report_soon(exc)
                 taken = True
-            if taken:
-                channel.received += 1
-                channel.direct_taken += 1
-                channel.window_direct += 1
+            if not taken:
+                with self.guard:
+                    channel.received -= 1
+                    channel.direct_taken -= 1
             return taken
         finally:
             lock.release()
@@ -193,7 +269,7 @@ class Handover:
         except RuntimeError:  # the loop is closed: the service is stopping
             pass
 
-    def _take_early(self) -> None:
+    def _serve_early(self) -> None:
         """The loop, between two steps of its own work (:mod:`blackmetal.runtime.inbox`): the top channel, one item of each other.
 
         The scheduled drain still runs at the end of the loop's turn and takes
@@ -201,8 +277,10 @@ class Handover:
         loop's own steps (a flooded robot's commands between every poll of a
         fleet took the other robots from 50 to 30 Hz).
         """
-        self._in_inbox = False
-        if self._scheduled and not self._serving:  # never inside a handler of this hand-over
+        with self.guard:
+            self._in_inbox = False
+            scheduled = self._scheduled
+        if scheduled and not self._serving:  # never inside a handler of this hand-over
             self._serve(early=True)
 
     def _drain(self) -> None:
@@ -214,16 +292,19 @@ class Handover:
         the loop from its timers and sockets nor hold a newer e-stop behind
         it. The top channel is always served at once.
         """
-        self._scheduled = False
+        with self.guard:
+            self._scheduled = False
         self._serve(early=False)
         self.drained.set()
 
     def _serve(self, early: bool) -> None:
         if self.lock is None:
             self._serve_locked(early)
-            return
-        with self.lock:  # a direct take must not come between an item's pop and its handling
-            self._serve_locked(early)
+        else:
+            with self.lock:  # a direct take must not come between an item's pop and its handling
+                self._serve_locked(early)
+        if self.after_drain is not None:
+            self.after_drain()
 
     def _serve_locked(self, early: bool) -> None:
         self._serving = True
@@ -237,38 +318,63 @@ class Handover:
         if not channels:
             return
         top = channels[0].priority
-        budget = [min(len(channel.items), 1) if early else len(channel.items) for channel in channels]
+        guard = self.guard
+        with guard:
+            budget = [min(len(c.items) + (c.latched is not None), 1 if early else 1 << 30) for c in channels]
         while True:
             for index, channel in enumerate(channels):
-                if channel.items and (budget[index] > 0 or channel.priority == top):
-                    try:
-                        item = channel.items.popleft()
-                    except IndexError:
+                with guard:
+                    if not channel.waiting() or (budget[index] <= 0 and channel.priority != top):
                         continue
-                    budget[index] -= 1
-                    try:
-                        channel.handler(item)
-                    except Exception as exc:
-                        if self.on_error is None:
-                            raise
-                        self.on_error(exc)
-                    break
+                    item = channel.pop()
+                    dropped, channel.unreported = channel.unreported, 0
+                budget[index] -= 1
+                try:
+                    if dropped and channel.on_dropped is not None:
+                        channel.on_dropped(dropped)
+                    channel.handler(item)
+                except Exception as exc:
+                    if self.on_error is None:
+                        raise
+                    self.on_error(exc)
+                break
             else:
                 return
 
     def stats(self) -> dict[str, tuple[int, int]]:
         """Per channel: items received (directly taken ones included) and items dropped because the channel was full."""
-        return {c.name: (c.received, c.dropped) for c in self._channels}
+        with self.guard:
+            return {c.name: (c.received, c.dropped) for c in self._channels}
 
 
-def refuse_if_taken(session: "zenoh.Session", token: str, role: str, prefix: str, timeout: float = 0.5) -> None:
-    """ConfigError if another process already holds the liveliness ``token`` (call before declaring ours)."""
-    others = [r for r in session.liveliness().get(token, timeout=timeout) if r.ok is not None]
-    if others:
-        raise ConfigError(
-            f"another {role} is already alive on prefix {prefix!r} ({token}); one robot per prefix: "
-            f"stop the other one, or give this one another --prefix (e.g. --prefix fleet/b)"
-        )
+def refuse_taken(
+    session: "zenoh.Session",
+    role: str,
+    prefixes: Sequence[str],
+    *,
+    what: str | None = None,
+    describe: Callable[[str], str] | None = None,
+    timeout: float = 0.5,
+) -> None:
+    """ConfigError naming the first prefix on which another ``role`` (``gateway``, ``odometry``) is alive.
+
+    One liveliness query for any number of prefixes (call before declaring
+    our own tokens). ``what`` names the service in the sentence (default
+    ``role``), ``describe(prefix)`` the robot of a fleet.
+    """
+    alive = {
+        Keys.prefix_of_token(str(reply.ok.key_expr), role)
+        for reply in session.liveliness().get(any_alive(role), timeout=timeout)
+        if reply.ok is not None
+    }
+    for prefix in prefixes:
+        if prefix in alive:
+            who = f"{describe(prefix)}: " if describe is not None else ""
+            fix = "give this robot another prefix" if describe is not None else "give this one another --prefix (e.g. --prefix fleet/b)"
+            raise ConfigError(
+                f"{who}another {what or role} is already alive on prefix {prefix!r} ({Keys(prefix).alive(role)}); one robot per prefix: "
+                f"stop the other one, or {fix}"
+            )
 
 
 class ZenohEdge:
@@ -292,7 +398,7 @@ class ZenohEdge:
         return publisher
 
     def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
-        """Payload bytes of every sample on ``key`` go to ``put`` (a Handover channel)."""
+        """Payload bytes of every sample on ``key`` go to ``put`` (an Intake channel)."""
         self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))
 
     def named_subscriber(self, key: str, put: Callable[[tuple[str, bytes]], None]) -> None:
@@ -304,11 +410,12 @@ class ZenohEdge:
         self,
         key: str,
         put: Callable[[tuple[str, bytes]], None],
-        handover: Handover,
+        handover: Intake,
         on_flood: Callable[[str, str], None] | None = None,
+        pick: Pick | None = None,
     ) -> "GuardedInput":
         """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`)."""
-        guarded = GuardedInput(self.session, key, put, handover, on_flood)
+        guarded = GuardedInput(self.session, key, put, handover, on_flood, pick=pick)
         guarded.start()
         self._guarded.append(guarded)
         return guarded
@@ -373,13 +480,16 @@ class GuardedInput:
         session: "zenoh.Session",
         key: str,
         put: Callable[[tuple[str, bytes]], None],
-        handover: Handover,
+        handover: Intake,
         on_flood: Callable[[str, str], None] | None = None,
         *,
         capacity: int = 64,
         quiet_s: float = QUIET_S,
+        pick: Pick | None = None,
     ) -> None:
+        """``pick``: what of each batch the pump hands over while the input floods (default: every sample)."""
         self.session = session
+        self.pick = pick
         self.key = key
         self.put = put
         self.handover = handover
@@ -425,7 +535,8 @@ class GuardedInput:
         self._window_count += 1
         if self._window_count > FLOOD_SAMPLES and not self._changing:
             self._changing = True
-            inbox_of(self.handover.loop).add(self._to_ring_ref)  # at the loop's next step, not after its turn
+            if self.handover.inbox is not None:
+                self.handover.inbox.add(self._to_ring_ref)  # at the loop's next step, not after its turn
             try:
                 self.handover.loop.call_soon_threadsafe(self._to_ring)
             except RuntimeError:  # the loop is closed: the service is stopping
@@ -477,17 +588,20 @@ class GuardedInput:
         while not stop.is_set():
             try:
                 batch = [samples.recv()]  # blocks without the GIL
-                while (more := samples.try_recv()) is not None:
+                while len(batch) < self.capacity and (more := samples.try_recv()) is not None:
                     batch.append(more)
             except zenoh.ZError:  # "empty and closed": undeclared (the flood is over, or the edge closes)
                 return
             if stop.is_set():
                 return
-            self._last_sample = time.monotonic()
+            handed = time.monotonic()
+            self._last_sample = handed
+            items = [self._item(sample) for sample in batch]
             drained.clear()
-            for sample in batch:
-                self.put(self._item(sample))
+            for item in items if self.pick is None else self.pick(items):
+                self.put(item)
             drained.wait(0.1)
+            stop.wait(max(0.0, handed + PUMP_PERIOD_S - time.monotonic()))  # the ring fills meanwhile; only its newest count
 
     def _end_pump(self, subscriber: Any) -> None:
         """The loop: undeclare ``subscriber`` and end the pump, without waiting out its wait for a drain (only the loop ends that)."""

@@ -18,15 +18,55 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import math
+import threading
 import time
 from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Protocol
 
-from .inbox import take_waiting
+from .inbox import LoopInbox
 
 #: A deadline further away than this is slept in steps (asyncio's call_later wants a finite delay).
 MAX_SLEEP_S = 3600.0
+
+
+class CoreLock:
+    """The lock of a core that more than one thread drives (the gateway's): re-entrant, and it knows its holder.
+
+    The loop holds it whenever it is in the core; a Zenoh thread taking an
+    input directly only tries it. :meth:`held` lets the loop defer what must
+    not happen under it (publishing to Zenoh, which may block) until the
+    outermost holder lets go.
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.RLock()
+        self._owner = 0
+        self._depth = 0
+
+    def acquire(self, blocking: bool = True) -> bool:
+        if not self._lock.acquire(blocking):
+            return False
+        self._owner = threading.get_ident()
+        self._depth += 1
+        return True
+
+    def release(self) -> None:
+        self._depth -= 1
+        if self._depth == 0:
+            self._owner = 0
+        self._lock.release()
+
+    def __enter__(self) -> CoreLock:
+        self.acquire()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.release()
+
+    def held(self) -> bool:
+        """Whether the calling thread holds it."""
+        return self._owner == threading.get_ident()
 
 
 class Core(Protocol):
@@ -46,11 +86,17 @@ class DeadlineTimer:
         after_tick: Callable[[], None] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
         lock: AbstractContextManager[object] | None = None,
+        after_unlock: Callable[[], None] | None = None,
+        inbox: LoopInbox | None = None,
     ) -> None:
         self.core = core
         self.lock = lock if lock is not None else contextlib.nullcontext()
         self.clock = clock
         self.after_tick = after_tick
+        #: Called after each tick once ``lock`` is released (the gateway publishes what the tick produced).
+        self.after_unlock = after_unlock
+        #: The loop's inbox: inputs handed over while a tick ran are taken right after it.
+        self.inbox = inbox
         #: Called (and the timer stopped) when tick or after_tick raise: a host supervises its core through it.
         self.on_error = on_error
         self._timer: asyncio.TimerHandle | None = None
@@ -95,10 +141,13 @@ class DeadlineTimer:
                     self.after_tick()  # may poke: then the timer is already set
                 if self._timer is None and self._running:
                     self._schedule(self.core.next_deadline())
+            if self.after_unlock is not None:
+                self.after_unlock()
         except Exception as exc:
             if self.on_error is None:
                 raise
             self.stop()
             self.on_error(exc)
             return
-        take_waiting()  # inputs handed over while this tick ran: now, not after the loop's other work
+        if self.inbox is not None:
+            self.inbox.take_waiting()  # inputs handed over while this tick ran: now, not after the loop's other work

@@ -6,13 +6,19 @@ callback already queued for this turn of the loop. A fleet host's loop
 turns through a hundred robots' poll replies and timers at a time, so an
 e-stop for one robot waited behind up to a hundred others' work (1 ms
 median, 12 ms at the 99th percentile at 100 robots). The loop's busy paths
-(each timer fire, each read from a robot) call :func:`take_waiting` after
-every step: whatever was handed over meanwhile is handled there, one step
-of work later, not one turn later. The scheduled callback still runs and
-finds nothing to do; correctness never depends on the early take.
+(each timer fire, each read from a robot) call :meth:`LoopInbox.take_waiting`
+after every step: whatever was handed over meanwhile is handled there, one
+step of work later, not one turn later. The scheduled callback still runs
+and finds nothing to do; correctness never depends on the early take.
 
-Call :func:`take_waiting` only from the loop's own work, never from an input
-handler (that would handle inputs inside the handling of another).
+A service makes one inbox for its loop and hands it to its hosts (their
+timers and robot reads take from it) and to their hand-overs (which add to
+it); a fleet host's robots share it, as they share the loop, so an e-stop
+for one robot is taken between two other robots' steps. Nothing is global:
+a hand-over given no inbox is drained at the end of the loop's turn only.
+
+Call :meth:`LoopInbox.take_waiting` only from the loop's own work, never from
+an input handler (that would handle inputs inside the handling of another).
 """
 
 from __future__ import annotations
@@ -40,7 +46,7 @@ class LoopInbox:
         self._waiting.append(take)
 
     def take_waiting(self) -> None:
-        """The loop: handle what was handed over since the last step."""
+        """The loop: handle what was handed over since the last step (``deque`` appends and pops are thread-safe)."""
         if not self._waiting or self._taking:
             return
         self._taking = True
@@ -55,24 +61,3 @@ class LoopInbox:
                     asyncio.get_running_loop().call_exception_handler({"message": "an input taken early failed", "exception": exc})
         finally:
             self._taking = False
-
-
-_INBOXES: weakref.WeakKeyDictionary[asyncio.AbstractEventLoop, LoopInbox] = weakref.WeakKeyDictionary()
-
-
-def inbox_of(loop: asyncio.AbstractEventLoop) -> LoopInbox:
-    """The one inbox of ``loop``."""
-    inbox = _INBOXES.get(loop)
-    if inbox is None:
-        inbox = _INBOXES[loop] = LoopInbox()
-    return inbox
-
-
-def take_waiting() -> None:
-    """The running loop: handle the inputs handed over since its last step (see the module docstring)."""
-    try:
-        inbox = _INBOXES.get(asyncio.get_running_loop())
-    except RuntimeError:  # no loop runs (a core driven by hand, in a test)
-        return
-    if inbox is not None:
-        inbox.take_waiting()

@@ -2,7 +2,9 @@
 
 Every service reports what it rejects through one :class:`ErrorReporter`:
 a reason a person can act on, a short excerpt of the input, and how many
-reports of the same key were suppressed since the last one published.
+reports of the same family were suppressed since the last one published.
+The limits are per key family with one overall budget, and the tables are
+bounded, whatever key names a client invents.
 """
 
 from __future__ import annotations
@@ -13,50 +15,113 @@ from collections.abc import Callable
 
 from schemas import ErrorReport
 
+#: The family that reports fall into once the limiter tracks MAX_TRACKED families and none is idle.
+OTHER_KEYS = "(other keys)"
+#: Families the limiter keeps state for, at most: a client that picks new key names cannot grow it.
+MAX_TRACKED = 64
+
+
+class _Bucket:
+    """A token bucket and the reports it held back since the last one it let through."""
+
+    __slots__ = ("last", "suppressed", "tokens")
+
+    def __init__(self, tokens: float, now: float) -> None:
+        self.tokens = tokens
+        self.last = now
+        self.suppressed = 0
+
+    def refill(self, now: float, rate: float, burst: float) -> None:
+        self.tokens = min(burst, self.tokens + max(now - self.last, 0.0) * rate)
+        self.last = now
+
 
 class ReportLimiter:
-    """Token bucket per key: at most ``rate`` reports per second after a burst of ``burst``. Clock injected.
+    """Token buckets per key family (``rate`` a second after a burst of ``burst``) under one overall budget. Clock injected.
 
-    ``admit`` says whether to publish now and how many reports of that key
-    were suppressed since the last one that was published.
+    The family is what the caller says (``robot/lock/*`` for every lock
+    name), else the key itself. At most ``max_tracked`` families are kept:
+    a new one first evicts a family that is idle again (full bucket, nothing
+    held back), else it is counted under :data:`OTHER_KEYS`, so no client
+    can grow the tables by inventing names. The overall bucket bounds what
+    all families publish together, summaries included.
     """
 
-    def __init__(self, rate: float = 5.0, burst: int = 10) -> None:
+    def __init__(
+        self,
+        rate: float = 5.0,
+        burst: int = 10,
+        overall_rate: float = 10.0,
+        overall_burst: int = 30,
+        max_tracked: int = MAX_TRACKED,
+    ) -> None:
         self.rate = rate
         self.burst = burst
-        self._tokens: dict[str, float] = {}
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
+        self.overall_rate = overall_rate
+        self.overall_burst = overall_burst
+        self.max_tracked = max_tracked
+        self._families: dict[str, _Bucket] = {}
+        self._overall: _Bucket | None = None
 
-    def _refill(self, key: str, now: float, default: float) -> float:
-        tokens = min(float(self.burst), self._tokens.get(key, default) + (now - self._last.get(key, now)) * self.rate)
-        self._last[key] = now
-        return tokens
+    def _family(self, family: str, now: float) -> tuple[str, _Bucket]:
+        bucket = self._families.get(family)
+        if bucket is not None:
+            return family, bucket
+        if len(self._families) >= self.max_tracked:
+            self._evict_idle(now)
+        if len(self._families) >= self.max_tracked and family != OTHER_KEYS:
+            return self._family(OTHER_KEYS, now)
+        bucket = self._families[family] = _Bucket(float(self.burst), now)
+        return family, bucket
 
-    def admit(self, key: str, now: float) -> tuple[bool, int]:
-        tokens = self._refill(key, now, float(self.burst))
-        if tokens >= 1.0:
-            self._tokens[key] = tokens - 1.0
-            return True, self._suppressed.pop(key, 0)
-        self._tokens[key] = tokens
-        self._suppressed[key] = self._suppressed.get(key, 0) + 1
+    def _evict_idle(self, now: float) -> None:
+        for name, bucket in list(self._families.items()):
+            bucket.refill(now, self.rate, self.burst)
+            if bucket.suppressed == 0 and bucket.tokens >= self.burst:
+                del self._families[name]
+
+    def _take_overall(self, now: float) -> bool:
+        overall = self._overall
+        if overall is None:
+            overall = self._overall = _Bucket(float(self.overall_burst), now)
+        overall.refill(now, self.overall_rate, self.overall_burst)
+        if overall.tokens >= 1.0:
+            overall.tokens -= 1.0
+            return True
+        return False
+
+    def admit(self, family: str, now: float) -> tuple[bool, int]:
+        """Whether a report of ``family`` may be published now, and how many of that family were held back before it."""
+        _, bucket = self._family(family, now)
+        bucket.refill(now, self.rate, self.burst)
+        if bucket.tokens >= 1.0 and self._take_overall(now):
+            bucket.tokens -= 1.0
+            suppressed, bucket.suppressed = bucket.suppressed, 0
+            return True, suppressed
+        bucket.suppressed += 1
         return False, 0
 
     @property
     def pending(self) -> bool:
         """Some reports were suppressed and not yet summarised."""
-        return bool(self._suppressed)
+        return any(bucket.suppressed for bucket in self._families.values())
+
+    @property
+    def tracked(self) -> int:
+        """How many families the limiter keeps state for (at most ``max_tracked``)."""
+        return len(self._families)
 
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
-        """Keys whose suppressed count can be announced now (a token is free), with the count."""
+        """Families whose held-back count can be announced now (a token of their own and of the overall budget), with the count."""
         due: list[tuple[str, int]] = []
-        for key in list(self._suppressed):
-            tokens = self._refill(key, now, 0.0)
-            if tokens >= 1.0:
-                self._tokens[key] = tokens - 1.0
-                due.append((key, self._suppressed.pop(key)))
-            else:
-                self._tokens[key] = tokens
+        for family, bucket in self._families.items():
+            if not bucket.suppressed:
+                continue
+            bucket.refill(now, self.rate, self.burst)
+            if bucket.tokens >= 1.0 and self._take_overall(now):
+                bucket.tokens -= 1.0
+                due.append((family, bucket.suppressed))
+                bucket.suppressed = 0
         return due
 
 
@@ -88,9 +153,13 @@ class ErrorReporter:
         self.summary_period = summary_period
         self._next_summary = -math.inf
 
-    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float) -> None:
-        """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited)."""
-        admitted, suppressed = self.limiter.admit(key, now)
+    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float, family: str | None = None) -> None:
+        """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
+
+        ``family`` (e.g. ``robot/lock/*``) is what the limit counts against;
+        give it wherever a client picks the key's last chunk. Default: the key.
+        """
+        admitted, suppressed = self.limiter.admit(family or key, now)
         if admitted:
             self.publish(
                 ErrorReport(
@@ -120,7 +189,9 @@ class ErrorReporter:
                     stamp=self.wallclock(),
                     source=self.source,
                     key=key,
-                    reason=f"{suppressed} more reports on {key} were rate-limited",
+                    reason=f"{suppressed} more reports on {key} were rate-limited"
+                    if key != OTHER_KEYS
+                    else f"{suppressed} more reports on other keys were rate-limited (too many distinct keys to count each)",
                     suppressed=suppressed,
                 )
             )

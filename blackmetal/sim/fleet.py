@@ -21,6 +21,7 @@ from schemas import Keys
 
 from .physics import RobotParams, SimRobot
 from .server import SimServer
+from .settings import SimSettings
 
 
 @dataclasses.dataclass
@@ -31,11 +32,8 @@ class FleetMember:
     edge: object | None = None
 
 
-async def serve_fleet(base: object, robots: list[FleetRobot], stop: asyncio.Event, write_to: str | None = None) -> None:
+async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio.Event, write_to: str | None = None) -> None:
     """Serve every robot until ``stop``; ``base`` is the command line's SimSettings (each robot's defaults)."""
-    from .main import SimSettings
-
-    assert isinstance(base, SimSettings)
     members: list[FleetMember] = []
     for robot in robots:
         s = robot.settings("sim", base, {"host": robot.host, "control_port": robot.control_port, "log_port": robot.log_port})

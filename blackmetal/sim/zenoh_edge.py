@@ -20,7 +20,7 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from blackmetal.runtime.edge import Handover, ZenohEdge
+from blackmetal.runtime.edge import Intake, ZenohEdge
 from blackmetal.runtime.reports import ErrorReporter
 from schemas import Keys, PayloadError, SimFaults, encode, excerpt
 
@@ -58,8 +58,8 @@ class SimZenoh(ZenohEdge):
         errors = self.publisher(keys.errors)
         self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
 
-    def attach(self, loop: asyncio.AbstractEventLoop) -> Handover:
-        handover = Handover(loop)
+    def attach(self, loop: asyncio.AbstractEventLoop) -> Intake:
+        handover = Intake(loop)
         self.subscriber(self.keys.sim_faults, handover.channel("faults", self._on_faults))
         self.queryable(self.keys.sim_faults, handover.channel("faults?", self._answer_faults))
         self.queryable(self.keys.sim_truth, handover.channel("truth?", self._answer_truth))

@@ -4,7 +4,9 @@ A bare one-shot ``put`` from a session that closes at once can be lost: the
 session may close before Zenoh has delivered the sample (7 times in 10
 here). This command keeps its session open, repeats the put every 100 ms
 and watches the gateway's health until it reports the new state; it exits 0
-then, or 1 with the reason after ``--timeout`` (default 2 s).
+then, or 1 with the reason after ``--timeout`` (default 2 s). A release goes
+on ``<prefix>/estop/release``, the key a secure router gives to a safety
+role alone (a gateway with ``--release-key-only`` releases only there).
 """
 
 from __future__ import annotations
@@ -26,7 +28,8 @@ def run(args: argparse.Namespace) -> int:
     with session:
         require_gateway(session, keys, settings, args.wait)
         payload = b'{"engaged": true}' if engage else b'{"engaged": false}'
-        publisher = session.declare_publisher(keys.estop, express=True)
+        key = keys.estop if engage else keys.estop_release
+        publisher = session.declare_publisher(key, express=True)
         deadline = time.monotonic() + args.timeout
         while True:
             publisher.put(payload)
@@ -38,7 +41,7 @@ def run(args: argparse.Namespace) -> int:
                 seen = "no health" if health is None else f"health still says estop={health.estop}"
                 raise ToolError(
                     f"the gateway on {keys.prefix} did not confirm the e-stop {args.state} within {args.timeout:g} s ({seen}; "
-                    f"Zenoh: {where(settings)}). Is this user allowed to put on {keys.estop}?"
+                    f"Zenoh: {where(settings)}). Is this user allowed to put on {key}?"
                 )
             time.sleep(REPEAT_S)
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from schemas import EStop, GatewayHealth, Pose, Twist, Vector3, encode
+from schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
 
 from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
 
@@ -199,7 +199,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--turn-rate", type=float, default=0.8, help="turn rate, rad/s (default 0.8)")
     parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
     parser.add_argument(
-        "--source", default="teleop", help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"
+        "--source", default=Sources.TELEOP, help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"
     )
     add_client_arguments(parser)
     return parser

@@ -41,7 +41,7 @@ from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_rea
 from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, ZenohSettings, add_zenoh_arguments, open_when_reachable, zenoh_settings
-from blackmetal.sim.main import SimSettings
+from blackmetal.sim.settings import SimSettings
 from gateway.settings import GatewaySettings
 from odometry_service.settings import OdometrySettings
 from schemas import (
