@@ -41,7 +41,7 @@ from schemas import (
 
 from .arbiter import DEFAULT_SOURCE, Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
-from .estop import RELEASE_HINT, read_estop
+from .estop import read_estop
 from .exchange import Completed, Exchange, Lost
 from .health import Counters
 from .links import DropLink, LinkName, Links
@@ -271,7 +271,10 @@ class GatewayCore:
         if complaint is not None:
             self.reject(key, complaint, now, excerpt(payload))
         elif not engaged and not release_key and self.settings.release_key_only:
-            reason = f"releases come on {self.keys.estop_release} here (--release-key-only), not on {key}: {RELEASE_HINT} there"
+            reason = (
+                f"a release on {key} is refused: this gateway runs with --release-key-only, so only "
+                f'{{"engaged": false}} put on {self.keys.estop_release} releases (a right the router may give to a safety role alone)'
+            )
             self.reject(key, reason, now, excerpt(payload))
             return
         self.governor.on_estop(engaged, now)

@@ -205,6 +205,68 @@ def test_access_control_lets_the_operator_drive_and_the_viewer_only_watch(childr
         assert "BLACKMETAL_ZENOH_USER" in refused.stderr and f"cannot reach {endpoint}" in refused.stderr
 
 
+def test_each_commander_has_only_its_own_rights_with_the_real_router(children: list[Child], tmp_path: Path) -> None:
+    """Navigation drives as nav only, an operator as teleop (and takes over), anyone stops, only safety releases."""
+    import threading
+
+    users = ("operator", "nav", "safety", "viewer", "gateway", "odometry", "sim")
+    creds = {user: f"pw-{user}-{os.getpid()}" for user in users}
+    cred_file = tmp_path / "credentials.txt"
+    cred_file.write_text("".join(f"{u}:{p}\n" for u, p in creds.items()))
+
+    def edit(data: dict) -> None:  # type: ignore[type-arg]
+        data["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred_file)
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
+    start_robot(children, endpoint, creds=creds, gateway_extra=("--release-key-only",))
+    sessions = {user: zenoh.open(client_conf(endpoint, user, creds[user])) for user in ("operator", "nav", "safety", "viewer")}
+    stop = threading.Event()
+    try:
+        operator, nav, safety, viewer = (sessions[u] for u in ("operator", "nav", "safety", "viewer"))
+        wait_services(operator)
+        drivers: list[dict] = []  # type: ignore[type-arg]
+        errors: list[str] = []
+        viewer.declare_subscriber("robot/gateway/driver", lambda s: drivers.append(json.loads(s.payload.to_bytes())))
+        viewer.declare_subscriber("robot/errors", lambda s: errors.append(json.loads(s.payload.to_bytes())["reason"]))
+
+        def keep_driving(session: zenoh.Session, source: str, v: float) -> threading.Thread:
+            def run() -> None:
+                while not stop.wait(0.1):
+                    session.put(f"robot/cmd_vel/{source}", json.dumps({"linear": {"x": v}}))
+
+            thread = threading.Thread(target=run, daemon=True)
+            thread.start()
+            return thread
+
+        threads = [keep_driving(nav, "nav", 0.2)]
+        wait_for(lambda: (h := health(operator)) is not None and h.active_source == "nav", what="navigation driving")
+        wait_for(lambda: (p := get_pose(viewer, "robot/sim/truth")) is not None and p.v > 0.1, what="the robot moving for nav")
+        nav.put("robot/cmd_vel/teleop", json.dumps({"linear": {"x": 0.5}}))  # not nav's to publish: denied by the router
+        time.sleep(0.5)
+        h = health(operator)
+        assert h is not None and h.sources["teleop"].age is None and h.active_source == "nav"
+        threads.append(keep_driving(operator, "teleop", 0.1))
+        wait_for(lambda: (h := health(operator)) is not None and h.active_source == "teleop", what="the operator's takeover")
+        wait_for(lambda: any(d["source"] == "teleop" and d["previous"] == "nav" for d in drivers), what="the takeover published")
+        stop.set()
+        for thread in threads:
+            thread.join(5)
+        viewer.put("robot/estop", json.dumps({"engaged": True}))  # every authenticated user may stop the robot
+        wait_for(lambda: (h := health(operator)) is not None and h.estop, what="the viewer's e-stop")
+        operator.put("robot/estop/release", json.dumps({"engaged": False}))  # denied by the router
+        operator.put("robot/estop", json.dumps({"engaged": False}))  # reaches the gateway, which refuses it
+        wait_for(lambda: any("--release-key-only" in e for e in errors), what="the refused release reported")
+        h = health(operator)
+        assert h is not None and h.estop
+        safety.put("robot/estop/release", json.dumps({"engaged": False}))
+        wait_for(lambda: (h := health(operator)) is not None and not h.estop, what="the safety role's release")
+    finally:
+        stop.set()
+        for session in sessions.values():
+            session.close()
+
+
 def test_tls_drive_and_a_client_without_the_ca_is_refused(children: list[Child], tmp_path: Path) -> None:
     if shutil.which("openssl") is None:
         pytest.skip("openssl is not installed: cannot make test certificates")

@@ -270,7 +270,7 @@ class GatewayRig:
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
         # wired as GatewayZenoh.attach wires a single robot's gateway
-        handover = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock)
+        handover = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock, after_drain=host.publish)
         estop = handover.channel("estop", host.on_estop_input, latest=True, priority=2, direct=host.estop_direct)
         self.estop = lambda payload: estop((False, payload))
         self.command = handover.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.cmd_vel_direct)

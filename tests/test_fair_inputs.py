@@ -42,6 +42,25 @@ with zenoh.open(conf) as session:
 """
 
 
+#: Puts on argv[3] distinct names under argv[2] (``robot/lock`` or ``robot/cmd_vel``), from index argv[4], within 10 s.
+NAMES = """
+import sys, time, zenoh
+conf = zenoh.Config()
+conf.insert_json5("connect/endpoints", '["tcp/127.0.0.1:%s"]' % sys.argv[1])
+conf.insert_json5("scouting/multicast/enabled", "false")
+payload = b'{"locked": true}' if sys.argv[2].endswith("lock") else b'{"linear":{"x":0.5}}'
+with zenoh.open(conf) as session:
+    end = time.monotonic() + 10
+    first = int(sys.argv[4])
+    for i in range(first, first + int(sys.argv[3])):
+        session.put("%s/n%d" % (sys.argv[2], i), payload)
+        if time.monotonic() > end:
+            break
+    time.sleep(0.5)
+    print(i - first + 1, flush=True)
+"""
+
+
 @pytest.fixture
 def rig() -> Iterator[Rig]:
     made = Rig(Behaviour())
@@ -120,3 +139,42 @@ def test_an_estop_storm_ends_on_its_final_on_at_once_and_nothing_moves_after_it(
     assert last_stop - final <= 0.1  # the robot got its EMG_STOP within 100 ms of the final ON
     assert moving[-1] < last_stop  # and nothing moved after it, with 200 commands a second still coming for 1 s
     assert rig.health().estop
+
+
+@pytest.fixture
+def locked_rig() -> Iterator[Rig]:
+    made = Rig(Behaviour(), "--lock", "pause:200")
+    yield made
+    made.close()
+
+
+def test_names_a_client_invents_create_no_state_and_a_bounded_number_of_reports(locked_rig: Rig) -> None:
+    rig = locked_rig
+    for family in ("robot/lock", "robot/cmd_vel"):  # warm-up: the allocator and the flood guard's first change-over
+        subprocess.run([sys.executable, "-c", NAMES, str(rig.zport), family, "2000", "0"], check=True, timeout=60, capture_output=True)
+    time.sleep(2.5)  # the warm-up's flood is over
+    rss_before = rig.rss_mb()
+    for family in ("robot/lock", "robot/cmd_vel"):
+        reports_before = len(rig.errors)
+        names = subprocess.Popen(
+            [sys.executable, "-c", NAMES, str(rig.zport), family, "100000", "10000"], stdout=subprocess.PIPE, text=True
+        )
+        latencies = []
+        try:
+            while names.poll() is None:
+                latencies.append(rig.estop_latency())
+                rig.release()
+                time.sleep(0.3)
+            sent = int(names.stdout.read() if names.stdout else 0)
+        finally:
+            _stop([names])
+        time.sleep(2.5)  # the reporter's last summaries
+        reports = len(rig.errors) - reports_before
+        print(f"{family}/<100k names>: {sent} sent, {reports} error reports, e-stop {[round(x * 1e3, 1) for x in latencies]} ms")
+        assert sent >= 20_000  # the attack was real
+        assert reports <= 200
+        assert latencies and max(latencies) <= 0.1
+    time.sleep(1.0)
+    rss_after = rig.rss_mb()
+    print(f"RSS {rss_before:.1f} -> {rss_after:.1f} MB")
+    assert rss_after - rss_before <= 3.0

@@ -532,3 +532,36 @@ def test_a_heartbeat_lock_that_is_not_refreshed_stops_the_robot_within_its_timeo
     reasons = [e.reason for e in bench.of(ErrorReport)]
     assert any("unknown lock 'nosuch': the gateway's locks are supervisor" in r for r in reasons)
     assert any('send {"locked": true} or {"locked": false}' in r for r in reasons)
+
+
+def test_with_release_key_only_a_release_counts_only_on_the_release_key() -> None:
+    bench = Bench(release_key_only=True)
+    bench.connect()
+    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(b'{"engaged": false}', bench.t)  # on estop: refused, reported, the stop stays
+    bench.settle()
+    assert bench.conn.governor.estop
+    assert any(e.key == "robot/estop" and "--release-key-only" in e.reason for e in bench.of(ErrorReport))
+    bench.conn.on_estop(b'{"engaged": false}', bench.t, release_key=True)
+    assert not bench.conn.governor.estop
+    bench.conn.on_estop(b"garbage", bench.t, release_key=True)  # anything but a release engages, on either key
+    assert bench.conn.governor.estop
+
+
+def test_every_change_of_driver_is_published_with_who_from_whom_and_why() -> None:
+    from schemas import DriverChange
+
+    bench = Bench(lock=["pause:200"])
+    bench.connect()
+    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "nav")
+    bench.run(0.1)
+    bench.conn.on_cmd_vel(twist_payload(0.1), bench.t, "teleop")
+    bench.run(0.1)
+    bench.conn.on_lock("pause", b'{"locked": true}', bench.t)
+    bench.run(0.1)
+    bench.conn.on_lock("pause", b'{"locked": false}', bench.t)
+    bench.run(1.0)  # teleop fell silent
+    changes = [(d.source, d.previous) for d in bench.of(DriverChange)]
+    assert changes == [("nav", None), ("teleop", "nav"), (None, "teleop"), ("teleop", None), (None, "teleop")]
+    reasons = [d.reason for d in bench.of(DriverChange)]
+    assert "outranks nav (priority 10)" in reasons[1] and "lock" in reasons[2] and "fell silent" in reasons[4]

@@ -149,3 +149,61 @@ def test_a_publication_that_blocks_does_not_delay_an_estops_bytes_to_the_robot()
     finally:
         output.unblock.set()
         rig.close()
+
+
+class LockCheckingOutput(RecordingOutput):
+    """Notes every message handed over while the publishing thread holds the gateway's core lock."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.lock: CoreLock | None = None
+        self.under_lock: list[str] = []
+
+    def _check(self, kind: str) -> None:
+        if self.lock is not None and self.lock.held():
+            self.under_lock.append(kind)
+
+    def impulses(self, message) -> None:  # type: ignore[no-untyped-def]
+        self._check("impulses")
+        super().impulses(message)
+
+    def health(self, message: GatewayHealth) -> None:
+        self._check("health")
+        super().health(message)
+
+    def error(self, message) -> None:  # type: ignore[no-untyped-def]
+        self._check("error")
+        super().error(message)
+
+    def driver(self, message) -> None:  # type: ignore[no-untyped-def]
+        self._check("driver")
+        super().driver(message)
+
+
+def test_nothing_is_published_while_the_core_lock_is_held() -> None:
+    output = LockCheckingOutput()
+    rig = GatewayRig(output=output)
+    output.lock = rig.host.lock
+    try:
+        rig.command(("default", b'{"linear":{"x":0.2}}'))  # taken directly
+        held, release = threading.Event(), threading.Event()
+
+        def hold_the_core() -> None:  # as the loop does while it is in the core
+            with rig.host.lock:
+                held.set()
+                release.wait(10)
+
+        holder = threading.Thread(target=hold_the_core)
+        holder.start()
+        assert held.wait(10)
+        rig.command(("nosuchsource", b'{"linear":{"x":0.2}}'))  # a report, handled by a drain under the lock
+        rig.estop(ON)  # and a health report
+        release.set()
+        holder.join(10)
+        rig.estop(OFF)
+        wait_for(lambda: len(output.impulse_log) > 20 and output.error_log and output.driver_log, what="impulses, errors and a driver")
+        count = len(output.health_log)
+        wait_for(lambda: len(output.health_log) > count, what="a health report after the e-stop")
+    finally:
+        rig.close()
+    assert output.under_lock == []
