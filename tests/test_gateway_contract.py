@@ -387,3 +387,26 @@ def test_a_bug_in_handling_fails_the_host_visibly_and_leaves_the_robot_standing(
         await rig.server.close()
 
     asyncio.run(body())
+
+
+@contract
+async def test_inputs_taken_directly_on_another_thread_reach_the_robot_in_order(transport: str) -> None:
+    """The direct path (a Zenoh thread holding the core lock) over either stream: sent at once where the stream can, else by the loop."""
+    rig = await start_rig(transport, cmd_timeout=0.0)
+    try:
+        service = rig.service
+
+        def on_zenohs_thread(take: Callable[[Any], bool], item: Any) -> bool:
+            with service.lock:  # as the intake takes it: under the core's lock, off the loop
+                return take(item)
+
+        loop = asyncio.get_running_loop()
+        assert await loop.run_in_executor(None, on_zenohs_thread, service.cmd_vel_direct, ("default", b'{"linear":{"x":0.2}}'))
+        await until(lambda: rig.robot.target_left > 0.19, "the directly taken command at the robot")
+        assert await loop.run_in_executor(None, on_zenohs_thread, service.estop_direct, (False, b'{"engaged": true}'))
+        await until(lambda: rig.robot.counters["emergency_stops"] == 1, "the directly taken e-stop at the robot")
+        service.on_cmd_vel(b'{"linear":{"x":0.2}}')  # refused on the loop: the stop taken on the other thread holds
+        await until(lambda: any("emergency stop" in e.reason for e in rig.output.error_log), "the refused command's report")
+        assert rig.robot.target_left == 0.0 and rig.server.malformed_requests == 0
+    finally:
+        await rig.close()

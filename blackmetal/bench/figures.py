@@ -161,9 +161,20 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
         return estop_latencies(pub, robot, samples)
 
 
-def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int) -> dict[str, float]:
-    """Engage (then release) on ``pub``, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket."""
+#: After a release, before the next engage, where the gateway's loop is busy (a fleet): the gateway keeps only the
+#: newest e-stop state, so an engage that finds the release still waiting merges with it and needs no new EMG_STOP.
+RELEASE_SETTLE_S = 0.03
+
+
+def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int, settle: float = 0.0) -> dict[str, float]:
+    """Engage (then release) on ``pub``, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
+
+    ``settle``: extra pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without an
+    EMG_STOP of their own (merged with a release still waiting); each one would pair the latencies after it
+    with the wrong EMG_STOP, so the figure is only good when it is 0.
+    """
     time.sleep(0.3)
+    first = len(robot.dump()["emg_stops"])
     starts = []
     for _ in range(samples + 10):
         time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
@@ -171,10 +182,11 @@ def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int) -
         pub.put(b'{"engaged": true}')
         time.sleep(random.uniform(*COMMAND_GAP_S))
         pub.put(b'{"engaged": false}')
+        time.sleep(settle)
     time.sleep(0.3)
-    stops = robot.dump()["emg_stops"][-(samples + 10) :]  # one EMG_STOP per engage, in order (the robot takes every command)
+    stops = robot.dump()["emg_stops"][first:]  # one EMG_STOP per engage, in order (the robot takes every command)
     latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
-    return percentiles(latencies)
+    return {**percentiles(latencies), "missing": len(starts) - len(stops)}
 
 
 def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:

@@ -27,7 +27,7 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from schemas import GatewayHealth, Keys, decode
 
-from .figures import _service, command_latencies, cpu_seconds, estop_latencies, mini_robot, rss_mb, wait_polls
+from .figures import RELEASE_SETTLE_S, _service, command_latencies, cpu_seconds, estop_latencies, mini_robot, rss_mb, wait_polls
 from .peers import EXPRESS, _zenoh_conf, free_port
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
@@ -88,7 +88,7 @@ def fleet_figure(robots: int, seconds: float, samples: int) -> dict[str, Any]:
         counting.undeclare()
         probe_keys = Keys(probe.prefix)
         cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
-        estop = estop_latencies(session.declare_publisher(probe_keys.estop, express=EXPRESS), probe_robot, samples)
+        estop = estop_latencies(session.declare_publisher(probe_keys.estop, express=EXPRESS), probe_robot, samples, RELEASE_SETTLE_S)
         consumer.undeclare()
     services = ("router", "gateway", "odometry")
     return {
@@ -135,5 +135,6 @@ def fleet_table(runs: list[dict[str, Any]]) -> str:
             f"{run['pose_hz_min']:.1f}/{run['pose_hz_median']:.1f} | {run['messages_per_s']:.0f} | "
             f"{run['cmd_vel_ms']['p50_ms']:.2f}/{run['cmd_vel_ms']['p99_ms']:.2f} ms | "
             f"{run['estop_ms']['p50_ms']:.2f}/{run['estop_ms']['p99_ms']:.2f} ms"
+            + (f" ({run['estop_ms']['missing']} engages merged: misaligned)" if run["estop_ms"].get("missing") else "")
         )
     return "\n".join(lines)
