@@ -63,6 +63,14 @@ def _is_stop(request: wire.Request) -> bool:
     return request.command is CommandCode.SET_LR_WHEEL_VELOCITY and request.left == 0.0 and request.right == 0.0
 
 
+def _describe(request: wire.Request) -> str:
+    """A motion command as health shows it: its name, and (left, right) m/s for a velocity."""
+    if request.command is CommandCode.SET_LR_WHEEL_VELOCITY:
+        wheels = _wheels(request)
+        return f"velocity {wheels.left:.3f} {wheels.right:.3f}"
+    return request.command.name
+
+
 def _wheels(request: wire.Request) -> WheelSpeeds:
     return WheelSpeeds(left=float(request.left or 0.0), right=float(request.right or 0.0))
 
@@ -103,6 +111,8 @@ class GatewayCore:
         self._log_port = LogPort()
         self._outgoing = bytearray()  # to the control link; nothing is ever written to the log link
         self._next_health = now
+        #: The last motion command written (not a poll), and when (Unix time): health says what the robot was sent.
+        self._last_sent: tuple[wire.Request, float] | None = None
 
     # ------------------------------------------------------------------ outputs
 
@@ -377,6 +387,8 @@ class GatewayCore:
                 for spec, (name, (age, dropped, superseded)) in zip(arbiter.sources, arbiter.source_ages(now).items(), strict=True)
             },
             locks=arbiter.lock_states(now),
+            last_sent=None if self._last_sent is None else _describe(self._last_sent[0]),
+            last_sent_stamp=None if self._last_sent is None else self._last_sent[1],
         )
 
     @property
@@ -403,6 +415,8 @@ class GatewayCore:
             # a stop cannot wait for doubtful replies to settle: give them up, so the stop's own reply pairs with it
             self.counters.lost_replies += self.exchange.forget_expired()
         self._outgoing += data
+        if request.command is not CommandCode.GET_LR_WHEEL_VELOCITY and request.command is not CommandCode.PREPARE_WHEEL_CONTROLLER:
+            self._last_sent = (request, self.wallclock())
         self.exchange.sent(request, now)
         self.links.request_sent(now)
         return True

@@ -222,6 +222,10 @@ class GatewayHealth(msgspec.Struct):
     sources: dict[str, SourceHealth] = {}
     #: Every configured lock: engaged or not.
     locks: dict[str, bool] = {}
+    #: The last motion command written to the robot ("EMG_STOP", "NORMAL_STOP", "velocity 0.100 0.100": left, right
+    #: m/s) and its Unix time: what the robot was sent, beside ``estop`` (what the gateway decided).
+    last_sent: str | None = None
+    last_sent_stamp: float | None = None
 
 
 class DriverChange(msgspec.Struct):

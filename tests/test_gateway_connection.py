@@ -565,3 +565,15 @@ def test_every_change_of_driver_is_published_with_who_from_whom_and_why() -> Non
     assert changes == [("nav", None), ("teleop", "nav"), (None, "teleop"), ("teleop", None), (None, "teleop")]
     reasons = [d.reason for d in bench.of(DriverChange)]
     assert "outranks nav (priority 10)" in reasons[1] and "lock" in reasons[2] and "fell silent" in reasons[4]
+
+
+def test_health_says_what_the_robot_was_last_sent() -> None:
+    bench = Bench()
+    bench.connect()
+    assert bench.conn.health(bench.t).last_sent == "velocity 0.000 0.000"  # the zero velocity after connecting
+    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t)
+    bench.run(0.05)
+    assert bench.conn.health(bench.t).last_sent == "velocity 0.200 0.200"
+    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    health = bench.conn.health(bench.t)
+    assert health.estop and health.last_sent == "EMG_STOP" and health.last_sent_stamp is not None

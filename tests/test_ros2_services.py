@@ -401,8 +401,12 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
             return arrays[-1][1][name]
 
         # the servers, as `ros2 service list` finds them
-        tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        servers = {split_token(t)[9]: split_token(t)[10:12] for t in tokens if split_token(t)[5] == "SS"}
+        def service_servers() -> dict[str, list[str]]:
+            tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
+            return {split_token(t)[9]: split_token(t)[10:12] for t in tokens if split_token(t)[5] == "SS"}
+
+        # a liveliness query on a loaded machine may come back before every token has answered: ask until both have
+        servers = wait_for(lambda: len(found := service_servers()) >= 2 and found, what="the service servers' tokens")
         assert servers == {
             "%set_estop": ["std_srvs::srv::dds_::SetBool_", SET_BOOL_HASH],
             "%reset_odometry": ["std_srvs::srv::dds_::Trigger_", TRIGGER_HASH],

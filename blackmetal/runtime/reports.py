@@ -33,7 +33,12 @@ class _Bucket:
 
     def refill(self, now: float, rate: float, burst: float) -> None:
         self.tokens = min(burst, self.tokens + max(now - self.last, 0.0) * rate)
-        self.last = now
+        self.last = max(self.last, now)  # a clock that steps back must not credit the same time twice
+
+    def full_at(self, rate: float, burst: float) -> float:
+        """When the bucket is full again if nothing takes from it."""
+        missing = max(burst - self.tokens, 0.0)
+        return self.last + missing / rate if rate > 0 else (self.last if not missing else math.inf)
 
 
 class ReportLimiter:
@@ -42,8 +47,8 @@ class ReportLimiter:
     The family is what the caller says (``robot/lock/*`` for every lock
     name), else the key itself. At most ``max_tracked`` families are kept:
     a new one first evicts a family that is idle again (full bucket, nothing
-    held back), else it is counted under :data:`OTHER_KEYS`, so no client
-    can grow the tables by inventing names. The overall bucket bounds what
+    held back), else it is counted under :data:`OTHER_KEYS` (whose slot is
+    kept free), so no client can grow the tables by inventing names. The overall bucket bounds what
     all families publish together, summaries included.
     """
 
@@ -62,23 +67,38 @@ class ReportLimiter:
         self.max_tracked = max_tracked
         self._families: dict[str, _Bucket] = {}
         self._overall: _Bucket | None = None
+        #: No family can be idle before this: a flood of new names then costs no scan of the table per report.
+        self._evict_at = -math.inf
 
     def _family(self, family: str, now: float) -> tuple[str, _Bucket]:
         bucket = self._families.get(family)
         if bucket is not None:
             return family, bucket
-        if len(self._families) >= self.max_tracked:
-            self._evict_idle(now)
-        if len(self._families) >= self.max_tracked and family != OTHER_KEYS:
-            return self._family(OTHER_KEYS, now)
+        if family != OTHER_KEYS and self._named() >= self.max_tracked - 1:  # the last slot is kept for OTHER_KEYS
+            if now >= self._evict_at:
+                self._evict_idle(now)
+            if self._named() >= self.max_tracked - 1:
+                return self._family(OTHER_KEYS, now)
         bucket = self._families[family] = _Bucket(float(self.burst), now)
         return family, bucket
 
+    def _named(self) -> int:
+        return len(self._families) - (OTHER_KEYS in self._families)
+
     def _evict_idle(self, now: float) -> None:
+        self._evict_at = math.inf
         for name, bucket in list(self._families.items()):
             bucket.refill(now, self.rate, self.burst)
             if bucket.suppressed == 0 and bucket.tokens >= self.burst:
                 del self._families[name]
+            elif bucket.suppressed == 0:
+                self._evict_at = min(self._evict_at, bucket.full_at(self.rate, self.burst))
+
+    def _took(self, bucket: _Bucket) -> None:
+        """A token was taken and the held-back count announced: the bucket can be idle once it refills."""
+        bucket.tokens -= 1.0
+        bucket.suppressed = 0
+        self._evict_at = min(self._evict_at, bucket.full_at(self.rate, self.burst))
 
     def _take_overall(self, now: float) -> bool:
         overall = self._overall
@@ -95,8 +115,8 @@ class ReportLimiter:
         _, bucket = self._family(family, now)
         bucket.refill(now, self.rate, self.burst)
         if bucket.tokens >= 1.0 and self._take_overall(now):
-            bucket.tokens -= 1.0
-            suppressed, bucket.suppressed = bucket.suppressed, 0
+            suppressed = bucket.suppressed
+            self._took(bucket)
             return True, suppressed
         bucket.suppressed += 1
         return False, 0
@@ -112,16 +132,21 @@ class ReportLimiter:
         return len(self._families)
 
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
-        """Families whose held-back count can be announced now (a token of their own and of the overall budget), with the count."""
+        """Families whose held-back count can be announced now (a token of their own and of the overall budget), with the count.
+
+        An announced family moves to the back of the table, so when the
+        overall budget runs short the next round starts with the others.
+        """
         due: list[tuple[str, int]] = []
-        for family, bucket in self._families.items():
+        for family, bucket in list(self._families.items()):
             if not bucket.suppressed:
                 continue
             bucket.refill(now, self.rate, self.burst)
             if bucket.tokens >= 1.0 and self._take_overall(now):
-                bucket.tokens -= 1.0
                 due.append((family, bucket.suppressed))
-                bucket.suppressed = 0
+                self._took(bucket)
+                del self._families[family]
+                self._families[family] = bucket
         return due
 
 
