@@ -9,11 +9,10 @@ and sleeps until the connection's next deadline or the next input
 (:class:`~blackmetal.runtime.host.DeadlineTimer`, shared by every service).
 
 Commands and e-stops may also be taken on the Zenoh thread that delivers
-them (:meth:`GatewayHost.cmd_vel_direct`, :meth:`GatewayHost.estop_direct`):
-waking the loop cost a command a third of its way to the robot. The core
-and the streams' writes are therefore guarded by :attr:`GatewayHost.lock`,
-which the loop holds whenever it is in the core, and every ``now`` is read
-inside it, so the core never sees time go back. Messages are published
+them (:meth:`GatewayHost.cmd_vel_direct`, :meth:`GatewayHost.estop_direct`),
+through the one :class:`~gateway.direct.DirectPath`: its lock guards the core
+and the streams' writes, the loop holds it whenever it is in the core, and
+every ``now`` is read inside it, so the core never sees time go back. Messages are published
 only on the loop and never under that lock (:meth:`GatewayHost.publish`):
 a Zenoh put that blocks must not hold up an e-stop's direct take. The
 threads and locks are drawn in ``docs/threads.md``.
@@ -23,19 +22,19 @@ from __future__ import annotations
 
 import asyncio
 import logging
-import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from blackmetal.runtime.host import CoreLock, DeadlineTimer
+from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.transport import ByteStream, Connector
 from schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
 from .arbiter import DEFAULT_SOURCE
 from .core import Event, GatewayCore
+from .direct import DirectPath
 from .health import Counters
 from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
 from .settings import GatewaySettings
@@ -105,16 +104,12 @@ class GatewayHost:
         self.connection = GatewayCore(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
+        #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`gateway.direct`).
+        self.direct = DirectPath()
         #: Held by whoever is in the core or writes to a stream: the loop, or a Zenoh thread taking a command directly.
-        self.lock = CoreLock()
+        self.lock = self.direct.lock
         #: Messages the core produced, published by the loop once it holds no lock (:meth:`publish`).
         self._outbox: list[Event] = []
-        #: Bytes the core produced that a direct take could not send at once; the loop sends them before anything newer.
-        self._unsent: dict[LinkName, bytes] = {}
-        self._flush_scheduled = False
-        #: The running loop, and its thread; None once the host stops or fails (every input goes to the loop then).
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._loop_thread = 0
         self._timer = DeadlineTimer(
             self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish, inbox=inbox
         )
@@ -138,7 +133,7 @@ class GatewayHost:
         """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
         log.error("%s: %r", self.connection.keys.prefix, exc, exc_info=exc)
         with self.lock:
-            self._loop = None  # a core that raised is driven by nobody but the loop's stop from now on
+            self.direct.shut()  # a core that raised is driven by nobody but the loop's stop from now on
         if self._failure is not None and not self._failure.done():
             self._failure.set_exception(exc)
 
@@ -201,44 +196,25 @@ class GatewayHost:
         the command produced besides the control link's bytes (reports, the
         next deadline) waits for the loop's flush, scheduled here.
         """
-        if not self._takes_direct():
+        if not self.direct.allowed():
             return False
         self.connection.on_cmd_vel(item[1], self.clock(), item[0])
-        self._send_now()
+        self.direct.send(self._pending("control"), self._flush_locked)
         return True
 
     def estop_direct(self, item: tuple[bool, bytes]) -> bool:
         """As :meth:`cmd_vel_direct`, for ``(release_key, payload)``: EMG_STOP leaves for the robot without waiting for the loop."""
-        if not self._takes_direct():
+        if not self.direct.allowed():
             return False
         self.connection.on_estop(item[1], self.clock(), item[0])
-        self._send_now()
+        self.direct.send(self._pending("control"), self._flush_locked)
         return True
-
-    def _takes_direct(self) -> bool:
-        """Under the lock: whether a direct take may drive the core now (the host runs, and this is not its loop's thread)."""
-        return self._loop is not None and threading.get_ident() != self._loop_thread
-
-    def _send_now(self) -> None:
-        """Under the lock, off the loop: the control link's bytes to its socket if it takes them now; the rest to the loop."""
-        data = self._pending("control")
-        if data:
-            stream = self._streams["control"]
-            sent = stream.write_now(data) if stream is not None and not stream.is_closing() else 0
-            if sent < len(data):
-                self._unsent["control"] = data[sent:]
-        if not self._flush_scheduled and self._loop is not None:
-            self._flush_scheduled = True
-            try:
-                self._loop.call_soon_threadsafe(self._flush_locked)
-            except RuntimeError:  # the loop is closed: the host is gone
-                pass
 
     def _flush_locked(self) -> None:
         """The loop, after a direct take: its reports, the rest of its bytes, the next deadline; a failure fails the host."""
         try:
             with self.lock:
-                self._flush_scheduled = False
+                self.direct.flushed()
                 self._flush()
             self.publish()
         except Exception as exc:
@@ -249,8 +225,7 @@ class GatewayHost:
     def _pending(self, name: LinkName) -> bytes:
         """Under the lock: what link ``name`` is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes)."""
         data = self.connection.take_outgoing(name)
-        rest = self._unsent.pop(name, None)
-        return data if rest is None else rest + data
+        return self.direct.before(data) if name == "control" else data
 
     def _flush(self) -> None:
         """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`."""
@@ -318,6 +293,8 @@ class GatewayHost:
             log.info("%s link: connected to %s", name, self.connector.describe(name))
             with lock:
                 self._streams[name] = stream
+                if name == "control":
+                    self.direct.stream_up(stream)
                 conn.link_up(name, self.clock())
                 self._flush()
             self.publish()
@@ -342,7 +319,8 @@ class GatewayHost:
             finally:
                 with lock:  # nobody writes to it from now on, from any thread
                     self._streams[name] = None
-                    self._unsent.pop(name, None)
+                    if name == "control":
+                        self.direct.stream_down()
                     stream.close()
             reason = self._drop_reason.pop(name, reason)
             if stop.is_set():
@@ -360,7 +338,7 @@ class GatewayHost:
         """Run until ``stop`` is set, then stop the robot and close the links."""
         link_stop = asyncio.Event()
         with self.lock:
-            self._loop, self._loop_thread = asyncio.get_running_loop(), threading.get_ident()
+            self.direct.open(asyncio.get_running_loop())
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
         failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
         self._failure = failure
@@ -374,7 +352,7 @@ class GatewayHost:
                 failure.result()  # raises the failure, after the finally below has stopped the robot
         finally:
             with self.lock:
-                self._loop = None  # from now on the loop takes every input (and the core refuses motion once stopping)
+                self.direct.shut()  # from now on the loop takes every input (and the core refuses motion once stopping)
             stopped.cancel()
             self._timer.stop()
             await self._stop_robot()
