@@ -31,13 +31,14 @@ from blackmetal.ros2.naming import (
     split_token,
 )
 from blackmetal.ros2.settings import diagonal_matrix
-from schemas import ErrorReport, EStop, Keys, Pose, Twist, decode, encode, make_pose
+from schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
 
 TWIST_HASH = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"
 ODOM_HASH = "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0"
 TF_HASH = "RIHS01_e369d0f05a23ae52508854b66f6aa0437f3449d652e8cbf22d5abe85d020f087"
 TWIST_STAMPED_HASH = "RIHS01_5f0fcd4f81d5d06ad9b4c4c63e3ea51b82d6ae4d0558f1d475229b1121db6f64"
 TWIST_KEY = f"0/cmd_vel/geometry_msgs::msg::dds_::Twist_/{TWIST_HASH}"
+TWIST_STAMPED_KEY = f"0/cmd_vel/geometry_msgs::msg::dds_::TwistStamped_/{TWIST_STAMPED_HASH}"
 ODOM_KEY = f"0/odom/nav_msgs::msg::dds_::Odometry_/{ODOM_HASH}"
 
 
@@ -188,18 +189,18 @@ class Recorder:
         self.errors.append(message)
 
 
-def make_adapter(codec: RosCodec, stamped: bool = False) -> tuple[Ros2Core, Recorder]:
+def make_adapter(codec: RosCodec) -> tuple[Ros2Core, Recorder]:
     out = Recorder()
     options = Ros2Options(
         frames=Frames(),
         pose_covariance=diagonal_matrix("0.1,0.2,0,0,0,0.3", "p"),
         twist_covariance=diagonal_matrix("0.01,0,0,0,0,0.02", "t"),
         publish_tf=True,
-        twist_stamped=stamped,
         joint_names=("left_wheel_joint", "right_wheel_joint"),
         wheel_radius=0.1,
         encoders=Encoders(),
         cmd_vel_key=TWIST_KEY,
+        cmd_vel_stamped_key="0/cmd_vel/geometry_msgs::msg::dds_::TwistStamped_/RIHS01_stamped",
     )
     return Ros2Core(options, Keys(), out, codec, wallclock=lambda: 1_700_000_000.0), out
 
@@ -230,16 +231,33 @@ def test_bad_cmd_vel_is_reported_and_never_forwarded(codec: RosCodec) -> None:
 
 
 def test_twist_stamped_and_estop(codec: RosCodec) -> None:
-    adapter, out = make_adapter(codec, stamped=True)
-    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4, stamp=1_700_000_000.5, frame_id="base_link"), now=1.0)
-    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4), now=1.0)  # a plain Twist where TwistStamped is expected
+    adapter, out = make_adapter(codec)
+    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4, stamp=1_699_999_999.8, frame_id="base_link"), now=1.0, stamped=True)
+    adapter.on_cmd_vel(codec.encode_twist(0.3, -0.4), now=1.0, stamped=True)  # a plain Twist on the TwistStamped key
     assert len(out.forwarded) == 1 and len(out.errors) == 1
+    assert out.errors[0].key.endswith("TwistStamped_/RIHS01_stamped")
     twist = decode(Twist, out.forwarded[0][1])
     assert (twist.linear.x, twist.angular.z) == (0.3, -0.4)
     adapter.on_estop(codec.encode_bool(True), now=1.0)
     adapter.on_estop(b"\x00\x01\x00\x00", now=1.0)  # no data byte
     assert decode(EStop, out.forwarded[-1][1]).engaged is True and out.forwarded[-1][0] == "robot/estop"
     assert len(out.errors) == 2
+
+
+def test_twist_and_twist_stamped_both_drive_and_a_stale_stamped_command_is_refused(codec: RosCodec) -> None:
+    """The wall clock is 1_700_000_000.0; the gateway's command timeout 0.5 s until its health says otherwise."""
+    adapter, out = make_adapter(codec)
+    adapter.on_cmd_vel(codec.encode_twist(0.1, 0.0), now=1.0)  # Twist
+    adapter.on_cmd_vel(codec.encode_twist(0.2, 0.0, stamp=1_699_999_999.6), now=1.0, stamped=True)  # 0.4 s old: taken
+    adapter.on_cmd_vel(codec.encode_twist(0.3, 0.0, stamp=0.0), now=1.0, stamped=True)  # a zero stamp means now
+    adapter.on_cmd_vel(codec.encode_twist(0.4, 0.0, stamp=1_699_999_999.2), now=1.0, stamped=True)  # 0.8 s old: refused
+    assert [decode(Twist, payload).linear.x for _, payload in out.forwarded] == [0.1, 0.2, 0.3]
+    (stale,) = out.errors
+    assert "0.800 s old" in stale.reason and "command timeout 0.5 s" in stale.reason
+    health = GatewayHealth(stamp=1_700_000_000.0, control=LinkHealth(state="connected"), log=LinkHealth(state="connected"), cmd_timeout=1.0)
+    adapter.on_health(encode(health), now=1.0)  # the gateway's own timeout counts once it is known
+    adapter.on_cmd_vel(codec.encode_twist(0.4, 0.0, stamp=1_699_999_999.2), now=1.0, stamped=True)
+    assert decode(Twist, out.forwarded[-1][1]).linear.x == 0.4
 
 
 def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
@@ -357,7 +375,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         nodes = [t for t in tokens if split_token(t)[5] == "NN"]
         entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
-        assert len(entities) == len(tokens) - 1 == 8
+        assert len(entities) == len(tokens) - 1 == 9  # /cmd_vel twice: Twist and TwistStamped
         for token in tokens:
             assert all(split_token(token)), token
         for token in entities:
@@ -366,11 +384,15 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
         served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
         assert published == {"%odom", "%tf", "%joint_states", "%diagnostics"} and subscribed == {"%cmd_vel", "%estop"}
+        cmd_vel_types = sorted(split_token(t)[10] for t in entities if split_token(t)[9] == "%cmd_vel")
+        assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
         assert served == {"%set_estop", "%reset_odometry"}
 
         # /cmd_vel from a ROS publisher drives the robot, with or without the attachment
         twist = codec.encode_twist(0.3, 0.0)
         assert drives(session, TWIST_KEY, twist, with_attachment=True) > 0.15
+        # and a TwistStamped on the same topic, as Nav2 publishes it from Kilted on (a zero stamp means now)
+        assert drives(session, TWIST_STAMPED_KEY, codec.encode_twist(0.3, 0.0, stamp=0.0), with_attachment=True) > 0.15
         assert drives(session, TWIST_KEY, twist) > 0.15
 
         # a bad /cmd_vel is reported and never reaches the gateway
@@ -408,6 +430,6 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        assert len(tokens) == 8 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 5 topics + 2 services, none from the bridges
+        assert len(tokens) == 9 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 6 topics + 2 services, none from the bridges
         names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

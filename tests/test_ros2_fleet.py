@@ -56,9 +56,9 @@ def _zargs(port: int) -> list[str]:
 # ------------------------------------------------------------------ pure: names, frames, settings
 def test_frame_prefix_is_diff_drive_controllers() -> None:
     assert tf_frame_prefix("/r3") == "r3/" and tf_frame_prefix("/a/b") == "a/b/" and tf_frame_prefix("/") == ""
-    tf = next(t for t in topics(True, False, absolute_tf=True) if t.name == "tf")
+    tf = next(t for t in topics(True, absolute_tf=True) if t.name == "tf")
     assert tf.full_name("/r3") == "/tf"
-    assert next(t for t in topics(True, False) if t.name == "tf").full_name("/r3") == "/r3/tf"  # one robot: as before
+    assert next(t for t in topics(True) if t.name == "tf").full_name("/r3") == "/r3/tf"  # one robot: as before
 
 
 def test_fleet_settings_per_robot_and_their_mistakes() -> None:
@@ -164,11 +164,11 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [split_token(str(r.ok.key_expr)) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 9, what="3 nodes' tokens (node, 6 topics, 2 services each)")
+        wait_for(lambda: len(tokens()) == 3 * 10, what="3 nodes' tokens (node, 7 topics with /cmd_vel twice, 2 services each)")
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 27  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 30  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {

@@ -163,7 +163,6 @@ def make_core(codec: RosCodec) -> tuple[Ros2Core, Recorder]:
         pose_covariance=diagonal_matrix("0,0,0,0,0,0", "p"),
         twist_covariance=diagonal_matrix("0,0,0,0,0,0", "t"),
         publish_tf=False,
-        twist_stamped=False,
         joint_names=("l", "r"),
         wheel_radius=0.1,
         encoders=Encoders(),

@@ -45,6 +45,8 @@ from .naming import RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
 
 #: Joint positions are not integrated across a gap longer than this (s): a lost link is not motion.
 MAX_JOINT_GAP_S = 0.5
+#: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
+DEFAULT_CMD_TIMEOUT = 0.5
 
 # ---- services
 #: A pending set_estop puts the e-stop again and asks the gateway's health this often (s), as ``blackmetal estop`` does.
@@ -97,12 +99,12 @@ class Ros2Options:
     pose_covariance: list[float]
     twist_covariance: list[float]
     publish_tf: bool
-    twist_stamped: bool
     joint_names: tuple[str, str]
     wheel_radius: float
     encoders: Encoders
     #: How error reports name the ROS inputs: the Zenoh key each arrives on.
     cmd_vel_key: str = "cmd_vel"
+    cmd_vel_stamped_key: str = "cmd_vel"
     estop_key: str = "estop"
     #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
     source: str = Sources.ROS2
@@ -427,11 +429,32 @@ class Ros2Core:
         self.diagnostics.on_alive(who, alive)
 
     # --------------------------------------------------------------- ROS -> blackmetal
-    def on_cmd_vel(self, cdr: bytes, now: float) -> None:
+    def on_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False) -> None:
+        """A ``/cmd_vel`` sample, ``geometry_msgs/Twist`` or (``stamped``) ``TwistStamped``, forwarded as the source's command.
+
+        A stamped command older than the gateway's command timeout (its
+        header stamp against the wall clock; a zero stamp means now, as
+        diff_drive_controller reads it) is refused and reported: the robot
+        must not act on a command its publisher gave up on.
+        """
+        key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
         try:
-            twist = self.codec.twist(cdr, stamped=self.options.twist_stamped)
+            if stamped:
+                twist, stamp = self.codec.twist_stamped(cdr)
+            else:
+                twist, stamp = self.codec.twist(cdr), 0.0
         except PayloadError as exc:
-            self._reject(self.options.cmd_vel_key, str(exc), exc.excerpt, now)
+            self._reject(key, str(exc), exc.excerpt, now)
+            return
+        health = self.diagnostics.health
+        timeout = DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
+        age = self.wallclock() - stamp if stamp else 0.0
+        if timeout > 0 and age > timeout:
+            reason = (
+                f"TwistStamped on /cmd_vel is {age:.3f} s old (header stamp {stamp:.3f}), older than the gateway's command "
+                f"timeout {timeout:g} s: refused (a zero stamp means now; check the publisher's clock and its delay)"
+            )
+            self._reject(key, reason, "", now)
             return
         self.stats.commands += 1
         self.output.blackmetal(self.cmd_vel_target, encode(twist))

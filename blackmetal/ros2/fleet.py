@@ -101,7 +101,7 @@ class Member:
             s.domain_id,
             namespace,
             s.node_name,
-            topics(s.tf, s.twist_stamped, absolute_tf=True),
+            topics(s.tf, absolute_tf=True),
             services(),
             s.source,
             self.ids,

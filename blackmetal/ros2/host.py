@@ -61,6 +61,10 @@ class Ros2Host:
         self.core.on_cmd_vel(cdr, self.clock())
         self.timer.poke()
 
+    def on_cmd_vel_stamped(self, cdr: bytes) -> None:
+        self.core.on_cmd_vel(cdr, self.clock(), stamped=True)
+        self.timer.poke()
+
     def on_estop(self, cdr: bytes) -> None:
         self.core.on_estop(cdr, self.clock())
         self.timer.poke()

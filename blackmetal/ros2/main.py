@@ -37,7 +37,7 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
     keys = Keys(settings.prefix)
     flavor = Flavor(settings.flavor)
     namespace = normalise_namespace(settings.namespace)
-    ros_topics = topics(settings.tf, settings.twist_stamped)
+    ros_topics = topics(settings.tf)
     ros_services = services()
     with await open_service_session(settings.zenoh, stop, "ros2") as session:
         edge = Ros2Zenoh(

@@ -253,8 +253,15 @@ class RosCodec:
 
     def twist(self, payload: bytes, stamped: bool = False) -> Twist:
         """geometry_msgs/Twist (or TwistStamped) CDR -> a blackmetal Twist; PayloadError if invalid or not finite."""
-        message = self._decode(payload, TWIST_STAMPED if stamped else TWIST)
-        twist = message.twist if stamped else message
+        return self._twist(payload, self._decode(payload, TWIST_STAMPED).twist if stamped else self._decode(payload, TWIST))
+
+    def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
+        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp)."""
+        message = self._decode(payload, TWIST_STAMPED)
+        stamp = message.header.stamp
+        return self._twist(payload, message.twist), stamp.sec + stamp.nanosec * 1e-9
+
+    def _twist(self, payload: bytes, twist: Any) -> Twist:
         values = {
             "linear.x": twist.linear.x,
             "linear.y": twist.linear.y,

@@ -202,6 +202,12 @@ class RosTopic:
     ros_type: str
     direction: Direction
     absolute: bool = False
+    #: How the node's keys and ready line name it, where one topic takes two types (``cmd_vel_stamped``); default ``name``.
+    label: str = ""
+
+    @property
+    def key_name(self) -> str:
+        return self.label or self.name
 
     def full_name(self, namespace: str) -> str:
         return f"/{self.name}" if self.absolute else full_topic(namespace, self.name)
@@ -215,8 +221,18 @@ class RosService:
     ros_type: str
 
 
-def topics(publish_tf: bool, twist_stamped: bool, absolute_tf: bool = False) -> list[RosTopic]:
+#: The key name of ``/cmd_vel`` as ``geometry_msgs/TwistStamped`` (``cmd_vel`` is the Twist).
+CMD_VEL_STAMPED = "cmd_vel_stamped"
+
+
+def topics(publish_tf: bool, absolute_tf: bool = False) -> list[RosTopic]:
     """The node's topics, in the order their entities are numbered.
+
+    ``/cmd_vel`` is subscribed twice, as ``geometry_msgs/Twist`` and as
+    ``TwistStamped``: rmw_zenoh puts the type in the key expression, so a
+    subscriber of one type never sees the other (Nav2 publishes TwistStamped
+    from Kilted on, teleop nodes and twist_mux either). The stamped one is
+    numbered last of the topics, so the others keep their entity ids.
 
     ``/diagnostics`` is absolute, as diagnostic_updater publishes it: one
     aggregator sees every robot, told apart by the statuses' names.
@@ -225,7 +241,7 @@ def topics(publish_tf: bool, twist_stamped: bool, absolute_tf: bool = False) -> 
     robot, told apart by the frames' prefixes (``--fleet``).
     """
     out = [
-        RosTopic("cmd_vel", ros.TWIST_STAMPED if twist_stamped else ros.TWIST, Direction.SUBSCRIBE),
+        RosTopic("cmd_vel", ros.TWIST, Direction.SUBSCRIBE),
         RosTopic("estop", ros.BOOL, Direction.SUBSCRIBE),
         RosTopic("odom", ros.ODOMETRY, Direction.PUBLISH),
     ]
@@ -233,6 +249,7 @@ def topics(publish_tf: bool, twist_stamped: bool, absolute_tf: bool = False) -> 
         out.append(RosTopic("tf", ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf))
     out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
     out.append(RosTopic("diagnostics", ros.DIAGNOSTIC_ARRAY, Direction.PUBLISH, absolute=True))
+    out.append(RosTopic("cmd_vel", ros.TWIST_STAMPED, Direction.SUBSCRIBE, label=CMD_VEL_STAMPED))
     return out
 
 

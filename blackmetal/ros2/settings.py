@@ -14,7 +14,7 @@ from schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
 from .core import Ros2Options
 from .messages import Frames
-from .naming import Flavor, check_ros_name, check_source_name, full_topic, normalise_namespace
+from .naming import CMD_VEL_STAMPED, Flavor, check_ros_name, check_source_name, full_topic, normalise_namespace
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
 DEFAULT_COVARIANCE = "0.001,0.001,0.001,0.001,0.001,0.01"
@@ -61,7 +61,10 @@ class Ros2Settings:
     odom_frame: str = setting("odom", "frame of /odom and parent of the transform", metavar="FRAME")
     base_frame: str = setting("base_link", "child frame of /odom and of the transform", metavar="FRAME")
     tf: bool = setting(True, "do not publish /tf (when another node publishes odom -> base_link)", flag="--no-tf", const=False)
-    twist_stamped: bool = setting(False, "accept geometry_msgs/TwistStamped on /cmd_vel (Jazzy's diff_drive_controller) instead of Twist")
+    twist_stamped: bool = setting(
+        False,
+        "no effect, kept so that older settings files load: /cmd_vel takes geometry_msgs/Twist and TwistStamped at once",
+    )
     pose_covariance_diagonal: str = setting(DEFAULT_COVARIANCE, "six variances x,y,z,roll,pitch,yaw of /odom's pose", metavar="LIST")
     twist_covariance_diagonal: str = setting(DEFAULT_COVARIANCE, "six variances of /odom's twist", metavar="LIST")
     left_joint: str = setting("left_wheel_joint", "name of the left wheel in /joint_states", metavar="NAME")
@@ -102,11 +105,11 @@ class Ros2Settings:
             pose_covariance=diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal"),
             twist_covariance=diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal"),
             publish_tf=self.tf,
-            twist_stamped=self.twist_stamped,
             joint_names=(self.left_joint, self.right_joint),
             wheel_radius=self.wheel_radius,
             encoders=self.encoders,
             cmd_vel_key=data_keys["cmd_vel"],
+            cmd_vel_stamped_key=data_keys.get(CMD_VEL_STAMPED, "cmd_vel"),
             estop_key=data_keys["estop"],
             source=self.source,
             service_timeout=self.service_timeout,

@@ -24,6 +24,7 @@ from schemas import ErrorReport, Keys, Sources, encode
 
 from .host import Ros2Host
 from .naming import (
+    CMD_VEL_STAMPED,
     Direction,
     Flavor,
     NodeIdentity,
@@ -102,13 +103,13 @@ class Ros2Zenoh(ZenohEdge):
                 gid: bytes | None = gid_of(token)
             else:
                 key, gid = bridge_data_key(name), None
-            self.data_keys[topic.name] = key
+            self.data_keys[topic.key_name] = key
             if topic.direction is Direction.PUBLISH:
                 publisher = self.session.declare_publisher(
                     key, congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE
                 )
                 self._entities.append(publisher)
-                self._publishers[topic.name] = _RosPublisher(publisher, gid)
+                self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
         for service in ros_services or []:
             entity_id = next(ids)
             name = full_topic(namespace, service.name)
@@ -176,6 +177,8 @@ class Ros2Zenoh(ZenohEdge):
         self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))
         self.subscriber(self.data_keys["cmd_vel"], handover.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
+        stamped = handover.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5)
+        self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
         self.subscriber(self.keys.pose, handover.channel("pose", host.on_pose, capacity=256))
         self.subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=256))
         self.subscriber(self.keys.health, handover.channel("health", host.on_health, latest=True, priority=8))
