@@ -13,6 +13,9 @@ import math
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
+from xml.sax.saxutils import quoteattr
+
+from schemas import ConfigError
 
 if TYPE_CHECKING:
     import numpy as np
@@ -238,3 +241,99 @@ def _sin_ratio(half: "NDArray[np.float64]") -> "NDArray[np.float64]":
     if large.size:
         out[large] = np.sin(half[large]) / half[large]
     return out
+
+
+# ---------------------------------------------------------------------------- the robot as a URDF
+#
+# What RViz's RobotModel display and Foxglove's 3D panel draw. The frames are those robot_state_publisher users
+# expect of a base driver: ``base_footprint`` on the floor, ``base_link`` above it at the axle height, two
+# continuous wheel joints named as in ``/joint_states`` (the wheels turn about +y, so a positive angle drives
+# forward), and the robot's third point of support. The Black Metal's documentation gives its wheel separation
+# and radius, not its body: the chassis box and the rear caster are drawn from those two numbers (:class:`Body`),
+# and the URDF's comment says so. A fleet prefixes every link (``r2/base_link``), as robot_state_publisher's
+# ``frame_prefix`` does.
+
+
+@dataclass(frozen=True, slots=True)
+class Body:
+    """What the URDF draws around the wheels; derived from the wheel geometry unless given."""
+
+    wheel_separation: float = WHEEL_SEPARATION
+    wheel_radius: float = WHEEL_RADIUS
+    wheel_width: float = 0.04
+    #: The chassis box: as long as the wheels are apart, as wide as the gap between the wheels, a wheel radius high.
+    length: float | None = None
+    width: float | None = None
+    height: float | None = None
+
+    def check(self) -> Body:
+        for name in ("wheel_separation", "wheel_radius", "wheel_width"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and 0 < value < 10):
+                raise ConfigError(f"{name} must be a positive length in metres (below 10 m), got {value!r}")
+        if self.wheel_width >= self.wheel_separation:
+            raise ConfigError(f"wheel_width {self.wheel_width} must be less than the wheel separation {self.wheel_separation}")
+        return self
+
+    @property
+    def box(self) -> tuple[float, float, float]:
+        length = self.length if self.length is not None else self.wheel_separation
+        width = self.width if self.width is not None else self.wheel_separation - 2 * self.wheel_width
+        height = self.height if self.height is not None else self.wheel_radius
+        return length, width, height
+
+
+def _f(value: float) -> str:
+    return f"{value:.6g}"
+
+
+def urdf(
+    body: Body | None = None,
+    *,
+    left_joint: str = "left_wheel_joint",
+    right_joint: str = "right_wheel_joint",
+    frame_prefix: str = "",
+    name: str = "blackmetal",
+) -> str:
+    """The URDF text (one robot): links ``base_footprint``, ``base_link``, the wheels and the caster, each ``frame_prefix``-ed."""
+    body = (body or Body()).check()
+    r, half = body.wheel_radius, body.wheel_separation / 2
+    length, width, height = body.box
+    caster_r = r / 2
+    p = frame_prefix
+
+    def link(link_name: str, geometry: str, xyz: str = "0 0 0", rpy: str = "0 0 0") -> str:
+        return (
+            f"  <link name={quoteattr(p + link_name)}>\n"
+            f'    <visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></visual>\n'
+            f'    <collision><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></collision>\n'
+            f"  </link>\n"
+        )
+
+    def joint(joint_name: str, kind: str, parent: str, child: str, xyz: str, axis: bool = False) -> str:
+        axis_xml = '\n    <axis xyz="0 1 0"/>' if axis else ""
+        return (
+            f"  <joint name={quoteattr(joint_name)} type={quoteattr(kind)}>\n"
+            f"    <parent link={quoteattr(p + parent)}/>\n    <child link={quoteattr(p + child)}/>\n"
+            f'    <origin xyz="{xyz}" rpy="0 0 0"/>{axis_xml}\n'
+            f"  </joint>\n"
+        )
+
+    wheel = f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>'
+    return (
+        '<?xml version="1.0"?>\n'
+        f"<!-- {name}: made by blackmetal from its robot model: wheel separation {_f(body.wheel_separation)} m, "
+        f"wheel radius {_f(r)} m. The body box and the rear caster are drawn from those two numbers, "
+        "not measured. -->\n"
+        f"<robot name={quoteattr(name)}>\n"
+        f"  <link name={quoteattr(p + 'base_footprint')}/>\n"
+        + link("base_link", f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', xyz=f"0 0 {_f(height / 2)}")
+        + joint(f"{p}base_joint", "fixed", "base_footprint", "base_link", f"0 0 {_f(r)}")
+        + link("left_wheel", wheel, rpy="1.5708 0 0")
+        + joint(left_joint, "continuous", "base_link", "left_wheel", f"0 {_f(half)} 0", axis=True)
+        + link("right_wheel", wheel, rpy="1.5708 0 0")
+        + joint(right_joint, "continuous", "base_link", "right_wheel", f"0 {_f(-half)} 0", axis=True)
+        + link("caster", f'<sphere radius="{_f(caster_r)}"/>')
+        + joint(f"{p}caster_joint", "fixed", "base_link", "caster", f"{_f(-0.8 * length / 2)} 0 {_f(caster_r - r)}")
+        + "</robot>\n"
+    )
