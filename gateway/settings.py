@@ -12,6 +12,16 @@ from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
 from .safety import SafetySettings
 
+#: Upper bounds of the time settings, each with why: beyond them a setting is a typo, not a robot's need.
+TIME_LIMITS = (
+    ("cmd_timeout", 60.0, "a deadman that waits longer than a minute stops nothing (0 disables it, knowingly)"),
+    ("reply_timeout", 10.0, "the robot answers within milliseconds; beyond its 10 s watchdog a lost reply is never noticed"),
+    ("silence_timeout", 60.0, "a silent robot would stay unnoticed for longer than a minute"),
+    ("log_silence_timeout", 60.0, "the robot reports its state about once a second"),
+    ("connect_timeout", 60.0, "a robot on the network answers a connection within seconds"),
+    ("health_period", 60.0, "views and `blackmetal robots` mark a robot lost after 3 s without health"),
+)
+
 
 @dataclass(slots=True)
 class GatewaySettings:
@@ -94,6 +104,9 @@ class GatewaySettings:
             raise ConfigError(f"keepalive {self.keepalive} s must be shorter than the robot's {model.ROBOT_WATCHDOG_S:g} s watchdog")
         if self.cmd_timeout < 0:
             raise ConfigError("cmd_timeout must be >= 0 (0 disables it)")
+        for name, limit, why in TIME_LIMITS:
+            if getattr(self, name) > limit:
+                raise ConfigError(f"{name} {getattr(self, name):g} s is beyond {limit:g} s: {why}")
         for name in ("control_port", "log_port"):
             if not 1 <= getattr(self, name) <= 65535:
                 raise ConfigError(f"{name} must be a TCP port 1-65535")

@@ -92,6 +92,10 @@ def validate_prefix(prefix: str) -> str:
     for chunk in chunks:
         if any(ch in chunk for ch in "*$?#") or chunk.startswith("@"):
             raise ConfigError(f"prefix {prefix!r} must not contain wildcards or the characters * $ ? # or a leading @")
+        if chunk in (".", ".."):
+            raise ConfigError(f"prefix {prefix!r} must not have a '.' or '..' part: a key expression is not a path")
+        if not chunk.isprintable() or any(ch.isspace() for ch in chunk):
+            raise ConfigError(f"prefix {prefix!r} must be printable characters without spaces or control characters")
     return prefix
 
 

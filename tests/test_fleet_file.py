@@ -46,11 +46,11 @@ def test_a_fleet_file_gives_each_service_its_part() -> None:
     [
         (
             '[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[[robot]]\nid="a"\ncontrol_port=3\nlog_port=4\n',
-            "robot 2 (id 'a'): id 'a' is already robot 1 (id 'a')'s",
+            "robot 2 (id 'a'): id 'a' is already used by robot 1",
         ),
         (
             '[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[[robot]]\nid="b"\ncontrol_port=3\nlog_port=2\n',
-            "robot 2 (id 'b'): port 127.0.0.1:2 is already robot 1 (id 'a')'s",
+            "robot 2 (id 'b'): port 127.0.0.1:2 is already used by robot 1",
         ),
         (
             '[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\nprefix="x/y"\n[[robot]]\nid="b"\ncontrol_port=3\nlog_port=4\nprefix="x/y"\n',
@@ -60,6 +60,16 @@ def test_a_fleet_file_gives_each_service_its_part() -> None:
         ('[[robot]]\nid="a"\ncontrol_port="665"\nlog_port=2\n', "robot 1 (id 'a'): control_port must be an integer"),
         ("[[robot]]\ncontrol_port=1\nlog_port=2\n", "robot 1: id is missing"),
         ('[[robot]]\nid="a/b"\ncontrol_port=1\nlog_port=2\n', "one key chunk"),
+        ('[[robot]]\nid="a\\u0000b"\ncontrol_port=1\nlog_port=2\n', "robot 1: id 'a.*b' must be 1 to 64 letters"),
+        ('[[robot]]\nid="r\\u202e1"\ncontrol_port=1\nlog_port=2\n', "must be 1 to 64 letters, digits"),
+        ('[[robot]]\nid="' + "x" * 100_000 + '"\ncontrol_port=1\nlog_port=2\n', "robot 1: id of 100000 characters must be 1 to 64"),
+        ('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\nprefix="fleet/../x"\n', "must not have a '.' or '..' part"),
+        ('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\nprefix="fleet/a b"\n', "without spaces or control characters"),
+        ('max_robots = 0\n[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n', "max_robots must be an integer from 1 to 10000"),
+        (
+            "".join(f'[[robot]]\nid="r{k}"\ncontrol_port={2 * k + 10}\nlog_port={2 * k + 11}\n' for k in range(251)),
+            "251 robots, more than the 250",
+        ),
         ('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\nwheel_separation="wide"\n', "wheel_separation must be a positive number"),
         ("[robots]\n", "unknown top-level key 'robots'"),
         ("", "no [[robot]] tables"),
@@ -90,3 +100,11 @@ def test_numbered_fleets_round_trip_through_a_file(tmp_path) -> None:  # type: i
     assert load_fleet(path) == robots
     with pytest.raises(ConfigError, match="cannot read fleet file"):
         load_fleet(tmp_path / "missing.toml")
+
+
+def test_times_beyond_the_robots_bounds_are_refused_naming_the_robot() -> None:
+    from gateway.settings import GatewaySettings
+
+    robots = parse_fleet(tomllib.loads('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[robot.gateway]\ncmd_timeout=1e9\n'))
+    with pytest.raises(ConfigError, match=r"robot 1 \(id 'a'\): cmd_timeout 1e\+09 s is beyond 60 s"):
+        robots[0].settings("gateway", GatewaySettings())
