@@ -108,3 +108,10 @@ def test_times_beyond_the_robots_bounds_are_refused_naming_the_robot() -> None:
     robots = parse_fleet(tomllib.loads('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[robot.gateway]\ncmd_timeout=1e9\n'))
     with pytest.raises(ConfigError, match=r"robot 1 \(id 'a'\): cmd_timeout 1e\+09 s is beyond 60 s"):
         robots[0].settings("gateway", GatewaySettings())
+
+
+def test_a_generated_fleet_beyond_the_cap_says_it_was_meant() -> None:
+    from blackmetal.runtime.fleet import numbered_fleet, write_fleet
+
+    robots = parse_fleet(tomllib.loads(write_fleet(numbered_fleet(300, first_port=20000))))
+    assert len(robots) == 300 and robots[-1].id == "r300"

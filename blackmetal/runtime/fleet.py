@@ -212,8 +212,11 @@ def numbered_fleet(count: int, host: str = "127.0.0.1", first_port: int = 0) -> 
 
 
 def write_fleet(robots: list[FleetRobot]) -> str:
-    """A fleet file (TOML) for ``robots``: what ``blackmetal sim --robots N`` prints for the other processes."""
-    lines: list[str] = []
+    """A fleet file (TOML) for ``robots``: what ``blackmetal sim --robots N`` prints for the other processes.
+
+    Beyond MAX_ROBOTS it says ``max_robots``: the one who asked for N robots meant them (``up --robots 300``).
+    """
+    lines: list[str] = [f"max_robots = {len(robots)}", ""] if len(robots) > MAX_ROBOTS else []
     for robot in robots:
         lines += ["[[robot]]", f'id = "{robot.id}"', f'host = "{robot.host}"', f"control_port = {robot.control_port}"]
         lines += [f"log_port = {robot.log_port}", f'prefix = "{robot.prefix}"']
