@@ -24,7 +24,7 @@ from blackmetal.transport import TcpConnector
 from schemas import ErrorReport, Keys
 
 from .host import GatewayHost
-from .settings import GatewaySettings
+from .settings import GatewaySettings, when_killed
 from .zenoh_edge import GatewayZenoh
 
 log = logging.getLogger("blackmetal.gateway")
@@ -96,5 +96,6 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
             f"{', ...' if len(robots) > 3 else ''}), polling at {base.poll_hz:g} Hz",
             flush=True,
         )
+        print(f"  {when_killed('HOST')} for each robot", flush=True)
         announce_ready("gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout)
         await asyncio.gather(*tasks)

@@ -16,7 +16,7 @@ from schemas import Keys
 
 from .fleet import fleet_settings, serve_fleet
 from .host import GatewayHost
-from .settings import GatewaySettings
+from .settings import GatewaySettings, when_killed
 from .zenoh_edge import GatewayZenoh
 
 #: Zenoh delivers samples on its own threads; a short GIL switch interval lets
@@ -38,6 +38,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
             f"prefix {settings.prefix}, polling at {settings.poll_hz:g} Hz",
             flush=True,
         )
+        print(f"  {when_killed(settings.robot)}", flush=True)
         announce_ready("gateway", prefix=settings.prefix, cmd_timeout=settings.cmd_timeout)
         freeze_start_up()
         try:

@@ -12,6 +12,16 @@ from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
 from .safety import SafetySettings
 
+
+def when_killed(robot: str) -> str:
+    """What stops the robot if this gateway is killed (SIGKILL, an OOM kill, a crash): said once, at start."""
+    return (
+        f"if this gateway is killed, the robot keeps its last command until its own {model.ROBOT_WATCHDOG_S:g} s watchdog: "
+        f"blackmetal up and the systemd unit's ExecStopPost then run `blackmetal stop-robot`; started by hand, run "
+        f"`blackmetal stop-robot --robot {robot}` yourself"
+    )
+
+
 #: Upper bounds of the time settings, each with why: beyond them a setting is a typo, not a robot's need.
 TIME_LIMITS = (
     ("cmd_timeout", 60.0, "a deadman that waits longer than a minute stops nothing (0 disables it, knowingly)"),

@@ -535,3 +535,41 @@ def test_the_router_ends_on_a_sigterm_that_lands_on_one_of_zenohs_threads() -> N
         if router.proc.poll() is None:
             router.proc.kill()
             router.proc.wait(5)
+
+
+def test_the_systemd_units_exec_stop_post_stops_a_robot_whose_gateway_was_killed(children: list[Child], tmp_path: Path) -> None:
+    """SIGKILL leaves the robot at its last speed until its own 10 s watchdog; the unit's ExecStopPost, run as written, stops it."""
+    import shlex
+    import signal
+
+    unit = (DEPLOY / "systemd" / "blackmetal-gateway.service").read_text()
+    (line,) = [ln for ln in unit.splitlines() if ln.startswith("ExecStopPost=")]
+    argv = shlex.split(line.removeprefix("ExecStopPost=").lstrip("-"))
+    assert argv[0] == "/opt/blackmetal/venv/bin/blackmetal" and argv[1] == "stop-robot" and "--settings" in argv
+    zport = free_port()
+    sim = SimProcess("-l", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting")
+    children.append(sim)
+    settings = tmp_path / "gateway.toml"  # what /etc/blackmetal/gateway.toml holds for this robot
+    settings.write_text(f'robot = "127.0.0.1"\ncontrol_port = {sim.control_port}\nlog_port = {sim.log_port}\n')
+    gateway = Child(["-m", "blackmetal", "gateway", "--settings", str(settings), "--cmd-timeout", "0", "-e", f"tcp/127.0.0.1:{zport}",
+                     "--no-multicast-scouting"])  # fmt: skip
+    children.append(gateway)
+    gateway.ready()
+    gateway.wait_line("if this gateway is killed, the robot keeps its last command")  # said once, at start, by hand
+    with zenoh.open(client_conf(f"tcp/127.0.0.1:{zport}")) as session:
+        wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway")
+        session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.3}}))
+        wait_for(lambda: (p := get_pose(session, "robot/sim/truth")) is not None and p.v > 0.25, what="the robot driving")
+        gateway.stop(signal.SIGKILL)
+        time.sleep(0.5)
+        truth = get_pose(session, "robot/sim/truth")
+        assert truth is not None and truth.v > 0.25  # nothing stopped it: the gateway is gone
+        command = [sys.executable, "-m", "blackmetal", *argv[1:]]
+        command[command.index("--settings") + 1] = str(settings)
+        start = time.monotonic()
+        stopped = subprocess.run(command, capture_output=True, text=True, timeout=TIMEOUT)
+        took = time.monotonic() - start
+        print(f"ExecStopPost ({' '.join(argv[1:])}): the robot accepted the stop {took:.2f} s after it started")
+        assert stopped.returncode == 0, stopped.stderr
+        assert took <= 1.0
+        wait_for(lambda: (p := get_pose(session, "robot/sim/truth")) is not None and p.v == 0.0, timeout=2, what="the robot stopped")
