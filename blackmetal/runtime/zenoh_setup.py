@@ -35,8 +35,10 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import ipaddress
 import json
 import os
+import socket
 import threading
 import time
 from dataclasses import dataclass, field
@@ -184,11 +186,31 @@ def _file_sets_connect_timeout(path: str | None) -> bool:
 
 
 def check_endpoint(endpoint: str) -> str:
-    """``tcp/HOST:PORT`` (or another Zenoh protocol); ConfigError with an example otherwise."""
+    """``tcp/HOST:PORT`` (or another Zenoh protocol); ConfigError with an example otherwise, or naming a port out of range."""
     protocol, slash, address = endpoint.partition("/")
     if not slash or not protocol or not address or ":" not in address:
         raise ConfigError(f"endpoint {endpoint!r} must look like PROTOCOL/HOST:PORT, for example tcp/127.0.0.1:7447 or tcp/[::1]:7447")
+    port = address.split("#", 1)[0].split("?", 1)[0].rpartition(":")[2]
+    if protocol in ("tcp", "udp", "tls", "quic", "ws") and not (port.isdigit() and 0 <= int(port) <= 65535):
+        raise ConfigError(f"endpoint {endpoint!r} has an invalid port {port!r}: a port is a number from 1 to 65535")
     return endpoint
+
+
+def unresolvable(endpoints: list[str]) -> list[str]:
+    """The host names of ``endpoints`` that do not resolve now (IP addresses never asked): said while a service waits."""
+    names = []
+    for endpoint in endpoints:
+        host = endpoint.partition("/")[2].split("#", 1)[0].rpartition(":")[0].strip("[]")
+        try:
+            ipaddress.ip_address(host)
+            continue
+        except ValueError:
+            pass
+        try:
+            socket.getaddrinfo(host, None)
+        except (socket.gaierror, UnicodeError):
+            names.append(host)
+    return names
 
 
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
@@ -350,6 +372,8 @@ class _Waiter:
         elif not self.waited and time.monotonic() - self.started >= WAIT_NOTICE_S:
             self.waited = True
             self._say(f"waiting for {', '.join(self.pending.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
+            for host in unresolvable(self.pending.endpoints):
+                self._say(f"the host name {host!r} does not resolve: check the name in -e (waiting on, in case it comes up)")
         return session
 
     def _say(self, line: str) -> None:

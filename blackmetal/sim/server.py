@@ -10,9 +10,11 @@ silence) are applied here; sensor faults live in :class:`SimRobot`.
 from __future__ import annotations
 
 import asyncio
+import errno
 import logging
 import time
 from collections.abc import Callable
+from typing import Any
 
 from blackmetal import robot_model as model
 from blackmetal import wire
@@ -59,11 +61,32 @@ class SimServer:
 
     async def start(self) -> None:
         """Bind both ports (0 = pick a free one; the bound ports replace 0)."""
-        control = await asyncio.start_server(lambda r, w: self.serve_control(TcpStream(r, w)), self.host, self.control_port)
-        logs = await asyncio.start_server(lambda r, w: self.serve_log(TcpStream(r, w)), self.host, self.log_port)
+        control = await self._listen("control", self.serve_control, self.control_port)
+        try:
+            logs = await self._listen("log", self.serve_log, self.log_port)
+        except OSError:
+            control.close()
+            raise
         self._servers = [control, logs]
         self.control_port = control.sockets[0].getsockname()[1]
         self.log_port = logs.sockets[0].getsockname()[1]
+
+    async def _listen(self, port_name: str, serve: Callable[[ByteStream], Any], port: int) -> asyncio.Server:
+        """A listening server, or OSError whose text is one sentence naming the port and what to do (no errno)."""
+        try:
+            return await asyncio.start_server(lambda r, w: serve(TcpStream(r, w)), self.host, port)
+        except OSError as exc:
+            if exc.errno == errno.EADDRINUSE:
+                why = "the port is in use by another process (another simulator or robot?)"
+            elif exc.errno == errno.EADDRNOTAVAIL:
+                why = f"{self.host} is not an address of this machine"
+            elif exc.errno == errno.EACCES:
+                why = "ports below 1024 need root (the real robot's 665/664); use others, or 0 for free ones"
+            else:
+                why = exc.strerror or str(exc)
+            raise OSError(
+                f"cannot listen on {self.host}:{port} (the {port_name} port): {why}; choose another with --{port_name}-port PORT (0 picks a free one)"
+            ) from None
 
     @property
     def closed(self) -> bool:

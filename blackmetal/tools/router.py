@@ -36,6 +36,8 @@ def run(args: argparse.Namespace) -> int:
     except ConfigError as exc:
         print(f"blackmetal router: {exc}", file=sys.stderr)
         return 2
+    listen: list[str] = json.loads(conf.get_json("listen/endpoints"))  # the file's, where -l gave none
+    settings.listen = settings.listen or listen  # so that "in use" names the port
     stop = stop_on_signals()
     try:
         session = zenoh.open(conf)
@@ -43,8 +45,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"blackmetal router: {unavailable_reason(settings, str(exc))}", file=sys.stderr)
         return 1
     try:
-        listen = conf.get_json("listen/endpoints")
-        print(f"blackmetal router ready: {session.zid()} listening on {json.dumps(listen)}", flush=True)
+        print(f"blackmetal router ready: {session.zid()} listening on {', '.join(listen) or 'nothing'}", flush=True)
         announce_ready("router", zid=str(session.zid()), listen=listen)
         # with a timeout: a SIGTERM that the kernel hands to one of Zenoh's threads is run by Python only
         # once the main thread runs Python again; a wait without one never does (the README's fleet recipe
