@@ -82,7 +82,7 @@ def test_mistakes_name_the_entry(text: str, message: str) -> None:
 
 def test_a_service_table_is_checked_by_its_service() -> None:
     (robot,) = parse_fleet(tomllib.loads('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[robot.gateway]\npoll_hz="fast"\n'))
-    with pytest.raises(ConfigError, match="robot 1 \\(id 'a'\\): gateway setting"):
+    with pytest.raises(ConfigError, match=r"robot 1 \(id 'a'\): \[robot.gateway\]: poll_hz must be a number, got 'fast' \(text\)"):
         robot.settings("gateway", GatewaySettings())
     (robot,) = parse_fleet(tomllib.loads('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[robot.gateway]\npolhz=5\n'))
     with pytest.raises(ConfigError, match="unknown gateway setting 'polhz'"):

@@ -371,3 +371,14 @@ def test_unknown_setting_in_a_file_is_an_error(tmp_path) -> None:  # type: ignor
     path.write_text("pol_hz = 20\n")
     with pytest.raises(ConfigError, match="pol_hz"):
         load_settings(GatewaySettings, {}, str(path), environ={})
+
+
+def test_a_setting_of_the_wrong_kind_is_said_in_plain_words_naming_where_it_came_from(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from schemas import ConfigError
+
+    toml = tmp_path / "gw.toml"
+    toml.write_text('poll_hz = "fast"\n')
+    with pytest.raises(ConfigError, match=rf"settings file {toml}: poll_hz must be a number, got 'fast' \(text\)"):
+        load_settings(GatewaySettings, {}, str(toml), environ={})
+    with pytest.raises(ConfigError, match=r"BLACKMETAL_CMD_TIMEOUT: cmd_timeout must be a number, got 'soon' \(text\)"):
+        load_settings(GatewaySettings, {}, environ={"BLACKMETAL_CMD_TIMEOUT": "soon"})

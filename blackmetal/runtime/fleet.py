@@ -40,6 +40,8 @@ import msgspec
 
 from schemas import ConfigError, validate_prefix
 
+from .settings import plain_words
+
 T = TypeVar("T")
 
 #: What every robot entry may say besides its service tables.
@@ -86,7 +88,8 @@ class FleetRobot:
         try:
             typed = msgspec.convert(values, type(base), strict=False)  # every settings field has a default
         except msgspec.ValidationError as exc:
-            raise ConfigError(f"{self.describe()}: {service} setting {exc}") from None
+            where = dict.fromkeys(values, f"[robot.{service}]")
+            raise ConfigError(f"{self.describe()}: {plain_words(str(exc), values, where)}") from None
         merged = dataclasses.replace(base, **{k: getattr(typed, k) for k in values})  # type: ignore[type-var]
         check = getattr(merged, "check", None)
         if callable(check):

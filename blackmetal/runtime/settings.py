@@ -16,6 +16,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import os
+import re
 import tomllib
 import types
 import typing
@@ -163,26 +164,47 @@ def load_settings(
     zenoh_names = [f.name for f in dataclasses.fields(ZenohSettings) if f.metadata.get("cli", True)] if has_zenoh else []
     names = own + zenoh_names
     merged: dict[str, Any] = {}
+    origin: dict[str, str] = {}  # where each value came from, for the error that names it
     if settings_file:
         from_file = read_settings_file(settings_file)
         unknown = sorted(set(from_file) - set(names))
         if unknown:
             raise ConfigError(f"settings file {settings_file}: unknown settings {unknown}; known: {sorted(names)}")
         merged.update(from_file)
+        origin.update(dict.fromkeys(from_file, f"settings file {settings_file}"))
     lists = _list_names(cls) | (_list_names(ZenohSettings) if has_zenoh else set())
-    merged.update(_from_env(names, lists, os.environ if environ is None else environ))
-    merged.update({k: v for k, v in options.items() if k in names and k not in NOT_SETTINGS and v is not None})
+    from_env = _from_env(names, lists, os.environ if environ is None else environ)
+    merged.update(from_env)
+    origin.update({k: f"BLACKMETAL_{k.upper()}" for k in from_env})
+    from_cli = {k: v for k, v in options.items() if k in names and k not in NOT_SETTINGS and v is not None}
+    merged.update(from_cli)
+    origin.update({k: f"--{k.replace('_', '-')}" for k in from_cli})
     try:
         values = {k: v for k, v in merged.items() if k in own}
         if has_zenoh:
             values["zenoh"] = msgspec.convert({k: v for k, v in merged.items() if k in zenoh_names}, ZenohSettings, strict=False)
         settings = msgspec.convert(values, cls, strict=False)
     except msgspec.ValidationError as exc:
-        raise ConfigError(f"invalid setting: {exc}") from None
+        raise ConfigError(plain_words(str(exc), merged, origin)) from None
     check = getattr(settings, "check", None)
     if callable(check):
         check()
     return settings
+
+
+_KINDS = {"float": "a number", "int": "an integer", "str": "text", "bool": "true or false", "array": "a list", "null": "nothing"}
+_MSGSPEC_TYPE = re.compile(r"Expected `([^`]+)`, got `([^`]+)` - at `\$\.(\w+)")
+
+
+def plain_words(text: str, values: Mapping[str, Any], origin: Mapping[str, str]) -> str:
+    """msgspec's "Expected `float`, got `str` - at `$.poll_hz`" as a person says it, naming where the value came from."""
+    found = _MSGSPEC_TYPE.search(text)
+    if found is None:
+        return f"invalid setting: {text}"
+    expected, got, name = found.groups()
+    wanted = " or ".join(_KINDS.get(kind.strip(), kind.strip()) for kind in expected.split("|"))
+    where = origin.get(name, "the settings")
+    return f"{where}: {name} must be {wanted}, got {values.get(name)!r} ({_KINDS.get(got, got)})"
 
 
 def check_positive(**values: float | None) -> None:
