@@ -67,6 +67,22 @@ def test_up_prints_a_command_line_that_drives_the_robot(up: Up) -> None:
     assert re.search(r"\| default drives \|", up.output()), up.output()[-2000:]  # who drove: plain cmd_vel is the source default
 
 
+def test_the_readmes_python_example_drives_prints_the_pose_and_leaves_the_robot_drivable(up: Up, tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parent.parent / "README.md").read_text()
+    block = re.search(r"From Python:\n\n```python\n(.*?)```", text, re.S).group(1)  # type: ignore[union-attr]
+    assert "tcp/127.0.0.1:7447" in block
+    script = tmp_path / "example.py"
+    script.write_text(block.replace("tcp/127.0.0.1:7447", up.endpoint))  # verbatim but for the test's own port
+    result = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=60)
+    assert result.returncode == 0, result.stderr
+    assert re.fullmatch(r"x=[-0-9.]+ m  y=[-0-9.]+ m  yaw=[-0-9.]+ rad\n", result.stdout), result.stdout  # one line: the pose
+    with zenoh.open(client_config(up.zport)) as session:
+        health = wait_for(lambda: get(session, "robot/gateway/health", GatewayHealth), what="health")
+        assert not health.estop  # the next command the README suggests still drives
+
+
 def test_watch_shows_pose_status_health_and_errors(up: Up) -> None:
     with zenoh.open(client_config(up.zport)) as session:
         session.put("robot/cmd_vel", b"not json")  # something to show under errors
