@@ -321,3 +321,11 @@ def test_up_settings_file_gives_each_service_its_own_keys(tmp_path) -> None:  # 
     result = tool("up", "--settings", str(bad), "-l", f"tcp/127.0.0.1:{free_port()}", timeout=60)
     assert result.returncode == 2 and result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
     assert "['bogus', 'gateway.filter_alpha', 'sim.not_a_sim_setting']" in result.stderr, result.stderr
+
+
+def test_robots_returns_once_the_robots_present_have_answered_not_after_its_whole_wait(up: Up) -> None:
+    start = time.monotonic()
+    listed = tool("robots", "-e", up.endpoint, "--no-multicast-scouting", "--wait", "20")
+    took = time.monotonic() - start
+    assert listed.returncode == 0 and listed.stdout.split() == ["robot"], listed.stdout + listed.stderr
+    assert took < 10, f"{took:.1f} s: it waited for its --wait 20 although the one robot had answered"

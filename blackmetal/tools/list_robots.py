@@ -29,6 +29,8 @@ from .client import connect, tool, where
 RETRY_S = 0.2
 #: Tokens are collected at least this long once connected (a router that came up late still gets its answers).
 MIN_COLLECT_S = 1.0
+#: Once tokens have come, the list is complete when this long passes without a new one.
+QUIET_S = 0.5
 #: How long the health and pose queries of the rows may take (all are asked at once).
 QUERY_S = 2.0
 
@@ -36,20 +38,26 @@ QUERY_S = 2.0
 def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
     """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway.
 
-    A liveliness subscriber with history collects the tokens for ``timeout``
-    seconds: a single early ``get`` can miss tokens the router has not yet
-    told a freshly connected session about.
+    A liveliness subscriber with history collects the tokens (a single early
+    ``get`` can miss tokens the router has not yet told a freshly connected
+    session about): until ``timeout`` while none has come, and once some
+    have, until QUIET_S passes without a new one, so a present fleet is
+    listed at once and only an empty one waits the whole ``timeout``.
     """
     prefixes: set[str] = set()
     subscriber = session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, history=True)
     try:
         deadline = time.monotonic() + timeout
-        while (left := deadline - time.monotonic()) > 0:
+        last_new = -math.inf
+        while (left := deadline - time.monotonic()) > 0 and (not prefixes or time.monotonic() - last_new < QUIET_S):
             sample = subscriber.try_recv()
             if sample is None:
-                time.sleep(min(0.05, left))
+                time.sleep(min(0.02, left))
             elif sample.kind == zenoh.SampleKind.PUT:
-                prefixes.add(Keys.prefix_of_gateway_token(str(sample.key_expr)))
+                prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
+                if prefix not in prefixes:
+                    prefixes.add(prefix)
+                    last_new = time.monotonic()
     finally:
         subscriber.undeclare()
     return sorted(prefixes, key=natural)
