@@ -65,3 +65,20 @@ def test_a_service_waiting_for_a_name_that_does_not_resolve_says_so() -> None:
         gateway.wait_line("the host name 'nonexistent.invalid' does not resolve: check the name in -e")
     finally:
         gateway.stop()
+
+
+def test_estop_with_no_gateway_answers_within_its_timeout_not_its_wait() -> None:
+    port = free_port()
+    router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
+    try:
+        router.ready()
+        import time
+
+        start = time.monotonic()
+        done = blackmetal("estop", "on", "-e", f"tcp/127.0.0.1:{port}", "--wait", "30", "--timeout", "2")
+        took = time.monotonic() - start
+        assert done.returncode == 1 and done.stderr.count("\n") == 1, done.stderr
+        assert "no gateway answered on robot/gateway/health within 2 s" in done.stderr
+        assert took < 15, f"{took:.1f} s: it waited for --wait 30, not its --timeout 2"
+    finally:
+        router.stop()

@@ -26,7 +26,7 @@ def run(args: argparse.Namespace) -> int:
     engage = args.state == "on"
     keys, settings, session = connect(args)
     with session:
-        require_gateway(session, keys, settings, args.wait)
+        require_gateway(session, keys, settings, min(args.wait, args.timeout))  # the whole answer within --timeout
         payload = b'{"engaged": true}' if engage else b'{"engaged": false}'
         key = keys.estop if engage else keys.estop_release
         publisher = session.declare_publisher(key, express=True)
