@@ -5,6 +5,7 @@ from __future__ import annotations
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -72,8 +73,6 @@ def test_estop_with_no_gateway_answers_within_its_timeout_not_its_wait() -> None
     router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
     try:
         router.ready()
-        import time
-
         start = time.monotonic()
         done = blackmetal("estop", "on", "-e", f"tcp/127.0.0.1:{port}", "--wait", "30", "--timeout", "2")
         took = time.monotonic() - start
