@@ -81,3 +81,17 @@ def test_estop_with_no_gateway_answers_within_its_timeout_not_its_wait() -> None
         assert took < 15, f"{took:.1f} s: it waited for --wait 30, not its --timeout 2"
     finally:
         router.stop()
+
+
+def test_watch_with_a_duration_and_no_gateway_gives_up_within_that_duration() -> None:
+    port = free_port()
+    router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
+    try:
+        router.ready()
+        start = time.monotonic()
+        done = blackmetal("watch", "-e", f"tcp/127.0.0.1:{port}", "--wait", "30", "--duration", "2")
+        took = time.monotonic() - start
+        assert done.returncode == 1 and "no gateway answered on robot/gateway/health within 2 s" in done.stderr, done.stderr
+        assert took < 15, f"{took:.1f} s: it waited for --wait 30, not its --duration 2"
+    finally:
+        router.stop()

@@ -75,7 +75,8 @@ def run(args: argparse.Namespace) -> int:
     keys, settings, session = connect(args)
     stop = stop_on_signals()
     with session:
-        health0 = require_gateway(session, keys, settings, args.wait)
+        # --duration bounds the whole run, the wait for a gateway included
+        health0 = require_gateway(session, keys, settings, min(args.wait, args.duration) if args.duration else args.wait)
         pose = Latest(session, keys.pose, Pose)
         truth = Latest(session, keys.sim_truth, Pose)
         status = Latest(session, keys.status, RobotStatus)
