@@ -230,3 +230,33 @@ def test_up_robots_with_foxglove_serves_every_robot_in_one_view() -> None:
         wait_for(lambda: re.search(rf"Foxglove: every robot in one view at ws://127\.0\.0\.1:{port}", up.output()), what="the view's URL")
     finally:
         up.stop()
+
+
+def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() -> None:
+    """The fleet status line's words, from health reports alone (no processes)."""
+    from blackmetal.tools.up import FleetStatus
+
+    class NoSession:
+        def liveliness(self) -> "NoSession":
+            return self
+
+        def declare_subscriber(self, *args: object, **kwargs: object) -> None:
+            return None
+
+    from blackmetal.runtime.fleet import numbered_fleet
+    from schemas import GatewayHealth, LinkHealth
+
+    robots = numbered_fleet(2)
+    status = FleetStatus(NoSession(), robots)  # type: ignore[arg-type]
+
+    def health(state: str) -> GatewayHealth:
+        return GatewayHealth(stamp=0.0, control=LinkHealth(state=state), log=LinkHealth(state=state))
+
+    status.health["fleet/r1"] = (health("down"), time.monotonic())
+    line = status.render()
+    assert "connecting 2: r1, r2" in line and "link down" not in line and "no health" not in line, line
+    status.health["fleet/r1"] = (health("connected"), time.monotonic())
+    status.health["fleet/r2"] = (health("connected"), time.monotonic())
+    assert "connecting" not in status.render()
+    status.health["fleet/r2"] = (health("down"), time.monotonic())
+    assert "link down 1: r2" in status.render()

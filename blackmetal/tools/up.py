@@ -311,6 +311,8 @@ class FleetStatus:
         self.errors = dict.fromkeys((r.prefix for r in robots), 0)
         self._last_poses = dict(self.poses)
         self._last_time = time.monotonic()
+        #: Robots seen with both links connected since the start: before that, a robot is "connecting", not "down".
+        self._ever_linked: set[str] = set()
         prefixes = set(self.poses)
         self._subs: list[Any] = [
             session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, lambda s: self._on_token(s, prefixes), history=True)
@@ -352,10 +354,16 @@ class FleetStatus:
         polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
         count = len(self.robots)
         parts = [f"robots {len(self.alive)}/{count} up"]
-        missing = [r.id for r in self.robots if r.prefix not in fresh]
+        linked = {r.prefix for r in self.robots if r.prefix in fresh and _links(fresh[r.prefix]) == "connected/connected"}
+        self._ever_linked |= linked
+        # a robot not yet up since the start is connecting, no fault; one that was up and is not is missing or down
+        connecting = [r.id for r in self.robots if r.prefix not in linked and r.prefix not in self._ever_linked]
+        missing = [r.id for r in self.robots if r.prefix not in fresh and r.prefix in self._ever_linked]
+        down = [r.id for r in self.robots if r.prefix in fresh and r.prefix not in linked and r.prefix in self._ever_linked]
+        if connecting:
+            parts.append(f"connecting {len(connecting)}: {_named(connecting)}")
         if missing:
             parts.append(f"no health {len(missing)}: {_named(missing)}")
-        down = [r.id for r in self.robots if r.prefix in fresh and _links(fresh[r.prefix]) != "connected/connected"]
         if down:
             parts.append(f"link down {len(down)}: {_named(down)}")
         parts.append(f"poll min {min(polls):.0f} median {statistics.median(polls):.0f} Hz")
