@@ -238,7 +238,7 @@ def test_bench_fleet_measures_a_fleet_with_a_probe_robot(tmp_path: Path) -> None
     for run in runs:
         assert run["pose_hz_min"] > 25, run  # every robot poses (50 Hz asked; a loaded machine polls later)
         assert set(run["cpu"]) == {"router", "gateway", "odometry"} | ({"sim"} if run["robots"] > 1 else set())
-        assert run["cmd_vel_ms"]["n"] == 40 and run["estop_ms"]["n"] == 40
+        assert run["cmd_vel_ms"]["n"] == 40 and run["estop_ms"]["n"] + run["estop_ms"]["missing"] == 40
     assert "robots | CPU router+gateway+odometry" in proc.stdout
     bad = subprocess.run([sys.executable, "-m", "blackmetal", "bench", "--fleet", "0"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "at least 1 robot" in bad.stderr and "Traceback" not in bad.stderr

@@ -170,8 +170,7 @@ def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int, s
     """Engage (then release) on ``pub``, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
 
     ``settle``: extra pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without an
-    EMG_STOP of their own (merged with a release still waiting); each one would pair the latencies after it
-    with the wrong EMG_STOP, so the figure is only good when it is 0.
+    EMG_STOP before the next engage (merged with a release still waiting, or slower than the pause).
     """
     time.sleep(0.3)
     first = len(robot.dump()["emg_stops"])
@@ -184,9 +183,20 @@ def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int, s
         pub.put(b'{"engaged": false}')
         time.sleep(settle)
     time.sleep(0.3)
-    stops = robot.dump()["emg_stops"][first:]  # one EMG_STOP per engage, in order (the robot takes every command)
-    latencies = [arrival - start for start, arrival in list(zip(starts, stops, strict=False))[10:]]  # after warm-up
-    return {**percentiles(latencies), "missing": len(starts) - len(stops)}
+    stops = sorted(robot.dump()["emg_stops"][first:])
+    # each engage's EMG_STOP is the first to arrive before the next engage was put; an engage without one merged
+    # with a release still waiting (or took longer than the pause): counted, never paired with another's stop
+    ends = [*starts[1:], float("inf")]
+    latencies, missing = [], 0
+    for index, (start, end) in enumerate(zip(starts, ends, strict=True)):
+        arrival = next((stop for stop in stops if start <= stop < end), None)
+        if index < 10:
+            continue  # warm-up
+        if arrival is None:
+            missing += 1
+        else:
+            latencies.append(arrival - start)
+    return {**percentiles(latencies), "missing": missing}
 
 
 def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:

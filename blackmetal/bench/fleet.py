@@ -135,6 +135,6 @@ def fleet_table(runs: list[dict[str, Any]]) -> str:
             f"{run['pose_hz_min']:.1f}/{run['pose_hz_median']:.1f} | {run['messages_per_s']:.0f} | "
             f"{run['cmd_vel_ms']['p50_ms']:.2f}/{run['cmd_vel_ms']['p99_ms']:.2f} ms | "
             f"{run['estop_ms']['p50_ms']:.2f}/{run['estop_ms']['p99_ms']:.2f} ms"
-            + (f" ({run['estop_ms']['missing']} engages merged: misaligned)" if run["estop_ms"].get("missing") else "")
+            + (f" ({run['estop_ms']['missing']} engages without their own EMG_STOP)" if run["estop_ms"].get("missing") else "")
         )
     return "\n".join(lines)

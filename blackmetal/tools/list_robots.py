@@ -35,21 +35,21 @@ QUIET_S = 0.5
 QUERY_S = 2.0
 
 
-def alive_robots(session: zenoh.Session, timeout: float = 5.0) -> list[str]:
+def alive_robots(session: zenoh.Session, timeout: float = 5.0, expect: int = 0) -> list[str]:
     """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway.
 
     A liveliness subscriber with history collects the tokens (a single early
     ``get`` can miss tokens the router has not yet told a freshly connected
-    session about): until ``timeout`` while none has come, and once some
-    have, until QUIET_S passes without a new one, so a present fleet is
-    listed at once and only an empty one waits the whole ``timeout``.
+    session about): until ``timeout`` while fewer than ``expect`` (or none)
+    have come, and then until QUIET_S passes without a new one, so a present
+    fleet is listed at once and only a missing one waits the whole ``timeout``.
     """
     prefixes: set[str] = set()
     subscriber = session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, history=True)
     try:
         deadline = time.monotonic() + timeout
         last_new = -math.inf
-        while (left := deadline - time.monotonic()) > 0 and (not prefixes or time.monotonic() - last_new < QUIET_S):
+        while (left := deadline - time.monotonic()) > 0 and (len(prefixes) < max(expect, 1) or time.monotonic() - last_new < QUIET_S):
             sample = subscriber.try_recv()
             if sample is None:
                 time.sleep(min(0.02, left))
@@ -152,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     settings, session = connect_within(args, deadline)
     output = "json" if args.json else "table" if args.table or sys.stdout.isatty() else "prefixes"
     with session:
-        robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S))
+        robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S), args.expect)
         rows = robot_rows(session, robots) if robots and output != "prefixes" else []
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
@@ -172,6 +172,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument(
         "--wait", type=float, default=5.0, help="seconds to reach the router and collect answers (default 5, like every tool)"
     )
+    parser.add_argument(
+        "--expect", type=int, default=0, metavar="N",
+        help="wait (up to --wait) until N robots are alive, e.g. while a fleet starts (default: answer once those present have)",
+    )  # fmt: skip
     shape = parser.add_mutually_exclusive_group()
     shape.add_argument("--table", action="store_true", help="the table even when the output is not a terminal (piped: one prefix a line)")
     shape.add_argument("--json", action="store_true", help="one JSON array: per robot its prefix, link, poll rate, pose, e-stop, "
