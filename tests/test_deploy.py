@@ -103,7 +103,7 @@ def drive(session: zenoh.Session, prefix: str, seconds: float = 1.5, v: float = 
 def wait_services(session: zenoh.Session, prefix: str = "robot") -> None:
     wait_for(lambda: get_pose(session, f"{prefix}/pose") is not None and get_pose(session, f"{prefix}/sim/truth") is not None,
              what=f"{prefix} services through the router")  # fmt: skip
-    wait_for(lambda: any(r.ok is not None for r in session.get(f"{prefix}/gateway/health", timeout=3)), what="the gateway's health")
+    wait_for(lambda: (h := health(session, prefix)) is not None and h.control.state == "connected", what="the gateway connected")
 
 
 def test_router_config_carries_a_client_mode_drive(children: list[Child], tmp_path: Path) -> None:
@@ -557,7 +557,8 @@ def test_the_systemd_units_exec_stop_post_stops_a_robot_whose_gateway_was_killed
     gateway.ready()
     gateway.wait_line("if this gateway is killed, the robot keeps its last command")  # said once, at start, by hand
     with zenoh.open(client_conf(f"tcp/127.0.0.1:{zport}")) as session:
-        wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway")
+        # connected, not merely answering: a command while the robot's link is still coming up is refused, not queued
+        wait_for(lambda: (h := health(session)) is not None and h.control.state == "connected", what="the gateway connected to the robot")
         session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.3}}))
         wait_for(lambda: (p := get_pose(session, "robot/sim/truth")) is not None and p.v > 0.25, what="the robot driving")
         gateway.stop(signal.SIGKILL)
