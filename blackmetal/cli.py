@@ -13,7 +13,7 @@ from . import __version__
 
 
 def _schema(args: argparse.Namespace) -> int:
-    from schemas import json_schemas
+    from blackmetal.schemas import json_schemas
 
     schemas = json_schemas()
     if args.output is None:
@@ -31,8 +31,8 @@ def _schema(args: argparse.Namespace) -> int:
 #: Subcommand -> (module with build_parser(parser) and run(args), one-line help).
 COMMANDS: dict[str, tuple[str, str]] = {
     "sim": ("blackmetal.sim.main", "run the simulated robot (real wire protocol on TCP)"),
-    "gateway": ("gateway.main", "run the gateway (robot link, safety, Zenoh)"),
-    "odometry": ("odometry_service.main", "run the odometry service (impulses -> pose)"),
+    "gateway": ("blackmetal.gateway.main", "run the gateway (robot link, safety, Zenoh)"),
+    "odometry": ("blackmetal.odometry_service.main", "run the odometry service (impulses -> pose)"),
     "ros2": ("blackmetal.ros2.main", "run the ROS 2 adapter: the robot as a ROS 2 node over rmw_zenoh or zenoh-bridge-ros2dds"),
     "foxglove": ("blackmetal.foxglove.main", "serve a live Foxglove view of the robot (WebSocket), optionally to MCAP"),
     "calibrate": ("blackmetal.tools.calibrate", "fit the odometry's constants from recordings (UMBmark or a trajectory fit)"),

@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any, TypeVar
 from xml.sax.saxutils import quoteattr
 
-from schemas import ConfigError
+from blackmetal.schemas import ConfigError
 
 if TYPE_CHECKING:
     import numpy as np

@@ -36,7 +36,7 @@ from typing import Any, Generic, TypeVar
 
 import msgspec
 
-from schemas import BlackmetalError
+from blackmetal.schemas import BlackmetalError
 
 
 class ProtocolError(BlackmetalError):

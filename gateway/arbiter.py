@@ -28,7 +28,7 @@ import math
 from dataclasses import dataclass, field
 from enum import Enum
 
-from schemas import ConfigError, Sources, Twist
+from blackmetal.schemas import ConfigError, Sources, Twist
 
 #: The source of plain ``<prefix>/cmd_vel``.
 DEFAULT_SOURCE = Sources.DEFAULT

@@ -2,14 +2,14 @@
 
 Everything the gateway decides lives here, with no sockets, no Zenoh and no
 clock of its own. It composes small pure parts, each with its own timer:
-the safety :class:`~gateway.safety.Governor`, the request/reply
-:class:`~gateway.exchange.Exchange`, the :class:`~gateway.polling.PollSchedule`,
-the :class:`~gateway.links.Links` and their silence rules, the
-:class:`~gateway.prepare.PrepareRetry`, the :class:`~gateway.conflict.GatewayConflict`
-with a second gateway, the :class:`~gateway.log_port.LogPort`, and the
+the safety :class:`~blackmetal.gateway.safety.Governor`, the request/reply
+:class:`~blackmetal.gateway.exchange.Exchange`, the :class:`~blackmetal.gateway.polling.PollSchedule`,
+the :class:`~blackmetal.gateway.links.Links` and their silence rules, the
+:class:`~blackmetal.gateway.prepare.PrepareRetry`, the :class:`~blackmetal.gateway.conflict.GatewayConflict`
+with a second gateway, the :class:`~blackmetal.gateway.log_port.LogPort`, and the
 rate-limited :class:`~blackmetal.runtime.reports.ErrorReporter`.
 
-The host (:mod:`gateway.host`) feeds it :meth:`link_up`, :meth:`link_down`,
+The host (:mod:`blackmetal.gateway.host`) feeds it :meth:`link_up`, :meth:`link_down`,
 :meth:`receive`, :meth:`on_cmd_vel`, :meth:`on_estop`, :meth:`on_health_seen`
 and :meth:`tick`, each with ``now``; writes :meth:`take_outgoing` to each
 link, publishes :meth:`take_events`, and sleeps until :meth:`next_deadline`.
@@ -23,8 +23,7 @@ from collections.abc import Callable
 from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
-from schemas import (
+from blackmetal.schemas import (
     DriverChange,
     ErrorReport,
     GatewayHealth,
@@ -38,6 +37,7 @@ from schemas import (
     decode,
     excerpt,
 )
+from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
 from .arbiter import DEFAULT_SOURCE, Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
@@ -271,7 +271,7 @@ class GatewayCore:
         self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
 
     def on_estop(self, payload: bytes, now: float, release_key: bool = False) -> None:
-        """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages (see :mod:`gateway.estop`).
+        """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages (see :mod:`blackmetal.gateway.estop`).
 
         With ``release_key_only`` set, a release counts only on the release key: on ``estop`` it is refused (and the stop
         stays as it is: a refused release must not engage a robot that someone released properly meanwhile).

@@ -15,7 +15,7 @@ from typing import Any
 
 import msgspec
 
-from schemas import MAX_PAYLOAD_BYTES, EStop, PayloadError, decode, excerpt, to_bytes
+from blackmetal.schemas import MAX_PAYLOAD_BYTES, EStop, PayloadError, decode, excerpt, to_bytes
 
 _any = msgspec.json.Decoder(Any)
 _TRUE_WORDS = frozenset({"true", "1", "on", "yes", "engage", "engaged", "stop"})

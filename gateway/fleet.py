@@ -20,8 +20,8 @@ from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import freeze_start_up
 from blackmetal.runtime.fleet import FleetRobot, supervise
 from blackmetal.runtime.inbox import LoopInbox
+from blackmetal.schemas import ErrorReport, Keys
 from blackmetal.transport import TcpConnector
-from schemas import ErrorReport, Keys
 
 from .host import GatewayHost
 from .settings import GatewaySettings, when_killed

@@ -1,6 +1,6 @@
 """The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
 
-All decisions are in :class:`~gateway.core.GatewayCore`; this
+All decisions are in :class:`~blackmetal.gateway.core.GatewayCore`; this
 module opens the robot's streams through an injected
 :class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
 pipe in tests), reconnects with backoff, feeds what it reads, writes what
@@ -10,7 +10,7 @@ and sleeps until the connection's next deadline or the next input
 
 Commands and e-stops may also be taken on the Zenoh thread that delivers
 them (:meth:`GatewayHost.cmd_vel_direct`, :meth:`GatewayHost.estop_direct`),
-through the one :class:`~gateway.direct.DirectPath`: its lock guards the core
+through the one :class:`~blackmetal.gateway.direct.DirectPath`: its lock guards the core
 and the streams' writes, the loop holds it whenever it is in the core, and
 every ``now`` is read inside it, so the core never sees time go back. Messages are published
 only on the loop and never under that lock (:meth:`GatewayHost.publish`):
@@ -29,8 +29,8 @@ from typing import Any, Protocol
 
 from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.runtime.inbox import LoopInbox
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 from blackmetal.transport import ByteStream, Connector
-from schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 
 from .arbiter import DEFAULT_SOURCE
 from .core import Event, GatewayCore
@@ -104,7 +104,7 @@ class GatewayHost:
         self.connection = GatewayCore(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
-        #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`gateway.direct`).
+        #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`blackmetal.gateway.direct`).
         self.direct = DirectPath()
         #: Held by whoever is in the core or writes to a stream: the loop, or a Zenoh thread taking a command directly.
         self.lock = self.direct.lock

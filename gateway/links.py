@@ -1,7 +1,7 @@
 """The robot's two TCP links as the gateway's core sees them: state, silence timers and reconnect pacing, sans I/O.
 
 :class:`Links` is a pure part of the robot connection, like
-:class:`~gateway.safety.Governor` and :class:`~gateway.exchange.Exchange`:
+:class:`~blackmetal.gateway.safety.Governor` and :class:`~blackmetal.gateway.exchange.Exchange`:
 fed ``now`` on every event, it says which link must be dropped because the
 robot went silent (:meth:`Links.due`) and when that may next happen
 (:meth:`Links.next_deadline`). The host reconnects with
@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from enum import StrEnum
 from typing import Literal
 
-from schemas import LinkHealth
+from blackmetal.schemas import LinkHealth
 
 LinkName = Literal["control", "log"]
 LINKS: tuple[LinkName, LinkName] = ("control", "log")

@@ -8,8 +8,8 @@ Anything else on this port is handed back as :class:`~blackmetal.wire.Malformed`
 
 from __future__ import annotations
 
+from blackmetal.schemas import RobotStatus
 from blackmetal.wire import LogReport, Malformed, ReplyDecoder
-from schemas import RobotStatus
 
 #: Log-port reports that repeat the last state are published at most this often (s).
 STATUS_REPEAT_S = 0.9

@@ -1,4 +1,4 @@
-"""``blackmetal gateway`` / ``python -m gateway``: the robot's Zenoh gateway."""
+"""``blackmetal gateway`` / ``python -m blackmetal.gateway``: the robot's Zenoh gateway."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from blackmetal.runtime.entry import freeze_start_up, run_single_or_fleet, servi
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
+from blackmetal.schemas import Keys
 from blackmetal.transport import TcpConnector
-from schemas import Keys
 
 from .fleet import fleet_settings, serve_fleet
 from .host import GatewayHost

@@ -2,7 +2,7 @@
 
 A pure part of the robot connection with its own deadline: a PREPARE the
 robot dropped (FULL_BUFFER, or no reply) is sent again after the same
-growing pause as any command (:func:`gateway.safety.retry_delay`).
+growing pause as any command (:func:`blackmetal.gateway.safety.retry_delay`).
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from enum import Enum
 
 from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, UNITY_GAIN, WHEEL_SEPARATION, WheelGain, WheelSpeeds, twist_to_wheels
-from schemas import Twist
+from blackmetal.schemas import Twist
 
 #: Pause before the first re-send of a command the robot did not take; it doubles up to RETRY_CAP_S.
 RETRY_FIRST_S = 0.005

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field
 from blackmetal import robot_model as model
 from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
+from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
 from .safety import SafetySettings

@@ -29,7 +29,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Intake, Item, ZenohEdge, newest
-from schemas import DriverChange, ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
 
 from .arbiter import DEFAULT_SOURCE
 from .estop import read_estop

@@ -1,4 +1,4 @@
-"""The odometry pipeline of :mod:`odometry_service.integrator`, vectorised with numpy for replays.
+"""The odometry pipeline of :mod:`blackmetal.odometry_service.integrator`, vectorised with numpy for replays.
 
 Same rules, same arithmetic order where it matters, so the poses agree with
 the streaming path to 1e-9 (the filter recursion runs as a parallel prefix
@@ -176,7 +176,7 @@ def _zero_runs_before(zero: B, new_epoch: B) -> tuple[B, B, B]:
 def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.intp], F, int]:
     """One wheel's speeds to integrate, filtered speeds, the revisions of earlier steps (sample
     ``k`` revises step ``k - 1``: indices ``k`` and values), and its dropout count; the rules of
-    :class:`~odometry_service.glitches.Glitches`.
+    :class:`~blackmetal.odometry_service.glitches.Glitches`.
 
     The rules act at a few samples (first zeros, stops, starts), so they are
     worked out at those indices only; whole-array work is kept to the masks.

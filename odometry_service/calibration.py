@@ -16,7 +16,7 @@ effective wheel separation is not the one on the drawing.
   separation by least squares (Levenberg-Marquardt) of the odometry's path
   against a reference path (the simulator's truth, motion capture), reusing
   the wheels' travels of one replay: each evaluation is one
-  :func:`~odometry_service.batch.integrate` pass.
+  :func:`~blackmetal.odometry_service.batch.integrate` pass.
 """
 
 from __future__ import annotations

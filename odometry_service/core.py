@@ -3,7 +3,7 @@
 Every input comes with ``now`` (the receiver's monotonic time); what is
 due later (summaries of rate-limited reports, the count of dropped input)
 goes out in :meth:`OdometryCore.tick`, at :meth:`OdometryCore.next_deadline`.
-No I/O and no clock read here: :mod:`odometry_service.host` runs it on a
+No I/O and no clock read here: :mod:`blackmetal.odometry_service.host` runs it on a
 loop, and tests call it directly.
 """
 
@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 from typing import Protocol
 
 from blackmetal.runtime.reports import ErrorReporter
-from schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
+from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
 
 from .errors import OdometryError, SampleRejected
 from .integrator import Odometry
@@ -47,8 +47,8 @@ class OdometryCore:
     """Turns impulse payloads into published poses; reports everything it rejects.
 
     Its input is live, so every sample must carry ``mono`` and ``source``
-    (:class:`~odometry_service.sample_order.SampleOrder` with ``live``); logs
-    without them are for :mod:`odometry_service.replay`.
+    (:class:`~blackmetal.odometry_service.sample_order.SampleOrder` with ``live``); logs
+    without them are for :mod:`blackmetal.odometry_service.replay`.
     """
 
     def __init__(

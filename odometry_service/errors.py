@@ -1,12 +1,12 @@
-"""Errors of the odometry service, under the one root :class:`schemas.BlackmetalError`."""
+"""Errors of the odometry service, under the one root :class:`blackmetal.schemas.BlackmetalError`."""
 
 from __future__ import annotations
 
-from schemas import BlackmetalError
+from blackmetal.schemas import BlackmetalError
 
 
 class OdometryError(BlackmetalError):
-    """Base of the errors raised by :mod:`odometry_service`."""
+    """Base of the errors raised by :mod:`blackmetal.odometry_service`."""
 
 
 class SampleRejected(OdometryError):

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from blackmetal.runtime.edge import Intake, refuse_taken
 from blackmetal.runtime.fleet import FleetRobot, supervise
 from blackmetal.runtime.inbox import LoopInbox
-from schemas import ErrorReport, Keys
+from blackmetal.schemas import ErrorReport, Keys
 
 from .core import OdometryCore
 from .host import OdometryHost

@@ -1,7 +1,7 @@
 """Spike, dropout and stop rules for both wheels, with the low-pass: step 2 and 3 of the pipeline, sample by sample.
 
 Kept apart from the integration so the rules can be tested on readings
-alone; :mod:`odometry_service.batch` implements the same rules with numpy.
+alone; :mod:`blackmetal.odometry_service.batch` implements the same rules with numpy.
 """
 
 from __future__ import annotations

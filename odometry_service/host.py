@@ -1,6 +1,6 @@
 """The odometry's asyncio host: stamps each input with the clock, runs the core's timers, counts dropped input.
 
-All decisions are in :class:`~odometry_service.core.OdometryCore`; the Zenoh
+All decisions are in :class:`~blackmetal.odometry_service.core.OdometryCore`; the Zenoh
 edge hands payloads and queries over to this host on the loop
 (:mod:`blackmetal.runtime.edge`), the host passes them on with ``now`` and
 pokes the shared :class:`~blackmetal.runtime.host.DeadlineTimer`, which runs
@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.runtime.inbox import LoopInbox
-from schemas import Pose
+from blackmetal.schemas import Pose
 
 from .core import OdometryCore
 

@@ -17,10 +17,10 @@ Pipeline per sample (each reading describes the interval since the previous one)
    samples' stamps; a gap longer than ``max_gap`` is not integrated (reported
    instead), nor is the jump to a restarted gateway's new sequence.
 
-Step 2 and 3 are :mod:`odometry_service.glitches`; which samples are
-integrated, and over which interval, is :mod:`odometry_service.sample_order`.
+Step 2 and 3 are :mod:`blackmetal.odometry_service.glitches`; which samples are
+integrated, and over which interval, is :mod:`blackmetal.odometry_service.sample_order`.
 
-:mod:`odometry_service.batch` implements the same pipeline with numpy for
+:mod:`blackmetal.odometry_service.batch` implements the same pipeline with numpy for
 replays; the two agree to 1e-9.
 """
 
@@ -30,7 +30,7 @@ import math
 from dataclasses import dataclass, field
 
 from blackmetal.robot_model import arc_step, wheels_to_twist
-from schemas import Pose, WheelImpulses, make_pose, wrap_angle
+from blackmetal.schemas import Pose, WheelImpulses, make_pose, wrap_angle
 
 from .errors import OdometryError
 from .glitches import Glitches

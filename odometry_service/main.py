@@ -1,4 +1,4 @@
-"""``blackmetal odometry`` / ``python -m odometry_service``: impulses in, pose out, on Zenoh."""
+"""``blackmetal odometry`` / ``python -m blackmetal.odometry_service``: impulses in, pose out, on Zenoh."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
-from schemas import Keys
+from blackmetal.schemas import Keys
 
 from .core import OdometryCore
 from .fleet import fleet_settings, serve_fleet

@@ -18,7 +18,7 @@ import msgspec
 import numpy as np
 from numpy.typing import NDArray
 
-from schemas import Pose, WheelImpulses, make_pose
+from blackmetal.schemas import Pose, WheelImpulses, make_pose
 
 from .batch import BatchResult, run_batch
 from .errors import ReplayError

@@ -8,7 +8,7 @@ from blackmetal import robot_model as model
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.settings import setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
+from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 from .errors import OdometryError
 from .params import OdometryParams

@@ -7,7 +7,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Intake, ZenohEdge
-from schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
+from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
 
 from .host import OdometryHost
 
@@ -19,7 +19,7 @@ class OdometryZenoh(ZenohEdge):
     """Publishes poses and errors; feeds impulses, pose queries and resets to the host."""
 
     def __init__(self, session: "zenoh.Session", keys: Keys, *, batched: bool = False) -> None:
-        """``batched``: poses go out batched, not express (a fleet host; see :mod:`odometry_service.fleet`)."""
+        """``batched``: poses go out batched, not express (a fleet host; see :mod:`blackmetal.odometry_service.fleet`)."""
         super().__init__(session)
         self.keys = keys
         # one robot: express, no batching, the lowest latency. A fleet: batched; Zenoh still sends at once

@@ -6,20 +6,20 @@ sentence instead of a traceback. The whole tree, each class with the module
 that defines it (``tests/test_error_tree.py`` checks the drawing against the
 classes, so a new class, a new parent or a moved module is drawn here)::
 
-    BlackmetalError                      schemas.errors
-    ├── ConfigError                      schemas.errors: a setting, flag, prefix or Zenoh config is unusable
-    │   └── MissingExtra                 schemas.errors: an optional extra (ros2, record, foxglove) is not installed
-    ├── ZenohUnavailable                 schemas.errors: no Zenoh session (router down, port in use, credentials)
-    │   └── ZenohUnreachable             schemas.errors: nothing answers at the endpoints (yet: a router may still be starting)
-    ├── PayloadError (also ValueError)   schemas.errors: bytes on a key are not a valid message
+    BlackmetalError                      blackmetal.schemas.errors
+    ├── ConfigError                      blackmetal.schemas.errors: a setting, flag, prefix or Zenoh config is unusable
+    │   └── MissingExtra                 blackmetal.schemas.errors: an optional extra (ros2, record, foxglove) is not installed
+    ├── ZenohUnavailable                 blackmetal.schemas.errors: no Zenoh session (router down, port in use, credentials)
+    │   └── ZenohUnreachable             blackmetal.schemas.errors: nothing answers at the endpoints (yet: a router may still be starting)
+    ├── PayloadError (also ValueError)   blackmetal.schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
     ├── ChildFailed                      blackmetal.runtime.harness: a child process exited or was not ready in time; its last lines
     ├── ServiceFailure                   blackmetal.foxglove.host: a Foxglove service call that could not be done; its text goes to the caller
-    ├── OdometryError                    odometry_service.errors
-    │   ├── SampleRejected               odometry_service.errors: an impulse sample that cannot be integrated
-    │   │   └── UnstampedSample          odometry_service.errors: a live sample without ``mono`` or ``source``
-    │   ├── ReplayError                  odometry_service.errors: a recording that cannot be replayed; names the line
-    │   └── CalibrationError             odometry_service.calibration: recordings that cannot calibrate anything
+    ├── OdometryError                    blackmetal.odometry_service.errors
+    │   ├── SampleRejected               blackmetal.odometry_service.errors: an impulse sample that cannot be integrated
+    │   │   └── UnstampedSample          blackmetal.odometry_service.errors: a live sample without ``mono`` or ``source``
+    │   ├── ReplayError                  blackmetal.odometry_service.errors: a recording that cannot be replayed; names the line
+    │   └── CalibrationError             blackmetal.odometry_service.calibration: recordings that cannot calibrate anything
     └── ToolError                        blackmetal.tools.client: a user tool cannot do its job; says what to check
         └── Cancelled                    blackmetal.tools.square: the square was stopped (Ctrl-C); the robot is stopped
 """

@@ -134,7 +134,7 @@ def start_robot(
             *zenoh_connect_args(zport),
         ]
     )
-    odometry = Child(["-m", "odometry_service", *odometry_args, *zenoh_connect_args(zport)])
+    odometry = Child(["-m", "blackmetal.odometry_service", *odometry_args, *zenoh_connect_args(zport)])
     children.extend([gateway, odometry])
     gateway.ready()
     odometry.ready()

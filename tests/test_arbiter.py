@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
-from schemas import ConfigError, Twist, Vector3
+from blackmetal.gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
+from blackmetal.schemas import ConfigError, Twist, Vector3
 
 
 def twist(v: float) -> Twist:

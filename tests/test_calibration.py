@@ -16,11 +16,11 @@ from helpers import Child, free_port, start_robot, zenoh_connect_args
 
 from blackmetal import robot_model as model
 from blackmetal.bench.synth import square_legs, synth_log
+from blackmetal.odometry_service.batch import integrate
+from blackmetal.odometry_service.calibration import CalibrationError, Constants, Segment, align, fit_trajectory, umbmark
 from blackmetal.recording.writer import McapRecording
 from blackmetal.robot_model import arc_step
-from odometry_service.batch import integrate
-from odometry_service.calibration import CalibrationError, Constants, Segment, align, fit_trajectory, umbmark
-from schemas import Keys, encode, make_pose
+from blackmetal.schemas import Keys, encode, make_pose
 
 NOMINAL = Constants(model.IMPULSES_PER_METER_LEFT, model.IMPULSES_PER_METER_RIGHT, model.WHEEL_SEPARATION)
 

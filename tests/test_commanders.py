@@ -17,7 +17,7 @@ import pytest
 import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for
 
-from schemas import GatewayHealth, Pose, decode
+from blackmetal.schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
 

@@ -20,7 +20,7 @@ import pytest
 import zenoh
 from helpers import TIMEOUT, Child, SimProcess, free_port, free_ports, wait_for
 
-from schemas import GatewayHealth, Pose, decode
+from blackmetal.schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
 
@@ -74,10 +74,10 @@ def start_robot(children: list[Child], endpoint: str, prefix: str = "robot", cre
                 os.environ[key] = value
     children.append(sim)
     gateway = Child(
-        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs, *gateway_extra],
+        ["-m", "blackmetal.gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs, *gateway_extra],
         env=env("gateway"),
     )
-    odometry = Child(["-m", "odometry_service", *zargs], env=env("odometry"))
+    odometry = Child(["-m", "blackmetal.odometry_service", *zargs], env=env("odometry"))
     children.extend([gateway, odometry])
     gateway.ready()
     odometry.ready()
@@ -407,9 +407,9 @@ def test_router_gateway_and_operator_on_separate_hosts(children: list[Child], tm
     sim = SimProcess(*zargs, launcher=robot_side)
     children.append(sim)
     gateway = Child(
-        ["-m", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], launcher=robot_side
+        ["-m", "blackmetal.gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *zargs], launcher=robot_side
     )
-    odometry = Child(["-m", "odometry_service", *zargs], launcher=robot_side)
+    odometry = Child(["-m", "blackmetal.odometry_service", *zargs], launcher=robot_side)
     children.extend([gateway, odometry])
     gateway.ready()
     odometry.ready()

@@ -17,10 +17,10 @@ from types import ModuleType
 
 import pytest
 
-import schemas.errors
-from schemas import BlackmetalError
+import blackmetal.schemas.errors as schemas_errors
+from blackmetal.schemas import BlackmetalError
 
-PACKAGES = ("blackmetal", "gateway", "odometry_service", "schemas")
+PACKAGES = ("blackmetal",)
 
 #: One line of the drawing: tree prefix, class name, other bases, module, description.
 LINE = re.compile(
@@ -38,8 +38,8 @@ class Drawn:
 
 
 def drawn_tree() -> dict[str, Drawn]:
-    """The tree in the docstring of ``schemas.errors``, by class name."""
-    doc = schemas.errors.__doc__ or ""
+    """The tree in the docstring of ``blackmetal.schemas.errors``, by class name."""
+    doc = schemas_errors.__doc__ or ""
     block = doc.split("::\n", 1)[1]
     lines = [line[4:] for line in block.splitlines() if line.strip()]
     assert lines, "no tree drawn in schemas.errors"

@@ -21,7 +21,7 @@ import zenoh
 from helpers import FLOODER, Child, client_config, free_port, wait_for
 from rogue_robot import Behaviour, RogueRobot
 
-from schemas import GatewayHealth, Pose, decode
+from blackmetal.schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
 
@@ -89,8 +89,8 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
     request.addfinalizer(rogue.stop)
     with fleet.open("a") as entries:
         entries.write(f'\n[[robot]]\nid = "rogue"\nhost = "127.0.0.1"\ncontrol_port = {rogue.control_port}\nlog_port = {rogue.log_port}\n')
-    gateway = Child(["-m", "gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
-    odometry = Child(["-m", "odometry_service", "--fleet", str(fleet), *_zargs(port)])
+    gateway = Child(["-m", "blackmetal.gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
+    odometry = Child(["-m", "blackmetal.odometry_service", "--fleet", str(fleet), *_zargs(port)])
     children += [gateway, odometry]
     gateway.ready()
     odometry.ready()
@@ -185,6 +185,6 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
 def test_fleet_file_mistakes_end_in_one_sentence(tmp_path: Path, fleet: str, message: str) -> None:
     path = tmp_path / "fleet.toml"
     path.write_text(fleet)
-    for command in (["-m", "gateway"], ["-m", "odometry_service"], ["-m", "blackmetal", "sim"]):
+    for command in (["-m", "blackmetal.gateway"], ["-m", "blackmetal.odometry_service"], ["-m", "blackmetal", "sim"]):
         result = subprocess.run([sys.executable, *command, "--fleet", str(path)], capture_output=True, text=True, timeout=60)
         assert result.returncode == 2 and result.stderr.count("\n") == 1 and message in result.stderr, (command, result.stderr)

@@ -6,10 +6,10 @@ import tomllib
 
 import pytest
 
+from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.runtime.fleet import load_fleet, numbered_fleet, parse_fleet, write_fleet
-from gateway.settings import GatewaySettings
-from odometry_service.settings import OdometrySettings
-from schemas import ConfigError
+from blackmetal.schemas import ConfigError
 
 GOOD = """
 [[robot]]
@@ -103,7 +103,7 @@ def test_numbered_fleets_round_trip_through_a_file(tmp_path) -> None:  # type: i
 
 
 def test_times_beyond_the_robots_bounds_are_refused_naming_the_robot() -> None:
-    from gateway.settings import GatewaySettings
+    from blackmetal.gateway.settings import GatewaySettings
 
     robots = parse_fleet(tomllib.loads('[[robot]]\nid="a"\ncontrol_port=1\nlog_port=2\n[robot.gateway]\ncmd_timeout=1e9\n'))
     with pytest.raises(ConfigError, match=r"robot 1 \(id 'a'\): cmd_timeout 1e\+09 s is beyond 60 s"):

@@ -244,7 +244,7 @@ def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() 
             return None
 
     from blackmetal.runtime.fleet import numbered_fleet
-    from schemas import GatewayHealth, LinkHealth
+    from blackmetal.schemas import GatewayHealth, LinkHealth
 
     robots = numbered_fleet(2)
     status = FleetStatus(NoSession(), robots)  # type: ignore[arg-type]

@@ -18,7 +18,7 @@ from helpers import Child, client_config, free_port, start_robot, zenoh_connect_
 from mcap.reader import make_reader
 from websockets.sync.client import connect
 
-from schemas import Pose, decode
+from blackmetal.schemas import Pose, decode
 
 #: The subprotocols Foxglove's app offers.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -151,7 +151,7 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
 
 def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
     from blackmetal.foxglove.core import DiagnosticLevel, diagnostics
-    from schemas import GatewayHealth, LinkHealth
+    from blackmetal.schemas import GatewayHealth, LinkHealth
 
     health = GatewayHealth(stamp=12.5, control=LinkHealth("connected"), log=LinkHealth("down"), estop=True, active_source="foxglove")
     array = diagnostics(health, "robot")

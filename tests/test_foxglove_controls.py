@@ -40,7 +40,7 @@ from blackmetal.foxglove.host import (
     switches_protocols,
     ws_frame,
 )
-from schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
 
 KEYS = Keys("robot")
 TWIST_FORWARD = json.dumps({"linear": {"x": 0.3, "y": 0.0, "z": 0.0}, "angular": {"x": 0.0, "y": 0.0, "z": 0.0}}).encode()

@@ -45,7 +45,7 @@ from blackmetal.foxglove.core import (
 from blackmetal.foxglove.fleet import fleet_settings
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.runtime.fleet import parse_fleet
-from schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
+from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
 
 IDS = ("r1", "r2", "r3")
 
@@ -267,8 +267,8 @@ def test_one_view_shows_and_drives_a_fleet_of_three(children: list[Child], tmp_p
     sim = Child(["-m", "blackmetal", "sim", "--robots", str(len(IDS)), "--write-fleet", str(fleet), *zenoh_listen_args(port)])  # the hub
     children.append(sim)
     sim.ready()
-    gateway = Child(["-m", "gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
-    odometry = Child(["-m", "odometry_service", "--fleet", str(fleet), *_zargs(port)])
+    gateway = Child(["-m", "blackmetal.gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
+    odometry = Child(["-m", "blackmetal.odometry_service", "--fleet", str(fleet), *_zargs(port)])
     view = Child(["-m", "blackmetal", "foxglove", "--fleet", str(fleet), "--port", "0", *_zargs(port)])
     children += [gateway, odometry, view]
     gateway.ready()

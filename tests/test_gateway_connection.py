@@ -17,12 +17,12 @@ import pytest
 from helpers import TRUE_ESTOPS
 
 from blackmetal import wire
+from blackmetal.gateway.core import GatewayCore
+from blackmetal.gateway.links import DropLink
+from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, Request
-from gateway.core import GatewayCore
-from gateway.links import DropLink
-from gateway.settings import GatewaySettings
-from schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 
 WALL0 = 1_800_000_000.0
 
@@ -389,7 +389,7 @@ def test_losing_and_regaining_the_log_link_is_reported() -> None:
 
 
 def test_reconnect_backoff_is_not_reset_by_connections_that_die_at_once() -> None:
-    from gateway.links import ReconnectBackoff
+    from blackmetal.gateway.links import ReconnectBackoff
 
     backoff, now, attempts = ReconnectBackoff(first=0.05, cap=2.0, stable=5.0), 0.0, 0
     while now < 10.0:  # a robot that accepts and closes at once, for 10 s
@@ -402,14 +402,14 @@ def test_reconnect_backoff_is_not_reset_by_connections_that_die_at_once() -> Non
 
 
 def test_a_second_gateway_on_the_prefix_brakes_both_until_one_leaves() -> None:
-    from schemas import GatewayHealth
+    from blackmetal.schemas import GatewayHealth
 
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
     bench.cmd(b'{"linear":{"x":0.3}}')
     other = bench.conn.health(bench.t)
     other = GatewayHealth(stamp=other.stamp, control=other.control, log=other.log, source="another-run")
-    from schemas import encode
+    from blackmetal.schemas import encode
 
     for _ in range(3):  # its health arrives once a second
         bench.conn.on_health_seen(encode(other), bench.t)
@@ -434,7 +434,7 @@ def test_a_second_gateway_on_the_prefix_brakes_both_until_one_leaves() -> None:
 
 def test_a_gateway_too_old_to_name_its_run_is_a_conflict_too() -> None:
     """A health without ``source`` on our prefix comes from another gateway: a missing field switches no check off."""
-    from schemas import GatewayHealth, encode
+    from blackmetal.schemas import GatewayHealth, encode
 
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
@@ -549,7 +549,7 @@ def test_with_release_key_only_a_release_counts_only_on_the_release_key() -> Non
 
 
 def test_every_change_of_driver_is_published_with_who_from_whom_and_why() -> None:
-    from schemas import DriverChange
+    from blackmetal.schemas import DriverChange
 
     bench = Bench(lock=["pause:200"])
     bench.connect()

@@ -18,13 +18,13 @@ from typing import Any
 import pytest
 from helpers import free_port
 
+from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.schemas import SimFaults
 from blackmetal.sim.memory import MemoryConnector
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
 from blackmetal.transport import TcpConnector
-from gateway.host import GatewayHost, RecordingOutput
-from gateway.settings import GatewaySettings
-from schemas import SimFaults
 
 TIMEOUT = 20.0
 
@@ -340,7 +340,7 @@ async def test_status_from_the_log_port(transport: str) -> None:
 
 def test_an_unreachable_robot_is_reported_with_its_reason(caplog: pytest.LogCaptureFixture) -> None:
     """Nothing listens on the robot's port: the warning names the address and why, never an empty reason."""
-    from gateway.host import _reason
+    from blackmetal.gateway.host import _reason
 
     port = free_port()
 

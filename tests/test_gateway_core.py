@@ -10,14 +10,14 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from blackmetal import wire
+from blackmetal.gateway.exchange import Completed, Exchange, Lost
+from blackmetal.gateway.safety import CommandReason, Governor, SafetySettings
+from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.robot_model import WheelGain, WheelSpeeds, twist_to_wheels, wheels_to_twist
 from blackmetal.runtime.reports import ReportLimiter
 from blackmetal.runtime.settings import load_settings
+from blackmetal.schemas import ConfigError, Twist, Vector3
 from blackmetal.wire import CommandCode, Malformed, StatusReply
-from gateway.exchange import Completed, Exchange, Lost
-from gateway.safety import CommandReason, Governor, SafetySettings
-from gateway.settings import GatewaySettings
-from schemas import ConfigError, Twist, Vector3
 
 OK = StatusReply("RECIEVE_OK")
 FULL = StatusReply("FULL_BUFFER")
@@ -88,9 +88,9 @@ def test_calibrated_wheels_are_asked_for_what_makes_them_true() -> None:
 
 def test_gateway_settings_turn_calibrated_impulses_into_the_gain(tmp_path) -> None:  # type: ignore[no-untyped-def]
     from blackmetal import robot_model as model
+    from blackmetal.gateway.settings import GatewaySettings
     from blackmetal.runtime.settings import load_settings
-    from gateway.settings import GatewaySettings
-    from schemas import ConfigError
+    from blackmetal.schemas import ConfigError
 
     calibration = tmp_path / "calibration.toml"
     calibration.write_text(
@@ -374,7 +374,7 @@ def test_unknown_setting_in_a_file_is_an_error(tmp_path) -> None:  # type: ignor
 
 
 def test_a_setting_of_the_wrong_kind_is_said_in_plain_words_naming_where_it_came_from(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    from schemas import ConfigError
+    from blackmetal.schemas import ConfigError
 
     toml = tmp_path / "gw.toml"
     toml.write_text('poll_hz = "fast"\n')

@@ -10,7 +10,7 @@ import pytest
 import zenoh
 from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args
 
-from schemas import GatewayHealth, Pose, WheelImpulses, decode
+from blackmetal.schemas import GatewayHealth, Pose, WheelImpulses, decode
 
 pytestmark = pytest.mark.integration
 
@@ -170,7 +170,7 @@ def test_sigterm_stops_the_robot_and_exits_within_two_seconds(children: list[Chi
 
 
 def test_bad_settings_exit_with_a_clear_message(children: list[Child]) -> None:
-    proc = Child(["-m", "gateway", "--poll-hz", "0"])
+    proc = Child(["-m", "blackmetal.gateway", "--poll-hz", "0"])
     children.append(proc)
     assert proc.proc.wait(20) == 2
     proc.stop()

@@ -14,11 +14,11 @@ import pytest
 from helpers import wait_for
 from test_direct_take import GatewayRig, LoopThread
 
+from blackmetal.gateway.host import RecordingOutput
+from blackmetal.gateway.zenoh_edge import _engages
 from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import CoreLock
-from gateway.host import RecordingOutput
-from gateway.zenoh_edge import _engages
-from schemas import GatewayHealth
+from blackmetal.schemas import GatewayHealth
 
 ON, OFF = b'{"engaged": true}', b'{"engaged": false}'
 

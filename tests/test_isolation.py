@@ -11,7 +11,7 @@ import pytest
 import zenoh
 from helpers import Child, client_config, free_port, wait_for
 
-from schemas import Keys, Pose, decode
+from blackmetal.schemas import Keys, Pose, decode
 
 pytestmark = pytest.mark.integration
 
@@ -142,12 +142,12 @@ def test_a_peer_that_met_two_demos_does_not_link_them() -> None:
 def test_one_default_endpoint_for_services_and_tools() -> None:
     """No Zenoh flags: every process is a client of tcp/127.0.0.1:7447 (where up and router listen); -l makes a hub of it."""
     from blackmetal.cli import build_parser
+    from blackmetal.gateway.settings import GatewaySettings
+    from blackmetal.odometry_service.settings import OdometrySettings
     from blackmetal.ros2.settings import Ros2Settings
     from blackmetal.runtime.settings import load_settings
     from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, zenoh_settings
     from blackmetal.sim.settings import SimSettings
-    from gateway.settings import GatewaySettings
-    from odometry_service.settings import OdometrySettings
 
     assert DEFAULT_ENDPOINT == "tcp/127.0.0.1:7447"
     parser = build_parser()

@@ -11,14 +11,14 @@ from hypothesis import strategies as st
 
 from blackmetal import robot_model as facts
 from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
+from blackmetal.odometry_service.batch import linear_scan, run_batch
+from blackmetal.odometry_service.errors import SampleRejected
+from blackmetal.odometry_service.glitches import Glitches
+from blackmetal.odometry_service.integrator import Odometry
+from blackmetal.odometry_service.params import OdometryParams
+from blackmetal.odometry_service.sample_order import EpochStart, EpochTally, SampleOrder, Verdict
 from blackmetal.robot_model import PARALLEL_MIN, Encoders, arc_step
-from odometry_service.batch import linear_scan, run_batch
-from odometry_service.errors import SampleRejected
-from odometry_service.glitches import Glitches
-from odometry_service.integrator import Odometry
-from odometry_service.params import OdometryParams
-from odometry_service.sample_order import EpochStart, EpochTally, SampleOrder, Verdict
-from schemas import WheelImpulses
+from blackmetal.schemas import WheelImpulses
 
 IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
 

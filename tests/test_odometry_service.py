@@ -17,11 +17,11 @@ import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_listen_args
 
 from blackmetal.bench.synth import SynthLog, exact_pose, square_legs, synth_log
-from odometry_service.core import DROPPED_REPORT_PERIOD_S, OdometryCore, RecordingOdometryOutput
-from odometry_service.host import OdometryHost
-from odometry_service.integrator import Odometry
-from odometry_service.params import OdometryParams
-from schemas import Keys, PayloadError, Pose, WheelImpulses, decode, encode
+from blackmetal.odometry_service.core import DROPPED_REPORT_PERIOD_S, OdometryCore, RecordingOdometryOutput
+from blackmetal.odometry_service.host import OdometryHost
+from blackmetal.odometry_service.integrator import Odometry
+from blackmetal.odometry_service.params import OdometryParams
+from blackmetal.schemas import Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 
 def service() -> tuple[OdometryCore, RecordingOdometryOutput]:
@@ -208,7 +208,7 @@ def test_drive_the_simulator_and_the_pose_follows_the_truth(children: list[Child
 @pytest.mark.integration
 def test_hostile_impulses_and_resets_on_zenoh(children: list[Child]) -> None:
     zport = free_port()
-    odometry = Child(["-m", "odometry_service", *zenoh_listen_args(zport)])
+    odometry = Child(["-m", "blackmetal.odometry_service", *zenoh_listen_args(zport)])
     children.append(odometry)
     odometry.ready()
     with zenoh.open(client_config(zport)) as session:

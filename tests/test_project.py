@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from schemas import KEY_SPECS, Keys
+from blackmetal.schemas import KEY_SPECS, Keys
 
 ROOT = Path(__file__).resolve().parent.parent
 BIN = Path(sys.executable).parent
@@ -60,3 +60,43 @@ def test_keys_follow_the_prefix_and_refuse_wildcards() -> None:
     for bad in ("", "robot/*", "a//b", "@robot", "r$"):
         with pytest.raises(Exception, match="prefix"):
             Keys(bad)
+
+
+#: The folders at the top of the repository that install inside ``blackmetal`` (``blackmetal/<name>`` links to ``../<name>``).
+SERVICE_FOLDERS = ("gateway", "odometry_service", "schemas")
+
+
+def test_everything_imports_from_one_root() -> None:
+    """``blackmetal.gateway``, never ``gateway``: names like ``gateway`` and ``schemas`` belong to other distributions too."""
+    import ast
+
+    offenders = []
+    for path in sorted(
+        {*ROOT.glob("blackmetal/**/*.py"), *ROOT.glob("tests/*.py"), *(p for f in SERVICE_FOLDERS for p in ROOT.glob(f"{f}/*.py"))}
+    ):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+                names = [node.module]
+            offenders += [f"{path.relative_to(ROOT)}: {name}" for name in names if name.split(".")[0] in SERVICE_FOLDERS]
+    assert offenders == []
+    for name in SERVICE_FOLDERS:
+        link = ROOT / "blackmetal" / name
+        assert link.is_symlink() and link.resolve() == (ROOT / name).resolve(), f"blackmetal/{name} must link to ../{name}"
+
+
+def test_the_distribution_installs_one_top_level_package() -> None:
+    """The installed distribution holds ``blackmetal/`` alone, the service folders inside it (CI installs it as users do)."""
+    import json
+    from importlib import metadata
+
+    # the installed one, not the egg-info that building left in this checkout (the working directory is on sys.path)
+    (dist,) = [d for d in metadata.distributions(name="blackmetal") if ".dist-info" in str(getattr(d, "_path", ""))]
+    direct = dist.read_text("direct_url.json")
+    if direct and json.loads(direct).get("dir_info", {}).get("editable"):
+        pytest.skip("an editable install maps the source tree; CI's `pip install .` is checked")
+    files = [str(f) for f in dist.files or []]
+    tops = {f.split("/")[0] for f in files if not f.startswith("..") and ".dist-info" not in f.split("/")[0]}
+    assert tops == {"blackmetal"}, tops
+    for name in SERVICE_FOLDERS:
+        assert f"blackmetal/{name}/__init__.py" in files

@@ -22,7 +22,7 @@ from mcap.stream_reader import StreamReader
 
 from blackmetal.recording.reader import _chunk_bytes, _record_table, read_mcap, topic_lines
 from blackmetal.recording.writer import McapRecording
-from schemas import Keys, Pose, WheelImpulses, decode, encode, json_schemas, make_pose
+from blackmetal.schemas import Keys, Pose, WheelImpulses, decode, encode, json_schemas, make_pose
 
 
 def read_all(path: Path) -> dict[str, list[tuple[object, object, object]]]:

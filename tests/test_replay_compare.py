@@ -7,8 +7,8 @@ import re
 
 import numpy as np
 
+from blackmetal.schemas import make_pose
 from blackmetal.tools.replay import compare_poses
-from schemas import make_pose
 
 
 def test_a_recording_that_starts_mid_run_compares_the_motion_not_the_origin() -> None:

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from blackmetal.runtime.reports import MAX_TRACKED, OTHER_KEYS, ErrorReporter, ReportLimiter
-from schemas import ErrorReport
+from blackmetal.schemas import ErrorReport
 
 
 def flood(reporter: ErrorReporter, names: int, seconds: float, family: str | None) -> None:

@@ -11,7 +11,7 @@ from collections import Counter
 import pytest
 
 from blackmetal.runtime.reports import MAX_TRACKED, OTHER_KEYS, ErrorReporter, ReportLimiter
-from schemas import ErrorReport
+from blackmetal.schemas import ErrorReport
 
 
 def is_summary(report: ErrorReport) -> bool:

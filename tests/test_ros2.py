@@ -31,7 +31,7 @@ from blackmetal.ros2.naming import (
     split_token,
 )
 from blackmetal.ros2.settings import diagonal_matrix
-from schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
 
 TWIST_HASH = "RIHS01_9c45bf16fe0983d80e3cfe750d6835843d265a9a6c46bd2e609fcddde6fb8d2a"
 ODOM_HASH = "RIHS01_3cc97dc7fb7502f8714462c526d369e35b603cfc34d946e3f2eda2766dfec6e0"
@@ -142,7 +142,7 @@ def test_tokens_qos_and_attachment_in_rmw_zenoh_format() -> None:
 def test_covariance_diagonal() -> None:
     matrix = diagonal_matrix("1,2,3,4,5,6", "pose")
     assert [matrix[7 * i] for i in range(6)] == [1, 2, 3, 4, 5, 6] and sum(matrix) == 21
-    from schemas import ConfigError
+    from blackmetal.schemas import ConfigError
 
     for bad in ("1,2,3", "a,b,c,d,e,f", "1,2,3,4,5,nan", "1,2,3,4,5,-1"):
         with pytest.raises(ConfigError):

@@ -35,7 +35,7 @@ from blackmetal.ros2.naming import attachment, gid_of, split_token, tf_frame_pre
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import parse_fleet
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import ConfigError, ErrorReport, GatewayHealth, Pose, decode, encode, make_pose
+from blackmetal.schemas import ConfigError, ErrorReport, GatewayHealth, Pose, decode, encode, make_pose
 
 IDS = ("r1", "r2", "r3")
 TF_KEY = f"0/tf/tf2_msgs::msg::dds_::TFMessage_/{TF_HASH}"
@@ -130,8 +130,8 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
     sim = Child(["-m", "blackmetal", "sim", "--robots", str(len(IDS)), "--write-fleet", str(fleet), *_zargs(port)])
     children.append(sim)
     sim.ready()
-    gateway = Child(["-m", "gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
-    odometry = Child(["-m", "odometry_service", "--fleet", str(fleet), *_zargs(port)])
+    gateway = Child(["-m", "blackmetal.gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
+    odometry = Child(["-m", "blackmetal.odometry_service", "--fleet", str(fleet), *_zargs(port)])
     ros2 = Child(["-m", "blackmetal", "ros2", "--fleet", str(fleet), *_zargs(port)])
     children += [gateway, odometry, ros2]
     gateway.ready()

@@ -36,7 +36,7 @@ from blackmetal.ros2.core import (
 from blackmetal.ros2.messages import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level, RosCodec
 from blackmetal.ros2.naming import NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
 from blackmetal.ros2.settings import diagonal_matrix
-from schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
 
 # ROS 2 Jazzy's hashes (rosidl), not computed here: the adapter's must equal them.
 SET_BOOL_HASH = "RIHS01_abe9e4bb6b41b40e6789712c00ec8871923e089af3f667a79992a428cff2da0a"

@@ -19,7 +19,7 @@ import zenoh
 from helpers import FLOODER, TRUE_ESTOPS, Child, client_config, free_port, wait_for
 from rogue_robot import Behaviour, RogueRobot
 
-from schemas import GatewayHealth, Keys, decode
+from blackmetal.schemas import GatewayHealth, Keys, decode
 
 pytestmark = pytest.mark.integration
 
@@ -32,7 +32,7 @@ class Rig:
         self.robot = RogueRobot(behaviour).start()
         self.zport = free_port()
         self.gateway = Child(
-            ["-m", "gateway", "--control-port", str(self.robot.control_port), "--log-port", str(self.robot.log_port),
+            ["-m", "blackmetal.gateway", "--control-port", str(self.robot.control_port), "--log-port", str(self.robot.log_port),
              "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{self.zport}", *gateway_args]
         )  # fmt: skip
         self.gateway.ready()
@@ -223,7 +223,7 @@ def test_emg_stop_and_prepare_are_spaced_when_the_robot_is_always_full(rig_facto
 
 def test_a_robot_that_closes_every_connection_gets_a_backoff_not_a_storm() -> None:
     robot = RogueRobot(Behaviour(close_at_once=True)).start()
-    gateway = Child(["-m", "gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+    gateway = Child(["-m", "blackmetal.gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
                      "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{free_port()}"])  # fmt: skip
     try:
         gateway.ready()

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from schemas import (
+from blackmetal.schemas import (
     MESSAGE_TYPES,
     ErrorReport,
     EStop,
@@ -26,7 +26,7 @@ from schemas import (
     payload_bytes,
     wrap_angle,
 )
-from schemas.codec import MAX_PAYLOAD_BYTES
+from blackmetal.schemas.codec import MAX_PAYLOAD_BYTES
 
 
 @pytest.mark.parametrize(

@@ -9,9 +9,9 @@ import pytest
 from blackmetal import robot_model as facts
 from blackmetal import wire
 from blackmetal.robot_model import arc_step
+from blackmetal.schemas import SimFaults
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, PositionReading, ReplyDecoder, SpeedReading, StatusReply
-from schemas import SimFaults
 
 
 def send(robot: SimRobot, request: wire.Request, now: float) -> list[object]:

@@ -11,8 +11,8 @@ import zenoh
 from helpers import TIMEOUT, Child, SimProcess, client_config, free_port, wait_for, zenoh_listen_args
 
 from blackmetal import wire
+from blackmetal.schemas import Pose, SimFaults, decode
 from blackmetal.wire import CommandCode, LogReport, Malformed, ReplyDecoder, SpeedReading, StatusReply
-from schemas import Pose, SimFaults, decode
 
 pytestmark = pytest.mark.integration
 

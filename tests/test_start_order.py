@@ -23,7 +23,7 @@ import zenoh
 from helpers import Child, client_config, free_port, wait_for, zenoh_connect_args
 from mcap.reader import make_reader
 
-from schemas import Keys, Pose, decode
+from blackmetal.schemas import Keys, Pose, decode
 
 pytestmark = pytest.mark.integration
 

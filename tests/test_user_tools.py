@@ -19,8 +19,8 @@ import pytest
 import zenoh
 from helpers import Child, client_config, free_port, wait_for
 
+from blackmetal.schemas import GatewayHealth, Pose, decode
 from blackmetal.tools.teleop import Teleop, parse_keys
-from schemas import GatewayHealth, Pose, decode
 
 pytestmark = pytest.mark.integration
 

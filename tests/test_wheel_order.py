@@ -19,12 +19,12 @@ import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for
 
 from blackmetal import wire
+from blackmetal.gateway.core import GatewayCore
+from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.robot_model import WHEEL_SEPARATION, twist_to_wheels
+from blackmetal.schemas import Pose, WheelImpulses, decode
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, RequestDecoder
-from gateway.core import GatewayCore
-from gateway.settings import GatewaySettings
-from schemas import Pose, WheelImpulses, decode
 
 #: Forward speed and turn rate that drive one wheel at 0.2 m/s and hold the other still.
 V = 0.1

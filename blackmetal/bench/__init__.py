@@ -46,7 +46,7 @@ from pathlib import Path
 from typing import Any
 
 from blackmetal.runtime.harness import ChildFailed
-from schemas import BlackmetalError, MissingExtra, require_extra
+from blackmetal.schemas import BlackmetalError, MissingExtra, require_extra
 
 from . import children, figures, peers
 

@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.harness import ServiceProcess
-from schemas import Keys
+from blackmetal.schemas import Keys
 
 from .children import spawn, spawn_blackmetal
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, _zenoh_conf, free_port, percentiles
@@ -271,7 +271,7 @@ def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
     """Speed reply at the gateway (the impulse stamp) -> Pose received by a client: two Zenoh hops."""
     import zenoh
 
-    from schemas import Pose, decode
+    from blackmetal.schemas import Pose, decode
 
     latencies: list[float] = []
     with ExitStack() as stack:
@@ -319,7 +319,7 @@ def poll_rate(poll_hz: float, seconds: float, warmup: float = 0.5) -> dict[str, 
 _REPLAY_SNIPPET = """
 import sys, time
 t0 = time.perf_counter()
-from odometry_service.replay import replay_file
+from blackmetal.odometry_service.replay import replay_file
 t1 = time.perf_counter()
 result = replay_file(sys.argv[1])
 t2 = time.perf_counter()
@@ -329,7 +329,7 @@ print(len(result), t2 - t1)
 _MCAP_REPLAY_SNIPPET = """
 import sys, time
 from blackmetal.tools.replay import load_impulses
-from odometry_service.replay import read_log
+from blackmetal.odometry_service.replay import read_log
 import mcap.records, mcap.stream_reader, zstandard  # imported before the clock starts, as the JSON-lines figure does
 t1 = time.perf_counter()
 data, _ = load_impulses(sys.argv[1], None)
@@ -340,8 +340,8 @@ print(len(result), t2 - t1)
 
 _STREAM_SNIPPET = """
 import sys, time, msgspec
-from odometry_service.integrator import Odometry
-from schemas import WheelImpulses, encode
+from blackmetal.odometry_service.integrator import Odometry
+from blackmetal.schemas import WheelImpulses, encode
 decoder = msgspec.json.Decoder(WheelImpulses)
 lines = open(sys.argv[1], "rb").read().splitlines()[: int(sys.argv[2])]
 odo = Odometry()
@@ -377,8 +377,8 @@ def calibration_speed(samples: int) -> dict[str, float]:
     import numpy as np
 
     from blackmetal import robot_model as model
-    from odometry_service.batch import integrate, run_batch
-    from odometry_service.calibration import Constants, Segment, align, fit_trajectory
+    from blackmetal.odometry_service.batch import integrate, run_batch
+    from blackmetal.odometry_service.calibration import Constants, Segment, align, fit_trajectory
 
     legs = square_legs(side=2.0) * max(1, samples // 3900 + 1)
     log = synth_log(legs, seed=1)
@@ -581,10 +581,10 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
     configured), and ``GatewayCore.on_cmd_vel`` (decode, arbiter, limits, encoding the robot's
     command) for the same commands from ``teleop``.
     """
-    from gateway.arbiter import Arbiter, LockSpec
-    from gateway.core import GatewayCore
-    from gateway.settings import GatewaySettings
-    from schemas import Twist, Vector3
+    from blackmetal.gateway.arbiter import Arbiter, LockSpec
+    from blackmetal.gateway.core import GatewayCore
+    from blackmetal.gateway.settings import GatewaySettings
+    from blackmetal.schemas import Twist, Vector3
 
     twist = Twist(linear=Vector3(x=0.2), angular=Vector3(z=0.1))
     plain = Arbiter()

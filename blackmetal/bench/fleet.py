@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
-from schemas import GatewayHealth, Keys, decode
+from blackmetal.schemas import GatewayHealth, Keys, decode
 
 from .figures import RELEASE_SETTLE_S, _service, command_latencies, cpu_seconds, estop_latencies, mini_robot, rss_mb, wait_polls
 from .peers import EXPRESS, _zenoh_conf, free_port

@@ -18,7 +18,7 @@ import numpy as np
 
 from blackmetal import robot_model as model
 from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
-from schemas import WheelImpulses
+from blackmetal.schemas import WheelImpulses
 
 
 @dataclass(frozen=True, slots=True)

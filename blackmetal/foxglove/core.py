@@ -61,7 +61,7 @@ import msgspec
 
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.reports import ErrorReporter
-from schemas import (
+from blackmetal.schemas import (
     ErrorReport,
     EStop,
     GatewayHealth,

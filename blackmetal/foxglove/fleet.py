@@ -23,7 +23,7 @@ from collections.abc import Callable
 
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.fleet import FleetRobot
-from schemas import ConfigError, ErrorReport, Keys, require_extra
+from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
 from .core import (
     COMMAND_SOURCE,

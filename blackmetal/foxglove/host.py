@@ -43,7 +43,7 @@ import msgspec
 
 from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import DeadlineTimer
-from schemas import BlackmetalError, ConfigError, ErrorReport
+from blackmetal.schemas import BlackmetalError, ConfigError, ErrorReport
 
 from .core import CLIENT_ENCODING, SERVICE_SPECS, Controls, ServerRefusal, Service, StatusLevel
 from .settings import FoxgloveSettings

@@ -19,7 +19,7 @@ import asyncio
 from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
-from schemas import Keys, require_extra
+from blackmetal.schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet

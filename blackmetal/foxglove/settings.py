@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 from blackmetal.runtime.settings import setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
+from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 
 @dataclass(slots=True)

@@ -14,7 +14,7 @@ from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
 from blackmetal.runtime.edge import Intake, ZenohEdge
-from schemas import ErrorReport, Keys, encode, payload_bytes
+from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .core import COMMAND_SOURCE, LiveView
 

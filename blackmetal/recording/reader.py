@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from schemas import ConfigError, require_extra
+from blackmetal.schemas import ConfigError, require_extra
 
 
 @dataclass

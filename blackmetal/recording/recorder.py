@@ -14,7 +14,7 @@ import time
 from collections import deque
 from typing import TYPE_CHECKING, Any
 
-from schemas import payload_bytes
+from blackmetal.schemas import payload_bytes
 
 from .writer import McapRecording
 

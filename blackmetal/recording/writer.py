@@ -26,7 +26,7 @@ from typing import IO, Any
 
 import msgspec
 
-from schemas import ConfigError, Keys, json_schemas, require_extra
+from blackmetal.schemas import ConfigError, Keys, json_schemas, require_extra
 
 #: Zstandard-compressed chunks of at most this many bytes (closed earlier by flush()).
 CHUNK_BYTES = 1 << 20

@@ -38,7 +38,7 @@ from typing import Protocol
 
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.reports import ErrorReporter
-from schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, Sources, WheelImpulses, decode, encode
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, Sources, WheelImpulses, decode, encode
 
 from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, excerpt
 from .naming import RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment

@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 from blackmetal.runtime.fleet import FleetRobot, supervise
 from blackmetal.runtime.inbox import LoopInbox
-from schemas import ConfigError, ErrorReport, Keys
+from blackmetal.schemas import ConfigError, ErrorReport, Keys
 
 from .core import Ros2Core
 from .host import Ros2Host

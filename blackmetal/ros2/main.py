@@ -20,7 +20,7 @@ from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
-from schemas import Keys
+from blackmetal.schemas import Keys
 
 from .core import Ros2Core
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet

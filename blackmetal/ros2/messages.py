@@ -25,7 +25,7 @@ from dataclasses import dataclass, field
 from enum import IntEnum
 from typing import Any
 
-from schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra, stamp_parts
+from blackmetal.schemas import EStop, PayloadError, Pose, Twist, Vector3, require_extra, stamp_parts
 
 TWIST = "geometry_msgs/msg/Twist"
 TWIST_STAMPED = "geometry_msgs/msg/TwistStamped"

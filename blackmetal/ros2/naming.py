@@ -37,7 +37,7 @@ import struct
 from dataclasses import dataclass
 from enum import StrEnum
 
-from schemas import ConfigError
+from blackmetal.schemas import ConfigError
 
 from . import messages as ros
 

@@ -10,7 +10,7 @@ from blackmetal import robot_model as model
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
+from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
 from .core import Ros2Options
 from .messages import Frames

@@ -20,7 +20,7 @@ from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 from blackmetal.runtime.edge import Intake, ZenohEdge
-from schemas import ErrorReport, Keys, Sources, encode
+from blackmetal.schemas import ErrorReport, Keys, Sources, encode
 
 from .host import Ros2Host
 from .naming import (

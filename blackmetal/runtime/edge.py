@@ -29,7 +29,7 @@ from collections import deque
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any, Generic, TypeVar
 
-from schemas import ConfigError, Keys, any_alive, payload_bytes
+from blackmetal.schemas import ConfigError, Keys, any_alive, payload_bytes
 
 from .host import CoreLock
 from .inbox import LoopInbox

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Awaitable, Callable, Mapping
 from typing import TypeVar
 
-from schemas import BlackmetalError, ZenohUnavailable
+from blackmetal.schemas import BlackmetalError, ZenohUnavailable
 
 from .fleet import FleetRobot, load_fleet, refuse_single_robot_options
 from .settings import add_setting_arguments, load_settings

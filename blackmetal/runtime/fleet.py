@@ -38,7 +38,7 @@ from typing import Any, Protocol, TypeVar
 
 import msgspec
 
-from schemas import ConfigError, validate_prefix
+from blackmetal.schemas import ConfigError, validate_prefix
 
 from .settings import plain_words
 

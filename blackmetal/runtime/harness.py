@@ -21,7 +21,7 @@ import time
 from collections import deque
 from typing import Any
 
-from schemas import BlackmetalError
+from blackmetal.schemas import BlackmetalError
 
 READY_FD_ENV = "BLACKMETAL_READY_FD"
 

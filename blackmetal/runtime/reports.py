@@ -13,7 +13,7 @@ import math
 import time
 from collections.abc import Callable
 
-from schemas import ErrorReport
+from blackmetal.schemas import ErrorReport
 
 #: The family that reports fall into once the limiter tracks MAX_TRACKED families and none is idle.
 OTHER_KEYS = "(other keys)"

@@ -27,7 +27,7 @@ from typing import Any, TypeVar
 import json5
 import msgspec
 
-from schemas import ConfigError
+from blackmetal.schemas import ConfigError
 
 from .zenoh_setup import ZenohSettings
 

@@ -45,7 +45,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from schemas import ConfigError, ZenohUnavailable, ZenohUnreachable
+from blackmetal.schemas import ConfigError, ZenohUnavailable, ZenohUnreachable
 
 if TYPE_CHECKING:
     import zenoh

@@ -17,7 +17,7 @@ from pathlib import Path
 
 from blackmetal.runtime.fleet import FleetRobot, write_fleet
 from blackmetal.runtime.harness import announce_ready
-from schemas import Keys
+from blackmetal.schemas import Keys
 
 from .physics import RobotParams, SimRobot
 from .server import SimServer

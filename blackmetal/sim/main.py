@@ -11,7 +11,7 @@ from blackmetal.runtime.entry import run_service, service_parser
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.settings import load_settings
 from blackmetal.runtime.zenoh_setup import open_service_session
-from schemas import DEFAULT_PREFIX, Keys
+from blackmetal.schemas import DEFAULT_PREFIX, Keys
 
 from .physics import RobotParams, SimRobot
 from .server import SimServer

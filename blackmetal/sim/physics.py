@@ -18,8 +18,8 @@ from typing import Any
 from blackmetal import robot_model as model
 from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, UNITY_GAIN, Encoders, WheelGain, arc_step, wheels_to_twist
+from blackmetal.schemas import Pose, SimFaults, make_pose
 from blackmetal.wire import CommandCode, Request
-from schemas import Pose, SimFaults, make_pose
 
 
 @dataclass(frozen=True, slots=True)

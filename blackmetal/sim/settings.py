@@ -9,7 +9,7 @@ import msgspec
 from blackmetal import robot_model as model
 from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
-from schemas import DEFAULT_PREFIX, ConfigError, SimFaults, validate_prefix
+from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, SimFaults, validate_prefix
 
 FAULTS = tuple(SimFaults.__struct_fields__)
 

@@ -22,7 +22,7 @@ import msgspec
 
 from blackmetal.runtime.edge import Intake, ZenohEdge
 from blackmetal.runtime.reports import ErrorReporter
-from schemas import Keys, PayloadError, SimFaults, encode, excerpt
+from blackmetal.schemas import Keys, PayloadError, SimFaults, encode, excerpt
 
 from .physics import SimRobot
 

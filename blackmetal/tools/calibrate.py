@@ -33,10 +33,8 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
-from blackmetal.recording.reader import is_mcap, read_mcap
-from blackmetal.runtime.settings import add_setting_arguments, load_settings
-from odometry_service.batch import BatchResult
-from odometry_service.calibration import (
+from blackmetal.odometry_service.batch import BatchResult
+from blackmetal.odometry_service.calibration import (
     CalibrationError,
     Constants,
     Segment,
@@ -46,9 +44,11 @@ from odometry_service.calibration import (
     fit_trajectory,
     umbmark,
 )
-from odometry_service.replay import read_log
-from odometry_service.settings import PipelineSettings
-from schemas import BlackmetalError, ConfigError, Keys, Pose
+from blackmetal.odometry_service.replay import read_log
+from blackmetal.odometry_service.settings import PipelineSettings
+from blackmetal.recording.reader import is_mcap, read_mcap
+from blackmetal.runtime.settings import add_setting_arguments, load_settings
+from blackmetal.schemas import BlackmetalError, ConfigError, Keys, Pose
 
 from .replay import load_impulses
 

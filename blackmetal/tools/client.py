@@ -27,7 +27,7 @@ from blackmetal.runtime.zenoh_setup import (
     open_when_reachable,
     zenoh_settings,
 )
-from schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
+from blackmetal.schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
 
 T = TypeVar("T", bound=msgspec.Struct)
 

@@ -14,7 +14,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from schemas import GatewayHealth
+from blackmetal.schemas import GatewayHealth
 
 from .client import ToolError, add_client_arguments, connect, query, require_gateway, tool, where
 

@@ -21,7 +21,7 @@ import msgspec
 import zenoh
 
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
-from schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnreachable, decode, to_bytes
+from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnreachable, decode, to_bytes
 
 from .client import connect, tool, where
 

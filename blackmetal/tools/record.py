@@ -17,7 +17,7 @@ from blackmetal.recording.recorder import SessionRecorder
 from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
-from schemas import ConfigError, require_extra
+from blackmetal.schemas import ConfigError, require_extra
 
 from .client import add_client_arguments, connect_waiting, tool, where
 

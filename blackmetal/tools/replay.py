@@ -19,12 +19,12 @@ from pathlib import Path
 import msgspec
 import numpy as np
 
+from blackmetal.odometry_service.batch import BatchResult
+from blackmetal.odometry_service.replay import final_pose, read_log, summary, write_poses
+from blackmetal.odometry_service.settings import PipelineSettings
 from blackmetal.recording.reader import is_mcap, topic_lines
 from blackmetal.runtime.settings import add_setting_arguments, load_settings
-from odometry_service.batch import BatchResult
-from odometry_service.replay import final_pose, read_log, summary, write_poses
-from odometry_service.settings import PipelineSettings
-from schemas import KEY_SPECS, BlackmetalError, ConfigError, Pose, encode
+from blackmetal.schemas import KEY_SPECS, BlackmetalError, ConfigError, Pose, encode
 
 _SUFFIX = {spec.name: spec.suffix for spec in KEY_SPECS}
 

@@ -18,7 +18,7 @@ import zenoh
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import ZenohSettings, unavailable_reason
-from schemas import ConfigError
+from blackmetal.schemas import ConfigError
 
 #: How long the router waits for Zenoh to close before it exits without it (s).
 CLOSE_TIMEOUT_S = 5.0

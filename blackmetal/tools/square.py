@@ -28,7 +28,7 @@ import zenoh
 from blackmetal.recording.recorder import SessionRecorder
 from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.signals import stop_on_signals
-from schemas import Pose, Twist, Vector3, encode, require_extra
+from blackmetal.schemas import Pose, Twist, Vector3, encode, require_extra
 
 from .client import (
     Latest,

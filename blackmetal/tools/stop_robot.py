@@ -19,8 +19,8 @@ import time
 from blackmetal import robot_model as model
 from blackmetal import wire
 from blackmetal.runtime.settings import read_settings_file
+from blackmetal.schemas import BlackmetalError
 from blackmetal.wire import CommandCode, Malformed, StatusReply
-from schemas import BlackmetalError
 
 #: Pause before re-sending a command the robot did not take: doubling from 5 ms, at most 250 ms.
 RETRY_FIRST_S = 0.005

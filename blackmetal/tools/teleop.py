@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import zenoh
 
-from schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
+from blackmetal.schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
 
 from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
 

@@ -34,6 +34,8 @@ from typing import Any
 import zenoh
 
 from blackmetal.foxglove.settings import FoxgloveSettings
+from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.ros2.naming import Flavor
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import FleetRobot, load_fleet
@@ -41,10 +43,7 @@ from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_rea
 from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, ZenohSettings, add_zenoh_arguments, open_when_reachable, zenoh_settings
-from blackmetal.sim.settings import SimSettings
-from gateway.settings import GatewaySettings
-from odometry_service.settings import OdometrySettings
-from schemas import (
+from blackmetal.schemas import (
     ANY_GATEWAY_ALIVE,
     DEFAULT_PREFIX,
     ConfigError,
@@ -58,6 +57,7 @@ from schemas import (
     to_bytes,
     validate_prefix,
 )
+from blackmetal.sim.settings import SimSettings
 
 from .client import Latest, tool
 from .stop_robot import stop_robot

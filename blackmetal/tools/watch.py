@@ -11,7 +11,7 @@ from collections import deque
 import zenoh
 
 from blackmetal.runtime.signals import stop_on_signals
-from schemas import (
+from blackmetal.schemas import (
     ErrorReport,
     GatewayHealth,
     PayloadError,
