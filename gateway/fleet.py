@@ -19,7 +19,6 @@ from dataclasses import dataclass
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import freeze_start_up
 from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.schemas import ErrorReport, Keys
 from blackmetal.transport import TcpConnector
 
@@ -49,7 +48,6 @@ class Member:
     robot: FleetRobot
     settings: GatewaySettings
     session: object
-    inbox: LoopInbox
     host: GatewayHost | None = None
     edge: GatewayZenoh | None = None
     restarts: int = 0
@@ -57,7 +55,7 @@ class Member:
     def start(self) -> Member:
         s = self.settings
         self.edge = GatewayZenoh(self.session, Keys(s.prefix), batched=True)  # type: ignore[arg-type]
-        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge, inbox=self.inbox)
+        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge)
         self.edge.attach(self.host, asyncio.get_running_loop())
         return self
 
@@ -83,9 +81,8 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
     from blackmetal.runtime.zenoh_setup import open_service_session
 
     with await open_service_session(base.zenoh, stop, "gateway") as session:
-        inbox = LoopInbox()  # the robots share the loop: an e-stop for one is taken between two steps of the others'
         settings = fleet_settings(base, robots)
-        members = [Member(robot, s, session, inbox) for robot, s in zip(robots, settings, strict=True)]
+        members = [Member(robot, s, session) for robot, s in zip(robots, settings, strict=True)]
         by_prefix = {robot.prefix: robot.describe() for robot in robots}
         refuse_taken(session, "gateway", list(by_prefix), describe=by_prefix.__getitem__)
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"gateway {m.robot.id}") for m in members]

@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
 from blackmetal.transport import ByteStream, Connector
 
@@ -92,11 +91,8 @@ class GatewayHost:
         output: GatewayOutput,
         clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
-        inbox: LoopInbox | None = None,
     ) -> None:
-        """``inbox``: the loop's, shared by every robot on it (see :mod:`blackmetal.runtime.inbox`); None: no early takes."""
         self.settings = settings
-        self.inbox = inbox
         self.connector = connector
         self.output = output
         self.clock = clock
@@ -111,7 +107,7 @@ class GatewayHost:
         #: Messages the core produced, published by the loop once it holds no lock (:meth:`publish`).
         self._outbox: list[Event] = []
         self._timer = DeadlineTimer(
-            self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish, inbox=inbox
+            self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish
         )
         self._failure: asyncio.Future[None] | None = None
 
@@ -308,8 +304,6 @@ class GatewayHost:
                         conn.receive(name, data, self.clock())
                         self._flush()
                     self.publish()
-                    if self.inbox is not None:
-                        self.inbox.take_waiting()  # an e-stop handed over meanwhile goes before the other robots' replies
                     if len(data) >= READ_SIZE:
                         # more may be buffered, and a read returns at once while it is: let the loop breathe (a
                         # shorter read took all there was, so the next read waits, and yields, by itself)

@@ -9,7 +9,6 @@ import sys
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import freeze_start_up, run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 from blackmetal.transport import TcpConnector
@@ -31,7 +30,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     with await open_service_session(settings.zenoh, stop, "gateway") as session:
         refuse_taken(session, "gateway", [keys.prefix])
         edge = GatewayZenoh(session, keys)
-        service = GatewayHost(settings, connector, edge, inbox=LoopInbox())
+        service = GatewayHost(settings, connector, edge)
         edge.attach(service, asyncio.get_running_loop())
         print(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "

@@ -15,10 +15,11 @@ mask nor expire another:
 * names nobody configured share one small queue and create no state per
   name: they are refused and reported, rate-limited per key family.
 
-Health queries are answered from the loop. A single robot's gateway takes
-commands and e-stops directly on the Zenoh thread that delivers them when
-its core is free (the hand-over's ``direct``); a fleet host leaves them to
-its loop, so a hundred robots' commands never keep Zenoh's thread in Python.
+Health queries are answered from the loop. Commands and e-stops are taken
+directly on the Zenoh thread that delivers them when their robot's core is
+free (the intake's ``direct``, :mod:`blackmetal.gateway.direct`), in a fleet
+host too: each robot has its own core lock, so one robot's loop work never
+holds another's e-stop back.
 """
 
 from __future__ import annotations
@@ -28,7 +29,10 @@ import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Intake, Item, ZenohEdge, newest
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.flood import newest
+from blackmetal.runtime.intake import Intake
+from blackmetal.runtime.zenoh_entities import Item
 from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
 
 from .arbiter import DEFAULT_SOURCE
@@ -71,12 +75,10 @@ class GatewayZenoh(ZenohEdge):
         One robot: express, the lowest latency. A fleet: an express put per impulse sample is a write of
         its own and a wake of Zenoh's tx thread each, which at 100 robots x 50 Hz was a quarter of the
         gateway's Python time and kept it from polling at 50 Hz (35 Hz; batched: 47 Hz, router CPU per
-        message halved). Zenoh still sends at once while the link is idle. A fleet also takes every input
-        on its loop (no direct takes).
+        message halved). Zenoh still sends at once while the link is idle.
         """
         super().__init__(session)
         self.keys = keys
-        self.direct = not batched
         self._impulses = self.publisher(keys.impulses, express=not batched, drop_when_congested=True)
         self._status = self.publisher(keys.status)
         self._health = self.publisher(keys.health)
@@ -102,15 +104,10 @@ class GatewayZenoh(ZenohEdge):
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
         keys = self.keys
-        direct = self.direct
         arbiter = service.connection.arbiter
         # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
-        handover = Intake(
-            loop, on_error=service.fail, lock=service.lock if direct else None, after_drain=service.publish, inbox=service.inbox
-        )
-        estop = handover.channel(
-            "estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct if direct else None
-        )
+        handover = Intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
+        estop = handover.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)
         flood = service.on_input_flood
         # guarded too: a storm of e-stop samples must not keep Zenoh's thread in Python while its final ON waits behind them
         self.guarded(keys.estop, lambda item: estop((False, item[1])), handover, flood, pick=_estop_batch)
@@ -122,7 +119,7 @@ class GatewayZenoh(ZenohEdge):
                 service.on_source_cmd_vel,
                 latest=True,
                 priority=1,
-                direct=service.cmd_vel_direct if direct else None,
+                direct=service.cmd_vel_direct,
                 on_dropped=functools.partial(service.on_superseded, name),
             )
             sources[name] = put

@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 from blackmetal.runtime.edge import Intake, refuse_taken
 from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.schemas import ErrorReport, Keys
 
 from .core import OdometryCore
@@ -39,7 +38,6 @@ class Member:
     robot: FleetRobot
     settings: OdometrySettings
     session: object
-    inbox: LoopInbox
     edge: OdometryZenoh | None = None
     host: OdometryHost | None = None
     handover: Intake | None = None
@@ -47,7 +45,7 @@ class Member:
     def start(self) -> Member:
         keys = Keys(self.settings.prefix)
         self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
-        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge), inbox=self.inbox)
+        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
         self.handover = self.edge.attach(self.host, asyncio.get_running_loop())
         return self
 
@@ -79,8 +77,7 @@ async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: as
         by_prefix = {robot.prefix: robot.describe() for robot in robots}
         refuse_taken(session, "odometry", list(by_prefix), what="odometry service", describe=by_prefix.__getitem__)
         assert isinstance(session, zenoh.Session)
-        inbox = LoopInbox()  # the robots share the loop: one's samples are taken between two steps of the others'
-        members = [Member(r, s, session, inbox) for r, s in zip(robots, settings, strict=True)]
+        members = [Member(r, s, session) for r, s in zip(robots, settings, strict=True)]
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"odometry {m.robot.id}") for m in members]
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])

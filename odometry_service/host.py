@@ -14,7 +14,6 @@ import time
 from collections.abc import Callable
 
 from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.schemas import Pose
 
 from .core import OdometryCore
@@ -23,12 +22,10 @@ from .core import OdometryCore
 class OdometryHost:
     """Runs one :class:`OdometryCore` on the running asyncio loop; see the module docstring."""
 
-    def __init__(self, core: OdometryCore, clock: Callable[[], float] = time.monotonic, inbox: LoopInbox | None = None) -> None:
-        """``inbox``: the loop's (shared by a fleet's robots), so inputs are taken between two steps of the loop's work."""
+    def __init__(self, core: OdometryCore, clock: Callable[[], float] = time.monotonic) -> None:
         self.core = core
         self.clock = clock
-        self.inbox = inbox
-        self.timer = DeadlineTimer(core, clock, inbox=inbox)
+        self.timer = DeadlineTimer(core, clock)
         self._dropped: Callable[[], int] = lambda: 0
         self._dropped_seen = 0
 

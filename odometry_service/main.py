@@ -8,7 +8,6 @@ import asyncio
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
@@ -25,7 +24,7 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
     with await open_service_session(settings.zenoh, stop, "odometry") as session:
         refuse_taken(session, "odometry", [keys.prefix], what="odometry service")
         edge = OdometryZenoh(session, keys)
-        host = OdometryHost(OdometryCore(settings.params(), keys, edge), inbox=LoopInbox())
+        host = OdometryHost(OdometryCore(settings.params(), keys, edge))
         handover = edge.attach(host, asyncio.get_running_loop())
         print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
         announce_ready("odometry", prefix=settings.prefix)

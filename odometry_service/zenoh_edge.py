@@ -37,7 +37,7 @@ class OdometryZenoh(ZenohEdge):
         self._errors.put(encode(message))
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Intake:
-        handover = Intake(loop, inbox=host.inbox)
+        handover = Intake(loop)
         self._direct_subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=4096))
         self.queryable(self.keys.pose, handover.channel("pose?", lambda q: self._answer_pose(host, q)))
         self.queryable(self.keys.odometry_reset, handover.channel("reset?", lambda q: self._answer_reset(host, q)))

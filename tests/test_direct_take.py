@@ -23,8 +23,8 @@ from helpers import wait_for
 
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
 from blackmetal.gateway.settings import GatewaySettings
-from blackmetal.runtime.edge import DIRECT_BURST, DIRECT_WINDOW_S, Intake
 from blackmetal.runtime.entry import loop_factory
+from blackmetal.runtime.intake import DIRECT_BURST, DIRECT_WINDOW_S, Intake
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
 from blackmetal.transport import TcpConnector, TcpStream

@@ -16,8 +16,8 @@ from test_direct_take import GatewayRig, LoopThread
 
 from blackmetal.gateway.host import RecordingOutput
 from blackmetal.gateway.zenoh_edge import _engages
-from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import CoreLock
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import GatewayHealth
 
 ON, OFF = b'{"engaged": true}', b'{"engaged": false}'

@@ -14,7 +14,9 @@ import pytest
 import zenoh
 from helpers import wait_for
 
-from blackmetal.runtime.edge import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput, Intake, ZenohEdge
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.flood import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput
+from blackmetal.runtime.intake import Intake
 
 
 @pytest.fixture

@@ -41,8 +41,8 @@ from typing import Any, Protocol
 
 import msgspec
 
-from blackmetal.runtime.edge import Intake
 from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import BlackmetalError, ConfigError, ErrorReport
 
 from .core import CLIENT_ENCODING, SERVICE_SPECS, Controls, ServerRefusal, Service, StatusLevel

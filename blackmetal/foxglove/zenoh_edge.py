@@ -13,7 +13,8 @@ import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Protocol
 
-from blackmetal.runtime.edge import Intake, ZenohEdge
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .core import COMMAND_SOURCE, LiveView

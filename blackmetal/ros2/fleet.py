@@ -29,7 +29,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 
 from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.schemas import ConfigError, ErrorReport, Keys
 
 from .core import Ros2Core
@@ -84,7 +83,6 @@ class Member:
     session: object
     codec: RosCodec
     ids: Iterator[int]
-    inbox: LoopInbox
     host: Ros2Host | None = None
     edge: Ros2Zenoh | None = None
     restarts: int = 0
@@ -107,7 +105,7 @@ class Member:
             self.ids,
         )
         options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace))
-        self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True, inbox=self.inbox)
+        self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True)
         self.edge = edge
         edge.attach(self.host, asyncio.get_running_loop())
         return edge
@@ -144,8 +142,7 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
     settings = fleet_settings(base, robots)
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
     with await open_service_session(base.zenoh, stop, "ros2") as session:
-        inbox = LoopInbox()  # the nodes share the loop: one's e-stop is taken between two steps of the others'
-        members = [Member(robot, s, session, codec, ids, inbox) for robot, s in zip(robots, settings, strict=True)]
+        members = [Member(robot, s, session, codec, ids) for robot, s in zip(robots, settings, strict=True)]
         for member in members:  # every node declared and serving before the fleet is announced
             member.declare()
         print(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})", flush=True)

@@ -22,7 +22,6 @@ from collections.abc import Callable
 from typing import Any
 
 from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.runtime.inbox import LoopInbox
 
 from .core import Ros2Core
 
@@ -32,15 +31,11 @@ log = logging.getLogger("blackmetal.ros2")
 class Ros2Host:
     """Runs one :class:`Ros2Core` on the running asyncio loop; see the module docstring."""
 
-    def __init__(
-        self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False, inbox: LoopInbox | None = None
-    ) -> None:
+    def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False) -> None:
         self.core = core
         self.clock = clock
         self.supervised = supervised
-        #: The loop's inbox (a fleet's nodes share it): inputs are taken between two steps of the loop's work.
-        self.inbox = inbox
-        self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None, inbox=inbox)
+        self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None)
         self._failure: asyncio.Future[None] | None = None
 
     def fail(self, exc: BaseException) -> None:

@@ -18,7 +18,6 @@ import asyncio
 
 from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.inbox import LoopInbox
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
@@ -43,7 +42,7 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
         edge = Ros2Zenoh(
             session, keys, codec, flavor, settings.domain_id, namespace, settings.node_name, ros_topics, ros_services, settings.source
         )
-        host = Ros2Host(Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec), inbox=LoopInbox())
+        host = Ros2Host(Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec))
         edge.attach(host, asyncio.get_running_loop())
         node = full_topic(namespace, settings.node_name)
         print(f"blackmetal ros2 ready: node {node} ({flavor.value}, domain {settings.domain_id}) <-> prefix {keys.prefix}", flush=True)

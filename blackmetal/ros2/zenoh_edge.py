@@ -19,7 +19,8 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Intake, ZenohEdge
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys, Sources, encode
 
 from .host import Ros2Host
@@ -170,9 +171,7 @@ class Ros2Zenoh(ZenohEdge):
 
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        handover = Intake(
-            loop, on_error=host.fail if host.supervised else None, inbox=host.inbox
-        )  # supervised: a bug fails this node alone
+        handover = Intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
         self._host = host
         self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))

@@ -24,8 +24,6 @@ from collections.abc import Callable
 from contextlib import AbstractContextManager
 from typing import Protocol
 
-from .inbox import LoopInbox
-
 #: A deadline further away than this is slept in steps (asyncio's call_later wants a finite delay).
 MAX_SLEEP_S = 3600.0
 
@@ -87,7 +85,6 @@ class DeadlineTimer:
         on_error: Callable[[BaseException], None] | None = None,
         lock: AbstractContextManager[object] | None = None,
         after_unlock: Callable[[], None] | None = None,
-        inbox: LoopInbox | None = None,
     ) -> None:
         self.core = core
         self.lock = lock if lock is not None else contextlib.nullcontext()
@@ -95,8 +92,6 @@ class DeadlineTimer:
         self.after_tick = after_tick
         #: Called after each tick once ``lock`` is released (the gateway publishes what the tick produced).
         self.after_unlock = after_unlock
-        #: The loop's inbox: inputs handed over while a tick ran are taken right after it.
-        self.inbox = inbox
         #: Called (and the timer stopped) when tick or after_tick raise: a host supervises its core through it.
         self.on_error = on_error
         self._timer: asyncio.TimerHandle | None = None
@@ -148,6 +143,3 @@ class DeadlineTimer:
                 raise
             self.stop()
             self.on_error(exc)
-            return
-        if self.inbox is not None:
-            self.inbox.take_waiting()  # inputs handed over while this tick ran: now, not after the loop's other work

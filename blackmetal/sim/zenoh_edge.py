@@ -20,7 +20,8 @@ from typing import TYPE_CHECKING, Any
 
 import msgspec
 
-from blackmetal.runtime.edge import Intake, ZenohEdge
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import Keys, PayloadError, SimFaults, encode, excerpt
 

@@ -1,0 +1,238 @@
+"""Inputs a client may flood: Python callbacks at sane rates, Zenoh's ring buffer and one pump thread while it floods.
+
+See :class:`GuardedInput`. The pump hands what it takes to the service's
+:class:`~blackmetal.runtime.intake.Intake` like a callback does, so the
+intake's bounds and priorities hold whichever way a sample came.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import threading
+import time
+from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
+
+from blackmetal.schemas import payload_bytes
+
+from .intake import Intake
+from .zenoh_entities import Item, chunk_and_payload, undeclare
+
+if TYPE_CHECKING:
+    import zenoh
+
+#: How long closing waits for a pump thread to leave Zenoh (it wakes at once when its subscriber goes).
+PUMP_JOIN_S = 1.0
+
+#: More than FLOOD_SAMPLES on one guarded key within FLOOD_WINDOW_S (2,000 a second) is a flood: twenty
+#: commanders at 100 Hz stay under it, a publisher in a tight loop is over it within milliseconds.
+FLOOD_SAMPLES = 200
+FLOOD_WINDOW_S = 0.1
+#: A flooded key goes back to callbacks after this long without a sample.
+QUIET_S = 2.0
+#: How long a new pump waits for the old callback to hand over what it had queued before it hands over anything.
+CALLBACK_GONE_S = 1.0
+#: A pump hands a batch over at most this often: a flood costs the loop at most 500 hand-overs a second.
+PUMP_PERIOD_S = 0.002
+
+#: What of a batch a pump hands over (all of it unless said otherwise): a latest-slot input needs only its newest.
+Pick = Callable[[list[Item]], list[Item]]
+
+
+def newest(batch: list[Item]) -> list[Item]:
+    """A :data:`Pick` for an input of which only the newest sample counts (a command source, a lock)."""
+    return batch[-1:]
+
+
+class GuardedInput:
+    """An input that a client may flood: Python callbacks at sane rates, Zenoh's ring buffer while it floods.
+
+    A Python callback per sample is the quickest way in (no thread between
+    Zenoh and the loop), but Zenoh runs callbacks on the thread that reads
+    the link: a publisher flooding one key at full speed keeps that thread
+    in Python, and every other sample on the link (another robot's e-stop)
+    waits behind the flood. So a key that delivers more than FLOOD_SAMPLES
+    within FLOOD_WINDOW_S changes over to a subscriber with Zenoh's own ring
+    buffer (the ``capacity`` newest samples kept, the oldest dropped without
+    touching Python) and one pump thread that moves what is there to
+    ``put`` at the loop's pace (it waits for the loop's next drain before it
+    takes more). After QUIET_S without a sample it changes back: an idle
+    pump is not free (zenoh-python wakes a blocked ``recv`` ten times a
+    second to look for signals, and each wake takes the GIL from the loop),
+    which a fleet of 100 robots with two pumps each paid in command latency.
+
+    The changes are made on the loop, never in a callback, and
+    ``on_flood(key, reason)`` is told of each there. The new subscriber is
+    declared before the old one goes, so no sample is lost in between (one
+    may arrive twice, and samples still queued for an indirect callback's
+    thread may come after the first ones through the ring: within a flood,
+    whose next sample supersedes them).
+    """
+
+    def __init__(
+        self,
+        session: "zenoh.Session",
+        key: str,
+        put: Callable[[tuple[str, bytes]], None],
+        handover: Intake,
+        on_flood: Callable[[str, str], None] | None = None,
+        *,
+        capacity: int = 64,
+        quiet_s: float = QUIET_S,
+        pick: Pick | None = None,
+    ) -> None:
+        """``pick``: what of each batch the pump hands over while the input floods (default: every sample)."""
+        self.session = session
+        self.pick = pick
+        self.key = key
+        self.put = put
+        self.handover = handover
+        self.on_flood = on_flood
+        self.capacity = capacity
+        self.quiet_s = quiet_s
+        self._subscriber: Any = None
+        self._pump: threading.Thread | None = None
+        self._window_start = -math.inf
+        self._window_count = 0
+        self._changing = False
+        self._last_sample = 0.0
+        self._quiet_check: asyncio.TimerHandle | None = None
+        self._closed = False
+        #: Set by Zenoh once the callback subscriber is gone and its queued samples are all handed over.
+        self._callback_gone = threading.Event()
+        #: Tells the pump to end (its subscriber is going).
+        self._pump_stop = threading.Event()
+        #: A key without wildcards has one last chunk: no key expression to turn into text per sample.
+        self._chunk = None if "*" in key else key.rpartition("/")[2]
+
+    def _item(self, sample: "zenoh.Sample") -> tuple[str, bytes]:
+        return chunk_and_payload(sample) if self._chunk is None else (self._chunk, payload_bytes(sample))
+
+    @property
+    def flooded(self) -> bool:
+        """Whether samples now come through the ring buffer and a pump thread."""
+        return self._pump is not None
+
+    def start(self) -> None:
+        import zenoh
+
+        gone = self._callback_gone = threading.Event()
+        self._subscriber = self.session.declare_subscriber(self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set))
+
+    def _on_sample(self, sample: "zenoh.Sample") -> None:
+        """Zenoh's thread: hand the sample over, and count it against the flood limit."""
+        self.put(self._item(sample))
+        now = time.monotonic()
+        if now - self._window_start > FLOOD_WINDOW_S:
+            self._window_start, self._window_count = now, 0
+        self._window_count += 1
+        if self._window_count > FLOOD_SAMPLES and not self._changing:
+            self._changing = True
+            try:
+                self.handover.loop.call_soon_threadsafe(self._to_ring)
+            except RuntimeError:  # the loop is closed: the service is stopping
+                pass
+
+    def _to_ring(self) -> None:
+        """The loop: declare the ring-buffered subscriber and its pump, then undeclare the callback's."""
+        import zenoh
+
+        if self._closed or self._pump is not None:
+            return
+        try:
+            ring = self.session.declare_subscriber(self.key, zenoh.handlers.RingChannel(self.capacity))
+        finally:
+            self._changing = False  # a failure leaves the callback in place, and the next flood tries again
+        callback, self._subscriber = self._subscriber, ring
+        self._last_sample = time.monotonic()
+        self._pump_stop = threading.Event()
+        # The pump waits on the handler, not the subscriber: a thread blocked in ``subscriber.recv()``
+        # holds the subscriber borrowed, so ``undeclare()`` would fail ("Already borrowed").
+        self._pump = threading.Thread(
+            target=self._run_pump,
+            args=(ring.handler, self._callback_gone, self._pump_stop),
+            name=f"pump {self.key}",
+            daemon=True,
+        )
+        self._pump.start()
+        undeclare(callback)
+        self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+        if self.on_flood is not None:
+            self.on_flood(
+                self.key,
+                f"more than {FLOOD_SAMPLES / FLOOD_WINDOW_S:.0f} samples/s on {self.key}: a publisher floods it; until it has "
+                f"been quiet for {self.quiet_s:g} s only the newest of each burst are taken (a commander needs 10-100 Hz: "
+                "check the publisher's loop)",
+            )
+
+    def _run_pump(self, samples: Any, callback_gone: threading.Event, stop: threading.Event) -> None:
+        """The pump thread: move what the ring holds to ``put``, then wait for the loop's next drain.
+
+        It hands nothing over before the old callback has handed over all it
+        had queued: an older command must not come after a newer one (a flood
+        that ends on a stop would otherwise end on whatever came before it).
+        """
+        import zenoh
+
+        drained = self.handover.drained
+        callback_gone.wait(CALLBACK_GONE_S)
+        while not stop.is_set():
+            try:
+                batch = [samples.recv()]  # blocks without the GIL
+                while len(batch) < self.capacity and (more := samples.try_recv()) is not None:
+                    batch.append(more)
+            except zenoh.ZError:  # "empty and closed": undeclared (the flood is over, or the edge closes)
+                return
+            if stop.is_set():
+                return
+            handed = time.monotonic()
+            self._last_sample = handed
+            items = [self._item(sample) for sample in batch]
+            drained.clear()
+            for item in items if self.pick is None else self.pick(items):
+                self.put(item)
+            drained.wait(0.1)
+            stop.wait(max(0.0, handed + PUMP_PERIOD_S - time.monotonic()))  # the ring fills meanwhile; only its newest count
+
+    def _end_pump(self, subscriber: Any) -> None:
+        """The loop: undeclare ``subscriber`` and end the pump, without waiting out its wait for a drain (only the loop ends that)."""
+        pump, self._pump = self._pump, None
+        self._pump_stop.set()
+        self.handover.drained.set()
+        if subscriber is not None:
+            undeclare(subscriber)
+        if pump is not None:
+            pump.join(PUMP_JOIN_S)
+
+    def _check_quiet(self) -> None:
+        """The loop: after ``quiet_s`` without a sample, back to a callback (the pump ends with its subscriber)."""
+        self._quiet_check = None
+        if self._closed or self._pump is None:
+            return
+        if time.monotonic() - self._last_sample < self.quiet_s:
+            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            return
+        ring = self._subscriber
+        self._window_start, self._window_count, self._changing = -math.inf, 0, False
+        try:
+            self.start()
+        except Exception:  # the ring stays until a callback can be declared
+            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            raise
+        self._end_pump(ring)
+        if self.on_flood is not None:
+            self.on_flood(self.key, f"the flood on {self.key} is over: every sample is taken again")
+
+    def close(self) -> None:
+        """Undeclare; a pump wakes as its subscriber goes and is joined.
+
+        It must be out of Zenoh before the interpreter finalizes, or CPython
+        ends it mid-unwind and the process aborts ("FATAL: exception not rethrown").
+        """
+        self._closed = True
+        if self._quiet_check is not None:
+            self._quiet_check.cancel()
+            self._quiet_check = None
+        subscriber, self._subscriber = self._subscriber, None
+        self._end_pump(subscriber)

@@ -1,0 +1,286 @@
+"""A service's one intake: every input reaches its core through here, bounded, and one owner drains it.
+
+Zenoh calls back on its own threads. A callback only copies the payload and
+puts it in the input's channel (one short hold of :attr:`Intake.guard`),
+then wakes the service's asyncio loop once per batch; the loop, the core's
+one owner, drains the intake and runs the handlers, never inside a Zenoh
+callback. Channels are bounded: a ``latest`` channel keeps only the newest
+item (a newer command supersedes an older one; ``latch`` keeps an e-stop ON
+until it is handled), a queue keeps at most ``capacity`` items and drops the
+oldest, counting what it dropped. Channels with a higher ``priority`` are
+drained first and looked at again after every item, and a drain takes no
+more than was waiting when it began, so an emergency stop is handled before
+a backlog (or a flood) of anything else.
+
+One exception to "the loop drains": a channel given ``direct`` is taken in
+the putting thread, under the core's lock, when the core is free and nothing
+of its priority or higher waits (:meth:`Intake.channel`); the gateway sends
+a command to the robot that way without waiting for its loop to wake
+(:mod:`blackmetal.gateway.direct`). The threads and locks are drawn in
+``docs/threads.md``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from typing import Any, Generic, TypeVar
+
+from .host import CoreLock
+
+T = TypeVar("T")
+
+#: A channel takes at most DIRECT_BURST items directly within DIRECT_WINDOW_S (200 a second); the rest wait for
+#: the loop. Commanders at 10-100 Hz are all taken directly, and a burst cannot keep Zenoh's thread in handlers.
+DIRECT_BURST = 20
+DIRECT_WINDOW_S = 0.1
+
+
+class Channel(Generic[T]):
+    """One input of a service: items from any thread, handled on the loop in arrival order.
+
+    ``latest``: one slot, a newer item supersedes the waiting one (counted in
+    ``dropped``). ``latch(item)`` true marks an item that must be handled even
+    when newer ones supersede it (an e-stop ON): the first such item since the
+    last take waits in its own slot, is handled first, and drops every older
+    item; the newest item still follows it (an OFF newer than the ON).
+    """
+
+    def __init__(
+        self,
+        name: str,
+        handler: Callable[[T], None],
+        capacity: int,
+        priority: int,
+        latch: Callable[[T], bool] | None = None,
+        on_dropped: Callable[[int], None] | None = None,
+    ) -> None:
+        self.name = name
+        self.handler = handler
+        self.priority = priority
+        self.latch = latch
+        self.on_dropped = on_dropped
+        self.items: deque[T] = deque(maxlen=capacity)
+        self.latched: T | None = None
+        self.dropped = 0
+        #: Dropped since the handler was last told (``on_dropped``).
+        self.unreported = 0
+        self.received = 0
+        #: Items taken directly (in the putting thread), and the current window of the direct budget.
+        self.direct_taken = 0
+        self.window_start = -math.inf
+        self.window_direct = 0
+
+    def waiting(self) -> bool:
+        return self.latched is not None or bool(self.items)
+
+    def add(self, item: T) -> None:
+        """Under the hand-over's lock: keep ``item`` (see the class docstring for what it supersedes)."""
+        items = self.items
+        if self.latch is not None and self.latched is None and self.latch(item):
+            superseded = len(items)
+            items.clear()
+            self.latched = item
+        else:
+            superseded = 1 if len(items) == items.maxlen else 0
+            items.append(item)
+        self.dropped += superseded
+        self.unreported += superseded
+        self.received += 1
+
+    def pop(self) -> T | None:
+        """Under the hand-over's lock: the next item to handle (a latched one first), or None."""
+        if self.latched is not None:
+            item, self.latched = self.latched, None
+            return item
+        return self.items.popleft() if self.items else None
+
+
+class Intake:
+    """Thread-safe hand-over from Zenoh's threads to one asyncio loop: the service's one intake.
+
+    Every channel's items, its counters and the "drain scheduled" flag are
+    guarded by :attr:`guard`, a plain lock held only to add or pop one item
+    (never while a handler runs), so nothing here relies on the GIL. The
+    second lock, when given, is the core's (:attr:`lock`): drains hold it
+    while they handle items, and a ``direct`` channel's put takes it (never
+    waiting for it) to handle an item at once.
+    """
+
+    def __init__(
+        self,
+        loop: asyncio.AbstractEventLoop,
+        on_error: Callable[[BaseException], None] | None = None,
+        lock: CoreLock | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        after_drain: Callable[[], None] | None = None,
+    ) -> None:
+        self.loop = loop
+        self.clock = clock
+        #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
+        self.on_error = on_error
+        #: The core's lock, for a service whose core other threads may drive: drains hold it, direct takes need it.
+        self.lock = lock
+        #: Called on the loop after every drain, outside :attr:`lock` (the gateway publishes what the inputs produced).
+        self.after_drain = after_drain
+        #: Guards the channels' contents and counters and ``_scheduled``; never held while a handler runs.
+        self.guard = threading.Lock()
+        self._channels: list[Channel[Any]] = []
+        self._scheduled = False
+        self._serving = False
+        #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
+        self.drained = threading.Event()
+
+    def channel(
+        self,
+        name: str,
+        handler: Callable[[T], None],
+        *,
+        capacity: int = 1024,
+        latest: bool = False,
+        latch: Callable[[T], bool] | None = None,
+        priority: int = 0,
+        direct: Callable[[T], bool] | None = None,
+        on_dropped: Callable[[int], None] | None = None,
+    ) -> Callable[[T], None]:
+        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item, ``latch`` see :class:`Channel`.
+
+        ``on_dropped(n)`` is called on the loop, before the next item is
+        handled, with how many items were dropped since it was last called.
+        ``direct(item)`` takes an item in the thread that puts it, under
+        :attr:`lock`, and says whether it did (False: it waits for the loop as
+        any other). It is tried only while the lock is free (the loop is not
+        in the core), nothing of this priority or higher waits (order is
+        kept: a drain pops and handles under the lock), and the channel is
+        within its direct budget (DIRECT_BURST per DIRECT_WINDOW_S). It must
+        not block, call Zenoh or touch the loop except by ``call_soon_threadsafe``.
+        """
+        if direct is not None and self.lock is None:
+            raise ValueError(f"channel {name!r}: a direct channel needs the hand-over's lock")
+        channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority, latch, on_dropped)
+        self._channels.append(channel)
+        self._channels.sort(key=lambda c: -c.priority)
+        guard = self.guard
+
+        def put(item: T) -> None:
+            if direct is not None and self._try_direct(channel, direct, item):
+                self.drained.set()  # handled: a pump that put it need not wait for a drain that nothing scheduled
+                return
+            with guard:
+                channel.add(item)
+                if self._scheduled:
+                    return
+                self._scheduled = True
+            try:
+                self.loop.call_soon_threadsafe(self._drain)
+            except RuntimeError:  # the loop is closed: the service is stopping
+                pass
+
+        return put
+
+    def _try_direct(self, channel: Channel[T], direct: Callable[[T], bool], item: T) -> bool:
+        """The putting thread: ``direct(item)`` under the lock, if the rules of :meth:`channel` allow; whether it was taken."""
+        lock = self.lock
+        if lock is None or not lock.acquire(blocking=False):
+            return False
+        try:
+            if self._serving:
+                return False  # the loop's own handler put it: it waits for the drain, as it always did
+            with self.guard:
+                now = self.clock()
+                if now - channel.window_start > DIRECT_WINDOW_S:
+                    channel.window_start, channel.window_direct = now, 0
+                if channel.window_direct >= DIRECT_BURST:
+                    return False
+                for other in self._channels:  # highest priority first
+                    if other.priority < channel.priority:
+                        break
+                    if other.waiting():
+                        return False  # older items of this priority, or higher (an e-stop), wait: behind them, in order
+                channel.received += 1
+                channel.direct_taken += 1
+                channel.window_direct += 1
+            try:
+                taken = direct(item)
+            except Exception as exc:  # reported on the loop, as a handler's failure in a drain is
+                self._report_soon(exc)
+                taken = True
+            if not taken:
+                with self.guard:
+                    channel.received -= 1
+                    channel.direct_taken -= 1
+            return taken
+        finally:
+            lock.release()
+
+    def _report_soon(self, exc: BaseException) -> None:
+        def report() -> None:
+            if self.on_error is None:
+                self.loop.call_exception_handler({"message": "an input taken directly failed", "exception": exc})
+            else:
+                self.on_error(exc)
+
+        try:
+            self.loop.call_soon_threadsafe(report)
+        except RuntimeError:  # the loop is closed: the service is stopping
+            pass
+
+    def _drain(self) -> None:
+        """The loop: handle the items waiting now, one at a time, the highest-priority channel first after every item.
+
+        Each lower channel is served at most as many items as it held when the
+        drain began: a flood that refills it while the drain runs waits for
+        the next drain (which its ``put`` schedules), so it can neither keep
+        the loop from its timers and sockets nor hold a newer e-stop behind
+        it. The top channel is always served at once. Every item is popped and
+        handled under the core lock, so a direct take never comes between the two.
+        """
+        with self.guard:
+            self._scheduled = False
+        with self.lock if self.lock is not None else contextlib.nullcontext():
+            self._serving = True
+            try:
+                self._serve_channels()
+            finally:
+                self._serving = False
+        if self.after_drain is not None:
+            self.after_drain()
+        self.drained.set()
+
+    def _serve_channels(self) -> None:
+        channels = self._channels
+        if not channels:
+            return
+        top = channels[0].priority
+        guard = self.guard
+        with guard:
+            budget = [len(c.items) + (c.latched is not None) for c in channels]
+        while True:
+            for index, channel in enumerate(channels):
+                with guard:
+                    if not channel.waiting() or (budget[index] <= 0 and channel.priority != top):
+                        continue
+                    item = channel.pop()
+                    dropped, channel.unreported = channel.unreported, 0
+                budget[index] -= 1
+                try:
+                    if dropped and channel.on_dropped is not None:
+                        channel.on_dropped(dropped)
+                    channel.handler(item)
+                except Exception as exc:
+                    if self.on_error is None:
+                        raise
+                    self.on_error(exc)
+                break
+            else:
+                return
+
+    def stats(self) -> dict[str, tuple[int, int]]:
+        """Per channel: items received (directly taken ones included) and items dropped because the channel was full."""
+        with self.guard:
+            return {c.name: (c.received, c.dropped) for c in self._channels}
