@@ -97,7 +97,7 @@ class GatewayHost:
         self.output = output
         self.clock = clock
         robot = {name: f"robot:{connector.describe(name)}" for name in LINKS}
-        self.connection = GatewayCore(settings, clock(), wallclock, robot)
+        self.core = GatewayCore(settings, clock(), wallclock, robot)
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
         #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`blackmetal.gateway.direct`).
@@ -106,28 +106,26 @@ class GatewayHost:
         self.lock = self.direct.lock
         #: Messages the core produced, published by the loop once it holds no lock (:meth:`publish`).
         self._outbox: list[Event] = []
-        self._timer = DeadlineTimer(
-            self.connection, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish
-        )
+        self._timer = DeadlineTimer(self.core, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish)
         self._failure: asyncio.Future[None] | None = None
 
     # ------------------------------------------------------------------ what tests and the edge see
 
     @property
     def counters(self) -> Counters:
-        return self.connection.counters
+        return self.core.counters
 
     @property
     def control(self) -> LinkState:
-        return self.connection.links["control"]
+        return self.core.links["control"]
 
     def health(self) -> GatewayHealth:
         with self.lock:
-            return self.connection.health(self.clock())
+            return self.core.health(self.clock())
 
     def fail(self, exc: BaseException) -> None:
         """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
-        log.error("%s: %r", self.connection.keys.prefix, exc, exc_info=exc)
+        log.error("%s: %r", self.core.keys.prefix, exc, exc_info=exc)
         with self.lock:
             self.direct.shut()  # a core that raised is driven by nobody but the loop's stop from now on
         if self._failure is not None and not self._failure.done():
@@ -135,11 +133,15 @@ class GatewayHost:
 
     # The loop's inputs: each runs the core under the lock, then publishes what it produced once no lock is held.
 
-    def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
+    def _input(self, handle: Callable[..., object], *args: object) -> None:
+        """The loop: ``handle(*args, now)`` on the core under the lock, the bytes it wants sent, then what it produced published."""
         with self.lock:
-            self.connection.on_cmd_vel(payload, self.clock(), source)
+            handle(*args, self.clock())
             self._flush()
         self.publish()
+
+    def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
+        self._input(lambda now: self.core.on_cmd_vel(payload, now, source))
 
     def on_source_cmd_vel(self, item: tuple[str, bytes]) -> None:
         """``(source, payload)`` from ``<prefix>/cmd_vel/<source>``."""
@@ -147,24 +149,15 @@ class GatewayHost:
 
     def on_superseded(self, source: str, count: int) -> None:
         """``count`` commands of ``source`` were superseded in the intake before the loop took them."""
-        with self.lock:
-            self.connection.on_superseded(source, count, self.clock())
-            self._flush()
-        self.publish()
+        self._input(self.core.on_superseded, source, count)
 
     def on_named_lock(self, item: tuple[str, bytes]) -> None:
         """``(name, payload)`` from ``<prefix>/lock/<name>``."""
-        with self.lock:
-            self.connection.on_lock(item[0], item[1], self.clock())
-            self._flush()
-        self.publish()
+        self._input(self.core.on_lock, item[0], item[1])
 
     def on_estop(self, payload: bytes, release_key: bool = False) -> None:
         """A payload on ``<prefix>/estop`` (``release_key``: on ``<prefix>/estop/release``)."""
-        with self.lock:
-            self.connection.on_estop(payload, self.clock(), release_key)
-            self._flush()
-        self.publish()
+        self._input(lambda now: self.core.on_estop(payload, now, release_key))
 
     def on_estop_input(self, item: tuple[bool, bytes]) -> None:
         """``(release_key, payload)`` from the e-stop channel, which both e-stop keys feed."""
@@ -172,16 +165,10 @@ class GatewayHost:
 
     def on_input_flood(self, key: str, reason: str) -> None:
         """An input began or stopped flooding (the edge changed how it takes it): reported on ``<prefix>/errors``."""
-        with self.lock:
-            self.connection.note_input(key, reason, self.clock())
-            self._flush()
-        self.publish()
+        self._input(self.core.note_input, key, reason)
 
     def on_health_seen(self, payload: bytes) -> None:
-        with self.lock:
-            self.connection.on_health_seen(payload, self.clock())
-            self._flush()
-        self.publish()
+        self._input(self.core.on_health_seen, payload)
 
     # ------------------------------------------------------------------ taken on a Zenoh thread (Intake direct)
 
@@ -194,7 +181,7 @@ class GatewayHost:
         """
         if not self.direct.allowed():
             return False
-        self.connection.on_cmd_vel(item[1], self.clock(), item[0])
+        self.core.on_cmd_vel(item[1], self.clock(), item[0])
         self.direct.send(self._pending("control"), self._flush_locked)
         return True
 
@@ -202,7 +189,7 @@ class GatewayHost:
         """As :meth:`cmd_vel_direct`, for ``(release_key, payload)``: EMG_STOP leaves for the robot without waiting for the loop."""
         if not self.direct.allowed():
             return False
-        self.connection.on_estop(item[1], self.clock(), item[0])
+        self.core.on_estop(item[1], self.clock(), item[0])
         self.direct.send(self._pending("control"), self._flush_locked)
         return True
 
@@ -220,17 +207,17 @@ class GatewayHost:
 
     def _pending(self, name: LinkName) -> bytes:
         """Under the lock: what link ``name`` is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes)."""
-        data = self.connection.take_outgoing(name)
+        data = self.core.take_outgoing(name)
         return self.direct.before(data) if name == "control" else data
 
     def _flush(self) -> None:
         """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`."""
-        conn = self.connection
+        core = self.core
         for name, stream in self._streams.items():
             data = self._pending(name)
             if data and stream is not None and not stream.is_closing():
                 stream.write(data)
-        for event in conn.take_events():
+        for event in core.take_events():
             if isinstance(event, DropLink):
                 stream = self._streams[event.link]
                 if stream is not None and not stream.is_closing():
@@ -266,19 +253,19 @@ class GatewayHost:
 
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
-        conn = self.connection
+        core = self.core
         lock = self.lock
         backoff = ReconnectBackoff()
         first_failure = True
         while not stop.is_set():
             with lock:
-                conn.link_connecting(name)
+                core.link_connecting(name)
             try:
                 stream = await self.connector.open(name)
             except (OSError, TimeoutError) as exc:
                 reason = f"cannot connect to {self.connector.describe(name)}: {_reason(exc)}"
                 with lock:
-                    conn.link_down(name, reason, self.clock())
+                    core.link_down(name, reason, self.clock())
                 if first_failure:
                     log.warning("%s link: %s; retrying", name, reason)
                     first_failure = False
@@ -291,7 +278,7 @@ class GatewayHost:
                 self._streams[name] = stream
                 if name == "control":
                     self.direct.stream_up(stream)
-                conn.link_up(name, self.clock())
+                core.link_up(name, self.clock())
                 self._flush()
             self.publish()
             reason = "closed by the robot"
@@ -301,7 +288,7 @@ class GatewayHost:
                     if not data:
                         break
                     with lock:
-                        conn.receive(name, data, self.clock())
+                        core.receive(name, data, self.clock())
                         self._flush()
                     self.publish()
                     if len(data) >= READ_SIZE:
@@ -322,7 +309,7 @@ class GatewayHost:
             else:
                 log.warning("%s link: %s; reconnecting", name, reason)
             with lock:
-                conn.link_down(name, reason, self.clock())
+                core.link_down(name, reason, self.clock())
                 self._flush()
             self.publish()
             if not stop.is_set():
@@ -367,7 +354,7 @@ class GatewayHost:
     async def _stop_robot(self) -> None:
         """Zero velocity and NORMAL_STOP, so the robot is left standing; wait briefly for the replies."""
         with self.lock:
-            self.connection.stop_robot(self.clock())
+            self.core.stop_robot(self.clock())
             self._flush()
             stream = self._streams["control"]
         self.publish()
@@ -380,7 +367,7 @@ class GatewayHost:
         deadline = self.clock() + 0.3
         while self.clock() < deadline and self._streams["control"] is not None:
             with self.lock:
-                if self.connection.idle:
+                if self.core.idle:
                     return
             await asyncio.sleep(0.01)
 

@@ -104,7 +104,7 @@ class GatewayZenoh(ZenohEdge):
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
         keys = self.keys
-        arbiter = service.connection.arbiter
+        arbiter = service.core.arbiter
         # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
         handover = Intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
         estop = handover.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)

@@ -372,9 +372,9 @@ def test_a_bug_in_handling_fails_the_host_visibly_and_leaves_the_robot_standing(
             raise RuntimeError("a bug")
 
         if where == "timer":
-            rig.service.connection.tick = broken  # type: ignore[method-assign]
+            rig.service.core.tick = broken  # type: ignore[method-assign]
         else:
-            rig.service.connection.on_cmd_vel = broken  # type: ignore[method-assign]
+            rig.service.core.on_cmd_vel = broken  # type: ignore[method-assign]
             handover_fail = rig.service.fail
             try:
                 rig.service.on_cmd_vel(b'{"linear":{"x":0.3}}')
