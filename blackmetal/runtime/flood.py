@@ -93,6 +93,8 @@ class GuardedInput:
         self.quiet_s = quiet_s
         self._subscriber: Any = None
         self._pump: threading.Thread | None = None
+        #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
+        self._count_lock = threading.Lock()
         self._window_start = -math.inf
         self._window_count = 0
         self._changing = False
@@ -124,11 +126,13 @@ class GuardedInput:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
         self.put(self._item(sample))
         now = time.monotonic()
-        if now - self._window_start > FLOOD_WINDOW_S:
-            self._window_start, self._window_count = now, 0
-        self._window_count += 1
-        if self._window_count > FLOOD_SAMPLES and not self._changing:
-            self._changing = True
+        with self._count_lock:
+            if now - self._window_start > FLOOD_WINDOW_S:
+                self._window_start, self._window_count = now, 0
+            self._window_count += 1
+            change = self._window_count > FLOOD_SAMPLES and not self._changing
+            self._changing = self._changing or change
+        if change:
             try:
                 self.handover.loop.call_soon_threadsafe(self._to_ring)
             except RuntimeError:  # the loop is closed: the service is stopping
@@ -143,7 +147,8 @@ class GuardedInput:
         try:
             ring = self.session.declare_subscriber(self.key, zenoh.handlers.RingChannel(self.capacity))
         finally:
-            self._changing = False  # a failure leaves the callback in place, and the next flood tries again
+            with self._count_lock:
+                self._changing = False  # a failure leaves the callback in place, and the next flood tries again
         callback, self._subscriber = self._subscriber, ring
         self._last_sample = time.monotonic()
         self._pump_stop = threading.Event()
@@ -214,7 +219,8 @@ class GuardedInput:
             self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
             return
         ring = self._subscriber
-        self._window_start, self._window_count, self._changing = -math.inf, 0, False
+        with self._count_lock:
+            self._window_start, self._window_count, self._changing = -math.inf, 0, False
         try:
             self.start()
         except Exception:  # the ring stays until a callback can be declared
