@@ -25,7 +25,7 @@ e-stop, which stays above everything.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from enum import Enum
 
 from blackmetal.schemas import ConfigError, Sources, Twist
@@ -259,6 +259,20 @@ class Arbiter:
             return NewDriver(None, None, -math.inf, previous, why, blocked=blocked)
         source = self._sources[winner]
         return NewDriver(winner, source.twist, source.heard_at, previous, why)
+
+    def retune(self, name: str, *, priority: int | None = None, timeout: float | None = None) -> None:
+        """A new priority or timeout for source ``name`` (a parameter set live); :meth:`update` weighs it at once."""
+        source = self._sources[name]
+        spec = replace(
+            source.spec,
+            priority=source.spec.priority if priority is None else priority,
+            timeout=source.spec.timeout if timeout is None else timeout,
+        )
+        check_specs((spec,), ())
+        source.spec = spec
+        self.sources = tuple(spec if s.name == name else s for s in self.sources)
+        if source.due != math.inf:  # still live: it falls silent after its new timeout
+            source.due = source.heard_at + spec.timeout
 
     def priority_of(self, name: str) -> int:
         return self._sources[name].spec.priority

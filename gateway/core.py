@@ -27,8 +27,12 @@ from blackmetal.schemas import (
     DriverChange,
     ErrorReport,
     GatewayHealth,
+    GatewayParams,
     Keys,
     Lock,
+    ParamResult,
+    ParamsSet,
+    ParamsSetReply,
     PayloadError,
     RobotStatus,
     SourceHealth,
@@ -46,6 +50,7 @@ from .exchange import Completed, Exchange, Lost
 from .health import Counters
 from .links import DropLink, LinkName, Links
 from .log_port import LogPort
+from .params import ParamTable
 from .polling import PollSchedule
 from .prepare import PrepareRetry
 from .safety import CommandReason, Governor
@@ -54,7 +59,7 @@ from .settings import GatewaySettings
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
 
-Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | DropLink
+Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams | DropLink
 
 
 def _is_stop(request: wire.Request) -> bool:
@@ -99,6 +104,8 @@ class GatewayCore:
         self.prepare = PrepareRetry()
         self.conflict = GatewayConflict(self.source, self.keys.prefix)
         self.arbiter = settings.arbiter()
+        #: What an operator may change while the gateway runs (limits, the command timeout, priorities).
+        self.params = ParamTable(settings, self.governor, self.arbiter)
         self._events: list[Event] = []
         #: An e-stop's health report, built only once the EMG_STOP bytes are taken (see on_estop).
         self._health_due: float | None = None
@@ -303,6 +310,38 @@ class GatewayCore:
         if self.conflict.other is not None:
             self._conflict_news(self.conflict.tick(now), now)
             self._send_due(now)
+
+    def on_params_set(self, payload: bytes, now: float) -> ParamsSetReply | str:
+        """A :class:`ParamsSet` on ``<prefix>/gateway/params/set``: each value set on its own or refused with the reason.
+
+        What was set takes effect at once (the arbiter weighs new priorities,
+        the next command obeys new limits) and the new table is published;
+        each refusal is reported. A payload that is not a ParamsSet is
+        reported, and why is returned for the edge to answer with.
+        """
+        key = self.keys.params_set
+        try:
+            values = decode(ParamsSet, payload).values
+        except PayloadError as exc:
+            why = f'{exc}; send {{"values": {{"max_wheel_speed": 0.3}}}}'
+            self.reject(key, why, now, exc.excerpt)
+            return why
+        results = []
+        for name, value in values.items():
+            refused = self.params.set(name, value)
+            results.append(ParamResult(name, refused is None, refused or ""))
+            if refused is not None:
+                self.reject(key, refused, now, family=key)
+        changed = [r.name for r in results if r.successful]
+        if changed:
+            self._arbitrate(now)
+            self._send_due(now)
+            self._events.append(self.params_now(changed))
+        return ParamsSetReply(results, self.params_now())
+
+    def params_now(self, changed: list[str] | None = None) -> GatewayParams:
+        """The parameter table with each value now (``changed``: the names a set just changed)."""
+        return GatewayParams(stamp=self.wallclock(), params=self.params.table(), changed=changed or [])
 
     def note_input(self, key: str, reason: str, now: float) -> None:
         """Something about an input that its publisher should know (a flood began or ended): reported, not counted."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, RobotStatus, WheelImpulses
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, ParamsSetReply, RobotStatus, WheelImpulses
 from blackmetal.transport import ByteStream, Connector
 
 from .arbiter import DEFAULT_SOURCE
@@ -53,6 +53,7 @@ class GatewayOutput(Protocol):
     def health(self, message: GatewayHealth) -> None: ...
     def error(self, message: ErrorReport) -> None: ...
     def driver(self, message: DriverChange) -> None: ...
+    def params(self, message: GatewayParams) -> None: ...
 
 
 @dataclass
@@ -64,6 +65,7 @@ class RecordingOutput:
     health_log: list[GatewayHealth] = field(default_factory=list)
     error_log: list[ErrorReport] = field(default_factory=list)
     driver_log: list[DriverChange] = field(default_factory=list)
+    params_log: list[GatewayParams] = field(default_factory=list)
 
     def impulses(self, message: WheelImpulses) -> None:
         self.impulse_log.append(message)
@@ -79,6 +81,9 @@ class RecordingOutput:
 
     def driver(self, message: DriverChange) -> None:
         self.driver_log.append(message)
+
+    def params(self, message: GatewayParams) -> None:
+        self.params_log.append(message)
 
 
 class GatewayHost:
@@ -170,6 +175,21 @@ class GatewayHost:
     def on_health_seen(self, payload: bytes) -> None:
         self._input(self.core.on_health_seen, payload)
 
+    def params(self) -> GatewayParams:
+        with self.lock:
+            return self.core.params_now()
+
+    def set_params(self, payload: bytes) -> ParamsSetReply | str:
+        """A get on ``<prefix>/gateway/params/set``: the core's answer (a str: why the payload is no ParamsSet)."""
+        try:
+            with self.lock:
+                try:
+                    return self.core.on_params_set(payload, self.clock())
+                finally:
+                    self._flush()
+        finally:
+            self.publish()
+
     # ------------------------------------------------------------------ taken on a Zenoh thread (Intake direct)
 
     def cmd_vel_direct(self, item: tuple[str, bytes]) -> bool:
@@ -250,6 +270,8 @@ class GatewayHost:
                 output.error(event)
             elif isinstance(event, DriverChange):
                 output.driver(event)
+            elif isinstance(event, GatewayParams):
+                output.params(event)
 
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""

@@ -29,11 +29,23 @@ import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+import msgspec
+
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.flood import newest
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import Item
-from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, Keys, RobotStatus, WheelImpulses, encode
+from blackmetal.schemas import (
+    DriverChange,
+    ErrorReport,
+    GatewayHealth,
+    GatewayParams,
+    Keys,
+    RobotStatus,
+    WheelImpulses,
+    encode,
+    payload_bytes,
+)
 
 from .arbiter import DEFAULT_SOURCE
 from .estop import read_estop
@@ -84,6 +96,7 @@ class GatewayZenoh(ZenohEdge):
         self._health = self.publisher(keys.health)
         self._errors = self.publisher(keys.errors)
         self._driver = self.publisher(keys.driver)
+        self._params = self.publisher(keys.params)
 
     # GatewayOutput
     def impulses(self, message: WheelImpulses) -> None:
@@ -100,6 +113,9 @@ class GatewayZenoh(ZenohEdge):
 
     def driver(self, message: DriverChange) -> None:
         self._driver.put(encode(message))
+
+    def params(self, message: GatewayParams) -> None:
+        self._params.put(encode(message))
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
         """Declare the subscribers, queryable and liveliness token that feed ``service``."""
@@ -144,13 +160,28 @@ class GatewayZenoh(ZenohEdge):
         unknown_lock = handover.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
         self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), handover, flood)
         self.queryable(keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
+        self.queryable(keys.params, handover.channel("params?", lambda q: self._answer(q, keys.params, service.params()), capacity=16))
+        self.queryable(keys.params_set, handover.channel("params set?", lambda q: self._answer_set(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
         self.subscriber(keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))
         self.token(keys.alive_gateway)
         return handover
 
     def _answer_health(self, service: "GatewayHost", query: "zenoh.Query") -> None:
+        self._answer(query, self.keys.health, service.health())
+
+    def _answer_set(self, service: "GatewayHost", query: "zenoh.Query") -> None:
+        """Set parameters; a payload that is no ParamsSet is answered with an error reply saying why."""
+        reply = service.set_params(payload_bytes(query))
+        if isinstance(reply, str):
+            with query:
+                query.reply_err(reply)
+        else:
+            self._answer(query, self.keys.params_set, reply)
+
+    @staticmethod
+    def _answer(query: "zenoh.Query", key: str, message: msgspec.Struct) -> None:
         import zenoh
 
         with query:
-            query.reply(self.keys.health, encode(service.health()), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(key, encode(message), encoding=zenoh.Encoding.APPLICATION_JSON)

@@ -17,7 +17,9 @@ from .messages import (
     ErrorReport,
     EStop,
     GatewayHealth,
+    GatewayParams,
     Lock,
+    ParamsSet,
     Pose,
     PoseReset,
     RobotStatus,
@@ -54,6 +56,8 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("status", "status", RobotStatus, "publication", "gateway ->"),
     KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get"),
     KeySpec("driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why"),
+    KeySpec("params", "gateway/params", GatewayParams, "publication", "gateway ->, and get: its parameters (limits, timeout, priorities)"),
+    KeySpec("params_set", "gateway/params/set", ParamsSet, "query", "get -> gateway (an operator's right), answers a ParamsSetReply"),
     KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->"),
     KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get"),
     KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
@@ -111,6 +115,8 @@ class Keys:
     status: str
     health: str
     driver: str
+    params: str
+    params_set: str
     errors: str
     pose: str
     odometry_reset: str

@@ -282,6 +282,57 @@ class SimFaults(msgspec.Struct, forbid_unknown_fields=True):
     silent: bool = False
 
 
+#: A parameter's value: JSON's bool, integer, number or string (ROS 2's bool, integer, double and string parameters).
+ParamValue = bool | int | float | str
+
+
+class Param(msgspec.Struct, omit_defaults=True):
+    """One parameter of the gateway: its value and what may be done with it (ROS 2's ``ParameterDescriptor``, in JSON).
+
+    ``type`` is ``bool``, ``integer``, ``double`` or ``string``; ``min`` and
+    ``max`` bound a number; ``read_only`` ones describe the robot and the
+    gateway's wiring and change only with a restart.
+    """
+
+    name: str
+    type: str
+    value: ParamValue
+    description: str = ""
+    read_only: bool = False
+    min: float | None = None
+    max: float | None = None
+
+
+class GatewayParams(msgspec.Struct):
+    """The gateway's parameters now (on ``<prefix>/gateway/params``: published when one changes, and answered to a get)."""
+
+    stamp: Finite
+    params: list[Param]
+    #: The names this publication changed (empty in an answer to a get).
+    changed: list[str] = []
+
+
+class ParamsSet(msgspec.Struct, forbid_unknown_fields=True):
+    """Payload of a get on ``<prefix>/gateway/params/set``: the values to set, by name, each on its own."""
+
+    values: dict[str, ParamValue]
+
+
+class ParamResult(msgspec.Struct):
+    """What became of one value of a :class:`ParamsSet`: set, or refused with the reason (ROS 2's ``SetParametersResult``)."""
+
+    name: str
+    successful: bool
+    reason: str = ""
+
+
+class ParamsSetReply(msgspec.Struct):
+    """The gateway's answer to a :class:`ParamsSet`: a result per value, in order, and the parameters after them."""
+
+    results: list[ParamResult]
+    params: GatewayParams
+
+
 #: Every message type, by the name used for its JSON Schema file.
 MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "Twist": Twist,
@@ -295,4 +346,7 @@ MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "DriverChange": DriverChange,
     "SimFaults": SimFaults,
     "PoseReset": PoseReset,
+    "GatewayParams": GatewayParams,
+    "ParamsSet": ParamsSet,
+    "ParamsSetReply": ParamsSetReply,
 }

@@ -261,6 +261,14 @@ def test_each_commander_has_only_its_own_rights_with_the_real_router(children: l
         assert h is not None and h.estop
         safety.put("robot/estop/release", json.dumps({"engaged": False}))
         wait_for(lambda: (h := health(operator)) is not None and not h.estop, what="the safety role's release")
+        # the gateway's parameters: everyone reads them, only an operator sets them (as locks)
+        change = json.dumps({"values": {"max_wheel_speed": 0.3}})
+        assert [r for r in nav.get("robot/gateway/params/set", payload=change, timeout=1) if r.ok is not None] == []
+        assert [r for r in viewer.get("robot/gateway/params/set", payload=change, timeout=1) if r.ok is not None] == []
+        (read,) = [r for r in viewer.get("robot/gateway/params", timeout=5) if r.ok is not None]
+        assert {p["name"]: p["value"] for p in json.loads(read.ok.payload.to_bytes())["params"]}["max_wheel_speed"] == 0.8
+        (done,) = [r for r in operator.get("robot/gateway/params/set", payload=change, timeout=5) if r.ok is not None]
+        assert json.loads(done.ok.payload.to_bytes())["results"] == [{"name": "max_wheel_speed", "successful": True, "reason": ""}]
     finally:
         stop.set()
         for session in sessions.values():

@@ -1,0 +1,197 @@
+"""The gateway's parameters: what an operator may change on a running gateway, and what is shown but fixed.
+
+ROS 2's parameter services (``ros2 param set /blackmetal max_wheel_speed
+0.3``) and Foxglove's parameters panel both come through one key the gateway
+owns, ``<prefix>/gateway/params/set`` (a query: an operator's right in the
+shipped router, as locks are), so no view keeps a copy that could disagree.
+Each value is checked and set on its own, as rclcpp's ``set_parameters``
+does; a refusal says why. Pure: it reads and changes the governor's limits
+and the arbiter's sources, nothing else.
+
+What changes live, and why the rest does not:
+
+* ``max_wheel_speed``, ``linear_accel``, ``angular_accel``: the next command
+  sent already obeys them (a lower limit slows a robot that is driving);
+* ``cmd_timeout``: changed, never switched off (0) on a running robot;
+* ``sources.<name>.priority`` / ``.timeout``: the arbiter weighs them at once;
+* the wheel constants, poll rate, keep-alive and wiring are read-only: the
+  odometry and the calibration were made with them.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+
+from blackmetal import robot_model as model
+from blackmetal.schemas import Param, ParamValue
+
+from .arbiter import Arbiter
+from .safety import Governor, SafetySettings
+from .settings import TIME_LIMITS, GatewaySettings
+
+#: The longest command timeout a parameter may set (the settings' own bound, for the same reason).
+MAX_CMD_TIMEOUT_S = dict((name, limit) for name, limit, _ in TIME_LIMITS)["cmd_timeout"]
+#: The shortest: below a few poll periods a commander at 10 Hz would brake between its commands.
+MIN_CMD_TIMEOUT_S = 0.05
+#: Acceleration limits beyond these are typos (the robot reaches 0.8 m/s in well under a second).
+MAX_LINEAR_ACCEL = 50.0
+MAX_ANGULAR_ACCEL = 200.0
+#: A source's priority, as the settings take it.
+PRIORITY_RANGE = (0, 255)
+
+
+@dataclass(frozen=True, slots=True)
+class _Live:
+    """A parameter that changes live: how to read it and how to set an already checked value."""
+
+    kind: str
+    description: str
+    low: float
+    high: float
+    get: Callable[[], float]
+    set: Callable[[float], None]
+    #: An extra check after the type and range (None: the value is fine).
+    refuse: Callable[[float], str | None] = lambda value: None
+
+
+class ParamTable:
+    """The parameter table of one gateway core: :meth:`table` to show, :meth:`set` to change one."""
+
+    def __init__(self, settings: GatewaySettings, governor: Governor, arbiter: Arbiter) -> None:
+        self.settings = settings
+        self.governor = governor
+        self.arbiter = arbiter
+        self._live = self._live_params()
+
+    # ------------------------------------------------------------------ the table
+
+    def table(self) -> list[Param]:
+        """Every parameter, live ones first, each with its value now."""
+        live = [Param(name, spec.kind, spec.get(), spec.description, min=spec.low, max=spec.high) for name, spec in self._live.items()]
+        return live + self._fixed()
+
+    def names(self) -> list[str]:
+        return [param.name for param in self.table()]
+
+    def set(self, name: str, value: ParamValue) -> str | None:
+        """Set ``name`` to ``value``; the reason it is refused, if it is (nothing changes then)."""
+        spec = self._live.get(name)
+        if spec is None:
+            fixed = {param.name for param in self._fixed()}
+            if name in fixed:
+                return f"{name} is read-only on a running gateway: set it in the gateway's settings and restart it"
+            return f"no parameter {name!r}: the gateway's parameters are {', '.join(self.names())}"
+        if isinstance(value, bool) or not isinstance(value, int if spec.kind == "integer" else (int, float)):
+            return f"{name} takes {'an integer' if spec.kind == 'integer' else 'a number'}, got {value!r}"
+        checked = value if spec.kind == "integer" else float(value)
+        if not math.isfinite(checked) or not spec.low <= checked <= spec.high:
+            return f"{name} must be within {spec.low:g}..{spec.high:g}, got {value!r}"
+        reason = spec.refuse(checked)
+        if reason is not None:
+            return reason
+        spec.set(checked)
+        return None
+
+    # ------------------------------------------------------------------ what they are
+
+    def _live_params(self) -> dict[str, _Live]:
+        governor = self.governor
+
+        def safety() -> SafetySettings:  # read at call time: a set replaces it
+            return governor.settings
+
+        def set_safety(settings: SafetySettings) -> None:
+            governor.settings = settings
+
+        top_speed = max(model.MAX_WHEEL_SPEED, self.settings.max_wheel_speed)
+        params: dict[str, _Live] = {
+            "max_wheel_speed": _Live(
+                "double",
+                "per-wheel speed limit, m/s; faster commands are scaled down keeping their curvature",
+                0.01,
+                top_speed,
+                lambda: safety().max_wheel_speed,
+                lambda v: set_safety(replace(safety(), max_wheel_speed=v)),
+            ),
+            "cmd_timeout": _Live(
+                "double",
+                "brake after this many seconds without a command (the deadman); it cannot be switched off while running",
+                0.0,
+                MAX_CMD_TIMEOUT_S,
+                lambda: safety().cmd_timeout,
+                lambda v: set_safety(replace(safety(), cmd_timeout=v)),
+                lambda v: (
+                    "cmd_timeout 0 (no deadman) is refused on a running gateway: set cmd_timeout = 0 in its settings and "
+                    "restart it if you mean it"
+                    if float(v) == 0
+                    else f"cmd_timeout must be at least {MIN_CMD_TIMEOUT_S:g} s (a commander at 10 Hz would brake between commands)"
+                    if float(v) < MIN_CMD_TIMEOUT_S
+                    else None
+                ),
+            ),
+            "linear_accel": _Live(
+                "double",
+                "acceleration limit of the forward speed, m/s^2; 0 is no limit",
+                0.0,
+                MAX_LINEAR_ACCEL,
+                lambda: safety().linear_accel or 0.0,
+                lambda v: set_safety(replace(safety(), linear_accel=v or None)),
+            ),
+            "angular_accel": _Live(
+                "double",
+                "acceleration limit of the turn rate, rad/s^2; 0 is no limit",
+                0.0,
+                MAX_ANGULAR_ACCEL,
+                lambda: safety().angular_accel or 0.0,
+                lambda v: set_safety(replace(safety(), angular_accel=v or None)),
+            ),
+        }
+        arbiter = self.arbiter
+        for name in arbiter.names:
+            params[f"sources.{name}.priority"] = _Live(
+                "integer",
+                f"priority of the command source {name!r} (the highest live source drives)",
+                *PRIORITY_RANGE,
+                functools.partial(arbiter.priority_of, name),
+                functools.partial(_retune_priority, arbiter, name),
+            )
+            params[f"sources.{name}.timeout"] = _Live(
+                "double",
+                f"seconds after its last command that the source {name!r} stops counting as live",
+                0.01,
+                MAX_CMD_TIMEOUT_S,
+                functools.partial(arbiter.timeout_of, name),
+                functools.partial(_retune_timeout, arbiter, name),
+            )
+        return params
+
+    def _fixed(self) -> list[Param]:
+        s = self.settings
+        fixed: list[tuple[str, str, ParamValue, str]] = [
+            ("wheel_separation", "double", s.wheel_separation, "distance between the wheels, m"),
+            ("wheel_radius", "double", model.WHEEL_RADIUS, "wheel radius, m"),
+            ("impulses_left", "double", s.impulses_left, "calibrated impulses per metre, left wheel"),
+            ("impulses_right", "double", s.impulses_right, "calibrated impulses per metre, right wheel"),
+            ("poll_hz", "double", s.poll_hz, "wheel-speed polls per second"),
+            ("keepalive", "double", s.keepalive, "an unchanged motion command is repeated this often, s"),
+            ("max_command_hz", "double", s.max_command_hz, "cap on velocity commands per second to the robot"),
+            ("release_key_only", "bool", s.release_key_only, "only <prefix>/estop/release releases the e-stop"),
+            ("robot", "string", s.robot, "the robot's address"),
+            ("prefix", "string", s.prefix, "the robot's key-expression prefix"),
+        ]
+        fixed += [
+            (f"locks.{lock.name}.priority", "integer", lock.priority, f"priority up to which the lock {lock.name!r} blocks sources")
+            for lock in self.arbiter.locks
+        ]
+        return [Param(name, kind, value, description, read_only=True) for name, kind, value, description in fixed]
+
+
+def _retune_priority(arbiter: Arbiter, name: str, value: float) -> None:
+    arbiter.retune(name, priority=int(value))
+
+
+def _retune_timeout(arbiter: Arbiter, name: str, value: float) -> None:
+    arbiter.retune(name, timeout=float(value))
