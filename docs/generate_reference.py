@@ -263,10 +263,8 @@ def command_section(name: str, parser: argparse.ArgumentParser) -> list[str]:
             lines += ["| option | meaning |", "|---|---|", *rows, ""]
     if has_zenoh_flags:
         where = "as settings" if cls is not None and any(f.name == "zenoh" for f in dataclasses.fields(cls)) else "on the command line"
-        lines += [
-            f"And the [Zenoh flags](#zenoh-flags) `-m`, `-e`, `-l`, `-c`, `--multicast-scouting`, `--no-multicast-scouting` ({where}).",
-            "",
-        ]
+        flags = ", ".join("/".join(f"`{o}`" for o in a.option_strings) for a in parser._actions if a.dest in zenoh_dests)
+        lines += [f"And the [Zenoh flags](#zenoh-flags) {flags} ({where}).", ""]
     return lines
 
 
