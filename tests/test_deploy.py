@@ -478,18 +478,18 @@ def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[C
         wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway's health")
 
 
-def readme_block(after: str) -> str:
-    """The first ```sh block of the README after the text ``after``."""
-    text = (ROOT / "README.md").read_text()
+def doc_block(page: str, after: str) -> str:
+    """The first ```sh block of the page ``page`` (a path from the repository's root) after the text ``after``."""
+    text = (ROOT / page).read_text()
     start = text.index("```sh\n", text.index(after)) + len("```sh\n")
     return text[start : text.index("```", start)]
 
 
-def test_the_readme_fleet_recipe_works_as_written(tmp_path: Path) -> None:
-    """The Fleet recipe, verbatim but for free ports and without its interactive teleop: both robots listed, nothing exited."""
+def test_the_docs_fleet_recipe_works_as_written(tmp_path: Path) -> None:
+    """The fleet recipe of docs/fleets.md, verbatim but for free ports and without its interactive teleop: both robots listed, nothing exited."""
     import signal
 
-    recipe = readme_block("**Fleet.**")
+    recipe = doc_block("docs/fleets.md", "## One process per service and robot")
     zport, control, log = free_port(), free_ports(2), free_ports(2)
     script = recipe.replace("tcp/127.0.0.1:7447", f"tcp/127.0.0.1:{zport}").replace("6650", str(control)).replace("6640", str(log))
     script = "\n".join(line for line in script.splitlines() if not line.startswith("blackmetal teleop"))
@@ -521,7 +521,7 @@ def test_the_router_ends_on_a_sigterm_that_lands_on_one_of_zenohs_threads() -> N
     """The kernel hands a process's SIGTERM to any of its threads; Python runs the handler only on the main thread.
 
     The router waited for its stop without a timeout, so a SIGTERM taken by one
-    of Zenoh's threads left it running for good (the README's fleet recipe, 3 of 11 CI runs).
+    of Zenoh's threads left it running for good (the fleet recipe of docs/fleets.md, 3 of 11 CI runs).
     """
     import ctypes
     import signal

@@ -37,15 +37,18 @@ def test_mypy_finds_nothing() -> None:
     assert result.returncode == 0, result.stdout + result.stderr
 
 
-def _readme_section(title: str) -> str:
-    text = (ROOT / "README.md").read_text()
-    start = text.index(f"## {title}")
+def _section(title: str, page: str = "README.md") -> str:
+    """The section ``## title`` of ``page`` (a path from the repository's root), up to the next section of that level."""
+    text = (ROOT / page).read_text()
+    start = text.index(f"\n## {title}\n")
     end = text.find("\n## ", start + 1)
     return text[start : end if end >= 0 else len(text)]
 
 
-def test_the_readme_key_table_lists_exactly_the_key_space() -> None:
-    section = _readme_section("Key expressions")
+@pytest.mark.parametrize("page", ["README.md", "docs/concepts.md"])
+def test_the_readme_key_table_lists_exactly_the_key_space(page: str) -> None:
+    """The README's short key table and the full one in docs/concepts.md each list every key, and no other."""
+    section = _section("Key expressions", page)
     rows = [line for line in section.splitlines() if line.startswith("| `robot/")]
     documented = {key for row in rows for key in re.findall(r"`(robot/[^`]+)`", row.split("|")[1])}
     keys = Keys("robot")

@@ -300,7 +300,7 @@ def test_small_things_a_new_user_meets(tmp_path) -> None:  # type: ignore[no-unt
 
 
 def test_up_settings_file_gives_each_service_its_own_keys(tmp_path) -> None:  # type: ignore[no-untyped-def]
-    """The README's gateway.toml keys (its addresses made loopback) go to the gateway alone; sections go to one service."""
+    """The gateway.toml of the docs (its addresses made loopback) goes to the gateway alone; sections go to one service."""
     gateway_toml = tmp_path / "gateway.toml"
     gateway_toml.write_text(
         f'robot = "127.0.0.1"\npoll_hz = 100\ncmd_timeout = 0.25\nconnect = ["tcp/127.0.0.1:{free_port()}"]\nmode = "client"\n'
