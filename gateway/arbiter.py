@@ -187,7 +187,7 @@ class Arbiter:
     locks: tuple[LockSpec, ...] = ()
     _sources: dict[str, _Source] = field(init=False)
     _locks: dict[str, _Lock] = field(init=False)
-    #: The source that drives (None: nobody has since the start or the last hand-over to nobody).
+    #: The source that drives (None: nobody has since the start or the last change of driver to nobody).
     active: str | None = field(init=False, default=None)
 
     def __post_init__(self) -> None:
@@ -281,7 +281,7 @@ class Arbiter:
         return self._sources[name].spec.timeout
 
     def next_deadline(self) -> float:
-        """When :meth:`update` may next have a hand-over without a new input: a live source's or a lock's timeout."""
+        """When :meth:`update` may next change the driver without a new input: a live source's or a lock's timeout."""
         return min((item.due for item in self._timed()), default=math.inf)
 
     def _timed(self) -> list[_Source | _Lock]:

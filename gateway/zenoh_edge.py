@@ -1,6 +1,6 @@
 """Zenoh edge of the gateway: declarations only, no logic.
 
-Inputs go through the one hand-over of :mod:`blackmetal.runtime.edge`: the
+Inputs go through the one intake of :mod:`blackmetal.runtime.intake`: the
 callbacks copy the payload and the service's loop runs the handlers. Each
 input has its own bounded intake, so a flood of one can neither delay,
 mask nor expire another:
@@ -122,15 +122,15 @@ class GatewayZenoh(ZenohEdge):
         keys = self.keys
         arbiter = service.core.arbiter
         # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
-        handover = Intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
-        estop = handover.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)
+        intake = Intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
+        estop = intake.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)
         flood = service.on_input_flood
         # guarded too: a storm of e-stop samples must not keep Zenoh's thread in Python while its final ON waits behind them
-        self.guarded(keys.estop, lambda item: estop((False, item[1])), handover, flood, pick=_estop_batch)
-        self.guarded(keys.estop_release, lambda item: estop((True, item[1])), handover, flood, pick=_estop_batch)
+        self.guarded(keys.estop, lambda item: estop((False, item[1])), intake, flood, pick=_estop_batch)
+        self.guarded(keys.estop_release, lambda item: estop((True, item[1])), intake, flood, pick=_estop_batch)
         sources: dict[str, Callable[[tuple[str, bytes]], None]] = {}
         for name in arbiter.names:
-            put = handover.channel(
+            put = intake.channel(
                 f"cmd_vel/{name}",
                 service.on_source_cmd_vel,
                 latest=True,
@@ -139,8 +139,8 @@ class GatewayZenoh(ZenohEdge):
                 on_dropped=functools.partial(service.on_superseded, name),
             )
             sources[name] = put
-            self.guarded(keys.cmd_vel_of(name), _as_name(name, put), handover, flood, pick=newest)
-        unknown_source = handover.channel("cmd_vel/?", service.on_source_cmd_vel, capacity=UNKNOWN_NAMES_CAPACITY)
+            self.guarded(keys.cmd_vel_of(name), _as_name(name, put), intake, flood, pick=newest)
+        unknown_source = intake.channel("cmd_vel/?", service.on_source_cmd_vel, capacity=UNKNOWN_NAMES_CAPACITY)
         default = sources.get(DEFAULT_SOURCE)
 
         def any_source(item: tuple[str, bytes]) -> None:
@@ -151,21 +151,21 @@ class GatewayZenoh(ZenohEdge):
             elif name not in sources:
                 unknown_source(item)
 
-        self.guarded(keys.any_cmd_vel_source, any_source, handover, flood)
+        self.guarded(keys.any_cmd_vel_source, any_source, intake, flood)
         locks: set[str] = set()
         for name in arbiter.lock_names:
-            put_lock = handover.channel(f"lock/{name}", service.on_named_lock, latest=True, priority=1)
+            put_lock = intake.channel(f"lock/{name}", service.on_named_lock, latest=True, priority=1)
             locks.add(name)
-            self.guarded(keys.lock_of(name), _as_name(name, put_lock), handover, flood, pick=newest)
-        unknown_lock = handover.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
-        self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), handover, flood)
-        self.queryable(keys.health, handover.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
-        self.queryable(keys.params, handover.channel("params?", lambda q: self._answer(q, keys.params, service.params()), capacity=16))
-        self.queryable(keys.params_set, handover.channel("params set?", lambda q: self._answer_set(service, q), capacity=16))
+            self.guarded(keys.lock_of(name), _as_name(name, put_lock), intake, flood, pick=newest)
+        unknown_lock = intake.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
+        self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), intake, flood)
+        self.queryable(keys.health, intake.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
+        self.queryable(keys.params, intake.channel("params?", lambda q: self._answer(q, keys.params, service.params()), capacity=16))
+        self.queryable(keys.params_set, intake.channel("params set?", lambda q: self._answer_set(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
-        self.subscriber(keys.health, handover.channel("health seen", service.on_health_seen, capacity=16))
+        self.subscriber(keys.health, intake.channel("health seen", service.on_health_seen, capacity=16))
         self.token(keys.alive_gateway)
-        return handover
+        return intake
 
     def _answer_health(self, service: "GatewayHost", query: "zenoh.Query") -> None:
         self._answer(query, self.keys.health, service.health())

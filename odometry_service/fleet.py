@@ -40,19 +40,19 @@ class Member:
     session: object
     edge: OdometryZenoh | None = None
     host: OdometryHost | None = None
-    handover: Intake | None = None
+    intake: Intake | None = None
 
     def start(self) -> Member:
         keys = Keys(self.settings.prefix)
         self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
         self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
-        self.handover = self.edge.attach(self.host, asyncio.get_running_loop())
+        self.intake = self.edge.attach(self.host, asyncio.get_running_loop())
         return self
 
     async def run(self, stop: asyncio.Event) -> None:
-        assert self.host is not None and self.handover is not None
-        handover = self.handover
-        await self.host.run(stop, dropped=lambda: handover.stats()["impulses"][1])
+        assert self.host is not None and self.intake is not None
+        intake = self.intake
+        await self.host.run(stop, dropped=lambda: intake.stats()["impulses"][1])
 
     def failed(self, exc: Exception, pause: float) -> None:
         assert self.edge is not None

@@ -25,11 +25,11 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
         refuse_taken(session, "odometry", [keys.prefix], what="odometry service")
         edge = OdometryZenoh(session, keys)
         host = OdometryHost(OdometryCore(settings.params(), keys, edge))
-        handover = edge.attach(host, asyncio.get_running_loop())
+        intake = edge.attach(host, asyncio.get_running_loop())
         print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
         announce_ready("odometry", prefix=settings.prefix)
         try:
-            await host.run(stop, dropped=lambda: handover.stats()["impulses"][1])
+            await host.run(stop, dropped=lambda: intake.stats()["impulses"][1])
         finally:
             edge.close()
 

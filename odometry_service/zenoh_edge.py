@@ -37,12 +37,12 @@ class OdometryZenoh(ZenohEdge):
         self._errors.put(encode(message))
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Intake:
-        handover = Intake(loop)
-        self._direct_subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=4096))
-        self.queryable(self.keys.pose, handover.channel("pose?", lambda q: self._answer_pose(host, q)))
-        self.queryable(self.keys.odometry_reset, handover.channel("reset?", lambda q: self._answer_reset(host, q)))
+        intake = Intake(loop)
+        self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
+        self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer_pose(host, q)))
+        self.queryable(self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer_reset(host, q)))
         self.token(self.keys.alive_odometry)
-        return handover
+        return intake
 
     def _direct_subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
         """:meth:`subscriber`, its callback run on Zenoh's receiving thread rather than on a Python thread of its own.

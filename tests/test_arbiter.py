@@ -47,8 +47,8 @@ def test_a_tie_keeps_the_driver_until_it_times_out() -> None:
         assert arb.offer("default", twist(0.1), t + 0.01) is Admission.DRIVES
     assert arb.offer("ros2", twist(0.25), 0.45) is Admission.DROPPED
     assert arb.update(0.9) is None  # default heard at 0.41: live until 0.91
-    handover = arb.update(0.91)
-    assert handover is not None and handover.source == "ros2" and handover.twist == twist(0.25) and handover.heard_at == 0.45
+    change = arb.update(0.91)
+    assert change is not None and change.source == "ros2" and change.twist == twist(0.25) and change.heard_at == 0.45
     assert arb.offer("default", twist(0.1), 0.95) is Admission.DROPPED  # now ros2 keeps it, equally
 
 
@@ -58,8 +58,8 @@ def test_when_the_driver_falls_silent_the_next_live_source_takes_over_on_its_dea
     arb.offer("teleop", twist(0.0), 0.0)
     arb.offer("nav", twist(0.3), 0.3)
     assert arb.next_deadline() == 0.5  # teleop's timeout
-    handover = arb.update(0.5)
-    assert handover is not None and (handover.source, handover.twist, handover.blocked) == ("nav", twist(0.3), False)
+    change = arb.update(0.5)
+    assert change is not None and (change.source, change.twist, change.blocked) == ("nav", twist(0.3), False)
     assert arb.next_deadline() == pytest.approx(0.8)
     last = arb.update(0.8)
     assert last is not None and last.source is None and not last.blocked  # nobody live: the command timeout brakes
@@ -78,8 +78,8 @@ def test_an_engaged_lock_blocks_equal_and_lower_priorities_until_released() -> N
     assert arb.lock_states(0.0) == {"pause": False}
     arb.offer("default", twist(0.2), 0.0)
     assert arb.set_lock("pause", True, 0.1)
-    handover = arb.update(0.1)
-    assert handover is not None and handover.source is None and handover.blocked  # the robot must brake now
+    change = arb.update(0.1)
+    assert change is not None and change.source is None and change.blocked  # the robot must brake now
     assert arb.offer("default", twist(0.2), 0.2) is Admission.DROPPED  # equal priority: blocked
     assert arb.offer("nav", twist(0.2), 0.2) is Admission.DROPPED  # lower: blocked
     assert arb.offer("foxglove", twist(0.1), 0.25) is Admission.DRIVES  # higher: drives through the lock
@@ -98,8 +98,8 @@ def test_a_heartbeat_lock_is_engaged_until_refreshed_and_again_when_its_supervis
         arb.offer("teleop", twist(0.1), t)
     assert arb.next_deadline() == pytest.approx(0.45)  # the heartbeat is due by then
     assert arb.update(0.44) is None
-    handover = arb.update(0.45)
-    assert handover is not None and handover.source is None and handover.blocked
+    change = arb.update(0.45)
+    assert change is not None and change.source is None and change.blocked
 
 
 def test_lock_priority_and_a_higher_source_drive_through() -> None:
@@ -189,6 +189,6 @@ def test_the_arbiter_picks_whom_the_plain_rules_pick(
             assert arb.set_lock(name, flag, now)
         else:
             before, model.active = model.active, model.winner(now)
-            handover = arb.update(now)
-            assert (handover is None) == (model.active == before)
+            change = arb.update(now)
+            assert (change is None) == (model.active == before)
         assert arb.active == model.active

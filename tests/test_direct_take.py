@@ -91,11 +91,11 @@ class Rig:
         self.lock = threading.RLock()
         self.clock = FakeClock()
         self.errors: list[BaseException] = []
-        self.handover = Intake(loop_thread.loop, on_error=self.errors.append, lock=self.lock, clock=self.clock)
+        self.intake = Intake(loop_thread.loop, on_error=self.errors.append, lock=self.lock, clock=self.clock)
         self.order: list[tuple[str, str]] = []  # (how, item) in the order they were handled
         self.fail_direct = False
-        self.estop = self.handover.channel("estop", self._handled, priority=2, direct=self._direct)
-        self.command = self.handover.channel("cmd", self._handled, priority=1, direct=self._direct)
+        self.estop = self.intake.channel("estop", self._handled, priority=2, direct=self._direct)
+        self.command = self.intake.channel("cmd", self._handled, priority=1, direct=self._direct)
 
     def _handled(self, item: str) -> None:
         self.order.append(("loop", item))
@@ -123,7 +123,7 @@ def test_an_input_is_taken_in_the_putting_thread_when_the_core_is_free(loop_thre
         release.set()
     rig.settled()
     assert rig.order == [("direct", "a"), ("direct", "stop")]  # nothing handled twice
-    assert rig.handover.stats() == {"estop": (1, 0), "cmd": (1, 0)}
+    assert rig.intake.stats() == {"estop": (1, 0), "cmd": (1, 0)}
 
 
 def test_while_the_core_is_held_inputs_wait_for_the_loop_and_keep_their_order(loop_thread: LoopThread) -> None:
@@ -270,15 +270,15 @@ class GatewayRig:
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
         # wired as GatewayZenoh.attach wires a single robot's gateway
-        handover = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock, after_drain=host.publish)
-        estop = handover.channel("estop", host.on_estop_input, latest=True, priority=2, direct=host.estop_direct)
+        intake = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock, after_drain=host.publish)
+        estop = intake.channel("estop", host.on_estop_input, latest=True, priority=2, direct=host.estop_direct)
         self.estop = lambda payload: estop((False, payload))
-        self.command = handover.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.cmd_vel_direct)
-        self.handover = handover
+        self.command = intake.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.cmd_vel_direct)
+        self.intake = intake
         wait_for(lambda: host.control.connected and self.robot.counters["prepare"] >= 1, what="the gateway to connect")
 
     def direct_taken(self) -> dict[str, int]:
-        return {channel.name: channel.direct_taken for channel in self.handover._channels}
+        return {channel.name: channel.direct_taken for channel in self.intake._channels}
 
     def close(self) -> None:
         self.gateway_thread.loop.call_soon_threadsafe(self.stop.set)
@@ -308,7 +308,7 @@ def test_a_command_and_an_estop_reach_the_robot_while_the_gateways_loop_is_busy(
     finally:
         release.set()
     wait_for(lambda: any(h.estop for h in rig.output.health_log), what="the e-stop's health report, from the loop")
-    assert rig.handover.stats() == {"estop": (1, 0), "cmd_vel": (1, 0)}
+    assert rig.intake.stats() == {"estop": (1, 0), "cmd_vel": (1, 0)}
     assert rig.direct_taken() == {"estop": 1, "cmd_vel": 1}
     # and the e-stop latched in the one core, whichever thread took it
     rig.command(("default", b'{"linear":{"x":0.2}}'))

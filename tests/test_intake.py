@@ -42,12 +42,10 @@ class GatewayInputs:
         self.loop_thread = loop_thread
         self.handled: list[tuple[str, object]] = []
         self.superseded: dict[str, int] = {}
-        handover = self.handover = Intake(loop_thread.loop, lock=CoreLock())
-        self.estop = handover.channel(
-            "estop", lambda item: self.handled.append(("estop", item[1])), latest=True, latch=_engages, priority=2
-        )
+        intake = self.intake = Intake(loop_thread.loop, lock=CoreLock())
+        self.estop = intake.channel("estop", lambda item: self.handled.append(("estop", item[1])), latest=True, latch=_engages, priority=2)
         self.sources = {
-            name: handover.channel(
+            name: intake.channel(
                 f"cmd_vel/{name}",
                 lambda item: self.handled.append(item),
                 latest=True,
@@ -72,7 +70,7 @@ def test_a_flood_of_one_source_neither_masks_nor_delays_another(loop_thread: Loo
     assert ("teleop", b"teleop") in intake.handled  # a flood of nav never pushes teleop's command out
     assert intake.handled.count(("nav", b"nav 4999")) == 1 and len(intake.handled) == 2  # nav: only its newest
     assert intake.superseded == {"nav": 4999}  # counted against nav, and nav alone
-    assert intake.handover.stats()["cmd_vel/nav"] == (5000, 4999)
+    assert intake.intake.stats()["cmd_vel/nav"] == (5000, 4999)
 
 
 @pytest.mark.parametrize(
@@ -103,10 +101,10 @@ def test_an_estop_storm_is_two_handlings_at_most_and_the_newest_state_wins(
 
 def test_no_command_is_taken_directly_while_an_estop_on_waits(loop_thread: LoopThread) -> None:
     lock = CoreLock()
-    handover = Intake(loop_thread.loop, lock=lock)
+    intake = Intake(loop_thread.loop, lock=lock)
     order: list[str] = []
-    estop = handover.channel("estop", lambda item: order.append("estop"), latest=True, latch=_engages, priority=2)
-    command = handover.channel(
+    estop = intake.channel("estop", lambda item: order.append("estop"), latest=True, latch=_engages, priority=2)
+    command = intake.channel(
         "cmd", lambda item: order.append("loop cmd"), latest=True, priority=1, direct=lambda item: order.append("direct cmd") is None
     )
     release = loop_thread.hold()

@@ -64,10 +64,10 @@ def loop() -> Iterator[asyncio.AbstractEventLoop]:
 
 def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
     """At sane rates there is no pump thread: zenoh-python wakes a blocked recv() ten times a second, GIL and all."""
-    handover = Intake(loop)
+    intake = Intake(loop)
     received: list[tuple[str, bytes]] = []
     edge = ZenohEdge(session)
-    guarded = edge.guarded("edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover)
+    guarded = edge.guarded("edge/test/cmd_vel/*", intake.channel("cmd_vel", received.append), intake)
     publisher = session.declare_publisher("edge/test/cmd_vel/nav")
     for i in range(20):
         publisher.put(f"{i}".encode())
@@ -79,10 +79,10 @@ def test_a_guarded_input_takes_samples_by_callback_and_keeps_no_thread(session: 
 
 def test_a_flood_goes_through_the_ring_buffer_and_back_when_it_ends(session: zenoh.Session, loop: asyncio.AbstractEventLoop) -> None:
     """A flood changes the input over to Zenoh's ring buffer and one pump; quiet again, it changes back; nothing is lost at either change."""
-    handover = Intake(loop)
+    intake = Intake(loop)
     received: list[tuple[str, bytes]] = []
     reports: list[tuple[str, str]] = []
-    guarded = GuardedInput(session, "edge/test/cmd_vel/*", handover.channel("cmd_vel", received.append), handover,
+    guarded = GuardedInput(session, "edge/test/cmd_vel/*", intake.channel("cmd_vel", received.append), intake,
                            lambda key, reason: reports.append((key, reason)), quiet_s=0.3)  # fmt: skip
     guarded.start()
     publisher = session.declare_publisher("edge/test/cmd_vel/flood")
@@ -119,9 +119,9 @@ def test_closing_flooded_inputs_ends_their_pumps_at_once(session: zenoh.Session,
     only the (now blocked) loop could do: 0.2-0.3 s for three flooded inputs, in a
     fleet a pause of every robot's e-stop.
     """
-    handover = Intake(loop)
+    intake = Intake(loop)
     edge = ZenohEdge(session)
-    inputs = [edge.guarded(f"edge/test/{i}/cmd_vel/*", handover.channel(f"cmd_vel {i}", lambda item: None), handover) for i in range(3)]
+    inputs = [edge.guarded(f"edge/test/{i}/cmd_vel/*", intake.channel(f"cmd_vel {i}", lambda item: None), intake) for i in range(3)]
     publishers = [session.declare_publisher(f"edge/test/{i}/cmd_vel/nav") for i in range(3)]
     for publisher in publishers:
         for i in range(5 * FLOOD_SAMPLES):

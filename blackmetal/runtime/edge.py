@@ -86,12 +86,12 @@ class ZenohEdge:
         self,
         key: str,
         put: Callable[[tuple[str, bytes]], None],
-        handover: Intake,
+        intake: Intake,
         on_flood: Callable[[str, str], None] | None = None,
         pick: Pick | None = None,
     ) -> "GuardedInput":
         """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`)."""
-        guarded = GuardedInput(self.session, key, put, handover, on_flood, pick=pick)
+        guarded = GuardedInput(self.session, key, put, intake, on_flood, pick=pick)
         guarded.start()
         self._guarded.append(guarded)
         return guarded

@@ -75,7 +75,7 @@ class GuardedInput:
         session: "zenoh.Session",
         key: str,
         put: Callable[[tuple[str, bytes]], None],
-        handover: Intake,
+        intake: Intake,
         on_flood: Callable[[str, str], None] | None = None,
         *,
         capacity: int = 64,
@@ -87,7 +87,7 @@ class GuardedInput:
         self.pick = pick
         self.key = key
         self.put = put
-        self.handover = handover
+        self.intake = intake
         self.on_flood = on_flood
         self.capacity = capacity
         self.quiet_s = quiet_s
@@ -134,7 +134,7 @@ class GuardedInput:
             self._changing = self._changing or change
         if change:
             try:
-                self.handover.loop.call_soon_threadsafe(self._to_ring)
+                self.intake.loop.call_soon_threadsafe(self._to_ring)
             except RuntimeError:  # the loop is closed: the service is stopping
                 pass
 
@@ -162,7 +162,7 @@ class GuardedInput:
         )
         self._pump.start()
         undeclare(callback)
-        self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+        self._quiet_check = self.intake.loop.call_later(self.quiet_s / 2, self._check_quiet)
         if self.on_flood is not None:
             self.on_flood(
                 self.key,
@@ -180,7 +180,7 @@ class GuardedInput:
         """
         import zenoh
 
-        drained = self.handover.drained
+        drained = self.intake.drained
         callback_gone.wait(CALLBACK_GONE_S)
         while not stop.is_set():
             try:
@@ -204,7 +204,7 @@ class GuardedInput:
         """The loop: undeclare ``subscriber`` and end the pump, without waiting out its wait for a drain (only the loop ends that)."""
         pump, self._pump = self._pump, None
         self._pump_stop.set()
-        self.handover.drained.set()
+        self.intake.drained.set()
         if subscriber is not None:
             undeclare(subscriber)
         if pump is not None:
@@ -216,7 +216,7 @@ class GuardedInput:
         if self._closed or self._pump is None:
             return
         if time.monotonic() - self._last_sample < self.quiet_s:
-            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            self._quiet_check = self.intake.loop.call_later(self.quiet_s / 2, self._check_quiet)
             return
         ring = self._subscriber
         with self._count_lock:
@@ -224,7 +224,7 @@ class GuardedInput:
         try:
             self.start()
         except Exception:  # the ring stays until a callback can be declared
-            self._quiet_check = self.handover.loop.call_later(self.quiet_s / 2, self._check_quiet)
+            self._quiet_check = self.intake.loop.call_later(self.quiet_s / 2, self._check_quiet)
             raise
         self._end_pump(ring)
         if self.on_flood is not None:

@@ -80,7 +80,7 @@ class Channel(Generic[T]):
         return self.latched is not None or bool(self.items)
 
     def add(self, item: T) -> None:
-        """Under the hand-over's lock: keep ``item`` (see the class docstring for what it supersedes)."""
+        """Under the intake's guard: keep ``item`` (see the class docstring for what it supersedes)."""
         items = self.items
         if self.latch is not None and self.latched is None and self.latch(item):
             superseded = len(items)
@@ -94,7 +94,7 @@ class Channel(Generic[T]):
         self.received += 1
 
     def pop(self) -> T | None:
-        """Under the hand-over's lock: the next item to handle (a latched one first), or None."""
+        """Under the intake's guard: the next item to handle (a latched one first), or None."""
         if self.latched is not None:
             item, self.latched = self.latched, None
             return item
@@ -161,7 +161,7 @@ class Intake:
         not block, call Zenoh or touch the loop except by ``call_soon_threadsafe``.
         """
         if direct is not None and self.lock is None:
-            raise ValueError(f"channel {name!r}: a direct channel needs the hand-over's lock")
+            raise ValueError(f"channel {name!r}: a direct channel needs the intake's core lock")
         channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority, latch, on_dropped)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)

@@ -60,12 +60,12 @@ class SimZenoh(ZenohEdge):
         self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> Intake:
-        handover = Intake(loop)
-        self.subscriber(self.keys.sim_faults, handover.channel("faults", self._on_faults))
-        self.queryable(self.keys.sim_faults, handover.channel("faults?", self._answer_faults))
-        self.queryable(self.keys.sim_truth, handover.channel("truth?", self._answer_truth))
+        intake = Intake(loop)
+        self.subscriber(self.keys.sim_faults, intake.channel("faults", self._on_faults))
+        self.queryable(self.keys.sim_faults, intake.channel("faults?", self._answer_faults))
+        self.queryable(self.keys.sim_truth, intake.channel("truth?", self._answer_truth))
         self.token(self.keys.alive_sim)
-        return handover
+        return intake
 
     def tick(self) -> None:
         """The simulator's periodic step: publish the true pose, and summaries of rate-limited reports when due."""
