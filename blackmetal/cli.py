@@ -45,6 +45,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "router": ("blackmetal.tools.router", "run a Zenoh router from the Python wheel"),
     "robots": ("blackmetal.tools.list_robots", "list the robots whose gateway is alive"),
     "estop": ("blackmetal.tools.estop", "engage or release the emergency stop, confirmed by the gateway"),
+    "params": ("blackmetal.tools.params", "show the gateway's parameters, or set some on the running gateway"),
     "stop-robot": ("blackmetal.tools.stop_robot", "send the robot zero velocity and NORMAL_STOP (when its gateway is gone)"),
     "urdf": ("blackmetal.tools.urdf", "print the robot's URDF (for robot_state_publisher, RViz, Foxglove)"),
     "bench": ("blackmetal.bench", "measure latency, poll rate, replay speed, memory"),

@@ -132,3 +132,23 @@ def test_a_set_over_zenoh_reaches_the_robots_wire_and_is_published(rig_factory: 
     (bad,) = rig.session.get(KEYS.params_set, payload=b'{"max_wheel_speed": 0.3}', timeout=5)
     assert bad.err is not None and "values" in bad.err.payload.to_bytes().decode()
     wait_for(lambda: any('"values"' in e for e in rig.errors), what="the refusal reported on errors")
+
+
+@pytest.mark.integration
+def test_blackmetal_params_lists_and_sets_and_says_what_it_refused(rig_factory: list[Rig]) -> None:  # noqa: F811
+    import subprocess
+    import sys
+
+    rig = make(rig_factory, Behaviour())
+    base = [sys.executable, "-m", "blackmetal", "params", "-e", f"tcp/127.0.0.1:{rig.zport}"]
+    listed = subprocess.run(base, capture_output=True, text=True, timeout=30)
+    assert listed.returncode == 0, listed.stderr
+    rows = {line.split()[0]: line for line in listed.stdout.splitlines()}
+    assert "0.01 .. 0.8" in rows["max_wheel_speed"] and "read-only" in rows["wheel_separation"]
+    changed = subprocess.run([*base, "max_wheel_speed=0.4", "cmd_timeout=0"], capture_output=True, text=True, timeout=30)
+    assert changed.returncode == 1
+    assert changed.stdout.splitlines()[0] == "max_wheel_speed: set"
+    assert changed.stdout.splitlines()[1].startswith("cmd_timeout: refused: cmd_timeout 0 (no deadman) is refused")
+    assert rig.health() is not None
+    bad = subprocess.run([*base, "max_wheel_speed"], capture_output=True, text=True, timeout=30)
+    assert bad.returncode == 1 and bad.stderr.count("\n") == 1 and "NAME=VALUE" in bad.stderr
