@@ -178,11 +178,14 @@ class GatewayCore:
 
     def link_down(self, link: LinkName, reason: str, now: float) -> None:
         """``link`` closed, or could not be opened."""
-        was_up = self.links.down(link, now)
+        before = self.links[link].reason
+        was_up = self.links.down(link, now, reason)
         if link == "control":
             self._outgoing.clear()
         if was_up and not self.stopping:
             self._report_robot(link, f"{link} link down: {reason}", now)
+        elif reason != before and not self.stopping:  # a robot that cannot be reached is said once per reason, not per retry
+            self._report_robot(link, f"{link} link: {reason}", now)
         if link == "control" and was_up:
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))

@@ -175,6 +175,11 @@ class GatewayHost:
     def on_health_seen(self, payload: bytes) -> None:
         self._input(self.core.on_health_seen, payload)
 
+    def recent_errors(self) -> list[ErrorReport]:
+        """The core's latest error reports, oldest first (a get on ``<prefix>/errors`` answers with them)."""
+        with self.lock:
+            return list(self.core.reporter.recent)
+
     def params(self) -> GatewayParams:
         with self.lock:
             return self.core.params_now()

@@ -49,6 +49,8 @@ class LinkState:
     waiting_since: float | None = None
     #: When a link that was up went down (None: up, or never up).
     down_since: float | None = None
+    #: Why it is not up: the last failure to open it or the reason it closed (None while up).
+    reason: str | None = None
 
     @property
     def connected(self) -> bool:
@@ -59,7 +61,7 @@ class LinkState:
         return max(0, self.connections - 1)
 
     def health(self) -> LinkHealth:
-        return LinkHealth(self.status.value, self.connected_since, self.reconnects)
+        return LinkHealth(self.status.value, self.connected_since, self.reconnects, None if self.connected else self.reason)
 
 
 class Links:
@@ -87,13 +89,15 @@ class Links:
         state.connections += 1
         state.last_rx = now
         state.waiting_since = None
+        state.reason = None
         down_for = None if state.down_since is None else now - state.down_since
         state.down_since = None
         return down_for
 
-    def down(self, name: LinkName, now: float) -> bool:
-        """``name`` closed or could not be opened: whether it had been up."""
+    def down(self, name: LinkName, now: float, reason: str) -> bool:
+        """``name`` closed or could not be opened, for ``reason``: whether it had been up."""
         state = self[name]
+        state.reason = reason
         was_up = state.connected
         state.status = LinkStatus.DOWN
         state.connected_since = None

@@ -160,6 +160,9 @@ class GatewayZenoh(ZenohEdge):
         unknown_lock = intake.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
         self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), intake, flood)
         self.queryable(keys.health, intake.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
+        self.queryable(
+            keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, service.recent_errors()), capacity=16)
+        )
         self.queryable(keys.params, intake.channel("params?", lambda q: self._answer(q, keys.params, service.params()), capacity=16))
         self.queryable(keys.params_set, intake.channel("params set?", lambda q: self._answer_set(service, q), capacity=16))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway

@@ -14,8 +14,9 @@ import logging
 import time
 from dataclasses import dataclass
 
-from blackmetal.runtime.edge import Intake, refuse_taken
+from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.fleet import FleetRobot, supervise
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys
 
 from .core import OdometryCore

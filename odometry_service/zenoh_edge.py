@@ -6,7 +6,8 @@ import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from blackmetal.runtime.edge import Intake, ZenohEdge
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
 
 from .host import OdometryHost
@@ -41,6 +42,9 @@ class OdometryZenoh(ZenohEdge):
         self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
         self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer_pose(host, q)))
         self.queryable(self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer_reset(host, q)))
+        self.queryable(
+            self.keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, self.keys.errors, list(host.core.reporter.recent)))
+        )
         self.token(self.keys.alive_odometry)
         return intake
 

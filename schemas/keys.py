@@ -58,7 +58,7 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why"),
     KeySpec("params", "gateway/params", GatewayParams, "publication", "gateway ->, and get: its parameters (limits, timeout, priorities)"),
     KeySpec("params_set", "gateway/params/set", ParamsSet, "query", "get -> gateway (an operator's right), answers a ParamsSetReply"),
-    KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->"),
+    KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->; a get answers each service's latest reports"),
     KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get"),
     KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
     KeySpec("alive_gateway", "alive/gateway", None, "liveliness", "gateway"),

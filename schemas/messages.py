@@ -173,6 +173,8 @@ class LinkHealth(msgspec.Struct):
     state: str  # "connected", "connecting" or "down"
     connected_since: float | None = None
     reconnects: int = 0
+    #: Why the link is not connected (the last failure: "cannot connect to 192.0.2.1:665: Connection refused"); None while up.
+    reason: str | None = None
 
 
 class SourceHealth(msgspec.Struct):

@@ -329,3 +329,25 @@ def test_robots_returns_once_the_robots_present_have_answered_not_after_its_whol
     took = time.monotonic() - start
     assert listed.returncode == 0 and listed.stdout.split() == ["robot"], listed.stdout + listed.stderr
     assert took < 10, f"{took:.1f} s: it waited for its --wait 20 although the one robot had answered"
+
+
+def test_a_robot_that_cannot_be_reached_is_said_in_health_and_in_a_watch_started_later() -> None:
+    """A gateway whose robot refuses connections: health says why, and `watch` started later shows the report it missed."""
+    closed = free_port()  # nothing listens there
+    zport = free_port()
+    gateway = Child(["-m", "blackmetal", "gateway", "--control-port", str(closed), "--log-port", str(free_port()),
+                     "-l", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"])  # fmt: skip
+    try:
+        gateway.ready()
+        with zenoh.open(client_config(zport)) as session:
+            health = wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.control.reason and h,
+                              what="health naming the failure")  # fmt: skip
+            assert health.control.state != "connected"
+            assert f"127.0.0.1:{closed}" in health.control.reason and "refused" in health.control.reason.lower()
+        time.sleep(1.5)  # the failure was reported well before this watch starts
+        watched = tool("watch", "--duration", "1", "-e", f"tcp/127.0.0.1:{zport}", timeout=60)
+        assert watched.returncode == 0, watched.stderr
+        assert re.search(rf"control (down|connecting): cannot connect to .*127\.0\.0\.1:{closed}", watched.stdout), watched.stdout
+        assert re.search(rf"robot:.*control link: cannot connect to .*{closed}", watched.stdout), watched.stdout
+    finally:
+        gateway.stop()

@@ -10,10 +10,10 @@ flood are declared through :meth:`ZenohEdge.guarded`
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
-from blackmetal.schemas import ConfigError, Keys, any_alive, payload_bytes
+from blackmetal.schemas import ConfigError, ErrorReport, Keys, any_alive, encode, payload_bytes
 
 from .flood import GuardedInput, Pick
 from .intake import Intake
@@ -99,6 +99,15 @@ class ZenohEdge:
     def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
         """Every query on ``key`` goes to ``put``; the handler answers it on the loop (``with query: ...``)."""
         self._entities.append(self.session.declare_queryable(key, put))
+
+    @staticmethod
+    def answer_recent(query: "zenoh.Query", key: str, reports: Iterable[ErrorReport]) -> None:
+        """A get on an errors key: one reply per recent report of this service, oldest first (a view started later sees them)."""
+        import zenoh
+
+        with query:
+            for report in reports:
+                query.reply(key, encode(report), encoding=zenoh.Encoding.APPLICATION_JSON)
 
     def token(self, key: str) -> None:
         """A liveliness token, present while this edge is open."""

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections import deque
 from collections.abc import Callable
 
 from blackmetal.schemas import ErrorReport
@@ -152,6 +153,8 @@ class ReportLimiter:
 
 #: How often suppressed-report summaries go out, at most (s).
 SUMMARY_PERIOD_S = 1.0
+#: How many of its latest reports a reporter keeps for a `get` on its errors key (a view started later sees them).
+RECENT_REPORTS = 20
 
 
 class ErrorReporter:
@@ -177,6 +180,8 @@ class ErrorReporter:
         self.limiter = limiter or ReportLimiter()
         self.summary_period = summary_period
         self._next_summary = -math.inf
+        #: The latest reports published, oldest first: a ``get`` on the errors key answers with them.
+        self.recent: deque[ErrorReport] = deque(maxlen=RECENT_REPORTS)
 
     def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float, family: str | None = None) -> None:
         """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
@@ -186,7 +191,7 @@ class ErrorReporter:
         """
         admitted, suppressed = self.limiter.admit(family or key, now)
         if admitted:
-            self.publish(
+            self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
                     source=source or self.source,
@@ -199,6 +204,10 @@ class ErrorReporter:
         elif self._next_summary == -math.inf:
             self._next_summary = now + self.summary_period
 
+    def _publish(self, report: ErrorReport) -> None:
+        self.recent.append(report)
+        self.publish(report)
+
     def next_deadline(self) -> float:
         """When :meth:`tick` has a summary to consider (inf: nothing was suppressed)."""
         return self._next_summary if self.limiter.pending else math.inf
@@ -209,7 +218,7 @@ class ErrorReporter:
             return
         self._next_summary = now + self.summary_period
         for key, suppressed in self.limiter.due_summaries(now):
-            self.publish(
+            self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
                     source=self.source,

@@ -14,6 +14,7 @@ from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import (
     ErrorReport,
     GatewayHealth,
+    LinkHealth,
     PayloadError,
     Pose,
     RobotStatus,
@@ -28,6 +29,23 @@ def _fmt_pose(pose: Pose | None) -> str:
     if pose is None:
         return "-"
     return f"x={pose.x:+8.3f} m  y={pose.y:+8.3f} m  yaw={math.degrees(pose.yaw):+7.2f}°  v={pose.v:+.3f} m/s  w={pose.w:+.3f} rad/s"
+
+
+def _link(link: LinkHealth) -> str:
+    """A link's state, with why it is not connected (``connecting: cannot connect to ...: Connection refused``)."""
+    return link.state if link.reason is None or link.state == "connected" else f"{link.state}: {link.reason}"
+
+
+def recent_errors(session: zenoh.Session, key: str, timeout: float) -> list[ErrorReport]:
+    """The reports every service on ``key`` still keeps (each answers a get with its latest), oldest first."""
+    found = []
+    for reply in session.get(key, consolidation=zenoh.ConsolidationMode.NONE, timeout=min(timeout, 2.0)):
+        if reply.ok is not None:
+            try:
+                found.append(decode(ErrorReport, to_bytes(reply.ok.payload)))
+            except PayloadError:
+                continue
+    return sorted(found, key=lambda report: report.stamp)
 
 
 def describe_sources(health: GatewayHealth) -> str:
@@ -55,7 +73,7 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
         h = health
         rtt = "-" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.2f} ms"
         lines.append(
-            f"health  control {h.control.state} (reconnects {h.control.reconnects}), log {h.log.state}; "
+            f"health  control {_link(h.control)} (reconnects {h.control.reconnects}), log {_link(h.log)}; "
             f"poll {h.poll_hz:.1f} Hz, rtt {rtt}; e-stop {'ENGAGED' if h.estop else 'off'}; "
             f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}"
         )
@@ -91,12 +109,13 @@ def run(args: argparse.Namespace) -> int:
                 pass
 
         session.declare_subscriber(keys.errors, on_error)
+        errors.extend(recent_errors(session, keys.errors, args.wait))  # what went wrong before this watch started
         tty = sys.stdout.isatty()
         period = 0.2 if tty else 1.0
         deadline = time.monotonic() + args.duration if args.duration else math.inf
         last_count, last_time = 0, time.monotonic()
         print(f"blackmetal watch on {keys.prefix} via {where(settings)} (Ctrl-C to quit)", flush=True)
-        while not stop.wait(period) and time.monotonic() < deadline:
+        while True:  # at once (what is known already, recent errors included), then every period, and at the end
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = pose.count, now
@@ -106,6 +125,8 @@ def run(args: argparse.Namespace) -> int:
             else:
                 sys.stdout.write("\n".join(lines) + "\n--\n")
             sys.stdout.flush()
+            if now >= deadline or stop.wait(min(period, max(deadline - now, 0.0))):
+                break
     return 0
 
 
