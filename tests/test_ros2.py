@@ -267,7 +267,7 @@ def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
     adapter.on_pose(b'{"x": "nope"}', now=1.0)
     assert [t for t, _ in out.ros_out] == ["odom", "tf"] and len(out.errors) == 1
     odom = read_odometry(out.ros_out[0][1])
-    assert odom["frame"] == "odom" and odom["child"] == "base_link"
+    assert odom["frame"] == "odom" and odom["child"] == "base_footprint"
     assert odom["stamp"] == (1_700_000_000, 250_000_000)
     assert odom["position"] == [1.5, -0.5, 0.0]
     assert odom["orientation"] == pytest.approx([0.0, 0.0, math.sin(0.35), math.cos(0.35)])
@@ -276,7 +276,7 @@ def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
     assert odom["twist_cov"][35] == 0.02
     tf = codec.decode(out.ros_out[1][1], "tf2_msgs/msg/TFMessage").transforms[0]
     assert (tf.header.stamp.sec, tf.header.stamp.nanosec) == (1_700_000_000, 250_000_000)
-    assert (tf.header.frame_id, tf.child_frame_id, tf.transform.translation.x) == ("odom", "base_link", 1.5)
+    assert (tf.header.frame_id, tf.child_frame_id, tf.transform.translation.x) == ("odom", "base_footprint", 1.5)
 
 
 def test_joint_states_integrate_the_wheels(codec: RosCodec) -> None:
@@ -361,7 +361,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
             if pose is None:
                 continue  # published before our pose subscription was in place
             matched += 1
-            assert odom["frame"] == "odom" and odom["child"] == "base_link"
+            assert odom["frame"] == "odom" and odom["child"] == "base_footprint"
             assert odom["position"][:2] == [pose.x, pose.y]
             q = pose.orientation
             assert odom["orientation"] == [q.x, q.y, q.z, q.w]
