@@ -22,7 +22,6 @@ import math
 import os
 import struct
 import subprocess
-import sys
 import time
 import venv
 import xml.etree.ElementTree as ET
@@ -396,6 +395,7 @@ def test_a_fleet_of_three_has_each_robots_description_and_frames(children: list[
     cannot: its late-joiner query looks for the token of ``%r2/robot_description``, a namespaced name it does not mangle);
     /r2/odom through the SDK."""
     import zenoh.ext
+
     from blackmetal.ros2.messages import RosCodec
 
     port = ros_graph(children, "--robots", "3")
