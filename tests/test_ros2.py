@@ -375,7 +375,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         nodes = [t for t in tokens if split_token(t)[5] == "NN"]
         entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
-        assert len(entities) == len(tokens) - 1 == 9  # /cmd_vel twice: Twist and TwistStamped
+        assert len(entities) == len(tokens) - 1 == 11  # /cmd_vel twice: Twist and TwistStamped; the robot model's two
         for token in tokens:
             assert all(split_token(token)), token
         for token in entities:
@@ -383,7 +383,8 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         published = {split_token(t)[9] for t in entities if split_token(t)[5] == "MP"}
         subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
         served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
-        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics"} and subscribed == {"%cmd_vel", "%estop"}
+        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static"}
+        assert subscribed == {"%cmd_vel", "%estop"}
         cmd_vel_types = sorted(split_token(t)[10] for t in entities if split_token(t)[9] == "%cmd_vel")
         assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
         assert served == {"%set_estop", "%reset_odometry"}
@@ -430,6 +431,6 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        assert len(tokens) == 9 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 6 topics + 2 services, none from the bridges
+        assert len(tokens) == 11 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 8 topics + 2 services, none from the bridges
         names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

@@ -164,14 +164,16 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [split_token(str(r.ok.key_expr)) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 10, what="3 nodes' tokens (node, 7 topics with /cmd_vel twice, 2 services each)")
+        wait_for(lambda: len(tokens()) == 3 * 12, what="3 nodes' tokens (node, 9 topics with /cmd_vel twice, 2 services each)")
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 30  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 36  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {
+                f"%{rid}%robot_description",
+                "%tf_static",
                 f"%{rid}%set_estop",
                 f"%{rid}%reset_odometry",
             }, names

@@ -129,7 +129,7 @@ class Member:
     def failed(self, exc: Exception, pause: float) -> None:
         assert self.edge is not None
         self.restarts += 1
-        reason = f"ROS 2 node ({self.distro.value}) of {self.robot.describe()} failed ({exc!r}); starting it again in {pause:g} s"
+        reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}, its {self.distro.value} node); starting it again in {pause:g} s"
         log.error("%s", reason)
         self.edge.error(ErrorReport(stamp=time.time(), source="ros2", key=self.edge.keys.errors, reason=reason))
 
