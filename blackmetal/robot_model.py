@@ -10,8 +10,10 @@ formulas are plain arithmetic, so each works on floats and on numpy arrays.
 from __future__ import annotations
 
 import math
+import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
+from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 from xml.sax.saxutils import quoteattr
 
@@ -287,6 +289,35 @@ def _f(value: float) -> str:
     return f"{value:.6g}"
 
 
+@dataclass(frozen=True, slots=True)
+class Joint:
+    """One joint of the URDF, as robot_state_publisher turns it into a transform: parent -> child at ``xyz`` (m)."""
+
+    name: str
+    kind: str  # "fixed" or "continuous"
+    parent: str
+    child: str
+    xyz: tuple[float, float, float]
+
+
+def joints(body: Body | None = None, *, left_joint: str = "left_wheel_joint", right_joint: str = "right_wheel_joint") -> list[Joint]:
+    """The URDF's joints, unprefixed: what ``/tf_static`` (the fixed ones) and ``/tf`` (the wheels) carry, from one place.
+
+    ``base_footprint`` on the floor, ``base_link`` at the axle height above it, the wheels on the axle at
+    plus and minus half the separation (the left one at +y), the caster behind, touching the floor.
+    """
+    body = (body or Body()).check()
+    r, half = body.wheel_radius, body.wheel_separation / 2
+    length = body.box[0]
+    caster_r = r / 2
+    return [
+        Joint("base_joint", "fixed", "base_footprint", "base_link", (0.0, 0.0, r)),
+        Joint(left_joint, "continuous", "base_link", "left_wheel", (0.0, half, 0.0)),
+        Joint(right_joint, "continuous", "base_link", "right_wheel", (0.0, -half, 0.0)),
+        Joint("caster_joint", "fixed", "base_link", "caster", (-0.8 * length / 2, 0.0, caster_r - r)),
+    ]
+
+
 def urdf(
     body: Body | None = None,
     *,
@@ -297,7 +328,7 @@ def urdf(
 ) -> str:
     """The URDF text (one robot): links ``base_footprint``, ``base_link``, the wheels and the caster, each ``frame_prefix``-ed."""
     body = (body or Body()).check()
-    r, half = body.wheel_radius, body.wheel_separation / 2
+    r = body.wheel_radius
     length, width, height = body.box
     caster_r = r / 2
     p = frame_prefix
@@ -310,15 +341,18 @@ def urdf(
             f"  </link>\n"
         )
 
-    def joint(joint_name: str, kind: str, parent: str, child: str, xyz: str, axis: bool = False) -> str:
-        axis_xml = '\n    <axis xyz="0 1 0"/>' if axis else ""
+    def joint(j: Joint) -> str:
+        axis_xml = '\n    <axis xyz="0 1 0"/>' if j.kind == "continuous" else ""
+        joint_name = j.name if j.kind == "continuous" else p + j.name  # the wheels are named as in /joint_states
+        xyz = " ".join(_f(v) for v in j.xyz)
         return (
-            f"  <joint name={quoteattr(joint_name)} type={quoteattr(kind)}>\n"
-            f"    <parent link={quoteattr(p + parent)}/>\n    <child link={quoteattr(p + child)}/>\n"
+            f"  <joint name={quoteattr(joint_name)} type={quoteattr(j.kind)}>\n"
+            f"    <parent link={quoteattr(p + j.parent)}/>\n    <child link={quoteattr(p + j.child)}/>\n"
             f'    <origin xyz="{xyz}" rpy="0 0 0"/>{axis_xml}\n'
             f"  </joint>\n"
         )
 
+    base, left, right, caster = joints(body, left_joint=left_joint, right_joint=right_joint)
     wheel = f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>'
     return (
         '<?xml version="1.0"?>\n'
@@ -328,12 +362,95 @@ def urdf(
         f"<robot name={quoteattr(name)}>\n"
         f"  <link name={quoteattr(p + 'base_footprint')}/>\n"
         + link("base_link", f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', xyz=f"0 0 {_f(height / 2)}")
-        + joint(f"{p}base_joint", "fixed", "base_footprint", "base_link", f"0 0 {_f(r)}")
+        + joint(base)
         + link("left_wheel", wheel, rpy="1.5708 0 0")
-        + joint(left_joint, "continuous", "base_link", "left_wheel", f"0 {_f(half)} 0", axis=True)
+        + joint(left)
         + link("right_wheel", wheel, rpy="1.5708 0 0")
-        + joint(right_joint, "continuous", "base_link", "right_wheel", f"0 {_f(-half)} 0", axis=True)
+        + joint(right)
         + link("caster", f'<sphere radius="{_f(caster_r)}"/>')
-        + joint(f"{p}caster_joint", "fixed", "base_link", "caster", f"{_f(-0.8 * length / 2)} 0 {_f(caster_r - r)}")
+        + joint(caster)
         + "</robot>\n"
     )
+
+
+# ---------------------------------------------------------------------------- the robot's calibration file
+#
+# ``blackmetal calibrate -o FILE`` writes the fitted constants as settings that the gateway, the odometry and
+# ``up`` take with ``--settings FILE``. Those services refuse settings they do not know, so what the fit measured
+# besides the constants (how far the calibrated odometry still was from the reference) is written as comments,
+# one ``# residuals.NAME = VALUE`` line each: every service still takes the file, and ``blackmetal ros2
+# --calibration FILE`` reads the residuals for ``/odom``'s covariance. The writer and the reader are here, together.
+
+#: How a residual line starts; the name and the value follow (``# residuals.x_m = 0.00123``).
+RESIDUAL_LINE = "# residuals."
+_RESIDUAL = re.compile(r"^# residuals\.([a-z_]+) = ([-+0-9.eE]+|nan|inf)\s*$")
+
+
+@dataclass(frozen=True, slots=True)
+class Residuals:
+    """The calibrated odometry against the reference over the recordings: root mean squares after the fit."""
+
+    steps: int  # odometry steps compared with the reference
+    path_m: float  # path driven over them (m)
+    x_m: float  # position, along the odometry frame's x and y (m)
+    y_m: float
+    yaw_rad: float  # heading (rad)
+    v_mps: float  # forward speed (m/s)
+    w_radps: float  # turn rate (rad/s)
+
+    def lines(self) -> list[str]:
+        """The comment lines the calibration file carries them in."""
+        return [f"{RESIDUAL_LINE}{name} = {getattr(self, name):.6g}" for name in _residual_names()]
+
+
+def _residual_names() -> list[str]:
+    return [f.name for f in fields(Residuals)]
+
+
+@dataclass(frozen=True, slots=True)
+class Calibration:
+    """A calibration file: where it is, what its first comment says of it, its constants, its residuals if measured."""
+
+    path: str
+    note: str
+    wheel_separation: float
+    impulses_left: float
+    impulses_right: float
+    residuals: Residuals | None
+
+
+def read_calibration(path: str) -> Calibration:
+    """The calibration file ``blackmetal calibrate -o`` wrote; ConfigError in one sentence when it is not one."""
+    import tomllib
+
+    try:
+        text = Path(path).read_text()
+    except OSError as exc:
+        raise ConfigError(f"cannot read the calibration file {path}: {exc.strerror}") from None
+    try:
+        values = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(f"calibration file {path} is not valid TOML: {exc}") from None
+    constants = {}
+    for name in ("wheel_separation", "impulses_left", "impulses_right"):
+        value = values.get(name)
+        if not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
+            raise ConfigError(f"calibration file {path} has no positive {name} (is it the output of blackmetal calibrate -o?)")
+        constants[name] = float(value)
+    found: dict[str, str] = {}
+    for line in text.splitlines():
+        match = _RESIDUAL.match(line)
+        if match:
+            found[match.group(1)] = match.group(2)
+    residuals = None
+    if found:
+        names = _residual_names()
+        missing = [n for n in names if n not in found]
+        if missing:
+            raise ConfigError(f"calibration file {path} lacks the residual lines {missing} (write it again with blackmetal calibrate -o)")
+        numbers = {n: float(found[n]) for n in names}
+        if not all(math.isfinite(v) and v >= 0 for v in numbers.values()) or numbers["steps"] < 1:
+            raise ConfigError(f"calibration file {path}: residuals must be finite and not negative, got {numbers}")
+        residuals = Residuals(steps=int(numbers.pop("steps")), **numbers)
+    note = next((line.lstrip("# ").strip() for line in text.splitlines() if line.startswith("#")), "")
+    return Calibration(path, note, residuals=residuals, **constants)

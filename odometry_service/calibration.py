@@ -116,6 +116,8 @@ class Segment:
     ref_x: F
     ref_y: F
     ref_yaw: F
+    #: Seconds between each step and the one before (the first is 0), for the speed residuals; None: not known.
+    dt: F | None = None
 
 
 def align(ref_x: F, ref_y: F, ref_yaw: F) -> tuple[F, F, F]:
@@ -203,6 +205,50 @@ def fit_trajectory(segments: list[Segment], used: Constants, max_iterations: int
         )
     constants = Constants(used.impulses_left / scale_left, used.impulses_right / scale_right, separation)
     return FitResult(constants, rms_before, math.sqrt(cost / n), evaluations, iterations)
+
+
+@dataclass(frozen=True, slots=True)
+class ResidualFigures:
+    """How far odometry with some constants still is from the reference: root mean squares over every step."""
+
+    steps: int
+    path_m: float
+    x_m: float
+    y_m: float
+    yaw_rad: float
+    v_mps: float  # nan when no segment knows its time steps
+    w_radps: float
+
+
+def residual_figures(segments: list[Segment], constants: Constants, used: Constants) -> ResidualFigures:
+    """The odometry with ``constants`` against the reference, step by step: position, heading and, where the time steps
+    are known, speed and turn rate. What ``/odom``'s covariance is made of (``blackmetal ros2 --calibration``)."""
+    scale_left, scale_right = used.impulses_left / constants.impulses_left, used.impulses_right / constants.impulses_right
+    ex, ey, eyaw, ev, ew = [], [], [], [], []
+    path = 0.0
+    for seg in segments:
+        d_left, d_right = seg.d_left * scale_left, seg.d_right * scale_right
+        x, y, yaw = integrate(d_left, d_right, constants.wheel_separation)
+        ex.append(x - seg.ref_x)
+        ey.append(y - seg.ref_y)
+        eyaw.append(yaw - seg.ref_yaw)
+        path += float(np.sum(np.abs(d_left + d_right))) / 2.0
+        if seg.dt is not None and len(seg.dt) > 1:
+            ok = seg.dt[1:] > 0
+            dt = seg.dt[1:][ok]
+            heading = seg.ref_yaw[:-1][ok]
+            ref_v = (np.diff(seg.ref_x)[ok] * np.cos(heading) + np.diff(seg.ref_y)[ok] * np.sin(heading)) / dt
+            ref_w = np.diff(seg.ref_yaw)[ok] / dt
+            odo_v = (d_left[1:][ok] + d_right[1:][ok]) / 2.0 / dt
+            odo_w = (d_right[1:][ok] - d_left[1:][ok]) / constants.wheel_separation / dt
+            ev.append(odo_v - ref_v)
+            ew.append(odo_w - ref_w)
+
+    def rms(parts: list[F]) -> float:
+        values = np.concatenate(parts) if parts else np.empty(0)
+        return math.sqrt(float(np.mean(values * values))) if values.size else math.nan
+
+    return ResidualFigures(sum(len(s.d_left) for s in segments), path, rms(ex), rms(ey), rms(eyaw), rms(ev), rms(ew))
 
 
 def closure_error(d_left: F, d_right: F, ref_x: F, ref_y: F, constants: Constants, used: Constants) -> float:

@@ -267,7 +267,7 @@ def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
     adapter.on_pose(b'{"x": "nope"}', now=1.0)
     assert [t for t, _ in out.ros_out] == ["odom", "tf"] and len(out.errors) == 1
     odom = read_odometry(out.ros_out[0][1])
-    assert odom["frame"] == "odom" and odom["child"] == "base_link"
+    assert odom["frame"] == "odom" and odom["child"] == "base_footprint"
     assert odom["stamp"] == (1_700_000_000, 250_000_000)
     assert odom["position"] == [1.5, -0.5, 0.0]
     assert odom["orientation"] == pytest.approx([0.0, 0.0, math.sin(0.35), math.cos(0.35)])
@@ -276,7 +276,7 @@ def test_pose_becomes_odom_and_tf_with_the_same_stamp(codec: RosCodec) -> None:
     assert odom["twist_cov"][35] == 0.02
     tf = codec.decode(out.ros_out[1][1], "tf2_msgs/msg/TFMessage").transforms[0]
     assert (tf.header.stamp.sec, tf.header.stamp.nanosec) == (1_700_000_000, 250_000_000)
-    assert (tf.header.frame_id, tf.child_frame_id, tf.transform.translation.x) == ("odom", "base_link", 1.5)
+    assert (tf.header.frame_id, tf.child_frame_id, tf.transform.translation.x) == ("odom", "base_footprint", 1.5)
 
 
 def test_joint_states_integrate_the_wheels(codec: RosCodec) -> None:
@@ -361,7 +361,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
             if pose is None:
                 continue  # published before our pose subscription was in place
             matched += 1
-            assert odom["frame"] == "odom" and odom["child"] == "base_link"
+            assert odom["frame"] == "odom" and odom["child"] == "base_footprint"
             assert odom["position"][:2] == [pose.x, pose.y]
             q = pose.orientation
             assert odom["orientation"] == [q.x, q.y, q.z, q.w]
@@ -375,7 +375,7 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         nodes = [t for t in tokens if split_token(t)[5] == "NN"]
         entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
-        assert len(entities) == len(tokens) - 1 == 9  # /cmd_vel twice: Twist and TwistStamped
+        assert len(entities) == len(tokens) - 1 == 11  # /cmd_vel twice: Twist and TwistStamped; the robot model's two
         for token in tokens:
             assert all(split_token(token)), token
         for token in entities:
@@ -383,7 +383,8 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         published = {split_token(t)[9] for t in entities if split_token(t)[5] == "MP"}
         subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
         served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
-        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics"} and subscribed == {"%cmd_vel", "%estop"}
+        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static"}
+        assert subscribed == {"%cmd_vel", "%estop"}
         cmd_vel_types = sorted(split_token(t)[10] for t in entities if split_token(t)[9] == "%cmd_vel")
         assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
         assert served == {"%set_estop", "%reset_odometry"}
@@ -430,6 +431,6 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        assert len(tokens) == 9 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 6 topics + 2 services, none from the bridges
+        assert len(tokens) == 11 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 8 topics + 2 services, none from the bridges
         names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

@@ -2,7 +2,7 @@
 
 Three simulated robots behind one gateway and one odometry process, and one
 adapter process for all: each robot's node lives in the namespace of its id
-(``/r2/odom``, frames ``r2/odom`` -> ``r2/base_link`` as diff_drive_controller
+(``/r2/odom``, frames ``r2/odom`` -> ``r2/base_footprint`` as diff_drive_controller
 prefixes them, transforms on the absolute ``/tf``), a CDR Twist on
 ``/r3/cmd_vel`` moves r3 alone, a bad payload on ``/r1/cmd_vel`` is reported
 on ``fleet/r1/errors`` and the others go on. The formats are read as in
@@ -164,14 +164,16 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [split_token(str(r.ok.key_expr)) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 10, what="3 nodes' tokens (node, 7 topics with /cmd_vel twice, 2 services each)")
+        wait_for(lambda: len(tokens()) == 3 * 12, what="3 nodes' tokens (node, 9 topics with /cmd_vel twice, 2 services each)")
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 30  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 36  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {
+                f"%{rid}%robot_description",
+                "%tf_static",
                 f"%{rid}%set_estop",
                 f"%{rid}%reset_odometry",
             }, names
@@ -179,9 +181,9 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         # /r2/odom: its frames prefixed as diff_drive_controller does; /tf carries every robot's
         wait_for(lambda: len(odoms) >= 5, what="/r2/odom")
         odom = read_odometry(odoms[-1])
-        assert (odom["frame"], odom["child"]) == ("r2/odom", "r2/base_link")
-        wait_for(lambda: {f"{rid}/base_link" for rid in IDS} <= set(transforms), what="/tf from every robot")
-        assert all(transforms[f"{rid}/base_link"] == (f"{rid}/odom", f"{rid}/base_link") for rid in IDS)
+        assert (odom["frame"], odom["child"]) == ("r2/odom", "r2/base_footprint")
+        wait_for(lambda: {f"{rid}/base_footprint" for rid in IDS} <= set(transforms), what="/tf from every robot")
+        assert all(transforms[f"{rid}/base_footprint"] == (f"{rid}/odom", f"{rid}/base_footprint") for rid in IDS)
         wait_for(lambda: {f"{rid}/blackmetal: robot link" for rid in IDS} <= statuses, what="every node's statuses on /diagnostics")
 
         # a CDR Twist on /r3/cmd_vel moves r3 alone

@@ -75,7 +75,7 @@ def assert_the_ros_graph_meets_the_robot(probe: zenoh.Session) -> None:
     try:
         wait_for(lambda: len(odoms) >= 5, what="/odom samples at the ROS peer")
         odom = read_odometry(odoms[-1])
-        assert odom["frame"] == "odom" and odom["child"] == "base_link"
+        assert odom["frame"] == "odom" and odom["child"] == "base_footprint"
         assert drives(probe, TWIST_KEY, RosCodec().encode_twist(0.3, 0.0), with_attachment=True) > 0.15
     finally:
         subscriber.undeclare()

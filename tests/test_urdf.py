@@ -60,3 +60,13 @@ def test_a_fleet_robot_has_its_frames_prefixed_and_a_calibrated_separation(tmp_p
 def test_an_impossible_dimension_is_one_sentence() -> None:
     bad = blackmetal_urdf("--wheel-radius", "-1")
     assert bad.returncode == 2 and bad.stderr.count("\n") == 1 and "wheel_radius must be a positive length" in bad.stderr
+
+
+def test_the_calibration_in_use_gives_the_separation(tmp_path: Path) -> None:
+    calibration = tmp_path / "calibration.toml"
+    calibration.write_text("# blackmetal calibrate\nwheel_separation = 0.512\nimpulses_left = 1010.0\nimpulses_right = 1050.0\n")
+    made = blackmetal_urdf("--calibration", str(calibration))
+    assert made.returncode == 0, made.stderr
+    assert ET.fromstring(made.stdout).find("joint[@name='right_wheel_joint']/origin").get("xyz") == "0 -0.256 0"  # type: ignore[union-attr]
+    missing = blackmetal_urdf("--calibration", str(tmp_path / "none.toml"))
+    assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "cannot read the calibration file" in missing.stderr

@@ -40,8 +40,8 @@ from blackmetal.robot_model import Encoders
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, Sources, WheelImpulses, decode, encode
 
-from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, excerpt
-from .naming import RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
+from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, Transform, excerpt
+from .naming import RESET_ODOMETRY, ROBOT_DESCRIPTION, SET_ESTOP, TF_STATIC, attachment, parse_attachment
 
 #: Joint positions are not integrated across a gap longer than this (s): a lost link is not motion.
 MAX_JOINT_GAP_S = 0.5
@@ -94,6 +94,29 @@ class Ros2Output(Protocol):
 
 
 @dataclass(frozen=True, slots=True)
+class Wheel:
+    """A wheel's transform from ``/joint_states``: ``parent`` -> ``child`` at ``y`` (m), turned about +y by its angle."""
+
+    parent: str
+    child: str
+    y: float
+
+    def transform(self, angle: float) -> Transform:
+        return Transform(self.parent, self.child, (0.0, self.y, 0.0), (0.0, math.sin(angle / 2), 0.0, math.cos(angle / 2)))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotModel:
+    """What robot_state_publisher would publish for the URDF: the text, its fixed joints, its two wheels (left, right)."""
+
+    urdf: str
+    fixed: tuple[Transform, ...]
+    wheels: tuple[Wheel, Wheel]
+    #: Publish the wheels' transforms on /tf from the wheel angles (robot_state_publisher's job for moving joints).
+    wheel_tf: bool = True
+
+
+@dataclass(frozen=True, slots=True)
 class Ros2Options:
     frames: Frames
     pose_covariance: list[float]
@@ -118,6 +141,13 @@ class Ros2Options:
     domain_id: int = 0
     #: The Zenoh key of each service, which error reports name.
     service_keys: Mapping[str, str] = field(default_factory=dict)
+    #: The ROS 2 distro whose rmw_zenoh formats the node speaks (for the diagnostics).
+    distro: str = "jazzy"
+    #: /robot_description, /tf_static and the wheels on /tf; None: another node publishes the robot model.
+    robot: RobotModel | None = None
+    #: For the diagnostics: the calibration in use and where /odom's covariance comes from.
+    calibration: str = "none: the nominal constants"
+    covariance: str = "fixed diagonals (--pose-covariance-diagonal, --twist-covariance-diagonal)"
 
 
 class WheelJoints:
@@ -310,6 +340,7 @@ class Diagnostics:
         bad, failed = stats.bad_inputs.recent(now), stats.failed.recent(now)
         values = [
             ("flavor", options.flavor),
+            ("distro", options.distro),
             ("node", options.node),
             ("domain id", str(options.domain_id)),
             ("cmd_vel to", self.keys.cmd_vel_of(options.source)),
@@ -320,13 +351,16 @@ class Diagnostics:
             ("service calls confirmed", str(stats.confirmed)),
             ("service calls failed", str(stats.failed.total)),
             ("service calls pending", str(pending)),
+            ("calibration", options.calibration),
+            ("odometry covariance", options.covariance),
+            ("robot model", "published (robot_description, tf_static, wheels on tf)" if options.robot else "not published"),
         ]
         checks: list[tuple[Level, str]] = []
         if bad:
             checks.append((Level.WARN, f"{bad} bad ROS inputs in {WINDOW_S:g} s (reported on {self.keys.errors})"))
         if failed:
             checks.append((Level.WARN, f"{failed} service calls failed in {WINDOW_S:g} s"))
-        return _status(f"{self.label}: ROS 2 adapter", self.keys.prefix, checks, "running", values)
+        return _status(f"{self.label}: ROS 2 adapter", self.keys.prefix, checks, f"running; calibration {options.calibration}", values)
 
 
 # ------------------------------------------------------------------ service calls
@@ -372,6 +406,16 @@ class Ros2Core:
         self._queries: dict[int, int | None] = {}  # query tag -> the call it serves (None: a health query)
         self._next_tag = 0
         self._next_diagnostics = -math.inf
+        self._model_published = options.robot is None
+
+    def publish_robot_model(self) -> None:
+        """``/robot_description`` and ``/tf_static``, once: the edge's transient-local publishers keep them for late joiners."""
+        robot = self.options.robot
+        if robot is None:
+            return
+        self.output.ros(ROBOT_DESCRIPTION, self.codec.string(robot.urdf))
+        self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
+        self._model_published = True
 
     def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
         """A bad ROS input: reported, counted, never forwarded."""
@@ -400,6 +444,10 @@ class Ros2Core:
         self.joints.feed(sample)
         cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
         self.output.ros("joint_states", cdr)
+        robot = self.options.robot
+        if robot is not None and robot.wheel_tf and self.options.publish_tf:
+            wheels = [wheel.transform(angle) for wheel, angle in zip(robot.wheels, self.joints.positions, strict=True)]
+            self.output.ros("tf", self.codec.transforms(sample.stamp, wheels))
 
     def on_health(self, payload: bytes, now: float) -> None:
         """The gateway's health (published, or the answer to our ``get``): diagnostics, and e-stop confirmations."""
@@ -588,7 +636,10 @@ class Ros2Core:
         return [d.robot_link(now), d.odometry(now), d.adapter(now, self.stats, self.options, len(self.calls))]
 
     def tick(self, now: float) -> None:
-        """Run what is due at ``now``: call deadlines and e-stop repeats, diagnostics, error-report summaries."""
+        """Run what is due at ``now``: the robot model (first tick), call deadlines and e-stop repeats, diagnostics,
+        error-report summaries."""
+        if not self._model_published:
+            self.publish_robot_model()
         for pending in list(self.calls.values()):
             if now >= pending.deadline:
                 self._timed_out(pending, now)

@@ -5,12 +5,14 @@ its id (``/r3/cmd_vel``, ``/r3/odom``, ``/r3/joint_states``, services
 ``/r3/set_estop`` and ``/r3/reset_odometry``; the node ``/r3/blackmetal``),
 reading and writing that robot's prefix (``fleet/r3/...``). Like
 diff_drive_controller in a namespace, its frames carry the namespace as a
-prefix (``r3/odom``, ``r3/base_link``: ``tf_frame_prefix`` left empty) and
+prefix (``r3/odom``, ``r3/base_footprint``: ``tf_frame_prefix`` left empty) and
 its transforms go to the absolute ``/tf`` (``DEFAULT_TRANSFORM_TOPIC``),
-one tree for the fleet; ``/diagnostics`` stays absolute, each status named
+one tree for the fleet; its robot model is ``/r3/robot_description`` with
+``r3/`` links, its fixed joints on the absolute ``/tf_static``; ``/diagnostics`` stays absolute, each status named
 after its node (``r3/blackmetal: robot link``). With rmw_zenoh every node
 holds its own tokens, its ids drawn from one counter for the session as
-rmw_zenoh numbers a context's nodes and entities.
+rmw_zenoh numbers a context's nodes and entities; with several distros
+(``--distro humble,jazzy``) each robot has one node per distro.
 
 What the nodes share is the process, the loop, the codec and the session.
 A robot's bad input is its own (reported on its ``<prefix>/errors``); a bug
@@ -34,7 +36,7 @@ from blackmetal.schemas import ConfigError, ErrorReport, Keys
 from .core import Ros2Core
 from .host import Ros2Host
 from .messages import RosCodec
-from .naming import Flavor, full_topic, normalise_namespace, services, tf_frame_prefix, topics
+from .naming import DEFAULT_DISTRO, Distro, Flavor, full_topic, normalise_namespace, services, tf_frame_prefix, topics
 from .settings import Ros2Settings
 from .zenoh_edge import Ros2Zenoh
 
@@ -83,6 +85,7 @@ class Member:
     session: object
     codec: RosCodec
     ids: Iterator[int]
+    distro: Distro = DEFAULT_DISTRO
     host: Ros2Host | None = None
     edge: Ros2Zenoh | None = None
     restarts: int = 0
@@ -99,12 +102,13 @@ class Member:
             s.domain_id,
             namespace,
             s.node_name,
-            topics(s.tf, absolute_tf=True),
+            topics(s.tf, absolute_tf=True, robot_model=s.robot_model),
             services(),
             s.source,
             self.ids,
+            self.distro,
         )
-        options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace))
+        options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace), distro=self.distro)
         self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True)
         self.edge = edge
         edge.attach(self.host, asyncio.get_running_loop())
@@ -123,7 +127,7 @@ class Member:
     def failed(self, exc: Exception, pause: float) -> None:
         assert self.edge is not None
         self.restarts += 1
-        reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}); starting it again in {pause:g} s"
+        reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}, its {self.distro.value} node); starting it again in {pause:g} s"
         log.error("%s", reason)
         self.edge.error(ErrorReport(stamp=time.time(), source="ros2", key=self.edge.keys.errors, reason=reason))
 
@@ -142,7 +146,11 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
     settings = fleet_settings(base, robots)
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
     with await open_service_session(base.zenoh, stop, "ros2") as session:
-        members = [Member(robot, s, session, codec, ids) for robot, s in zip(robots, settings, strict=True)]
+        members = [
+            Member(robot, s, session, codec, ids, distro)
+            for robot, s in zip(robots, settings, strict=True)
+            for distro in (s.distros() if s.flavor == Flavor.RMW_ZENOH.value else (DEFAULT_DISTRO,))
+        ]
         for member in members:  # every node declared and serving before the fleet is announced
             member.declare()
         print(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})", flush=True)
@@ -152,10 +160,11 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
             node = full_topic(normalise_namespace(m.settings.namespace), m.settings.node_name)
             frames = m.host.core.options.frames
             print(
-                f"  {node:<24} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, frames {frames.odom} -> {frames.base}",
+                f"  {node:<24} {m.distro.value:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, "
+                f"frames {frames.odom} -> {frames.base}",
                 flush=True,
             )
-            nodes[m.robot.id] = {
+            entry = {
                 "node": node,
                 "prefix": m.settings.prefix,
                 "keys": dict(m.edge.data_keys),
@@ -163,6 +172,8 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
                 "tokens": list(m.edge.tokens),
                 "frames": dataclasses.asdict(frames),
             }
+            robot_entry = nodes.setdefault(m.robot.id, {**entry, "by_distro": {}})  # the first distro's at the top
+            robot_entry["by_distro"][m.distro.value] = entry  # type: ignore[index]
         announce_ready("ros2", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], flavor=base.flavor, nodes=nodes)
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"ros2 {m.robot.id}") for m in members]
         try:

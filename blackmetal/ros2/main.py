@@ -8,13 +8,19 @@ With ROS 2's Zenoh middleware (``--flavor rmw_zenoh``, the default) connect
 to its router: ``blackmetal ros2 -m client -e tcp/localhost:7447``. With
 zenoh-bridge-ros2dds (``--flavor bridge``) connect to the bridge.
 ``--fleet FILE``: one node per robot of a fleet file, each under the
-namespace of its id (/r3/cmd_vel, /r3/odom, frames r3/odom, r3/base_link).
+namespace of its id (/r3/cmd_vel, /r3/odom, frames r3/odom, r3/base_footprint).
+``--distro humble,jazzy``: one node per distro (rmw_zenoh), each in its
+distro's formats, on the one session, for a lab between two distros.
+The robot model: /robot_description and /tf_static, transient local, and
+the wheels' transforms on /tf (``--no-robot-model`` when
+robot_state_publisher publishes them).
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import itertools
 
 from blackmetal.runtime.entry import run_single_or_fleet, service_parser
 from blackmetal.runtime.harness import announce_ready
@@ -25,47 +31,76 @@ from .core import Ros2Core
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
 from .host import Ros2Host
 from .messages import RosCodec
-from .naming import Direction, Flavor, full_topic, normalise_namespace, services, topics
+from .naming import DEFAULT_DISTRO, Direction, Flavor, full_topic, normalise_namespace, services, topics
 from .settings import Ros2Settings
 from .zenoh_edge import Ros2Zenoh
 
 
 async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
-    """Open the Zenoh session, run the adapter until ``stop``, close everything."""
+    """Open the Zenoh session, run the adapter (one node per distro) until ``stop``, close everything."""
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     keys = Keys(settings.prefix)
     flavor = Flavor(settings.flavor)
     namespace = normalise_namespace(settings.namespace)
-    ros_topics = topics(settings.tf)
+    ros_topics = topics(settings.tf, robot_model=settings.robot_model)
     ros_services = services()
+    # zenoh-bridge-ros2dds maps DDS, whatever the distro: one node on its plain keys
+    distros = settings.distros() if flavor is Flavor.RMW_ZENOH else (DEFAULT_DISTRO,)
     with await open_service_session(settings.zenoh, stop, "ros2") as session:
-        edge = Ros2Zenoh(
-            session, keys, codec, flavor, settings.domain_id, namespace, settings.node_name, ros_topics, ros_services, settings.source
-        )
-        host = Ros2Host(Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec))
-        edge.attach(host, asyncio.get_running_loop())
-        node = full_topic(namespace, settings.node_name)
-        print(f"blackmetal ros2 ready: node {node} ({flavor.value}, domain {settings.domain_id}) <-> prefix {keys.prefix}", flush=True)
-        for topic in ros_topics:
-            way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
-            print(f"  {topic.full_name(namespace):<20} {topic.ros_type:<35} {way}  on {edge.data_keys[topic.name]}", flush=True)
-        for service in ros_services:
-            name, key = full_topic(namespace, service.name), edge.service_keys[service.name]
-            print(f"  {name:<20} {service.ros_type:<35} service       on {key}", flush=True)
-        print(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}", flush=True)
-        announce_ready(
-            "ros2",
-            prefix=keys.prefix,
-            node=node,
-            flavor=flavor.value,
-            keys=edge.data_keys,
-            services=edge.service_keys,
-            tokens=edge.tokens,
-        )
+        ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+        nodes: list[tuple[str, Ros2Zenoh, Ros2Host]] = []
         try:
-            await host.run(stop)
+            for distro in distros:
+                edge = Ros2Zenoh(
+                    session,
+                    keys,
+                    codec,
+                    flavor,
+                    settings.domain_id,
+                    namespace,
+                    settings.node_name,
+                    ros_topics,
+                    ros_services,
+                    settings.source,
+                    ids,
+                    distro,
+                )
+                options = settings.options(edge.data_keys, edge.service_keys, distro=distro)
+                host = Ros2Host(Ros2Core(options, keys, edge, codec))
+                edge.attach(host, asyncio.get_running_loop())
+                nodes.append((distro.value, edge, host))
+            node = full_topic(namespace, settings.node_name)
+            which = ", ".join(d for d, _, _ in nodes) if flavor is Flavor.RMW_ZENOH else "any distro"
+            print(
+                f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}",
+                flush=True,
+            )
+            for distro_name, edge, _ in nodes:
+                if len(nodes) > 1:
+                    print(f"  {distro_name}:", flush=True)
+                for topic in ros_topics:
+                    way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
+                    print(f"  {topic.full_name(namespace):<20} {topic.ros_type:<35} {way}  on {edge.data_keys[topic.key_name]}", flush=True)
+                for service in ros_services:
+                    name, key = full_topic(namespace, service.name), edge.service_keys[service.name]
+                    print(f"  {name:<20} {service.ros_type:<35} service       on {key}", flush=True)
+            print(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}", flush=True)
+            first = nodes[0][1]
+            announce_ready(
+                "ros2",
+                prefix=keys.prefix,
+                node=node,
+                flavor=flavor.value,
+                distros=[d for d, _, _ in nodes],
+                keys=first.data_keys,
+                services=first.service_keys,
+                tokens=first.tokens,
+                by_distro={d: {"keys": e.data_keys, "services": e.service_keys, "tokens": e.tokens} for d, e, _ in nodes},
+            )
+            await asyncio.gather(*(host.run(stop) for _, _, host in nodes))
         finally:
-            edge.close()
+            for _, edge, _ in nodes:
+                edge.close()
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

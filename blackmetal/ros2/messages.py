@@ -33,6 +33,7 @@ ODOMETRY = "nav_msgs/msg/Odometry"
 TF_MESSAGE = "tf2_msgs/msg/TFMessage"
 JOINT_STATE = "sensor_msgs/msg/JointState"
 BOOL = "std_msgs/msg/Bool"
+STRING = "std_msgs/msg/String"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 SET_BOOL = "std_srvs/srv/SetBool"
 TRIGGER = "std_srvs/srv/Trigger"
@@ -135,8 +136,20 @@ def excerpt(payload: bytes) -> str:
 
 @dataclass(frozen=True, slots=True)
 class Frames:
+    """The odometry's frames: ``odom`` -> the robot's root link, ``base_footprint`` (REP 105, as the URDF's root)."""
+
     odom: str = "odom"
-    base: str = "base_link"
+    base: str = "base_footprint"
+
+
+@dataclass(frozen=True, slots=True)
+class Transform:
+    """One geometry_msgs/TransformStamped: parent -> child, translation (m) and rotation (quaternion x, y, z, w)."""
+
+    parent: str
+    child: str
+    translation: tuple[float, float, float]
+    rotation: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 1.0)
 
 
 class RosCodec:
@@ -200,6 +213,27 @@ class RosCodec:
             ),
         )
         return self._serialize(self._TF(transforms=[transform]), TF_MESSAGE)
+
+    def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
+        """tf2_msgs/TFMessage of ``transforms``, all stamped ``stamp`` (Unix s)."""
+        message = self._TF(
+            transforms=[
+                self._TransformStamped(
+                    header=self._header(stamp, t.parent),
+                    child_frame_id=t.child,
+                    transform=self._Transform(
+                        translation=self._Vector3(x=t.translation[0], y=t.translation[1], z=t.translation[2]),
+                        rotation=self._Quaternion(x=t.rotation[0], y=t.rotation[1], z=t.rotation[2], w=t.rotation[3]),
+                    ),
+                )
+                for t in transforms
+            ]
+        )
+        return self._serialize(message, TF_MESSAGE)
+
+    def string(self, text: str) -> bytes:
+        """std_msgs/String (``/robot_description``)."""
+        return self._serialize(self.store.types[STRING](data=text), STRING)
 
     def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
         import numpy as np

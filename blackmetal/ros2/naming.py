@@ -1,32 +1,51 @@
-"""Where ROS 2 messages live on Zenoh: rmw_zenoh's keys, liveliness tokens and attachments, and the bridge's keys.
+"""Where ROS 2 messages live on Zenoh: rmw_zenoh's keys, liveliness tokens and attachments per ROS 2 distro, and the bridge's keys.
 
 Pure string and byte work, no Zenoh and no ROS. The rmw_zenoh formats
-follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp`` and
-``attachment_helpers.cpp`` (Jazzy >= 0.2.5, Kilted, Rolling):
+follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp``,
+``attachment_helpers.cpp``, ``rmw_publisher_data.cpp`` and
+``rmw_subscription_data.cpp``, read in each distro's release (the
+``upstream/<version>`` tags of ros2-gbp/rmw_zenoh-release, the sources
+the ROS packages are built from; :data:`DISTROS` names them):
 
 * data key: ``<domain>/<topic without outer slashes>/<DDS type>/<type hash>``;
+  the type hash is ``RIHS01_<sha256>`` from Jazzy on, and the constant
+  ``TypeHashNotSupported`` on Humble (its ``rmw_publisher_data.cpp`` and the
+  other ``*_data.cpp``: "Humble doesn't support type hash"), in keys and
+  tokens alike, so a Humble node and a Jazzy node never match each other's keys;
 * service key: the same, with the service type (``std_srvs::srv::dds_::SetBool_``,
   ``rmw_service_data.cpp`` strips ``Response_`` from the response type) and
   the service type hash; the server is a *complete* queryable on it (the
   client's ``get`` targets ``ALL_COMPLETE``);
 * liveliness token: ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS|SS|SC>/
   <enclave>/<namespace>/<node>[/<topic or service>/<DDS type>/<type hash>/<qos>]``,
-  every ``/`` inside a name replaced by ``%`` (so ``/`` becomes ``%``);
+  every ``/`` inside a name replaced by ``%`` (so ``/`` becomes ``%``); the same
+  on every distro (Rolling 0.12 and Lyrical 0.10 add a 14th ``backends:`` part
+  only for types with Buffer fields, which none of ours has);
 * QoS: ``reliability:durability:history,depth:deadline s,ns:lifespan s,ns:
   liveliness,lease s,ns``, each value left empty when it equals rmw_zenoh's
   default (reliable, volatile, keep-last 42, infinite durations, automatic);
+  the same defaults and encoding on every distro;
 * attachment: int64 LE sequence number, int64 LE source timestamp (ns),
-  one length byte (16), the 16-byte GID = XXH3-128 of the entity's token.
+  one length byte (16), the 16-byte GID = XXH3-128 of the entity's token
+  (``zenoh::ext::Serializer`` of the three fields). The same 33 bytes on every
+  distro from Humble 0.1.2 and Jazzy 0.2.5 on (Humble 0.1.0-0.1.1 and Jazzy
+  0.2.0-0.2.3 wrote each field's name before it: not supported).
   A service request carries the client's (its sequence number, its GID); the
   reply carries the same sequence number and client GID with the server's
-  timestamp (``rmw_client_data.cpp``, ``rmw_service_data.cpp``).
+  timestamp (``rmw_client_data.cpp``, ``rmw_service_data.cpp``);
+* TRANSIENT_LOCAL durability (``/robot_description``, ``/tf_static``): an
+  AdvancedPublisher with a cache of ``depth`` samples, publisher detection,
+  and, being reliable, sample-miss detection with a sporadic heartbeat every
+  500 ms (``rmw_publisher_data.cpp``, the same on every distro); a late
+  subscriber's AdvancedSubscriber (``detect_late_publishers``) queries that
+  cache (``rmw_subscription_data.cpp``).
 
 zenoh-bridge-ros2dds instead puts raw CDR on the topic name without its
 leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token; a
 service is a queryable on its name (``r1/set_estop``) that takes the CDR
 request and answers the CDR response (``route_service_cli.rs``).
 
-:func:`topics` lists the node's topics: name, ROS type and direction;
+:func:`topics` lists the node's topics: name, ROS type, direction and QoS;
 :func:`services` its services.
 """
 
@@ -56,6 +75,69 @@ RMW_ZENOH_DEFAULTS = {"reliability": RELIABILITY_RELIABLE, "durability": DURABIL
 _NAME = re.compile(r"^[A-Za-z_][A-Za-z0-9_]*$")
 
 
+class Distro(StrEnum):
+    """The ROS 2 distributions whose rmw_zenoh wire formats the adapter speaks."""
+
+    HUMBLE = "humble"
+    JAZZY = "jazzy"
+    KILTED = "kilted"
+    LYRICAL = "lyrical"
+    ROLLING = "rolling"
+
+
+@dataclass(frozen=True, slots=True)
+class DistroFormat:
+    """What differs between distros on the wire, and the release of rmw_zenoh it was read from."""
+
+    type_hashes: bool  # RIHS01 hashes in keys and tokens; False: TypeHashNotSupported
+    release: str  # the rmw_zenoh_cpp release read (ros2-gbp/rmw_zenoh-release, tag upstream/<version>)
+    supported_from: str  # the first release whose formats these are
+
+
+#: Read in each release's rmw_zenoh_cpp/src/detail/{liveliness_utils,qos,attachment_helpers,rmw_publisher_data,
+#: rmw_subscription_data,rmw_service_data,rmw_client_data}.cpp. Jazzy 0.2.10 and Kilted 0.6.7 hold the same
+#: liveliness_utils.cpp, qos.cpp and attachment_helpers.cpp byte for byte; Lyrical 0.10.5 and Rolling 0.12.0 too
+#: (their liveliness_utils.cpp differs from Jazzy's only by the Buffer-type ``backends`` part); Humble 0.1.9's differ
+#: from Jazzy's only by the 16 written for RMW_GID_STORAGE_SIZE and the QoS maps' BEST_AVAILABLE entries (which
+#: the adapter never writes). The message definitions of every type the node uses are the same on every distro
+#: (rosbags' Humble to Lyrical stores give the same RIHS01 hashes), so only Humble's missing hashes differ.
+DISTROS: dict[Distro, DistroFormat] = {
+    Distro.HUMBLE: DistroFormat(type_hashes=False, release="0.1.9", supported_from="0.1.2"),
+    Distro.JAZZY: DistroFormat(type_hashes=True, release="0.2.10", supported_from="0.2.5"),
+    Distro.KILTED: DistroFormat(type_hashes=True, release="0.6.7", supported_from="0.6.0"),
+    Distro.LYRICAL: DistroFormat(type_hashes=True, release="0.10.5", supported_from="0.10.3"),
+    Distro.ROLLING: DistroFormat(type_hashes=True, release="0.12.0", supported_from="0.12.0"),
+}
+#: What Humble's rmw_zenoh writes where later distros write the type hash.
+TYPE_HASH_NOT_SUPPORTED = "TypeHashNotSupported"
+#: Without ``--distro`` and without a sourced ROS (``ROS_DISTRO``): the current LTS.
+DEFAULT_DISTRO = Distro.JAZZY
+
+
+def parse_distros(text: str, origin: str = "--distro") -> tuple[Distro, ...]:
+    """``"humble,jazzy"`` -> (HUMBLE, JAZZY), in the given order, each once; ConfigError in one sentence otherwise."""
+    names = [part.strip().lower() for part in text.split(",") if part.strip()]
+    if not names:
+        raise ConfigError(f"{origin} names no ROS 2 distro; give one of {', '.join(d.value for d in Distro)} (or several, comma-separated)")
+    out: list[Distro] = []
+    for name in names:
+        try:
+            distro = Distro(name)
+        except ValueError:
+            raise ConfigError(
+                f"{origin} {name!r} is not a ROS 2 distro rmw_zenoh is released for: give {', '.join(d.value for d in Distro)} "
+                "(or several, comma-separated, e.g. humble,jazzy)"
+            ) from None
+        if distro not in out:
+            out.append(distro)
+    return tuple(out)
+
+
+def type_hash_of(distro: Distro, computed: str) -> str:
+    """The type hash ``distro``'s rmw_zenoh writes in keys and tokens: ``computed`` (RIHS01), or Humble's constant."""
+    return computed if DISTROS[distro].type_hashes else TYPE_HASH_NOT_SUPPORTED
+
+
 class Flavor(StrEnum):
     RMW_ZENOH = "rmw_zenoh"
     BRIDGE = "bridge"
@@ -79,6 +161,15 @@ class Qos:
     durability: int = DURABILITY_VOLATILE
     history: int = HISTORY_KEEP_LAST
     depth: int = 10
+
+    @classmethod
+    def transient_local(cls, depth: int = 1) -> Qos:
+        """``rclcpp::QoS(1).transient_local()``: robot_state_publisher's /robot_description and tf2's StaticBroadcasterQoS."""
+        return cls(durability=DURABILITY_TRANSIENT_LOCAL, depth=depth)
+
+    @property
+    def is_transient_local(self) -> bool:
+        return self.durability == DURABILITY_TRANSIENT_LOCAL
 
     def keyexpr(self) -> str:
         """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
@@ -204,6 +295,7 @@ class RosTopic:
     absolute: bool = False
     #: How the node's keys and ready line name it, where one topic takes two types (``cmd_vel_stamped``); default ``name``.
     label: str = ""
+    qos: Qos = Qos()
 
     @property
     def key_name(self) -> str:
@@ -223,22 +315,27 @@ class RosService:
 
 #: The key name of ``/cmd_vel`` as ``geometry_msgs/TwistStamped`` (``cmd_vel`` is the Twist).
 CMD_VEL_STAMPED = "cmd_vel_stamped"
+ROBOT_DESCRIPTION = "robot_description"
+TF_STATIC = "tf_static"
 
 
-def topics(publish_tf: bool, absolute_tf: bool = False) -> list[RosTopic]:
+def topics(publish_tf: bool, absolute_tf: bool = False, robot_model: bool = False) -> list[RosTopic]:
     """The node's topics, in the order their entities are numbered.
 
     ``/cmd_vel`` is subscribed twice, as ``geometry_msgs/Twist`` and as
     ``TwistStamped``: rmw_zenoh puts the type in the key expression, so a
     subscriber of one type never sees the other (Nav2 publishes TwistStamped
     from Kilted on, teleop nodes and twist_mux either). The stamped one is
-    numbered last of the topics, so the others keep their entity ids.
+    numbered last of those topics, so the others keep their entity ids.
 
     ``/diagnostics`` is absolute, as diagnostic_updater publishes it: one
     aggregator sees every robot, told apart by the statuses' names.
-    ``absolute_tf``: ``/tf`` whatever the namespace, as diff_drive_controller
-    publishes it (``DEFAULT_TRANSFORM_TOPIC = "/tf"``), one tree for every
-    robot, told apart by the frames' prefixes (``--fleet``).
+    ``absolute_tf``: ``/tf`` (and ``/tf_static``) whatever the namespace, as
+    diff_drive_controller publishes it (``DEFAULT_TRANSFORM_TOPIC = "/tf"``),
+    one tree for every robot, told apart by the frames' prefixes (``--fleet``).
+    ``robot_model``: ``robot_description`` (std_msgs/String, relative, as
+    robot_state_publisher publishes it) and ``/tf_static``, both transient
+    local with depth 1, numbered after the others.
     """
     out = [
         RosTopic("cmd_vel", ros.TWIST, Direction.SUBSCRIBE),
@@ -250,6 +347,9 @@ def topics(publish_tf: bool, absolute_tf: bool = False) -> list[RosTopic]:
     out.append(RosTopic("joint_states", ros.JOINT_STATE, Direction.PUBLISH))
     out.append(RosTopic("diagnostics", ros.DIAGNOSTIC_ARRAY, Direction.PUBLISH, absolute=True))
     out.append(RosTopic("cmd_vel", ros.TWIST_STAMPED, Direction.SUBSCRIBE, label=CMD_VEL_STAMPED))
+    if robot_model:
+        out.append(RosTopic(ROBOT_DESCRIPTION, ros.STRING, Direction.PUBLISH, qos=Qos.transient_local()))
+        out.append(RosTopic(TF_STATIC, ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf, qos=Qos.transient_local()))
     return out
 
 

@@ -12,12 +12,31 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
-from .core import Ros2Options
-from .messages import Frames
-from .naming import CMD_VEL_STAMPED, Flavor, check_ros_name, check_source_name, full_topic, normalise_namespace
+from .core import RobotModel, Ros2Options, Wheel
+from .messages import Frames, Transform
+from .naming import (
+    CMD_VEL_STAMPED,
+    DEFAULT_DISTRO,
+    Distro,
+    Flavor,
+    check_ros_name,
+    check_source_name,
+    full_topic,
+    normalise_namespace,
+    parse_distros,
+)
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
 DEFAULT_COVARIANCE = "0.001,0.001,0.001,0.001,0.001,0.01"
+#: A variance made of a calibration's residual is never below this: a perfect fit is not a certain pose (1 mm, 1 mrad).
+MIN_VARIANCE = 1e-6
+#: The URDF's root link: the odometry's child frame when the adapter publishes the robot model.
+ROOT_LINK = "base_footprint"
+
+
+def _distro_default() -> str:
+    """The distro of a sourced ROS 2 setup (it exports ROS_DISTRO), else the current LTS."""
+    return os.environ.get("ROS_DISTRO", "").strip() or DEFAULT_DISTRO.value
 
 
 def _domain_default() -> int:
@@ -47,6 +66,12 @@ class Ros2Settings:
         Flavor.RMW_ZENOH.value, "rmw_zenoh (ROS 2's Zenoh middleware) or bridge (zenoh-bridge-ros2dds)", choices=["rmw_zenoh", "bridge"]
     )
     # the helper appends "(default X)" to every help text: none of these says it again
+    distro: str = setting(
+        factory=_distro_default,
+        help="ROS 2 distro whose rmw_zenoh wire formats the node speaks: humble, jazzy, kilted, lyrical or rolling, or "
+        "several comma-separated (humble,jazzy: one node each, on one robot); ROS_DISTRO when set, else jazzy",
+        metavar="NAME[,NAME]",
+    )
     domain_id: int = setting(factory=_domain_default, help="ROS domain id; ROS_DOMAIN_ID when set, else 0", metavar="N")
     namespace: str = setting("/", "ROS namespace of the node, its topics and services, e.g. r1 (/ is none)", metavar="NS")
     node_name: str = setting("blackmetal", "ROS node name", metavar="NAME")
@@ -59,7 +84,9 @@ class Ros2Settings:
         50.0, "the gateway's --poll-hz, which /diagnostics holds the measured poll rate against", metavar="HZ"
     )
     odom_frame: str = setting("odom", "frame of /odom and parent of the transform", metavar="FRAME")
-    base_frame: str = setting("base_link", "child frame of /odom and of the transform", metavar="FRAME")
+    base_frame: str = setting(
+        ROOT_LINK, "child frame of /odom and of the transform (the URDF's root link, unless --no-robot-model)", metavar="FRAME"
+    )
     tf: bool = setting(True, "do not publish /tf (when another node publishes odom -> base_link)", flag="--no-tf", const=False)
     twist_stamped: bool = setting(
         False,
@@ -69,13 +96,41 @@ class Ros2Settings:
     twist_covariance_diagonal: str = setting(DEFAULT_COVARIANCE, "six variances of /odom's twist", metavar="LIST")
     left_joint: str = setting("left_wheel_joint", "name of the left wheel in /joint_states", metavar="NAME")
     right_joint: str = setting("right_wheel_joint", "name of the right wheel in /joint_states", metavar="NAME")
-    wheel_radius: float = setting(model.WHEEL_RADIUS, "wheel radius for /joint_states angles, m", metavar="M")
+    wheel_radius: float = setting(model.WHEEL_RADIUS, "wheel radius for /joint_states angles and the URDF, m", metavar="M")
+    wheel_separation: float = setting(model.WHEEL_SEPARATION, "distance between the wheels for the URDF, m", metavar="M")
+    robot_model: bool = setting(
+        True,
+        "publish no robot_description, tf_static or wheel transforms (when robot_state_publisher publishes the robot's URDF)",
+        flag="--no-robot-model",
+        const=False,
+    )
+    calibration: str = setting(
+        "",
+        "calibration file of blackmetal calibrate -o: its constants (for /joint_states and the URDF) and its measured "
+        "residuals (for /odom's covariance), in place of the ones set here",
+        metavar="FILE",
+    )
     impulses_left: float = setting(model.IMPULSES_PER_METER_LEFT, "impulses per metre, left wheel", metavar="N")
     impulses_right: float = setting(model.IMPULSES_PER_METER_RIGHT, "impulses per metre, right wheel", metavar="N")
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
+    def distros(self) -> tuple[Distro, ...]:
+        """The distros to serve, one node each (ConfigError naming ROS_DISTRO when the value came from it)."""
+        from_env = os.environ.get("ROS_DISTRO", "").strip()
+        return parse_distros(self.distro, "ROS_DISTRO" if from_env and self.distro == from_env else "--distro")
+
+    def load_calibration(self) -> model.Calibration | None:
+        return model.read_calibration(self.calibration) if self.calibration else None
+
     def check(self) -> None:
         validate_prefix(self.prefix)
+        self.distros()
+        self.load_calibration()
+        if self.robot_model and self.base_frame != ROOT_LINK:
+            raise ConfigError(
+                f"--base-frame {self.base_frame}: the robot model's root link is {ROOT_LINK}, which /odom must name "
+                "(give --no-robot-model when another node publishes your own URDF)"
+            )
         if self.domain_id == -1 and os.environ.get("ROS_DOMAIN_ID"):
             raise ConfigError(f"ROS_DOMAIN_ID must be a number 0..232, got {os.environ['ROS_DOMAIN_ID']!r}")
         if not 0 <= self.domain_id <= 232:
@@ -86,28 +141,81 @@ class Ros2Settings:
         check_positive(service_timeout=self.service_timeout, expected_poll_hz=self.expected_poll_hz)
         diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
         diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
-        for name in ("wheel_radius", "impulses_left", "impulses_right"):
+        for name in ("wheel_radius", "wheel_separation", "impulses_left", "impulses_right"):
             if not getattr(self, name) > 0:
                 raise ConfigError(f"{name} must be positive, got {getattr(self, name)}")
         for name in ("odom_frame", "base_frame", "left_joint", "right_joint"):
             if not getattr(self, name):
                 raise ConfigError(f"{name} must not be empty")
 
+    def constants(self) -> tuple[float, float, float, model.Calibration | None]:
+        """(wheel separation, impulses left, impulses right, the calibration): the calibration file's when one is given."""
+        calibration = self.load_calibration()
+        if calibration is None:
+            return self.wheel_separation, self.impulses_left, self.impulses_right, None
+        return calibration.wheel_separation, calibration.impulses_left, calibration.impulses_right, calibration
+
     @property
     def encoders(self) -> Encoders:
-        return Encoders(self.impulses_left, self.impulses_right)
+        _, left, right, _ = self.constants()
+        return Encoders(left, right)
 
-    def options(self, data_keys: dict[str, str], service_keys: dict[str, str] | None = None, frame_prefix: str = "") -> Ros2Options:
+    def covariances(self, calibration: model.Calibration | None) -> tuple[list[float], list[float], str]:
+        """/odom's pose and twist covariances and where they come from: a calibration's residuals (x, y, yaw; v, w)
+        where it measured them, the configured diagonals for the rest."""
+        pose = diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
+        twist = diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
+        if calibration is None or calibration.residuals is None:
+            why = "fixed diagonals (--pose-covariance-diagonal, --twist-covariance-diagonal)"
+            if calibration is not None:
+                why += f": {calibration.path} holds no residuals (a UMBmark calibration measures none)"
+            return pose, twist, why
+        r = calibration.residuals
+        for matrix, index, value in (
+            (pose, 0, r.x_m),
+            (pose, 7, r.y_m),
+            (pose, 35, r.yaw_rad),
+            (twist, 0, r.v_mps),
+            (twist, 35, r.w_radps),
+        ):
+            matrix[index] = max(value * value, MIN_VARIANCE)
+        why = (
+            f"x, y, yaw, v, w from the residuals of {calibration.path} over {r.path_m:.1f} m (rms x {1000 * r.x_m:.1f} mm, "
+            f"y {1000 * r.y_m:.1f} mm, yaw {r.yaw_rad:.4f} rad, v {1000 * r.v_mps:.1f} mm/s, w {r.w_radps:.4f} rad/s)"
+        )
+        return pose, twist, why
+
+    def robot(self, separation: float, frame_prefix: str) -> RobotModel | None:
+        """The robot model as robot_state_publisher would publish it: the URDF, its fixed joints, its wheels, prefixed."""
+        if not self.robot_model:
+            return None
+        body = model.Body(wheel_separation=separation, wheel_radius=self.wheel_radius)
+        joints = model.joints(body, left_joint=self.left_joint, right_joint=self.right_joint)
+        p = frame_prefix
+        fixed = tuple(Transform(p + j.parent, p + j.child, j.xyz) for j in joints if j.kind == "fixed")
+        left, right = (Wheel(p + j.parent, p + j.child, j.xyz[1]) for j in joints if j.kind == "continuous")
+        text = model.urdf(body, left_joint=self.left_joint, right_joint=self.right_joint, frame_prefix=p)
+        return RobotModel(text, fixed, (left, right), wheel_tf=self.tf)
+
+    def options(
+        self,
+        data_keys: dict[str, str],
+        service_keys: dict[str, str] | None = None,
+        frame_prefix: str = "",
+        distro: Distro = DEFAULT_DISTRO,
+    ) -> Ros2Options:
         """The core's options; ``data_keys``/``service_keys``: the Zenoh key of each ROS topic/service, which error reports name;
-        ``frame_prefix`` goes before both frames (``r3/``: ``r3/odom``, ``r3/base_link``)."""
+        ``frame_prefix`` goes before every frame (``r3/``: ``r3/odom``, ``r3/base_footprint``, the URDF's links)."""
+        separation, left, right, calibration = self.constants()
+        pose, twist, covariance = self.covariances(calibration)
         return Ros2Options(
             frames=Frames(frame_prefix + self.odom_frame, frame_prefix + self.base_frame),
-            pose_covariance=diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal"),
-            twist_covariance=diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal"),
+            pose_covariance=pose,
+            twist_covariance=twist,
             publish_tf=self.tf,
             joint_names=(self.left_joint, self.right_joint),
             wheel_radius=self.wheel_radius,
-            encoders=self.encoders,
+            encoders=Encoders(left, right),
             cmd_vel_key=data_keys["cmd_vel"],
             cmd_vel_stamped_key=data_keys.get(CMD_VEL_STAMPED, "cmd_vel"),
             estop_key=data_keys["estop"],
@@ -118,4 +226,8 @@ class Ros2Settings:
             flavor=self.flavor,
             domain_id=self.domain_id,
             service_keys=dict(service_keys or {}),
+            distro=distro.value if self.flavor == Flavor.RMW_ZENOH.value else "any (zenoh-bridge-ros2dds)",
+            robot=self.robot(separation, frame_prefix),
+            calibration=f"{calibration.path} ({calibration.note})" if calibration else "none: the nominal constants",
+            covariance=covariance,
         )

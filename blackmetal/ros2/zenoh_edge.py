@@ -1,7 +1,8 @@
 """Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics and services on the other; declarations only.
 
 For ``rmw_zenoh`` every ROS publication carries rmw_zenoh's attachment and
-every entity holds its liveliness token, so ``ros2 node list``, ``ros2 topic
+every entity holds its liveliness token, keys and tokens in the formats of
+the node's distro (:mod:`blackmetal.ros2.naming`), so ``ros2 node list``, ``ros2 topic
 list`` and ``ros2 service list`` show the node; each service is a complete
 queryable on its rmw_zenoh key, answered with the reply attachment the
 core builds. For ``bridge`` the topics and services are plain keys, as
@@ -9,6 +10,13 @@ zenoh-bridge-ros2dds maps them. Inputs (samples, service calls, replies to
 the adapter's own queries, liveliness changes) are handed over to the host
 on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is
 decoded on a Zenoh thread.
+
+A transient-local topic (``robot_description``, ``/tf_static``) is published
+as rmw_zenoh publishes one on every distro (``rmw_publisher_data.cpp``): a
+Zenoh AdvancedPublisher that keeps the last ``depth`` samples in a cache
+that late subscribers query, announces itself for their
+``detect_late_publishers``, and, being reliable, sends a sporadic heartbeat
+every 500 ms for their sample-miss detection.
 """
 
 from __future__ import annotations
@@ -26,7 +34,9 @@ from blackmetal.schemas import ErrorReport, Keys, Sources, encode
 from .host import Ros2Host
 from .naming import (
     CMD_VEL_STAMPED,
+    DEFAULT_DISTRO,
     Direction,
+    Distro,
     Flavor,
     NodeIdentity,
     Qos,
@@ -38,18 +48,23 @@ from .naming import (
     full_topic,
     gid_of,
     rmw_zenoh_data_key,
+    type_hash_of,
 )
 
 if TYPE_CHECKING:
     import zenoh
+    import zenoh.ext
 
     from .messages import RosCodec
+
+#: rmw_zenoh's SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD (ms) for a reliable transient-local publisher (rmw_publisher_data.cpp).
+HEARTBEAT_S = 0.5
 
 
 class _RosPublisher:
     """A Zenoh publisher on a ROS topic; with rmw_zenoh, each sample carries a rising sequence number."""
 
-    def __init__(self, publisher: "zenoh.Publisher", gid: bytes | None) -> None:
+    def __init__(self, publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher", gid: bytes | None) -> None:
         self.publisher = publisher
         self.gid = gid
         self.sequence = 0
@@ -78,10 +93,13 @@ class Ros2Zenoh(ZenohEdge):
         ros_services: list[RosService] | None = None,
         source: str = Sources.ROS2,
         ids: Iterator[int] | None = None,
+        distro: Distro = DEFAULT_DISTRO,
     ) -> None:
         """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
-        (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``) share it."""
+        (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``, several distros) share it.
+        ``distro``: whose rmw_zenoh formats the keys and tokens follow."""
         import zenoh
+        import zenoh.ext
 
         super().__init__(session)
         self.keys = keys
@@ -97,15 +115,27 @@ class Ros2Zenoh(ZenohEdge):
             entity_id = next(ids)
             name = topic.full_name(namespace)
             if flavor is Flavor.RMW_ZENOH:
-                type_hash = codec.type_hash(topic.ros_type)
+                type_hash = type_hash_of(distro, codec.type_hash(topic.ros_type))
                 key = rmw_zenoh_data_key(domain_id, name, topic.ros_type, type_hash)
-                token = node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, Qos())
+                token = node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, topic.qos)
                 self.tokens.append(token)
                 gid: bytes | None = gid_of(token)
             else:
                 key, gid = bridge_data_key(name), None
             self.data_keys[topic.key_name] = key
-            if topic.direction is Direction.PUBLISH:
+            if topic.direction is Direction.PUBLISH and topic.qos.is_transient_local:
+                publisher: zenoh.Publisher | zenoh.ext.AdvancedPublisher = zenoh.ext.declare_advanced_publisher(
+                    self.session,
+                    key,
+                    congestion_control=zenoh.CongestionControl.DROP,
+                    reliability=zenoh.Reliability.RELIABLE,
+                    cache=zenoh.ext.CacheConfig(max_samples=topic.qos.depth),
+                    publisher_detection=True,
+                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
+                )
+                self._entities.append(publisher)
+                self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
+            elif topic.direction is Direction.PUBLISH:
                 publisher = self.session.declare_publisher(
                     key, congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE
                 )
@@ -115,7 +145,7 @@ class Ros2Zenoh(ZenohEdge):
             entity_id = next(ids)
             name = full_topic(namespace, service.name)
             if flavor is Flavor.RMW_ZENOH:
-                type_hash = codec.type_hash(service.ros_type)
+                type_hash = type_hash_of(distro, codec.type_hash(service.ros_type))
                 key = rmw_zenoh_data_key(domain_id, name, service.ros_type, type_hash)
                 self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, Qos()))
             else:
@@ -171,26 +201,26 @@ class Ros2Zenoh(ZenohEdge):
 
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        handover = Intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
+        intake = Intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
         self._host = host
-        self._put_query_event = handover.channel("query replies", self._on_query_event, capacity=256, priority=8)
-        self.subscriber(self.data_keys["estop"], handover.channel("estop", host.on_estop, capacity=64, priority=10))
-        self.subscriber(self.data_keys["cmd_vel"], handover.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
-        stamped = handover.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5)
+        self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
+        self.subscriber(self.data_keys["estop"], intake.channel("estop", host.on_estop, capacity=64, priority=10))
+        self.subscriber(self.data_keys["cmd_vel"], intake.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
+        stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5)
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
-        self.subscriber(self.keys.pose, handover.channel("pose", host.on_pose, capacity=256))
-        self.subscriber(self.keys.impulses, handover.channel("impulses", host.on_impulses, capacity=256))
-        self.subscriber(self.keys.health, handover.channel("health", host.on_health, latest=True, priority=8))
-        self.subscriber(self.keys.errors, handover.channel("errors", host.on_error_report, capacity=256))
+        self.subscriber(self.keys.pose, intake.channel("pose", host.on_pose, capacity=256))
+        self.subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256))
+        self.subscriber(self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8))
+        self.subscriber(self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256))
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
-            self._alive(key, handover.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
+            self._alive(key, intake.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
         for service, key in self.service_keys.items():
-            take = handover.channel(f"{service}?", self._on_call(service), capacity=16, priority=9)
+            take = intake.channel(f"{service}?", self._on_call(service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
             self._entities.append(self.session.declare_queryable(key, take, complete=True))
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
-        return handover
+        return intake
 
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
         """Whether a liveliness token on ``key`` is present, now (history) and at each change."""

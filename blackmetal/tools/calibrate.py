@@ -37,16 +37,19 @@ from blackmetal.odometry_service.batch import BatchResult
 from blackmetal.odometry_service.calibration import (
     CalibrationError,
     Constants,
+    ResidualFigures,
     Segment,
     align,
     centre_of_gravity,
     closure_error,
     fit_trajectory,
+    residual_figures,
     umbmark,
 )
 from blackmetal.odometry_service.replay import read_log
 from blackmetal.odometry_service.settings import PipelineSettings
 from blackmetal.recording.reader import is_mcap, read_mcap
+from blackmetal.robot_model import Residuals
 from blackmetal.runtime.settings import add_setting_arguments, load_settings
 from blackmetal.schemas import BlackmetalError, ConfigError, Keys, Pose
 
@@ -158,18 +161,30 @@ def _segment(rec: Recording, start: int, end: int) -> Segment | None:
     ax, ay, ayaw = align(x[sl], y[sl], yaw[sl])
     d_left, d_right = rec.result.d_left[start:end][sl].copy(), rec.result.d_right[start:end][sl].copy()
     d_left[0] = d_right[0] = 0.0  # the odometry starts at the reference's first pose
-    return Segment(d_left, d_right, ax, ay, ayaw)
+    stamps = rec.result.stamp[start:end][sl]
+    dt = np.concatenate([[0.0], np.diff(stamps)])
+    return Segment(d_left, d_right, ax, ay, ayaw, dt)
 
 
 def _used(settings: PipelineSettings) -> Constants:
     return Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
 
 
-def write_toml(path: str, constants: Constants, note: str) -> None:
+def write_toml(path: str, constants: Constants, note: str, residuals: Residuals | None = None) -> None:
+    measured = ""
+    if residuals is not None:
+        measured = (
+            "# The calibrated odometry against the reference, root mean squares over every step (m, rad, m/s, rad/s):\n"
+            f"# blackmetal ros2 --calibration {Path(path).name} makes /odom's covariance of them. Comments, so that\n"
+            "# every service takes this file as its settings.\n" + "".join(line + "\n" for line in residuals.lines())
+        )
     text = (
         f"# {note}\n"
-        "# For blackmetal gateway, blackmetal odometry and blackmetal up: --settings " + Path(path).name + "\n"
-        f"wheel_separation = {constants.wheel_separation:.6f}\n"
+        "# For blackmetal gateway, blackmetal odometry and blackmetal up: --settings "
+        + Path(path).name
+        + "\n"
+        + measured
+        + f"wheel_separation = {constants.wheel_separation:.6f}\n"
         f"impulses_left = {constants.impulses_left:.4f}\n"
         f"impulses_right = {constants.impulses_right:.4f}\n"
     )
@@ -187,7 +202,22 @@ def _show(name: str, c: Constants, used: Constants) -> str:
     )
 
 
-def trajectory(recordings: list[Recording], used: Constants, reference: str) -> tuple[Constants, list[str]]:
+def as_residuals(figures: ResidualFigures) -> Residuals | None:
+    """The file's residuals; None when the speeds could not be compared (no time steps)."""
+    if not (math.isfinite(figures.v_mps) and math.isfinite(figures.w_radps)):
+        return None
+    return Residuals(
+        steps=figures.steps,
+        path_m=figures.path_m,
+        x_m=figures.x_m,
+        y_m=figures.y_m,
+        yaw_rad=figures.yaw_rad,
+        v_mps=figures.v_mps,
+        w_radps=figures.w_radps,
+    )
+
+
+def trajectory(recordings: list[Recording], used: Constants, reference: str) -> tuple[Constants, list[str], Residuals | None]:
     segments: list[Segment] = []
     runs: list[tuple[Run, Segment]] = []
     for rec in recordings:
@@ -215,13 +245,19 @@ def trajectory(recordings: list[Recording], used: Constants, reference: str) -> 
         _show("fitted", fit.constants, used),
         f"path error (rms, heading weighted {0.5} m/rad): {1000 * fit.rms_before:.1f} mm before, {1000 * fit.rms_after:.1f} mm after",
     ]
+    figures = residual_figures(segments, fit.constants, used)
+    lines.append(
+        f"residuals after the fit over {figures.path_m:.2f} m ({figures.steps} steps, rms): x {1000 * figures.x_m:.1f} mm, "
+        f"y {1000 * figures.y_m:.1f} mm, yaw {math.degrees(figures.yaw_rad):.2f} deg, "
+        f"v {1000 * figures.v_mps:.1f} mm/s, w {math.degrees(figures.w_radps):.2f} deg/s"
+    )
     for run, seg in runs:
         before = closure_error(seg.d_left, seg.d_right, seg.ref_x, seg.ref_y, used, used)
         after = closure_error(seg.d_left, seg.d_right, seg.ref_x, seg.ref_y, fit.constants, used)
         lines.append(
             f"  {run.direction} run of {Path(run.source).name}: odometry vs reference at its end {1000 * before:.1f} mm before, {1000 * after:.1f} mm after"
         )
-    return fit.constants, lines
+    return fit.constants, lines, as_residuals(figures)
 
 
 def odometry_end(rec: Recording, run: Run) -> tuple[float, float]:
@@ -286,17 +322,18 @@ def run(args: argparse.Namespace) -> int:
         prefix = args.prefix
         reference = args.reference or f"{Keys(prefix or 'robot').sim_truth}"
         recordings = [load(path, settings, prefix, None if cw else reference) for path in args.recordings]
+        residuals = None  # UMBmark measures two end points, not the path: no residuals
         if cw:
             constants, lines = umbmark_mode(recordings, used, cw, ccw, args.size)
             how = "UMBmark"
         else:
-            constants, lines = trajectory(recordings, used, reference)
+            constants, lines, residuals = trajectory(recordings, used, reference)
             how = f"trajectory fit against {reference}"
         for line in lines:
             print(line, flush=True)
         if args.output:
             names = ", ".join(Path(p).name for p in args.recordings)
-            write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}")
+            write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}", residuals)
             print(f"wrote {args.output}: use it with --settings {args.output}", flush=True)
     except BlackmetalError as exc:
         print(f"blackmetal calibrate: {exc}", file=sys.stderr)

@@ -36,7 +36,8 @@ import zenoh
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.odometry_service.settings import OdometrySettings
-from blackmetal.ros2.naming import Flavor
+from blackmetal.robot_model import RESIDUAL_LINE
+from blackmetal.ros2.naming import Flavor, parse_distros
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
@@ -438,12 +439,32 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         metavar="FLAVOR",
         help=f"also run the ROS 2 adapter (blackmetal ros2), {flavor} (default) or {others}",
     )
+    parser.add_argument(
+        "--distro",
+        metavar="NAME[,NAME]",
+        help="with --ros2: the ROS 2 distro(s) whose rmw_zenoh formats the adapter speaks, humble, jazzy, kilted, lyrical "
+        "or rolling, or several comma-separated, one node each (default: ROS_DISTRO when set, else jazzy)",
+    )
     foxglove_port = default_of(FoxgloveSettings, "port")
     parser.add_argument("--foxglove", action="store_true", help="also serve a live Foxglove view (blackmetal foxglove)")
     parser.add_argument("--foxglove-port", type=int, default=foxglove_port, help=f"its WebSocket port (default {foxglove_port})")
     parser.add_argument("-v", "--verbose", action="store_true", help="show the services' own log lines")
     add_zenoh_arguments(parser)
     return parser
+
+
+def ros2_extra(args: argparse.Namespace) -> list[str]:
+    """What up passes the ROS 2 adapter besides its settings: ``--distro``, and ``--calibration FILE`` when the
+    ``--settings`` file is a calibration with residuals (they are comments, which the settings split does not carry)."""
+    extra = ["--distro", args.distro] if args.distro else []
+    if args.settings and Path(args.settings).suffix == ".toml":
+        try:
+            text = Path(args.settings).read_text()
+        except OSError:
+            return extra  # ServiceFiles has said what is wrong with it
+        if any(line.startswith(RESIDUAL_LINE) for line in text.splitlines()):
+            extra += ["--calibration", str(args.settings)]
+    return extra
 
 
 def check_fleet_options(args: argparse.Namespace) -> None:
@@ -466,6 +487,10 @@ def run(args: argparse.Namespace) -> int:
         check_fleet_options(args)
     if args.ros2:
         require_extra("blackmetal up --ros2", "ros2", "rosbags")
+    if args.distro is not None:
+        if not args.ros2:
+            raise ConfigError("--distro is for the ROS 2 adapter: give --ros2 as well")
+        parse_distros(args.distro)
     if args.foxglove:
         require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
     services = ["gateway", "odometry", *([] if args.robot else ["sim"]), *(["ros2"] if args.ros2 else []),
@@ -538,7 +563,7 @@ def _run(
             args.verbose,
         )  # fmt: skip
         odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *files.args("odometry"), *zargs], args.verbose)
-        ros2_args = ["ros2", "--flavor", args.ros2, "--prefix", prefix, *files.args("ros2"), *zargs]
+        ros2_args = ["ros2", "--flavor", args.ros2, "--prefix", prefix, *files.args("ros2"), *ros2_extra(args), *zargs]
         ros2 = _start(children, "ros2", ros2_args, args.verbose) if args.ros2 else None
         cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         odometry.wait_ready(READY_TIMEOUT_S)
@@ -598,7 +623,7 @@ def _run_fleet(
         odometry = _start(children, "odometry", ["odometry", "--fleet", str(fleet_file), *files.args("odometry"), *zargs], args.verbose)
         ros2 = None
         if args.ros2:  # one ROS node per robot, /<id>/..., in one adapter process
-            ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *zargs]
+            ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *ros2_extra(args), *zargs]
             ros2 = _start(children, "ros2", ros2_args, args.verbose)
         cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         odometry.wait_ready(READY_TIMEOUT_S)
@@ -620,7 +645,7 @@ def _run_fleet(
     if args.ros2:
         first = robots[0].id
         print(f"ROS 2 ({args.ros2}): one node per robot, /{first}/blackmetal ... with /{first}/cmd_vel, /{first}/odom, "
-              f"frames {first}/odom -> {first}/base_link on /tf, services /{first}/set_estop, /{first}/reset_odometry", flush=True)  # fmt: skip
+              f"frames {first}/odom -> {first}/base_footprint on /tf, /{first}/robot_description, services /{first}/set_estop, /{first}/reset_odometry", flush=True)  # fmt: skip
     if view:
         print(f"Foxglove: every robot in one view at {view}, topics /r1/... and /fleet/summary "
               "(layout for r1-r3: deploy/foxglove/blackmetal-fleet.layout.json)", flush=True)  # fmt: skip

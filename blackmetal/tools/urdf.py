@@ -4,9 +4,13 @@ The URDF comes from the robot model (``base_footprint``, ``base_link``, the
 two continuous wheel joints named as ``blackmetal ros2`` names them in
 ``/joint_states``, a rear caster), with the wheel separation and radius the
 gateway and the adapter use unless given here: pass the calibrated wheel
-separation after ``blackmetal calibrate``. For example::
+separation after ``blackmetal calibrate``, or its file with ``--calibration``.
+``blackmetal ros2`` publishes the same URDF on ``/robot_description`` (and
+its transforms), so RViz needs no robot_state_publisher; this command is for
+those who run their own (then give the adapter ``--no-robot-model``). For
+example::
 
-    blackmetal urdf > blackmetal.urdf
+    blackmetal urdf --calibration calibration.toml > blackmetal.urdf
     ros2 run robot_state_publisher robot_state_publisher --ros-args -p robot_description:="$(cat blackmetal.urdf)"
 """
 
@@ -22,7 +26,10 @@ from .client import tool
 
 @tool("urdf")
 def run(args: argparse.Namespace) -> int:
-    body = model.Body(wheel_separation=args.wheel_separation, wheel_radius=args.wheel_radius)
+    separation = args.wheel_separation
+    if args.calibration:
+        separation = model.read_calibration(args.calibration).wheel_separation
+    body = model.Body(wheel_separation=separation, wheel_radius=args.wheel_radius)
     sys.stdout.write(
         model.urdf(body, left_joint=args.left_joint, right_joint=args.right_joint, frame_prefix=args.frame_prefix, name=args.name)
     )
@@ -35,6 +42,9 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     )
     parser.add_argument(
         "--wheel-separation", type=float, default=model.WHEEL_SEPARATION, metavar="M", help=f"m (default {model.WHEEL_SEPARATION:g})"
+    )
+    parser.add_argument(
+        "--calibration", metavar="FILE", help="take the wheel separation from this file of blackmetal calibrate -o (default none)"
     )
     parser.add_argument("--wheel-radius", type=float, default=model.WHEEL_RADIUS, metavar="M", help=f"m (default {model.WHEEL_RADIUS:g})")
     parser.add_argument("--left-joint", default="left_wheel_joint", metavar="NAME", help="as in /joint_states (default left_wheel_joint)")
