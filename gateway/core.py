@@ -92,7 +92,7 @@ class GatewayCore:
         self.counters = Counters()
         #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
         self.source = source or secrets.token_hex(6)
-        self.governor = Governor(settings.safety(), now)
+        self.governor = Governor(settings.safety())
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
@@ -213,7 +213,7 @@ class GatewayCore:
         if self.arbiter.active != previous:
             self._driver_changed(source, previous, Why.OUTRANKS)
         if admission is Admission.DRIVES:
-            self.governor.take_twist(twist, now)  # refusal() was asked above, with the same state
+            self.governor.on_twist(twist, now)  # refusal() was asked above, with the same state
             self._send_due(now)
 
     def on_superseded(self, source: str, count: int, now: float) -> None:

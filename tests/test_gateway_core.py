@@ -60,7 +60,7 @@ def test_wheels_never_exceed_the_limit_and_keep_the_curvature(v: float, w: float
 
 
 def governor(**overrides: object) -> Governor:
-    gov = Governor(SafetySettings(**overrides), now=0.0)  # type: ignore[arg-type]
+    gov = Governor(SafetySettings(**overrides))  # type: ignore[arg-type]
     gov.on_link_up(0.0)
     return gov
 
@@ -233,8 +233,9 @@ def test_a_flood_is_coalesced_to_the_latest_command() -> None:
         if (cmd := gov.next_command(now)) is not None:
             sent.append((now, cmd.wheels.left))
     assert len(sent) <= 11  # at most 100 Hz reach the robot
-    assert gov.hold_until is not None and gov.hold_until <= 1.1 + 0.01
-    final = gov.next_command(gov.hold_until)
+    _, held = gov.plan(1.1)  # the latest one waits for the rate cap, its time is the deadline
+    assert held.command is not None and held.at == gov.next_deadline() <= 1.1 + 0.01
+    final = gov.next_command(held.at)
     assert final is not None and final.wheels.left == pytest.approx(0.1)  # the latest one, not a backlog
 
 
