@@ -26,7 +26,7 @@ from hypothesis import strategies as st
 
 from blackmetal.gateway.safety import Driving, Governor, SafetySettings, State, VelocityCommand
 from blackmetal.robot_model import WheelSpeeds
-from blackmetal.schemas import Twist, Vector3
+from blackmetal.schemas import ErrorReport, Twist, Vector3
 
 ZERO = WheelSpeeds(left=0.0, right=0.0)
 
@@ -174,3 +174,44 @@ def test_nothing_is_due_before_the_deadline_and_the_deadline_is_never_behind(
         assert probe.step(congested) == (False, None), f"something was due at {probe.t!r}, before the deadline {deadline!r}"
         assert but_the_look(probe.gov.state) == but_the_look(host.gov.state), "a look before the deadline changed the state"
         assert probe.gov.next_deadline(congested) == deadline
+
+
+# ----------------------------------------------------------------------------- the core's hand-over
+
+
+def handed_over_after(refuse: str) -> tuple[Any, float]:
+    """teleop holds the robot at 0; nav's 0.3 waits behind it; then ``refuse`` happens and teleop falls silent (0.5 s)."""
+    from test_gateway_connection import Bench, twist_payload
+
+    from blackmetal.schemas import GatewayHealth, encode
+
+    bench = Bench(cmd_timeout=0.0)
+    bench.connect()
+    bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+    bench.run(0.3)
+    bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")  # dropped quietly: teleop drives
+    if refuse == "estop":
+        bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    else:
+        mine = bench.conn.health(bench.t)
+        other = GatewayHealth(stamp=mine.stamp, control=mine.control, log=mine.log, source="another-run")
+        bench.conn.on_health_seen(encode(other), bench.t)
+    bench.settle()
+    since = bench.t
+    bench.run(0.3)  # teleop falls silent (at 0.5 s), nav (heard at 0.3 s) is live: its command is handed over
+    assert bench.conn.arbiter.active == "nav"
+    return bench, since
+
+
+def test_a_command_handed_over_during_an_estop_is_refused_and_reported() -> None:
+    bench, since = handed_over_after("estop")
+    assert all(left == 0.0 for t, left, _ in bench.velocity() if t >= since)
+    (report,) = [e for e in bench.of(ErrorReport) if e.key == "robot/cmd_vel/nav"]
+    assert "handed over to it, is refused: emergency stop is engaged" in report.reason and '"x":0.3' in report.excerpt
+    assert bench.conn.counters.rejected_inputs == 1
+
+
+def test_a_command_handed_over_while_a_second_gateway_drives_is_refused() -> None:
+    bench, since = handed_over_after("conflict")
+    assert all(left == 0.0 for t, left, _ in bench.velocity() if t >= since)  # before: nav's 0.3 went out
+    assert any(e.key == "robot/cmd_vel/nav" and "another gateway (run another-run)" in e.reason for e in bench.of(ErrorReport))
