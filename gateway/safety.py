@@ -282,7 +282,7 @@ class Governor:
         elif isinstance(state, EStopped):
             self.state = Driving(state.robot, current_at=now)
         else:
-            self.state = replace(state, heard_at=-math.inf)
+            self.state = replace(state, heard_at=-math.inf)  # a release while driving also wants a fresh cmd_vel
 
     def brake(self) -> None:
         """Stop now, whatever was commanded (a conflict, a lock); a fresh cmd_vel is needed to move again."""
@@ -296,6 +296,7 @@ class Governor:
         self.state = EStopped(Robot(), emg_at=now) if self.estop else Driving(Robot(), current_at=now)
 
     def on_link_down(self) -> None:
+        """The link closed: nothing is sent until the next one; a latched e-stop stays latched."""
         self.state = Offline(estop=self.estop)
 
     # ------------------------------------------------------------------ the robot's answers
@@ -358,8 +359,7 @@ class Governor:
         """The velocity to send now, if any; call on every event and every deadline (after EMG_STOP, see :meth:`emg_stop_due`)."""
         state, due = self.plan(now, congested)
         command = due.command if due.at <= now else None
-        if command is not None:
-            assert isinstance(state, Driving)  # only a driving state plans velocity
+        if command is not None and not isinstance(state, Offline):
             state = replace(state, robot=replace(state.robot, sent=_sending(state.robot.sent, command, now)))
         self.state = state
         return command
@@ -372,8 +372,9 @@ class Governor:
     def next_deadline(self, congested: bool = False) -> float:
         """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to do without a new input.
 
-        The time of what the state does next, as it stands (not brought up to any time).
-        ``congested`` as for :meth:`next_command`: then only what a stop needs counts.
+        The time of what the state does next, as it stands: the decision taken at -inf, when nothing is due yet
+        (a time not after the last input's means at once). ``congested`` as for :meth:`next_command`: then only
+        what a stop needs counts.
         """
         return self._due(self.state, -math.inf, congested).at
 
@@ -401,6 +402,7 @@ class Governor:
         if isinstance(state, EStopped):
             return Due(state.emg_at, emg_stop=True) if state.emg_pending else Due(state.recheck_at)
         wheels = self._wheels(state.current)[0]
+        # a ramp is stepped at least every RAMP_STEP_S; congested, only on its way to a stop (motion waits anyway)
         ramping = state.current != state.target and (not congested or state.target == STILL)
         return min(
             self._send(state, wheels, now, congested),  # first: a send and a look at the same time is a send

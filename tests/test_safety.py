@@ -11,7 +11,9 @@ governor it needs two things, for any sequence of inputs:
   and changes nothing but the time of the look, so sleeping until the
   deadline misses nothing. The one exception is an acceleration ramp, which
   is continuous: its deadline is its next step at the latest, and a look
-  before it takes the step earlier.
+  before it takes the step earlier. (The time of the look is the ramp's
+  clock: a ramp that starts later takes its first step from the last look,
+  as the governor always did.)
 """
 
 from __future__ import annotations
