@@ -39,6 +39,7 @@ from blackmetal.schemas import (
     Twist,
     WheelImpulses,
     decode,
+    encode,
     excerpt,
 )
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
@@ -97,7 +98,7 @@ class GatewayCore:
         self.counters = Counters()
         #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
         self.source = source or secrets.token_hex(6)
-        self.governor = Governor(settings.safety(), now)
+        self.governor = Governor(settings.safety())
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
@@ -223,7 +224,7 @@ class GatewayCore:
         if self.arbiter.active != previous:
             self._driver_changed(source, previous, Why.OUTRANKS)
         if admission is Admission.DRIVES:
-            self.governor.take_twist(twist, now)  # refusal() was asked above, with the same state
+            self._drive(source, twist, now, now)
             self._send_due(now)
 
     def on_superseded(self, source: str, count: int, now: float) -> None:
@@ -258,10 +259,22 @@ class GatewayCore:
         if change is None:
             return
         self._driver_changed(change.source, change.previous, change.why)
-        if change.twist is not None:
-            self.governor.on_twist(change.twist, change.heard_at)  # through the acceleration limits, timed from its command
+        if change.source is not None and change.twist is not None:  # through the acceleration limits, timed from its command
+            self._drive(change.source, change.twist, change.heard_at, now, handed_over=True)
         elif change.blocked:
             self.governor.brake()  # a lock stops the robot now; silence is the command timeout's to brake
+
+    def _drive(self, source: str, twist: Twist, heard_at: float, now: float, handed_over: bool = False) -> None:
+        """The driving source's command (heard at ``heard_at``) goes to the governor, or its refusal is reported like any refused cmd_vel.
+
+        A command that just passed :meth:`on_cmd_vel`'s checks is taken; one handed over from a source's past (its
+        last command, when the source before it fell silent or a lock changed) meets an e-stop, a dead link or a
+        second gateway that came since, and is refused like a new one.
+        """
+        refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at)
+        if refusal is not None:
+            reason = f"its last command, handed over to it, is refused: {refusal}" if handed_over else refusal
+            self.reject(self.keys.cmd_vel_of(source), reason, now, excerpt(encode(twist)))
 
     def _driver_changed(self, source: str | None, previous: str | None, why: Why) -> None:
         """Publish who drives now, who drove before and why (``<prefix>/gateway/driver``)."""

@@ -3,9 +3,20 @@
 Pure and clock-injected: the robot connection calls
 :meth:`Governor.next_command` and :meth:`Governor.emg_stop_due` on every
 event and at every deadline (:meth:`Governor.next_deadline`) and sends what
-they return; it reports the robot's answers back (:meth:`on_accepted`,
-:meth:`on_dropped`, :meth:`on_emg_stop_dropped`) and the wheel motion it
-polls (:meth:`observe_motion`). Nothing here knows about sockets or Zenoh.
+they return; it reports the robot's answers back (:meth:`~Governor.on_accepted`,
+:meth:`~Governor.on_dropped`, :meth:`~Governor.on_emg_stop_dropped`) and the
+wheel motion it polls (:meth:`~Governor.observe_motion`). Nothing here knows
+about sockets or Zenoh.
+
+The governor is in one of three states, frozen values that every input
+replaces: :class:`Offline` (no control link), :class:`EStopped` (the e-stop
+is latched: EMG_STOP, never motion) or :class:`Driving`. What a state does
+next, and from when, is one decision (:meth:`Governor.plan`):
+``next_command`` sends it once its time has come and ``next_deadline``
+reports that time, so the two cannot disagree. With no new input nothing is
+due before the deadline, and after ``next_command(now)`` the deadline lies
+after ``now`` (the host's timer never spins); while an acceleration ramp
+runs, its deadline is the next step at the latest.
 
 Stopping is confirmed, not assumed: a command the robot did not accept
 (FULL_BUFFER, or no reply) is re-sent after a growing pause (5 ms, 10 ms,
@@ -18,7 +29,7 @@ again, spaced the same way.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import Enum
 
 from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, UNITY_GAIN, WHEEL_SEPARATION, WheelGain, WheelSpeeds, twist_to_wheels
@@ -31,6 +42,12 @@ RETRY_CAP_S = 0.25
 STOP_GRACE_S = 0.5
 #: Rim speed below which a wheel counts as standing (m/s).
 STANDING_SPEED = 0.01
+#: While an acceleration limit holds the twist back from the commanded one, it is stepped at least this often (s).
+RAMP_STEP_S = 0.02
+
+#: A body twist: (v m/s, w rad/s).
+Velocity = tuple[float, float]
+STILL: Velocity = (0.0, 0.0)
 
 
 def retry_delay(attempt: int) -> float:
@@ -63,7 +80,7 @@ class SafetySettings:
 
 
 class Mode(Enum):
-    """What the governor is doing; every decision starts from it."""
+    """What the governor is doing, named; every decision starts from it (the :data:`State`'s kind)."""
 
     OFFLINE = "offline"  # no control link: nothing is sent and nothing is due
     ESTOP = "estop"  # the e-stop is latched: EMG_STOP (again while the wheels still turn), never motion
@@ -87,50 +104,148 @@ class VelocityCommand:
     reason: CommandReason
 
 
-class Governor:
-    """The gateway's safety state machine."""
+# ---------------------------------------------------------------------- the state
 
-    def __init__(self, settings: SafetySettings, now: float) -> None:
+
+@dataclass(frozen=True, slots=True)
+class Sent:
+    """The last velocity command written on this link, when, and its re-sends since the robot did not take it."""
+
+    wheels: WheelSpeeds
+    at: float
+    resends: int = 0
+    #: When it is re-sent next (None: no re-send planned).
+    resend_at: float | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class Robot:
+    """What this link told the robot and heard back; every new link starts from nothing."""
+
+    sent: Sent | None = None
+    #: The wheel speeds the robot last accepted (RECIEVE_OK), and when.
+    accepted: WheelSpeeds | None = None
+    accepted_at: float = -math.inf
+    #: The wheels turned at the last poll.
+    moving: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class Offline:
+    """No control link: nothing is sent and nothing is due; a latched e-stop stays latched for the next link."""
+
+    estop: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class EStopped:
+    """The e-stop is latched on a live link: EMG_STOP goes out, and again while the wheels still turn; never motion."""
+
+    robot: Robot
+    #: When EMG_STOP is due (pending) or was (written): the wheels get STOP_GRACE_S from then to come to rest.
+    emg_at: float
+    emg_pending: bool = True
+    emg_resends: int = 0
+    #: When the last valid cmd_vel was heard (the command timeout in health still counts from it).
+    heard_at: float = -math.inf
+
+    @property
+    def recheck_at(self) -> float:
+        """When EMG_STOP is asked for again because the wheels still turn (inf: they stand, or it is still to go out)."""
+        return self.emg_at + STOP_GRACE_S if self.robot.moving and not self.emg_pending else math.inf
+
+    def emg_again(self, now: float) -> EStopped:
+        """EMG_STOP once more, after a pause that grows with each time."""
+        resends = self.emg_resends + 1
+        return replace(self, emg_at=now + retry_delay(resends), emg_pending=True, emg_resends=resends)
+
+
+@dataclass(frozen=True, slots=True)
+class Driving:
+    """A live link, no e-stop: the commanded twist goes out through the limits, the timeout, the ramp and the rate cap.
+
+    What it sends next (a new command or one held for the rate cap, a re-send,
+    a stop asked for again, a keep-alive) is not stored but read off it by
+    :meth:`Governor.plan`.
+    """
+
+    robot: Robot
+    target: Velocity = STILL
+    #: When ``target`` was commanded; the command timeout counts from it (-inf: a fresh cmd_vel is needed to move).
+    heard_at: float = -math.inf
+    #: The twist after the acceleration limits, as of ``current_at``.
+    current: Velocity = STILL
+    current_at: float = -math.inf
+
+
+#: Everything the governor knows, as one value.
+State = Offline | EStopped | Driving
+
+
+@dataclass(frozen=True, slots=True)
+class Due:
+    """What a state does next with no new input, and from when (``at <= now``: now)."""
+
+    at: float
+    #: The velocity command then (None: only a look again: the command timeout, a ramp step, a check of the wheels).
+    command: VelocityCommand | None = None
+    #: EMG_STOP then, ahead of any velocity.
+    emg_stop: bool = False
+
+
+NOTHING_DUE = Due(math.inf)
+
+
+# ---------------------------------------------------------------------- the governor
+
+
+class Governor:
+    """The gateway's safety state machine: one :data:`State`, replaced by every input; see the module docstring."""
+
+    def __init__(self, settings: SafetySettings) -> None:
         self.settings = settings
-        self.estop = False
-        self.link_up = False
-        self.target = (0.0, 0.0)  # wanted (v, w)
-        self.current = (0.0, 0.0)  # after acceleration limits
-        self.last_cmd_at = -math.inf
-        #: The last command was scaled down to the wheel limit (keeping its curvature).
-        self.scaled = False
-        #: The wheel speeds the robot last accepted (None: nothing accepted on this connection).
-        self.accepted: WheelSpeeds | None = None
-        self.accepted_at = -math.inf
-        #: An EMG_STOP is to be sent (at or after ``_emg_at``).
-        self.emg_stop_needed = False
-        self._emg_at = -math.inf
-        self._emg_attempts = 0
-        self._last_update = now
-        self._last_sent: WheelSpeeds | None = None
-        self._last_sent_at = -math.inf
-        self._attempts = 0  # re-sends of _last_sent so far
-        self._retry_at: float | None = None
-        self._moving = False
-        #: When a rate-limited command may go out (None: nothing is waiting).
-        self.hold_until: float | None = None
+        self.state: State = Offline()
+
+    @property
+    def mode(self) -> Mode:
+        if isinstance(self.state, Offline):
+            return Mode.OFFLINE
+        return Mode.ESTOP if isinstance(self.state, EStopped) else Mode.DRIVING
+
+    @property
+    def estop(self) -> bool:
+        """The e-stop is latched (with or without a link)."""
+        state = self.state
+        return isinstance(state, EStopped) or (isinstance(state, Offline) and state.estop)
+
+    @property
+    def link_up(self) -> bool:
+        return not isinstance(self.state, Offline)
+
+    @property
+    def accepted(self) -> WheelSpeeds | None:
+        """The wheel speeds the robot last accepted on this link (None: nothing yet)."""
+        return None if isinstance(self.state, Offline) else self.state.robot.accepted
+
+    @property
+    def last_cmd_at(self) -> float:
+        """When the last valid cmd_vel was heard (-inf: none since the link came up, a release or a brake)."""
+        return -math.inf if isinstance(self.state, Offline) else self.state.heard_at
+
+    def timed_out(self, now: float) -> bool:
+        """True while no valid cmd_vel arrived within the command timeout."""
+        timeout = self.settings.cmd_timeout
+        return timeout > 0 and now >= self.last_cmd_at + timeout
+
+    @property
+    def scaled(self) -> bool:
+        """The current command is scaled down to the wheel limit (keeping its curvature)."""
+        return isinstance(self.state, Driving) and self._wheels(self.state.current)[1]
 
     # ------------------------------------------------------------------ inputs
 
-    def on_twist(self, twist: Twist, now: float) -> str | None:
-        """Accept a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
-        reason = self.refusal(twist)
-        if reason is None:
-            self.take_twist(twist, now)
-        return reason
-
-    def take_twist(self, twist: Twist, now: float) -> None:
-        """A command :meth:`refusal` has just passed becomes the target (the caller asked, with this state)."""
-        self.target = (twist.linear.x, twist.angular.z)
-        self.last_cmd_at = now
-
     def refusal(self, twist: Twist) -> str | None:
-        """Why a velocity command would be refused now, if it would."""
+        """Why a velocity command would be refused now, if it would (:meth:`on_twist` refuses it then)."""
         if self.estop:
             return 'emergency stop is engaged: cmd_vel refused until {"engaged": false} is put on estop'
         if not self.link_up:
@@ -143,200 +258,197 @@ class Governor:
             return f"angular.z {w!r} rad/s is beyond any plausible command (|w| <= {s.plausible_angular})"
         return None
 
+    def on_twist(self, twist: Twist, now: float) -> str | None:
+        """Take a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
+        reason = self.refusal(twist)
+        if reason is None and isinstance(self.state, Driving):
+            self.state = replace(self.state, target=(twist.linear.x, twist.angular.z), heard_at=now)
+        return reason
+
     def on_estop(self, engaged: bool, now: float) -> None:
-        if engaged:
-            if not self.estop:
-                self._request_emg_stop(now)
-            self.estop = True
-            self.target = self.current = (0.0, 0.0)
-            self._last_sent = STANDSTILL  # EMG_STOP stops the wheels; no velocity command needed
-            self._retry_at = None
+        """Latch (EMG_STOP at once; again on every new link) or release (a fresh cmd_vel is then needed to move again)."""
+        state = self.state
+        if isinstance(state, Offline):
+            self.state = Offline(estop=engaged)
+        elif engaged:
+            # EMG_STOP stops the wheels: as far as velocity goes, standstill was sent and nothing is to be re-sent
+            sent = state.robot.sent
+            standstill = Sent(STANDSTILL, -math.inf) if sent is None else replace(sent, wheels=STANDSTILL, resend_at=None)
+            robot = replace(state.robot, sent=standstill)
+            if isinstance(state, Driving):
+                self.state = EStopped(robot, emg_at=now, heard_at=state.heard_at)
+            else:
+                self.state = replace(state, robot=robot)
+        elif isinstance(state, EStopped):
+            self.state = Driving(state.robot, current_at=now)
         else:
-            self.estop = False
-            self.emg_stop_needed = False
-            self.last_cmd_at = -math.inf  # a fresh cmd_vel is needed to move again
+            self.state = replace(state, heard_at=-math.inf)  # a release while driving also wants a fresh cmd_vel
 
     def brake(self) -> None:
-        """Stop now, whatever was commanded (a conflict); a fresh cmd_vel is needed to move again."""
-        self.target = (0.0, 0.0)
-        self.last_cmd_at = -math.inf
+        """Stop now, whatever was commanded (a conflict, a lock); a fresh cmd_vel is needed to move again."""
+        if isinstance(self.state, Driving):
+            self.state = replace(self.state, target=STILL, heard_at=-math.inf)
+        elif isinstance(self.state, EStopped):
+            self.state = replace(self.state, heard_at=-math.inf)
 
     def on_link_up(self, now: float) -> None:
         """A new connection: the robot gets zero velocity (and EMG_STOP if latched), never an old motion."""
-        self.link_up = True
-        self._reset_motion()
-        if self.estop:
-            self._request_emg_stop(now)
+        self.state = EStopped(Robot(), emg_at=now) if self.estop else Driving(Robot(), current_at=now)
 
     def on_link_down(self) -> None:
-        self.link_up = False
-        self._reset_motion()
-        self.emg_stop_needed = False
-
-    def _reset_motion(self) -> None:
-        self.target = self.current = (0.0, 0.0)
-        self.last_cmd_at = -math.inf
-        self._last_sent = None
-        self.accepted = None
-        self._attempts = 0
-        self._retry_at = None
-        self._moving = False
-
-    def _request_emg_stop(self, now: float) -> None:
-        self.emg_stop_needed = True
-        self._emg_at = now
-        self._emg_attempts = 0
+        """The link closed: nothing is sent until the next one; a latched e-stop stays latched."""
+        self.state = Offline(estop=self.estop)
 
     # ------------------------------------------------------------------ the robot's answers
 
     def on_accepted(self, wheels: WheelSpeeds, now: float) -> None:
         """The robot answered RECIEVE_OK to a velocity command."""
-        self.accepted = wheels
-        self.accepted_at = now
-        if wheels == self._last_sent:
-            self._attempts = 0
-            self._retry_at = None
+        if isinstance(self.state, Offline):
+            return
+        robot = self.state.robot
+        sent = robot.sent
+        if sent is not None and wheels == sent.wheels:
+            sent = replace(sent, resends=0, resend_at=None)
+        self.state = replace(self.state, robot=replace(robot, sent=sent, accepted=wheels, accepted_at=now))
 
     def on_dropped(self, wheels: WheelSpeeds, now: float) -> str | None:
         """The robot did not take ``wheels`` (FULL_BUFFER, or no reply). Returns a reason to report, if any."""
-        if wheels != self._last_sent or self._retry_at is not None:
+        if isinstance(self.state, Offline):
+            return None
+        robot = self.state.robot
+        sent = robot.sent
+        if sent is None or wheels != sent.wheels or sent.resend_at is not None:
             return None  # superseded by a newer command, or a re-send is already planned
-        if not wheels.is_zero and self._attempts >= self.settings.full_buffer_retries:
-            return f"robot did not take the velocity command {self._attempts + 1} times: given up until the command changes"
-        self._attempts += 1
-        self._retry_at = now + retry_delay(self._attempts)
+        if not wheels.is_zero and sent.resends >= self.settings.full_buffer_retries:
+            return f"robot did not take the velocity command {sent.resends + 1} times: given up until the command changes"
+        resends = sent.resends + 1
+        sent = replace(sent, resends=resends, resend_at=now + retry_delay(resends))
+        self.state = replace(self.state, robot=replace(robot, sent=sent))
         return None
 
     def on_emg_stop_dropped(self, now: float) -> None:
         """EMG_STOP was not taken: send it again after a growing pause, for as long as the stop is engaged."""
-        if self.estop:
-            self._emg_attempts += 1
-            self.emg_stop_needed = True
-            self._emg_at = now + retry_delay(self._emg_attempts)
+        if isinstance(self.state, EStopped):
+            self.state = self.state.emg_again(now)
 
     def on_emg_stop_sent(self) -> None:
-        self.emg_stop_needed = False
+        if isinstance(self.state, EStopped):
+            self.state = replace(self.state, emg_pending=False)
 
     def observe_motion(self, left: float, right: float, now: float) -> None:
         """The wheels' rim speeds as polled (m/s)."""
-        self._moving = max(abs(left), abs(right)) > STANDING_SPEED
+        if not isinstance(self.state, Offline):
+            moving = max(abs(left), abs(right)) > STANDING_SPEED
+            self.state = replace(self.state, robot=replace(self.state.robot, moving=moving))
 
-    # ------------------------------------------------------------------ output
+    # ------------------------------------------------------------------ output: one decision
 
-    @property
-    def mode(self) -> Mode:
-        if not self.link_up:
-            return Mode.OFFLINE
-        return Mode.ESTOP if self.estop else Mode.DRIVING
+    def plan(self, now: float, congested: bool = False) -> tuple[State, Due]:
+        """The one decision: the state brought up to ``now``, and what it does next, from when.
 
-    def timed_out(self, now: float) -> bool:
-        """True while no valid cmd_vel arrived within the command timeout."""
-        timeout = self.settings.cmd_timeout
-        return timeout > 0 and now >= self.last_cmd_at + timeout
-
-    def emg_stop_due(self, now: float) -> bool:
-        """True when an EMG_STOP should go out now (before any velocity command)."""
-        return self.link_up and self.emg_stop_needed and now >= self._emg_at
-
-    def _unwanted_motion_at(self) -> float:
-        """When the robot, moving although it accepted a stop, should be asked to stop again (inf: not needed)."""
-        if not self._moving or self._last_sent is None or not self._last_sent.is_zero:
-            return math.inf
-        if self.accepted is None or not self.accepted.is_zero or self._retry_at is not None:
-            return math.inf
-        return max(self.accepted_at + STOP_GRACE_S, self._last_sent_at + RETRY_CAP_S)
-
-    def _estop_recheck_at(self) -> float:
-        """With the e-stop latched: when to ask for EMG_STOP again because the wheels still turn (inf: not needed)."""
-        if self._moving and not self.emg_stop_needed:
-            return self._emg_at + STOP_GRACE_S
-        return math.inf
-
-    def unwanted_motion(self, now: float) -> bool:
-        return now >= self._unwanted_motion_at()
+        Time alone brakes on the command timeout, steps the acceleration ramp
+        and asks for EMG_STOP again while the wheels still turn; then the next
+        output is read off the state. ``congested``: the robot is behind on its
+        replies; motion waits (the next reply calls again), a stop never does.
+        Pure: nothing is committed (:meth:`next_command` does).
+        """
+        state = self._advance(self.state, now)
+        return state, self._due(state, now, congested)
 
     def next_command(self, now: float, congested: bool = False) -> VelocityCommand | None:
-        """The velocity to send now, if any; call on every event and every deadline.
+        """The velocity to send now, if any; call on every event and every deadline (after EMG_STOP, see :meth:`emg_stop_due`)."""
+        state, due = self.plan(now, congested)
+        command = due.command if due.at <= now else None
+        if command is not None and not isinstance(state, Offline):
+            state = replace(state, robot=replace(state.robot, sent=_sending(state.robot.sent, command, now)))
+        self.state = state
+        return command
 
-        ``congested``: the robot is behind on its replies; motion waits (the
-        next reply calls again), a stop never does.
-        """
-        dt = max(0.0, now - self._last_update)
-        self._last_update = now
-        mode = self.mode
-        if mode is Mode.OFFLINE:
-            return None
-        if mode is Mode.ESTOP:
-            if now >= self._estop_recheck_at():
-                self.on_emg_stop_dropped(now)  # EMG_STOP taken but the wheels still turn: ask again
-            return None
-        if self.target != (0.0, 0.0) and self.timed_out(now):
-            self.target = (0.0, 0.0)  # brake
-        self.current = self._ramp(self.current, self.target, dt)
-        s = self.settings
-        wheels, self.scaled = twist_to_wheels(*self.current, s.wheel_separation, s.max_wheel_speed)
-        if not s.wheel_gain.is_unity:
-            wheels = wheels.scaled(s.wheel_gain)
-        wheels = wheels.rounded()
-        if congested and not wheels.is_zero:
-            return None
-        if wheels != self._last_sent:
-            earliest = self._last_sent_at + 1.0 / s.max_command_hz
-            if now < earliest and self._last_sent is not None:
-                self.hold_until = earliest  # coalesce: the latest wanted command goes out then
-                return None
-            self.hold_until = None
-            self._attempts = 0
-            self._retry_at = None
-            return self._sent(wheels, now, CommandReason.NEW)
-        self.hold_until = None
-        if self._retry_at is not None and now >= self._retry_at:
-            self._retry_at = None
-            return self._sent(wheels, now, CommandReason.RETRY)
-        if self.unwanted_motion(now):
-            return self._sent(wheels, now, CommandReason.STOP_AGAIN)
-        if not wheels.is_zero and now >= self._last_sent_at + s.keepalive:
-            return self._sent(wheels, now, CommandReason.KEEPALIVE)
-        return None
-
-    def _sent(self, wheels: WheelSpeeds, now: float, reason: CommandReason) -> VelocityCommand:
-        self._last_sent = wheels
-        self._last_sent_at = now
-        return VelocityCommand(wheels, reason)
+    def emg_stop_due(self, now: float) -> bool:
+        """True when an EMG_STOP should go out now (before any velocity command); :meth:`on_emg_stop_sent` once it did."""
+        due = self.plan(now)[1]
+        return due.emg_stop and due.at <= now
 
     def next_deadline(self, congested: bool = False) -> float:
-        """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to send without a new input.
+        """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to do without a new input.
 
-        ``congested`` as for :meth:`next_command`: then only what a stop needs counts (motion waits for a reply).
+        The time of what the state does next, as it stands: the decision taken at -inf, when nothing is due yet
+        (a time not after the last input's means at once). ``congested`` as for :meth:`next_command`: then only
+        what a stop needs counts.
         """
-        mode = self.mode
-        if mode is Mode.OFFLINE:
-            return math.inf
-        deadline = self._emg_at if self.emg_stop_needed else math.inf
-        if mode is Mode.ESTOP:
-            return min(deadline, self._estop_recheck_at())
-        s = self.settings
-        if self.target != (0.0, 0.0) and s.cmd_timeout > 0:
-            deadline = min(deadline, self.last_cmd_at + s.cmd_timeout)
-        deadline = min(deadline, self._unwanted_motion_at())
-        stopping = self._last_sent is not None and self._last_sent.is_zero
-        if congested and not (stopping and self.target == (0.0, 0.0)):
-            return deadline  # motion waits for the robot's replies, which call again
-        if self.hold_until is not None:
-            deadline = min(deadline, self.hold_until)
-        if self._retry_at is not None:
-            deadline = min(deadline, self._retry_at)
-        if self._last_sent is not None and not self._last_sent.is_zero:
-            deadline = min(deadline, self._last_sent_at + s.keepalive)
-        if self.current != self.target:  # ramping under an acceleration limit
-            deadline = min(deadline, self._last_update + 0.02)
-        return deadline
+        return self._due(self.state, -math.inf, congested).at
 
-    def _ramp(self, current: tuple[float, float], target: tuple[float, float], dt: float) -> tuple[float, float]:
+    # ------------------------------------------------------------------ the decision's parts
+
+    def _advance(self, state: State, now: float) -> State:
+        """What time alone changes by ``now``: the brake on the command timeout, the ramp, EMG_STOP asked again."""
+        if isinstance(state, EStopped) and now >= state.recheck_at:
+            return state.emg_again(now)  # EMG_STOP was taken but the wheels still turn
+        if not isinstance(state, Driving):
+            return state
+        target = STILL if now >= self._brake_at(state) else state.target
+        dt = max(0.0, now - state.current_at)
         s = self.settings
-        v = _approach(current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt)
-        w = _approach(current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt)
-        return v, w
+        current = (
+            _approach(state.current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt),
+            _approach(state.current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt),
+        )
+        return replace(state, target=target, current=current, current_at=max(state.current_at, now))
+
+    def _due(self, state: State, now: float, congested: bool) -> Due:
+        """What ``state`` does next and from when; ``now`` only ranks several re-sends that are all due."""
+        if isinstance(state, Offline):
+            return NOTHING_DUE
+        if isinstance(state, EStopped):
+            return Due(state.emg_at, emg_stop=True) if state.emg_pending else Due(state.recheck_at)
+        wheels = self._wheels(state.current)[0]
+        # a ramp is stepped at least every RAMP_STEP_S; congested, only on its way to a stop (motion waits anyway)
+        ramping = state.current != state.target and (not congested or state.target == STILL)
+        return min(
+            self._send(state, wheels, now, congested),  # first: a send and a look at the same time is a send
+            Due(self._brake_at(state)),
+            Due(state.current_at + RAMP_STEP_S if ramping else math.inf),
+            key=lambda due: due.at,
+        )
+
+    def _send(self, state: Driving, wheels: WheelSpeeds, now: float, congested: bool) -> Due:
+        """The velocity command a driving state sends next, and from when."""
+        if congested and not wheels.is_zero:
+            return NOTHING_DUE  # motion waits for the robot's replies, which call again
+        s = self.settings
+        sent = state.robot.sent
+        if sent is None or wheels != sent.wheels:  # coalesced: the latest wanted command goes out once the rate cap allows
+            return Due(-math.inf if sent is None else sent.at + 1.0 / s.max_command_hz, VelocityCommand(wheels, CommandReason.NEW))
+        again: list[Due] = []
+        if sent.resend_at is not None:
+            again.append(Due(sent.resend_at, VelocityCommand(wheels, CommandReason.RETRY)))
+        elif wheels.is_zero and state.robot.moving and state.robot.accepted is not None and state.robot.accepted.is_zero:
+            # the robot accepted a stop but its wheels still turn: give them time to come to rest, then ask again
+            at = max(state.robot.accepted_at + STOP_GRACE_S, sent.at + RETRY_CAP_S)
+            again.append(Due(at, VelocityCommand(wheels, CommandReason.STOP_AGAIN)))
+        if not wheels.is_zero:
+            again.append(Due(sent.at + s.keepalive, VelocityCommand(wheels, CommandReason.KEEPALIVE)))
+        return next((due for due in again if due.at <= now), min(again, key=lambda due: due.at, default=NOTHING_DUE))
+
+    def _brake_at(self, state: Driving) -> float:
+        """When the command timeout brakes (inf: standing still, or no timeout)."""
+        timeout = self.settings.cmd_timeout
+        return state.heard_at + timeout if timeout > 0 and state.target != STILL else math.inf
+
+    def _wheels(self, twist: Velocity) -> tuple[WheelSpeeds, bool]:
+        """The wheel speeds the robot is asked for to drive ``twist``, as the wire carries them, and whether they were scaled down."""
+        s = self.settings
+        wheels, scaled = twist_to_wheels(*twist, s.wheel_separation, s.max_wheel_speed)
+        if not s.wheel_gain.is_unity:
+            wheels = wheels.scaled(s.wheel_gain)
+        return wheels.rounded(), scaled
+
+
+def _sending(sent: Sent | None, command: VelocityCommand, now: float) -> Sent:
+    """What was sent, once ``command`` is: a new command starts afresh; a repeat keeps its count of re-sends."""
+    if command.reason is CommandReason.NEW or sent is None:
+        return Sent(command.wheels, now)
+    return replace(sent, at=now, resend_at=None if command.reason is CommandReason.RETRY else sent.resend_at)
 
 
 def _approach(value: float, target: float, max_step: float | None) -> float:

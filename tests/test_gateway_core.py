@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 
 from blackmetal import wire
 from blackmetal.gateway.exchange import Completed, Exchange, Lost
-from blackmetal.gateway.safety import CommandReason, Governor, SafetySettings
+from blackmetal.gateway.safety import CommandReason, Driving, EStopped, Governor, Mode, Offline, Robot, SafetySettings, Sent
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.robot_model import WheelGain, WheelSpeeds, twist_to_wheels, wheels_to_twist
 from blackmetal.runtime.reports import ReportLimiter
@@ -60,9 +60,28 @@ def test_wheels_never_exceed_the_limit_and_keep_the_curvature(v: float, w: float
 
 
 def governor(**overrides: object) -> Governor:
-    gov = Governor(SafetySettings(**overrides), now=0.0)  # type: ignore[arg-type]
+    gov = Governor(SafetySettings(**overrides))  # type: ignore[arg-type]
     gov.on_link_up(0.0)
     return gov
+
+
+def test_the_governor_is_in_one_named_state() -> None:
+    gov = Governor(SafetySettings())
+    assert gov.state == Offline() and gov.mode is Mode.OFFLINE
+    gov.on_link_up(0.0)
+    assert gov.state == Driving(Robot(), current_at=0.0) and gov.mode is Mode.DRIVING
+    gov.next_command(0.0)
+    gov.on_estop(True, 1.0)  # EMG_STOP due at once; as far as velocity goes, standstill was sent
+    assert gov.state == EStopped(Robot(sent=Sent(WheelSpeeds(left=0.0, right=0.0), 0.0)), emg_at=1.0)
+    assert gov.emg_stop_due(1.0) and gov.next_deadline() == 1.0
+    gov.on_emg_stop_sent()
+    assert not gov.emg_stop_due(1.0) and gov.next_deadline() == float("inf")
+    gov.on_link_down()
+    assert gov.state == Offline(estop=True)
+    gov.on_link_up(2.0)  # latched across the reconnect: EMG_STOP again
+    assert gov.state == EStopped(Robot(), emg_at=2.0)
+    gov.on_estop(False, 3.0)
+    assert gov.state == Driving(Robot(), current_at=3.0)
 
 
 def test_link_up_sends_zero_then_commands_are_sent_once() -> None:
@@ -233,8 +252,9 @@ def test_a_flood_is_coalesced_to_the_latest_command() -> None:
         if (cmd := gov.next_command(now)) is not None:
             sent.append((now, cmd.wheels.left))
     assert len(sent) <= 11  # at most 100 Hz reach the robot
-    assert gov.hold_until is not None and gov.hold_until <= 1.1 + 0.01
-    final = gov.next_command(gov.hold_until)
+    _, held = gov.plan(1.1)  # the latest one waits for the rate cap, its time is the deadline
+    assert held.command is not None and held.at == gov.next_deadline() <= 1.1 + 0.01
+    final = gov.next_command(held.at)
     assert final is not None and final.wheels.left == pytest.approx(0.1)  # the latest one, not a backlog
 
 
