@@ -205,6 +205,12 @@ class Governor:
     def __init__(self, settings: SafetySettings) -> None:
         self.settings = settings
         self.state: State = Offline()
+        # The decision is asked three times per input (emg_stop_due, next_command, next_deadline) of one state at one
+        # time: each answer is kept for the state object it was made of (states are immutable), and the wheel speeds
+        # for the twist and settings they were made of. A command costs one decision, not three.
+        self._planned: tuple[State, float, bool, SafetySettings, State, Due] | None = None
+        self._deadline: tuple[State, bool, SafetySettings, float] | None = None
+        self._wheels_of: tuple[Velocity, SafetySettings, tuple[WheelSpeeds, bool]] | None = None
 
     @property
     def mode(self) -> Mode:
@@ -262,7 +268,8 @@ class Governor:
         """Take a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
         reason = self.refusal(twist)
         if reason is None and isinstance(self.state, Driving):
-            self.state = replace(self.state, target=(twist.linear.x, twist.angular.z), heard_at=now)
+            state = self.state
+            self.state = Driving(state.robot, (twist.linear.x, twist.angular.z), now, state.current, state.current_at)
         return reason
 
     def on_estop(self, engaged: bool, now: float) -> None:
@@ -307,9 +314,9 @@ class Governor:
             return
         robot = self.state.robot
         sent = robot.sent
-        if sent is not None and wheels == sent.wheels:
-            sent = replace(sent, resends=0, resend_at=None)
-        self.state = replace(self.state, robot=replace(robot, sent=sent, accepted=wheels, accepted_at=now))
+        if sent is not None and wheels == sent.wheels and (sent.resends or sent.resend_at is not None):
+            sent = Sent(sent.wheels, sent.at)
+        self.state = _with_robot(self.state, Robot(sent, wheels, now, robot.moving))
 
     def on_dropped(self, wheels: WheelSpeeds, now: float) -> str | None:
         """The robot did not take ``wheels`` (FULL_BUFFER, or no reply). Returns a reason to report, if any."""
@@ -339,7 +346,9 @@ class Governor:
         """The wheels' rim speeds as polled (m/s)."""
         if not isinstance(self.state, Offline):
             moving = max(abs(left), abs(right)) > STANDING_SPEED
-            self.state = replace(self.state, robot=replace(self.state.robot, moving=moving))
+            robot = self.state.robot
+            if moving != robot.moving:  # most polls change nothing: the state, and what was decided of it, stay
+                self.state = _with_robot(self.state, Robot(robot.sent, robot.accepted, robot.accepted_at, moving))
 
     # ------------------------------------------------------------------ output: one decision
 
@@ -352,20 +361,34 @@ class Governor:
         replies; motion waits (the next reply calls again), a stop never does.
         Pure: nothing is committed (:meth:`next_command` does).
         """
+        planned = self._planned
+        if (
+            planned is not None
+            and planned[0] is self.state
+            and planned[1] == now
+            and planned[2] == congested
+            and planned[3] is self.settings
+        ):
+            return planned[4], planned[5]
         state = self._advance(self.state, now)
-        return state, self._due(state, now, congested)
+        due = self._due(state, now, congested)
+        self._planned = (self.state, now, congested, self.settings, state, due)
+        return state, due
 
     def next_command(self, now: float, congested: bool = False) -> VelocityCommand | None:
         """The velocity to send now, if any; call on every event and every deadline (after EMG_STOP, see :meth:`emg_stop_due`)."""
         state, due = self.plan(now, congested)
         command = due.command if due.at <= now else None
         if command is not None and not isinstance(state, Offline):
-            state = replace(state, robot=replace(state.robot, sent=_sending(state.robot.sent, command, now)))
+            robot = state.robot
+            state = _with_robot(state, Robot(_sending(robot.sent, command, now), robot.accepted, robot.accepted_at, robot.moving))
         self.state = state
         return command
 
     def emg_stop_due(self, now: float) -> bool:
         """True when an EMG_STOP should go out now (before any velocity command); :meth:`on_emg_stop_sent` once it did."""
+        if not isinstance(self.state, EStopped):
+            return False  # only a latched e-stop sends EMG_STOP
         due = self.plan(now)[1]
         return due.emg_stop and due.at <= now
 
@@ -376,7 +399,12 @@ class Governor:
         (a time not after the last input's means at once). ``congested`` as for :meth:`next_command`: then only
         what a stop needs counts.
         """
-        return self._due(self.state, -math.inf, congested).at
+        kept = self._deadline
+        if kept is not None and kept[0] is self.state and kept[1] == congested and kept[2] is self.settings:
+            return kept[3]
+        at = self._due(self.state, -math.inf, congested).at
+        self._deadline = (self.state, congested, self.settings, at)
+        return at
 
     # ------------------------------------------------------------------ the decision's parts
 
@@ -393,7 +421,10 @@ class Governor:
             _approach(state.current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt),
             _approach(state.current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt),
         )
-        return replace(state, target=target, current=current, current_at=max(state.current_at, now))
+        current_at = max(state.current_at, now)
+        if target == state.target and current == state.current and current_at == state.current_at:
+            return state  # nothing changed: the same object, so what was decided of it still holds
+        return Driving(state.robot, target, state.heard_at, current, current_at)
 
     def _due(self, state: State, now: float, congested: bool) -> Due:
         """What ``state`` does next and from when; ``now`` only ranks several re-sends that are all due."""
@@ -404,12 +435,9 @@ class Governor:
         wheels = self._wheels(state.current)[0]
         # a ramp is stepped at least every RAMP_STEP_S; congested, only on its way to a stop (motion waits anyway)
         ramping = state.current != state.target and (not congested or state.target == STILL)
-        return min(
-            self._send(state, wheels, now, congested),  # first: a send and a look at the same time is a send
-            Due(self._brake_at(state)),
-            Due(state.current_at + RAMP_STEP_S if ramping else math.inf),
-            key=lambda due: due.at,
-        )
+        send = self._send(state, wheels, now, congested)
+        look = min(self._brake_at(state), state.current_at + RAMP_STEP_S if ramping else math.inf)
+        return send if send.at <= look else Due(look)  # a send and a look at the same time is a send
 
     def _send(self, state: Driving, wheels: WheelSpeeds, now: float, congested: bool) -> Due:
         """The velocity command a driving state sends next, and from when."""
@@ -419,16 +447,20 @@ class Governor:
         sent = state.robot.sent
         if sent is None or wheels != sent.wheels:  # coalesced: the latest wanted command goes out once the rate cap allows
             return Due(-math.inf if sent is None else sent.at + 1.0 / s.max_command_hz, VelocityCommand(wheels, CommandReason.NEW))
-        again: list[Due] = []
+        # a re-send (or a stop asked for again) first, then the keep-alive: the first already due, else the earliest
+        first: Due | None = None
         if sent.resend_at is not None:
-            again.append(Due(sent.resend_at, VelocityCommand(wheels, CommandReason.RETRY)))
+            first = Due(sent.resend_at, VelocityCommand(wheels, CommandReason.RETRY))
         elif wheels.is_zero and state.robot.moving and state.robot.accepted is not None and state.robot.accepted.is_zero:
             # the robot accepted a stop but its wheels still turn: give them time to come to rest, then ask again
             at = max(state.robot.accepted_at + STOP_GRACE_S, sent.at + RETRY_CAP_S)
-            again.append(Due(at, VelocityCommand(wheels, CommandReason.STOP_AGAIN)))
-        if not wheels.is_zero:
-            again.append(Due(sent.at + s.keepalive, VelocityCommand(wheels, CommandReason.KEEPALIVE)))
-        return next((due for due in again if due.at <= now), min(again, key=lambda due: due.at, default=NOTHING_DUE))
+            first = Due(at, VelocityCommand(wheels, CommandReason.STOP_AGAIN))
+        if wheels.is_zero:
+            return NOTHING_DUE if first is None else first
+        keepalive_at = sent.at + s.keepalive
+        if first is not None and (first.at <= now or first.at <= keepalive_at):
+            return first
+        return Due(keepalive_at, VelocityCommand(wheels, CommandReason.KEEPALIVE))
 
     def _brake_at(self, state: Driving) -> float:
         """When the command timeout brakes (inf: standing still, or no timeout)."""
@@ -438,17 +470,30 @@ class Governor:
     def _wheels(self, twist: Velocity) -> tuple[WheelSpeeds, bool]:
         """The wheel speeds the robot is asked for to drive ``twist``, as the wire carries them, and whether they were scaled down."""
         s = self.settings
+        kept = self._wheels_of
+        if kept is not None and kept[0] == twist and kept[1] is s:
+            return kept[2]
         wheels, scaled = twist_to_wheels(*twist, s.wheel_separation, s.max_wheel_speed)
         if not s.wheel_gain.is_unity:
             wheels = wheels.scaled(s.wheel_gain)
-        return wheels.rounded(), scaled
+        result = (wheels.rounded(), scaled)
+        self._wheels_of = (twist, s, result)
+        return result
 
 
 def _sending(sent: Sent | None, command: VelocityCommand, now: float) -> Sent:
     """What was sent, once ``command`` is: a new command starts afresh; a repeat keeps its count of re-sends."""
     if command.reason is CommandReason.NEW or sent is None:
         return Sent(command.wheels, now)
-    return replace(sent, at=now, resend_at=None if command.reason is CommandReason.RETRY else sent.resend_at)
+    return Sent(sent.wheels, now, sent.resends, None if command.reason is CommandReason.RETRY else sent.resend_at)
+
+
+def _with_robot(state: EStopped | Driving, robot: Robot) -> EStopped | Driving:
+    """``state`` with ``robot`` (what the link told the robot and heard back): a constructor call, several times cheaper
+    than ``dataclasses.replace``, on the path every command and every reply takes."""
+    if isinstance(state, Driving):
+        return Driving(robot, state.target, state.heard_at, state.current, state.current_at)
+    return EStopped(robot, state.emg_at, state.emg_pending, state.emg_resends, state.heard_at)
 
 
 def _approach(value: float, target: float, max_step: float | None) -> float:
