@@ -175,6 +175,7 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                 )
                 await host.run(stop)
             finally:
+                wiring.stop()
                 for port in ports.values():
                     port.edge = None
                 for edge in reversed(edges):

@@ -77,6 +77,7 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
             try:
                 await host.run(stop)
             finally:
+                wiring.stop()
                 port.edge = None
                 edge.close()
     finally:

@@ -11,6 +11,7 @@ parameter gets and sets to the right robot's gateway.
 
 from __future__ import annotations
 
+import asyncio
 import logging
 
 from blackmetal.runtime.reports import ErrorReporter
@@ -19,7 +20,7 @@ from blackmetal.schemas import ErrorReport
 from .core import FLEET_NAMESPACE, Controls, FleetView, LiveView, StatusLevel
 from .host import FoxgloveHost
 from .watch import Watch
-from .zenoh_edge import FoxgloveZenoh, Reply
+from .zenoh_edge import DRAIN_PERIOD_S, FoxgloveZenoh, Reply
 
 log = logging.getLogger("blackmetal.foxglove")
 
@@ -118,6 +119,7 @@ class Wiring:
         self.fleet_reporter = fleet_reporter
         self._descriptions = {port.view.description_topic: port for port in ports.values()}
         self._peeking = False
+        self._drain: asyncio.TimerHandle | None = None
 
     # Viewer
     def subscribed(self, topic: str) -> None:
@@ -131,6 +133,12 @@ class Wiring:
         for port in self.ports.values():
             if port.edge is not None:
                 port.edge.want({key for key in port.view.handlers() if key in needed})
+        following = any(port.edge is not None and port.edge.declared for port in self.ports.values())
+        if following and self._drain is None:
+            self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
+        elif not following and self._drain is not None:
+            self._drain.cancel()
+            self._drain = None
         if self.fleet is not None:
             follows = any(self.watch.watched(topic) for topic in self.fleet.fleet_topics)
             if not follows:
@@ -142,6 +150,21 @@ class Wiring:
                     if port.edge is not None:
                         port.edge.peek(peek)
             self.fleet.poses = self.latest_pose
+
+    def _take(self) -> None:
+        """Every :data:`DRAIN_PERIOD_S` while a key is followed: what the watched keys brought, to the view."""
+        self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
+        for port in self.ports.values():
+            if port.edge is not None:
+                port.edge.drain()
+        port_host = next(iter(self.ports.values())).host
+        port_host.poke()
+
+    def stop(self) -> None:
+        """No more draining (the edges are closing)."""
+        if self._drain is not None:
+            self._drain.cancel()
+            self._drain = None
 
     def latest_pose(self, robot_id: str) -> bytes | None:
         port = self.ports.get(robot_id)
