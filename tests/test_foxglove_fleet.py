@@ -211,6 +211,14 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
             rid = config["followTf"].split("/")[0]
             assert (config["fixedFrame"], config["followTf"]) == (robot_frame(rid, "odom"), robot_frame(rid, "base_link"))
             assert all(topic.startswith(f"/{rid}/") for topic in config["topics"])
+            (urdf,) = config["layers"].values()  # its robot's model: the URDF's links are r2/... already
+            assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
+                "foxglove.Urdf",
+                "topic",
+                f"/{rid}/robot_description",
+                "",
+            )
+            shown.add(urdf["topic"])
         elif kind == "Plot":
             shown.update(path["value"].split(".")[0] for path in config["paths"])
         elif kind in ("Log", "DiagnosticsSummary"):
@@ -222,7 +230,7 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown <= topics, shown - topics
-    assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} <= shown
+    assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} | {f"/{rid}/robot_description" for rid in IDS} <= shown
     assert set(published) == {control_topic(robot_namespace(rid), c) for rid in IDS for c in Control}
     assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}
 

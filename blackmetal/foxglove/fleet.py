@@ -133,6 +133,8 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                     edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug, presence=port.on_token)
                     port.edge = edge
                 wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+                for robot_view in view.views.values():
+                    robot_view.describe()  # each URDF, into the MCAP file if there is one (a client gets it when it subscribes)
                 address = host.url
                 print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
                 for r, s in zip(robots, settings, strict=True):

@@ -55,6 +55,7 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
             edge.attach(view, port, asyncio.get_running_loop(), on_error=port.on_bug)
             port.edge = edge
             wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+            view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
             edge.ask_params()
             address = host.url
             print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
