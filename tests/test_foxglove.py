@@ -35,6 +35,8 @@ EXPECTED = {
     "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
     "/errors": "ErrorReport",
     "/log": "foxglove.Log",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/robot_description": "std_msgs/msg/String",
 }
 
 
@@ -100,7 +102,9 @@ def test_foxglove_client_sees_the_robot_drive(children: list[Child], tmp_path: P
     assert view.stop() == 0
     with open(mcap_path, "rb") as handle:
         topics = {channel.topic for _, channel, _ in make_reader(handle).iter_messages()}
-    assert {"/pose", "/tf", "/path", "/odometry", "/wheels"} <= topics
+    assert {"/pose", "/tf", "/path", "/odometry", "/wheels", "/joint_states", "/robot_description"} <= topics, (
+        "an MCAP file takes every channel"
+    )
 
 
 def panels(node: Any) -> Iterator[dict[str, Any]]:
@@ -127,6 +131,14 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
         if kind == "ThreeDee":
             shown.update(config["topics"])
             assert config["followTf"] == "base_link"
+            (urdf,) = config["layers"].values()  # the robot model, from the view's URDF topic (links unprefixed)
+            assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
+                "foxglove.Urdf",
+                "topic",
+                "/robot_description",
+                "",
+            )
+            shown.add(urdf["topic"])
         elif kind == "Plot":
             shown.update(path["value"].split(".")[0] for path in config["paths"])
         elif kind in ("Log", "DiagnosticsSummary"):
@@ -141,8 +153,8 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown and shown <= set(EXPECTED), shown - set(EXPECTED)
-    assert {"/odometry", "/log", "/path", "/diagnostics"} <= shown
-    assert {"Teleop", "Publish", "DiagnosticsSummary"} <= kinds
+    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description"} <= shown
+    assert {"Teleop", "Publish", "DiagnosticsSummary", "Parameters"} <= kinds
     assert set(published) == {"/cmd_vel", "/estop"}
     (stop_button,) = published["/estop"]
     assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}

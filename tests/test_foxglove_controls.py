@@ -325,7 +325,7 @@ class FoxClient:
         deadline = time.monotonic() + timeout
         while not (value := condition()):
             if time.monotonic() > deadline:
-                raise AssertionError(f"timed out waiting for {what}; received {self.ops[-5:]}")
+                raise AssertionError(f"timed out waiting for {what}; received {[str(op)[:300] for op in self.ops[-5:]]}")
             self.pump()
         return value
 

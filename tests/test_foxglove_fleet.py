@@ -13,6 +13,7 @@ errors key only.
 from __future__ import annotations
 
 import json
+import math
 import struct
 import subprocess
 import sys
@@ -30,6 +31,7 @@ from test_foxglove_controls import TWIST_FORWARD, Bench, FoxClient, health
 
 from blackmetal.foxglove.core import (
     COMMAND_SOURCE,
+    Change,
     Control,
     Controls,
     FleetControls,
@@ -83,22 +85,51 @@ def _health(stamp: float, estop: bool = False, source: str | None = None, state:
     )
 
 
-def test_the_summary_shows_each_robots_link_poll_rate_estop_and_driver_on_message_time() -> None:
+def test_the_summary_shows_each_robots_link_poll_rate_estop_and_driver() -> None:
     summary = FleetSummary([(rid, f"fleet/{rid}") for rid in IDS])
-    summary.on_health("r1", _health(10.0, estop=True))
-    summary.on_health("r2", _health(10.5, source="foxglove", state="connecting"))
+    summary.on_health("r1", _health(10.0, estop=True), now=100.0)
+    summary.on_health("r2", _health(10.5, source="foxglove", state="connecting"), now=100.5)
     summary.on_pose("r2", Pose(stamp=10.5, x=1.0, y=2.0, yaw=0.5))
-    message = summary.message()
+    message = summary.message(now=101.0)
     rows = {row["id"]: row for row in message["robots"]}
     assert [row["id"] for row in message["robots"]] == list(IDS)
     assert rows["r1"]["link"] == "connected/connected" and rows["r1"]["estop"] is True and rows["r1"]["poll_hz"] == 50.0
+    assert rows["r1"]["health_age"] == 1.0
     assert rows["r2"]["link"] == "connecting/connected" and (rows["r2"]["x"], rows["r2"]["y"]) == (1.0, 2.0)
     assert rows["r3"]["link"] == "no health" and rows["r3"]["estop"] is None and rows["r3"]["poll_hz"] == 0.0
-    assert message["robots_up"] == 1 and message["estop"] == ["r1"] and message["driving"] == {"r2": "foxglove"}
-    summary.on_health("r3", _health(14.0))  # r1's last health is now 4 s behind the fleet's newest
-    rows = {row["id"]: row for row in summary.message()["robots"]}
-    assert rows["r1"]["link"] == "stale" and rows["r1"]["health_age"] == 4.0 and rows["r1"]["poll_hz"] == 0.0
-    json.dumps(summary.message())  # what the channel carries
+    assert message["robots_up"] == 1 and message["estop"] == ["r1"] and message["driving"] == {"r2": "foxglove"} and message["lost"] == []
+    json.dumps(summary.message(now=101.0))  # what the channel carries
+
+
+def test_a_robot_is_lost_when_its_health_stops_or_its_token_goes_and_back_with_its_next_health() -> None:
+    summary = FleetSummary([(rid, f"fleet/{rid}") for rid in IDS])
+    for rid in IDS:
+        summary.on_token(rid, True, now=0.0)
+    now = 0.0
+    while now < 5.0:  # every robot's health once a second; r2's host drops off after 2.0 s
+        for rid in IDS:
+            if rid != "r2" or now <= 2.0:
+                assert summary.on_health(rid, _health(now), now=now) is None
+        now += 1.0
+        changes = []
+        while summary.next_deadline() <= now:
+            changes += summary.tick(summary.next_deadline())
+        if changes:
+            assert [(c.robot_id, c.change) for c in changes] == [("r2", Change.LOST)] and "no health for 2.5 s" in changes[0].reason
+            lost_at = summary.next_deadline()
+            break
+    assert summary.rows["r2"].lost and now == 5.0, "lost 2.5 s after its last health (at 2.0), seen by the tick due at 4.5"
+    message = summary.message(now)
+    assert message["lost"] == ["r2"] and message["robots_up"] == 2 and "lost" in {r["id"]: r for r in message["robots"]}["r2"]["link"]
+    assert lost_at > now, "r1 and r3 still on time"
+    back = summary.on_health("r2", _health(now), now=now)
+    assert back is not None and back.change is Change.BACK and summary.message(now)["lost"] == []
+    gone = summary.on_token("r3", False, now=5.1)
+    assert gone is not None and gone.change is Change.LOST and "liveliness token gone" in gone.reason
+    assert summary.on_token("r3", False, now=5.2) is None, "lost once"
+    summary.suspend()  # nobody follows health any more: no robot is lost for that silence
+    assert summary.next_deadline() == math.inf and summary.tick(100.0) == []
+    assert summary.message(100.0)["lost"] == ["r3"], "a gone token stays lost"
 
 
 # --------------------------------------------------------------------------- pure: FleetControls, on a fake clock
@@ -180,6 +211,14 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
             rid = config["followTf"].split("/")[0]
             assert (config["fixedFrame"], config["followTf"]) == (robot_frame(rid, "odom"), robot_frame(rid, "base_link"))
             assert all(topic.startswith(f"/{rid}/") for topic in config["topics"])
+            (urdf,) = config["layers"].values()  # its robot's model: the URDF's links are r2/... already
+            assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
+                "foxglove.Urdf",
+                "topic",
+                f"/{rid}/robot_description",
+                "",
+            )
+            shown.add(urdf["topic"])
         elif kind == "Plot":
             shown.update(path["value"].split(".")[0] for path in config["paths"])
         elif kind in ("Log", "DiagnosticsSummary"):
@@ -191,7 +230,7 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown <= topics, shown - topics
-    assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} <= shown
+    assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} | {f"/{rid}/robot_description" for rid in IDS} <= shown
     assert set(published) == {control_topic(robot_namespace(rid), c) for rid in IDS for c in Control}
     assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}
 
@@ -308,7 +347,9 @@ def test_one_view_shows_and_drives_a_fleet_of_three(children: list[Child], tmp_p
                 return {(t.parent_frame_id, t.child_frame_id) for t in map(tf_class.FromString, client.messages[2])}
 
             client.wait(lambda: {(f"{rid}/odom", f"{rid}/base_link") for rid in IDS} <= frames(), "every robot's transform")
-            assert len(frames()) == 3
+            wheels = {(f"{rid}/base_link", f"{rid}/{wheel}") for rid in IDS for wheel in ("left_wheel", "right_wheel")}
+            client.wait(lambda: wheels <= frames(), "every robot's wheels turning")
+            assert len(frames()) == 9
 
             def summary() -> dict[str, Any] | None:
                 last = json.loads(client.messages[3][-1]) if client.messages[3] else None

@@ -55,7 +55,7 @@ from collections import deque
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
 from enum import Enum, IntEnum
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import msgspec
 
@@ -65,6 +65,7 @@ from blackmetal.schemas import (
     ErrorReport,
     EStop,
     GatewayHealth,
+    GatewayParams,
     Keys,
     LinkHealth,
     PayloadError,
@@ -80,6 +81,8 @@ from blackmetal.schemas import (
     json_schemas,
     stamp_parts,
 )
+
+from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, WheelAngles, joint_state, turned
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -236,8 +239,64 @@ def json_channel(topic: str, schema: dict[str, Any]) -> Any:
     return foxglove.Channel(topic, schema=full, message_encoding="json")
 
 
+class Kind(Enum):
+    """What a view channel carries: one of Foxglove's own types (protobuf, built by the SDK), or JSON with a schema."""
+
+    POSE = "foxglove.PoseInFrame"
+    POSES = "foxglove.PosesInFrame"
+    TRANSFORM = "foxglove.FrameTransform"
+    LOG = "foxglove.Log"
+    JSON = "json"
+
+
+class Out(Protocol):
+    """A channel as the view uses it: does anyone take it (a client's subscription, the MCAP file), and log a message."""
+
+    def has_sinks(self) -> bool: ...
+    def log(self, msg: Any) -> None: ...
+
+
+#: Makes the view's channels: ``(topic, kind, JSON schema or None) -> channel``. Tests give one that counts.
+ChannelFactory = Callable[[str, Kind, "dict[str, Any] | None"], Out]
+
+
+def foxglove_channel(topic: str, kind: Kind, schema: dict[str, Any] | None = None) -> Out:
+    """A channel on the current Foxglove context (the SDK's typed channels for Foxglove's types)."""
+    from foxglove.channels import FrameTransformChannel, LogChannel, PoseInFrameChannel, PosesInFrameChannel
+
+    typed: dict[Kind, Callable[[str], Any]] = {
+        Kind.POSE: PoseInFrameChannel,
+        Kind.POSES: PosesInFrameChannel,
+        Kind.TRANSFORM: FrameTransformChannel,
+        Kind.LOG: LogChannel,
+    }
+    if kind is Kind.JSON:
+        assert schema is not None
+        return cast(Out, json_channel(topic, schema))
+    return cast(Out, typed[kind](topic))
+
+
+def _transform(stamp: float, parent: str, child: str, xyz: tuple[float, float, float], q: tuple[float, float, float, float]) -> Any:
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    return FrameTransform(
+        timestamp=timestamp(stamp),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=xyz[0], y=xyz[1], z=xyz[2]),
+        rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]),
+    )
+
+
 class LiveView:
-    """Declares the view's channels on the current Foxglove context and logs into them from the robot's payloads."""
+    """The view's channels of one robot, and what each of its keys' payloads shows on them.
+
+    Every handler first asks which of its channels anyone takes
+    (``has_sinks``): a payload nobody watches is not even decoded, and only
+    the watched channels' messages are built. :meth:`feeds` says which
+    channels each key feeds, so the host subscribes to a key only while one
+    of them is watched (:class:`~blackmetal.foxglove.watch.Watch`).
+    """
 
     def __init__(
         self,
@@ -247,31 +306,53 @@ class LiveView:
         path_length: int = 2000,
         encoders: Encoders | None = None,
         namespace: str = "",
-        tf: Any = None,
+        tf: Out | None = None,
+        frame_prefix: str = "",
+        channel: ChannelFactory = foxglove_channel,
     ) -> None:
-        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views (else ``<namespace>/tf``)."""
-        from foxglove.channels import FrameTransformChannel, LogChannel, PoseInFrameChannel, PosesInFrameChannel
-
+        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views
+        (else ``<namespace>/tf``); ``frame_prefix`` (``""`` or ``<id>/``) before every link of the robot's URDF."""
         self.keys = keys
+        self.namespace = namespace
         self.frame, self.base = frame, base
-        self.encoders = encoders or Encoders()
+        self.model = RobotModel(frame_prefix, encoders)
+        self._angles = WheelAngles()
         schemas = json_schemas()
         ns = namespace
 
-        self.pose = PoseInFrameChannel(f"{ns}/pose")
-        self.tf = tf if tf is not None else FrameTransformChannel(f"{ns}/tf")
-        self.path = PosesInFrameChannel(f"{ns}/path")
-        self.truth = PoseInFrameChannel(f"{ns}/truth/pose")
-        self.truth_path = PosesInFrameChannel(f"{ns}/truth/path")
-        self.odometry = json_channel(f"{ns}/odometry", schemas["Pose"])
-        self.wheels = json_channel(f"{ns}/wheels", WHEELS_SCHEMA)
-        self.status = json_channel(f"{ns}/status", schemas["RobotStatus"])
-        self.health = json_channel(f"{ns}/health", schemas["GatewayHealth"])
-        self.diagnostics = json_channel(f"{ns}/diagnostics", DIAGNOSTICS_SCHEMA)
-        self.errors = json_channel(f"{ns}/errors", schemas["ErrorReport"])
-        self.log = LogChannel(f"{ns}/log")
+        self.pose = channel(f"{ns}/pose", Kind.POSE, None)
+        self.tf = tf if tf is not None else channel(f"{ns}/tf", Kind.TRANSFORM, None)
+        self.tf_topic = "/tf" if tf is not None else f"{ns}/tf"
+        self.path = channel(f"{ns}/path", Kind.POSES, None)
+        self.truth = channel(f"{ns}/truth/pose", Kind.POSE, None)
+        self.truth_path = channel(f"{ns}/truth/path", Kind.POSES, None)
+        self.odometry = channel(f"{ns}/odometry", Kind.JSON, schemas["Pose"])
+        self.wheels = channel(f"{ns}/wheels", Kind.JSON, WHEELS_SCHEMA)
+        self.joint_states = channel(f"{ns}/joint_states", Kind.JSON, JOINT_STATE_SCHEMA)
+        self.description = channel(f"{ns}/robot_description", Kind.JSON, STRING_SCHEMA)
+        self.status = channel(f"{ns}/status", Kind.JSON, schemas["RobotStatus"])
+        self.health = channel(f"{ns}/health", Kind.JSON, schemas["GatewayHealth"])
+        self.diagnostics = channel(f"{ns}/diagnostics", Kind.JSON, DIAGNOSTICS_SCHEMA)
+        self.errors = channel(f"{ns}/errors", Kind.JSON, schemas["ErrorReport"])
+        self.log = channel(f"{ns}/log", Kind.LOG, None)
         self._trail = Trail(path_length)
         self._truth_trail = Trail(path_length)
+
+    @property
+    def description_topic(self) -> str:
+        return f"{self.namespace}/robot_description"
+
+    def feeds(self) -> dict[str, set[str]]:
+        """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""
+        k, ns = self.keys, self.namespace
+        return {
+            k.pose: {f"{ns}/pose", self.tf_topic, f"{ns}/path", f"{ns}/odometry"},
+            k.sim_truth: {f"{ns}/truth/pose", f"{ns}/truth/path"},
+            k.impulses: {f"{ns}/wheels", f"{ns}/joint_states", self.tf_topic},
+            k.status: {f"{ns}/status"},
+            k.health: {f"{ns}/health", f"{ns}/diagnostics"},
+            k.errors: {f"{ns}/errors", f"{ns}/log"},
+        }
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
         """Key -> handler of its payloads."""
@@ -280,7 +361,7 @@ class LiveView:
             k.pose: self.on_pose,
             k.sim_truth: self.on_truth,
             k.impulses: self.on_impulses,
-            k.status: lambda p: self._forward(self.status, RobotStatus, p),
+            k.status: self.on_status,
             k.health: self.on_health,
             k.errors: self.on_error,
         }
@@ -291,72 +372,103 @@ class LiveView:
         except PayloadError:
             return None
 
-    def _forward(self, channel: Any, message_type: type[Any], payload: bytes) -> None:
-        if self._decode(message_type, payload) is not None:
-            channel.log(payload)
-
-    def _poses(self, pose: Pose, channel: Any, path_channel: Any, trail: Trail) -> None:
+    def _poses(self, pose: Pose, channel: Out, path_channel: Out, trail: Trail) -> None:
         from foxglove.messages import PoseInFrame, PosesInFrame
 
-        channel.log(PoseInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, pose=_pose(pose)))
-        if trail.add(pose):
+        if channel.has_sinks():
+            channel.log(PoseInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, pose=_pose(pose)))
+        if trail.add(pose) and path_channel.has_sinks():
             path_channel.log(PosesInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, poses=[_pose(p) for p in trail.poses]))
 
     def on_pose(self, payload: bytes) -> None:
-        from foxglove.messages import FrameTransform, Quaternion, Vector3
-
+        wants = [self.pose.has_sinks(), self.path.has_sinks(), self.tf.has_sinks(), self.odometry.has_sinks()]
+        if not any(wants):
+            return
         pose = self._decode(Pose, payload)
         if pose is None:
             return
         self._poses(pose, self.pose, self.path, self._trail)
-        q = pose.orientation
-        self.tf.log(
-            FrameTransform(
-                timestamp=timestamp(pose.stamp),
-                parent_frame_id=self.frame,
-                child_frame_id=self.base,
-                translation=Vector3(x=pose.x, y=pose.y, z=0.0),
-                rotation=Quaternion(x=q.x, y=q.y, z=q.z, w=q.w),
-            )
-        )
-        self.odometry.log(payload)
+        if wants[2]:
+            q = pose.orientation
+            self.tf.log(_transform(pose.stamp, self.frame, self.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w)))
+        if wants[3]:
+            self.odometry.log(payload)
 
     def on_truth(self, payload: bytes) -> None:
+        if not (self.truth.has_sinks() or self.truth_path.has_sinks()):
+            return
         pose = self._decode(Pose, payload)
         if pose is not None:
             self._poses(pose, self.truth, self.truth_path, self._truth_trail)
 
+    def on_status(self, payload: bytes) -> None:
+        if self.status.has_sinks() and self._decode(RobotStatus, payload) is not None:
+            self.status.log(payload)
+
     def on_health(self, payload: bytes) -> None:
+        shows, diagnoses = self.health.has_sinks(), self.diagnostics.has_sinks()
+        if not (shows or diagnoses):
+            return
         health = self._decode(GatewayHealth, payload)
         if health is None:
             return
-        self.health.log(payload)
-        self.diagnostics.log(json.dumps(diagnostics(health, self.keys.prefix)).encode())
+        if shows:
+            self.health.log(payload)
+        if diagnoses:
+            self.diagnostics.log(json.dumps(diagnostics(health, self.keys.prefix)).encode())
 
     def on_impulses(self, payload: bytes) -> None:
+        speeds, joints, turns = self.wheels.has_sinks(), self.joint_states.has_sinks(), self.tf.has_sinks()
+        if not (speeds or joints or turns):
+            return
         sample = self._decode(WheelImpulses, payload)
         if sample is None:
             return
-        left, right = self.encoders.to_speeds(float(sample.left), float(sample.right))
-        message = {
-            "stamp": sample.stamp,
-            "left_mps": left,
-            "right_mps": right,
-            "left_impulses": sample.left,
-            "right_impulses": sample.right,
-        }
-        self.wheels.log(json.dumps(message).encode())
+        model = self.model
+        self._angles.feed(sample, model.encoders, model.body.wheel_radius)
+        if speeds:
+            left, right = model.encoders.to_speeds(float(sample.left), float(sample.right))
+            message = {
+                "stamp": sample.stamp,
+                "left_mps": left,
+                "right_mps": right,
+                "left_impulses": sample.left,
+                "right_impulses": sample.right,
+            }
+            self.wheels.log(json.dumps(message).encode())
+        if joints:
+            self.joint_states.log(json.dumps(joint_state(model, self._angles, sample.stamp)).encode())
+        if turns:
+            for joint, angle in ((model.left, self._angles.positions[0]), (model.right, self._angles.positions[1])):
+                if joint is not None:
+                    xyz, q = turned(joint, angle)
+                    self.tf.log(_transform(sample.stamp, joint.parent, joint.child, xyz, q))
 
     def on_error(self, payload: bytes) -> None:
         from foxglove.messages import Log, LogLevel
 
+        shows, logs = self.errors.has_sinks(), self.log.has_sinks()
+        if not (shows or logs):
+            return
         report = self._decode(ErrorReport, payload)
         if report is None:
             return
-        self.errors.log(payload)
-        self.log.log(
-            Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
-        )
+        if shows:
+            self.errors.log(payload)
+        if logs:
+            self.log.log(
+                Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
+            )
+
+    def on_params(self, params: GatewayParams) -> None:
+        """The gateway's parameters: a new wheel geometry re-sends the URDF to whoever shows it."""
+        if self.model.on_params(params):
+            self.describe()
+
+    def describe(self) -> None:
+        """Send the URDF on ``/robot_description`` (to every subscriber: on a new subscription, and when it changes)."""
+        if self.description.has_sinks():
+            self.description.log(self.model.description())
 
 
 # --------------------------------------------------------------------------- what clients may do
@@ -751,16 +863,19 @@ class Controls:
 # --------------------------------------------------------------------------- a fleet in one view
 #: The fleet's own topics (``/fleet/summary``, ``/fleet/log``): a robot may not have this id in the fleet view.
 FLEET_NAMESPACE = "/fleet"
-#: A robot whose last health is this much older (s of message time) than the newest health of the fleet is shown stale.
-STALE_S = 3.0
+#: A robot whose gateway's health (published once a second) has not arrived for this long (s, the view's clock) is lost.
+LOST_AFTER_S = 2.5
+#: The fleet summary goes out at most this often on health alone (s); a robot lost or back sends it at once.
+SUMMARY_PERIOD_S = 1.0
 
 FLEET_SUMMARY_SCHEMA: dict[str, Any] = {
     "title": "FleetSummary",
-    "description": "blackmetal: one row per robot of the fleet, from each <prefix>/gateway/health and <prefix>/pose",
+    "description": "blackmetal: one row per robot of the fleet, from each <prefix>/gateway/health, its liveliness and <prefix>/pose",
     "type": "object",
     "properties": {
         "stamp": {"type": "number", "description": "the newest health's stamp"},
         "robots_up": {"type": "integer", "description": "robots with a fresh health and both links connected"},
+        "lost": {"type": "array", "items": {"type": "string"}, "description": "ids of the robots lost (no health, or its gateway gone)"},
         "estop": {"type": "array", "items": {"type": "string"}, "description": "ids of the robots whose e-stop is engaged"},
         "driving": {"type": "object", "additionalProperties": {"type": "string"}, "description": "id -> the command source that drives it"},
         "robots": {
@@ -770,8 +885,8 @@ FLEET_SUMMARY_SCHEMA: dict[str, Any] = {
                 "properties": {
                     "id": {"type": "string"},
                     "prefix": {"type": "string"},
-                    "link": {"type": "string", "description": "control/log link states, 'no health' or 'stale'"},
-                    "health_age": {"type": ["number", "null"], "description": "s behind the newest health of the fleet"},
+                    "link": {"type": "string", "description": "control/log link states, 'no health', or 'lost: <why>'"},
+                    "health_age": {"type": ["number", "null"], "description": "s since its last health arrived"},
                     "poll_hz": {"type": "number"},
                     "estop": {"type": ["boolean", "null"]},
                     "active_source": {"type": ["string", "null"], "description": "who drives (null: nobody)"},
@@ -788,49 +903,118 @@ FLEET_SUMMARY_SCHEMA: dict[str, Any] = {
 
 @dataclass(slots=True)
 class RobotRow:
-    """What the fleet summary knows of one robot: its last health and pose."""
+    """What the fleet summary knows of one robot: its last health (and when it arrived), its pose, its gateway's token."""
 
     id: str
     prefix: str
     health: GatewayHealth | None = None
     pose: Pose | None = None
+    #: When its last health arrived (the view's clock); None: none since the summary was last watched.
+    seen: float | None = None
+    #: Its gateway's liveliness token: present, gone, or not known yet.
+    token: bool | None = None
+    #: Why it is lost ("" while it is not).
+    lost: str = ""
+
+
+class Change(Enum):
+    LOST = "lost"
+    BACK = "back"
+
+
+@dataclass(frozen=True, slots=True)
+class Presence:
+    """A robot lost or back, and why: what the fleet's log says and why the summary goes out at once."""
+
+    robot_id: str
+    change: Change
+    reason: str
 
 
 class FleetSummary:
-    """The fleet at a glance, one row per robot; pure, on the messages' own stamps (a robot's health age is behind the newest of the fleet)."""
+    """The fleet at a glance, one row per robot; pure, on the view's clock (``now``, passed in).
+
+    A robot is **lost** when its gateway's liveliness token goes, or when no
+    health of it has arrived for :data:`LOST_AFTER_S` (its host dropped off:
+    the token lingers until the router's lease ends), and **back** with its
+    next health. Health is followed only while someone watches the summary
+    or the fleet's log (the host subscribes then); :meth:`suspend` forgets
+    the arrival times when nobody does, so no robot is called lost for a
+    silence nobody listened to.
+    """
 
     def __init__(self, robots: list[tuple[str, str]]) -> None:
         """``robots``: (id, prefix) in the fleet file's order."""
         self.rows = {robot_id: RobotRow(robot_id, prefix) for robot_id, prefix in robots}
         self._newest = -math.inf
 
-    def on_health(self, robot_id: str, health: GatewayHealth) -> None:
-        self.rows[robot_id].health = health
+    def _lose(self, row: RobotRow, reason: str) -> Presence | None:
+        if row.lost:
+            return None
+        row.lost = reason
+        return Presence(row.id, Change.LOST, reason)
+
+    def on_health(self, robot_id: str, health: GatewayHealth, now: float) -> Presence | None:
+        row = self.rows[robot_id]
+        row.health, row.seen = health, now
         self._newest = max(self._newest, health.stamp)
+        if row.lost:
+            row.lost = ""
+            return Presence(robot_id, Change.BACK, "its gateway's health arrives again")
+        return None
+
+    def on_token(self, robot_id: str, alive: bool, now: float) -> Presence | None:
+        """Its gateway's liveliness token appeared or went: gone is lost at once; present waits for a health."""
+        row = self.rows[robot_id]
+        row.token = alive
+        if not alive:
+            row.seen = None
+            return self._lose(row, "its gateway left (liveliness token gone)")
+        return None
 
     def on_pose(self, robot_id: str, pose: Pose) -> None:
         self.rows[robot_id].pose = pose
 
-    def message(self) -> dict[str, Any]:
+    def tick(self, now: float) -> list[Presence]:
+        """Robots whose health stopped arriving."""
+        changes = []
+        for row in self.rows.values():
+            if row.seen is not None and now >= row.seen + LOST_AFTER_S:
+                row.seen = None
+                change = self._lose(row, f"no health for {LOST_AFTER_S:g} s")
+                if change is not None:
+                    changes.append(change)
+        return changes
+
+    def next_deadline(self) -> float:
+        return min((row.seen + LOST_AFTER_S for row in self.rows.values() if row.seen is not None), default=math.inf)
+
+    def suspend(self) -> None:
+        """Nobody follows the robots' health any more: forget when it last came (losses by token stay)."""
+        for row in self.rows.values():
+            row.seen = None
+
+    def message(self, now: float) -> dict[str, Any]:
         rows = []
         for row in self.rows.values():
             h, p = row.health, row.pose
-            age = None if h is None else max(self._newest - h.stamp, 0.0)
-            if h is None:
+            age = None if row.seen is None else max(now - row.seen, 0.0)
+            if row.lost:
+                link = f"lost: {row.lost}"
+            elif h is None or row.seen is None:
                 link = "no health"
-            elif age is not None and age > STALE_S:
-                link = "stale"
             else:
                 link = f"{h.control.state}/{h.log.state}"
+            fresh = h is not None and not row.lost and row.seen is not None
             rows.append(
                 {
                     "id": row.id,
                     "prefix": row.prefix,
                     "link": link,
                     "health_age": age,
-                    "poll_hz": 0.0 if h is None or link == "stale" else h.poll_hz,
+                    "poll_hz": h.poll_hz if fresh and h is not None else 0.0,
                     "estop": None if h is None else h.estop,
-                    "active_source": None if h is None else h.active_source,
+                    "active_source": h.active_source if fresh and h is not None else None,
                     "conflict_with": None if h is None else h.conflict_with,
                     "x": None if p is None else p.x,
                     "y": None if p is None else p.y,
@@ -840,20 +1024,36 @@ class FleetSummary:
         return {
             "stamp": self._newest if self._newest > -math.inf else 0.0,
             "robots_up": sum(1 for r in rows if r["link"] == "connected/connected"),
+            "lost": [row.id for row in self.rows.values() if row.lost],
             "estop": [r["id"] for r in rows if r["estop"]],
-            "driving": {r["id"]: r["active_source"] for r in rows if r["active_source"] and r["link"] != "stale"},
+            "driving": {r["id"]: r["active_source"] for r in rows if r["active_source"]},
             "robots": rows,
         }
 
 
 class FleetView:
-    """One :class:`LiveView` per robot under ``/<id>/``, frames ``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``, and ``/fleet/summary``."""
+    """One :class:`LiveView` per robot under ``/<id>/``, frames ``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``,
+    each robot's URDF with its links under ``<id>/``, ``/fleet/summary`` and ``/fleet/log``.
 
-    def __init__(self, robots: list[tuple[str, Keys, Encoders | None, int]]) -> None:
-        """``robots``: (id, keys, its encoders or None for the defaults, its path length), in the fleet file's order."""
-        from foxglove.channels import FrameTransformChannel, LogChannel
+    The summary is on the view's clock (``clock``, the host's): it goes out
+    at most every :data:`SUMMARY_PERIOD_S` on health, and at once when a
+    robot is lost or back (:meth:`tick` at :meth:`next_deadline` finds the
+    silent ones), with a line on ``/fleet/log``. Its poses are the latest
+    each robot published, read when it is made (``poses``), never a stream.
+    """
 
-        self.tf = FrameTransformChannel("/tf")  # one tree for the fleet, as ros2 --fleet sends every robot's to the absolute /tf
+    def __init__(
+        self,
+        robots: list[tuple[str, Keys, Encoders | None, int]],
+        clock: Callable[[], float] = time.monotonic,
+        channel: ChannelFactory = foxglove_channel,
+        poses: Callable[[str], bytes | None] = lambda robot_id: None,
+    ) -> None:
+        """``robots``: (id, keys, its encoders or None for the defaults, its path length), in the fleet file's order;
+        ``poses(id)``: the robot's latest pose payload, if the host holds one."""
+        self.clock = clock
+        self.poses = poses
+        self.tf = channel("/tf", Kind.TRANSFORM, None)  # one tree for the fleet, as ros2 --fleet sends every robot's to the absolute /tf
         self.views = {
             robot_id: LiveView(
                 keys,
@@ -863,35 +1063,97 @@ class FleetView:
                 encoders=encoders,
                 namespace=robot_namespace(robot_id),
                 tf=self.tf,
+                frame_prefix=robot_frame(robot_id, ""),
+                channel=channel,
             )
             for robot_id, keys, encoders, path_length in robots
         }
         self.summary = FleetSummary([(robot_id, keys.prefix) for robot_id, keys, _, _ in robots])
-        self.summary_channel = json_channel(f"{FLEET_NAMESPACE}/summary", FLEET_SUMMARY_SCHEMA)
-        #: Refusals of client messages that name no robot (a topic outside every /<id>/, a refusal of the server itself).
-        self.log = LogChannel(f"{FLEET_NAMESPACE}/log")
+        self.summary_channel = channel(f"{FLEET_NAMESPACE}/summary", Kind.JSON, FLEET_SUMMARY_SCHEMA)
+        #: Robots lost and back, and refusals of client messages that name no robot (a topic outside every /<id>/, the server's own).
+        self.log = channel(f"{FLEET_NAMESPACE}/log", Kind.LOG, None)
+        self._last_summary = -math.inf
+
+    @property
+    def fleet_topics(self) -> set[str]:
+        """The topics that follow every robot's health (and so the robots lost and back)."""
+        return {f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log"}
+
+    def feeds(self) -> dict[str, set[str]]:
+        """Every robot's keys -> the topics they feed; each health also feeds the summary and the fleet's log."""
+        feeds: dict[str, set[str]] = {}
+        for view in self.views.values():
+            for key, topics in view.feeds().items():
+                feeds.setdefault(key, set()).update(topics)
+            feeds[view.keys.health] |= self.fleet_topics
+        return feeds
+
+    def peeks(self) -> dict[str, set[str]]:
+        """Keys the summary reads the latest of when it is made (no stream): every robot's pose."""
+        return {view.keys.pose: {f"{FLEET_NAMESPACE}/summary"} for view in self.views.values()}
 
     def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:
-        """Key -> handler for one robot's keys: its own view, and the summary from its health and pose."""
+        """Key -> handler for one robot's keys: its own view, and the summary from its health."""
         view = self.views[robot_id]
         handlers = view.handlers()
-        show_pose, show_health = handlers[view.keys.pose], handlers[view.keys.health]
-
-        def on_pose(payload: bytes) -> None:
-            show_pose(payload)
-            pose = view._decode(Pose, payload)
-            if pose is not None:
-                self.summary.on_pose(robot_id, pose)
+        show_health = handlers[view.keys.health]
 
         def on_health(payload: bytes) -> None:
             show_health(payload)
+            if not (self.summary_channel.has_sinks() or self.log.has_sinks()):
+                return
             health = view._decode(GatewayHealth, payload)
-            if health is not None:
-                self.summary.on_health(robot_id, health)
-                self.summary_channel.log(json.dumps(self.summary.message()).encode())
+            if health is None:
+                return
+            now = self.clock()
+            change = self.summary.on_health(robot_id, health, now)
+            if change is not None or now >= self._last_summary + SUMMARY_PERIOD_S:
+                self._changed([change] if change is not None else [], now)
 
-        handlers[view.keys.pose], handlers[view.keys.health] = on_pose, on_health
+        handlers[view.keys.health] = on_health
         return handlers
+
+    def on_token(self, robot_id: str, alive: bool) -> None:
+        """Its gateway's liveliness token appeared or went."""
+        now = self.clock()
+        change = self.summary.on_token(robot_id, alive, now)
+        if change is not None:
+            self._changed([change], now)
+
+    def tick(self, now: float) -> None:
+        changes = self.summary.tick(now)
+        if changes:
+            self._changed(changes, now)
+
+    def next_deadline(self) -> float:
+        return self.summary.next_deadline()
+
+    def suspend(self) -> None:
+        """Nobody watches the summary or the fleet's log: the host stops following health."""
+        self.summary.suspend()
+
+    def _changed(self, changes: list[Presence], now: float) -> None:
+        from foxglove.messages import Log, LogLevel
+
+        if self.log.has_sinks():
+            for change in changes:
+                level = LogLevel.Error if change.change is Change.LOST else LogLevel.Info
+                self.log.log(
+                    Log(
+                        timestamp=timestamp(time.time()),
+                        level=level,
+                        message=f"{change.robot_id} {change.change.value}: {change.reason}",
+                        name="fleet",
+                    )
+                )
+        if self.summary_channel.has_sinks():
+            for robot_id, view in self.views.items():
+                payload = self.poses(robot_id)
+                pose = view._decode(Pose, payload) if payload is not None else None
+                if pose is not None:
+                    self.summary.on_pose(robot_id, pose)
+            self._last_summary = now
+            self.summary_channel.log(json.dumps(self.summary.message(now)).encode())
 
     def on_fleet_error(self, report: ErrorReport) -> None:
         """A refusal no robot owns: on ``/fleet/log``."""

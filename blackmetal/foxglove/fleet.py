@@ -28,18 +28,21 @@ from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 from .core import (
     COMMAND_SOURCE,
     FLEET_NAMESPACE,
+    LOST_AFTER_S,
     Controls,
     FleetControls,
     FleetView,
     Service,
-    StatusLevel,
     robot_frame,
     robot_namespace,
     service_name,
     takes,
 )
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .params import Parameters
+from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
+from .watch import Watch
 from .zenoh_edge import FoxgloveZenoh
 
 log = logging.getLogger("blackmetal.foxglove")
@@ -81,62 +84,6 @@ def encoders(robot: FleetRobot) -> Encoders | None:
     )
 
 
-class RobotPort:
-    """One robot's side of the fleet view: its controls' output (its Zenoh edge; the shared server), and its edge's answers in."""
-
-    def __init__(self, robot_id: str, host: FoxgloveHost) -> None:
-        self.robot_id = robot_id
-        self.host = host
-        self.core: FleetControls | None = None
-        self.edge: FoxgloveZenoh | None = None
-
-    # ControlsOutput: the robot's keys through its edge (nowhere before the session opens and after it closes), the clients through the host
-    def command(self, key: str, payload: bytes) -> None:
-        if self.edge is not None:
-            self.edge.command(key, payload)
-
-    def ask_health(self) -> None:
-        if self.edge is not None:
-            self.edge.ask_health()
-
-    def ask_reset(self, call: int, payload: bytes) -> None:
-        if self.edge is not None:
-            self.edge.ask_reset(call, payload)
-
-    def error(self, message: ErrorReport) -> None:
-        if self.edge is not None:
-            self.edge.error(message)
-
-    def status(self, client: int | None, level: StatusLevel, message: str) -> None:
-        self.host.status(client, level, message)
-
-    def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
-        self.host.answer(call, response, failure)
-
-    # Answers: from the edge, on the loop
-    def on_health(self, payload: bytes) -> None:
-        if self.core is not None:
-            self.core.on_health(self.robot_id, payload, self.host.clock())
-            self.host.poke()
-
-    def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None:
-        if self.core is not None:
-            call, ok, err = reply
-            if ok is None and err is None:
-                self.core.on_reset_done(self.robot_id, call, self.host.clock())
-            else:
-                self.core.on_reset_reply(self.robot_id, call, ok, err, self.host.clock())
-            self.host.poke()
-
-    def on_bug(self, exc: BaseException) -> None:
-        """A handler of this robot's payloads raised: reported on its errors key (rate-limited); the view goes on."""
-        log.error("fleet view of robot %s: handler failed: %r", self.robot_id, exc)
-        if self.core is not None:
-            controls = self.core.robots[self.robot_id]
-            controls.reporter.report("foxglove:view", f"showing {self.robot_id} failed: {exc!r}", now=self.host.clock())
-            self.host.poke()
-
-
 def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
     def report(message: ErrorReport) -> None:
         log.warning("%s: %s", message.key, message.reason)
@@ -156,16 +103,25 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
     host = FoxgloveHost(base, services=services)
     try:
         await host.start()  # the port is taken before Zenoh opens
-        view = FleetView([(r.id, Keys(s.prefix), encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)])
-        ports = {r.id: RobotPort(r.id, host) for r in robots}
+        view = FleetView(
+            [(r.id, Keys(s.prefix), encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock
+        )
+        ports = {r.id: RobotPort(r.id, host, view.views[r.id]) for r in robots}
         controls = {
             r.id: Controls(Keys(s.prefix), ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id))
             for r, s in zip(robots, settings, strict=True)
         }
         core = FleetControls(controls, host, _fleet_error(view))
-        for port in ports.values():
-            port.core = core
-        host.attach(core)
+        for robot_id, port in ports.items():
+            port.controls, port.fleet = controls[robot_id], view
+        params = Parameters(
+            {r.id: (Keys(s.prefix), robot_namespace(r.id)) for r, s in zip(robots, settings, strict=True)}, host, base.call_timeout
+        )
+        host.attach(core, params, view)
+        watch = Watch(view.feeds(), record_all=bool(base.mcap))
+        wiring = Wiring(ports, watch, view, core.reporter)
+        host.watch_with(watch, wiring)
+        host.serve_params(params, wiring)
         with await open_service_session(base.zenoh, stop, "foxglove") as session:
             loop = asyncio.get_running_loop()
             edges: list[FoxgloveZenoh] = []
@@ -174,8 +130,11 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                     edge = FoxgloveZenoh(session, Keys(s.prefix), query_timeout=base.call_timeout)
                     edges.append(edge)
                     port = ports[r.id]
-                    edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug)
+                    edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug, presence=port.on_token)
                     port.edge = edge
+                wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+                for robot_view in view.views.values():
+                    robot_view.describe()  # each URDF, into the MCAP file if there is one (a client gets it when it subscribes)
                 address = host.url
                 print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
                 for r, s in zip(robots, settings, strict=True):
@@ -185,7 +144,12 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                         flush=True,
                     )
                 print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
-                print(f"  {FLEET_NAMESPACE}/summary: one row per robot; transforms of all on /tf", flush=True)
+                print(
+                    f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf", flush=True
+                )
+                print(
+                    "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>", flush=True
+                )
                 print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
                 print(
                     f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
@@ -213,6 +177,7 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                 )
                 await host.run(stop)
             finally:
+                wiring.stop()
                 for port in ports.values():
                     port.edge = None
                 for edge in reversed(edges):

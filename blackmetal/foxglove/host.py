@@ -43,10 +43,12 @@ import msgspec
 
 from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import BlackmetalError, ConfigError, ErrorReport
+from blackmetal.schemas import BlackmetalError, ConfigError, GatewayParams, Param
 
-from .core import CLIENT_ENCODING, SERVICE_SPECS, Controls, ServerRefusal, Service, StatusLevel
+from .core import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
+from .params import Parameters
 from .settings import FoxgloveSettings
+from .watch import Watch
 
 #: The subprotocol foxglove-sdk speaks, and the older name of the same protocol.
 SDK_SUBPROTOCOL = "foxglove.sdk.v1"
@@ -275,6 +277,8 @@ class EventKind(Enum):
     ADVERTISE = "advertise"
     UNADVERTISE = "unadvertise"
     MESSAGE = "message"
+    SUBSCRIBE = "subscribe"
+    UNSUBSCRIBE = "unsubscribe"
 
 
 @dataclass(frozen=True, slots=True)
@@ -305,11 +309,37 @@ class ServiceFailure(BlackmetalError):
     """Raised in a service handler: the SDK answers the call with a service call failure carrying this text."""
 
 
-def _listener(put: Callable[[ClientEvent], None]) -> Any:
-    """A ServerListener that hands every client event over to the view's loop."""
+@dataclass(frozen=True, slots=True)
+class ParamsSetIn:
+    """A client's setParameters from the SDK's thread, which waits on ``future`` for the values to answer with."""
+
+    client: int
+    values: list[tuple[str, object]]
+    future: concurrent.futures.Future[list[Param]] = field(compare=False)
+
+
+def _listener(
+    put: Callable[[ClientEvent], None],
+    put_subscription: Callable[[ClientEvent], None],
+    get_params: Callable[[list[str]], list[Any]],
+    set_params: Callable[[int, list[Any]], list[Any]],
+) -> Any:
+    """A ServerListener that hands every client event over to the view's loop (parameters: answered from the loop's snapshot, or waited for)."""
     from foxglove.websocket import ServerListener
 
     class Listener(ServerListener):
+        def on_subscribe(self, client: Any, channel: Any) -> None:
+            put_subscription(ClientEvent(EventKind.SUBSCRIBE, client.id, channel.id, channel.topic))
+
+        def on_unsubscribe(self, client: Any, channel: Any) -> None:
+            put_subscription(ClientEvent(EventKind.UNSUBSCRIBE, client.id, channel.id, channel.topic))
+
+        def on_get_parameters(self, client: Any, param_names: list[str], request_id: str | None = None) -> list[Any]:
+            return get_params(param_names)
+
+        def on_set_parameters(self, client: Any, parameters: list[Any], request_id: str | None = None) -> list[Any]:
+            return set_params(client.id, parameters)
+
         def on_client_advertise(self, client: Any, channel: Any) -> None:
             put(ClientEvent(EventKind.ADVERTISE, client.id, channel.id, channel.topic, channel.encoding, channel.schema_name))
 
@@ -320,6 +350,25 @@ def _listener(put: Callable[[ClientEvent], None]) -> Any:
             put(ClientEvent(EventKind.MESSAGE, client.id, client_channel_id, data=bytes(data)))
 
     return Listener()
+
+
+def foxglove_parameter(param: Param) -> Any:
+    """A gateway parameter as the SDK sends it (a double keeps its type even when whole: 0.5 and 1.0 alike)."""
+    from foxglove import Parameter, ParameterType
+
+    if param.type == "double" and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
+        return Parameter(param.name, value=float(param.value), type=ParameterType.Float64)
+    return Parameter(param.name, value=param.value)
+
+
+class Viewer(Protocol):
+    """What the host tells the view about its clients' subscriptions."""
+
+    def subscribed(self, topic: str) -> None:
+        """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
+
+    def watch_changed(self) -> None:
+        """The watched topics changed: subscribe to the keys they need, and only those."""
 
 
 class ClientCore(Protocol):
@@ -333,15 +382,6 @@ class ClientCore(Protocol):
     def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None: ...
     def tick(self, now: float) -> None: ...
     def next_deadline(self) -> float: ...
-
-
-class ZenohSide(Protocol):
-    """What the host needs of the Zenoh edge for :class:`Controls`."""
-
-    def command(self, key: str, payload: bytes) -> None: ...
-    def ask_health(self) -> None: ...
-    def ask_reset(self, call: int, payload: bytes) -> None: ...
-    def error(self, message: ErrorReport) -> None: ...
 
 
 class _Connection:
@@ -379,6 +419,35 @@ class _Connection:
                 pass
 
 
+class Timed(Protocol):
+    """A part with timers of its own: the host runs ``tick`` at ``next_deadline``."""
+
+    def tick(self, now: float) -> None: ...
+    def next_deadline(self) -> float: ...
+
+
+class _Together:
+    """Several timed parts as one for the host's one timer."""
+
+    def __init__(self, parts: list[Timed]) -> None:
+        self.parts = parts
+
+    def tick(self, now: float) -> None:
+        for part in self.parts:
+            part.tick(now)
+
+    def next_deadline(self) -> float:
+        return min(part.next_deadline() for part in self.parts)
+
+
+class ParamsRobots(Protocol):
+    """What :class:`Parameters` asks of a robot's gateway, through its Zenoh edge."""
+
+    def ask_params(self, robot_id: str) -> None: ...
+    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
+
+
 @dataclass(slots=True)
 class _Call:
     client: int
@@ -387,7 +456,7 @@ class _Call:
 
 
 def start_server(settings: FoxgloveSettings, listener: Any = None, services: list[Any] | None = None) -> Any:
-    """The foxglove-sdk server on a free loopback port, with client publish and services (JSON)."""
+    """The foxglove-sdk server on a free loopback port, with client publish, services (JSON) and parameters."""
     import foxglove
     from foxglove.websocket import Capability
 
@@ -396,7 +465,7 @@ def start_server(settings: FoxgloveSettings, listener: Any = None, services: lis
             name="blackmetal",
             host=INNER_HOST,
             port=0,
-            capabilities=[Capability.ClientPublish, Capability.Services],
+            capabilities=[Capability.ClientPublish, Capability.Services, Capability.Parameters],
             server_listener=listener,
             supported_encodings=[CLIENT_ENCODING],
             services=services,
@@ -419,10 +488,20 @@ class FoxgloveHost:
         self.service_names = services if services is not None else {s.value: s for s in Service}
         self.core: ClientCore | None = None
         self.timer: DeadlineTimer | None = None
-        self._zenoh: ZenohSide | None = None
         self._handover = Intake(asyncio.get_running_loop())
         self._put_event = self._handover.channel("client events", self._on_event, capacity=4096)
+        # a client that subscribes to every channel of a fleet of 100 sends 1,500 subscriptions at once; none may be lost
+        self._put_subscription = self._handover.channel("subscriptions", self._on_subscription, capacity=65536)
         self._put_call = self._handover.channel("service calls", self._on_call, capacity=256)
+        self._put_set = self._handover.channel("parameter sets", self._on_params_set, capacity=256)
+        #: Who watches which topic (set by :meth:`watch_with`); None: every key is followed.
+        self.watch: Watch | None = None
+        self.viewer: Viewer | None = None
+        self.params: Parameters | None = None
+        #: The parameters as the SDK's threads answer getParameters from: replaced whole on the loop, read whole there.
+        self._param_snapshot: list[Any] = []
+        self._sets: dict[int, ParamsSetIn] = {}
+        self._timed: list[Any] = []
         self._connections: dict[str, _Connection] = {}
         self._by_client: dict[int, _Connection] = {}
         self._calls: dict[int, _Call] = {}
@@ -431,7 +510,8 @@ class FoxgloveHost:
         self._our_calls: set[tuple[int, int]] = set()
         self._inflight: set[concurrent.futures.Future[bytes]] = set()
         self._front: asyncio.Server | None = None
-        self.server = start_server(settings, _listener(self._put_event), self._services())
+        listener = _listener(self._put_event, self._put_subscription, self._get_params, self._set_params)
+        self.server = start_server(settings, listener, self._services())
         self.port = settings.port
         self.url = url(settings.host, settings.port)
         self._writer: Any = None
@@ -475,15 +555,20 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: ClientCore) -> None:
-        """Feed ``core`` from now on, and run its timers (until :meth:`close`)."""
+    def attach(self, core: ClientCore, *timed: Timed) -> None:
+        """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
         self.core = core
-        self.timer = DeadlineTimer(core, self.clock)
+        self._timed = [core, *timed]
+        self.timer = DeadlineTimer(_Together(self._timed), self.clock)
         self.timer.start()
 
-    def connect(self, zenoh: ZenohSide | None) -> None:
-        """What the core sends to the robot's keys goes to ``zenoh`` (None: nowhere, before the session opens and after it closes)."""
-        self._zenoh = zenoh
+    def watch_with(self, watch: Watch, viewer: Viewer) -> None:
+        """Follow the clients' subscriptions in ``watch`` and tell ``viewer`` (before any client connects)."""
+        self.watch, self.viewer = watch, viewer
+
+    def serve_params(self, params: Parameters, robots: ParamsRobots) -> None:
+        """Answer the clients' getParameters and setParameters from ``params``; what it asks of a gateway goes to ``robots``."""
+        self.params, self._params_robots = params, robots
 
     async def run(self, stop: asyncio.Event) -> None:
         """Serve until ``stop``: the view's handlers run on the loop as the edge hands payloads over, the core's timers on the loop's timer."""
@@ -500,6 +585,9 @@ class FoxgloveHost:
         for future in list(self._inflight):
             if not future.done():
                 future.set_exception(ServiceFailure("blackmetal foxglove is stopping"))
+        for request in self._sets.values():
+            if not request.future.done():
+                request.future.set_exception(ServiceFailure("blackmetal foxglove is stopping"))
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -549,6 +637,8 @@ class FoxgloveHost:
                     if self.core is not None:
                         self.core.on_client_gone(connection.client, self.clock())
                         self.poke()
+                    if self.watch is not None and self.viewer is not None and self.watch.client_gone(connection.client):
+                        self.viewer.watch_changed()  # the SDK says so too, subscription by subscription; this is the same end, once
 
     @staticmethod
     async def _copy(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -619,6 +709,80 @@ class FoxgloveHost:
             core.on_message(event.client, event.channel, event.data, now)
         self.poke()
 
+    def _on_subscription(self, event: ClientEvent) -> None:
+        watch, viewer = self.watch, self.viewer
+        if watch is None or viewer is None:
+            return
+        if event.kind is EventKind.SUBSCRIBE:
+            first = watch.subscribe(event.client, event.topic)
+            viewer.subscribed(event.topic)
+            changed = first
+        else:
+            changed = watch.unsubscribe(event.client, event.topic)
+        if changed:
+            viewer.watch_changed()
+        self.poke()
+
+    # --------------------------------------------------------------- parameters
+    def _get_params(self, names: list[str]) -> list[Any]:
+        """getParameters, on an SDK thread: from the snapshot the loop last made (a list replaced whole, never changed)."""
+        snapshot = self._param_snapshot
+        if not names:
+            return snapshot
+        wanted = set(names)
+        return [param for param in snapshot if param.name in wanted]
+
+    def _set_params(self, client: int, parameters: list[Any]) -> list[Any]:
+        """setParameters, on an SDK thread: hand it to the loop, wait (bounded) for the gateways' answer, answer with the values then."""
+        future: concurrent.futures.Future[list[Param]] = concurrent.futures.Future()
+        values = [(p.name, p.get_value()) for p in parameters]
+        try:
+            self._put_set(ParamsSetIn(client, values, future))
+            answer = future.result(timeout=self.settings.call_timeout + CALL_MARGIN_S)
+        except (concurrent.futures.TimeoutError, concurrent.futures.CancelledError, ServiceFailure):
+            return self._get_params([name for name, _ in values])  # the values the view knows: nothing it did not see changed
+        return [foxglove_parameter(param) for param in answer]
+
+    def _on_params_set(self, request: ParamsSetIn) -> None:
+        if self.params is None:
+            request.future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
+            return
+        number = next(self._numbers)
+        self._sets[number] = request
+        self.params.on_set(number, request.client, request.values, self.clock())
+        self.poke()
+
+    # ParamsOutput
+    def ask_params(self, robot_id: str) -> None:
+        self._params_robots.ask_params(robot_id)
+
+    def set_params(self, robot_id: str, call: int, payload: bytes) -> None:
+        self._params_robots.set_params(robot_id, call, payload)
+
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None:
+        self._params_robots.report(robot_id, topic, reason, text, now)
+
+    def parameters_answer(self, call: int, values: list[Param]) -> None:
+        request = self._sets.pop(call, None)
+        if request is not None and not request.future.done():
+            request.future.set_result(values)
+
+    def parameters_changed(self, values: list[Param]) -> None:
+        """A gateway's table changed: the snapshot is made anew and the changed values go to the clients that follow them."""
+        if self.params is not None:
+            self._param_snapshot = [foxglove_parameter(param) for param in self.params.values()]
+        self.server.publish_parameter_values([foxglove_parameter(param) for param in values])
+
+    def on_params_table(self, robot_id: str, payload: bytes) -> GatewayParams | None:
+        """A gateway's parameter table arrived (published, or answered); the table, if it decoded."""
+        return self.params.on_table(robot_id, payload, self.clock()) if self.params is not None else None
+
+    def on_params_reply(self, robot_id: str, reply: tuple[int, bytes | None, bytes | None]) -> None:
+        if self.params is not None:
+            call, ok, err = reply
+            self.params.on_set_reply(robot_id, call, ok, err, self.clock())
+            self.poke()
+
     def _handle_call(self, request: Any) -> bytes:
         """The SDK's service handler, on its blocking thread: hand the call over and wait for the core's answer (bounded)."""
         future: concurrent.futures.Future[bytes] = concurrent.futures.Future()
@@ -642,39 +806,7 @@ class FoxgloveHost:
         core.on_service_call(number, call.client, call.service, call.payload, self.clock())
         self.poke()
 
-    # --------------------------------------------------------------- from the Zenoh edge, on the loop
-    def on_health(self, payload: bytes) -> None:
-        if isinstance(self.core, Controls):
-            self.core.on_health(payload, self.clock())
-            self.poke()
-
-    def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None:
-        """``(call, ok, None)`` or ``(call, None, err)`` per reply; ``(call, None, None)`` when the query ended."""
-        if isinstance(self.core, Controls):
-            call, ok, err = reply
-            if ok is None and err is None:
-                self.core.on_reset_done(call, self.clock())
-            else:
-                self.core.on_reset_reply(call, ok, err, self.clock())
-            self.poke()
-
-    # --------------------------------------------------------------- ControlsOutput
-    def command(self, key: str, payload: bytes) -> None:
-        if self._zenoh is not None:
-            self._zenoh.command(key, payload)
-
-    def ask_health(self) -> None:
-        if self._zenoh is not None:
-            self._zenoh.ask_health()
-
-    def ask_reset(self, call: int, payload: bytes) -> None:
-        if self._zenoh is not None:
-            self._zenoh.ask_reset(call, payload)
-
-    def error(self, message: ErrorReport) -> None:
-        if self._zenoh is not None:
-            self._zenoh.error(message)
-
+    # --------------------------------------------------------------- to the clients (ControlsOutput's other half: the robot's keys are its port's)
     def status(self, client: int | None, level: StatusLevel, message: str) -> None:
         """A status message to that client; to every client when it is not known (a client that did not come through the front)."""
         connection = self._by_client.get(client) if client is not None else None

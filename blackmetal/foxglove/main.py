@@ -24,8 +24,14 @@ from blackmetal.schemas import Keys, require_extra
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .params import Parameters
+from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
+from .watch import Watch
 from .zenoh_edge import FoxgloveZenoh
+
+#: The one robot's id where the parts name robots (its names carry no namespace).
+ONE_ROBOT = ""
 
 
 async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
@@ -36,17 +42,28 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
     try:
         await host.start()  # the port is taken before Zenoh opens: a port in use is one sentence, at once
         view = LiveView(keys, path_length=settings.path_length)
-        host.attach(Controls(keys, host, call_timeout=settings.call_timeout))
+        port = RobotPort(ONE_ROBOT, host, view)
+        port.controls = Controls(keys, port, call_timeout=settings.call_timeout)
+        params = Parameters({ONE_ROBOT: (keys, "")}, host, call_timeout=settings.call_timeout)
+        host.attach(port.controls, params)
+        watch = Watch(view.feeds(), record_all=bool(settings.mcap))
+        wiring = Wiring({ONE_ROBOT: port}, watch)
+        host.watch_with(watch, wiring)
+        host.serve_params(params, wiring)
         with await open_service_session(settings.zenoh, stop, "foxglove") as session:
             edge = FoxgloveZenoh(session, keys, query_timeout=settings.call_timeout)
-            edge.attach(view, host, asyncio.get_running_loop())
-            host.connect(edge)
+            edge.attach(view, port, asyncio.get_running_loop(), on_error=port.on_bug)
+            port.edge = edge
+            wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+            view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
+            edge.ask_params()
             address = host.url
             print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
             print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
             print(f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}", flush=True)
             print(f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})", flush=True)
             print(f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}", flush=True)
+            print(f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}", flush=True)
             print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
             if settings.mcap:
                 print(f"  writing the same channels to {settings.mcap}", flush=True)
@@ -61,7 +78,8 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
             try:
                 await host.run(stop)
             finally:
-                host.connect(None)
+                wiring.stop()
+                port.edge = None
                 edge.close()
     finally:
         host.close()

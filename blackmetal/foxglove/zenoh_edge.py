@@ -1,20 +1,39 @@
 """Zenoh edge of the Foxglove view: declarations only; payloads and replies handed over to the view's loop.
 
-It subscribes to every key the view shows (:meth:`LiveView.handlers`),
-publishes what the view's clients command (``<prefix>/cmd_vel/foxglove``,
-``<prefix>/estop``) and its error reports, and asks the gateway's health and
-the odometry's reset for the services; replies come back through the same
-hand-over, never handled on a Zenoh thread.
+What the view shows comes through subscribers it declares **only while
+someone watches** (:meth:`FoxgloveZenoh.want`, from the host's
+:class:`~blackmetal.foxglove.watch.Watch`): a robot's pose, impulses,
+truth, status, health and errors cost the view nothing while no client
+subscribes to a channel they feed. While watched, they cost little: each
+such subscriber keeps its samples in a ring of Zenoh's own (the newest
+:data:`RING` samples; no Python runs and no thread wakes per sample, and a
+slow loop drops the oldest telemetry rather than holding Zenoh), and the
+view's loop takes them every :data:`DRAIN_PERIOD_S` (:meth:`drain`): a
+view refreshed at 50 Hz, a few hundred microseconds of work a tick instead
+of three thread hand-overs per sample. Always declared, because they carry
+nothing until something changes: the gateway's parameters, and (in a
+fleet) its liveliness token. The fleet summary reads each robot's latest
+pose from a one-slot ring (:meth:`FoxgloveZenoh.peek`): no Python runs per
+pose.
+
+It publishes what the view's clients command and its own error reports,
+with congestion control by kind: a command (``<prefix>/cmd_vel/foxglove``)
+and the e-stop (``<prefix>/estop``) block rather than drop, as safety needs;
+error reports are telemetry and are dropped rather than held behind a slow
+or dead link. It asks the gateway's health, parameters and parameter sets,
+and the odometry's reset, for the services; replies come back through the
+same hand-over, never handled on a Zenoh thread.
 """
 
 from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
+from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .core import COMMAND_SOURCE, LiveView
@@ -22,12 +41,21 @@ from .core import COMMAND_SOURCE, LiveView
 if TYPE_CHECKING:
     import zenoh
 
+Reply = tuple[int, bytes | None, bytes | None]
+
+#: Samples a watched key's ring keeps between two drains (a pose at 50 Hz brings one a drain).
+RING = 64
+#: How often the loop takes what the watched keys brought (s): the view's refresh, 50 Hz.
+DRAIN_PERIOD_S = 0.02
+
 
 class Answers(Protocol):
-    """Who takes the gateway's health and the odometry's reset replies: the host, or a fleet's robot's port."""
+    """Who takes the gateway's health, parameters and the replies: the host, or a fleet's robot's port."""
 
     def on_health(self, payload: bytes) -> None: ...
-    def on_reset_reply(self, reply: tuple[int, bytes | None, bytes | None]) -> None: ...
+    def on_reset_reply(self, reply: Reply) -> None: ...
+    def on_params(self, payload: bytes) -> None: ...
+    def on_params_reply(self, reply: Reply) -> None: ...
 
 
 def _error_bytes(reply: "zenoh.Reply") -> bytes:
@@ -38,19 +66,27 @@ def _error_bytes(reply: "zenoh.Reply") -> bytes:
 
 
 class FoxgloveZenoh(ZenohEdge):
-    """The view's Zenoh side: subscriptions for what it shows, publishers and queries for what its clients do."""
+    """One robot's Zenoh side of the view: subscriptions for what is watched, publishers and queries for what clients do."""
 
     def __init__(self, session: "zenoh.Session", keys: Keys, query_timeout: float = 2.0) -> None:
         super().__init__(session)
         self.keys = keys
         self.query_timeout = query_timeout
         self._publishers = {
+            # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
             keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys.cmd_vel_of(COMMAND_SOURCE), express=True),
-            keys.estop: self.publisher(keys.estop, express=True),  # blocking congestion control: a stop is never dropped
+            keys.estop: self.publisher(keys.estop, express=True),
         }
-        self._errors = self.publisher(keys.errors)
+        self._errors = self.publisher(keys.errors, drop_when_congested=True)  # telemetry: never held behind a dead link
+        self._handlers: dict[str, Callable[[bytes], None]] = {}
+        self._on_error: Callable[[BaseException], None] | None = None
+        self._declared: dict[str, Any] = {}
+        self._peek: Any = None
+        self._peeked: bytes | None = None
         self._health_reply: Callable[[bytes], None] = lambda payload: None
-        self._reset_reply: Callable[[tuple[int, bytes | None, bytes | None]], None] = lambda reply: None
+        self._reset_reply: Callable[[Reply], None] = lambda reply: None
+        self._params_reply: Callable[[bytes], None] = lambda payload: None
+        self._set_reply: Callable[[Reply], None] = lambda reply: None
 
     def attach(
         self,
@@ -59,8 +95,11 @@ class FoxgloveZenoh(ZenohEdge):
         loop: asyncio.AbstractEventLoop,
         handlers: dict[str, Callable[[bytes], None]] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
+        presence: Callable[[bool], None] | None = None,
     ) -> Intake:
-        """Subscribe ``handlers`` (default: the view's) on the loop; ``on_error`` takes what a handler raised (None: the loop's handler)."""
+        """Hand-over channels for ``handlers`` (default: the view's; declared by :meth:`want`), the gateway's parameters
+        (declared now), and with ``presence`` its liveliness token (present: True, gone: False).
+        ``on_error`` takes what a handler raised (None: the loop's handler)."""
         handover = Intake(loop, on_error)
         handlers = dict(handlers if handlers is not None else view.handlers())
         show_health = handlers[self.keys.health]
@@ -70,34 +109,108 @@ class FoxgloveZenoh(ZenohEdge):
             host.on_health(payload)
 
         handlers[self.keys.health] = on_health
-        for key, handler in handlers.items():
-            self.subscriber(key, handover.channel(key, handler, capacity=512))
+        self._handlers, self._on_error = handlers, on_error
+        self.subscriber(self.keys.params, handover.channel("params", host.on_params, capacity=16))
+        if presence is not None:
+            put = handover.channel("alive", presence, capacity=64)
+
+            def on_token(sample: "zenoh.Sample") -> None:
+                import zenoh
+
+                put(sample.kind == zenoh.SampleKind.PUT)
+
+            token = self.session.liveliness().declare_subscriber(self.keys.alive_gateway, on_token, history=True)
+            self._entities.append(token)
         self._health_reply = handover.channel("health?", host.on_health, capacity=64)
         self._reset_reply = handover.channel("reset?", host.on_reset_reply, capacity=64)  # replies, then the end, in order
+        self._params_reply = handover.channel("params?", host.on_params, capacity=16)
+        self._set_reply = handover.channel("params set?", host.on_params_reply, capacity=64)
         return handover
 
-    # ZenohSide
+    # ------------------------------------------------------------------ what is watched
+    def want(self, keys: set[str]) -> None:
+        """Subscribe to exactly these of the view's keys (each into its ring): declare the new ones, undeclare the rest."""
+        import zenoh
+
+        for key in [key for key in self._declared if key not in keys]:
+            undeclare(self._declared.pop(key))
+        for key in sorted(keys):
+            if key in self._handlers and key not in self._declared:
+                self._declared[key] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
+
+    def drain(self) -> int:
+        """On the loop: hand every sample the watched keys' rings hold to its handler, oldest first; how many there were.
+
+        A handler that raises is reported through ``on_error`` (the robot's
+        errors key) and the next sample goes on."""
+        taken = 0
+        for key, subscriber in list(self._declared.items()):
+            handler = self._handlers[key]
+            while (sample := subscriber.try_recv()) is not None:
+                taken += 1
+                try:
+                    handler(payload_bytes(sample))
+                except Exception as exc:
+                    if self._on_error is None:
+                        raise
+                    self._on_error(exc)
+        return taken
+
+    @property
+    def declared(self) -> set[str]:
+        """The view's keys subscribed now."""
+        return set(self._declared)
+
+    def peek(self, on: bool) -> None:
+        """Keep (or stop keeping) the robot's latest pose in a one-slot ring, for :meth:`latest_pose`."""
+        import zenoh
+
+        if on and self._peek is None:
+            self._peek = self.session.declare_subscriber(self.keys.pose, zenoh.handlers.RingChannel(1))
+        elif not on and self._peek is not None:
+            undeclare(self._peek)
+            self._peek, self._peeked = None, None
+
+    def latest_pose(self) -> bytes | None:
+        """The newest pose the ring holds (the last one taken when none came since)."""
+        if self._peek is not None:
+            sample = self._peek.try_recv()
+            if sample is not None:
+                self._peeked = payload_bytes(sample)
+        return self._peeked
+
+    def close(self) -> None:
+        for key in list(self._declared):
+            undeclare(self._declared.pop(key))
+        self.peek(False)
+        super().close()
+
+    # ------------------------------------------------------------------ ZenohSide
     def command(self, key: str, payload: bytes) -> None:
         self._publishers[key].put(payload)
 
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))
 
-    def ask_health(self) -> None:
+    def _get(self, key: str, put: Callable[[bytes], None], payload: bytes | None = None) -> None:
         import zenoh
-
-        put = self._health_reply
 
         def on_reply(reply: "zenoh.Reply") -> None:
             if reply.ok is not None:
                 put(payload_bytes(reply.ok))
 
-        self.session.get(self.keys.health, zenoh.handlers.Callback(on_reply), timeout=self.query_timeout)
+        self.session.get(key, zenoh.handlers.Callback(on_reply), payload=payload, timeout=self.query_timeout)
 
-    def ask_reset(self, call: int, payload: bytes) -> None:
+    def ask_health(self) -> None:
+        self._get(self.keys.health, self._health_reply)
+
+    def ask_params(self) -> None:
+        """A get on ``<prefix>/gateway/params``: the gateway's table, to :meth:`Answers.on_params`."""
+        self._get(self.keys.params, self._params_reply)
+
+    def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes) -> None:
+        """A get whose replies (``(call, ok, None)`` / ``(call, None, err)``) and end (``(call, None, None)``) go to ``put`` in order."""
         import zenoh
-
-        put = self._reset_reply
 
         def on_reply(reply: "zenoh.Reply") -> None:
             put((call, payload_bytes(reply.ok), None) if reply.ok is not None else (call, None, _error_bytes(reply)))
@@ -105,4 +218,11 @@ class FoxgloveZenoh(ZenohEdge):
         def on_end() -> None:
             put((call, None, None))
 
-        self.session.get(self.keys.odometry_reset, zenoh.handlers.Callback(on_reply, on_end), payload=payload, timeout=self.query_timeout)
+        self.session.get(key, zenoh.handlers.Callback(on_reply, on_end), payload=payload, timeout=self.query_timeout)
+
+    def ask_reset(self, call: int, payload: bytes) -> None:
+        self._ask(self.keys.odometry_reset, self._reset_reply, call, payload)
+
+    def set_params(self, call: int, payload: bytes) -> None:
+        """A get on ``<prefix>/gateway/params/set`` with a ParamsSet: the gateway's ParamsSetReply, then the end."""
+        self._ask(self.keys.params_set, self._set_reply, call, payload)

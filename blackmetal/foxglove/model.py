@@ -1,0 +1,192 @@
+"""The robot in the 3D panel: its URDF, and the wheels turning (pure).
+
+The URDF is :func:`blackmetal.robot_model.urdf` (the one ``blackmetal urdf``
+prints), each link prefixed as in a fleet (``r2/base_link``), with the wheel
+separation and radius the robot's gateway runs with (its read-only
+parameters ``wheel_separation`` and ``wheel_radius``; the robot model's until
+the gateway answers). It goes out on ``/robot_description``
+(``std_msgs/msg/String``): Foxglove's 3D panel lists that topic as a URDF of
+its own and its URDF layer reads any ``std_msgs/String`` topic, and the
+robot's links are primitives (no meshes), so no asset needs fetching.
+
+The 3D panel places each URDF link by the transforms it knows: the URDF's
+joints at their zero angle, then whatever arrives on a transform topic. So
+the wheels turn in the panel through transforms: :class:`WheelAngles`
+integrates each wheel's angle from the gateway's impulses, and the view
+sends ``base_link -> left_wheel`` and ``-> right_wheel`` on ``/tf``, each
+turned about its joint's axis; ``/joint_states`` carries the same angles
+(``sensor_msgs/msg/JointState``) for the panels that read joint states. The
+joints (name, parent, child, origin, axis) are read from the URDF text
+itself, so they cannot disagree with what the panel draws.
+"""
+
+from __future__ import annotations
+
+import math
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from typing import Any
+
+from blackmetal import robot_model as model
+from blackmetal.robot_model import Encoders
+from blackmetal.schemas import ConfigError, GatewayParams, WheelImpulses, stamp_parts
+
+#: Integrate no wheel angle across a gap longer than this (s): the wheels were not seen turning then.
+MAX_JOINT_GAP_S = 0.5
+
+#: ROS's std_msgs/msg/String as JSON: what the 3D panel's URDF layer reads.
+STRING_SCHEMA: dict[str, Any] = {
+    "title": "std_msgs/msg/String",
+    "description": "the robot's URDF (blackmetal.robot_model.urdf)",
+    "type": "object",
+    "properties": {"data": {"type": "string"}},
+    "required": ["data"],
+}
+
+_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+_NUMBERS = {"type": "array", "items": {"type": "number"}}
+
+#: ROS's sensor_msgs/msg/JointState as JSON.
+JOINT_STATE_SCHEMA: dict[str, Any] = {
+    "title": "sensor_msgs/msg/JointState",
+    "description": "the wheel joints' angles (rad) and speeds (rad/s), integrated from <prefix>/wheels/impulses",
+    "type": "object",
+    "properties": {
+        "header": {"type": "object", "properties": {"stamp": _TIME, "frame_id": {"type": "string"}}},
+        "name": {"type": "array", "items": {"type": "string"}},
+        "position": _NUMBERS,
+        "velocity": _NUMBERS,
+        "effort": _NUMBERS,
+    },
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Joint:
+    """A moving joint of the URDF: what the panel needs to turn its child link."""
+
+    name: str
+    parent: str
+    child: str
+    origin: tuple[float, float, float]
+    axis: tuple[float, float, float]
+
+
+def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[float, float, float]:
+    if not text:
+        return default
+    x, y, z = (float(part) for part in text.split())
+    return x, y, z
+
+
+def moving_joints(urdf_text: str) -> list[Joint]:
+    """The continuous and revolute joints of a URDF, in its order."""
+    joints = []
+    for element in ET.fromstring(urdf_text).iter("joint"):
+        if element.get("type") not in ("continuous", "revolute"):
+            continue
+        parent, child = element.find("parent"), element.find("child")
+        origin, axis = element.find("origin"), element.find("axis")
+        if parent is None or child is None:
+            continue
+        joints.append(
+            Joint(
+                element.get("name", ""),
+                parent.get("link", ""),
+                child.get("link", ""),
+                _floats(origin.get("xyz") if origin is not None else None, (0.0, 0.0, 0.0)),
+                _floats(axis.get("xyz") if axis is not None else None, (1.0, 0.0, 0.0)),
+            )
+        )
+    return joints
+
+
+def _param(params: GatewayParams, name: str) -> float | None:
+    for param in params.params:
+        if param.name == name and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
+            return float(param.value)
+    return None
+
+
+class RobotModel:
+    """One robot's URDF (frame-prefixed) and its wheel joints; rebuilt when the gateway's wheel geometry is known."""
+
+    def __init__(self, frame_prefix: str = "", encoders: Encoders | None = None) -> None:
+        self.frame_prefix = frame_prefix
+        self.encoders = encoders or Encoders()
+        self.body = model.Body()
+        self.urdf = ""
+        self.joints: list[Joint] = []
+        self.left: Joint | None = None
+        self.right: Joint | None = None
+        self._build()
+
+    def _build(self) -> None:
+        self.urdf = model.urdf(self.body, frame_prefix=self.frame_prefix)
+        self.joints = moving_joints(self.urdf)
+        wheels = {joint.child.removeprefix(self.frame_prefix): joint for joint in self.joints}
+        self.left, self.right = wheels.get("left_wheel"), wheels.get("right_wheel")
+
+    def on_params(self, params: GatewayParams) -> bool:
+        """The gateway's parameters: its wheel geometry and calibrated encoders. True when the URDF changed."""
+        separation = _param(params, "wheel_separation") or self.body.wheel_separation
+        radius = _param(params, "wheel_radius") or self.body.wheel_radius
+        left, right = _param(params, "impulses_left"), _param(params, "impulses_right")
+        if left and right and left > 0 and right > 0:
+            self.encoders = Encoders(left, right, self.encoders.mirror_right)
+        if (separation, radius) == (self.body.wheel_separation, self.body.wheel_radius):
+            return False
+        try:
+            body = model.Body(wheel_separation=separation, wheel_radius=radius).check()
+        except ConfigError:
+            return False  # the gateway's own checks keep these sane; the view keeps the model it has
+        self.body = body
+        self._build()
+        return True
+
+    def description(self) -> bytes:
+        """The ``/robot_description`` message (std_msgs/msg/String, JSON)."""
+        import json
+
+        return json.dumps({"data": self.urdf}).encode()
+
+
+class WheelAngles:
+    """Wheel angles (rad) integrated from the impulses' wheel speeds, trapezoid rule, never across a gap."""
+
+    def __init__(self) -> None:
+        self.positions = [0.0, 0.0]
+        self.velocities = [0.0, 0.0]
+        self._last: float | None = None
+
+    def feed(self, sample: WheelImpulses, encoders: Encoders, radius: float) -> None:
+        left, right = encoders.to_speeds(float(sample.left), float(sample.right))
+        velocities = [left / radius, right / radius]
+        now = sample.mono if sample.mono is not None else sample.stamp
+        if self._last is not None and 0.0 < now - self._last <= MAX_JOINT_GAP_S:
+            dt = now - self._last
+            for i in (0, 1):
+                self.positions[i] = math.remainder(self.positions[i] + 0.5 * (self.velocities[i] + velocities[i]) * dt, math.tau)
+        self._last = now
+        self.velocities = velocities
+
+
+def joint_state(robot: RobotModel, angles: WheelAngles, stamp: float) -> dict[str, Any]:
+    """sensor_msgs/msg/JointState of the two wheels (left, right)."""
+    sec, nsec = stamp_parts(stamp)
+    names = [joint.name for joint in (robot.left, robot.right) if joint is not None]
+    return {
+        "header": {"stamp": {"sec": sec, "nsec": nsec}, "frame_id": ""},
+        "name": names,
+        "position": list(angles.positions[: len(names)]),
+        "velocity": list(angles.velocities[: len(names)]),
+        "effort": [],
+    }
+
+
+def turned(joint: Joint, angle: float) -> tuple[tuple[float, float, float], tuple[float, float, float, float]]:
+    """The joint's transform at ``angle``: its origin, and the rotation about its axis as a quaternion (x, y, z, w)."""
+    ax, ay, az = joint.axis
+    norm = math.sqrt(ax * ax + ay * ay + az * az) or 1.0
+    s = math.sin(angle / 2) / norm
+    return joint.origin, (ax * s, ay * s, az * s, math.cos(angle / 2))

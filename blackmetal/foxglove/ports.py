@@ -1,0 +1,194 @@
+"""How the view's parts meet, for one robot and for a fleet alike: each robot's port, and the wiring of them all.
+
+:class:`RobotPort` is one robot's side: its :class:`~.core.Controls` send to
+the robot's keys through its Zenoh edge and to the clients through the host;
+its edge's answers (health, replies, parameters, liveliness) come back to
+its controls, the view and the parameters. :class:`Wiring` is what the host
+asks of the view as a whole: which keys to follow as clients subscribe and
+unsubscribe (:class:`~.watch.Watch`), the URDF to a new subscriber, and
+parameter gets and sets to the right robot's gateway.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import ErrorReport
+
+from .core import FLEET_NAMESPACE, Controls, FleetView, LiveView, StatusLevel
+from .host import FoxgloveHost
+from .watch import Watch
+from .zenoh_edge import DRAIN_PERIOD_S, FoxgloveZenoh, Reply
+
+log = logging.getLogger("blackmetal.foxglove")
+
+
+class RobotPort:
+    """One robot's side of the view: its controls' output (its Zenoh edge; the shared server), and its edge's answers in."""
+
+    def __init__(self, robot_id: str, host: FoxgloveHost, view: LiveView) -> None:
+        self.robot_id = robot_id
+        self.host = host
+        self.view = view
+        self.controls: Controls | None = None
+        self.edge: FoxgloveZenoh | None = None
+        #: The fleet view, told when the robot's gateway comes and goes (None for one robot).
+        self.fleet: FleetView | None = None
+
+    # ControlsOutput: the robot's keys through its edge (nowhere before the session opens and after it closes), the clients through the host
+    def command(self, key: str, payload: bytes) -> None:
+        if self.edge is not None:
+            self.edge.command(key, payload)
+
+    def ask_health(self) -> None:
+        if self.edge is not None:
+            self.edge.ask_health()
+
+    def ask_reset(self, call: int, payload: bytes) -> None:
+        if self.edge is not None:
+            self.edge.ask_reset(call, payload)
+
+    def error(self, message: ErrorReport) -> None:
+        if self.edge is not None:
+            self.edge.error(message)
+
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None:
+        self.host.status(client, level, message)
+
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
+        self.host.answer(call, response, failure)
+
+    # Answers: from the edge, on the loop
+    def on_health(self, payload: bytes) -> None:
+        if self.controls is not None:
+            self.controls.on_health(payload, self.host.clock())
+            self.host.poke()
+
+    def on_reset_reply(self, reply: Reply) -> None:
+        if self.controls is not None:
+            call, ok, err = reply
+            if ok is None and err is None:
+                self.controls.on_reset_done(call, self.host.clock())
+            else:
+                self.controls.on_reset_reply(call, ok, err, self.host.clock())
+            self.host.poke()
+
+    def on_params(self, payload: bytes) -> None:
+        """The gateway's parameter table: to the parameters (and the clients following them) and the URDF (its wheel geometry)."""
+        table = self.host.on_params_table(self.robot_id, payload)
+        if table is not None:
+            self.view.on_params(table)
+
+    def on_params_reply(self, reply: Reply) -> None:
+        self.host.on_params_reply(self.robot_id, reply)
+
+    def on_token(self, alive: bool) -> None:
+        """The robot's gateway came (ask its parameters: it may have restarted with others) or went."""
+        if self.fleet is not None:
+            self.fleet.on_token(self.robot_id, alive)
+        if alive and self.edge is not None:
+            self.edge.ask_params()
+        self.host.poke()
+
+    def on_bug(self, exc: BaseException) -> None:
+        """A handler of this robot's payloads raised: reported on its errors key (rate-limited); the view goes on."""
+        log.error("view of robot %s: handler failed: %r", self.robot_id or self.view.keys.prefix, exc)
+        if self.controls is not None:
+            self.controls.reporter.report(
+                "foxglove:view", f"showing {self.robot_id or self.view.keys.prefix} failed: {exc!r}", now=self.host.clock()
+            )
+            self.host.poke()
+
+
+class Wiring:
+    """The host's :class:`~.host.Viewer` and :class:`~.host.ParamsRobots` over every robot's port."""
+
+    def __init__(
+        self,
+        ports: dict[str, RobotPort],
+        watch: Watch,
+        fleet: FleetView | None = None,
+        fleet_reporter: ErrorReporter | None = None,
+    ) -> None:
+        """``fleet_reporter``: reports that name no robot (the fleet's log)."""
+        self.ports = ports
+        self.watch = watch
+        self.fleet = fleet
+        self.fleet_reporter = fleet_reporter
+        self._descriptions = {port.view.description_topic: port for port in ports.values()}
+        self._peeking = False
+        self._drain: asyncio.TimerHandle | None = None
+
+    # Viewer
+    def subscribed(self, topic: str) -> None:
+        port = self._descriptions.get(topic)
+        if port is not None:
+            port.view.describe()
+
+    def watch_changed(self) -> None:
+        """Subscribe each robot's edge to the keys its watched topics need, and keep the summary's poses while it is watched."""
+        needed = self.watch.needed()
+        for port in self.ports.values():
+            if port.edge is not None:
+                port.edge.want({key for key in port.view.handlers() if key in needed})
+        following = any(port.edge is not None and port.edge.declared for port in self.ports.values())
+        if following and self._drain is None:
+            self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
+        elif not following and self._drain is not None:
+            self._drain.cancel()
+            self._drain = None
+        if self.fleet is not None:
+            follows = any(self.watch.watched(topic) for topic in self.fleet.fleet_topics)
+            if not follows:
+                self.fleet.suspend()
+            peek = self.watch.watched(f"{FLEET_NAMESPACE}/summary")
+            if peek != self._peeking:
+                self._peeking = peek
+                for port in self.ports.values():
+                    if port.edge is not None:
+                        port.edge.peek(peek)
+            self.fleet.poses = self.latest_pose
+
+    def _take(self) -> None:
+        """Every :data:`DRAIN_PERIOD_S` while a key is followed: what the watched keys brought, to the view."""
+        self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
+        for port in self.ports.values():
+            if port.edge is not None:
+                port.edge.drain()
+        port_host = next(iter(self.ports.values())).host
+        port_host.poke()
+
+    def stop(self) -> None:
+        """No more draining (the edges are closing)."""
+        if self._drain is not None:
+            self._drain.cancel()
+            self._drain = None
+
+    def latest_pose(self, robot_id: str) -> bytes | None:
+        port = self.ports.get(robot_id)
+        return port.edge.latest_pose() if port is not None and port.edge is not None else None
+
+    # ParamsRobots
+    def ask_params(self, robot_id: str) -> None:
+        port = self.ports[robot_id]
+        if port.edge is not None:
+            port.edge.ask_params()
+
+    def set_params(self, robot_id: str, call: int, payload: bytes) -> None:
+        port = self.ports[robot_id]
+        if port.edge is not None:
+            port.edge.set_params(call, payload)
+        else:
+            self.ports[robot_id].host.on_params_reply(robot_id, (call, None, None))
+
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None:
+        """What the view refused of a parameter set: on the robot's errors key, or the fleet's log when it names none."""
+        port = self.ports.get(robot_id) if robot_id is not None else None
+        if port is None and len(self.ports) == 1:
+            port = next(iter(self.ports.values()))
+        if port is not None and port.controls is not None:
+            port.controls.reporter.report(f"foxglove:{topic}", reason, text, now=now)
+        elif self.fleet_reporter is not None:
+            self.fleet_reporter.report(f"foxglove:{topic}", reason, text, now=now)
