@@ -21,6 +21,7 @@ from blackmetal.robot_model import Encoders
 from blackmetal.ros2.core import Ros2Core, Ros2Options
 from blackmetal.ros2.messages import Frames, RosCodec
 from blackmetal.ros2.naming import (
+    PARAMETER_SERVICES,
     Direction,
     NodeIdentity,
     Qos,
@@ -375,7 +376,8 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         nodes = [t for t in tokens if split_token(t)[5] == "NN"]
         entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
-        assert len(entities) == len(tokens) - 1 == 11  # /cmd_vel twice: Twist and TwistStamped; the robot model's two
+        # /cmd_vel twice: Twist and TwistStamped; the robot model's two; /parameter_events and six parameter services
+        assert len(entities) == len(tokens) - 1 == 18
         for token in tokens:
             assert all(split_token(token)), token
         for token in entities:
@@ -383,11 +385,12 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         published = {split_token(t)[9] for t in entities if split_token(t)[5] == "MP"}
         subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
         served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
-        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static"}
+        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static", "%parameter_events"}
         assert subscribed == {"%cmd_vel", "%estop"}
         cmd_vel_types = sorted(split_token(t)[10] for t in entities if split_token(t)[9] == "%cmd_vel")
         assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
-        assert served == {"%set_estop", "%reset_odometry"}
+        params = {f"%blackmetal%{name}" for name in PARAMETER_SERVICES}  # node-private, as rclcpp's ~/list_parameters
+        assert served == {"%set_estop", "%reset_odometry"} | params
 
         # /cmd_vel from a ROS publisher drives the robot, with or without the attachment
         twist = codec.encode_twist(0.3, 0.0)
@@ -431,6 +434,7 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        assert len(tokens) == 11 and all(split_token(t)[7] == "%r1" for t in tokens)  # node + 8 topics + 2 services, none from the bridges
+        # node + 9 topics + 8 services, none from the bridges
+        assert len(tokens) == 18 and all(split_token(t)[7] == "%r1" for t in tokens)
         names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

@@ -31,7 +31,7 @@ from test_ros2_services import DIAGNOSTICS_KEY, SET_BOOL_HASH, RmwZenohClient, r
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.fleet import fleet_settings, serve_fleet
 from blackmetal.ros2.messages import SET_BOOL, RosCodec
-from blackmetal.ros2.naming import attachment, gid_of, split_token, tf_frame_prefix, topics
+from blackmetal.ros2.naming import PARAMETER_SERVICES, attachment, gid_of, split_token, tf_frame_prefix, topics
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import parse_fleet
 from blackmetal.runtime.zenoh_setup import ZenohSettings
@@ -164,11 +164,11 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [split_token(str(r.ok.key_expr)) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 12, what="3 nodes' tokens (node, 9 topics with /cmd_vel twice, 2 services each)")
+        wait_for(lambda: len(tokens()) == 3 * 19, what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services each)")
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 36  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 3 * 19  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {
@@ -176,7 +176,8 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
                 "%tf_static",
                 f"%{rid}%set_estop",
                 f"%{rid}%reset_odometry",
-            }, names
+                "%parameter_events",
+            } | {f"%{rid}%blackmetal%{name}" for name in PARAMETER_SERVICES}, names
 
         # /r2/odom: its frames prefixed as diff_drive_controller does; /tf carries every robot's
         wait_for(lambda: len(odoms) >= 5, what="/r2/odom")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 import struct
 import subprocess
 import time
@@ -38,6 +39,7 @@ from test_urdf import check_urdf
 
 from blackmetal import robot_model as model
 from blackmetal.schemas import Pose, decode
+from blackmetal.wire import CommandCode
 
 pytestmark = pytest.mark.integration
 
@@ -51,7 +53,15 @@ SDK_TYPES = (
     "std_msgs/msg/String",
     "tf2_msgs/msg/TFMessage",
     "sensor_msgs/msg/JointState",
+    "rcl_interfaces/msg/Parameter",
+    "rcl_interfaces/msg/ParameterValue",
+    "rcl_interfaces/msg/ParameterDescriptor",
+    "rcl_interfaces/msg/SetParametersResult",
+    "rcl_interfaces/msg/ListParametersResult",
+    "rcl_interfaces/msg/ParameterEvent",
 )
+#: Genuine .srv files (tests/ros2_interfaces/README.md says where from), copied into the SDK's interfaces directory.
+VENDORED = Path(__file__).resolve().parent / "ros2_interfaces"
 STRING_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"  # std_msgs/String, ROS 2 Jazzy
 
 
@@ -108,6 +118,10 @@ def interfaces(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
     for typename in SDK_TYPES:
         write(typename)
+    for srv in VENDORED.glob("*/srv/*.srv"):
+        target = root / srv.relative_to(VENDORED)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(srv, target)
     return root
 
 
@@ -257,6 +271,29 @@ class HumbleClient:
             time.sleep(0.1)
         publisher.undeclare()
 
+    def list_parameters(self, node: str = "/blackmetal") -> list[str]:
+        """``ros2 param list``'s call on Humble (``rmw_client_data.cpp``: a get on the service key with the request
+        and the client's attachment); the names, read from the CDR by hand (ListParametersResult: string[] names,
+        string[] prefixes)."""
+        dds = "rcl_interfaces::srv::dds_::ListParameters_"
+        gid = self.entity("SC", f"{node}/list_parameters", dds)
+        request = b"\x00\x01\x00\x00" + struct.pack("<I", 0) + b"\x00" * 4 + struct.pack("<Q", 0)  # no prefixes, depth 0
+        replies = list(self.session.get(self.key(f"{node}/list_parameters", dds), payload=request, timeout=5,
+                                        attachment=struct.pack("<qqB", 1, time.time_ns(), 16) + gid,
+                                        target=zenoh.QueryTarget.ALL_COMPLETE))  # fmt: skip
+        oks = [r.ok for r in replies if r.ok is not None]
+        if not oks:
+            return []  # not served yet
+        (reply,) = oks
+        assert reply.attachment is not None and struct.unpack_from("<q", reply.attachment.to_bytes())[0] == 1  # our sequence
+        body, pos, names = reply.payload.to_bytes()[4:], 4, []
+        for _ in range(struct.unpack_from("<I", body, 0)[0]):
+            pos += -pos % 4
+            (length,) = struct.unpack_from("<I", body, pos)
+            names.append(body[pos + 4 : pos + 4 + length - 1].decode())
+            pos += 4 + length
+        return names
+
     def close(self) -> None:
         for token in self.tokens:
             token.undeclare()
@@ -340,6 +377,12 @@ def test_humble_client_reads_odom_and_drives(children: list[Child]) -> None:
         assert all(t.split("/")[11] == "TypeHashNotSupported" for t in graph if len(t.split("/")) == 13)
         assert not any("RIHS01_" in t for t in tokens(session))  # a Humble node only
         assert_humble_drives_and_sees_odom(session)
+        humble = HumbleClient(session, node="humble_param_client")
+        try:  # `ros2 param list /blackmetal` on Humble: the gateway's parameters (its table reached the node first)
+            names = wait_for(lambda: humble.list_parameters() or None, what="the gateway's parameters through the Humble node")
+            assert {"max_wheel_speed", "cmd_timeout", "wheel_radius"} <= set(names)
+        finally:
+            humble.close()
 
 
 def test_humble_and_jazzy_at_once_both_drive_and_read_odom_at_the_pose_rate(children: list[Child], sdk: Any) -> None:
@@ -423,3 +466,79 @@ def test_a_fleet_of_three_has_each_robots_description_and_frames(children: list[
         assert pairs == {
             (f"{r}/{a}", f"{r}/{b}") for r in ("r1", "r2", "r3") for a, b in (("base_footprint", "base_link"), ("base_link", "caster"))
         }
+
+
+def test_jazzy_sdk_lists_and_sets_a_speed_limit_and_the_robots_wire_shows_it(children: list[Child], sdk: Any) -> None:
+    """``ros2 param list`` / ``set`` as the SDK's service client does them: the gateway's table, a speed limit set
+    through the gateway's own key (the robot's wire then carries commands clamped to it), an out-of-range value
+    refused with the gateway's reason, each change on /parameter_events. A robot written for the tests (its wire log)
+    and the gateway stand in for ``up``'s simulator, so what reached the robot is read byte for byte."""
+    from rogue_robot import Behaviour, RogueRobot
+    from test_ros2_services import PARAMETER_EVENT_HASH, PARAMETER_SERVICE_HASHES
+
+    velocity = int(CommandCode.SET_LR_WHEEL_VELOCITY)
+    robot = RogueRobot(Behaviour()).start()
+    try:
+        port = free_port()
+        router = Child(["-m", "blackmetal", "router", "-c", str(ROS2_DEPLOY / "rmw_zenohd.json5"), "-l", f"tcp/127.0.0.1:{port}"])
+        children.append(router)
+        router.ready()
+        endpoint = ["-e", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"]
+        gateway = Child(["-m", "blackmetal", "gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+                         "--cmd-timeout", "0", *endpoint])  # fmt: skip
+        ros2 = Child(["-m", "blackmetal", "ros2", "--distro", "jazzy", *endpoint])
+        children.extend([gateway, ros2])
+        gateway.ready()
+        ready = ros2.ready()
+        for name, (_, type_hash) in PARAMETER_SERVICE_HASHES.items():
+            assert ready["services"][name].endswith(type_hash) and ready["services"][name].startswith(f"0/blackmetal/{name}/")
+        node = sdk(port)
+        events_key = node.ask(op="subscribe", topic="/parameter_events", type="rcl_interfaces/msg/ParameterEvent")["key"]
+        assert events_key == f"0/parameter_events/rcl_interfaces::msg::dds_::ParameterEvent_/{PARAMETER_EVENT_HASH}"
+
+        listed = node.ask(op="call", service="/blackmetal/list_parameters", type="rcl_interfaces/srv/ListParameters",
+                          request={"prefixes": [], "depth": 0})  # fmt: skip
+        assert listed.get("ok"), listed
+        assert listed["key"] == ready["services"]["list_parameters"]  # the SDK's own hash of the genuine .srv is ours
+        names = listed["response"]["result"]["names"]
+        assert {"max_wheel_speed", "cmd_timeout", "wheel_separation", "sources.teleop.priority"} <= set(names)
+        assert "sources.teleop" in listed["response"]["result"]["prefixes"]
+
+        with zenoh.open(client_config(port)) as session:
+            session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.6}}))
+            wait_for(lambda: any(c[1] == (0.6, 0.6) for c in robot.commands(velocity)), what="the robot driving at 0.6 m/s")
+
+        def set_params(*values: tuple[str, dict[str, Any]]) -> dict[str, Any]:
+            answer = node.ask(op="call", service="/blackmetal/set_parameters", type="rcl_interfaces/srv/SetParameters",
+                              request={"parameters": [{"name": n, "value": v} for n, v in values]})  # fmt: skip
+            assert answer.get("ok"), answer
+            return answer
+
+        set_params(("max_wheel_speed", {"type": 3, "double_value": 0.5}))  # the SDK's client is made (and waited for) once
+        answer = set_params(("max_wheel_speed", {"type": 3, "double_value": 0.25}))
+        assert answer["response"]["results"] == [{"successful": True, "reason": ""}]
+        start = answer["started"]
+        (arrival, _), *_ = wait_for(lambda: [c for c in robot.commands(velocity, since=start) if c[1] == (0.25, 0.25)],
+                                    what="commands clamped to 0.25 m/s on the robot's wire")  # fmt: skip
+        print(f"set_parameters max_wheel_speed 0.5 -> 0.25: the SDK's call {1000 * answer['elapsed_s']:.1f} ms; "
+              f"on the robot's wire {1000 * (arrival - start):.1f} ms after the call began")  # fmt: skip
+        assert all(c[1] is None or max(map(abs, c[1])) <= 0.25 for c in robot.commands(velocity, since=arrival))
+
+        refused = set_params(("max_wheel_speed", {"type": 3, "double_value": 9.0}), ("wheel_radius", {"type": 3, "double_value": 0.2}))
+        (speed, radius) = refused["response"]["results"]
+        assert not speed["successful"] and "max_wheel_speed must be within" in speed["reason"]
+        assert not radius["successful"] and "read-only" in radius["reason"]
+
+        got = node.ask(op="call", service="/blackmetal/get_parameters", type="rcl_interfaces/srv/GetParameters",
+                       request={"names": ["max_wheel_speed", "nonexistent"]})  # fmt: skip
+        values = got["response"]["values"]
+        assert (values[0]["type"], values[0]["double_value"]) == (3, 0.25) and values[1]["type"] == 0  # NOT_SET
+
+        def changed_speed() -> bool:
+            last = node.ask(op="received", topic="/parameter_events")["last"] or {}
+            return any(p["name"] == "max_wheel_speed" and p["value"]["double_value"] == 0.25 for p in last.get("changed_parameters", []))
+
+        wait_for(changed_speed, what="max_wheel_speed changed on /parameter_events")
+        assert (node.ask(op="received", topic="/parameter_events")["last"] or {})["node"] == "/blackmetal"
+    finally:
+        robot.stop()

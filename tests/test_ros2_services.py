@@ -34,7 +34,7 @@ from blackmetal.ros2.core import (
     Ros2Options,
 )
 from blackmetal.ros2.messages import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level, RosCodec
-from blackmetal.ros2.naming import NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
+from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
 
@@ -42,6 +42,17 @@ from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHeal
 SET_BOOL_HASH = "RIHS01_abe9e4bb6b41b40e6789712c00ec8871923e089af3f667a79992a428cff2da0a"
 TRIGGER_HASH = "RIHS01_eeff2cd6fa5ad9d27cdf4dec64818317839b62f212a91e6b5304b634b2062c5f"
 DIAGNOSTIC_ARRAY_HASH = "RIHS01_5a8a36efb05fb25070fa0fb3810290c0e6cd4862b54a8fb975a1ee8dc55a333e"
+#: The parameter services' types and hashes as ROS 2 generates them (rosidl's type descriptions; the same on Jazzy,
+#: Kilted and Rolling, and what an rclcpp node's ``ros2 service list -t`` keys carry), written down, not computed here.
+PARAMETER_SERVICE_HASHES = {
+    "get_parameters": ("GetParameters", "RIHS01_bf9803d5c74cf989a5de3e0c2e99444599a627c7ff75f97b8c05b01003675cbc"),
+    "get_parameter_types": ("GetParameterTypes", "RIHS01_da199c878688b3e530bdfe3ca8f74cb9fa0c303101e980a9e8f260e25e1c80ca"),
+    "set_parameters": ("SetParameters", "RIHS01_56eed9a67e169f9cb6c1f987bc88f868c14a8fc9f743a263bc734c154015d7e0"),
+    "set_parameters_atomically": ("SetParametersAtomically", "RIHS01_0e192ef259c07fc3c07a13191d27002222e65e00ccec653ca05e856f79285fcd"),
+    "describe_parameters": ("DescribeParameters", "RIHS01_845b484d71eb0673dae682f2e3ba3c4851a65a3dcfb97bddd82c5b57e91e4cff"),
+    "list_parameters": ("ListParameters", "RIHS01_3e6062bfbb27bfb8730d4cef2558221f51a11646d78e7bb30a1e83afac3aad9d"),
+}
+PARAMETER_EVENT_HASH = "RIHS01_043e627780fcad87a22d225bc2a037361dba713fca6a6b9f4b869a5aa0393204"
 SET_ESTOP_KEY = f"0/set_estop/std_srvs::srv::dds_::SetBool_/{SET_BOOL_HASH}"
 RESET_KEY = f"0/reset_odometry/std_srvs::srv::dds_::Trigger_/{TRIGGER_HASH}"
 DIAGNOSTICS_KEY = f"0/diagnostics/diagnostic_msgs::msg::dds_::DiagnosticArray_/{DIAGNOSTIC_ARRAY_HASH}"
@@ -383,9 +394,11 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
     bridge = Child(["-m", "blackmetal", "ros2", "--flavor", "bridge", "--namespace", "r1", *zenoh_connect_args(zport)])
     children.extend([ros2, bridge])
     ready = ros2.ready()
-    assert ready["services"] == {"set_estop": SET_ESTOP_KEY, "reset_odometry": RESET_KEY}
+    assert {k: ready["services"][k] for k in ("set_estop", "reset_odometry")} == {"set_estop": SET_ESTOP_KEY, "reset_odometry": RESET_KEY}
     assert ready["keys"]["diagnostics"] == DIAGNOSTICS_KEY
-    assert bridge.ready()["services"] == {"set_estop": "r1/set_estop", "reset_odometry": "r1/reset_odometry"}
+    assert bridge.ready()["services"] == {"set_estop": "r1/set_estop", "reset_odometry": "r1/reset_odometry"} | {
+        name: f"r1/blackmetal/{name}" for name in PARAMETER_SERVICES
+    }
     with zenoh.open(client_config(zport)) as session:
         arrays: list[tuple[float, dict[str, dict[str, Any]]]] = []
 
@@ -405,10 +418,13 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
             return {split_token(t)[9]: split_token(t)[10:12] for t in tokens if split_token(t)[5] == "SS"}
 
         # a liveliness query on a loaded machine may come back before every token has answered: ask until both have
-        servers = wait_for(lambda: len(found := service_servers()) >= 2 and found, what="the service servers' tokens")
+        servers = wait_for(lambda: len(found := service_servers()) >= 8 and found, what="the service servers' tokens")
         assert servers == {
             "%set_estop": ["std_srvs::srv::dds_::SetBool_", SET_BOOL_HASH],
             "%reset_odometry": ["std_srvs::srv::dds_::Trigger_", TRIGGER_HASH],
+        } | {
+            f"%blackmetal%{name}": [f"rcl_interfaces::srv::dds_::{type_name}_", type_hash]
+            for name, (type_name, type_hash) in PARAMETER_SERVICE_HASHES.items()
         }
 
         # /diagnostics at 1 Hz: all three OK once the robot runs

@@ -8,6 +8,11 @@ timeout, arbitration and emergency stop apply to ROS exactly as to any
 other client. Whatever cannot be decoded is reported on ``<prefix>/errors``
 with the reason and is never forwarded.
 
+Parameters are the gateway's (:mod:`blackmetal.ros2.parameters`): the
+node answers rclcpp's six parameter services from the gateway's table, sends
+sets to the gateway and answers with its results, and publishes each change
+on ``/parameter_events``.
+
 Two services, and ``/diagnostics``, are built from two parts here:
 
 * :class:`PendingCall` s: a ``set_estop`` puts the e-stop and asks the
@@ -38,10 +43,33 @@ from typing import Protocol
 
 from blackmetal.robot_model import Encoders
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, Sources, WheelImpulses, decode, encode
+from blackmetal.schemas import (
+    ErrorReport,
+    EStop,
+    GatewayHealth,
+    GatewayParams,
+    Keys,
+    ParamsSetReply,
+    PayloadError,
+    Pose,
+    Sources,
+    WheelImpulses,
+    decode,
+    encode,
+)
 
-from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, Transform, excerpt
-from .naming import RESET_ODOMETRY, ROBOT_DESCRIPTION, SET_ESTOP, TF_STATIC, attachment, parse_attachment
+from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, RosValue, Transform, excerpt
+from .naming import (
+    PARAMETER_EVENTS,
+    PARAMETER_SERVICES,
+    RESET_ODOMETRY,
+    ROBOT_DESCRIPTION,
+    SET_ESTOP,
+    TF_STATIC,
+    attachment,
+    parse_attachment,
+)
+from .parameters import NodeParameters
 
 #: Joint positions are not integrated across a gap longer than this (s): a lost link is not motion.
 MAX_JOINT_GAP_S = 0.5
@@ -376,9 +404,22 @@ class PendingCall:
     engage: bool = False  # set_estop: the asked state
     repeat_at: float = math.inf  # set_estop: when to put again and ask the health again
     health: GatewayHealth | None = None  # set_estop: the latest health seen while waiting
+    #: set_parameters(_atomically): the call's (name, value) pairs and the refusals decided before the gateway answers.
+    parameters: list[tuple[str, RosValue]] = field(default_factory=list)
+    refused: dict[int, str] = field(default_factory=dict)
 
 
-SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER}
+SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER, **PARAMETER_SERVICES}
+SET_CALLS = ("set_parameters", "set_parameters_atomically")
+
+
+class Query:
+    """What a query of the core asks, so its replies go where they belong."""
+
+    HEALTH = "health"
+    RESET = "reset"
+    PARAMS = "params"
+    PARAMS_SET = "params_set"
 
 
 class Ros2Core:
@@ -403,7 +444,8 @@ class Ros2Core:
         self.diagnostics = Diagnostics(keys, options.node, options.expected_poll_hz)
         self.stats = AdapterStats()
         self.calls: dict[int, PendingCall] = {}
-        self._queries: dict[int, int | None] = {}  # query tag -> the call it serves (None: a health query)
+        self._queries: dict[int, tuple[str, int | None]] = {}  # query tag -> (what it asks, the call it serves)
+        self.parameters = NodeParameters()
         self._next_tag = 0
         self._next_diagnostics = -math.inf
         self._model_published = options.robot is None
@@ -474,7 +516,78 @@ class Ros2Core:
 
     def on_alive(self, who: str, alive: bool, now: float) -> None:
         """The gateway's or the odometry's liveliness token appeared (True) or went away (False)."""
+        if who == "gateway" and alive and self.diagnostics.gateway_alive is False:
+            self._ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
         self.diagnostics.on_alive(who, alive)
+
+    # --------------------------------------------------------------- parameters
+    def start(self) -> None:
+        """Once, when the node starts serving: ask the gateway for its parameter table."""
+        self._ask_params()
+
+    def _ask_params(self) -> None:
+        self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
+
+    def on_params(self, payload: bytes, now: float) -> None:
+        """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
+        try:
+            table = decode(GatewayParams, payload)
+        except PayloadError as exc:
+            self.reporter.report(self.keys.params, str(exc), exc.excerpt, now=now)
+            return
+        self._take_params(table)
+
+    def _take_params(self, table: GatewayParams) -> None:
+        new, changed = self.parameters.on_table(table)
+        if new or changed:
+            self.output.ros(PARAMETER_EVENTS, self.codec.parameter_event(self.wallclock(), self.options.node, new, changed))
+
+    def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
+        """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered."""
+        service, p, codec = pending.service, self.parameters, self.codec
+        if service == "list_parameters":
+            prefixes, depth = codec.list_parameters_request(cdr)
+            self._answer(pending, True, codec.list_parameters_response(*p.names(prefixes, depth)), now)
+        elif service == "get_parameters":
+            self._answer(pending, True, codec.get_parameters_response(p.values(codec.names_request(PARAMETER_SERVICES[service], cdr))), now)
+        elif service == "get_parameter_types":
+            names = codec.names_request(PARAMETER_SERVICES[service], cdr)
+            self._answer(pending, True, codec.get_parameter_types_response(p.types(names)), now)
+        elif service == "describe_parameters":
+            names = codec.names_request(PARAMETER_SERVICES[service], cdr)
+            self._answer(pending, True, codec.describe_parameters_response(p.describe(names)), now)
+        else:
+            pending.parameters = codec.set_parameters_request(PARAMETER_SERVICES[service], cdr)
+            plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
+            pending.refused = plan.refused
+            for reason in plan.refused.values():
+                self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
+            if not plan.values:
+                self._answer_set(pending, None, now)
+                return
+            self.calls[pending.call] = pending
+            self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
+
+    def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
+        """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
+        results = {r.name: r for r in reply.results} if reply is not None else {}
+        answers: list[tuple[bool, str]] = []
+        for i, (name, _) in enumerate(pending.parameters):
+            if i in pending.refused:
+                answers.append((False, pending.refused[i]))
+            elif name in results:
+                answers.append((results[name].successful, results[name].reason))
+            else:
+                answers.append((False, failure or f"the gateway did not answer for {name}"))
+        if pending.service == "set_parameters_atomically":
+            ok = bool(answers) and all(good for good, _ in answers)
+            reasons = "; ".join(dict.fromkeys(reason for good, reason in answers if not good and reason))
+            if not ok and any(good for good, _ in answers):
+                reasons += " (the gateway set the others: it sets each value on its own)"
+            self._answer(pending, ok, self.codec.set_parameters_atomically_response(ok, reasons), now)
+        else:
+            ok = all(good for good, _ in answers)
+            self._answer(pending, ok, self.codec.set_parameters_response(answers), now)
 
     # --------------------------------------------------------------- ROS -> blackmetal
     def on_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False) -> None:
@@ -537,6 +650,18 @@ class Ros2Core:
                 return
             reply_to = (sequence, gid)
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
+        if service in PARAMETER_SERVICES:
+            if len(self.calls) >= MAX_PENDING_CALLS and service in SET_CALLS:
+                self.stats.failed.add(now)
+                self.output.service_refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again")
+                return
+            try:
+                self._parameter_call(pending, cdr, now)
+            except PayloadError as exc:
+                self._reject(key, str(exc), exc.excerpt, now)
+                self.stats.failed.add(now)
+                self.output.service_refuse(call, f"invalid request: {exc}")
+            return
         try:
             if service == SET_ESTOP:
                 pending.engage = self.codec.set_bool(cdr)
@@ -557,30 +682,48 @@ class Ros2Core:
                     self._finish(other, False, f"superseded: set_estop {state} was called since", now)
             self._put_estop(pending, now)
         else:
-            self._ask(self.keys.odometry_reset, None, call, self.options.service_timeout)
+            self._ask(Query.RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
         """Put the asked e-stop state and ask the gateway's health; again every ESTOP_REPEAT_S until confirmed."""
         self.output.blackmetal(self.keys.estop, encode(EStop(engaged=pending.engage)))
-        self._ask(self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
+        self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
         pending.repeat_at = now + ESTOP_REPEAT_S
 
-    def _ask(self, key: str, payload: bytes | None, call: int | None, timeout: float) -> None:
+    def _ask(self, what: str, key: str, payload: bytes | None, call: int | None, timeout: float) -> None:
         self._next_tag += 1
-        self._queries[self._next_tag] = call
+        self._queries[self._next_tag] = (what, call)
         self.output.query(key, payload, self._next_tag, timeout)
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
         if tag not in self._queries:
             return
-        call = self._queries[tag]
-        if call is None:
+        what, call = self._queries[tag]
+        if what == Query.HEALTH:
             if ok:
                 self.on_health(payload, now)
             return
-        pending = self.calls.get(call)
+        if what == Query.PARAMS:
+            if ok:
+                self.on_params(payload, now)
+            return
+        pending = self.calls.get(call) if call is not None else None
         if pending is None:
+            return
+        if what == Query.PARAMS_SET:
+            self.calls.pop(pending.call, None)
+            if not ok:
+                reason = payload.decode(errors="replace") or "no reason given"
+                self._answer_set(pending, None, now, f"the gateway on {self.keys.prefix!r} refused the set: {reason}")
+                return
+            try:
+                reply = decode(ParamsSetReply, payload)
+            except PayloadError as exc:
+                self._answer_set(pending, None, now, f"the gateway answered something that is not a ParamsSetReply: {exc}")
+                return
+            self._take_params(reply.params)
+            self._answer_set(pending, reply, now)
             return
         if not ok:
             self._finish(pending, False, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
@@ -596,22 +739,29 @@ class Ros2Core:
             self._finish(pending, False, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
 
     def on_query_done(self, tag: int, now: float) -> None:
-        """No more replies to ``tag`` will come: a reset nobody answered fails now."""
-        call = self._queries.pop(tag, None)
+        """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
+        what, call = self._queries.pop(tag, (Query.HEALTH, None))
         pending = self.calls.get(call) if call is not None else None
-        if pending is not None:
+        if pending is not None and what == Query.PARAMS_SET:
+            self.calls.pop(pending.call, None)
+            where = f"no gateway answered on {self.keys.params_set} (is it running on prefix {self.keys.prefix}?): nothing was set"
+            self._answer_set(pending, None, now, where)
+        elif pending is not None:
             self._finish(
                 pending, False, f"no odometry answered on {self.keys.odometry_reset} (is it running on prefix {self.keys.prefix}?)", now
             )
 
     def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
-        """Answer ``pending`` once, with the response and (rmw_zenoh) the reply attachment."""
+        """Answer ``pending`` once, with the std_srvs response."""
+        self._answer(pending, success, self.codec.service_response(SERVICE_TYPES[pending.service], success, message), now)
+
+    def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
+        """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
         self.calls.pop(pending.call, None)
         if success:
             self.stats.confirmed += 1
         else:
             self.stats.failed.add(now)
-        cdr = self.codec.service_response(SERVICE_TYPES[pending.service], success, message)
         reply_attachment = None
         if pending.reply_to is not None:
             sequence, gid = pending.reply_to
@@ -620,6 +770,9 @@ class Ros2Core:
 
     def _timed_out(self, pending: PendingCall, now: float) -> None:
         limit = f"{self.options.service_timeout:g} s"
+        if pending.service in SET_CALLS:
+            self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")
+            return
         if pending.service == RESET_ODOMETRY:
             self._finish(pending, False, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
             return

@@ -68,6 +68,10 @@ class Ros2Host:
         self.core.on_health(payload, self.clock())
         self.timer.poke()
 
+    def on_params(self, payload: bytes) -> None:
+        self.core.on_params(payload, self.clock())
+        self.timer.poke()
+
     def on_error_report(self, payload: bytes) -> None:
         self.core.on_error_report(payload, self.clock())
 
@@ -88,6 +92,7 @@ class Ros2Host:
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run the core's timers until ``stop`` (supervised: or until :meth:`fail`, raising the failure)."""
+        self.core.start()
         if not self.supervised:
             self.timer.start()
             try:

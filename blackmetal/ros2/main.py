@@ -75,15 +75,25 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
                 f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}",
                 flush=True,
             )
+            width = max(
+                len(n)
+                for n in [
+                    *(t.full_name(namespace) for t in ros_topics),
+                    *(s.full_name(namespace, settings.node_name) for s in ros_services),
+                ]
+            )
             for distro_name, edge, _ in nodes:
                 if len(nodes) > 1:
                     print(f"  {distro_name}:", flush=True)
                 for topic in ros_topics:
                     way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
-                    print(f"  {topic.full_name(namespace):<20} {topic.ros_type:<35} {way}  on {edge.data_keys[topic.key_name]}", flush=True)
+                    print(
+                        f"  {topic.full_name(namespace):<{width}} {topic.ros_type:<41} {way}  on {edge.data_keys[topic.key_name]}",
+                        flush=True,
+                    )
                 for service in ros_services:
-                    name, key = full_topic(namespace, service.name), edge.service_keys[service.name]
-                    print(f"  {name:<20} {service.ros_type:<35} service       on {key}", flush=True)
+                    name, key = service.full_name(namespace, settings.node_name), edge.service_keys[service.name]
+                    print(f"  {name:<{width}} {service.ros_type:<41} service       on {key}", flush=True)
             print(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}", flush=True)
             first = nodes[0][1]
             announce_ready(

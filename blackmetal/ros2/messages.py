@@ -37,12 +37,59 @@ STRING = "std_msgs/msg/String"
 DIAGNOSTIC_ARRAY = "diagnostic_msgs/msg/DiagnosticArray"
 SET_BOOL = "std_srvs/srv/SetBool"
 TRIGGER = "std_srvs/srv/Trigger"
+PARAMETER_EVENT = "rcl_interfaces/msg/ParameterEvent"
+LIST_PARAMETERS = "rcl_interfaces/srv/ListParameters"
+GET_PARAMETERS = "rcl_interfaces/srv/GetParameters"
+GET_PARAMETER_TYPES = "rcl_interfaces/srv/GetParameterTypes"
+DESCRIBE_PARAMETERS = "rcl_interfaces/srv/DescribeParameters"
+SET_PARAMETERS = "rcl_interfaces/srv/SetParameters"
+SET_PARAMETERS_ATOMICALLY = "rcl_interfaces/srv/SetParametersAtomically"
 
-#: The services' .srv text (request, response), as std_srvs defines them; an empty request gets rosidl's placeholder.
+#: The services' .srv text (request, response), as std_srvs and rcl_interfaces define them (comments left out: they
+#: are not part of a type); an empty request gets rosidl's placeholder. rcl_interfaces' six parameter services are
+#: the same text on humble, jazzy and rolling (ros2/rcl_interfaces, rcl_interfaces/srv/*.srv on each branch).
 SERVICE_DEFINITIONS = {
     SET_BOOL: ("bool data", "bool success\nstring message"),
     TRIGGER: ("", "bool success\nstring message"),
+    LIST_PARAMETERS: ("uint64 DEPTH_RECURSIVE=0\nstring[] prefixes\nuint64 depth", "rcl_interfaces/ListParametersResult result"),
+    GET_PARAMETERS: ("string[] names", "rcl_interfaces/ParameterValue[] values"),
+    GET_PARAMETER_TYPES: ("string[] names", "uint8[] types"),
+    DESCRIBE_PARAMETERS: ("string[] names", "rcl_interfaces/ParameterDescriptor[] descriptors"),
+    SET_PARAMETERS: ("rcl_interfaces/Parameter[] parameters", "rcl_interfaces/SetParametersResult[] results"),
+    SET_PARAMETERS_ATOMICALLY: ("rcl_interfaces/Parameter[] parameters", "rcl_interfaces/SetParametersResult result"),
 }
+
+
+class ParameterType(IntEnum):
+    """rcl_interfaces/msg/ParameterType."""
+
+    NOT_SET = 0
+    BOOL = 1
+    INTEGER = 2
+    DOUBLE = 3
+    STRING = 4
+    BYTE_ARRAY = 5
+    BOOL_ARRAY = 6
+    INTEGER_ARRAY = 7
+    DOUBLE_ARRAY = 8
+    STRING_ARRAY = 9
+
+
+#: A ROS parameter value as the adapter reads one: a bool, an int, a float, a str, or (an array, unset) the type alone.
+RosValue = bool | int | float | str | ParameterType
+
+
+@dataclass(frozen=True, slots=True)
+class Descriptor:
+    """One rcl_interfaces/msg/ParameterDescriptor (a number's range goes in ``low``/``high``, step 0: any value)."""
+
+    name: str
+    type: ParameterType
+    description: str = ""
+    read_only: bool = False
+    low: float | None = None
+    high: float | None = None
+
 
 #: CDR encapsulation headers ROS 2 writes: plain CDR, little- or big-endian.
 CDR_HEADERS = (b"\x00\x01", b"\x00\x00")
@@ -269,6 +316,126 @@ class RosCodec:
         response = self.store.types[f"{service}_Response"](success=success, message=message)
         return self._serialize(response, f"{service}_Response")
 
+    # --------------------------------------------------------------- parameters (rcl_interfaces)
+    def _value(self, value: RosValue | None) -> Any:
+        """A ParameterValue of a bool, int, float or str (None: PARAMETER_NOT_SET)."""
+        import numpy as np
+
+        kinds: dict[type, tuple[ParameterType, str]] = {
+            bool: (ParameterType.BOOL, "bool_value"),
+            int: (ParameterType.INTEGER, "integer_value"),
+            float: (ParameterType.DOUBLE, "double_value"),
+            str: (ParameterType.STRING, "string_value"),
+        }
+        fields: dict[str, Any] = {
+            "type": int(ParameterType.NOT_SET),
+            "bool_value": False,
+            "integer_value": 0,
+            "double_value": 0.0,
+            "string_value": "",
+            "byte_array_value": np.zeros(0, dtype=np.uint8),
+            "bool_array_value": np.zeros(0, dtype=np.bool_),
+            "integer_array_value": np.zeros(0, dtype=np.int64),
+            "double_array_value": np.zeros(0, dtype=np.float64),
+            "string_array_value": [],
+        }
+        if value is not None and not isinstance(value, ParameterType):
+            kind, name = kinds[type(value)]
+            fields["type"], fields[name] = int(kind), value
+        return self.store.types["rcl_interfaces/msg/ParameterValue"](**fields)
+
+    def _response(self, service: str, **fields: Any) -> bytes:
+        return self._serialize(self.store.types[f"{service}_Response"](**fields), f"{service}_Response")
+
+    def list_parameters_response(self, names: Sequence[str], prefixes: Sequence[str]) -> bytes:
+        result = self.store.types["rcl_interfaces/msg/ListParametersResult"](names=list(names), prefixes=list(prefixes))
+        return self._response(LIST_PARAMETERS, result=result)
+
+    def get_parameters_response(self, values: Sequence[RosValue | None]) -> bytes:
+        return self._response(GET_PARAMETERS, values=[self._value(v) for v in values])
+
+    def get_parameter_types_response(self, types: Sequence[ParameterType]) -> bytes:
+        import numpy as np
+
+        return self._response(GET_PARAMETER_TYPES, types=np.asarray([int(t) for t in types], dtype=np.uint8))
+
+    def describe_parameters_response(self, descriptors: Sequence[Descriptor]) -> bytes:
+        t = self.store.types
+        out = []
+        for d in descriptors:
+            floats, integers = [], []
+            if d.low is not None and d.high is not None and d.type is ParameterType.DOUBLE:
+                floats = [t["rcl_interfaces/msg/FloatingPointRange"](from_value=d.low, to_value=d.high, step=0.0)]
+            elif d.low is not None and d.high is not None and d.type is ParameterType.INTEGER:
+                integers = [t["rcl_interfaces/msg/IntegerRange"](from_value=int(d.low), to_value=int(d.high), step=0)]
+            out.append(
+                t["rcl_interfaces/msg/ParameterDescriptor"](
+                    name=d.name,
+                    type=int(d.type),
+                    description=d.description,
+                    additional_constraints="",
+                    read_only=d.read_only,
+                    dynamic_typing=False,
+                    floating_point_range=floats,
+                    integer_range=integers,
+                )
+            )
+        return self._response(DESCRIBE_PARAMETERS, descriptors=out)
+
+    def _result(self, successful: bool, reason: str) -> Any:
+        return self.store.types["rcl_interfaces/msg/SetParametersResult"](successful=successful, reason=reason)
+
+    def set_parameters_response(self, results: Sequence[tuple[bool, str]]) -> bytes:
+        return self._response(SET_PARAMETERS, results=[self._result(ok, reason) for ok, reason in results])
+
+    def set_parameters_atomically_response(self, successful: bool, reason: str) -> bytes:
+        return self._response(SET_PARAMETERS_ATOMICALLY, result=self._result(successful, reason))
+
+    def parameter_event(
+        self, stamp: float, node: str, new: Sequence[tuple[str, RosValue]], changed: Sequence[tuple[str, RosValue]]
+    ) -> bytes:
+        """rcl_interfaces/msg/ParameterEvent (``/parameter_events``) from the node ``node`` (fully qualified)."""
+        sec, nanosec = stamp_parts(stamp)
+        parameter = self.store.types["rcl_interfaces/msg/Parameter"]
+        message = self.store.types[PARAMETER_EVENT](
+            stamp=self._Time(sec=sec, nanosec=nanosec),
+            node=node,
+            new_parameters=[parameter(name=name, value=self._value(value)) for name, value in new],
+            changed_parameters=[parameter(name=name, value=self._value(value)) for name, value in changed],
+            deleted_parameters=[],
+        )
+        return self._serialize(message, PARAMETER_EVENT)
+
+    def names_request(self, service: str, payload: bytes) -> list[str]:
+        """The ``names`` of a GetParameters, GetParameterTypes or DescribeParameters request."""
+        return [str(name) for name in self._decode(payload, f"{service}_Request").names]
+
+    def list_parameters_request(self, payload: bytes) -> tuple[list[str], int]:
+        """(prefixes, depth) of a ListParameters request."""
+        request = self._decode(payload, f"{LIST_PARAMETERS}_Request")
+        return [str(p) for p in request.prefixes], int(request.depth)
+
+    def set_parameters_request(self, service: str, payload: bytes) -> list[tuple[str, RosValue]]:
+        """The (name, value) pairs of a SetParameters(Atomically) request; a value that is not a bool, an integer, a
+        double or a string comes as its :class:`ParameterType` alone (the caller refuses it)."""
+        out: list[tuple[str, RosValue]] = []
+        for parameter in self._decode(payload, f"{service}_Request").parameters:
+            v = parameter.value
+            try:
+                kind = ParameterType(v.type)
+            except ValueError:
+                raise PayloadError(
+                    "Parameter", f"{parameter.name}: parameter type {v.type} is not one of rcl_interfaces' 0..9", ""
+                ) from None
+            scalars: dict[ParameterType, RosValue] = {
+                ParameterType.BOOL: bool(v.bool_value),
+                ParameterType.INTEGER: int(v.integer_value),
+                ParameterType.DOUBLE: float(v.double_value),
+                ParameterType.STRING: str(v.string_value),
+            }
+            out.append((str(parameter.name), scalars.get(kind, kind)))
+        return out
+
     # --------------------------------------------------------------- in
     def _decode(self, payload: bytes, ros_type: str) -> Any:
         short = ros_type.rsplit("/", 1)[-1]
@@ -327,9 +494,13 @@ class RosCodec:
 
     # --------------------------------------------------------------- for tests and tools playing the ROS side
     def encode_request(self, service: str, **fields: Any) -> bytes:
-        """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields)."""
+        """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields; SetParameters: ``parameters`` as
+        (name, value) pairs)."""
         if service == TRIGGER:
             fields = {"structure_needs_at_least_one_member": 0}
+        if "parameters" in fields:
+            parameter = self.store.types["rcl_interfaces/msg/Parameter"]
+            fields["parameters"] = [parameter(name=name, value=self._value(value)) for name, value in fields["parameters"]]
         return self._serialize(self.store.types[f"{service}_Request"](**fields), f"{service}_Request")
 
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:

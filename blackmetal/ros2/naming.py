@@ -307,10 +307,16 @@ class RosTopic:
 
 @dataclass(frozen=True, slots=True)
 class RosService:
-    """One ROS service the node serves: its name relative to the namespace and its service type."""
+    """One ROS service the node serves: its name relative to the namespace (``private``: to the node, ``~/name``) and
+    its service type."""
 
     name: str
     ros_type: str
+    private: bool = False
+    qos: Qos = Qos()
+
+    def full_name(self, namespace: str, node_name: str) -> str:
+        return full_topic(full_topic(namespace, node_name) if self.private else namespace, self.name)
 
 
 #: The key name of ``/cmd_vel`` as ``geometry_msgs/TwistStamped`` (``cmd_vel`` is the Twist).
@@ -335,7 +341,8 @@ def topics(publish_tf: bool, absolute_tf: bool = False, robot_model: bool = Fals
     one tree for every robot, told apart by the frames' prefixes (``--fleet``).
     ``robot_model``: ``robot_description`` (std_msgs/String, relative, as
     robot_state_publisher publishes it) and ``/tf_static``, both transient
-    local with depth 1, numbered after the others.
+    local with depth 1, numbered after the others. ``/parameter_events``
+    last, absolute, with rclcpp's ``ParameterEventsQoS`` (keep-last 1000).
     """
     out = [
         RosTopic("cmd_vel", ros.TWIST, Direction.SUBSCRIBE),
@@ -350,16 +357,34 @@ def topics(publish_tf: bool, absolute_tf: bool = False, robot_model: bool = Fals
     if robot_model:
         out.append(RosTopic(ROBOT_DESCRIPTION, ros.STRING, Direction.PUBLISH, qos=Qos.transient_local()))
         out.append(RosTopic(TF_STATIC, ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf, qos=Qos.transient_local()))
+    out.append(RosTopic(PARAMETER_EVENTS, ros.PARAMETER_EVENT, Direction.PUBLISH, absolute=True, qos=PARAMETERS_QOS))
     return out
 
 
 SET_ESTOP = "set_estop"
 RESET_ODOMETRY = "reset_odometry"
+PARAMETER_EVENTS = "parameter_events"
+#: rclcpp's parameter services, ``~/<name>``, in the order rclcpp's ParameterService creates them.
+PARAMETER_SERVICES = {
+    "get_parameters": ros.GET_PARAMETERS,
+    "get_parameter_types": ros.GET_PARAMETER_TYPES,
+    "set_parameters": ros.SET_PARAMETERS,
+    "set_parameters_atomically": ros.SET_PARAMETERS_ATOMICALLY,
+    "describe_parameters": ros.DESCRIBE_PARAMETERS,
+    "list_parameters": ros.LIST_PARAMETERS,
+}
+#: rmw_qos_profile_parameters and rmw_qos_profile_parameter_events (rmw/qos_profiles.h): keep-last 1000, reliable, volatile.
+PARAMETERS_QOS = Qos(depth=1000)
 
 
 def services() -> list[RosService]:
-    """The node's services, numbered after its topics."""
-    return [RosService(SET_ESTOP, ros.SET_BOOL), RosService(RESET_ODOMETRY, ros.TRIGGER)]
+    """The node's services, numbered after its topics: ``set_estop`` and ``reset_odometry`` in the namespace, then
+    rclcpp's six parameter services under the node's name (``/blackmetal/list_parameters``)."""
+    return [
+        RosService(SET_ESTOP, ros.SET_BOOL),
+        RosService(RESET_ODOMETRY, ros.TRIGGER),
+        *(RosService(name, ros_type, private=True, qos=PARAMETERS_QOS) for name, ros_type in PARAMETER_SERVICES.items()),
+    ]
 
 
 def check_source_name(name: str) -> str:

@@ -39,13 +39,11 @@ from .naming import (
     Distro,
     Flavor,
     NodeIdentity,
-    Qos,
     RosService,
     RosTopic,
     ServiceRole,
     attachment,
     bridge_data_key,
-    full_topic,
     gid_of,
     rmw_zenoh_data_key,
     type_hash_of,
@@ -143,11 +141,11 @@ class Ros2Zenoh(ZenohEdge):
                 self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
         for service in ros_services or []:
             entity_id = next(ids)
-            name = full_topic(namespace, service.name)
+            name = service.full_name(namespace, node_name)
             if flavor is Flavor.RMW_ZENOH:
                 type_hash = type_hash_of(distro, codec.type_hash(service.ros_type))
                 key = rmw_zenoh_data_key(domain_id, name, service.ros_type, type_hash)
-                self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, Qos()))
+                self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, service.qos))
             else:
                 key = bridge_data_key(name)
             self.service_keys[service.name] = key
@@ -211,6 +209,7 @@ class Ros2Zenoh(ZenohEdge):
         self.subscriber(self.keys.pose, intake.channel("pose", host.on_pose, capacity=256))
         self.subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256))
         self.subscriber(self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8))
+        self.subscriber(self.keys.params, intake.channel("params", host.on_params, latest=True, priority=8))
         self.subscriber(self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256))
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             self._alive(key, intake.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))

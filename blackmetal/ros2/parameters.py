@@ -1,0 +1,182 @@
+"""The node's ROS 2 parameters: the gateway's table, as rclcpp's parameter services show it. Pure.
+
+The node keeps no parameter of its own. It mirrors the gateway's table
+(``<prefix>/gateway/params``: fetched at the start and whenever the gateway
+comes back, published by the gateway on every change) and answers
+``list_parameters``, ``get_parameters``, ``get_parameter_types`` and
+``describe_parameters`` from it at once. ``set_parameters`` and
+``set_parameters_atomically`` go to the gateway as one
+:class:`~blackmetal.schemas.ParamsSet` on ``<prefix>/gateway/params/set`` (the
+key the gateway owns, with an operator's rights in the shipped router, like
+Foxglove's parameters panel); each ``SetParametersResult`` is the gateway's
+answer for that name, its refusal reason word for word. Each table change is
+published on ``/parameter_events`` as rclcpp does (``new_parameters`` the first
+time, ``changed_parameters`` after).
+
+rclcpp's rules kept here: ``list_parameters`` selects by prefix and depth
+with ``.`` as the separator, in name order (``node_parameters.cpp``,
+``NodeParameters::list_parameters``, the same on Humble to Rolling);
+an integer given for a double parameter is taken as that double (``ros2 param
+set /blackmetal max_wheel_speed 1`` sends an integer); arrays, and unsetting a
+parameter, are refused with the reason. An atomic set is checked against the
+table first and sent only if every value passes: a value the table
+already refuses leaves the others unset.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
+
+from .messages import Descriptor, ParameterType, RosValue
+
+#: rcl_interfaces' names for the gateway's kinds of value.
+TYPES = {"bool": ParameterType.BOOL, "integer": ParameterType.INTEGER, "double": ParameterType.DOUBLE, "string": ParameterType.STRING}
+SEPARATOR = "."
+
+
+def list_names(names: Sequence[str], prefixes: Sequence[str], depth: int) -> tuple[list[str], list[str]]:
+    """``list_parameters`` as rclcpp answers it: the names under ``prefixes`` (all when none) at most ``depth`` parts
+    deeper (0: any depth), and the prefixes of the names listed."""
+
+    def deep_enough(rest: str) -> bool:
+        return depth == 0 or rest.count(SEPARATOR) < depth
+
+    out: list[str] = []
+    found: list[str] = []
+    for name in sorted(names):  # rclcpp keeps its parameters in a std::map: in name order
+        wanted = (not prefixes and deep_enough(name)) or any(
+            name == prefix or (name.startswith(prefix + SEPARATOR) and deep_enough(name[len(prefix) :])) for prefix in prefixes
+        )
+        if not wanted:
+            continue
+        out.append(name)
+        if SEPARATOR in name:
+            prefix = name.rsplit(SEPARATOR, 1)[0]
+            if prefix not in found:
+                found.append(prefix)
+    return out, found
+
+
+def descriptor(param: Param) -> Descriptor:
+    return Descriptor(param.name, TYPES.get(param.type, ParameterType.NOT_SET), param.description, param.read_only, param.min, param.max)
+
+
+def ros_value(param: Param) -> RosValue:
+    """The table's value as the ROS type the table names (a double stays a float when its value is whole)."""
+    if param.type == "double" and isinstance(param.value, int) and not isinstance(param.value, bool):
+        return float(param.value)
+    return param.value
+
+
+@dataclass(frozen=True, slots=True)
+class SetPlan:
+    """A set call split: what goes to the gateway, and the refusals decided here (by position in the call)."""
+
+    values: dict[str, ParamValue]
+    refused: dict[int, str]
+
+    def payload(self) -> bytes:
+        return encode(ParamsSet(values=self.values))
+
+
+class NodeParameters:
+    """The gateway's parameter table as the node shows it; see the module docstring."""
+
+    def __init__(self) -> None:
+        self.table: dict[str, Param] = {}
+        self.known = False  # a table has arrived: until then every name is unknown
+
+    def on_table(self, table: GatewayParams) -> tuple[list[tuple[str, RosValue]], list[tuple[str, RosValue]]]:
+        """Take the gateway's table; (new, changed) parameters as ``/parameter_events`` names them."""
+        new: list[tuple[str, RosValue]] = []
+        changed: list[tuple[str, RosValue]] = []
+        for param in table.params:
+            old = self.table.get(param.name)
+            if old is None:
+                new.append((param.name, ros_value(param)))
+            elif old.value != param.value or old.type != param.type:
+                changed.append((param.name, ros_value(param)))
+            self.table[param.name] = param
+        self.known = True
+        return new, changed
+
+    # ------------------------------------------------------------------ answered at once
+    def names(self, prefixes: Sequence[str], depth: int) -> tuple[list[str], list[str]]:
+        return list_names(list(self.table), prefixes, depth)
+
+    def values(self, names: Sequence[str]) -> list[RosValue | None]:
+        """Each name's value, in order; None (PARAMETER_NOT_SET) for a name the gateway does not have."""
+        return [ros_value(self.table[name]) if name in self.table else None for name in names]
+
+    def types(self, names: Sequence[str]) -> list[ParameterType]:
+        return [TYPES.get(self.table[name].type, ParameterType.NOT_SET) if name in self.table else ParameterType.NOT_SET for name in names]
+
+    def describe(self, names: Sequence[str]) -> list[Descriptor]:
+        """Each name's descriptor, in order; an unknown name gets one of type NOT_SET (the .srv asks for one per name)."""
+        return [descriptor(self.table[name]) if name in self.table else Descriptor(name, ParameterType.NOT_SET) for name in names]
+
+    # ------------------------------------------------------------------ sets
+    def _check(self, name: str, value: RosValue) -> tuple[ParamValue | None, str | None]:
+        """(the value to send, None) or (None, why it is refused here)."""
+        if isinstance(value, ParameterType):
+            if value is ParameterType.NOT_SET:
+                return None, f"{name} cannot be unset: the gateway's parameters are declared and always have a value"
+            return None, f"{name}: {value.name.lower()} values are refused: the gateway's parameters are bool, integer, double or string"
+        param = self.table.get(name)
+        if param is None:
+            return value, None  # the gateway judges names it has and has not (it may have changed since our table)
+        if param.type == "double" and isinstance(value, int) and not isinstance(value, bool):
+            return float(value), None
+        if isinstance(value, float) and not math.isfinite(value):
+            return None, f"{name} must be a finite number, got {value!r}"
+        return value, None
+
+    def plan(self, parameters: Sequence[tuple[str, RosValue]]) -> SetPlan:
+        """``set_parameters``: each value on its own; what this side refuses never reaches the gateway."""
+        values: dict[str, ParamValue] = {}
+        refused: dict[int, str] = {}
+        for i, (name, value) in enumerate(parameters):
+            checked, reason = self._check(name, value)
+            if reason is not None or checked is None:
+                refused[i] = reason or f"{name} refused"
+            else:
+                values.pop(name, None)  # a name given twice: the last value wins, as rclcpp sets them in order
+                values[name] = checked
+        return SetPlan(values, refused)
+
+    def plan_atomically(self, parameters: Sequence[tuple[str, RosValue]]) -> SetPlan:
+        """``set_parameters_atomically``: every value checked against the table first; one refusal refuses them all."""
+        plan = self.plan(parameters)
+        reasons = list(plan.refused.values())
+        for name, value in plan.values.items():
+            reason = self.refusal(name, value)
+            if reason is not None:
+                reasons.append(reason)
+        if reasons:
+            return SetPlan({}, {i: "; ".join(reasons) for i in range(len(parameters))})
+        return plan
+
+    def refusal(self, name: str, value: ParamValue) -> str | None:
+        """Why the gateway would refuse ``name = value`` by its table (read-only, unknown, wrong kind, out of range)."""
+        param = self.table.get(name)
+        if param is None:
+            return (
+                f"no parameter {name!r}: the gateway's parameters are {', '.join(self.table)}"
+                if self.known
+                else ("the gateway's parameters are not known yet (no answer on <prefix>/gateway/params): is the gateway running?")
+            )
+        if param.read_only:
+            return f"{name} is read-only on a running gateway: set it in the gateway's settings and restart it"
+        expected = {"bool": (bool,), "integer": (int,), "double": (int, float), "string": (str,)}.get(param.type, ())
+        if not isinstance(value, expected) or (param.type != "bool" and isinstance(value, bool)):
+            return f"{name} takes a {param.type}, got {value!r}"
+        if isinstance(value, (int, float)) and not isinstance(value, bool):
+            low = -math.inf if param.min is None else param.min
+            high = math.inf if param.max is None else param.max
+            if not low <= value <= high:
+                return f"{name} must be within {low:g}..{high:g}, got {value!r}"
+        return None
