@@ -91,7 +91,7 @@ class GatewayZenoh(ZenohEdge):
         """
         super().__init__(session)
         self.keys = keys
-        self._impulses = self.publisher(keys.impulses, express=not batched, drop_when_congested=True)
+        self._impulses = self.publisher(keys.impulses, express=not batched)
         self._status = self.publisher(keys.status)
         self._health = self.publisher(keys.health)
         self._errors = self.publisher(keys.errors)

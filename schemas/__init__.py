@@ -3,7 +3,7 @@
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra
 from .jsonschema import json_schemas
-from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Keys, KeySpec, Sources, any_alive, validate_prefix
+from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix
 from .messages import (
     DIRECTION_NAMES,
     MESSAGE_TYPES,
@@ -45,6 +45,7 @@ __all__ = [
     "STATE_NAMES",
     "BlackmetalError",
     "ConfigError",
+    "Delivery",
     "DriverChange",
     "EStop",
     "ErrorReport",
@@ -75,6 +76,7 @@ __all__ = [
     "ZenohUnreachable",
     "any_alive",
     "decode",
+    "delivery_of",
     "encode",
     "excerpt",
     "json_schemas",

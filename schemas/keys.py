@@ -7,6 +7,8 @@ from :class:`Keys` and nowhere else, so a key is renamed in one place.
 
 from __future__ import annotations
 
+import re
+from enum import StrEnum
 from typing import NamedTuple
 
 import msgspec
@@ -31,8 +33,20 @@ from .messages import (
 DEFAULT_PREFIX = "robot"
 
 
+class Delivery(StrEnum):
+    """How a publication travels when a link or a consumer cannot keep up (Zenoh's congestion control).
+
+    ``telemetry`` is dropped for the congested link alone: a pose, a health report or a wheel sample is replaced by
+    the next one, and a router never holds one host's telemetry (or commands) behind another's dead link. A
+    ``command`` is never dropped: it waits for room, as a stop must reach the robot; commands are few and small.
+    """
+
+    TELEMETRY = "telemetry"
+    COMMAND = "command"
+
+
 class KeySpec(NamedTuple):
-    """One key below the prefix: the attribute that names it, what travels on it, who uses it.
+    """One key below the prefix: the attribute that names it, what travels on it, who uses it, how it is delivered.
 
     A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name:
     :meth:`Keys.cmd_vel_of` and :meth:`Keys.lock_of` fill it in.
@@ -43,30 +57,80 @@ class KeySpec(NamedTuple):
     message: type[msgspec.Struct] | None
     kind: str  # "publication", "query" or "liveliness"
     who: str
+    delivery: Delivery | None = None  # publications only
 
 
 #: Every key, in the order the README's table lists them.
 KEY_SPECS: tuple[KeySpec, ...] = (
-    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway (the command source 'default')"),
-    KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", "a named commander -> gateway"),
-    KeySpec("lock", "lock/<name>", Lock, "publication", "a supervisor -> gateway"),
-    KeySpec("estop", "estop", EStop, "publication", "any client -> gateway (engages; a valid release releases unless --release-key-only)"),
-    KeySpec("estop_release", "estop/release", EStop, "publication", "a safety role -> gateway: releases (anything else engages)"),
-    KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->"),
-    KeySpec("status", "status", RobotStatus, "publication", "gateway ->"),
-    KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get"),
-    KeySpec("driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why"),
-    KeySpec("params", "gateway/params", GatewayParams, "publication", "gateway ->, and get: its parameters (limits, timeout, priorities)"),
+    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway (the command source 'default')", Delivery.COMMAND),
+    KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", "a named commander -> gateway", Delivery.COMMAND),
+    KeySpec("lock", "lock/<name>", Lock, "publication", "a supervisor -> gateway", Delivery.COMMAND),
+    KeySpec(
+        "estop",
+        "estop",
+        EStop,
+        "publication",
+        "any client -> gateway (engages; a valid release releases unless --release-key-only)",
+        Delivery.COMMAND,
+    ),
+    KeySpec(
+        "estop_release",
+        "estop/release",
+        EStop,
+        "publication",
+        "a safety role -> gateway: releases (anything else engages)",
+        Delivery.COMMAND,
+    ),
+    KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->", Delivery.TELEMETRY),
+    KeySpec("status", "status", RobotStatus, "publication", "gateway ->", Delivery.TELEMETRY),
+    KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get", Delivery.TELEMETRY),
+    KeySpec(
+        "driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why", Delivery.TELEMETRY
+    ),
+    KeySpec(
+        "params",
+        "gateway/params",
+        GatewayParams,
+        "publication",
+        "gateway ->, and get: its parameters (limits, timeout, priorities)",
+        Delivery.TELEMETRY,
+    ),
     KeySpec("params_set", "gateway/params/set", ParamsSet, "query", "get -> gateway (an operator's right), answers a ParamsSetReply"),
-    KeySpec("errors", "errors", ErrorReport, "publication", "gateway, odometry, sim ->; a get answers each service's latest reports"),
-    KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get"),
+    KeySpec(
+        "errors",
+        "errors",
+        ErrorReport,
+        "publication",
+        "gateway, odometry, sim ->; a get answers each service's latest reports",
+        Delivery.TELEMETRY,
+    ),
+    KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get", Delivery.TELEMETRY),
     KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
     KeySpec("alive_gateway", "alive/gateway", None, "liveliness", "gateway"),
     KeySpec("alive_odometry", "alive/odometry", None, "liveliness", "odometry"),
     KeySpec("alive_sim", "alive/sim", None, "liveliness", "simulator"),
-    KeySpec("sim_truth", "sim/truth", Pose, "publication", "simulator ->, and get"),
-    KeySpec("sim_faults", "sim/faults", SimFaults, "publication", "any client -> simulator, and get"),
+    KeySpec("sim_truth", "sim/truth", Pose, "publication", "simulator ->, and get", Delivery.TELEMETRY),
+    KeySpec("sim_faults", "sim/faults", SimFaults, "publication", "any client -> simulator, and get", Delivery.COMMAND),
 )
+
+
+def _pattern(suffix: str) -> re.Pattern[str]:
+    """The suffix as the end of a key: ``cmd_vel/<source>`` matches ``fleet/a/cmd_vel/nav``."""
+    chunks = ("[^/]+" if chunk.startswith("<") else re.escape(chunk) for chunk in suffix.split("/"))
+    return re.compile("(^|/)" + "/".join(chunks) + "$")
+
+
+_DELIVERY = [(_pattern(spec.suffix), spec.delivery) for spec in KEY_SPECS if spec.delivery is not None]
+
+
+def delivery_of(key: str) -> Delivery:
+    """How the publication on ``key`` (any prefix) travels: the key space decides, no publisher chooses.
+
+    ValueError for a key that is not one of blackmetal's publications."""
+    for pattern, delivery in _DELIVERY:
+        if pattern.search(key):
+            return delivery
+    raise ValueError(f"{key!r} is not a blackmetal publication key (see schemas/keys.py KEY_SPECS)")
 
 
 class Sources:

@@ -135,3 +135,28 @@ def test_closing_flooded_inputs_ends_their_pumps_at_once(session: zenoh.Session,
     assert not _pumps(), f"pump threads still running {PUMP_JOIN_S} s after close: {_pumps()}"
     assert not any(_matching(publisher) for publisher in publishers), "a pumped subscriber is still declared"
     assert held < 0.1, f"closing held the loop {held:.3f} s"
+
+
+def test_telemetry_is_dropped_for_a_congested_link_and_commands_never_are(session: zenoh.Session) -> None:
+    """Issue #29: a BLOCK publisher makes a router wait on a dead link, stalling every other host's traffic behind it.
+    The key space says how each publication travels; the edge declares it so, whatever service publishes."""
+    from blackmetal.schemas import KEY_SPECS, Delivery, Keys, delivery_of
+
+    keys = Keys("fleet/r7")
+    commands = {"cmd_vel", "cmd_vel_source", "lock", "estop", "estop_release", "sim_faults"}
+    for spec in KEY_SPECS:
+        assert (spec.delivery is None) == (spec.kind != "publication"), spec.name
+        if spec.delivery is not None:
+            assert (spec.delivery is Delivery.COMMAND) == (spec.name in commands), spec.name
+    edge = ZenohEdge(session)
+    try:
+        for key in (keys.pose, keys.impulses, keys.health, keys.status, keys.errors, keys.driver, keys.params, keys.sim_truth):
+            assert delivery_of(key) is Delivery.TELEMETRY
+            assert edge.publisher(key).congestion_control == zenoh.CongestionControl.DROP, key
+        for key in (keys.cmd_vel, keys.cmd_vel_of("nav"), keys.lock_of("dock"), keys.estop, keys.estop_release, keys.sim_faults):
+            assert delivery_of(key) is Delivery.COMMAND
+            assert edge.publisher(key).congestion_control == zenoh.CongestionControl.BLOCK, key
+        with pytest.raises(ValueError, match="not a blackmetal publication key"):
+            edge.publisher(keys.params_set)  # a query key: nothing is published on it
+    finally:
+        edge.close()

@@ -77,7 +77,7 @@ class FoxgloveZenoh(ZenohEdge):
             keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys.cmd_vel_of(COMMAND_SOURCE), express=True),
             keys.estop: self.publisher(keys.estop, express=True),
         }
-        self._errors = self.publisher(keys.errors, drop_when_congested=True)  # telemetry: never held behind a dead link
+        self._errors = self.publisher(keys.errors)  # telemetry: never held behind a dead link
         self._handlers: dict[str, Callable[[bytes], None]] = {}
         self._on_error: Callable[[BaseException], None] | None = None
         self._declared: dict[str, Any] = {}

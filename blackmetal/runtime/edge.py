@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
-from blackmetal.schemas import ConfigError, ErrorReport, Keys, any_alive, encode, payload_bytes
+from blackmetal.schemas import ConfigError, Delivery, ErrorReport, Keys, any_alive, delivery_of, encode, payload_bytes
 
 from .flood import GuardedInput, Pick
 from .intake import Intake
@@ -61,14 +61,17 @@ class ZenohEdge:
         self._entities: list[Any] = []
         self._guarded: list[GuardedInput] = []
 
-    def publisher(self, key: str, *, express: bool = False, drop_when_congested: bool = False) -> "zenoh.Publisher":
+    def publisher(self, key: str, *, express: bool = False) -> "zenoh.Publisher":
+        """A publisher on one of blackmetal's keys, its congestion control as the key space says (:func:`delivery_of`):
+        telemetry dropped for a congested link alone, commands never dropped."""
         import zenoh
 
+        telemetry = delivery_of(key) is Delivery.TELEMETRY
         publisher = self.session.declare_publisher(
             key,
             encoding=zenoh.Encoding.APPLICATION_JSON,
             express=express,
-            congestion_control=zenoh.CongestionControl.DROP if drop_when_congested else zenoh.CongestionControl.BLOCK,
+            congestion_control=zenoh.CongestionControl.DROP if telemetry else zenoh.CongestionControl.BLOCK,
         )
         self._entities.append(publisher)
         return publisher
