@@ -139,6 +139,7 @@ class Recorder:
         self.replies: dict[int, tuple[bytes, bytes | None]] = {}
         self.refused: dict[int, str] = {}
         self.queries: list[tuple[str, bytes | None, int, float]] = []
+        self.followed: list[frozenset[str]] = []
 
     def ros(self, topic: str, cdr: bytes) -> None:
         self.ros_out.append((topic, cdr))
@@ -159,6 +160,9 @@ class Recorder:
 
     def query(self, key: str, payload: bytes | None, tag: int, timeout: float) -> None:
         self.queries.append((key, payload, tag, timeout))
+
+    def follow(self, streams: frozenset[str]) -> None:
+        self.followed.append(streams)
 
     def answer(self, call: int) -> tuple[bool, str]:
         return read_response(self.replies[call][0])

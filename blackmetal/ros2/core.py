@@ -120,6 +120,9 @@ class Ros2Output(Protocol):
     def query(self, key: str, payload: bytes | None, tag: int, timeout: float) -> None:
         """``get`` on ``key``; each reply comes back as ``on_query_reply(tag, ...)``, then ``on_query_done(tag)``."""
 
+    def follow(self, streams: frozenset[str]) -> None:
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``), no others."""
+
 
 @dataclass(frozen=True, slots=True)
 class Wheel:
@@ -409,6 +412,9 @@ class PendingCall:
     refused: dict[int, str] = field(default_factory=dict)
 
 
+#: The ROS topics fed by a stream of the robot: published, and their streams followed, only while someone subscribes.
+WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
+
 SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER, **PARAMETER_SERVICES}
 SET_CALLS = ("set_parameters", "set_parameters_atomically")
 
@@ -446,6 +452,9 @@ class Ros2Core:
         self.calls: dict[int, PendingCall] = {}
         self._queries: dict[int, tuple[str, int | None]] = {}  # query tag -> (what it asks, the call it serves)
         self.parameters = NodeParameters()
+        #: The watched topics someone subscribes to; None until the edge reports (then everything is published).
+        self.watched: set[str] | None = None
+        self._following: frozenset[str] | None = None
         self._next_tag = 0
         self._next_diagnostics = -math.inf
         self._model_published = options.robot is None
@@ -473,8 +482,9 @@ class Ros2Core:
             return
         self.diagnostics.on_pose(now)
         o = self.options
-        self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
-        if o.publish_tf:
+        if self._wants("odom"):
+            self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
+        if o.publish_tf and self._wants("tf"):
             self.output.ros("tf", self.codec.transform(pose, o.frames))
 
     def on_impulses(self, payload: bytes, now: float) -> None:
@@ -484,10 +494,11 @@ class Ros2Core:
             self.reporter.report(self.keys.impulses, str(exc), exc.excerpt, now=now)
             return
         self.joints.feed(sample)
-        cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
-        self.output.ros("joint_states", cdr)
+        if self._wants("joint_states"):
+            cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
+            self.output.ros("joint_states", cdr)
         robot = self.options.robot
-        if robot is not None and robot.wheel_tf and self.options.publish_tf:
+        if robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf"):
             wheels = [wheel.transform(angle) for wheel, angle in zip(robot.wheels, self.joints.positions, strict=True)]
             self.output.ros("tf", self.codec.transforms(sample.stamp, wheels))
 
@@ -522,8 +533,54 @@ class Ros2Core:
 
     # --------------------------------------------------------------- parameters
     def start(self) -> None:
-        """Once, when the node starts serving: ask the gateway for its parameter table."""
+        """Once, when the node starts serving: ask the gateway for its parameter table, and follow only what is watched
+        (the edge reports each topic's matching status from now on)."""
         self._ask_params()
+        if self.watched is None:
+            self.watched = set()
+        self._follow()
+
+    # --------------------------------------------------------------- who watches
+    def _wants(self, topic: str) -> bool:
+        return self.watched is None or topic in self.watched
+
+    def needs(self) -> frozenset[str]:
+        """The robot's streams the watched topics need: poses for /odom, /tf and /diagnostics; impulses for
+        /joint_states and the wheels on /tf; error reports and the gateway's health for /diagnostics; the health, too,
+        while a set_estop waits for it to confirm."""
+        robot = self.options.robot
+        wheel_tf = robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf")
+        out = set()
+        if self._wants("odom") or (self.options.publish_tf and self._wants("tf")) or self._wants("diagnostics"):
+            out.add("pose")
+        if self._wants("joint_states") or wheel_tf:
+            out.add("impulses")
+        if self._wants("diagnostics"):
+            out.update(("errors", "health"))
+        if any(pending.service == SET_ESTOP for pending in self.calls.values()):
+            out.add("health")
+        return frozenset(out)
+
+    def _follow(self) -> None:
+        if self.watched is None:
+            return  # not started: the edge follows everything it declared
+        needs = self.needs()
+        if needs != self._following:
+            self._following = needs
+            self.output.follow(needs)
+
+    def on_matched(self, topic: str, matched: bool, now: float) -> None:
+        """Someone subscribes to ``topic`` now (``matched``), or nobody does any more: publish it, and follow what it needs,
+        only while someone does."""
+        if self.watched is None:
+            self.watched = set()
+        if matched:
+            self.watched.add(topic)
+        else:
+            self.watched.discard(topic)
+        self._follow()
+        if matched and topic == "diagnostics":
+            self._next_diagnostics = min(self._next_diagnostics, now)  # a new watcher gets the statuses at once
 
     def _ask_params(self) -> None:
         self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
@@ -607,8 +664,7 @@ class Ros2Core:
         except PayloadError as exc:
             self._reject(key, str(exc), exc.excerpt, now)
             return
-        health = self.diagnostics.health
-        timeout = DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
+        timeout = self._cmd_timeout()
         age = self.wallclock() - stamp if stamp else 0.0
         if timeout > 0 and age > timeout:
             reason = (
@@ -619,6 +675,14 @@ class Ros2Core:
             return
         self.stats.commands += 1
         self.output.blackmetal(self.cmd_vel_target, encode(twist))
+
+    def _cmd_timeout(self) -> float:
+        """The gateway's command timeout: from its parameters (published on each change), else its last health."""
+        param = self.parameters.table.get("cmd_timeout")
+        if param is not None and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
+            return float(param.value)
+        health = self.diagnostics.health
+        return DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
 
     def on_estop(self, cdr: bytes, now: float) -> None:
         try:
@@ -676,6 +740,7 @@ class Ros2Core:
             return
         self.calls[call] = pending
         if service == SET_ESTOP:
+            self._follow()
             for other in list(self.calls.values()):  # an older call asking the opposite must stop putting it
                 if other.service == SET_ESTOP and other.engage != pending.engage:
                     state = "on" if pending.engage else "off"
@@ -758,6 +823,8 @@ class Ros2Core:
     def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
         """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
         self.calls.pop(pending.call, None)
+        if pending.service == SET_ESTOP and self.watched is not None:
+            self._follow()
         if success:
             self.stats.confirmed += 1
         else:
@@ -799,7 +866,8 @@ class Ros2Core:
             elif now >= pending.repeat_at:
                 self._put_estop(pending, now)
         if now >= self._next_diagnostics:
-            self.output.ros("diagnostics", self.codec.diagnostics(self.wallclock(), self.statuses(now)))
+            if self._wants("diagnostics"):  # nobody subscribes: nothing encoded
+                self.output.ros("diagnostics", self.codec.diagnostics(self.wallclock(), self.statuses(now)))
             due = self._next_diagnostics + DIAGNOSTICS_PERIOD_S
             self._next_diagnostics = due if due > now else now + DIAGNOSTICS_PERIOD_S
         self.reporter.tick(now)
@@ -807,4 +875,5 @@ class Ros2Core:
     def next_deadline(self) -> float:
         """When :meth:`tick` has something to do next."""
         calls = (min(p.deadline, p.repeat_at) for p in self.calls.values())
-        return min(self._next_diagnostics, self.reporter.next_deadline(), *calls)
+        diagnostics = self._next_diagnostics if self._wants("diagnostics") else math.inf  # nobody watches: no timer
+        return min(diagnostics, self.reporter.next_deadline(), *calls)

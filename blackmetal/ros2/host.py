@@ -68,6 +68,10 @@ class Ros2Host:
         self.core.on_health(payload, self.clock())
         self.timer.poke()
 
+    def on_matched(self, topic: str, matched: bool) -> None:
+        self.core.on_matched(topic, matched, self.clock())
+        self.timer.poke()
+
     def on_params(self, payload: bytes) -> None:
         self.core.on_params(payload, self.clock())
         self.timer.poke()

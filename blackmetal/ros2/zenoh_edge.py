@@ -11,6 +11,16 @@ the adapter's own queries, liveliness changes) are handed over to the host
 on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is
 decoded on a Zenoh thread.
 
+A view nobody watches costs nothing: each ROS publisher of a stream
+(``odom``, ``tf``, ``joint_states``, ``diagnostics``) has a matching
+listener (Zenoh's matching status: is any subscriber on its key, anywhere),
+handed over to the core, and the robot's keys that feed only those topics
+(``pose``, ``impulses``, ``errors``, the gateway's ``health``) are
+subscribed only while the core says it needs them
+(:meth:`Ros2Zenoh.follow`). Inputs (``/cmd_vel``, ``/estop``, the
+services) and the gateway's parameters stay declared: they carry little and
+a command must always find its way.
+
 A transient-local topic (``robot_description``, ``/tf_static``) is published
 as rmw_zenoh publishes one on every distro (``rmw_publisher_data.cpp``): a
 Zenoh AdvancedPublisher that keeps the last ``depth`` samples in a cache
@@ -25,12 +35,14 @@ import asyncio
 import itertools
 import time
 from collections.abc import Callable, Iterator
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import ErrorReport, Keys, Sources, encode
+from blackmetal.runtime.zenoh_entities import undeclare
+from blackmetal.schemas import ErrorReport, Keys, Sources, encode, payload_bytes
 
+from .core import WATCHED_TOPICS
 from .host import Ros2Host
 from .naming import (
     CMD_VEL_STAMPED,
@@ -57,6 +69,13 @@ if TYPE_CHECKING:
 
 #: rmw_zenoh's SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD (ms) for a reliable transient-local publisher (rmw_publisher_data.cpp).
 HEARTBEAT_S = 0.5
+
+
+def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
+    def on_sample(sample: Any) -> None:
+        put(payload_bytes(sample))
+
+    return on_sample
 
 
 class _RosPublisher:
@@ -154,6 +173,8 @@ class Ros2Zenoh(ZenohEdge):
         self._errors = self.publisher(keys.errors)
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
+        self._streams: dict[str, tuple[str, Callable[[bytes], None]]] = {}  # what follow() may subscribe: key, its channel
+        self._followed: dict[str, Any] = {}
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
@@ -206,11 +227,18 @@ class Ros2Zenoh(ZenohEdge):
         self.subscriber(self.data_keys["cmd_vel"], intake.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
         stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5)
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
-        self.subscriber(self.keys.pose, intake.channel("pose", host.on_pose, capacity=256))
-        self.subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256))
-        self.subscriber(self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8))
+        self._streams = {
+            "pose": (self.keys.pose, intake.channel("pose", host.on_pose, capacity=256)),
+            "impulses": (self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256)),
+            "errors": (self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256)),
+            "health": (self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8)),
+        }
         self.subscriber(self.keys.params, intake.channel("params", host.on_params, latest=True, priority=8))
-        self.subscriber(self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256))
+        matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
+        for topic in WATCHED_TOPICS:
+            entry = self._publishers.get(topic)
+            if entry is not None:
+                self._watch(topic, entry.publisher, matched)
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             self._alive(key, intake.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
         for service, key in self.service_keys.items():
@@ -220,6 +248,29 @@ class Ros2Zenoh(ZenohEdge):
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
         return intake
+
+    def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
+        """Tell the core whether anyone subscribes to ``topic``: now, and at each change (on a Zenoh thread: handed over)."""
+
+        def on_status(status: Any) -> None:
+            put((topic, bool(getattr(status, "matching", status))))
+
+        self._entities.append(publisher.declare_matching_listener(on_status))
+        status = publisher.matching_status
+        put((topic, bool(getattr(status, "matching", status))))  # the stubs say bool; zenoh 1.x gives a MatchingStatus
+
+    def _on_matched(self, event: tuple[str, bool]) -> None:
+        assert self._host is not None
+        self._host.on_matched(*event)
+
+    def follow(self, streams: frozenset[str]) -> None:
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
+        for name in [n for n in self._followed if n not in streams]:
+            undeclare(self._followed.pop(name))
+        for name in sorted(streams):
+            if name not in self._followed and name in self._streams:
+                key, put = self._streams[name]
+                self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
 
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
         """Whether a liveliness token on ``key`` is present, now (history) and at each change."""
@@ -264,4 +315,7 @@ class Ros2Zenoh(ZenohEdge):
         for query, _ in self._calls.values():  # unanswered calls end with the adapter
             query.drop()
         self._calls.clear()
+        for subscriber in self._followed.values():
+            undeclare(subscriber)
+        self._followed.clear()
         super().close()
