@@ -59,6 +59,11 @@ def _drive(session: zenoh.Session, robot: str, v: float, seconds: float) -> None
         time.sleep(0.1)
 
 
+#: A robot still polls at this fraction of its rate before a neighbour's trouble: a robot held up by it (waiting on a
+#: dead link's 500 ms request timeout, or on a flooded loop) would fall far below that.
+ISOLATED = 0.6
+
+
 def _estop_latency(session: zenoh.Session, robot: str) -> float:
     """Seconds from putting the e-stop to the gateway's health confirming it (the gateway reports at once)."""
     confirmed: list[float] = []
@@ -127,9 +132,11 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
         latency_after = max(_estop_latency(session, rid) for rid in ("r1", "r12", "r20"))
         print(f"poll rates before {sorted(rates_before.values())[::5]}, after {sorted(rates_after.values())[::5]}")
         print(f"e-stop confirmed within {1e3 * latency_before:.1f} ms before, {1e3 * latency_after:.1f} ms after")
+        # isolation, not speed (the bench measures speed): a robot held up by r5 would poll at a fraction of its rate; the
+        # bounds leave room for a loaded machine, whose share of the two cores changes between the two measurements
         for rid in others:
-            assert rates_after[rid] == pytest.approx(rates_before[rid], rel=0.02), (rid, rates_before[rid], rates_after[rid])
-        assert latency_after < max(0.25, 3 * latency_before), (latency_before, latency_after)
+            assert rates_after[rid] >= ISOLATED * rates_before[rid], (rid, rates_before[rid], rates_after[rid])
+        assert latency_after < max(0.5, 5 * latency_before), (latency_before, latency_after)
 
         # r9 flooded with cmd_vel by a publisher at full speed (its own process, a whole core of the two):
         # the others poll on and stop as before
@@ -146,9 +153,9 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
         print(f"under r9's flood: poll rates {sorted(rates_flood.values())[::5]}, e-stop within {1e3 * latency_flood:.1f} ms; "
               f"r9 polls at {flooded.poll_hz:.1f} Hz")  # fmt: skip
         for rid in others:  # the flooder takes a core of the machine's two: the scheduler's share, not the gateway's
-            assert rates_flood[rid] == pytest.approx(rates_before[rid], rel=0.1), (rid, rates_before[rid], rates_flood[rid])
-        assert latency_flood < max(0.25, 3 * latency_before), (latency_before, latency_flood)
-        assert flooded.poll_hz > 45  # the flooded robot itself polls on too
+            assert rates_flood[rid] >= ISOLATED * rates_before[rid], (rid, rates_before[rid], rates_flood[rid])
+        assert latency_flood < max(0.5, 5 * latency_before), (latency_before, latency_flood)
+        assert flooded.poll_hz >= ISOLATED * rates_before["r1"]  # the flooded robot itself polls on too
 
         # the rogue robot floods its log port, then its control port, with bytes that never make a message:
         # the others poll on and stop as before (the rogue's own links are its business)
@@ -167,8 +174,8 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
                   f"{sorted(rates_rogue.values())[::5]}, e-stop within {1e3 * latency_rogue:.1f} ms")  # fmt: skip
             assert garbage > 100_000, f"the rogue's {port_name} flood never reached the gateway"
             for rid in others:
-                assert rates_rogue[rid] == pytest.approx(rates_before[rid], rel=0.1), (port_name, rid, rates_before[rid], rates_rogue[rid])
-            assert latency_rogue < max(0.25, 3 * latency_before), (port_name, latency_before, latency_rogue)
+                assert rates_rogue[rid] >= ISOLATED * rates_before[rid], (port_name, rid, rates_before[rid], rates_rogue[rid])
+            assert latency_rogue < max(0.5, 5 * latency_before), (port_name, latency_before, latency_rogue)
 
 
 @pytest.mark.parametrize(

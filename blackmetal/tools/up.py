@@ -43,6 +43,7 @@ from blackmetal.runtime.fleet import FleetRobot, load_fleet
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
 from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
+from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, ZenohSettings, add_zenoh_arguments, open_when_reachable, zenoh_settings
 from blackmetal.schemas import (
     ANY_GATEWAY_ALIVE,
@@ -70,6 +71,10 @@ READY_TIMEOUT_S = 30.0
 CHILD_CHECK_S = 0.05
 #: A fleet robot's health older than this (s; the gateway reports every second) counts as missing.
 HEALTH_STALE_S = 3.0
+#: The fleet's pose rates are measured over one status interval this often (s).
+POSE_SAMPLE_EVERY_S = 5.0
+#: A robot's poses per second at most (a pose per poll; the gateway polls at most 200 Hz): the sampling ring's size.
+POSES_PER_S_AT_MOST = 200
 #: The fleet status line names at most this many robots per item, then "+k".
 NAMED_AT_MOST = 5
 
@@ -297,24 +302,65 @@ def _named(ids: list[str]) -> str:
     return shown + (f" +{len(ids) - NAMED_AT_MOST}" if len(ids) > NAMED_AT_MOST else "")
 
 
+class PoseSampler:
+    """Each robot's poses per second, measured over one status interval every :data:`POSE_SAMPLE_EVERY_S`.
+
+    Counting every pose costs the status line more than the router's own work
+    (0.1 cores at 100 robots: 5,000 poses a second delivered into ``up``'s
+    session, even into a ring): so one subscriber on ``**/pose`` is declared
+    for one interval, its ring emptied and counted at the next line, and
+    undeclared. The line shows the rates of the last such window.
+    """
+
+    def __init__(self, session: zenoh.Session, prefixes: list[str], interval: float) -> None:
+        self.session = session
+        self.prefixes = set(prefixes)
+        self.capacity = max(1024, math.ceil(POSES_PER_S_AT_MOST * len(prefixes) * interval * 1.5))
+        self.rates: dict[str, float] | None = None  # None: not measured yet
+        self._subscriber: Any = None
+        self._since = 0.0
+        self._next = time.monotonic()
+
+    def tick(self, now: float) -> None:
+        """At each status line: end a window that is open (its rates), or open one when it is due."""
+        if self._subscriber is not None:
+            counts = dict.fromkeys(self.prefixes, 0)
+            while (sample := self._subscriber.try_recv()) is not None:
+                prefix = str(sample.key_expr).removesuffix("/pose")
+                if prefix in counts:
+                    counts[prefix] += 1
+            undeclare(self._subscriber)
+            self._subscriber = None
+            elapsed = max(now - self._since, 1e-6)
+            self.rates = {prefix: count / elapsed for prefix, count in counts.items()}
+            self._next = now + POSE_SAMPLE_EVERY_S
+        elif now >= self._next:
+            self._subscriber = self.session.declare_subscriber("**/pose", zenoh.handlers.RingChannel(self.capacity))
+            self._since = now
+
+    def close(self) -> None:
+        if self._subscriber is not None:
+            undeclare(self._subscriber)
+            self._subscriber = None
+
+
 class FleetStatus:
     """Subscriptions for the fleet's one-line status: gateways alive, each robot's health, poses and errors.
 
     The callbacks only store (a decoded health, a count); :meth:`render` does
-    the arithmetic. Poses are counted, not decoded: the line shows rates only.
+    the arithmetic. Poses are sampled, not followed (:class:`PoseSampler`).
     """
 
-    def __init__(self, session: zenoh.Session, robots: list[FleetRobot]) -> None:
+    def __init__(self, session: zenoh.Session, robots: list[FleetRobot], interval: float = 2.0) -> None:
+        """``interval``: the time between two :meth:`render` calls."""
         self.robots = robots
         self.alive: set[str] = set()
         self.health: dict[str, tuple[GatewayHealth, float]] = {}
-        self.poses = dict.fromkeys((r.prefix for r in robots), 0)
         self.errors = dict.fromkeys((r.prefix for r in robots), 0)
-        self._last_poses = dict(self.poses)
-        self._last_time = time.monotonic()
+        self.poses = PoseSampler(session, [r.prefix for r in robots], interval)
         #: Robots seen with both links connected since the start: before that, a robot is "connecting", not "down".
         self._ever_linked: set[str] = set()
-        prefixes = set(self.poses)
+        prefixes = {r.prefix for r in robots}
         self._subs: list[Any] = [
             session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, lambda s: self._on_token(s, prefixes), history=True)
         ]
@@ -322,7 +368,6 @@ class FleetStatus:
             keys = Keys(robot.prefix)
             self._subs += [
                 session.declare_subscriber(keys.health, functools.partial(self._on_health, robot.prefix)),
-                session.declare_subscriber(keys.pose, functools.partial(self._count, self.poses, robot.prefix)),
                 session.declare_subscriber(keys.errors, functools.partial(self._count, self.errors, robot.prefix)),
             ]
 
@@ -347,10 +392,8 @@ class FleetStatus:
 
     def render(self) -> str:
         now = time.monotonic()
-        elapsed = max(now - self._last_time, 1e-6)
-        poses = dict(self.poses)
-        rates = [(poses[r.prefix] - self._last_poses[r.prefix]) / elapsed for r in self.robots]
-        self._last_poses, self._last_time = poses, now
+        self.poses.tick(now)
+        rates = None if self.poses.rates is None else [self.poses.rates[r.prefix] for r in self.robots]
         fresh = {p: h for p, (h, at) in list(self.health.items()) if now - at <= HEALTH_STALE_S}
         polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
         count = len(self.robots)
@@ -368,7 +411,10 @@ class FleetStatus:
         if down:
             parts.append(f"link down {len(down)}: {_named(down)}")
         parts.append(f"poll min {min(polls):.0f} median {statistics.median(polls):.0f} Hz")
-        parts.append(f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
+        if rates is None:
+            parts.append("poses/s measuring")
+        else:
+            parts.append(f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
         stopped = [r.id for r in self.robots if r.prefix in fresh and fresh[r.prefix].estop]
         parts.append(f"E-STOP {len(stopped)}/{count}: {_named(stopped)}" if stopped else f"e-stop 0/{count}")
         driving = [f"{r.id} ({fresh[r.prefix].active_source})" for r in self.robots if r.prefix in fresh and fresh[r.prefix].active_source]
@@ -657,7 +703,7 @@ def _run_fleet(
         robots=[[r.id, r.prefix, r.host, r.control_port, r.log_port] for r in robots],
         children={child.name: child.proc.pid for child in children},
     )
-    status = FleetStatus(session, robots)
+    status = FleetStatus(session, robots, interval=_status_interval(args))
     return _live(args, children, stop, status.render, gateway, lambda: _stop_fleet(robots))
 
 
@@ -673,6 +719,11 @@ def _stop_fleet(robots: list[FleetRobot]) -> str:
     return f"{stopped}; {robot.id}: {reason}" + (f" (and {len(failed) - 1} more)" if len(failed) > 1 else "")
 
 
+def _status_interval(args: argparse.Namespace) -> float:
+    """Seconds between status lines: as asked on a terminal, at least 2 s into a file or a pipe."""
+    return args.status_interval if sys.stdout.isatty() else max(args.status_interval, 2.0)
+
+
 def _live(
     args: argparse.Namespace,
     children: list[ServiceProcess],
@@ -683,7 +734,7 @@ def _live(
 ) -> int:
     """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines)."""
     tty = sys.stdout.isatty()
-    interval = args.status_interval if tty else max(args.status_interval, 2.0)
+    interval = _status_interval(args)
     next_status = time.monotonic() + interval
     while not stop.wait(CHILD_CHECK_S):
         for child in children:
