@@ -94,5 +94,7 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
             flush=True,
         )
         print(f"  {when_killed('HOST')} for each robot", flush=True)
-        announce_ready("gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout)
+        announce_ready(
+            "gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout, poll_hz=base.poll_hz
+        )
         await asyncio.gather(*tasks)

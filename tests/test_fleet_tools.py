@@ -33,9 +33,9 @@ STATUS = re.compile(
 class FleetUp(Child):
     """``blackmetal up --robots n`` as a hub on a free loopback port; its children's pids once ready."""
 
-    def __init__(self, n: int) -> None:
+    def __init__(self, n: int, *extra: str) -> None:
         self.endpoint = f"tcp/127.0.0.1:{free_port()}"
-        super().__init__(["-m", "blackmetal", "up", "--robots", str(n), "-l", self.endpoint, "--no-multicast-scouting"])
+        super().__init__(["-m", "blackmetal", "up", "--robots", str(n), *extra, "-l", self.endpoint, "--no-multicast-scouting"])
         info = self.ready(timeout=60)
         self.children: dict[str, int] = info["children"]
         self.prefixes: list[str] = info["prefixes"]
@@ -268,3 +268,57 @@ def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() 
     assert "connecting" not in status.render()
     status.health["fleet/r2"] = (health("down"), time.monotonic())
     assert "link down 1: r2" in status.render()
+
+
+def test_the_fleet_is_spread_over_processes_one_per_150_robots_at_most_one_per_core() -> None:
+    from blackmetal.runtime.fleet import numbered_fleet
+    from blackmetal.tools.up import process_count, shards
+
+    assert [process_count(n, None, cores=2) for n in (1, 100, 150, 151, 300, 1000)] == [1, 1, 1, 2, 2, 2]
+    assert process_count(1000, None, cores=8) == 7 and process_count(10, 3, cores=1) == 3  # asked: as asked
+    groups = shards(numbered_fleet(7), 3)
+    assert [[r.id for r in g] for g in groups] == [["r1", "r2", "r3"], ["r4", "r5"], ["r6", "r7"]]
+
+
+def test_the_status_says_when_the_fleet_is_behind_its_rate() -> None:
+    from blackmetal.runtime.fleet import numbered_fleet
+    from blackmetal.schemas import GatewayHealth, LinkHealth
+
+    class NoSession:
+        def liveliness(self) -> "NoSession":
+            return self
+
+        def declare_subscriber(self, *args: object, **kwargs: object) -> "NoSession":
+            return self
+
+        def try_recv(self) -> None:
+            return None
+
+        def undeclare(self) -> None:
+            return None
+
+    from blackmetal.tools.up import FleetStatus
+
+    status = FleetStatus(NoSession(), numbered_fleet(3), poll_hz=50.0)  # type: ignore[arg-type]
+    link = LinkHealth(state="connected")
+    for rid, hz in (("r1", 49.0), ("r2", 48.0), ("r3", 47.0)):
+        status.health[f"fleet/{rid}"] = (GatewayHealth(stamp=0.0, control=link, log=link, poll_hz=hz), time.monotonic())
+    assert "BEHIND" not in status.render()
+    for rid, hz in (("r1", 41.0), ("r2", 40.0), ("r3", 48.0)):
+        status.health[f"fleet/{rid}"] = (GatewayHealth(stamp=0.0, control=link, log=link, poll_hz=hz), time.monotonic())
+    assert "BEHIND 50 Hz: the host is short of CPU" in status.render()
+
+
+def test_up_spreads_a_fleet_over_two_gateways_and_a_dead_ones_robots_are_stopped() -> None:
+    fleet = FleetUp(6, "--processes", "2")
+    try:
+        assert sorted(fleet.children) == ["gateway-1", "gateway-2", "odometry-1", "odometry-2", "sim"]
+        fleet.wait_line(r"6 simulated robots fleet/r1 \.\.\. fleet/r6 .*\(one simulator, 2 gateway and 2 odometry processes\)")
+        fleet.status(lambda m: m["up"] == m["n"] == "6" and int(m["poll_min"]) >= 1, what="6/6 robots up, each polled")
+        os.kill(fleet.children["gateway-2"], signal.SIGKILL)
+        assert fleet.wait(20) == 1
+        out = fleet.output()
+        assert "gateway-2 gone; 3 of 3 robots were sent zero velocity and NORMAL_STOP" in out, out
+        assert not outliving(fleet)
+    finally:
+        fleet.stop()

@@ -26,7 +26,7 @@ import sys
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
@@ -39,7 +39,7 @@ from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.robot_model import RESIDUAL_LINE
 from blackmetal.ros2.naming import Flavor, parse_distros
 from blackmetal.ros2.settings import Ros2Settings
-from blackmetal.runtime.fleet import FleetRobot, load_fleet
+from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready, stop_in_order
 from blackmetal.runtime.settings import default_of, load_settings, read_settings_file
 from blackmetal.runtime.signals import stop_on_signals
@@ -66,6 +66,11 @@ from .stop_robot import stop_robot
 
 DEFAULT_LISTEN = DEFAULT_ENDPOINT
 STOP_BUDGET_S = 3.0
+#: Robots one gateway (or odometry) process carries at 50 Hz with room to spare: the fleet gateway took 0.66 cores for
+#: 100 robots on the reference machine; past this, --robots spreads them over more processes, one per core at most.
+ROBOTS_PER_PROCESS = 150
+#: The status line says the fleet is behind when its median poll rate is below this fraction of the asked rate.
+BEHIND_RATIO = 0.9
 READY_TIMEOUT_S = 30.0
 #: How often the children are checked: a dead gateway's robot is stopped within about this long.
 CHILD_CHECK_S = 0.05
@@ -351,9 +356,10 @@ class FleetStatus:
     the arithmetic. Poses are sampled, not followed (:class:`PoseSampler`).
     """
 
-    def __init__(self, session: zenoh.Session, robots: list[FleetRobot], interval: float = 2.0) -> None:
-        """``interval``: the time between two :meth:`render` calls."""
+    def __init__(self, session: zenoh.Session, robots: list[FleetRobot], interval: float = 2.0, poll_hz: float = 50.0) -> None:
+        """``interval``: the time between two :meth:`render` calls; ``poll_hz``: the rate the gateways were asked for."""
         self.robots = robots
+        self.poll_hz = poll_hz
         self.alive: set[str] = set()
         self.health: dict[str, tuple[GatewayHealth, float]] = {}
         self.errors = dict.fromkeys((r.prefix for r in robots), 0)
@@ -411,6 +417,9 @@ class FleetStatus:
         if down:
             parts.append(f"link down {len(down)}: {_named(down)}")
         parts.append(f"poll min {min(polls):.0f} median {statistics.median(polls):.0f} Hz")
+        linked_polls = [fresh[r.prefix].poll_hz for r in self.robots if r.prefix in linked]
+        if linked_polls and statistics.median(linked_polls) < BEHIND_RATIO * self.poll_hz:
+            parts.append(f"BEHIND {self.poll_hz:g} Hz: the host is short of CPU (commands and e-stops keep their latency)")
         if rates is None:
             parts.append("poses/s measuring")
         else:
@@ -455,6 +464,13 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         metavar="N",
         help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway and one odometry "
         "process (--fleet), with one status line for all",
+    )
+    parser.add_argument(
+        "--processes",
+        type=int,
+        metavar="K",
+        help=f"with --robots: spread the robots over K gateway and K odometry processes (default: one per "
+        f"{ROBOTS_PER_PROCESS} robots, at most one per core)",
     )
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
     parser.add_argument("--log-port", type=int, default=log_port, help=f"robot log port with --robot (default {log_port})")
@@ -523,6 +539,27 @@ def check_fleet_options(args: argparse.Namespace) -> None:
                           "(real robots of a fleet: a fleet file for `blackmetal gateway --fleet FILE`)")  # fmt: skip
     if args.prefix:
         raise ConfigError(f"--prefix does not go with --robots: the fleet's prefixes are fleet/r1 ... fleet/r{count}")
+    if args.processes is not None and not 1 <= args.processes <= count:
+        raise ConfigError(f"--processes {args.processes}: give 1 to {count} (the robots of --robots {count} are spread over them)")
+
+
+def process_count(robots: int, asked: int | None, cores: int | None = None) -> int:
+    """How many gateway (and odometry) processes carry ``robots``: as asked, else one per ROBOTS_PER_PROCESS robots,
+    at most one per core."""
+    if asked is not None:
+        return asked
+    return max(1, min(cores or os.cpu_count() or 1, math.ceil(robots / ROBOTS_PER_PROCESS)))
+
+
+def shards(robots: list[FleetRobot], count: int) -> list[list[FleetRobot]]:
+    """``robots`` in ``count`` contiguous groups of near-equal size (r1..r50, r51..r100)."""
+    size, extra = divmod(len(robots), count)
+    out, start = [], 0
+    for k in range(count):
+        end = start + size + (1 if k < extra else 0)
+        out.append(robots[start:end])
+        start = end
+    return out
 
 
 @tool("up")
@@ -531,6 +568,8 @@ def run(args: argparse.Namespace) -> int:
     fleet = args.robots is not None
     if fleet:
         check_fleet_options(args)
+    elif args.processes is not None:
+        raise ConfigError("--processes spreads a fleet of --robots N: give --robots as well")
     if args.ros2:
         require_extra("blackmetal up --ros2", "ros2", "rosbags")
     if args.distro is not None:
@@ -642,7 +681,7 @@ def _run(
         reason = stop_robot(host, control_port, timeout=2.0)
         return "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
 
-    return _live(args, children, stop, status.render, gateway, stop_the_robot)
+    return _live(args, children, stop, status.render, {gateway: stop_the_robot})
 
 
 def _run_fleet(
@@ -664,15 +703,27 @@ def _run_fleet(
             sim_args += ["--seed", str(args.seed)]
         _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
         robots = load_fleet(fleet_file)  # with the ports the simulator bound
-        gateway = _start(children, "gateway", ["gateway", "--fleet", str(fleet_file), *poll_args, *files.args("gateway"), *zargs],
-                         args.verbose)  # fmt: skip
-        odometry = _start(children, "odometry", ["odometry", "--fleet", str(fleet_file), *files.args("odometry"), *zargs], args.verbose)
+        groups = shards(robots, process_count(len(robots), args.processes))
+        gateways: dict[ServiceProcess, list[FleetRobot]] = {}
+        odometries: list[ServiceProcess] = []
+        for k, group in enumerate(groups, 1):
+            suffix = "" if len(groups) == 1 else f"-{k}"
+            shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
+            if len(groups) > 1:
+                shard_file.write_text(write_fleet(group))
+            gateway_args = ["gateway", "--fleet", str(shard_file), *poll_args, *files.args("gateway"), *zargs]
+            gateways[_start(children, f"gateway{suffix}", gateway_args, args.verbose)] = group
+            odometry_args = ["odometry", "--fleet", str(shard_file), *files.args("odometry"), *zargs]
+            odometries.append(_start(children, f"odometry{suffix}", odometry_args, args.verbose))
         ros2 = None
         if args.ros2:  # one ROS node per robot, /<id>/..., in one adapter process
             ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *ros2_extra(args), *zargs]
             ros2 = _start(children, "ros2", ros2_args, args.verbose)
-        cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
-        odometry.wait_ready(READY_TIMEOUT_S)
+        announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]
+        cmd_timeout = float(announced[0].get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
+        poll_hz = float(announced[0].get("poll_hz", default_of(GatewaySettings, "poll_hz")))
+        for odometry in odometries:
+            odometry.wait_ready(READY_TIMEOUT_S)
         if ros2 is not None:
             ros2.wait_ready(READY_TIMEOUT_S)
         view = None
@@ -683,9 +734,11 @@ def _run_fleet(
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
     shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
+    processes = (
+        "one gateway, one odometry process" if len(gateways) == 1 else f"{len(gateways)} gateway and {len(gateways)} odometry processes"
+    )
     print(
-        f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} "
-        f"(one simulator, one gateway, one odometry process), {topology.describe()}",
+        f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {topology.describe()}",
         flush=True,
     )
     if args.ros2:
@@ -703,8 +756,9 @@ def _run_fleet(
         robots=[[r.id, r.prefix, r.host, r.control_port, r.log_port] for r in robots],
         children={child.name: child.proc.pid for child in children},
     )
-    status = FleetStatus(session, robots, interval=_status_interval(args))
-    return _live(args, children, stop, status.render, gateway, lambda: _stop_fleet(robots))
+    status = FleetStatus(session, robots, interval=_status_interval(args), poll_hz=poll_hz)
+    stoppers = {gateway: functools.partial(_stop_fleet, group) for gateway, group in gateways.items()}
+    return _live(args, children, stop, status.render, stoppers)
 
 
 def _stop_fleet(robots: list[FleetRobot]) -> str:
@@ -729,10 +783,10 @@ def _live(
     children: list[ServiceProcess],
     stop: threading.Event,
     render: Callable[[], str],
-    gateway: ServiceProcess,
-    stop_robots: Callable[[], str],
+    stoppers: Mapping[ServiceProcess, Callable[[], str]],
 ) -> int:
-    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines)."""
+    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines; a dead gateway's robots
+    are stopped first by ``stoppers[gateway]``)."""
     tty = sys.stdout.isatty()
     interval = _status_interval(args)
     next_status = time.monotonic() + interval
@@ -741,8 +795,8 @@ def _live(
             if child.poll() is not None:
                 if tty:
                     print()
-                if child is gateway:  # nobody is left to stop the robots: do it now
-                    print(f"blackmetal up: gateway gone; {stop_robots()}", file=sys.stderr, flush=True)
+                if child in stoppers:  # nobody is left to stop its robots: do it now
+                    print(f"blackmetal up: {child.name} gone; {stoppers[child]()}", file=sys.stderr, flush=True)
                 print(
                     f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
                     file=sys.stderr,
