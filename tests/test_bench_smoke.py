@@ -226,10 +226,11 @@ def test_a_stopped_bench_stops_every_process_it_started(tmp_path: Path, how: str
 
 @pytest.mark.integration
 def test_bench_fleet_measures_a_fleet_with_a_probe_robot(tmp_path: Path) -> None:
-    """``bench --fleet 1,3 --quick``: a row per size, every robot posing, the probe's command and e-stop latencies."""
+    """``bench --fleet 3,1 --views --quick``: a row per size, every robot posing, the probe's command and e-stop latencies,
+    the views' cost idle and the poses and /odom samples their clients received while watching."""
     out = tmp_path / "fleet.json"
     proc = subprocess.run(
-        [sys.executable, "-m", "blackmetal", "bench", "--fleet", "3,1", "--quick", "--json", str(out)],
+        [sys.executable, "-m", "blackmetal", "bench", "--fleet", "3,1", "--views", "--quick", "--json", str(out)],
         capture_output=True, text=True, timeout=300,
     )  # fmt: skip
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -239,6 +240,11 @@ def test_bench_fleet_measures_a_fleet_with_a_probe_robot(tmp_path: Path) -> None
         assert run["pose_hz_min"] > 25, run  # every robot poses (50 Hz asked; a loaded machine polls later)
         assert set(run["cpu"]) == {"router", "gateway", "odometry"} | ({"sim"} if run["robots"] > 1 else set())
         assert run["cmd_vel_ms"]["n"] == 40 and run["estop_ms"]["n"] + run["estop_ms"]["missing"] == 40
-    assert "robots | CPU router+gateway+odometry" in proc.stdout
+        views = run["views"]
+        assert set(views["idle"]) == {"ros2", "foxglove"} and {"ros2", "foxglove", "gateway"} <= set(views["watched"])
+        assert views["foxglove_poses_per_s"] > 0 and views["odom_per_s"] > 0, views  # both clients were served
+    assert "robots | CPU router+gateway+odometry" in proc.stdout and "robots | idle ros2 / foxglove" in proc.stdout
+    lone = subprocess.run([sys.executable, "-m", "blackmetal", "bench", "--views"], capture_output=True, text=True, timeout=60)
+    assert lone.returncode == 2 and "give --fleet N as well" in lone.stderr
     bad = subprocess.run([sys.executable, "-m", "blackmetal", "bench", "--fleet", "0"], capture_output=True, text=True, timeout=60)
     assert bad.returncode == 2 and "at least 1 robot" in bad.stderr and "Traceback" not in bad.stderr

@@ -532,6 +532,11 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         type=_fleet_sizes,
         help="instead of the figures above: fleets of N robots on one router, one fleet gateway and odometry (default 1,10,50,100)",
     )
+    parser.add_argument(
+        "--views",
+        action="store_true",
+        help="with --fleet: also the ROS 2 and Foxglove fleet views, idle and with a client watching every robot",
+    )
     return parser
 
 
@@ -572,6 +577,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json and not Path(args.json).resolve().parent.is_dir():
         _say(f"blackmetal bench: --json {args.json}: the folder {Path(args.json).resolve().parent} does not exist")
         return 2
+    if args.views and not args.fleet:
+        _say("blackmetal bench: --views measures the fleet views: give --fleet N as well")
+        return 2
     with children.stopping_on_signals():  # until it returns: a signal after the measuring is only noted
         started = time.monotonic()
         result: dict[str, Any] | None = None
@@ -595,8 +603,11 @@ def _fleet(args: argparse.Namespace, started: float) -> int:
     """``--fleet``: one row per fleet size; a size that fails is one line, and the sizes after it are not measured."""
     from .fleet import fleet_table, measure_fleet
 
+    if args.views:
+        require_extra("blackmetal bench --fleet --views", "ros2", "rosbags")
+        require_extra("blackmetal bench --fleet --views", "foxglove", "foxglove")
     try:
-        runs = measure_fleet(args.fleet, args.quick, progress=_say)
+        runs = measure_fleet(args.fleet, args.quick, progress=_say, views=args.views)
     except (ChildFailed, TimeoutError, OSError) as exc:
         _say(f"blackmetal bench: the fleet figure failed: {one_sentence(exc)}")
         return 1

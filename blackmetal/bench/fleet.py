@@ -12,6 +12,14 @@ e-stop -> EMG_STOP (p50/p99), as many samples of each. Meanwhile the poses
 still flow to the bench (the router forwards them, as to a fleet view), but
 no longer into a Python callback: the bench's own count of 5,000 poses a
 second, on the same two cores, is not part of the fleet.
+
+``--views`` (#29) then adds the ROS 2 and the Foxglove fleet views (``ros2
+--fleet``, ``foxglove --fleet``) on the same fleet: their CPU with nobody
+watching, then the whole host's (router, simulator, gateway, odometry, both
+views) with one Foxglove client subscribed to every robot's pose and one
+Zenoh subscriber on every robot's ``/odom``, the pose and ``/odom`` rates the
+clients received, and the command and e-stop latencies measured while they
+watch (instead of before the views).
 """
 
 from __future__ import annotations
@@ -35,7 +43,56 @@ POLL_HZ = 50.0
 PROBE = "probe"
 
 
-def fleet_figure(robots: int, seconds: float, samples: int) -> dict[str, Any]:
+def _window(pids: dict[str, int], seconds: float) -> dict[str, float]:
+    """Each process's CPU share (cores) over ``seconds``."""
+    cpu0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    time.sleep(seconds)
+    cpu1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
+
+
+class _FoxgloveWatcher:
+    """One Foxglove client (the app's protocol) subscribed to every robot's pose channel; counts the messages it gets."""
+
+    def __init__(self, stack: ExitStack, url: str, robots: int) -> None:
+        import json
+        import threading
+
+        from websockets.sync.client import connect
+        from websockets.typing import Subprotocol
+
+        self.received = 0
+        self._stop = threading.Event()
+        self.ws = stack.enter_context(connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")], open_timeout=30, max_size=None))
+        channels: dict[str, int] = {}
+        deadline = time.monotonic() + 30
+        while len([t for t in channels if t.endswith("/pose")]) < robots and time.monotonic() < deadline:
+            message = self.ws.recv(timeout=30)
+            if isinstance(message, str) and json.loads(message)["op"] == "advertise":
+                channels.update({c["topic"]: c["id"] for c in json.loads(message)["channels"]})
+        poses = [cid for topic, cid in channels.items() if topic.endswith("/pose") and "truth" not in topic]
+        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c} for i, c in enumerate(poses)]}))
+        self._reader = threading.Thread(target=self._read, name="bench-foxglove-client", daemon=True)
+        self._reader.start()
+        stack.callback(self.close)
+
+    def _read(self) -> None:
+        while not self._stop.is_set():
+            try:
+                message = self.ws.recv(timeout=0.5)
+            except TimeoutError:
+                continue
+            except Exception:
+                return
+            if isinstance(message, bytes) and message[:1] == b"\x01":  # a message data frame
+                self.received += 1
+
+    def close(self) -> None:
+        self._stop.set()
+        self._reader.join(2)
+
+
+def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False) -> dict[str, Any]:
     """The figures of one fleet of ``robots`` (see the module docstring)."""
     import zenoh
 
@@ -86,6 +143,9 @@ def fleet_figure(robots: int, seconds: float, samples: int) -> dict[str, Any]:
         # count of 5,000 a second, on the machine's two cores with everything else, is not part of the fleet
         consumer = session.declare_subscriber("fleet/*/pose", zenoh.handlers.RingChannel(1))
         counting.undeclare()
+        view_figures: dict[str, Any] = {}
+        if views:
+            view_figures = _views(stack, session, processes, fleet_file, endpoint, robots, seconds)
         probe_keys = Keys(probe.prefix)
         cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
         estop = estop_latencies(session.declare_publisher(probe_keys.estop, express=EXPRESS), probe_robot, samples, RELEASE_SETTLE_S)
@@ -106,14 +166,50 @@ def fleet_figure(robots: int, seconds: float, samples: int) -> dict[str, Any]:
         "messages_per_s": sum(polls) + sum(rates) + 2 * robots,
         "cmd_vel_ms": cmd,
         "estop_ms": estop,
+        **({"views": view_figures} if views else {}),
     }
 
 
-def measure_fleet(sizes: list[int], quick: bool, progress: Any = print) -> list[dict[str, Any]]:
+def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file: Path, endpoint: list[str], robots: int,
+           seconds: float) -> dict[str, Any]:  # fmt: skip
+    """The views' cost idle, then the whole host while a Foxglove client and an /odom subscriber watch every robot."""
+    processes["ros2"] = _service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
+    processes["foxglove"] = _service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
+    pids = {name: child.proc.pid for name, child in processes.items()}
+    time.sleep(2.0)
+    idle = _window(pids, seconds)
+    watcher = _FoxgloveWatcher(stack, processes["foxglove"].ready_info["url"], robots)
+    odoms = [0]
+
+    def on_odom(_sample: Any) -> None:
+        odoms[0] += 1
+
+    odom = session.declare_subscriber("0/*/odom/nav_msgs::msg::dds_::Odometry_/*", on_odom)
+    stack.callback(odom.undeclare)
+    time.sleep(3.0)
+    got0, odom0, t0 = watcher.received, odoms[0], time.monotonic()
+    watched = _window(pids, seconds)
+    elapsed = time.monotonic() - t0
+    polls = [
+        decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz for r in session.get("fleet/*/gateway/health", timeout=5) if r.ok is not None
+    ]
+    return {
+        "idle": {name: idle[name] for name in ("ros2", "foxglove")},
+        "watched": watched,
+        "host_watched": sum(watched.values()),
+        "foxglove_poses_per_s": (watcher.received - got0) / elapsed,
+        "odom_per_s": (odoms[0] - odom0) / elapsed,
+        "poll_hz_min_watched": min(polls, default=0.0),
+        "expected_per_s": robots * POLL_HZ,
+    }
+
+
+def measure_fleet(sizes: list[int], quick: bool, progress: Any = print, views: bool = False) -> list[dict[str, Any]]:
     out = []
     for robots in sizes:
-        progress(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz ...")
-        out.append(fleet_figure(robots, 2.0 if quick else 10.0, 40 if quick else 400))
+        what = " and the ROS 2 and Foxglove fleet views" if views else ""
+        progress(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz{what} ...")
+        out.append(fleet_figure(robots, 2.0 if quick else 10.0, 40 if quick else 400, views=views))
     return out
 
 
@@ -137,4 +233,21 @@ def fleet_table(runs: list[dict[str, Any]]) -> str:
             f"{run['estop_ms']['p50_ms']:.2f}/{run['estop_ms']['p99_ms']:.2f} ms"
             + (f" ({run['estop_ms']['missing']} engages without their own EMG_STOP)" if run["estop_ms"].get("missing") else "")
         )
+    if any("views" in run for run in runs):
+        header = (
+            "robots | idle ros2 / foxglove | watched: whole host (ros2, foxglove) | poses to Foxglove/s, /odom/s (of) | "
+            "poll Hz min | cmd_vel p99 | e-stop p99 (while watched)"
+        )
+        lines += ["", header, "-" * len(header)]
+        for run in runs:
+            v = run.get("views")
+            if not v:
+                continue
+            w = v["watched"]
+            lines.append(
+                f"{run['robots']:>6} | {v['idle']['ros2']:.3f} / {v['idle']['foxglove']:.3f} cores | {v['host_watched']:.2f} cores "
+                f"(ros2 {w['ros2']:.2f}, foxglove {w['foxglove']:.2f}) | {v['foxglove_poses_per_s']:.0f}, {v['odom_per_s']:.0f} "
+                f"({v['expected_per_s']:.0f}) | {v['poll_hz_min_watched']:.1f} | {run['cmd_vel_ms']['p99_ms']:.2f} ms | "
+                f"{run['estop_ms']['p99_ms']:.2f} ms"
+            )
     return "\n".join(lines)
