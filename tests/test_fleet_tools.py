@@ -268,6 +268,9 @@ def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() 
     assert "connecting" not in status.render()
     status.health["fleet/r2"] = (health("down"), time.monotonic())
     assert "link down 1: r2" in status.render()
+    refused = LinkHealth(state="down", reason="cannot connect to 127.0.0.1:9: connection refused")
+    status.health["fleet/r2"] = (GatewayHealth(stamp=0.0, control=refused, log=refused), time.monotonic())
+    assert "link down 1: r2 (r2: cannot connect to 127.0.0.1:9: connection refused)" in status.render()  # why, not just down
 
 
 def test_the_fleet_is_spread_over_processes_one_per_150_robots_at_most_one_per_core() -> None:

@@ -331,6 +331,18 @@ def test_robots_returns_once_the_robots_present_have_answered_not_after_its_whol
     assert took < 10, f"{took:.1f} s: it waited for its --wait 20 although the one robot had answered"
 
 
+def test_up_with_a_robot_that_cannot_be_reached_says_why_in_its_status_line() -> None:
+    """`blackmetal up --robot HOST` whose robot refuses connections: the status line names the failure, not just 'down'."""
+    closed = free_port()  # nothing listens there
+    up = Child(["-m", "blackmetal", "up", "--robot", "127.0.0.1", "--control-port", str(closed), "--log-port", str(free_port()),
+                "-l", f"tcp/127.0.0.1:{free_port()}", "--no-multicast-scouting"])  # fmt: skip
+    try:
+        up.ready(timeout=60)
+        up.wait_line(rf"^link (down|connecting)/\w+ \| cannot connect to 127\.0\.0\.1:{closed}: connection refused")
+    finally:
+        up.stop()
+
+
 def test_a_robot_that_cannot_be_reached_is_said_in_health_and_in_a_watch_started_later() -> None:
     """A gateway whose robot refuses connections: health says why, and `watch` started later shows the report it missed."""
     closed = free_port()  # nothing listens there

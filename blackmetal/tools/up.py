@@ -280,6 +280,9 @@ class StatusLine:
             parts.append("gateway: waiting")
         else:
             parts.append(f"link {h.control.state}/{h.log.state}")
+            reason = h.control.reason or h.log.reason  # why the robot cannot be reached, as the gateway knows it
+            if reason and h.control.state != "connected":
+                parts.append(reason)
             parts.append(f"poll {h.poll_hz:.0f} Hz")
             if h.estop:
                 parts.append("E-STOP")
@@ -415,7 +418,9 @@ class FleetStatus:
         if missing:
             parts.append(f"no health {len(missing)}: {_named(missing)}")
         if down:
-            parts.append(f"link down {len(down)}: {_named(down)}")
+            first = fresh[next(r.prefix for r in self.robots if r.id == down[0])]
+            reason = first.control.reason or first.log.reason
+            parts.append(f"link down {len(down)}: {_named(down)}" + (f" ({down[0]}: {reason})" if reason else ""))
         parts.append(f"poll min {min(polls):.0f} median {statistics.median(polls):.0f} Hz")
         linked_polls = [fresh[r.prefix].poll_hz for r in self.robots if r.prefix in linked]
         if linked_polls and statistics.median(linked_polls) < BEHIND_RATIO * self.poll_hz:
