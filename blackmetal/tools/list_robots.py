@@ -153,7 +153,9 @@ def run(args: argparse.Namespace) -> int:
     output = "json" if args.json else "table" if args.table or sys.stdout.isatty() else "prefixes"
     with session:
         robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S), args.expect)
-        rows = robot_rows(session, robots) if robots and output != "prefixes" else []
+        # the rows' queries may take what is left of --wait (at least QUERY_S): a loaded gateway answers late, not never
+        query_s = max(QUERY_S, deadline - time.monotonic())
+        rows = robot_rows(session, robots, query_s) if robots and output != "prefixes" else []
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
     if not robots:
