@@ -1,4 +1,4 @@
-"""Shared fixtures, the two tiers of the suite, and how they share two workers.
+"""Shared fixtures, the two tiers of the suite, and how they share the workers.
 
 ``python -m pytest -m "not slow"`` is the fast tier, run before each commit: unit, property, contract
 and fake-clock tests. ``python -m pytest`` (what CI runs) runs everything, ``slow`` included. A test
@@ -7,8 +7,8 @@ the ``children`` fixture is one, marked or not), or when it is marked ``slow`` i
 takes seconds. A fast-tier test that took longer than ``FAST_TEST_BUDGET_S`` is named at the end of
 the run, so that the tier stays fast.
 
-With pytest-xdist (``-n 2 --dist loadscope`` in pyproject.toml) each module runs on one worker, so
-module fixtures start once, and the two workers run two modules at a time. Fast-tier tests still run
+With pytest-xdist (``-n 3 --dist loadscope`` in pyproject.toml) each module runs on one worker, so
+module fixtures start once, and the three workers run three modules at a time. Fast-tier tests still run
 one at a time (a lock the workers share), so its CPU-bound tests (type checks, property tests) never
 overlap its real-clock contract tests; a slow test may run beside them, as on any loaded machine.
 """
