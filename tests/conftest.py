@@ -18,9 +18,13 @@ from __future__ import annotations
 import fcntl
 import os
 from collections.abc import Iterator
+from typing import TYPE_CHECKING
 
 import pytest
 from helpers import Child
+
+if TYPE_CHECKING:
+    import zenoh
 
 #: A test that takes longer than this (s) belongs in the slow tier.
 FAST_TEST_BUDGET_S = 5.0
@@ -44,6 +48,19 @@ def _fast_tier_one_at_a_time(request: pytest.FixtureRequest, tmp_path_factory: p
     with open(tmp_path_factory.getbasetemp().parent / "fast-tier.lock", "a") as lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # released when the file closes
         yield
+
+
+@pytest.fixture
+def session() -> Iterator["zenoh.Session"]:
+    """A Zenoh session on its own: no scouting, no listener, no peer (an edge tested in-process)."""
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("scouting/gossip/enabled", "false")
+    conf.insert_json5("listen/endpoints", "[]")
+    with zenoh.open(conf) as opened:
+        yield opened
 
 
 _over_budget: list[tuple[str, float]] = []

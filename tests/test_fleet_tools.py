@@ -30,6 +30,22 @@ STATUS = re.compile(
 )
 
 
+class NoSession:
+    """Stands in for a Zenoh session where a status line is rendered from fed health: nothing arrives."""
+
+    def liveliness(self) -> "NoSession":
+        return self
+
+    def declare_subscriber(self, *args: object, **kwargs: object) -> "NoSession":
+        return self
+
+    def try_recv(self) -> None:  # an empty pose ring
+        return None
+
+    def undeclare(self) -> None:
+        return None
+
+
 class FleetUp(Child):
     """``blackmetal up --robots n`` as a hub on a free loopback port; its children's pids once ready."""
 
@@ -240,23 +256,9 @@ def test_up_robots_with_foxglove_serves_every_robot_in_one_view() -> None:
 
 def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() -> None:
     """The fleet status line's words, from health reports alone (no processes)."""
-    from blackmetal.tools.up import FleetStatus
-
-    class NoSession:
-        def liveliness(self) -> "NoSession":
-            return self
-
-        def declare_subscriber(self, *args: object, **kwargs: object) -> "NoSession":
-            return self
-
-        def try_recv(self) -> None:  # an empty pose ring
-            return None
-
-        def undeclare(self) -> None:
-            return None
-
     from blackmetal.runtime.fleet import numbered_fleet
     from blackmetal.schemas import GatewayHealth, LinkHealth
+    from blackmetal.tools.up import FleetStatus
 
     robots = numbered_fleet(2)
     status = FleetStatus(NoSession(), robots)  # type: ignore[arg-type]
@@ -290,20 +292,6 @@ def test_the_fleet_is_spread_over_processes_one_per_150_robots_at_most_one_per_c
 def test_the_status_says_when_the_fleet_is_behind_its_rate() -> None:
     from blackmetal.runtime.fleet import numbered_fleet
     from blackmetal.schemas import GatewayHealth, LinkHealth
-
-    class NoSession:
-        def liveliness(self) -> "NoSession":
-            return self
-
-        def declare_subscriber(self, *args: object, **kwargs: object) -> "NoSession":
-            return self
-
-        def try_recv(self) -> None:
-            return None
-
-        def undeclare(self) -> None:
-            return None
-
     from blackmetal.tools.up import FleetStatus
 
     status = FleetStatus(NoSession(), numbered_fleet(3), poll_hz=50.0)  # type: ignore[arg-type]

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import asyncio
 import threading
-from collections.abc import Iterator
 from typing import Any
 
 import pytest
@@ -70,16 +69,6 @@ def test_the_wheels_on_tf_need_the_impulses_and_tf_needs_the_poses(codec: RosCod
     core.start()
     core.on_matched("tf", True, now=1.0)
     assert out.followed[-1] == frozenset({"pose", "impulses"})
-
-
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    conf = zenoh.Config()
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
-    conf.insert_json5("listen/endpoints", "[]")
-    with zenoh.open(conf) as opened:
-        yield opened
 
 
 def test_the_real_edge_follows_poses_only_while_odom_has_a_subscriber(session: zenoh.Session, codec: RosCodec) -> None:

@@ -19,16 +19,6 @@ from blackmetal.runtime.flood import FLOOD_SAMPLES, PUMP_JOIN_S, GuardedInput
 from blackmetal.runtime.intake import Intake
 
 
-@pytest.fixture
-def session() -> Iterator[zenoh.Session]:
-    conf = zenoh.Config()
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("scouting/gossip/enabled", "false")
-    conf.insert_json5("listen/endpoints", "[]")
-    with zenoh.open(conf) as opened:
-        yield opened
-
-
 def _matching(publisher: zenoh.Publisher) -> bool:
     """Whether a subscriber matches (the stubs say bool; zenoh 1.x returns a MatchingStatus)."""
     status = publisher.matching_status

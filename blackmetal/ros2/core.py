@@ -121,7 +121,7 @@ class Ros2Output(Protocol):
         """``get`` on ``key``; each reply comes back as ``on_query_reply(tag, ...)``, then ``on_query_done(tag)``."""
 
     def follow(self, streams: frozenset[str]) -> None:
-        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``), no others."""
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``), no others."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -777,7 +777,6 @@ class Ros2Core:
         if pending is None:
             return
         if what == Query.PARAMS_SET:
-            self.calls.pop(pending.call, None)
             if not ok:
                 reason = payload.decode(errors="replace") or "no reason given"
                 self._answer_set(pending, None, now, f"the gateway on {self.keys.prefix!r} refused the set: {reason}")
@@ -808,7 +807,6 @@ class Ros2Core:
         what, call = self._queries.pop(tag, (Query.HEALTH, None))
         pending = self.calls.get(call) if call is not None else None
         if pending is not None and what == Query.PARAMS_SET:
-            self.calls.pop(pending.call, None)
             where = f"no gateway answered on {self.keys.params_set} (is it running on prefix {self.keys.prefix}?): nothing was set"
             self._answer_set(pending, None, now, where)
         elif pending is not None:
@@ -823,8 +821,8 @@ class Ros2Core:
     def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
         """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
         self.calls.pop(pending.call, None)
-        if pending.service == SET_ESTOP and self.watched is not None:
-            self._follow()
+        if pending.service == SET_ESTOP:
+            self._follow()  # the health is followed no longer, unless /diagnostics needs it
         if success:
             self.stats.confirmed += 1
         else:

@@ -346,11 +346,6 @@ class PoseSampler:
             self._subscriber = self.session.declare_subscriber("**/pose", zenoh.handlers.RingChannel(self.capacity))
             self._since = now
 
-    def close(self) -> None:
-        if self._subscriber is not None:
-            undeclare(self._subscriber)
-            self._subscriber = None
-
 
 class FleetStatus:
     """Subscriptions for the fleet's one-line status: gateways alive, each robot's health, poses and errors.
