@@ -122,7 +122,7 @@ class GatewayZenoh(ZenohEdge):
         keys = self.keys
         arbiter = service.core.arbiter
         # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
-        intake = Intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
+        intake = self.intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
         estop = intake.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)
         flood = service.on_input_flood
         # guarded too: a storm of e-stop samples must not keep Zenoh's thread in Python while its final ON waits behind them

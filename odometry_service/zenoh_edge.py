@@ -38,7 +38,7 @@ class OdometryZenoh(ZenohEdge):
         self._errors.put(encode(message))
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop) -> Intake:
-        intake = Intake(loop)
+        intake = self.intake(loop)
         self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
         self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer_pose(host, q)))
         self.queryable(self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer_reset(host, q)))

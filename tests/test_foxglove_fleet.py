@@ -361,7 +361,7 @@ def test_one_view_shows_and_drives_a_fleet_of_three(children: list[Child], tmp_p
             # a Twist on /r3/cmd_vel moves r3 alone
             before = _truths(session)
             client.advertise(10, "/r3/cmd_vel", "geometry_msgs/msg/Twist")
-            end = time.monotonic() + 1.5
+            end = time.monotonic() + 3.0  # three summary periods (1 s each, on health at 1 Hz): one shows foxglove driving, loaded or not
             while time.monotonic() < end:
                 client.publish(10, TWIST_FORWARD)
                 client.pump(0.1)

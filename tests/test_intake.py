@@ -205,3 +205,21 @@ def test_nothing_is_published_while_the_core_lock_is_held() -> None:
     finally:
         rig.close()
     assert output.under_lock == []
+
+
+def test_a_closed_intake_hands_nothing_over_and_a_drain_already_scheduled_does_nothing(loop_thread: LoopThread) -> None:
+    """An edge closes its intake before it undeclares its publishers: a drain scheduled just before must not publish
+    through them (the odometry printed 'Undeclared publisher' tracebacks at exit)."""
+    handled: list[bytes] = []
+    intake = Intake(loop_thread.loop)
+    put = intake.channel("impulses", handled.append)
+    release = loop_thread.hold()
+    try:
+        put(b"scheduled before the close")  # its drain waits for the held loop
+        intake.close()
+        put(b"after the close")
+    finally:
+        release.set()
+    settle(loop_thread)
+    assert handled == []
+    assert intake.stats()["impulses"] == (1, 0)

@@ -100,7 +100,7 @@ class FoxgloveZenoh(ZenohEdge):
         """Hand-over channels for ``handlers`` (default: the view's; declared by :meth:`want`), the gateway's parameters
         (declared now), and with ``presence`` its liveliness token (present: True, gone: False).
         ``on_error`` takes what a handler raised (None: the loop's handler)."""
-        handover = Intake(loop, on_error)
+        handover = self.intake(loop, on_error=on_error)
         handlers = dict(handlers if handlers is not None else view.handlers())
         show_health = handlers[self.keys.health]
 

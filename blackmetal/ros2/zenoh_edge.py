@@ -220,7 +220,7 @@ class Ros2Zenoh(ZenohEdge):
 
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        intake = Intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
+        intake = self.intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
         self._host = host
         self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], intake.channel("estop", host.on_estop, capacity=64, priority=10))

@@ -20,6 +20,8 @@ from .intake import Intake
 from .zenoh_entities import chunk_and_payload, undeclare
 
 if TYPE_CHECKING:
+    import asyncio
+
     import zenoh
 
 
@@ -60,6 +62,13 @@ class ZenohEdge:
         self.session = session
         self._entities: list[Any] = []
         self._guarded: list[GuardedInput] = []
+        self._intakes: list[Intake] = []
+
+    def intake(self, loop: "asyncio.AbstractEventLoop", **options: Any) -> Intake:
+        """The service's intake (see :class:`Intake` for ``options``); closed by :meth:`close` before anything is undeclared."""
+        intake = Intake(loop, **options)
+        self._intakes.append(intake)
+        return intake
 
     def publisher(self, key: str, *, express: bool = False) -> "zenoh.Publisher":
         """A publisher on one of blackmetal's keys, its congestion control as the key space says (:func:`delivery_of`):
@@ -117,6 +126,8 @@ class ZenohEdge:
         self._entities.append(self.session.liveliness().declare_token(key))
 
     def close(self) -> None:
+        for intake in self._intakes:  # first: a drain already scheduled must not publish through what follows
+            intake.close()
         for guarded in reversed(self._guarded):
             guarded.close()
         self._guarded.clear()

@@ -133,6 +133,7 @@ class Intake:
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
         self._serving = False
+        self._closed = False  # closed: nothing is handed over or handled any more (the edge is undeclaring)
         #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
 
@@ -172,6 +173,8 @@ class Intake:
                 self.drained.set()  # handled: a pump that put it need not wait for a drain that nothing scheduled
                 return
             with guard:
+                if self._closed:
+                    return
                 channel.add(item)
                 if self._scheduled:
                     return
@@ -242,6 +245,8 @@ class Intake:
         """
         with self.guard:
             self._scheduled = False
+            if self._closed:
+                return  # scheduled before the close: its handlers would publish through undeclared entities
         with self.lock if self.lock is not None else contextlib.nullcontext():
             self._serving = True
             try:
@@ -279,6 +284,16 @@ class Intake:
                 break
             else:
                 return
+
+    def close(self) -> None:
+        """From now on, hand nothing over and handle nothing: a drain already scheduled on the loop does nothing.
+
+        The edge calls it before it undeclares its entities, so no handler runs against a closed publisher."""
+        with self.guard:
+            self._closed = True
+            for channel in self._channels:
+                channel.items.clear()
+                channel.latched = None
 
     def stats(self) -> dict[str, tuple[int, int]]:
         """Per channel: items received (directly taken ones included) and items dropped because the channel was full."""

@@ -60,7 +60,7 @@ class SimZenoh(ZenohEdge):
         self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> Intake:
-        intake = Intake(loop)
+        intake = self.intake(loop)
         self.subscriber(self.keys.sim_faults, intake.channel("faults", self._on_faults))
         self.queryable(self.keys.sim_faults, intake.channel("faults?", self._answer_faults))
         self.queryable(self.keys.sim_truth, intake.channel("truth?", self._answer_truth))
