@@ -655,6 +655,16 @@ class Ros2Core:
         diff_drive_controller reads it) is refused and reported: the robot
         must not act on a command its publisher gave up on.
         """
+        self.take_cmd_vel(cdr, now, stamped, report=True)
+
+    def take_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False, report: bool = False) -> bool:
+        """Forward an acceptable ``/cmd_vel`` sample (see :meth:`on_cmd_vel`); whether it was forwarded.
+
+        Without ``report`` a refusal changes nothing and returns False, so
+        that the host's direct take (on Zenoh's thread, which must not
+        publish an error report) leaves the sample to :meth:`on_cmd_vel` on
+        the loop, which refuses it again and reports why.
+        """
         key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
         try:
             if stamped:
@@ -662,19 +672,22 @@ class Ros2Core:
             else:
                 twist, stamp = self.codec.twist(cdr), 0.0
         except PayloadError as exc:
-            self._reject(key, str(exc), exc.excerpt, now)
-            return
+            if report:
+                self._reject(key, str(exc), exc.excerpt, now)
+            return False
         timeout = self._cmd_timeout()
         age = self.wallclock() - stamp if stamp else 0.0
         if timeout > 0 and age > timeout:
-            reason = (
-                f"TwistStamped on /cmd_vel is {age:.3f} s old (header stamp {stamp:.3f}), older than the gateway's command "
-                f"timeout {timeout:g} s: refused (a zero stamp means now; check the publisher's clock and its delay)"
-            )
-            self._reject(key, reason, "", now)
-            return
+            if report:
+                reason = (
+                    f"TwistStamped on /cmd_vel is {age:.3f} s old (header stamp {stamp:.3f}), older than the gateway's "
+                    f"command timeout {timeout:g} s: refused (a zero stamp means now; check the publisher's clock and its delay)"
+                )
+                self._reject(key, reason, "", now)
+            return False
         self.stats.commands += 1
         self.output.blackmetal(self.cmd_vel_target, encode(twist))
+        return True
 
     def _cmd_timeout(self) -> float:
         """The gateway's command timeout: from its parameters (published on each change), else its last health."""

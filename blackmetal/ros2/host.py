@@ -6,6 +6,14 @@ edge hands payloads over to this host on the loop
 pokes the shared :class:`~blackmetal.runtime.host.DeadlineTimer`, which runs
 ``core.tick`` at the core's next deadline. No timer of its own.
 
+One input is also taken on Zenoh's thread: ``/cmd_vel``
+(:meth:`Ros2Host.cmd_vel_direct`), when the core's lock is free, so that a
+ROS command costs the adapter no wake of its loop. The lock
+(:attr:`Ros2Host.lock`) is held by the loop whenever it is in the core
+(drains, ticks, the start). The command the direct take makes is put on that
+thread with drop congestion control, as rmw_zenoh put it, so it never waits
+on a link (:class:`~blackmetal.ros2.zenoh_edge.Ros2Zenoh`).
+
 ``supervised`` (``--fleet``, :mod:`blackmetal.ros2.fleet`): a bug in
 handling an input or in the core's timers ends :meth:`Ros2Host.run` with
 that exception, for the supervisor to report and start this robot again;
@@ -21,7 +29,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.host import CoreLock, DeadlineTimer
 
 from .core import Ros2Core
 
@@ -35,7 +43,9 @@ class Ros2Host:
         self.core = core
         self.clock = clock
         self.supervised = supervised
-        self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None)
+        #: Held by the loop whenever it is in the core; a Zenoh thread taking ``/cmd_vel`` directly only tries it.
+        self.lock = CoreLock()
+        self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None, lock=self.lock)
         self._failure: asyncio.Future[None] | None = None
 
     def fail(self, exc: BaseException) -> None:
@@ -59,6 +69,14 @@ class Ros2Host:
     def on_cmd_vel_stamped(self, cdr: bytes) -> None:
         self.core.on_cmd_vel(cdr, self.clock(), stamped=True)
         self.timer.poke()
+
+    # Zenoh's thread, under the lock (the intake's ``direct``): forward an acceptable command, else leave it to the loop.
+    # A command changes no deadline of the core: nothing to poke.
+    def cmd_vel_direct(self, cdr: bytes) -> bool:
+        return self.core.take_cmd_vel(cdr, self.clock())
+
+    def cmd_vel_stamped_direct(self, cdr: bytes) -> bool:
+        return self.core.take_cmd_vel(cdr, self.clock(), stamped=True)
 
     def on_estop(self, cdr: bytes) -> None:
         self.core.on_estop(cdr, self.clock())
@@ -96,7 +114,8 @@ class Ros2Host:
 
     async def run(self, stop: asyncio.Event) -> None:
         """Run the core's timers until ``stop`` (supervised: or until :meth:`fail`, raising the failure)."""
-        self.core.start()
+        with self.lock:
+            self.core.start()
         if not self.supervised:
             self.timer.start()
             try:

@@ -20,6 +20,7 @@ hash, match ROS 2's).
 from __future__ import annotations
 
 import math
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from enum import IntEnum
@@ -93,6 +94,10 @@ class Descriptor:
 
 #: CDR encapsulation headers ROS 2 writes: plain CDR, little- or big-endian.
 CDR_HEADERS = (b"\x00\x01", b"\x00\x00")
+
+#: A command's six doubles in little-endian CDR; and a TwistStamped's header stamp and frame_id length.
+_SIX_DOUBLES = struct.Struct("<6d")
+_STAMP_AND_LENGTH = struct.Struct("<iII")
 
 
 def _store() -> Any:
@@ -454,15 +459,31 @@ class RosCodec:
 
     def twist(self, payload: bytes, stamped: bool = False) -> Twist:
         """geometry_msgs/Twist (or TwistStamped) CDR -> a blackmetal Twist; PayloadError if invalid or not finite."""
-        return self._twist(payload, self._decode(payload, TWIST_STAMPED).twist if stamped else self._decode(payload, TWIST))
+        if stamped:
+            return self.twist_stamped(payload)[0]
+        if len(payload) == 52 and payload[:2] == b"\x00\x01":  # rmw_zenoh's own: little-endian, six doubles
+            return self._finite_twist(payload, _SIX_DOUBLES.unpack_from(payload, 4))
+        return self._twist(payload, self._decode(payload, TWIST))
 
     def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
         """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp)."""
+        fast = _twist_stamped_le(payload)
+        if fast is not None:
+            sec, nanosec, values = fast
+            return self._finite_twist(payload, values), sec + nanosec * 1e-9
         message = self._decode(payload, TWIST_STAMPED)
         stamp = message.header.stamp
         return self._twist(payload, message.twist), stamp.sec + stamp.nanosec * 1e-9
 
-    def _twist(self, payload: bytes, twist: Any) -> Twist:
+    def _finite_twist(self, payload: bytes, values: tuple[float, ...]) -> Twist:
+        """A command read straight from the bytes (a ROS command is taken on Zenoh's thread: 0.5 us against rosbags' 8)."""
+        if not all(map(math.isfinite, values)):  # rosbags' reading says which are not
+            stamped = len(payload) != 52
+            return self._twist(payload, self._decode(payload, TWIST_STAMPED).twist if stamped else self._decode(payload, TWIST))
+        lx, ly, lz, ax, ay, az = values
+        return Twist(linear=Vector3(x=lx, y=ly, z=lz), angular=Vector3(x=ax, y=ay, z=az))
+
+    def _twist(self, payload: bytes, twist: Any) -> Twist:  # rosbags' message: the reference path, and its errors
         values = {
             "linear.x": twist.linear.x,
             "linear.y": twist.linear.y,
@@ -516,3 +537,26 @@ class RosCodec:
     def decode(self, payload: bytes, ros_type: str) -> Any:
         """Any message of the store, as rosbags' dataclass (for tests and tools)."""
         return self._decode(payload, ros_type)
+
+
+def _twist_stamped_le(payload: bytes) -> tuple[int, int, tuple[float, ...]] | None:
+    """A little-endian geometry_msgs/TwistStamped read straight from its bytes: (sec, nanosec, the six doubles).
+
+    None for anything else (big-endian, a frame_id that is not NUL-terminated
+    UTF-8, a length that does not add up): rosbags reads those and says
+    what is wrong. The layout, after the 4-byte encapsulation header: int32
+    sec, uint32 nanosec, uint32 length of frame_id with its NUL, its bytes,
+    padding to 8 (counted from after the header), six doubles.
+    """
+    if len(payload) < 68 or payload[:2] != b"\x00\x01":
+        return None
+    sec, nanosec, length = _STAMP_AND_LENGTH.unpack_from(payload, 4)
+    end = 16 + length
+    start = 4 + (end - 4 + 7) // 8 * 8
+    if length == 0 or len(payload) != start + 48 or payload[end - 1] != 0:
+        return None
+    try:
+        payload[16 : end - 1].decode()
+    except UnicodeDecodeError:
+        return None
+    return sec, nanosec, _SIX_DOUBLES.unpack_from(payload, start)

@@ -8,8 +8,11 @@ queryable on its rmw_zenoh key, answered with the reply attachment the
 core builds. For ``bridge`` the topics and services are plain keys, as
 zenoh-bridge-ros2dds maps them. Inputs (samples, service calls, replies to
 the adapter's own queries, liveliness changes) are handed over to the host
-on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`); nothing is
-decoded on a Zenoh thread.
+on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`), but for
+``/cmd_vel``: it is decoded and forwarded on the Zenoh thread that delivers
+it when the core is free (:meth:`~blackmetal.ros2.host.Ros2Host.cmd_vel_direct`),
+put with drop congestion control as rmw_zenoh put it, so that thread never
+waits on a link.
 
 A view nobody watches costs nothing: each ROS publisher of a stream
 (``odom``, ``tf``, ``joint_states``, ``diagnostics``) has a matching
@@ -168,7 +171,16 @@ class Ros2Zenoh(ZenohEdge):
             else:
                 key = bridge_data_key(name)
             self.service_keys[service.name] = key
-        self._cmd_vel = self.publisher(keys.cmd_vel_of(source), express=True)
+        # A ROS command is forwarded as it came: rmw_zenoh puts a KEEP_LAST topic (Nav2's, teleop's /cmd_vel) with drop
+        # congestion control (jazzy rmw_zenoh_cpp/src/detail/rmw_publisher_data.cpp, PublisherData::make). So does this
+        # hop, on the Zenoh thread that took it (Ros2Host.cmd_vel_direct): a put that drops never waits on a link.
+        self._cmd_vel = self.session.declare_publisher(
+            keys.cmd_vel_of(source),
+            encoding=zenoh.Encoding.APPLICATION_JSON,
+            express=True,
+            congestion_control=zenoh.CongestionControl.DROP,
+        )
+        self._entities.append(self._cmd_vel)
         self._estop = self.publisher(keys.estop)  # blocking congestion control: a stop is never dropped
         self._errors = self.publisher(keys.errors)
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
@@ -183,6 +195,7 @@ class Ros2Zenoh(ZenohEdge):
         self._publishers[topic].put(cdr)
 
     def blackmetal(self, key: str, payload: bytes) -> None:
+        """The e-stop (on the loop, never dropped), or the source's command (on the loop or a direct take's Zenoh thread)."""
         (self._estop if key == self.keys.estop else self._cmd_vel).put(payload)
 
     def error(self, message: ErrorReport) -> None:
@@ -220,12 +233,14 @@ class Ros2Zenoh(ZenohEdge):
 
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        intake = self.intake(loop, on_error=host.fail if host.supervised else None)  # supervised: a bug fails this node alone
+        # supervised: a bug fails this node alone; /cmd_vel is taken directly on Zenoh's thread when the core is free
+        intake = self.intake(loop, on_error=host.fail if host.supervised else None, lock=host.lock)
         self._host = host
         self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
         self.subscriber(self.data_keys["estop"], intake.channel("estop", host.on_estop, capacity=64, priority=10))
-        self.subscriber(self.data_keys["cmd_vel"], intake.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5))
-        stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5)
+        twist = intake.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5, direct=host.cmd_vel_direct)
+        self.subscriber(self.data_keys["cmd_vel"], twist)
+        stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5, direct=host.cmd_vel_stamped_direct)
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
         self._streams = {
             "pose": (self.keys.pose, intake.channel("pose", host.on_pose, capacity=256)),

@@ -159,7 +159,9 @@ class Intake:
         in the core), nothing of this priority or higher waits (order is
         kept: a drain pops and handles under the lock), and the channel is
         within its direct budget (DIRECT_BURST per DIRECT_WINDOW_S). It must
-        not block, call Zenoh or touch the loop except by ``call_soon_threadsafe``.
+        not block or touch the loop except by ``call_soon_threadsafe``; the
+        only Zenoh call it may make is a put with drop congestion control,
+        which never waits on a link (the ROS 2 adapter forwards a command so).
         """
         if direct is not None and self.lock is None:
             raise ValueError(f"channel {name!r}: a direct channel needs the intake's core lock")
