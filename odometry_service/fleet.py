@@ -26,6 +26,10 @@ from .zenoh_edge import OdometryZenoh
 
 log = logging.getLogger("blackmetal.odometry")
 
+#: How often the fleet's loop takes every robot's waiting impulse samples (s): a pose is at most this much later
+#: than a callback would have made it, and the loop wakes 200 times a second for the whole fleet.
+DRAIN_PERIOD_S = 0.005
+
 
 def fleet_settings(base: OdometrySettings, robots: list[FleetRobot]) -> list[OdometrySettings]:
     """Each robot's odometry settings: the command line's, its prefix, its constants and [robot.odometry]."""
@@ -42,18 +46,39 @@ class Member:
     edge: OdometryZenoh | None = None
     host: OdometryHost | None = None
     intake: Intake | None = None
+    #: Set with the exception a drain of this robot's samples raised: :meth:`run` raises it, for the supervisor.
+    failure: asyncio.Future[None] | None = None
 
     def start(self) -> Member:
         keys = Keys(self.settings.prefix)
+        loop = asyncio.get_running_loop()
         self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
         self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
-        self.intake = self.edge.attach(self.host, asyncio.get_running_loop())
+        self.intake = self.edge.attach(self.host, loop, ring=True)
+        self.failure = loop.create_future()
         return self
 
+    def drain(self) -> None:
+        """On the loop, from the fleet's drain: this robot's waiting impulse samples to its odometry."""
+        edge, failure = self.edge, self.failure
+        if edge is None or failure is None or failure.done():
+            return
+        try:
+            edge.drain()
+        except Exception as exc:  # a bug in this robot's handling: it alone is started again
+            failure.set_exception(exc)
+
     async def run(self, stop: asyncio.Event) -> None:
-        assert self.host is not None and self.intake is not None
-        intake = self.intake
-        await self.host.run(stop, dropped=lambda: intake.stats()["impulses"][1])
+        assert self.host is not None and self.failure is not None
+        failure = self.failure
+        serving = asyncio.ensure_future(self.host.run(stop))
+        try:
+            await asyncio.wait({serving, failure}, return_when=asyncio.FIRST_COMPLETED)
+            if failure.done():
+                failure.result()
+        finally:
+            serving.cancel()
+            failure.cancel()
 
     def failed(self, exc: Exception, pause: float) -> None:
         assert self.edge is not None
@@ -80,6 +105,15 @@ async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: as
         assert isinstance(session, zenoh.Session)
         members = [Member(r, s, session) for r, s in zip(robots, settings, strict=True)]
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"odometry {m.robot.id}") for m in members]
+        tasks.append(asyncio.create_task(_drain(members, stop), name="odometry drain"))
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
         await asyncio.gather(*tasks)
+
+
+async def _drain(members: list[Member], stop: asyncio.Event) -> None:
+    """Every DRAIN_PERIOD_S until ``stop``: each robot's waiting impulse samples to its odometry (see OdometryZenoh.drain)."""
+    while not stop.is_set():
+        for member in members:
+            member.drain()
+        await asyncio.sleep(DRAIN_PERIOD_S)

@@ -1,0 +1,82 @@
+"""A fleet odometry takes its impulse samples from Zenoh rings, drained by the loop (issue #29: no Python per sample on
+Zenoh's threads); a bug in one robot's handling fails that robot alone. The real edge on an isolated session."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+import pytest
+import zenoh
+
+from blackmetal.odometry_service.fleet import Member, fleet_settings
+from blackmetal.odometry_service.settings import OdometrySettings
+from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.schemas import Pose, WheelImpulses, decode, encode
+
+
+def robots() -> list[FleetRobot]:
+    return [FleetRobot(i, f"r{i}", "127.0.0.1", 1, 2, f"fleet/r{i}") for i in (1, 2)]
+
+
+START = time.time()
+
+
+def impulses(seq: int, left: int) -> bytes:
+    return encode(WheelImpulses(seq=seq, stamp=START + 0.02 * seq, left=left, right=left, mono=0.02 * seq, source="gw-test"))
+
+
+def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alone(session: zenoh.Session) -> None:
+    fleet = robots()
+    members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
+    poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
+    subscribers = [
+        session.declare_subscriber(f"fleet/{name}/pose", lambda sample, name=name: poses[name].append(decode(Pose, sample.payload.to_bytes())))
+        for name in poses
+    ]
+
+    async def scenario() -> None:
+        stop = asyncio.Event()
+        for member in members:
+            member.start()
+        runs = [asyncio.ensure_future(member.run(stop)) for member in members]
+        for seq in range(1, 6):
+            for name in poses:
+                session.put(f"fleet/{name}/wheels/impulses", impulses(seq, 10 * seq))
+        await asyncio.sleep(0.2)
+        assert poses == {"r1": [], "r2": []}  # nothing handled on Zenoh's threads: the samples wait in the rings
+        for member in members:
+            member.drain()
+        for _ in range(100):
+            if all(len(p) == 5 for p in poses.values()):
+                break
+            await asyncio.sleep(0.02)
+        assert [len(p) for p in poses.values()] == [5, 5]
+
+        def broken(payload: bytes) -> None:
+            raise RuntimeError("a bug in r1's handling")
+
+        assert members[0].host is not None
+        members[0].host.on_impulses = broken  # type: ignore[method-assign]
+        for name in poses:
+            session.put(f"fleet/{name}/wheels/impulses", impulses(6, 60))
+        await asyncio.sleep(0.2)
+        for member in members:
+            member.drain()
+        with pytest.raises(RuntimeError, match="r1's handling"):
+            await asyncio.wait_for(runs[0], 5)  # the supervisor gets it, and starts r1 again
+        for _ in range(100):
+            if len(poses["r2"]) == 6:
+                break
+            await asyncio.sleep(0.02)
+        assert len(poses["r2"]) == 6 and not runs[1].done()  # r2 went on
+        stop.set()
+        await asyncio.wait_for(runs[1], 5)
+        for member in members:
+            member.close()
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
