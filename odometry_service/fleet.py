@@ -66,7 +66,7 @@ class Member:
         try:
             edge.drain()
         except Exception as exc:  # a bug in this robot's handling: it alone is started again
-            failure.set_exception(exc)
+            failure.set_exception(exc if not isinstance(exc, StopIteration) else RuntimeError(repr(exc)))
 
     async def run(self, stop: asyncio.Event) -> None:
         assert self.host is not None and self.failure is not None
@@ -76,6 +76,7 @@ class Member:
             await asyncio.wait({serving, failure}, return_when=asyncio.FIRST_COMPLETED)
             if failure.done():
                 failure.result()
+            serving.result()  # the host's own failure (its timers), for the supervisor as well
         finally:
             serving.cancel()
             failure.cancel()

@@ -16,9 +16,10 @@ if TYPE_CHECKING:
     import zenoh
 
 #: A fleet robot's impulse samples wait in a Zenoh ring of this many until the loop takes them (:meth:`OdometryZenoh.drain`):
-#: at 50 Hz and a drain every 5 ms one waits; the ring overflows only after a loop stall of over a second, and the
-#: samples it drops (the oldest) show as a gap in the sequence numbers, which the odometry reports.
-RING = 64
+#: at 50 Hz and a drain every 5 ms one waits; the ring overflows only after the loop stalled for 20 s at 50 Hz (1 s at
+#: the gateway's highest poll rate, 1000 Hz). What it drops, the oldest, Zenoh does not count: the odometry sees a gap
+#: in the sequence numbers (a long one is reported as a gap of the gateway's, and not integrated across).
+RING = 1024
 
 
 class OdometryZenoh(ZenohEdge):

@@ -31,7 +31,9 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
     members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
     poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
     subscribers = [
-        session.declare_subscriber(f"fleet/{name}/pose", lambda sample, name=name: poses[name].append(decode(Pose, sample.payload.to_bytes())))
+        session.declare_subscriber(
+            f"fleet/{name}/pose", lambda sample, name=name: poses[name].append(decode(Pose, sample.payload.to_bytes()))
+        )
         for name in poses
     ]
 
@@ -80,3 +82,21 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
     finally:
         for subscriber in subscribers:
             subscriber.undeclare()
+
+
+def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Session) -> None:
+    fleet = robots()[:1]
+    member = Member(fleet[0], fleet_settings(OdometrySettings(), fleet)[0], session)
+
+    async def broken_run(stop: asyncio.Event) -> None:
+        raise RuntimeError("a bug in r1's timers")
+
+    async def scenario() -> None:
+        member.start()
+        assert member.host is not None
+        member.host.run = broken_run  # type: ignore[method-assign]
+        with pytest.raises(RuntimeError, match="r1's timers"):
+            await asyncio.wait_for(member.run(asyncio.Event()), 5)
+        member.close()
+
+    asyncio.run(scenario())

@@ -187,3 +187,17 @@ def test_a_command_read_from_its_bytes_is_what_rosbags_reads(
 def _flipped(payload: bytes, at: int, value: int) -> bytes:
     at %= len(payload)
     return payload[:at] + bytes([value]) + payload[at + 1 :]
+
+
+def test_once_the_intake_is_closed_no_command_is_taken_directly(session: zenoh.Session, node: Node, codec: RosCodec) -> None:
+    commands, sub = listen(session, node.keys.cmd_vel_of("ros2"))
+    ros = session.declare_publisher(node.edge.data_keys["cmd_vel"])
+    wait_for(lambda: node.host.core.watched is not None, what="the node to start")
+    ros.put(codec.encode_twist(0.1, 0.0))
+    wait_for(lambda: commands, what="a command forwarded while the node serves")
+    node.edge._intakes[0].close()  # what the edge does first when it closes, before it undeclares the publisher
+    ros.put(codec.encode_twist(0.2, 0.0))
+    time.sleep(0.3)
+    assert len(commands) == 1 and len(node.direct) == 1
+    sub.undeclare()
+    ros.undeclare()

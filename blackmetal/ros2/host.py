@@ -46,10 +46,14 @@ class Ros2Host:
         #: Held by the loop whenever it is in the core; a Zenoh thread taking ``/cmd_vel`` directly only tries it.
         self.lock = CoreLock()
         self.timer = DeadlineTimer(core, clock, on_error=self.fail if supervised else None, lock=self.lock)
+        #: Under the lock: the core serves (from its start until run ends or a bug failed it); direct takes only then.
+        self.running = False
         self._failure: asyncio.Future[None] | None = None
 
     def fail(self, exc: BaseException) -> None:
         """A bug in this robot's handling (supervised): :meth:`run` ends with it, for the supervisor to start it again."""
+        with self.lock:
+            self.running = False  # a core that raised forwards nothing more from Zenoh's threads
         log.error("%s: %r", self.core.keys.prefix, exc, exc_info=exc)
         if self._failure is not None and not self._failure.done():
             self._failure.set_exception(exc)
@@ -73,10 +77,10 @@ class Ros2Host:
     # Zenoh's thread, under the lock (the intake's ``direct``): forward an acceptable command, else leave it to the loop.
     # A command changes no deadline of the core: nothing to poke.
     def cmd_vel_direct(self, cdr: bytes) -> bool:
-        return self.core.take_cmd_vel(cdr, self.clock())
+        return self.running and self.core.take_cmd_vel(cdr, self.clock())
 
     def cmd_vel_stamped_direct(self, cdr: bytes) -> bool:
-        return self.core.take_cmd_vel(cdr, self.clock(), stamped=True)
+        return self.running and self.core.take_cmd_vel(cdr, self.clock(), stamped=True)
 
     def on_estop(self, cdr: bytes) -> None:
         self.core.on_estop(cdr, self.clock())
@@ -116,6 +120,14 @@ class Ros2Host:
         """Run the core's timers until ``stop`` (supervised: or until :meth:`fail`, raising the failure)."""
         with self.lock:
             self.core.start()
+            self.running = True
+        try:
+            await self._serve(stop)
+        finally:
+            with self.lock:
+                self.running = False
+
+    async def _serve(self, stop: asyncio.Event) -> None:
         if not self.supervised:
             self.timer.start()
             try:

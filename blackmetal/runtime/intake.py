@@ -197,6 +197,8 @@ class Intake:
             if self._serving:
                 return False  # the loop's own handler put it: it waits for the drain, as it always did
             with self.guard:
+                if self._closed:
+                    return False  # the edge is undeclaring: nothing is handled any more (close() holds the lock)
                 now = self.clock()
                 if now - channel.window_start > DIRECT_WINDOW_S:
                     channel.window_start, channel.window_direct = now, 0
@@ -290,8 +292,9 @@ class Intake:
     def close(self) -> None:
         """From now on, hand nothing over and handle nothing: a drain already scheduled on the loop does nothing.
 
-        The edge calls it before it undeclares its entities, so no handler runs against a closed publisher."""
-        with self.guard:
+        The edge calls it before it undeclares its entities, so no handler runs against a closed publisher. It takes
+        the core's lock, when there is one: a direct take in progress ends first, and none starts after."""
+        with self.lock if self.lock is not None else contextlib.nullcontext(), self.guard:
             self._closed = True
             for channel in self._channels:
                 channel.items.clear()
