@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import asyncio
 import threading
+import time
 from typing import Any
 
 import pytest
@@ -136,3 +137,44 @@ def test_a_stamped_commands_age_limit_is_the_gateways_cmd_timeout_parameter(code
     core.on_params(encode(GatewayParams(stamp=1.0, params=[Param("cmd_timeout", "double", 0.2, min=0.0, max=10.0)])), now=1.0)
     core.on_cmd_vel(codec.encode_twist(0.1, 0.0, stamp=1_700_000_000.0 - 0.3), now=1.0, stamped=True)
     assert out.forwarded == [] and "command timeout 0.2 s" in out.errors[-1].reason
+
+
+def test_a_fleet_node_takes_the_followed_poses_from_a_ring_when_drained(session: zenoh.Session, codec: RosCodec) -> None:
+    keys = Keys("fleet/r1")
+    settings = Ros2Settings(tf=False)
+    edge = Ros2Zenoh(
+        session, keys, codec, Flavor.RMW_ZENOH, 0, "/r1", "blackmetal", topics(False, robot_model=True), services(), rings=True
+    )
+    core = Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec)
+    host = Ros2Host(core, supervised=True)
+    loop = asyncio.new_event_loop()
+    stop = asyncio.Event()
+    thread = threading.Thread(target=loop.run_until_complete, args=(host.run(stop),), daemon=True)
+    edge.attach(host, loop)
+    thread.start()
+    publisher = session.declare_publisher(keys.pose)
+    odoms: list[Any] = []
+    subscriber = session.declare_subscriber(edge.data_keys["odom"], lambda sample: odoms.append(sample))
+    try:
+        wait_for(lambda: "pose" in edge._followed, what="/odom's subscriber to make the node follow poses")
+        for stamp in range(5):
+            publisher.put(pose(float(stamp + 1)))
+        time.sleep(0.2)
+        assert odoms == []  # the poses wait in the ring: no Python ran for them
+
+        def drain() -> int:
+            done = threading.Event()
+            taken: list[int] = []
+            loop.call_soon_threadsafe(lambda: (taken.append(edge.drain()), done.set()))
+            done.wait(5)
+            return taken[0]
+
+        assert drain() == 5
+        wait_for(lambda: len(odoms) == 5, what="five /odom from one drain")
+    finally:
+        subscriber.undeclare()
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(5)
+        publisher.undeclare()
+        edge.close()
+        loop.close()

