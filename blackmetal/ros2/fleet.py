@@ -43,6 +43,7 @@ from .zenoh_edge import Ros2Zenoh
 #: How often the fleet's loop takes every node's waiting robot samples (s): an /odom is at most this much later than a
 #: callback would have made it, and the loop wakes 200 times a second for the whole fleet.
 DRAIN_PERIOD_S = 0.005
+IDLE_DRAIN_PERIOD_S = 0.1
 
 log = logging.getLogger("blackmetal.ros2")
 
@@ -191,14 +192,20 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
 
 
 async def _drain(members: list[Member], stop: asyncio.Event) -> None:
-    """Every DRAIN_PERIOD_S until ``stop``: each node's followed robot samples to its core (see Ros2Zenoh.drain)."""
+    """Every DRAIN_PERIOD_S until ``stop``: each node's followed robot samples to its core (see Ros2Zenoh.drain).
+
+    While no node follows anything (nobody watches), it looks only every IDLE_DRAIN_PERIOD_S: an idle view costs
+    nothing; the first samples after someone subscribes wait at most that long in their ring.
+    """
     while not stop.is_set():
+        active = False
         for member in members:
             edge, host = member.edge, member.host
-            if edge is None or host is None:
+            if edge is None or host is None or not edge.following():
                 continue
+            active = True
             try:
                 edge.drain()
             except Exception as exc:  # a bug in this node's handling: it alone is started again
                 host.fail(exc)
-        await asyncio.sleep(DRAIN_PERIOD_S)
+        await asyncio.sleep(DRAIN_PERIOD_S if active else IDLE_DRAIN_PERIOD_S)

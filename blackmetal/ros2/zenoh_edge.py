@@ -300,6 +300,10 @@ class Ros2Zenoh(ZenohEdge):
                 else:
                     self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
 
+    def following(self) -> bool:
+        """Whether any robot stream is followed now (someone watches a topic it feeds)."""
+        return bool(self._followed)
+
     def drain(self) -> int:
         """On the loop (a fleet node): hand the followed streams' samples waiting in their rings to the host, under its
         lock, oldest first; how many. No Python runs per sample on Zenoh's threads, and the loop wakes once per drain
