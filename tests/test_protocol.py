@@ -261,3 +261,32 @@ def test_any_legal_velocity_round_trips_to_six_decimals(right: float, left: floa
     assert isinstance(decoded, Request)
     assert decoded.right == pytest.approx(right, abs=5e-7)
     assert decoded.left == pytest.approx(left, abs=5e-7)
+
+
+# ---- the reply fast paths read what the field-by-field parser reads
+
+_reply_text = st.one_of(
+    st.builds(
+        lambda left, right, s1, s2, sep, c, pad, tail: (
+            f'{{{pad}"LeftWheelSpeed"{s1}{left}{c}{sep}"RightWheelSpeed"{s2}{right}{tail}}}'
+        ).encode(),
+        st.integers(-(10**10), 10**10),
+        st.integers(-(10**10), 10**10),
+        st.sampled_from([":", "=", " : ", "= "]),
+        st.sampled_from([":", "=", " :", "=  "]),
+        st.sampled_from(["", " ", "  ", "\t"]),
+        st.sampled_from(["", ","]),
+        st.sampled_from(["", " ", "\n"]),
+        st.sampled_from(["", " ", ",", " ,", ", ", ",,", " , "]),
+    ),
+    st.sampled_from([b'{"status":"OK"}', b'{"status":"FULL_BUFFER"}', b'{"status":""}', b'{"status":OK}', b'{"status":7}']),
+    st.binary(max_size=60).map(lambda b: b"{" + b.replace(b"{", b"").replace(b"}", b"") + b"}"),
+)
+
+
+@given(_reply_text)
+def test_the_reply_fast_paths_read_what_the_field_parser_reads(frame: bytes) -> None:
+    from blackmetal.wire import _parse_reply, parse_reply
+
+    assert repr(parse_reply(frame)) == repr(_parse_reply(frame))
+    assert repr(parse_reply(frame)) == repr(_parse_reply(frame))  # a second time: from the status cache
