@@ -6,7 +6,7 @@ import itertools
 import math
 
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from blackmetal import wire
@@ -285,6 +285,9 @@ _reply_text = st.one_of(
 
 
 @given(_reply_text)
+@example(b'{"LeftWheelSpeed":1' + b" " * 490 + b"}")  # a hostile frame the regex once took 500 us to give up on
+@example(b'{"LeftWheelSpeed":1' + b" " * 60 + b"," + b" " * 60 + b"}")
+@example(b'{"status":"RECIEVE_OK"}')
 def test_the_reply_fast_paths_read_what_the_field_parser_reads(frame: bytes) -> None:
     from blackmetal.wire import _parse_reply, parse_reply
 
