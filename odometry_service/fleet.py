@@ -16,7 +16,6 @@ from dataclasses import dataclass
 
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys
 
 from .core import OdometryCore
@@ -45,7 +44,6 @@ class Member:
     session: object
     edge: OdometryZenoh | None = None
     host: OdometryHost | None = None
-    intake: Intake | None = None
     #: Set with the exception a drain of this robot's samples raised: :meth:`run` raises it, for the supervisor.
     failure: asyncio.Future[None] | None = None
 
@@ -54,7 +52,7 @@ class Member:
         loop = asyncio.get_running_loop()
         self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
         self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
-        self.intake = self.edge.attach(self.host, loop, ring=True)
+        self.edge.attach(self.host, loop, ring=True)  # queries and resets through its intake, impulses from its ring
         self.failure = loop.create_future()
         return self
 

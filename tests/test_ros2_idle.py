@@ -8,6 +8,8 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import pytest
@@ -31,6 +33,23 @@ def codec() -> RosCodec:
 
 def pose(stamp: float = 1.0) -> bytes:
     return encode(Pose(stamp=stamp, x=1.0, y=2.0, yaw=0.0, v=0.1, w=0.0))
+
+
+@contextmanager
+def serving(edge: Ros2Zenoh, host: Ros2Host) -> Iterator[asyncio.AbstractEventLoop]:
+    """``host`` attached to ``edge`` and running on a loop of its own thread; stopped, and the edge closed, at the end."""
+    loop = asyncio.new_event_loop()
+    stop = asyncio.Event()
+    thread = threading.Thread(target=loop.run_until_complete, args=(host.run(stop),), daemon=True)
+    edge.attach(host, loop)
+    thread.start()
+    try:
+        yield loop
+    finally:
+        loop.call_soon_threadsafe(stop.set)
+        thread.join(5)
+        edge.close()
+        loop.close()
 
 
 def test_nothing_is_followed_or_encoded_until_a_topic_is_watched(codec: RosCodec) -> None:
@@ -85,15 +104,9 @@ def test_the_real_edge_follows_poses_only_while_odom_has_a_subscriber(session: z
         original(payload, now)
 
     core.on_pose = counted  # type: ignore[method-assign]
-    host = Ros2Host(core)
-    loop = asyncio.new_event_loop()
-    stop = asyncio.Event()
-    thread = threading.Thread(target=loop.run_until_complete, args=(host.run(stop),), daemon=True)
-    edge.attach(host, loop)
-    thread.start()
     publisher = session.declare_publisher(keys.pose)
     odoms: list[Any] = []
-    try:
+    with serving(edge, Ros2Host(core)):
         wait_for(lambda: core.watched is not None and "pose" not in edge._followed, what="the node started, following nothing")
         for stamp in range(20):
             publisher.put(pose(float(stamp)))
@@ -109,12 +122,7 @@ def test_the_real_edge_follows_poses_only_while_odom_has_a_subscriber(session: z
         wait_for(publish_and_count, what="/odom published while someone subscribes")
         subscriber.undeclare()
         wait_for(lambda: "pose" not in edge._followed, what="the poses unfollowed when the last subscriber left")
-    finally:
-        loop.call_soon_threadsafe(stop.set)
-        thread.join(5)
-        publisher.undeclare()
-        edge.close()
-        loop.close()
+    publisher.undeclare()
 
 
 def test_a_waiting_set_estop_follows_the_health_until_it_is_answered(codec: RosCodec) -> None:
@@ -146,16 +154,10 @@ def test_a_fleet_node_takes_the_followed_poses_from_a_ring_when_drained(session:
         session, keys, codec, Flavor.RMW_ZENOH, 0, "/r1", "blackmetal", topics(False, robot_model=True), services(), rings=True
     )
     core = Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec)
-    host = Ros2Host(core, supervised=True)
-    loop = asyncio.new_event_loop()
-    stop = asyncio.Event()
-    thread = threading.Thread(target=loop.run_until_complete, args=(host.run(stop),), daemon=True)
-    edge.attach(host, loop)
-    thread.start()
     publisher = session.declare_publisher(keys.pose)
     odoms: list[Any] = []
     subscriber = session.declare_subscriber(edge.data_keys["odom"], lambda sample: odoms.append(sample))
-    try:
+    with serving(edge, Ros2Host(core, supervised=True)) as loop:
         wait_for(lambda: "pose" in edge._followed, what="/odom's subscriber to make the node follow poses")
         for stamp in range(5):
             publisher.put(pose(float(stamp + 1)))
@@ -171,10 +173,5 @@ def test_a_fleet_node_takes_the_followed_poses_from_a_ring_when_drained(session:
 
         assert drain() == 5
         wait_for(lambda: len(odoms) == 5, what="five /odom from one drain")
-    finally:
-        subscriber.undeclare()
-        loop.call_soon_threadsafe(stop.set)
-        thread.join(5)
-        publisher.undeclare()
-        edge.close()
-        loop.close()
+    subscriber.undeclare()
+    publisher.undeclare()
