@@ -121,6 +121,22 @@ def test_list_get_types_and_describe_are_answered_from_the_table_at_once(codec: 
     assert [(r.from_value, r.to_value) for r in priority.integer_range] == [(0, 255)]
 
 
+def test_a_call_before_the_gateways_table_waits_for_it_or_says_why_it_never_came(codec: RosCodec) -> None:
+    core, out = make_core(codec)
+    core.start()  # asks the gateway's table; the answer is not in yet (a node that has just started)
+    call(core, "list_parameters", codec.encode_request(LIST_PARAMETERS, prefixes=[], depth=0), 1, now=0.1)
+    assert out.replies == {} and out.refused == {}  # not an empty list: it waits for the table
+    assert [q[0] for q in out.queries] == ["robot/gateway/params"] * 2  # and asks for it again
+    core.on_query_reply(out.queries[-1][2], True, encode(TABLE), now=0.2)
+    listed = codec.decode(out.replies[1][0], f"{LIST_PARAMETERS}_Response").result
+    assert listed.names == sorted(p.name for p in TABLE.params)
+
+    late, late_out = make_core(codec)
+    call(late, "get_parameters", codec.encode_request(GET_PARAMETERS, names=["max_wheel_speed"]), 7, now=1.0)
+    late.tick(1.0 + late.options.service_timeout)  # no gateway ever answers
+    assert late_out.replies == {} and "parameters did not arrive" in late_out.refused[7] and "prefix robot" in late_out.refused[7]
+
+
 def results(codec: RosCodec, cdr: bytes) -> list[tuple[bool, str]]:
     return [(r.successful, r.reason) for r in codec.decode(cdr, f"{SET_PARAMETERS}_Response").results]
 

@@ -410,6 +410,8 @@ class PendingCall:
     #: set_parameters(_atomically): the call's (name, value) pairs and the refusals decided before the gateway answers.
     parameters: list[tuple[str, RosValue]] = field(default_factory=list)
     refused: dict[int, str] = field(default_factory=dict)
+    #: A parameter call that came before the gateway's table: its request, run once the table arrives.
+    request: bytes | None = None
 
 
 #: The ROS topics fed by a stream of the robot: published, and their streams followed, only while someone subscribes.
@@ -592,16 +594,38 @@ class Ros2Core:
         except PayloadError as exc:
             self.reporter.report(self.keys.params, str(exc), exc.excerpt, now=now)
             return
-        self._take_params(table)
+        self._take_params(table, now)
 
-    def _take_params(self, table: GatewayParams) -> None:
+    def _take_params(self, table: GatewayParams, now: float) -> None:
         new, changed = self.parameters.on_table(table)
         if new or changed:
             self.output.ros(PARAMETER_EVENTS, self.codec.parameter_event(self.wallclock(), self.options.node, new, changed))
+        waiting = [(p, p.request) for p in self.calls.values() if p.request is not None]  # calls that waited for it
+        for pending, request in waiting:
+            pending.request = None
+            del self.calls[pending.call]
+            self._run_parameter_call(pending, request, now)
+
+    def _run_parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
+        """:meth:`_parameter_call`; a request that cannot be read is reported and refused."""
+        try:
+            self._parameter_call(pending, cdr, now)
+        except PayloadError as exc:
+            self._reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
+            self.stats.failed.add(now)
+            self.output.service_refuse(pending.call, f"invalid request: {exc}")
 
     def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
-        """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered."""
+        """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered.
+
+        Before the gateway's table has arrived (the node has just started, or the gateway not yet), the call waits
+        for it, at most the service timeout: ``ros2 param list`` at start-up lists the parameters, not nothing."""
         service, p, codec = pending.service, self.parameters, self.codec
+        if not p.known:
+            pending.request = cdr
+            self.calls[pending.call] = pending
+            self._ask_params()
+            return
         if service == "list_parameters":
             prefixes, depth = codec.list_parameters_request(cdr)
             self._answer(pending, True, codec.list_parameters_response(*p.names(prefixes, depth)), now)
@@ -728,16 +752,11 @@ class Ros2Core:
             reply_to = (sequence, gid)
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
         if service in PARAMETER_SERVICES:
-            if len(self.calls) >= MAX_PENDING_CALLS and service in SET_CALLS:
+            if len(self.calls) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
                 self.stats.failed.add(now)
                 self.output.service_refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again")
                 return
-            try:
-                self._parameter_call(pending, cdr, now)
-            except PayloadError as exc:
-                self._reject(key, str(exc), exc.excerpt, now)
-                self.stats.failed.add(now)
-                self.output.service_refuse(call, f"invalid request: {exc}")
+            self._run_parameter_call(pending, cdr, now)
             return
         try:
             if service == SET_ESTOP:
@@ -799,7 +818,7 @@ class Ros2Core:
             except PayloadError as exc:
                 self._answer_set(pending, None, now, f"the gateway answered something that is not a ParamsSetReply: {exc}")
                 return
-            self._take_params(reply.params)
+            self._take_params(reply.params, now)
             self._answer_set(pending, reply, now)
             return
         if not ok:
@@ -848,6 +867,14 @@ class Ros2Core:
 
     def _timed_out(self, pending: PendingCall, now: float) -> None:
         limit = f"{self.options.service_timeout:g} s"
+        if pending.request is not None:  # it waited for the gateway's table, which never came
+            self.calls.pop(pending.call, None)
+            self.stats.failed.add(now)
+            reason = (
+                f"the gateway's parameters did not arrive within {limit} ({self.keys.params}): is it running on prefix {self.keys.prefix}?"
+            )
+            self.output.service_refuse(pending.call, reason)
+            return
         if pending.service in SET_CALLS:
             self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")
             return
