@@ -20,7 +20,8 @@ def test_a_port_in_use_is_skipped() -> None:
         held = holder.getsockname()[1]
         holder.listen()
         allocator = PortAllocator(range(held, held + 3))
-        assert allocator.free() == held + 1
+        # skipped; the next one may itself be taken by another test's process on a busy machine (a CI run saw it)
+        assert allocator.free() in (held + 1, held + 2)
 
 
 def test_a_block_is_free_throughout_and_the_next_caller_starts_after_it() -> None:
