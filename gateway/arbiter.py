@@ -137,7 +137,9 @@ class _Source:
     due: float = math.inf
 
     def live(self, now: float) -> bool:
-        return now - self.heard_at < self.spec.timeout
+        # heard_at + timeout, as its due is written: both must agree to the last bit, or a tick at the due would see it
+        # live, spend the due and never weigh it again
+        return now < self.heard_at + self.spec.timeout
 
 
 @dataclass(slots=True)
@@ -150,7 +152,7 @@ class _Lock:
 
     def engaged(self, now: float) -> bool:
         timeout = self.spec.timeout
-        return self.locked or (timeout is not None and now - self.heard_at >= timeout)
+        return self.locked or (timeout is not None and now >= self.heard_at + timeout)  # as its due is written
 
 
 class Why(Enum):
@@ -189,6 +191,10 @@ class Arbiter:
     _locks: dict[str, _Lock] = field(init=False)
     #: The source that drives (None: nobody has since the start or the last change of driver to nobody).
     active: str | None = field(init=False, default=None)
+    # Between the dues nothing but an input changes the winner: the gateway asks twice per poll, so the earliest due
+    # is kept (None: to be computed again) and ``update`` looks only once one is reached or an input changed the weighing.
+    _earliest: float | None = field(init=False, default=None)
+    _reweigh: bool = field(init=False, default=True)
 
     def __post_init__(self) -> None:
         check_specs(self.sources, self.locks)
@@ -214,6 +220,7 @@ class Arbiter:
         if source is None:
             return Admission.UNKNOWN
         source.heard_at, source.twist, source.due = now, twist, now + source.spec.timeout
+        self._earliest = None
         self.active = self._winner(now)
         if self.active == name:
             return Admission.DRIVES
@@ -233,10 +240,14 @@ class Arbiter:
             return False
         lock.locked, lock.heard_at = locked, now
         lock.due = math.inf if lock.spec.timeout is None else now + lock.spec.timeout
+        self._earliest, self._reweigh = None, True
         return True
 
     def update(self, now: float) -> NewDriver | None:
         """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
+        if not self._reweigh and now < self.next_deadline():
+            return None  # no source fell silent, no lock changed, no input since the last weighing: the same winner
+        self._earliest, self._reweigh = None, False
         for source in self._sources.values():
             if now >= source.due:
                 source.due = math.inf  # seen: its deadline is spent
@@ -271,8 +282,9 @@ class Arbiter:
         check_specs((spec,), ())
         source.spec = spec
         self.sources = tuple(spec if s.name == name else s for s in self.sources)
-        if source.due != math.inf:  # still live: it falls silent after its new timeout
+        if source.heard_at != -math.inf:  # it falls silent after its new timeout (a longer one may bring it back)
             source.due = source.heard_at + spec.timeout
+        self._earliest, self._reweigh = None, True
 
     def priority_of(self, name: str) -> int:
         return self._sources[name].spec.priority
@@ -282,7 +294,10 @@ class Arbiter:
 
     def next_deadline(self) -> float:
         """When :meth:`update` may next change the driver without a new input: a live source's or a lock's timeout."""
-        return min((item.due for item in self._timed()), default=math.inf)
+        earliest = self._earliest
+        if earliest is None:
+            earliest = self._earliest = min((item.due for item in self._timed()), default=math.inf)
+        return earliest
 
     def _timed(self) -> list[_Source | _Lock]:
         return [*self._sources.values(), *self._locks.values()]
@@ -303,7 +318,7 @@ class Arbiter:
         active_tied = False
         for source in self._sources.values():
             priority = source.spec.priority
-            if priority <= blocked_up_to or now - source.heard_at >= source.spec.timeout:
+            if priority <= blocked_up_to or now >= source.heard_at + source.spec.timeout:  # not live
                 continue
             if best is None or priority > best.spec.priority:
                 best, active_tied = source, source.spec.name == self.active

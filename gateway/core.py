@@ -262,7 +262,7 @@ class GatewayCore:
         if change.source is not None and change.twist is not None:  # through the acceleration limits, timed from its command
             self._drive(change.source, change.twist, change.heard_at, now, handed_over=True)
         elif change.blocked:
-            self.governor.brake()  # a lock stops the robot now; silence is the command timeout's to brake
+            self.governor.brake(now)  # a lock stops the robot now; silence is the command timeout's to brake
 
     def _drive(self, source: str, twist: Twist, heard_at: float, now: float, handed_over: bool = False) -> None:
         """The driving source's command (heard at ``heard_at``) goes to the governor, or its refusal is reported like any refused cmd_vel.
@@ -271,7 +271,7 @@ class GatewayCore:
         last command, when the source before it fell silent or a lock changed) meets an e-stop, a dead link or a
         second gateway that came since, and is refused like a new one.
         """
-        refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at)
+        refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at, now)
         if refusal is not None:
             reason = f"its last command, handed over to it, is refused: {refusal}" if handed_over else refusal
             self.reject(self.keys.cmd_vel_of(source), reason, now, excerpt(encode(twist)))
@@ -322,7 +322,7 @@ class GatewayCore:
         except PayloadError:
             return
         if self.conflict.seen(other, now):  # a new conflict: stop driving at once
-            self.governor.brake()
+            self.governor.brake(now)
         if self.conflict.other is not None:
             self._conflict_news(self.conflict.tick(now), now)
             self._send_due(now)

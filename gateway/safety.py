@@ -18,6 +18,14 @@ due before the deadline, and after ``next_command(now)`` the deadline lies
 after ``now`` (the host's timer never spins); while an acceleration ramp
 runs, its deadline is the next step at the latest.
 
+A state that is not ramping does not change with time before its deadline,
+so a look then is answered from the decision kept for that state object
+(the gateway looks twice per poll, 100 times a second per robot). For that
+the ramp's clock (``current_at``) moves only while the twist changes: an
+input that changes the target first brings the ramp up to its own ``now``,
+and the command timeout's brake ramps from when it struck, so a ramp never
+steps further than its limit allows for the time it ran.
+
 Stopping is confirmed, not assumed: a command the robot did not accept
 (FULL_BUFFER, or no reply) is re-sent after a growing pause (5 ms, 10 ms,
 ... at most 250 ms, so never more than a few dozen a second); a motion
@@ -173,7 +181,8 @@ class Driving:
     target: Velocity = STILL
     #: When ``target`` was commanded; the command timeout counts from it (-inf: a fresh cmd_vel is needed to move).
     heard_at: float = -math.inf
-    #: The twist after the acceleration limits, as of ``current_at``.
+    #: The twist after the acceleration limits, as of ``current_at``; while it equals the target it holds from then on
+    #: (``current_at`` moves only while it changes: whoever changes the target brings it up to now first).
     current: Velocity = STILL
     current_at: float = -math.inf
 
@@ -210,6 +219,8 @@ class Governor:
         # for the twist and settings they were made of. A command costs one decision, not three.
         self._planned: tuple[State, float, bool, SafetySettings, State, Due] | None = None
         self._deadline: tuple[State, bool, SafetySettings, float] | None = None
+        # For a state that time does not change before its deadline (not ramping): its decision, valid at any look before.
+        self._settled: tuple[State, bool, SafetySettings, Due] | None = None
         self._wheels_of: tuple[Velocity, SafetySettings, tuple[WheelSpeeds, bool]] | None = None
 
     @property
@@ -264,12 +275,16 @@ class Governor:
             return f"angular.z {w!r} rad/s is beyond any plausible command (|w| <= {s.plausible_angular})"
         return None
 
-    def on_twist(self, twist: Twist, now: float) -> str | None:
-        """Take a velocity command given at ``now``, or return why it is refused (the robot's command stays as it was)."""
+    def on_twist(self, twist: Twist, heard_at: float, now: float | None = None) -> str | None:
+        """Take a velocity command heard at ``heard_at``, or return why it is refused (the robot's command stays as it was).
+
+        ``now`` (default ``heard_at``): the present, later for a command handed over from a source's past; the ramp
+        runs toward the new twist from then, and the command timeout counts from ``heard_at``.
+        """
         reason = self.refusal(twist)
         if reason is None and isinstance(self.state, Driving):
-            state = self.state
-            self.state = Driving(state.robot, (twist.linear.x, twist.angular.z), now, state.current, state.current_at)
+            state = self._ramp_now(self.state, heard_at if now is None else now)
+            self.state = Driving(state.robot, (twist.linear.x, twist.angular.z), heard_at, state.current, state.current_at)
         return reason
 
     def on_estop(self, engaged: bool, now: float) -> None:
@@ -289,12 +304,12 @@ class Governor:
         elif isinstance(state, EStopped):
             self.state = Driving(state.robot, current_at=now)
         else:
-            self.state = replace(state, heard_at=-math.inf)  # a release while driving also wants a fresh cmd_vel
+            self.state = replace(self._ramp_now(state, now), heard_at=-math.inf)  # a release while driving also wants a fresh cmd_vel
 
-    def brake(self) -> None:
+    def brake(self, now: float) -> None:
         """Stop now, whatever was commanded (a conflict, a lock); a fresh cmd_vel is needed to move again."""
         if isinstance(self.state, Driving):
-            self.state = replace(self.state, target=STILL, heard_at=-math.inf)
+            self.state = replace(self._ramp_now(self.state, now), target=STILL, heard_at=-math.inf)
         elif isinstance(self.state, EStopped):
             self.state = replace(self.state, heard_at=-math.inf)
 
@@ -361,6 +376,10 @@ class Governor:
         replies; motion waits (the next reply calls again), a stop never does.
         Pure: nothing is committed (:meth:`next_command` does).
         """
+        state = self.state
+        settled = self._settled
+        if settled is not None and settled[0] is state and now < settled[3].at and settled[1] == congested and settled[2] is self.settings:
+            return state, settled[3]  # time changes nothing before the deadline: the decision kept for this state holds
         planned = self._planned
         if (
             planned is not None
@@ -399,12 +418,17 @@ class Governor:
         (a time not after the last input's means at once). ``congested`` as for :meth:`next_command`: then only
         what a stop needs counts.
         """
+        state = self.state
         kept = self._deadline
-        if kept is not None and kept[0] is self.state and kept[1] == congested and kept[2] is self.settings:
+        if kept is not None and kept[0] is state and kept[1] == congested and kept[2] is self.settings:
             return kept[3]
-        at = self._due(self.state, -math.inf, congested).at
-        self._deadline = (self.state, congested, self.settings, at)
-        return at
+        due = self._due(state, -math.inf, congested)
+        self._deadline = (state, congested, self.settings, due.at)
+        if not isinstance(state, Driving) or state.current == state.target:
+            # not ramping: before due.at time changes nothing (no brake, no step, no re-check) and the decision
+            # is the same at any look (it depends on the look's time only to rank re-sends already due)
+            self._settled = (state, congested, self.settings, due)
+        return due.at
 
     # ------------------------------------------------------------------ the decision's parts
 
@@ -414,17 +438,33 @@ class Governor:
             return state.emg_again(now)  # EMG_STOP was taken but the wheels still turn
         if not isinstance(state, Driving):
             return state
-        target = STILL if now >= self._brake_at(state) else state.target
-        dt = max(0.0, now - state.current_at)
-        s = self.settings
-        current = (
-            _approach(state.current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt),
-            _approach(state.current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt),
-        )
-        current_at = max(state.current_at, now)
+        target, current, current_at = state.target, state.current, state.current_at
+        brake_at = self._brake_at(state)
+        if now >= brake_at:
+            if brake_at > current_at:  # the commanded twist held until the brake struck; the ramp down runs from then
+                current, current_at = self._ramp(current, target, brake_at - current_at), brake_at
+            target = STILL
+        if current != target:  # still ramping: the ramp's clock moves with it
+            current, current_at = self._ramp(current, target, max(0.0, now - current_at)), max(current_at, now)
         if target == state.target and current == state.current and current_at == state.current_at:
             return state  # nothing changed: the same object, so what was decided of it still holds
         return Driving(state.robot, target, state.heard_at, current, current_at)
+
+    def _ramp(self, current: Velocity, target: Velocity, dt: float) -> Velocity:
+        """``current`` after ``dt`` seconds toward ``target`` within the acceleration limits."""
+        s = self.settings
+        return (
+            _approach(current[0], target[0], None if s.linear_accel is None else s.linear_accel * dt),
+            _approach(current[1], target[1], None if s.angular_accel is None else s.angular_accel * dt),
+        )
+
+    def _ramp_now(self, state: Driving, now: float) -> Driving:
+        """``state`` brought up to ``now`` with its ramp's clock at ``now``: what an input that changes the target starts from."""
+        advanced = self._advance(state, now)
+        assert isinstance(advanced, Driving)
+        if advanced.current_at >= now:
+            return advanced
+        return Driving(advanced.robot, advanced.target, advanced.heard_at, advanced.current, now)
 
     def _due(self, state: State, now: float, congested: bool) -> Due:
         """What ``state`` does next and from when; ``now`` only ranks several re-sends that are all due."""

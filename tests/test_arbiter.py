@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import pytest
-from hypothesis import given
+from hypothesis import example, given
 from hypothesis import strategies as st
 
 from blackmetal.gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
@@ -49,7 +50,7 @@ def test_a_tie_keeps_the_driver_until_it_times_out() -> None:
     assert arb.update(0.9) is None  # default heard at 0.41: live until 0.91
     change = arb.update(0.91)
     assert change is not None and change.source == "ros2" and change.twist == twist(0.25) and change.heard_at == 0.45
-    assert arb.offer("default", twist(0.1), 0.95) is Admission.DROPPED  # now ros2 keeps it, equally
+    assert arb.offer("default", twist(0.1), 0.94) is Admission.DROPPED  # now ros2 (live until 0.95) keeps it, equally
 
 
 def test_when_the_driver_falls_silent_the_next_live_source_takes_over_on_its_deadline() -> None:
@@ -137,7 +138,12 @@ def test_unusable_sources_and_locks_are_named(sources: tuple[SourceSpec, ...], l
 _specs = st.lists(st.tuples(st.sampled_from([10, 50, 90, 100]), st.sampled_from([0.2, 0.5])), min_size=1, max_size=5)
 _lock_specs = st.lists(st.tuples(st.sampled_from([10, 50, 90]), st.sampled_from([None, 0.3])), max_size=2)
 _events = st.lists(
-    st.tuples(st.sampled_from([0.0, 0.01, 0.1, 0.3]), st.sampled_from(["offer", "lock", "update"]), st.integers(0, 4), st.booleans()),
+    st.tuples(
+        st.sampled_from([0.0, 0.01, 0.1, 0.3]),
+        st.sampled_from(["offer", "lock", "update", "update", "retune"]),
+        st.integers(0, 4),
+        st.booleans(),
+    ),
     max_size=40,
 )
 
@@ -155,10 +161,10 @@ class Model:
         engaged = [
             lock.priority
             for lock in self.locks
-            if self.lock_state[lock.name][0] or (lock.timeout is not None and now - self.lock_state[lock.name][1] >= lock.timeout)
+            if self.lock_state[lock.name][0] or (lock.timeout is not None and now >= self.lock_state[lock.name][1] + lock.timeout)
         ]
         blocked = max(engaged, default=-1)
-        live = [s for s in self.sources if now - self.heard[s.name] < s.timeout and s.priority > blocked]
+        live = [s for s in self.sources if now < self.heard[s.name] + s.timeout and s.priority > blocked]
         if not live:
             return None
         top = max(s.priority for s in live)
@@ -169,6 +175,12 @@ class Model:
 
 
 @given(_specs, _lock_specs, _events)
+# a retuned priority changes the winner with no source's timeout reached: the update must weigh again
+@example(
+    [(10, 0.5), (50, 0.5), (10, 0.5)],
+    [],
+    [(0.0, "offer", 0, False), (0.0, "offer", 1, False), (0.0, "update", 0, False), (0.0, "retune", 3, True), (0.0, "update", 0, False)],
+)
 def test_the_arbiter_picks_whom_the_plain_rules_pick(
     specs: list[tuple[int, float]], lock_specs: list[tuple[int, float | None]], events: list[tuple[float, str, int, bool]]
 ) -> None:
@@ -187,6 +199,14 @@ def test_the_arbiter_picks_whom_the_plain_rules_pick(
             name = locks[index % len(locks)].name
             model.lock_state[name] = (flag, now)
             assert arb.set_lock(name, flag, now)
+        elif kind == "retune":  # a parameter set live: weighed at the next update, as the gateway's core calls it
+            i = index % len(sources)
+            if flag:
+                sources[i] = replace(sources[i], priority=[10, 50, 90, 100, 30][index])
+                arb.retune(sources[i].name, priority=sources[i].priority)
+            else:
+                sources[i] = replace(sources[i], timeout=[0.2, 0.5, 0.05, 1.0, 0.3][index])
+                arb.retune(sources[i].name, timeout=sources[i].timeout)
         else:
             before, model.active = model.active, model.winner(now)
             change = arb.update(now)

@@ -11,16 +11,19 @@ governor it needs two things, for any sequence of inputs:
   and changes nothing but the time of the look, so sleeping until the
   deadline misses nothing. The one exception is an acceleration ramp, which
   is continuous: its deadline is its next step at the latest, and a look
-  before it takes the step earlier. (The time of the look is the ramp's
-  clock: a ramp that starts later takes its first step from the last look,
-  as the governor always did.)
+  before it takes the step earlier;
+
+and of the ramp, whatever the looks: the twist never changes faster than the
+acceleration limits allow for the time that passed (a ramp that starts after
+a long standstill, or a brake after a long run at speed, steps from when it
+started, not from the last look).
 """
 
 from __future__ import annotations
 
 import copy
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from typing import Any
 
 from hypothesis import HealthCheck, example, given, note, settings
@@ -85,7 +88,7 @@ class Host:
         if kind == "twist":
             return gov.on_twist(op[1], now)
         if kind == "handover":
-            return gov.on_twist(op[1], now - op[2])
+            return gov.on_twist(op[1], now - op[2], now)
         if kind == "estop":
             return gov.on_estop(op[1], now)
         if kind == "link_up":
@@ -93,7 +96,7 @@ class Host:
         if kind == "link_down":
             return gov.on_link_down()
         if kind == "brake":
-            return gov.brake()
+            return gov.brake(now)
         if kind in ("accepted", "dropped"):
             wheels = {"sent": self.last or ZERO, "zero": ZERO, "other": WheelSpeeds(left=0.123, right=-0.1)}[op[1]]
             return gov.on_accepted(wheels, now) if kind == "accepted" else gov.on_dropped(wheels, now)
@@ -121,11 +124,6 @@ class Host:
         if command is not None:
             self.last = command.wheels
         return emg, command
-
-
-def but_the_look(state: State) -> State:
-    """The state without the time of its last look (the ramp's clock, which matters only while a ramp runs)."""
-    return replace(state, current_at=0.0) if isinstance(state, Driving) else state
 
 
 def ramping(state: State) -> bool:
@@ -174,8 +172,44 @@ def test_nothing_is_due_before_the_deadline_and_the_deadline_is_never_behind(
         probe = copy.deepcopy(host)
         probe.t = now + probes[i] * (min(deadline, now + 30.0) - now)
         assert probe.step(congested) == (False, None), f"something was due at {probe.t!r}, before the deadline {deadline!r}"
-        assert but_the_look(probe.gov.state) == but_the_look(host.gov.state), "a look before the deadline changed the state"
+        assert probe.gov.state == host.gov.state, "a look before the deadline changed the state"
         assert probe.gov.next_deadline(congested) == deadline
+
+
+ramp_settings = st.builds(
+    SafetySettings,
+    cmd_timeout=st.sampled_from([0.0, 0.5, 0.05]),
+    linear_accel=st.sampled_from([0.5, 3.0]),
+    angular_accel=st.sampled_from([2.0, 0.1]),
+    max_command_hz=st.sampled_from([500.0, 20.0]),
+)
+
+
+@settings(max_examples=400, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(ramp_settings, st.lists(inputs, max_size=60))
+# before the ramp's clock stood still while settled: a look long after the last one stepped a new ramp all at once
+@example(SafetySettings(cmd_timeout=0.0, linear_accel=0.5, angular_accel=2.0), [("wait", 5.0), ("twist", twist(1.0)), ("step", False)])
+# a brake long after the last look ramped down as if the brake had struck at that look
+@example(
+    SafetySettings(cmd_timeout=0.5, linear_accel=3.0, angular_accel=2.0),
+    [("twist", twist(0.3)), ("step", False), ("wait", 0.6), ("step", False)],
+)
+def test_the_twist_never_changes_faster_than_the_acceleration_limits(safety: SafetySettings, ops: list[tuple[Any, ...]]) -> None:
+    host = Host(Governor(safety))
+    assert safety.linear_accel is not None and safety.angular_accel is not None
+    seen: tuple[float, tuple[float, float]] | None = None  # (t, the twist then) while driving on one link
+    for op in [*LINK_UP, *ops]:
+        host.apply(op)
+        state = host.gov.plan(host.t)[0]  # the twist as of now, whether or not anything looked
+        if not isinstance(state, Driving) or op[0] == "link_up":
+            seen = None  # no link, an e-stop, or a new link (which starts from standstill): a new ramp starts
+            continue
+        if seen is not None:
+            dt = host.t - seen[0]
+            note(f"t={host.t!r} {op!r}: {seen[1]!r} -> {state.current!r} in {dt!r} s")
+            assert abs(state.current[0] - seen[1][0]) <= safety.linear_accel * dt + 1e-9
+            assert abs(state.current[1] - seen[1][1]) <= safety.angular_accel * dt + 1e-9
+        seen = (host.t, state.current)
 
 
 # ----------------------------------------------------------------------------- the core's hand-over
