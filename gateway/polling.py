@@ -1,9 +1,14 @@
 """When the gateway polls the wheel speeds, and how fast it really did, sans I/O.
 
-A pure part of the robot connection with its own deadline: polls start when
-the control link comes up, fall on a fixed grid of ``1 / poll_hz``, and
-resynchronise without a burst when a loaded machine falls behind. The rate
-reported in health is measured from the readings that came back.
+A pure part of the robot connection with its own deadline: the first poll
+goes out when the control link comes up, the next ones on a fixed grid of
+``1 / poll_hz`` counted from the clock's zero, so every robot polled at the
+same rate in a process (and on the host: the monotonic clock is the
+machine's) polls at the same instants. A fleet gateway then wakes once per
+period for all its robots, and the simulator or the robots' links get their
+requests in one burst, instead of a wake-up per robot. A loaded machine that
+falls behind takes the next grid instant, without a burst. The rate reported
+in health is measured from the readings that came back.
 """
 
 from __future__ import annotations
@@ -35,9 +40,9 @@ class PollSchedule:
         """Whether a poll is due at ``now``; if so, the grid moves on (the caller polls or counts a skip)."""
         if now < self._next:
             return False
-        self._next += self.period
-        if self._next < now - self.period:  # fell behind (loaded machine): resynchronise, no burst
-            self._next = now + self.period
+        period = self.period
+        following = (math.floor(now / period) + 1.0) * period  # the grid's next instant; behind, no burst to catch up
+        self._next = following if following > now else following + period  # (a rounding may land it on now)
         return True
 
     def next_deadline(self) -> float:
