@@ -73,8 +73,12 @@ class Exchange:
 
     @property
     def in_doubt(self) -> bool:
-        """A request past its reply timeout is still waiting: a reply now may be late, or the next one's."""
-        return any(p.expired for p in self.outstanding)
+        """A request past its reply timeout is still waiting: a reply now may be late, or the next one's.
+
+        The head alone tells: requests are marked expired in sending order (:meth:`expire`), so they lead the queue.
+        """
+        outstanding = self.outstanding
+        return bool(outstanding) and outstanding[0].expired
 
     def polls_in_flight(self) -> int:
         return sum(1 for p in self.outstanding if p.request.command is CommandCode.GET_LR_WHEEL_VELOCITY)

@@ -42,6 +42,8 @@ class LinkState:
     """What the connection knows of one link: up or not, since when, how often."""
 
     status: LinkStatus = LinkStatus.DOWN
+    #: ``status is CONNECTED``, kept with it (by :class:`Links`, which alone sets either): the core asks several times per poll.
+    connected: bool = False
     connected_since: float | None = None  # Unix time, for health
     connections: int = 0
     last_rx: float = 0.0
@@ -51,10 +53,6 @@ class LinkState:
     down_since: float | None = None
     #: Why it is not up: the last failure to open it or the reason it closed (None while up).
     reason: str | None = None
-
-    @property
-    def connected(self) -> bool:
-        return self.status is LinkStatus.CONNECTED
 
     @property
     def reconnects(self) -> int:
@@ -79,12 +77,13 @@ class Links:
         return self.control if name == "control" else self.log
 
     def connecting(self, name: LinkName) -> None:
-        self[name].status = LinkStatus.CONNECTING
+        state = self[name]
+        state.status, state.connected = LinkStatus.CONNECTING, False
 
     def up(self, name: LinkName, now: float, wall: float) -> float | None:
         """``name`` connected at ``now``: how long it had been down, if it was up before (for the report)."""
         state = self[name]
-        state.status = LinkStatus.CONNECTED
+        state.status, state.connected = LinkStatus.CONNECTED, True
         state.connected_since = wall
         state.connections += 1
         state.last_rx = now
@@ -99,7 +98,7 @@ class Links:
         state = self[name]
         state.reason = reason
         was_up = state.connected
-        state.status = LinkStatus.DOWN
+        state.status, state.connected = LinkStatus.DOWN, False
         state.connected_since = None
         state.waiting_since = None
         if was_up:

@@ -125,7 +125,8 @@ class ReportLimiter:
     @property
     def pending(self) -> bool:
         """Some reports were suppressed and not yet summarised."""
-        return any(bucket.suppressed for bucket in self._families.values())
+        families = self._families
+        return bool(families) and any(bucket.suppressed for bucket in families.values())
 
     @property
     def tracked(self) -> int:
