@@ -83,9 +83,9 @@ class WheelImpulses(msgspec.Struct):
     source: Annotated[str, msgspec.Meta(max_length=64)] | None = None
 
     def __post_init__(self) -> None:
-        _require_finite("impulses", stamp=self.stamp)
-        if self.mono is not None:
-            _require_finite("impulses", mono=self.mono)
+        isfinite, mono = math.isfinite, self.mono
+        if not (isfinite(self.stamp) and (mono is None or isfinite(mono))):  # every poll passes here: the quick test first
+            _require_finite("impulses", stamp=self.stamp, **({} if mono is None else {"mono": mono}))
 
 
 class Quaternion(msgspec.Struct):
@@ -114,7 +114,11 @@ class Pose(msgspec.Struct):
     orientation: Quaternion = msgspec.field(default_factory=Quaternion)
 
     def __post_init__(self) -> None:
-        _require_finite("pose", stamp=self.stamp, x=self.x, y=self.y, yaw=self.yaw, v=self.v, w=self.w)
+        isfinite = math.isfinite
+        if not (  # every pose passes here: the quick test first
+            isfinite(self.stamp) and isfinite(self.x) and isfinite(self.y) and isfinite(self.yaw) and isfinite(self.v) and isfinite(self.w)
+        ):
+            _require_finite("pose", stamp=self.stamp, x=self.x, y=self.y, yaw=self.yaw, v=self.v, w=self.w)
 
 
 def wrap_angle(angle: float) -> float:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+from typing import Any
 
 import msgspec
 import pytest
@@ -183,3 +184,20 @@ def test_json_schema_for_every_message_validates_its_examples() -> None:
 def test_error_report_encodes_as_json() -> None:
     report = ErrorReport(stamp=1.0, source="gateway", key="robot/cmd_vel", reason="bad", excerpt="x")
     assert json.loads(encode(report))["reason"] == "bad"
+
+
+@pytest.mark.parametrize(
+    ("kind", "fields", "bad"),
+    [
+        (WheelImpulses, {"seq": 1, "stamp": 1.0, "left": 1, "right": 1, "mono": 2.0}, ["stamp", "mono"]),
+        (Pose, {"stamp": 1.0, "x": 0.0, "y": 0.0, "yaw": 0.0, "v": 0.0, "w": 0.0}, ["stamp", "x", "y", "yaw", "v", "w"]),
+    ],
+)
+def test_every_float_of_impulses_and_poses_must_be_finite_and_is_named(kind: type, fields: dict[str, Any], bad: list[str]) -> None:
+    kind(**fields)
+    for name in bad:
+        for value in (math.nan, math.inf, -math.inf):
+            with pytest.raises(ValueError, match=rf"\.{name} must be a finite number"):
+                kind(**{**fields, name: value})
+            with pytest.raises(PayloadError):
+                decode(kind, msgspec.json.encode({**fields, name: value}).replace(b"null", b"1e999"))
