@@ -912,6 +912,8 @@ class Ros2Core:
 
     def next_deadline(self) -> float:
         """When :meth:`tick` has something to do next."""
-        calls = (min(p.deadline, p.repeat_at) for p in self.calls.values())
         diagnostics = self._next_diagnostics if self._wants("diagnostics") else math.inf  # nobody watches: no timer
-        return min(diagnostics, self.reporter.next_deadline(), *calls)
+        deadline = min(diagnostics, self.reporter.next_deadline())
+        if self.calls:  # asked after every pose: the common case, no call pending, builds nothing
+            deadline = min(deadline, *(min(p.deadline, p.repeat_at) for p in self.calls.values()))
+        return deadline
