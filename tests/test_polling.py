@@ -53,4 +53,4 @@ def test_a_poll_is_never_due_again_at_the_same_time(start: float, hz: float, lat
     assert now > start
     assert schedule.due(now)
     assert schedule.next_deadline() > now  # else the host's timer would fire again at once
-    assert schedule.next_deadline() - now <= 1.0 / hz * (1 + 1e-9)
+    assert schedule.next_deadline() - now <= 1.0 / hz + 1e-6  # (the clock's seconds lose digits as they grow)

@@ -316,7 +316,8 @@ class Ros2Zenoh(ZenohEdge):
             # the first sample is taken before the lock (a Zenoh ring is thread-safe, and only the loop follows and
             # unfollows): a fleet's robots pose together, once a period, so most drains find every ring empty and
             # then cost no lock at all
-            sample = subscriber.try_recv()
+            ring = subscriber
+            sample = ring.try_recv()
             if sample is None:
                 continue
             handler = self._streams[name][2]
@@ -326,7 +327,7 @@ class Ros2Zenoh(ZenohEdge):
                     handler(payload_bytes(sample))
                     if self._followed.get(name) is not subscriber:  # the handler had the core unfollow it
                         break
-                    sample = subscriber.try_recv()
+                    sample = ring.try_recv()
         return taken
 
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
