@@ -107,6 +107,8 @@ class GatewayCore:
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
+        #: A poll came due while the one before it was unanswered: it goes out as soon as that one's reading comes.
+        self._poll_waiting = False
         self.prepare = PrepareRetry()
         self.conflict = GatewayConflict(self.source, self.keys.prefix)
         self.arbiter = settings.arbiter()
@@ -179,6 +181,7 @@ class GatewayCore:
             self.prepare.reset()
             self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
             self.governor.on_link_up(now)
+            self._poll_waiting = False
             self.polls.start(now)
             self._send_due(now)
 
@@ -196,6 +199,7 @@ class GatewayCore:
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))
             self.polls.stop()
+            self._poll_waiting = False
             self.prepare.cancel()
 
     def receive(self, link: LinkName, data: bytes, now: float) -> None:
@@ -505,9 +509,23 @@ class GatewayCore:
         return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        if self.exchange.polls_in_flight() or self._congested():
-            self.counters.polls_skipped += 1  # never build a backlog of polls
+        """A poll is due: sent now; or, while the one before it is unanswered, as soon as its reading comes.
+
+        One poll is in flight at most, so polls never queue up at the robot. A reading that comes a little after the
+        next grid instant (a round trip near the period, or a loop that was busy and read it late: its timers run
+        before its sockets are read) delays that poll instead of losing it. A poll is skipped, and counted, when one
+        already waits a whole period, or when the robot is behind (a reply in doubt): then nothing waits.
+        """
+        if self._congested():
+            self.counters.polls_skipped += 1
+            self._poll_waiting = False
             return
+        if self.exchange.polls_in_flight():
+            if self._poll_waiting:
+                self.counters.polls_skipped += 1  # a whole period behind: this one is lost, the waiting one stays
+            self._poll_waiting = True
+            return
+        self._poll_waiting = False
         if self._send(_POLL, now):
             self.counters.polls += 1
 
@@ -557,6 +575,8 @@ class GatewayCore:
             self.seq += 1
             self.polls.reading(now)
             self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)
+            if self._poll_waiting:  # the poll that came due while this one was unanswered goes out now
+                self._poll(now)
 
     def _not_taken(self, request: wire.Request, now: float) -> None:
         """The robot dropped ``request`` (FULL_BUFFER) or did not answer in time: re-send what must be re-sent, spaced."""

@@ -41,8 +41,11 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
-        following = (math.floor(now / period) + 1.0) * period  # the grid's next instant; behind, no burst to catch up
-        self._next = following if following > now else following + period  # (a rounding may land it on now)
+        # the grid's next instant; behind, no burst to catch up. A time on the grid, as computed, may divide to a hair
+        # under its index (4.1 / 0.02 = 204.99999999999997): within a millionth of a period counts as on it, or the
+        # same instant would come due again an ulp later
+        following = (math.floor(now / period + 1e-6) + 1.0) * period
+        self._next = following if following > now else following + period
         return True
 
     def next_deadline(self) -> float:

@@ -209,7 +209,8 @@ class GatewayHealth(msgspec.Struct):
     keepalives: int = 0
     #: Requests given up: no reply within the reply timeout, or the link went down first.
     lost_replies: int = 0
-    #: Poll ticks skipped because the previous poll was still unanswered (polls never queue up).
+    #: Polls not sent: one already waited a whole period for the poll before it, or the robot was behind (polls never
+    #: queue up; a poll due while the one before it is unanswered goes out as soon as that one's reading comes).
     polls_skipped: int = 0
     estop: bool = False
     cmd_timeout_active: bool = False

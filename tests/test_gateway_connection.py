@@ -577,3 +577,20 @@ def test_health_says_what_the_robot_was_last_sent() -> None:
     bench.conn.on_estop(b'{"engaged": true}', bench.t)
     health = bench.conn.health(bench.t)
     assert health.estop and health.last_sent == "EMG_STOP" and health.last_sent_stamp is not None
+
+
+@pytest.mark.parametrize(("delay", "least_hz"), [(0.005, 49.0), (0.025, 39.0), (0.021, 47.0)])
+def test_a_reading_that_comes_after_the_next_poll_was_due_delays_that_poll_and_never_queues_it(delay: float, least_hz: float) -> None:
+    """Replies ``delay`` after each request at 50 Hz: a poll due while the one before is unanswered goes out as soon
+    as that one's reading comes (a loaded loop that reads a reply late is the same case), one in flight at most."""
+    bench = Bench(poll_hz=50.0, cmd_timeout=0.0)
+    bench.connect()
+    bench.reply_delay = delay
+    bench.run(0.5)
+    start = bench.t
+    bench.run(4.0)
+    polls = [t for t, r in bench.requests if r.command is CommandCode.GET_LR_WHEEL_VELOCITY and t >= start]
+    assert len(polls) / 4.0 >= least_hz  # before: a reply 1 ms after the next grid instant halved the rate to 25 Hz
+    assert len(polls) / 4.0 <= 50.5  # never faster than asked
+    assert min(b - a for a, b in itertools.pairwise(polls)) >= min(delay, 0.02) - 1e-9  # one in flight at most
+    assert bench.conn.counters.replies > 0 and bench.conn.counters.lost_replies == 0

@@ -54,3 +54,17 @@ def test_a_poll_is_never_due_again_at_the_same_time(start: float, hz: float, lat
     assert schedule.due(now)
     assert schedule.next_deadline() > now  # else the host's timer would fire again at once
     assert schedule.next_deadline() - now <= 1.0 / hz + 1e-6  # (the clock's seconds lose digits as they grow)
+
+
+@pytest.mark.parametrize("start", [0.0, 4.0, 1000.013, 279621.125, 3.5e6])
+@pytest.mark.parametrize("hz", [50.0, 30.0, 100.0, 7.0])
+def test_a_host_that_wakes_at_each_deadline_polls_once_a_period(start: float, hz: float) -> None:
+    """Grid instants computed as k x period divide back to a hair under k: each must still come due once."""
+    schedule = PollSchedule(hz)
+    schedule.start(start)
+    now = start
+    assert schedule.due(now)
+    for _ in range(2000):
+        now = schedule.next_deadline()
+        assert schedule.due(now)
+        assert schedule.next_deadline() - now == pytest.approx(1.0 / hz, abs=1e-6)
