@@ -120,6 +120,8 @@ class SimRobot:
         else:
             d_left, self.speed_left = self._ramp(self.speed_left, self.target_left, dt)
             d_right, self.speed_right = self._ramp(self.speed_right, self.target_right, dt)
+        if d_left == 0.0 and d_right == 0.0:
+            return  # standing: the pose and the travel stay (a fleet's robots mostly stand, stepped 150 times a second)
         self.x, self.y, self.yaw = arc_step(self.x, self.y, self.yaw, d_left, d_right, self.params.wheel_separation)
         self.travel_left += d_left
         self.travel_right += d_right
