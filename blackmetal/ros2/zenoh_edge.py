@@ -316,7 +316,9 @@ class Ros2Zenoh(ZenohEdge):
             # the first sample is taken before the lock (a Zenoh ring is thread-safe, and only the loop follows and
             # unfollows): a fleet's robots pose together, once a period, so most drains find every ring empty and
             # then cost no lock at all
-            ring = subscriber
+            ring = subscriber  # (a name of its own: the identity tests below narrow ``subscriber`` for mypy)
+            if self._followed.get(name) is not subscriber:
+                continue  # a handler earlier in this drain unfollowed it (none does today but the one it serves)
             sample = ring.try_recv()
             if sample is None:
                 continue
