@@ -26,11 +26,13 @@ class PollSchedule:
     def __init__(self, poll_hz: float) -> None:
         self.period = 1.0 / poll_hz
         self._next = math.inf
+        self._starting = False
         self._readings: deque[float] = deque(maxlen=4096)
 
     def start(self, now: float) -> None:
-        """The control link is up: the first poll is due at once."""
+        """The control link is up: the first poll is due at once, the next on the grid at least half a period later."""
         self._next = now
+        self._starting = True
 
     def stop(self) -> None:
         """The control link is down: no polls until :meth:`start`."""
@@ -41,10 +43,14 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
+        # after the link-up's own poll, the grid's first instant half a period away at least (one a hair later would
+        # only wait for that poll's reading)
+        after = now + 0.5 * period if self._starting else now
+        self._starting = False
         # the grid's next instant; behind, no burst to catch up. A time on the grid, as computed, may divide to a hair
         # under its index (4.1 / 0.02 = 204.99999999999997): within a millionth of a period counts as on it, or the
         # same instant would come due again an ulp later
-        following = (math.floor(now / period + 1e-6) + 1.0) * period
+        following = (math.floor(after / period + 1e-6) + 1.0) * period
         self._next = following if following > now else following + period
         return True
 

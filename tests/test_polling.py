@@ -24,7 +24,7 @@ def test_the_first_poll_goes_out_at_once_and_the_rest_on_the_clock_grid() -> Non
     schedule.start(1000.013)
     times = polls(schedule, 1000.013, 1000.1)
     assert times[0] == 1000.013
-    assert times[1:] == pytest.approx([1000.02, 1000.04, 1000.06, 1000.08])
+    assert times[1:] == pytest.approx([1000.04, 1000.06, 1000.08])  # 1000.02 is less than half a period on
 
 
 def test_robots_whose_links_came_up_at_different_times_poll_at_the_same_instants() -> None:
@@ -32,7 +32,21 @@ def test_robots_whose_links_came_up_at_different_times_poll_at_the_same_instants
     a.start(7.001)
     b.start(7.0137)
     assert a.due(7.001) and b.due(7.0137)
-    assert a.next_deadline() == b.next_deadline() == pytest.approx(7.02)
+    # the link-up's poll, then the grid: its first instant at least half a period on (7.02 is 6.3 ms after b's)
+    assert a.next_deadline() == pytest.approx(7.02) and b.next_deadline() == pytest.approx(7.04)
+    first = a.next_deadline()
+    assert a.due(first) and not b.due(first)
+    second = max(a.next_deadline(), b.next_deadline())
+    assert a.due(second) and b.due(second)
+    assert a.next_deadline() == b.next_deadline() == pytest.approx(7.06)
+
+
+def test_a_link_up_never_polls_twice_within_half_a_period() -> None:
+    for start in (0.0, 0.0199, 0.0101, 0.0099, 123.45678):
+        schedule = PollSchedule(50.0)
+        schedule.start(start)
+        assert schedule.due(start)
+        assert 0.01 - 1e-9 <= schedule.next_deadline() - start <= 0.03 + 1e-9
 
 
 def test_a_host_that_fell_behind_polls_once_and_takes_the_next_instant() -> None:
