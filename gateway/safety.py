@@ -218,9 +218,9 @@ class Governor:
         # time: each answer is kept for the state object it was made of (states are immutable), and the wheel speeds
         # for the twist and settings they were made of. A command costs one decision, not three.
         self._planned: tuple[State, float, bool, SafetySettings, State, Due] | None = None
-        self._deadline: tuple[State, bool, SafetySettings, float] | None = None
-        # For a state that time does not change before its deadline (not ramping): its decision, valid at any look before.
-        self._settled: tuple[State, bool, SafetySettings, Due] | None = None
+        # The last one also tells whether time changes nothing before the deadline (not ramping): then that decision
+        # holds at any look before it.
+        self._deadline: tuple[State, bool, SafetySettings, Due, bool] | None = None
         self._wheels_of: tuple[Velocity, SafetySettings, tuple[WheelSpeeds, bool]] | None = None
 
     @property
@@ -377,9 +377,9 @@ class Governor:
         Pure: nothing is committed (:meth:`next_command` does).
         """
         state = self.state
-        settled = self._settled
-        if settled is not None and settled[0] is state and now < settled[3].at and settled[1] == congested and settled[2] is self.settings:
-            return state, settled[3]  # time changes nothing before the deadline: the decision kept for this state holds
+        kept = self._deadline
+        if kept is not None and kept[4] and kept[0] is state and now < kept[3].at and kept[1] == congested and kept[2] is self.settings:
+            return state, kept[3]  # time changes nothing before the deadline: the decision kept for this state holds
         planned = self._planned
         if (
             planned is not None
@@ -421,13 +421,12 @@ class Governor:
         state = self.state
         kept = self._deadline
         if kept is not None and kept[0] is state and kept[1] == congested and kept[2] is self.settings:
-            return kept[3]
+            return kept[3].at
         due = self._due(state, -math.inf, congested)
-        self._deadline = (state, congested, self.settings, due.at)
-        if not isinstance(state, Driving) or state.current == state.target:
-            # not ramping: before due.at time changes nothing (no brake, no step, no re-check) and the decision
-            # is the same at any look (it depends on the look's time only to rank re-sends already due)
-            self._settled = (state, congested, self.settings, due)
+        # not ramping: before due.at time changes nothing (no brake, no step, no re-check) and the decision is the same
+        # at any look (it depends on the look's time only to rank re-sends already due)
+        settled = not isinstance(state, Driving) or state.current == state.target
+        self._deadline = (state, congested, self.settings, due, settled)
         return due.at
 
     # ------------------------------------------------------------------ the decision's parts

@@ -274,13 +274,7 @@ class Ros2Zenoh(ZenohEdge):
 
     def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
         """Tell the core whether anyone subscribes to ``topic``: now, and at each change (on a Zenoh thread: handed over)."""
-
-        def on_status(status: Any) -> None:
-            put((topic, bool(getattr(status, "matching", status))))
-
-        self._entities.append(publisher.declare_matching_listener(on_status))
-        status = publisher.matching_status
-        put((topic, bool(getattr(status, "matching", status))))  # the stubs say bool; zenoh 1.x gives a MatchingStatus
+        self.watch_matching(publisher, lambda matched: put((topic, matched)))
 
     def _on_matched(self, event: tuple[str, bool]) -> None:
         assert self._host is not None

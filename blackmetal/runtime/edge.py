@@ -85,6 +85,18 @@ class ZenohEdge:
         self._entities.append(publisher)
         return publisher
 
+    def watch_matching(self, publisher: Any, on_change: Callable[[bool], None]) -> None:
+        """Whether anyone subscribes to ``publisher``'s key: ``on_change`` now, and on a Zenoh thread at each change.
+
+        ``on_change`` runs in a Zenoh callback: it may only hand the answer over (a channel's put, a flag).
+        """
+
+        def matching(status: Any) -> bool:
+            return bool(getattr(status, "matching", status))  # the stubs say bool; zenoh 1.x gives a MatchingStatus
+
+        self._entities.append(publisher.declare_matching_listener(lambda status: on_change(matching(status))))
+        on_change(matching(publisher.matching_status))
+
     def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
         """Payload bytes of every sample on ``key`` go to ``put`` (an Intake channel)."""
         self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))

@@ -60,8 +60,7 @@ class SimZenoh(ZenohEdge):
         self._truth = self.publisher(keys.sim_truth)
         #: Someone subscribes to the truth: set by Zenoh's matching listener (on its thread: one bool, nothing else).
         self.watched = True
-        self._entities.append(self._truth.declare_matching_listener(self._on_matching))
-        self._on_matching(self._truth.matching_status)
+        self.watch_matching(self._truth, self._on_matching)
         errors = self.publisher(keys.errors)
         self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
 
@@ -73,8 +72,8 @@ class SimZenoh(ZenohEdge):
         self.token(self.keys.alive_sim)
         return intake
 
-    def _on_matching(self, status: Any) -> None:
-        self.watched = bool(getattr(status, "matching", status))  # the stubs say bool; zenoh 1.x gives a MatchingStatus
+    def _on_matching(self, matched: bool) -> None:
+        self.watched = matched
 
     def tick(self) -> None:
         """The simulator's periodic step: the true pose (published if anyone watches), summaries of rate-limited reports when due."""
