@@ -4,7 +4,8 @@ One control client at a time: a new connection takes over from the old one
 (the robot's side of a reconnect whose old socket is half dead). Any number
 of log-port clients each get a state report about once a second. Link
 faults (delay, garbage, glued and split writes, dropped connections,
-silence) are applied here; sensor faults live in :class:`SimRobot`.
+silence) are applied by each client's :class:`ControlSession`; sensor
+faults live in :class:`SimRobot`.
 """
 
 from __future__ import annotations
@@ -12,21 +13,19 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
+import socket
 import time
-from collections.abc import Callable
-from typing import Any
+from collections.abc import Awaitable, Callable
+from typing import cast
 
 from blackmetal import robot_model as model
 from blackmetal import wire
 from blackmetal.transport import ByteStream, TcpStream
-from blackmetal.wire import Malformed
 
+from .control import ControlSession, ReplySink
 from .physics import SimRobot
 
 log = logging.getLogger("blackmetal.sim")
-
-#: How long a reply held back to be glued to the next one may wait (s).
-GLUE_HOLD_S = 0.05
 
 
 class SimServer:
@@ -52,18 +51,19 @@ class SimServer:
         self.connections = 0
         self.malformed_requests = 0
         self._servers: list[asyncio.base_events.Server] = []
-        self._control_stream: ByteStream | None = None
+        self._control: ControlSession | None = None
         self._log_streams: set[ByteStream] = set()
         self._tasks: set[asyncio.Task[None]] = set()
-        self._held = bytearray()
-        self._flush_handle: asyncio.TimerHandle | None = None
         self._closing = asyncio.Event()
 
     async def start(self) -> None:
         """Bind both ports (0 = pick a free one; the bound ports replace 0)."""
-        control = await self._listen("control", self.serve_control, self.control_port)
+        loop = asyncio.get_running_loop()
+        control = await self._listen("control", lambda: loop.create_server(lambda: _ControlProtocol(self), self.host, self.control_port))
         try:
-            logs = await self._listen("log", self.serve_log, self.log_port)
+            logs = await self._listen(
+                "log", lambda: asyncio.start_server(lambda r, w: self.serve_log(TcpStream(r, w)), self.host, self.log_port)
+            )
         except OSError:
             control.close()
             raise
@@ -71,10 +71,11 @@ class SimServer:
         self.control_port = control.sockets[0].getsockname()[1]
         self.log_port = logs.sockets[0].getsockname()[1]
 
-    async def _listen(self, port_name: str, serve: Callable[[ByteStream], Any], port: int) -> asyncio.Server:
-        """A listening server, or OSError whose text is one sentence naming the port and what to do (no errno)."""
+    async def _listen(self, port_name: str, listen: Callable[[], Awaitable[asyncio.Server]]) -> asyncio.Server:
+        """``listen()``'s server, or OSError whose text is one sentence naming the port and what to do (no errno)."""
+        port = self.control_port if port_name == "control" else self.log_port
         try:
-            return await asyncio.start_server(lambda r, w: serve(TcpStream(r, w)), self.host, port)
+            return await listen()
         except OSError as exc:
             if exc.errno == errno.EADDRINUSE:
                 why = "the port is in use by another process (another simulator or robot?)"
@@ -110,9 +111,9 @@ class SimServer:
 
     def drop_clients(self) -> None:
         """Close every client connection, as a robot that lost its network would."""
-        if self._control_stream is not None:
-            self._control_stream.close()
-            self._control_stream = None
+        if self._control is not None:
+            self._control.close()
+            self._control = None
         for stream in list(self._log_streams):
             stream.close()
         self._log_streams.clear()
@@ -125,73 +126,38 @@ class SimServer:
 
     # ------------------------------------------------------------------ control port
 
-    async def serve_control(self, writer: ByteStream) -> None:
-        """Serve one control client on ``writer`` (a ByteStream: TCP, or a memory pipe)."""
+    async def serve_control(self, stream: ByteStream) -> None:
+        """Serve one control client on ``stream`` (a memory pipe; TCP clients are served by :class:`_ControlProtocol`)."""
         self._track()
-        if self._control_stream is not None:
-            log.info("new control client takes over from the old one")
-            self._control_stream.close()
-        self._control_stream = writer
-        self._held.clear()
-        self.connections += 1
-        decoder = wire.RequestDecoder()
+        session = self._open_control(stream)
         try:
-            while True:
-                data = await writer.read(4096)
+            while not session.closed:
+                data = await stream.read(4096)
                 if not data:
                     break
-                for item in decoder.feed(data):
-                    if isinstance(item, Malformed):
-                        self.malformed_requests += 1
-                        log.warning("ignoring malformed request: %s", item.reason)
-                        continue
-                    faults = self.robot.faults
-                    if faults.disconnect and self.robot.rng.random() < faults.disconnect:
-                        log.info("fault: dropping the control connection")
-                        writer.close()
-                        return
-                    replies = self.robot.handle(item, self.clock())
-                    if faults.silent:
-                        continue
-                    if faults.delay:
-                        await asyncio.sleep(faults.delay)
-                    if writer.is_closing():
-                        return
-                    await self._write_replies(writer, b"".join(replies))
+                session.feed(data)
+                await asyncio.sleep(0)  # the other side's turn, as a socket's round trip would give it
         except (ConnectionError, asyncio.IncompleteReadError):
             pass  # a handler ends quietly; the server logs nothing for a closed client
         finally:
-            if self._control_stream is writer:
-                self._control_stream = None
-            writer.close()
+            self._close_control(session)
 
-    async def _write_replies(self, writer: ByteStream, data: bytes) -> None:
-        faults = self.robot.faults
-        rng = self.robot.rng
-        if faults.garbage and rng.random() < faults.garbage:
-            data = rng.randbytes(rng.randint(1, 24)) + data
-        if faults.glue and rng.random() < faults.glue:
-            self._held += data  # sent together with the next replies
-            if self._flush_handle is None:
-                self._flush_handle = asyncio.get_running_loop().call_later(GLUE_HOLD_S, self._flush_held, writer)
-            return
-        if self._held:
-            data = bytes(self._held) + data
-            self._held.clear()
-        if faults.split and len(data) > 1 and rng.random() < faults.split:
-            cut = rng.randint(1, len(data) - 1)
-            writer.write(data[:cut])
-            await writer.drain()
-            await asyncio.sleep(0.002)
-            data = data[cut:]
-        writer.write(data)
-        await writer.drain()
+    def _open_control(self, sink: ReplySink) -> ControlSession:
+        """A new control client: it takes over from the one before, whose connection is closed."""
+        if self._control is not None:
+            log.info("new control client takes over from the old one")
+            self._control.close()
+        self.connections += 1
+        self._control = ControlSession(self.robot, sink, self.clock, asyncio.get_running_loop(), self._count_malformed)
+        return self._control
 
-    def _flush_held(self, writer: ByteStream) -> None:
-        self._flush_handle = None
-        if self._held and not writer.is_closing():
-            writer.write(bytes(self._held))
-        self._held.clear()
+    def _close_control(self, session: ControlSession) -> None:
+        if self._control is session:
+            self._control = None
+        session.close()
+
+    def _count_malformed(self) -> None:
+        self.malformed_requests += 1
 
     # ------------------------------------------------------------------ log port
 
@@ -213,3 +179,36 @@ class SimServer:
         finally:
             self._log_streams.discard(writer)
             writer.close()
+
+
+class _ControlProtocol(asyncio.Protocol):
+    """A TCP control client, served by callbacks: each read goes straight to its :class:`ControlSession`."""
+
+    def __init__(self, server: SimServer) -> None:
+        self._server = server
+        self._session: ControlSession | None = None
+        self._transport: asyncio.Transport | None = None
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self._transport = transport = cast(asyncio.Transport, transport)  # uvloop's is no subclass of asyncio's, but is one
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._session = self._server._open_control(transport)
+
+    def data_received(self, data: bytes) -> None:
+        if self._session is not None:
+            self._session.feed(data)
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if self._session is not None:
+            self._server._close_control(self._session)
+
+    # a client that does not read its replies stops the robot reading its requests, as a full socket would
+    def pause_writing(self) -> None:
+        if self._transport is not None:
+            self._transport.pause_reading()
+
+    def resume_writing(self) -> None:
+        if self._transport is not None and not self._transport.is_closing():
+            self._transport.resume_reading()
