@@ -12,7 +12,8 @@ import asyncio
 import contextlib
 import os
 import socket
-from typing import Protocol
+from collections.abc import Callable, Coroutine
+from typing import Any, Protocol, cast
 
 #: send() flags for a write that must never block (and never raise SIGPIPE), where the platform has them.
 _SEND_NOW_FLAGS = getattr(socket, "MSG_DONTWAIT", 0) | getattr(socket, "MSG_NOSIGNAL", 0)
@@ -21,8 +22,14 @@ _SEND_NOW_FLAGS = getattr(socket, "MSG_DONTWAIT", 0) | getattr(socket, "MSG_NOSI
 class ByteStream(Protocol):
     """One side of a duplex byte stream."""
 
-    async def read(self, max_bytes: int) -> bytes:
-        """Up to ``max_bytes`` bytes; ``b""`` once the peer has closed."""
+    async def pump(self, deliver: Callable[[bytes], None]) -> None:
+        """Hand each chunk read to ``deliver``, on the loop, as it comes; return once the peer has closed.
+
+        Raises ConnectionError if the stream broke, and whatever ``deliver``
+        raised (the stream is closed then). Pushed rather than read: a TCP
+        stream calls ``deliver`` from the loop's own read callback, with no task
+        to wake per chunk (a fleet gateway reads 5 000 replies a second).
+        """
         ...
 
     def write(self, data: bytes) -> None:
@@ -56,10 +63,126 @@ class Connector(Protocol):
     def describe(self, port: str) -> str: ...
 
 
+#: Most bytes handed over at once: a robot flooding its socket gets the loop's timers and inputs run between chunks,
+#: so it cannot starve the e-stop, the brake or the polls (a loop reads up to 256 KiB in one go).
+CHUNK = 4096
+
+
+class _TcpProtocol(asyncio.Protocol):
+    """The loop's side of one TCP connection: what it reads goes to the pump's ``deliver``, or waits for the pump."""
+
+    def __init__(self) -> None:
+        self.transport: asyncio.Transport | None = None
+        self._deliver: Callable[[bytes], None] | None = None
+        self._early = bytearray()  # read before anyone pumped
+        #: The pump's end: None once the peer closed, the exception once the stream broke or ``deliver`` raised.
+        self._ended: asyncio.Future[None] | None = None
+        self._end: BaseException | None = None
+        self._over = False
+        self._paused = False
+        self._drainers: list[asyncio.Future[None]] = []
+
+    def connection_made(self, transport: asyncio.BaseTransport) -> None:
+        self.transport = cast(asyncio.Transport, transport)  # uvloop's is no subclass of asyncio's, but is one
+        sock = transport.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+
+    def data_received(self, data: bytes) -> None:
+        if self._deliver is None:
+            if not self._over:
+                self._early += data
+            return
+        if len(data) <= CHUNK:
+            self._give(data)
+            return
+        # a flood: CHUNK bytes at a time, the loop's timers and inputs between them, no more read meanwhile
+        assert self.transport is not None
+        self.transport.pause_reading()
+        self._give_from(memoryview(data), 0)
+
+    def _give_from(self, data: memoryview, start: int) -> None:
+        if self._deliver is None:
+            return  # the stream ended meanwhile
+        end = start + CHUNK
+        self._give(bytes(data[start:end]))
+        if end < len(data):
+            asyncio.get_running_loop().call_soon(self._give_from, data, end)
+        elif self.transport is not None and not self.transport.is_closing():
+            self.transport.resume_reading()
+
+    def _give(self, data: bytes) -> None:
+        deliver = self._deliver
+        if deliver is None:
+            return
+        try:
+            deliver(data)
+        except BaseException as exc:  # the pump raises it; nothing more is read
+            self._finish(exc)
+            if self.transport is not None:
+                self.transport.close()
+
+    def eof_received(self) -> bool:
+        self._finish(None)
+        return False  # close our side as well, as the robot's link is gone
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        self._finish(ConnectionResetError(str(exc) or type(exc).__name__) if exc is not None else None)
+        for waiter in self._drainers:
+            if not waiter.done():
+                waiter.set_exception(ConnectionResetError("connection lost"))
+        self._drainers.clear()
+
+    def pause_writing(self) -> None:
+        self._paused = True
+
+    def resume_writing(self) -> None:
+        self._paused = False
+        for waiter in self._drainers:
+            if not waiter.done():
+                waiter.set_result(None)
+        self._drainers.clear()
+
+    def _finish(self, end: BaseException | None) -> None:
+        if self._over:
+            return
+        self._over, self._end, self._deliver = True, end, None
+        if self._ended is not None and not self._ended.done():
+            if end is None:
+                self._ended.set_result(None)
+            else:
+                self._ended.set_exception(end)
+
+    async def pump(self, deliver: Callable[[bytes], None]) -> None:
+        if self._deliver is not None or self._ended is not None:
+            raise RuntimeError("a stream is pumped once")
+        self._ended = asyncio.get_running_loop().create_future()
+        if self._early:
+            early = bytes(self._early)
+            self._early.clear()
+            deliver(early)
+        if self._over:
+            self._ended.cancel()
+            if self._end is not None:
+                raise self._end
+            return
+        self._deliver = deliver
+        await self._ended
+
+    async def drain(self) -> None:
+        if self._over and self.transport is not None and self.transport.is_closing():
+            raise ConnectionResetError("connection lost")
+        if not self._paused:
+            return
+        waiter = asyncio.get_running_loop().create_future()
+        self._drainers.append(waiter)
+        await waiter
+
+
 class TcpStream:
     """A ByteStream over an asyncio TCP connection (Nagle off: commands leave at once)."""
 
-    def __init__(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, *, write_now: bool = False) -> None:
+    def __init__(self, transport: asyncio.Transport, protocol: _TcpProtocol, *, write_now: bool = False) -> None:
         """``write_now``: keep a duplicate of the socket so :meth:`write_now` can send from another thread.
 
         It is made here, on the loop, while the descriptor is surely this
@@ -67,23 +190,27 @@ class TcpStream:
         link), and a number it freed could name another socket by the time
         another thread looked. Only :meth:`close` closes the duplicate.
         """
-        self._reader = reader
-        self._writer = writer
-        sock = writer.get_extra_info("socket")
-        if sock is not None:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._transport = transport
+        self._protocol = protocol
+        sock = transport.get_extra_info("socket")
         self._own: socket.socket | None = None
         if write_now and sock is not None and hasattr(socket, "MSG_DONTWAIT"):
             self._own = socket.socket(fileno=os.dup(sock.fileno()))
 
-    async def read(self, max_bytes: int) -> bytes:
-        return await self._reader.read(max_bytes)
+    @classmethod
+    async def connect(cls, host: str, port: int, *, write_now: bool = False) -> TcpStream:
+        """Connect to ``host:port`` (raises OSError as the loop does)."""
+        transport, protocol = await asyncio.get_running_loop().create_connection(_TcpProtocol, host, port)
+        return cls(transport, protocol, write_now=write_now)
+
+    async def pump(self, deliver: Callable[[bytes], None]) -> None:
+        await self._protocol.pump(deliver)
 
     def write(self, data: bytes) -> None:
-        self._writer.write(data)
+        self._transport.write(data)
 
     def write_now(self, data: bytes) -> int:
-        transport = self._writer.transport
+        transport = self._transport
         own = self._own
         if own is None or transport.is_closing() or transport.get_write_buffer_size():
             return 0  # queued bytes go first, and only the loop sends those
@@ -93,17 +220,32 @@ class TcpStream:
             return 0
 
     async def drain(self) -> None:
-        await self._writer.drain()
+        await self._protocol.drain()
 
     def close(self) -> None:
-        self._writer.close()
+        self._transport.close()
         if self._own is not None:
             with contextlib.suppress(OSError):
                 self._own.close()
             self._own = None
 
     def is_closing(self) -> bool:
-        return self._writer.is_closing()
+        return self._transport.is_closing()
+
+
+async def serve_tcp(host: str, port: int, serve: Callable[[TcpStream], Coroutine[Any, Any, None]]) -> asyncio.Server:
+    """Listen on ``host:port``; each client is served by a task running ``serve(stream)`` (raises OSError as the loop does)."""
+    loop = asyncio.get_running_loop()
+    serving: set[asyncio.Task[None]] = set()
+
+    class _Served(_TcpProtocol):
+        def connection_made(self, transport: asyncio.BaseTransport) -> None:
+            super().connection_made(transport)
+            task = loop.create_task(serve(TcpStream(cast(asyncio.Transport, transport), self)))
+            serving.add(task)
+            task.add_done_callback(serving.discard)
+
+    return await loop.create_server(_Served, host, port)
 
 
 class TcpConnector:
@@ -117,14 +259,14 @@ class TcpConnector:
     async def open(self, port: str) -> ByteStream:
         """Connect, or raise OSError/TimeoutError whose text names the reason (never empty)."""
         try:
-            reader, writer = await asyncio.wait_for(asyncio.open_connection(self.host, self.ports[port]), self.timeout)
+            stream = await asyncio.wait_for(TcpStream.connect(self.host, self.ports[port], write_now=True), self.timeout)
         except TimeoutError:
             raise TimeoutError(f"no answer within {self.timeout:g} s (is the robot on, and is {self.host} its address?)") from None
         except ConnectionRefusedError:
             raise ConnectionRefusedError(f"connection refused (nothing listens on port {self.ports[port]})") from None
         except OSError as exc:
             raise OSError(exc.errno, exc.strerror or str(exc) or type(exc).__name__) from None
-        return TcpStream(reader, writer, write_now=True)
+        return stream
 
     def describe(self, port: str) -> str:
         return f"{self.host}:{self.ports[port]}"
@@ -148,13 +290,21 @@ class MemoryStream:
         self._eof = True
         self._readable.set()
 
-    async def read(self, max_bytes: int) -> bytes:
-        while not self._buffer and not self._eof:
-            self._readable.clear()
-            await self._readable.wait()
-        data = bytes(self._buffer[:max_bytes])
-        del self._buffer[:max_bytes]
-        return data
+    async def pump(self, deliver: Callable[[bytes], None]) -> None:
+        while True:
+            while not self._buffer and not self._eof:
+                self._readable.clear()
+                await self._readable.wait()
+            if not self._buffer:
+                return
+            data = bytes(self._buffer)
+            self._buffer.clear()
+            try:
+                deliver(data)
+            except BaseException:
+                self.close()
+                raise
+            await asyncio.sleep(0)  # the other side's turn, as a socket's round trip would give it
 
     def write(self, data: bytes) -> None:
         if not self._closed and self.peer is not None:

@@ -40,10 +40,6 @@ from .settings import GatewaySettings
 
 log = logging.getLogger("blackmetal.gateway")
 
-#: Largest read from a robot socket at once; after each read the loop runs its timers and inputs,
-#: so a robot flooding a socket cannot starve the e-stop, the brake or the polls.
-READ_SIZE = 4096
-
 
 class GatewayOutput(Protocol):
     """Where the gateway's messages go."""
@@ -309,19 +305,15 @@ class GatewayHost:
                 self._flush()
             self.publish()
             reason = "closed by the robot"
+
+            def deliver(data: bytes, name: LinkName = name) -> None:
+                with lock:
+                    core.receive(name, data, self.clock())
+                    self._flush()
+                self.publish()
+
             try:
-                while True:
-                    data = await stream.read(READ_SIZE)
-                    if not data:
-                        break
-                    with lock:
-                        core.receive(name, data, self.clock())
-                        self._flush()
-                    self.publish()
-                    if len(data) >= READ_SIZE:
-                        # more may be buffered, and a read returns at once while it is: let the loop breathe (a
-                        # shorter read took all there was, so the next read waits, and yields, by itself)
-                        await asyncio.sleep(0)
+                await stream.pump(deliver)  # a bug in the core raises here, and the link's task fails with it
             except (ConnectionError, OSError) as exc:
                 reason = f"connection error: {exc}"
             finally:

@@ -202,8 +202,7 @@ def test_a_tcp_stream_writes_now_from_another_thread_and_its_close_ends_the_link
         port = server.getsockname()[1]
 
         async def connect() -> TcpStream:
-            reader, writer = await asyncio.open_connection("127.0.0.1", port)
-            return TcpStream(reader, writer, write_now=True)
+            return await TcpStream.connect("127.0.0.1", port, write_now=True)
 
         stream = loop_thread.run(connect())
         peer, _ = server.accept()
@@ -221,8 +220,7 @@ def test_a_tcp_stream_sends_nothing_now_while_the_loop_has_bytes_queued(loop_thr
         port = server.getsockname()[1]
 
         async def connect_and_fill() -> TcpStream:
-            reader, writer = await asyncio.open_connection("127.0.0.1", port)
-            stream = TcpStream(reader, writer, write_now=True)
+            stream = await TcpStream.connect("127.0.0.1", port, write_now=True)
             stream.write(b"x" * 20_000_000)  # far more than the socket buffers: the rest waits in the loop's queue
             return stream
 

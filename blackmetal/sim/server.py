@@ -20,7 +20,7 @@ from typing import cast
 
 from blackmetal import robot_model as model
 from blackmetal import wire
-from blackmetal.transport import ByteStream, TcpStream
+from blackmetal.transport import ByteStream, serve_tcp
 
 from .control import ControlSession, ReplySink
 from .physics import SimRobot
@@ -61,9 +61,7 @@ class SimServer:
         loop = asyncio.get_running_loop()
         control = await self._listen("control", lambda: loop.create_server(lambda: _ControlProtocol(self), self.host, self.control_port))
         try:
-            logs = await self._listen(
-                "log", lambda: asyncio.start_server(lambda r, w: self.serve_log(TcpStream(r, w)), self.host, self.log_port)
-            )
+            logs = await self._listen("log", lambda: serve_tcp(self.host, self.log_port, self.serve_log))
         except OSError:
             control.close()
             raise
@@ -131,12 +129,7 @@ class SimServer:
         self._track()
         session = self._open_control(stream)
         try:
-            while not session.closed:
-                data = await stream.read(4096)
-                if not data:
-                    break
-                session.feed(data)
-                await asyncio.sleep(0)  # the other side's turn, as a socket's round trip would give it
+            await stream.pump(session.feed)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass  # a handler ends quietly; the server logs nothing for a closed client
         finally:
