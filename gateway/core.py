@@ -145,7 +145,10 @@ class GatewayCore:
         if self._health_due is not None:
             self._events.append(self.health(self._health_due))
             self._health_due = None
-        events, self._events[:] = list(self._events), []
+        if not self._events:
+            return []
+        events = self._events.copy()  # the same list stays: the reporter appends to it
+        self._events.clear()
         return events
 
     def next_deadline(self) -> float:

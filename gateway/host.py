@@ -232,21 +232,27 @@ class GatewayHost:
         return self.direct.before(data) if name == "control" else data
 
     def _flush(self) -> None:
-        """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`."""
+        """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`.
+
+        Only the control link is ever written to (the log link is read-only). This runs twice per poll per robot.
+        """
         core = self.core
-        for name, stream in self._streams.items():
-            data = self._pending(name)
-            if data and stream is not None and not stream.is_closing():
+        data = self._pending("control")
+        if data:
+            stream = self._streams["control"]
+            if stream is not None and not stream.is_closing():
                 stream.write(data)
-        for event in core.take_events():
-            if isinstance(event, DropLink):
-                stream = self._streams[event.link]
-                if stream is not None and not stream.is_closing():
-                    log.warning("%s link: dropping connection: %s", event.link, event.reason)
-                    self._drop_reason[event.link] = event.reason
-                    stream.close()
-            else:
-                self._outbox.append(event)
+        events = core.take_events()
+        if events:
+            for event in events:
+                if isinstance(event, DropLink):
+                    stream = self._streams[event.link]
+                    if stream is not None and not stream.is_closing():
+                        log.warning("%s link: dropping connection: %s", event.link, event.reason)
+                        self._drop_reason[event.link] = event.reason
+                        stream.close()
+                else:
+                    self._outbox.append(event)
         self._timer.poke()
 
     def publish(self) -> None:
@@ -255,7 +261,7 @@ class GatewayHost:
         Called while the loop still holds the lock (an input handled inside a
         drain), it leaves them for the outermost holder, which calls it again.
         """
-        if self.lock.held() or not self._outbox:
+        if not self._outbox or self.lock.held():
             return
         events, self._outbox = self._outbox, []
         output = self.output

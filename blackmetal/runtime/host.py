@@ -60,12 +60,18 @@ class CoreLock:
             self._owner = 0
         self._lock.release()
 
+    # acquire and release written out again: the loop enters this lock twice per poll per robot
     def __enter__(self) -> CoreLock:
-        self.acquire()
+        self._lock.acquire()
+        self._owner = threading.get_ident()
+        self._depth += 1
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self.release()
+        self._depth -= 1
+        if self._depth == 0:
+            self._owner = 0
+        self._lock.release()
 
     def held(self) -> bool:
         """Whether the calling thread holds it."""
