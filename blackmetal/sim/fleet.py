@@ -78,8 +78,6 @@ async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio
                 for m in members:
                     if m.edge is not None:
                         m.edge.tick()  # type: ignore[attr-defined]
-                    else:
-                        m.sim.advance(m.server.clock())
                 next_tick += period
                 delay = next_tick - time.monotonic()
                 if delay < -period:

@@ -52,9 +52,7 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
         try:
             while not stop.is_set():
                 if edge is not None:
-                    edge.tick()  # the truth, and error summaries when due
-                else:
-                    robot.advance(server.clock())
+                    edge.tick()  # the truth while watched, and error summaries when due
                 next_tick += period
                 delay = next_tick - time.monotonic()
                 if delay < -period:  # fell behind (loaded machine): do not burst to catch up

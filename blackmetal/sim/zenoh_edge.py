@@ -80,8 +80,7 @@ class SimZenoh(ZenohEdge):
         now = self.clock()
         if self.watched:
             self._truth.put(self._truth_payload(now))
-        else:
-            self.robot.advance(now)  # the physics steps at the same rate either way
+        # else the physics waits: every request and every look at the truth first brings it up to its own time
         self.reporter.tick(now)
 
     def _truth_payload(self, now: float) -> bytes:
