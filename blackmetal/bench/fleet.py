@@ -41,6 +41,9 @@ from .peers import EXPRESS, _zenoh_conf, free_port
 #: Every fleet robot's poll rate (Hz): the issue's figure.
 POLL_HZ = 50.0
 PROBE = "probe"
+#: The views count as started once both together use at most this much in a second (cores), or after SETTLE_MAX_S.
+SETTLED_CORES = 0.05
+SETTLE_MAX_S = 20.0
 
 
 def _window(pids: dict[str, int], seconds: float) -> dict[str, float]:
@@ -176,7 +179,11 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     processes["ros2"] = _service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
     processes["foxglove"] = _service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
     pids = {name: child.proc.pid for name, child in processes.items()}
-    time.sleep(2.0)
+    views = {name: pids[name] for name in ("ros2", "foxglove")}
+    # idle means after the start: a view still declaring a few hundred robots on a saturated host is starting, not idle
+    settle_until = time.monotonic() + SETTLE_MAX_S
+    while sum(_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
+        pass
     idle = _window(pids, seconds)
     watcher = _FoxgloveWatcher(stack, processes["foxglove"].ready_info["url"], robots)
     odoms = [0]
