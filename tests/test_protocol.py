@@ -293,3 +293,15 @@ def test_the_reply_fast_paths_read_what_the_field_parser_reads(frame: bytes) -> 
 
     assert repr(parse_reply(frame)) == repr(_parse_reply(frame))
     assert repr(parse_reply(frame)) == repr(_parse_reply(frame))  # a second time: from the status cache
+
+
+@pytest.mark.parametrize("code", list(CommandCode))
+def test_a_known_request_frame_reads_as_the_parser_reads_it(code: CommandCode) -> None:
+    from blackmetal.wire import _parse_request, parse_request
+
+    request = wire.set_velocity(left=0.1, right=-0.2) if code is CommandCode.SET_LR_WHEEL_VELOCITY else wire.simple(code)
+    if code is CommandCode.SET_LR_WHEEL_POSITION:
+        request = wire.set_position(left=5, right=-7)
+    frame = encode_request(request)
+    assert parse_request(frame) == _parse_request(frame) == request
+    assert parse_request(frame[:-1] + b" }") == _parse_request(frame[:-1] + b" }") == request  # not the known bytes: parsed
