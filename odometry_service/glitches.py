@@ -41,6 +41,10 @@ class Update:
     revise_right: float | None
 
 
+#: What a sample of two standing wheels gives (nothing to integrate, nothing to revise).
+_STANDING = Update(0.0, 0.0, 0.0, 0.0, None, None)
+
+
 class Glitches:
     """Spike, dropout and stop rules for both wheels, with the low-pass; sample by sample.
 
@@ -76,7 +80,44 @@ class Glitches:
         return max(-self.limit, min(self.limit, value))
 
     def update(self, raw_left: float, raw_right: float) -> Update:
-        """One reading of both wheels in; speeds to integrate, filtered speeds, revisions out."""
+        """One reading of both wheels in; speeds to integrate, filtered speeds, revisions out.
+
+        The two cases a fleet's odometry meets nearly always, both wheels turning or both standing with
+        nothing to settle, are written out; they do what :meth:`_update` does (a property test holds them
+        equal), with no rule left to apply.
+        """
+        left, right, limit = self.left, self.right, self.limit
+        if raw_left == 0.0 and raw_right == 0.0 and left.zero_run == 2 and right.zero_run == 2:
+            for state, raw, raw_other in ((left, raw_left, raw_right), (right, raw_right, raw_left)):
+                if state.raw_prev == 0.0:
+                    state.anchor, state.anchor_other, state.anchor_other_ok = raw, raw_other, True
+                state.raw_prev = raw
+                state.prev2, state.prev = state.prev, raw
+                state.y = 0.0
+            self.started2, self.started = self.started, True
+            return _STANDING
+        if (
+            left.zero_run == 0
+            and right.zero_run == 0
+            and raw_left != 0.0
+            and raw_right != 0.0
+            and -limit <= raw_left <= limit
+            and -limit <= raw_right <= limit
+        ):
+            alpha = self.alpha
+            left.y = alpha * left.y + (1.0 - alpha) * raw_left
+            right.y = alpha * right.y + (1.0 - alpha) * raw_right
+            left.anchor, left.anchor_other, left.anchor_other_ok = raw_left, raw_right, True
+            right.anchor, right.anchor_other, right.anchor_other_ok = raw_right, raw_left, True
+            left.raw_prev, right.raw_prev = raw_left, raw_right
+            left.prev2, left.prev = left.prev, raw_left
+            right.prev2, right.prev = right.prev, raw_right
+            self.started2, self.started = self.started, True
+            return Update(raw_left, raw_right, left.y, right.y, None, None)
+        return self._update(raw_left, raw_right)
+
+    def _update(self, raw_left: float, raw_right: float) -> Update:
+        """:meth:`update`, every rule applied in turn (the reference its written-out cases are tested against)."""
         wheels = (self.left, self.right)
         raws = (raw_left, raw_right)
         valid = (abs(raw_left) <= self.limit, abs(raw_right) <= self.limit)

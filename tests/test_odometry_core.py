@@ -360,3 +360,19 @@ def test_stop_and_go_legs_are_exact() -> None:
     exact = exact_pose(legs)
     assert math.hypot(result.x[-1] - exact[0], result.y[-1] - exact[1]) < 2e-3
     assert abs(result.yaw[-1] - exact[2]) < 5e-3
+
+
+_reading = st.sampled_from([0.0, -0.0, 0.3, -0.3, 0.31, 1.2, -1.2, 9.0, -9.0, math.inf, math.nan]) | st.floats(-3.0, 3.0)
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(st.tuples(_reading, _reading), max_size=40), st.floats(0.0, 0.95))
+def test_the_written_out_glitch_cases_do_what_every_rule_does(readings: list[tuple[float, float]], alpha: float) -> None:
+    fast, reference = Glitches(alpha, 2.0), Glitches(alpha, 2.0)
+
+    def state(g: Glitches) -> str:
+        return repr((g.left, g.right, g.spikes, g.dropouts, g.started, g.started2))
+
+    for left, right in readings:
+        assert repr(fast.update(left, right)) == repr(reference._update(left, right))
+        assert state(fast) == state(reference)
