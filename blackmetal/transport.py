@@ -66,6 +66,8 @@ class Connector(Protocol):
 #: Most bytes handed over at once: a robot flooding its socket gets the loop's timers and inputs run between chunks,
 #: so it cannot starve the e-stop, the brake or the polls (a loop reads up to 256 KiB in one go).
 CHUNK = 4096
+#: Bytes kept while nobody pumps yet; beyond them the socket is no longer read (the peer waits), as a stream reader's limit.
+EARLY_LIMIT = 64 * 1024
 
 
 class _TcpProtocol(asyncio.Protocol):
@@ -78,6 +80,7 @@ class _TcpProtocol(asyncio.Protocol):
         #: The pump's end: None once the peer closed, the exception once the stream broke or ``deliver`` raised.
         self._ended: asyncio.Future[None] | None = None
         self._end: BaseException | None = None
+        #: Nothing more is handed over: the stream ended, ``deliver`` raised, or the pump was cancelled.
         self._over = False
         self._paused = False
         self._drainers: list[asyncio.Future[None]] = []
@@ -89,10 +92,16 @@ class _TcpProtocol(asyncio.Protocol):
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
 
     def data_received(self, data: bytes) -> None:
-        if self._deliver is None:
-            if not self._over:
-                self._early += data
+        if self._over:
             return
+        if self._deliver is None:
+            self._early += data
+            if len(self._early) > EARLY_LIMIT and self.transport is not None:
+                self.transport.pause_reading()  # the pump's hand-over of these resumes it
+            return
+        self._hand_over(data)
+
+    def _hand_over(self, data: bytes) -> None:
         if len(data) <= CHUNK:
             self._give(data)
             return
@@ -154,20 +163,30 @@ class _TcpProtocol(asyncio.Protocol):
                 self._ended.set_exception(end)
 
     async def pump(self, deliver: Callable[[bytes], None]) -> None:
-        if self._deliver is not None or self._ended is not None:
+        if self._ended is not None:
             raise RuntimeError("a stream is pumped once")
         self._ended = asyncio.get_running_loop().create_future()
-        if self._early:
-            early = bytes(self._early)
-            self._early.clear()
-            deliver(early)
-        if self._over:
-            self._ended.cancel()
+        early = bytes(self._early)
+        self._early.clear()
+        if self._over:  # the stream ended before anyone pumped: what came before its end, then how it ended
+            try:
+                for start in range(0, len(early), CHUNK):
+                    deliver(early[start : start + CHUNK])
+            except BaseException:
+                if self.transport is not None:
+                    self.transport.close()
+                raise
             if self._end is not None:
                 raise self._end
             return
         self._deliver = deliver
-        await self._ended
+        if early:
+            self._hand_over(early)  # chunked (resuming a read paused at EARLY_LIMIT), and what deliver raises ends the pump
+        try:
+            await self._ended
+        finally:
+            if not self._over:  # cancelled: nothing is handed to anyone from now on
+                self._over, self._deliver = True, None
 
     async def drain(self) -> None:
         if self._over and self.transport is not None and self.transport.is_closing():

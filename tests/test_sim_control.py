@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import asyncio
 import time
+from collections.abc import Callable, Coroutine
+from typing import Any
 
 from blackmetal import wire
 from blackmetal.schemas import SimFaults
 from blackmetal.sim.control import GLUE_HOLD_S, ControlSession
 from blackmetal.sim.physics import SimRobot
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder, SpeedReading, StatusReply
+
+Runner = Callable[[Coroutine[Any, Any, None]], None]
 
 
 class Sink:
@@ -62,16 +66,16 @@ async def wait_until(condition: object, timeout: float = 10.0) -> None:
         await asyncio.sleep(0.005)
 
 
-def test_without_faults_every_reply_is_written_at_once() -> None:
+def test_without_faults_every_reply_is_written_at_once(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(), asyncio.get_running_loop())
         session.feed(requests(3))
         assert [type(r) for r in sink.replies()] == expected(3)  # written inside feed, no timer
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_delayed_and_split_replies_keep_their_order_and_their_delay() -> None:
+def test_delayed_and_split_replies_keep_their_order_and_their_delay(run_loop: Runner) -> None:
     async def main() -> None:
         loop = asyncio.get_running_loop()
         session, sink, _ = session_for(SimFaults(delay=0.05, split=1.0), loop)
@@ -83,10 +87,10 @@ def test_delayed_and_split_replies_keep_their_order_and_their_delay() -> None:
         assert min(at for at, _ in sink.writes) >= fed_at + 0.05
         assert len(sink.writes) > 15  # every reply went out in two parts
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_reply_without_delay_never_overtakes_a_delayed_one() -> None:
+def test_a_reply_without_delay_never_overtakes_a_delayed_one(run_loop: Runner) -> None:
     async def main() -> None:
         loop = asyncio.get_running_loop()
         session, sink, _ = session_for(SimFaults(delay=0.05), loop)
@@ -97,10 +101,10 @@ def test_a_reply_without_delay_never_overtakes_a_delayed_one() -> None:
         await wait_until(lambda: len(sink.replies()) == 4)
         assert [type(r) for r in sink.replies()] == [*expected(1), StatusReply]
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_glued_replies_come_together_or_after_the_hold() -> None:
+def test_glued_replies_come_together_or_after_the_hold(run_loop: Runner) -> None:
     async def main() -> None:
         loop = asyncio.get_running_loop()
         session, sink, _ = session_for(SimFaults(glue=1.0), loop)
@@ -111,28 +115,28 @@ def test_glued_replies_come_together_or_after_the_hold() -> None:
         assert len(sink.writes) == 1 and sink.writes[0][0] >= fed_at + GLUE_HOLD_S
         assert [type(r) for r in sink.replies()] == expected(2)
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_garbage_before_a_reply_is_skipped_by_the_client_and_loses_nothing() -> None:
+def test_garbage_before_a_reply_is_skipped_by_the_client_and_loses_nothing(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(garbage=1.0), asyncio.get_running_loop())
         session.feed(requests(4))
         assert [type(r) for r in sink.replies()] == expected(4)
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_dropped_connection_closes_the_sink_and_answers_nothing_more() -> None:
+def test_a_dropped_connection_closes_the_sink_and_answers_nothing_more(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(disconnect=1.0), asyncio.get_running_loop())
         session.feed(requests(2))
         assert sink.closed and sink.writes == [] and session.closed
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_closing_drops_what_waits_and_writes_nothing_later() -> None:
+def test_closing_drops_what_waits_and_writes_nothing_later(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(delay=0.02, glue=0.5), asyncio.get_running_loop())
         session.feed(requests(4))
@@ -140,23 +144,44 @@ def test_closing_drops_what_waits_and_writes_nothing_later() -> None:
         await asyncio.sleep(0.1)  # the timers that were set would have fired by now
         assert sink.writes == []  # Sink asserts on a write after close
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_silent_robot_acts_on_commands_but_answers_nothing() -> None:
+def test_a_silent_robot_acts_on_commands_but_answers_nothing(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(silent=True), asyncio.get_running_loop())
         session.feed(requests(1))
         assert sink.writes == [] and session.robot.target_left > 0
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_malformed_request_is_counted_and_the_next_one_answered() -> None:
+def test_a_malformed_request_is_counted_and_the_next_one_answered(run_loop: Runner) -> None:
     async def main() -> None:
         session, sink, malformed = session_for(SimFaults(), asyncio.get_running_loop())
         session.feed(b'{"command":"FLY"}' + wire.encode_request(wire.simple(CommandCode.NORMAL_STOP)))
         assert malformed == [1]
         assert [type(r) for r in sink.replies()] == [StatusReply]
 
-    asyncio.run(main())
+    run_loop(main())
+
+
+def test_a_delayed_reply_wakes_the_loop_about_once(run_loop: Runner) -> None:
+    async def main() -> None:
+        loop = asyncio.get_running_loop()
+        session, sink, _ = session_for(SimFaults(delay=0.0104, split=1.0), loop)
+        wakes = [0]
+        write_due = session._write_due
+
+        def counting() -> None:
+            wakes[0] += 1
+            write_due()
+
+        session._write_due = counting  # type: ignore[method-assign]
+        for _ in range(20):
+            session.feed(wire.encode_request(wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)))
+            await asyncio.sleep(0.005)
+        await wait_until(lambda: len(sink.replies()) == 40)
+        assert wakes[0] <= 4 * 40  # two parts a reply; a timer that woke early and was set again at once woke thousands
+
+    run_loop(main())

@@ -4,10 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import socket
+from collections.abc import Callable, Coroutine
+from typing import Any
 
 import pytest
 
 from blackmetal.transport import CHUNK, ByteStream, TcpStream, memory_pipe
+
+Runner = Callable[[Coroutine[Any, Any, None]], None]
 
 
 async def tcp_pair() -> tuple[ByteStream, socket.socket]:
@@ -37,7 +41,7 @@ async def wait_for(condition: object, timeout: float = 10.0) -> None:
     await asyncio.wait_for(until(), timeout)
 
 
-def test_tcp_bytes_reach_the_pump_in_order_and_the_peer_closing_ends_it() -> None:
+def test_tcp_bytes_reach_the_pump_in_order_and_the_peer_closing_ends_it(run_loop: Runner) -> None:
     async def main() -> None:
         stream, peer = await tcp_pair()
         loop = asyncio.get_running_loop()
@@ -52,10 +56,10 @@ def test_tcp_bytes_reach_the_pump_in_order_and_the_peer_closing_ends_it() -> Non
         await asyncio.wait_for(pumping, 10)  # returns: the robot closed
         stream.close()
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_flood_is_handed_over_in_chunks_with_the_loop_running_between_them() -> None:
+def test_a_flood_is_handed_over_in_chunks_with_the_loop_running_between_them(run_loop: Runner) -> None:
     async def main() -> None:
         stream, peer = await tcp_pair()
         loop = asyncio.get_running_loop()
@@ -85,10 +89,10 @@ def test_a_flood_is_handed_over_in_chunks_with_the_loop_running_between_them() -
         peer.close()
         await asyncio.wait_for(pumping, 10)
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_what_the_reader_raises_ends_the_pump_and_closes_the_link() -> None:
+def test_what_the_reader_raises_ends_the_pump_and_closes_the_link(run_loop: Runner) -> None:
     async def main() -> None:
         stream, peer = await tcp_pair()
         loop = asyncio.get_running_loop()
@@ -105,10 +109,10 @@ def test_what_the_reader_raises_ends_the_pump_and_closes_the_link() -> None:
         assert await asyncio.wait_for(loop.sock_recv(peer, 16), 10) == b""  # the robot sees the link end
         peer.close()
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_drain_waits_for_a_full_socket_and_raises_once_the_link_is_gone() -> None:
+def test_drain_waits_for_a_full_socket_and_raises_once_the_link_is_gone(run_loop: Runner) -> None:
     async def main() -> None:
         stream, peer = await tcp_pair()
         got: list[bytes] = []
@@ -124,10 +128,10 @@ def test_drain_waits_for_a_full_socket_and_raises_once_the_link_is_gone() -> Non
             await asyncio.wait_for(pumping, 10)
         stream.close()
 
-    asyncio.run(main())
+    run_loop(main())
 
 
-def test_a_memory_pipe_pumps_like_a_socket() -> None:
+def test_a_memory_pipe_pumps_like_a_socket(run_loop: Runner) -> None:
     async def main() -> None:
         ours, theirs = memory_pipe()
         got: list[bytes] = []
@@ -139,4 +143,84 @@ def test_a_memory_pipe_pumps_like_a_socket() -> None:
         await asyncio.wait_for(pumping, 10)
         assert ours.is_closing()
 
-    asyncio.run(main())
+    run_loop(main())
+
+
+def test_bytes_read_before_the_pump_are_handed_over_in_chunks_too(run_loop: Runner) -> None:
+    async def main() -> None:
+        stream, peer = await tcp_pair()
+        early = bytes(range(256)) * 800  # 200 KiB before anyone pumps (a robot that talks as soon as it is connected)
+        peer.setblocking(True)
+        peer.sendall(early)
+        await asyncio.sleep(0.2)
+        got: list[bytes] = []
+        pumping = await pump_into(stream, got)
+        await wait_for(lambda: sum(map(len, got)) == len(early))
+        assert b"".join(got) == early and max(map(len, got)) <= CHUNK
+        stream.close()
+        peer.close()
+        await asyncio.wait_for(pumping, 10)
+
+    run_loop(main())
+
+
+def test_what_the_reader_raises_on_early_bytes_ends_the_pump_and_closes_the_link(run_loop: Runner) -> None:
+    async def main() -> None:
+        stream, peer = await tcp_pair()
+        loop = asyncio.get_running_loop()
+        await loop.sock_sendall(peer, b"hello")
+        await asyncio.sleep(0.1)
+
+        def deliver(data: bytes) -> None:
+            raise ValueError("a bug in the reader")
+
+        with pytest.raises(ValueError, match="a bug"):
+            await asyncio.wait_for(stream.pump(deliver), 10)
+        assert stream.is_closing()
+        stream.close()
+        assert await asyncio.wait_for(loop.sock_recv(peer, 16), 10) == b""
+        peer.close()
+
+    run_loop(main())
+
+
+def test_a_peer_is_made_to_wait_while_nobody_pumps(run_loop: Runner) -> None:
+    async def main() -> None:
+        stream, peer = await tcp_pair()
+        block = b"z" * 65536
+        sent = 0
+        started = asyncio.get_running_loop().time()
+        while asyncio.get_running_loop().time() - started < 1.0 and sent < 200_000_000:
+            try:
+                sent += peer.send(block)
+            except BlockingIOError:
+                await asyncio.sleep(0.01)  # the loop reads (or not) meanwhile
+        assert sent < 50_000_000  # the socket buffers, and no more: reading paused once EARLY_LIMIT was held
+        got: list[bytes] = []
+        pumping = await pump_into(stream, got)  # then everything sent arrives
+        await wait_for(lambda: sum(map(len, got)) == sent)
+        stream.close()
+        peer.close()
+        await asyncio.wait_for(pumping, 10)
+
+    run_loop(main())
+
+
+def test_a_cancelled_pump_hands_nothing_more_to_its_reader(run_loop: Runner) -> None:
+    async def main() -> None:
+        stream, peer = await tcp_pair()
+        loop = asyncio.get_running_loop()
+        got: list[bytes] = []
+        pumping = await pump_into(stream, got)
+        await loop.sock_sendall(peer, b"before")
+        await wait_for(lambda: got == [b"before"])
+        pumping.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await pumping
+        await loop.sock_sendall(peer, b"after the cancel")
+        await asyncio.sleep(0.2)
+        assert got == [b"before"]
+        stream.close()
+        peer.close()
+
+    run_loop(main())

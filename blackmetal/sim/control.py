@@ -27,6 +27,9 @@ log = logging.getLogger("blackmetal.sim")
 GLUE_HOLD_S = 0.05
 #: How long the second part of a split reply follows the first (s).
 SPLIT_GAP_S = 0.002
+#: A timer is set this much after the reply's time: uvloop rounds timers to whole milliseconds and may wake a little
+#: early, and a wake before the time would only set the timer again, at once, until the clock caught up.
+TIMER_SLACK_S = 0.001
 
 
 class ReplySink(Protocol):
@@ -136,7 +139,7 @@ class ControlSession:
             return
         self._later.append((at, data))
         if self._later_timer is None:
-            self._later_timer = self._loop.call_at(self._later[0][0], self._write_due)
+            self._later_timer = self._loop.call_at(self._later[0][0] + TIMER_SLACK_S, self._write_due)
 
     def _write_due(self) -> None:
         self._later_timer = None
@@ -147,4 +150,4 @@ class ControlSession:
             if not self.sink.is_closing():
                 self.sink.write(data)
         if later:
-            self._later_timer = self._loop.call_at(later[0][0], self._write_due)
+            self._later_timer = self._loop.call_at(later[0][0] + TIMER_SLACK_S, self._write_due)
