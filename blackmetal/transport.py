@@ -242,7 +242,12 @@ class TcpStream:
         await self._protocol.drain()
 
     def close(self) -> None:
-        self._transport.close()
+        """Close the link now. Bytes the peer has not taken yet are dropped (a reset): a robot that stopped reading
+        would otherwise hold the closing link, and the gateway's reconnect, until TCP gave up, minutes later."""
+        if self._transport.get_write_buffer_size():
+            self._transport.abort()
+        else:
+            self._transport.close()
         if self._own is not None:
             with contextlib.suppress(OSError):
                 self._own.close()

@@ -224,3 +224,17 @@ def test_a_cancelled_pump_hands_nothing_more_to_its_reader(run_loop: Runner) -> 
         peer.close()
 
     run_loop(main())
+
+
+def test_closing_a_link_the_peer_stopped_reading_ends_it_at_once(run_loop: Runner) -> None:
+    async def main() -> None:
+        stream, peer = await tcp_pair()
+        got: list[bytes] = []
+        pumping = await pump_into(stream, got)
+        stream.write(b"w" * 20_000_000)  # the robot reads none of it
+        await asyncio.sleep(0.1)
+        stream.close()
+        await asyncio.wait_for(asyncio.shield(pumping), 5)  # not when TCP gives up, minutes later
+        peer.close()
+
+    run_loop(main())
