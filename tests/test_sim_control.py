@@ -185,3 +185,13 @@ def test_a_delayed_reply_wakes_the_loop_about_once(run_loop: Runner) -> None:
         assert wakes[0] <= 4 * 40  # two parts a reply; a timer that woke early and was set again at once woke thousands
 
     run_loop(main())
+
+
+def test_requests_read_before_a_drop_never_reach_the_robot(run_loop: Runner) -> None:
+    async def main() -> None:
+        session, sink, _ = session_for(SimFaults(), asyncio.get_running_loop())
+        session.close()  # a new client took over; a memory pipe still hands over what it had buffered
+        session.feed(wire.encode_request(wire.set_velocity(left=0.3, right=0.3)))
+        assert sink.writes == [] and session.robot.target_left == 0.0
+
+    run_loop(main())

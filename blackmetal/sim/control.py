@@ -74,6 +74,8 @@ class ControlSession:
         """Bytes from the client: every whole request handled, its replies written or scheduled."""
         robot = self.robot
         for item in self._decoder.feed(data):
+            if self.sink.is_closing():
+                return  # a dropped client's requests, read before the drop, never reach the robot
             if isinstance(item, Malformed):
                 self._on_malformed()
                 log.warning("ignoring malformed request: %s", item.reason)
@@ -84,7 +86,7 @@ class ControlSession:
                 self.close()
                 return
             replies = robot.handle(item, self.clock())
-            if faults.silent or self.sink.is_closing():
+            if faults.silent:
                 continue
             if len(replies) == 1:
                 self._reply(replies[0])
