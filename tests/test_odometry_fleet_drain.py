@@ -9,7 +9,7 @@ import time
 import pytest
 import zenoh
 
-from blackmetal.odometry_service.fleet import Member, fleet_settings
+from blackmetal.odometry_service.fleet import Member, _drain, fleet_settings
 from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import Pose, WheelImpulses, decode, encode
@@ -100,3 +100,56 @@ def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Se
         member.close()
 
     asyncio.run(scenario())
+
+
+def test_the_fleet_drain_takes_every_robots_samples_and_outlives_a_failing_robot(session: zenoh.Session) -> None:
+    fleet = robots()
+    members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
+    poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
+    subscribers = [
+        session.declare_subscriber(
+            f"fleet/{name}/pose", lambda sample, name=name: poses[name].append(decode(Pose, sample.payload.to_bytes()))
+        )
+        for name in poses
+    ]
+
+    async def until(condition: object, what: str) -> None:
+        for _ in range(250):
+            if condition():  # type: ignore[operator]
+                return
+            await asyncio.sleep(0.02)
+        raise AssertionError(f"timed out waiting for {what}: {[len(p) for p in poses.values()]}")
+
+    async def scenario() -> None:
+        stop = asyncio.Event()
+        for member in members:
+            member.start()
+        runs = [asyncio.ensure_future(member.run(stop)) for member in members]
+        draining = asyncio.ensure_future(_drain(members, stop))
+        for seq in range(1, 4):
+            for name in poses:
+                session.put(f"fleet/{name}/wheels/impulses", impulses(seq, 10 * seq))
+        await until(lambda: [len(p) for p in poses.values()] == [3, 3], "three poses of each robot")
+
+        def broken(payload: bytes) -> None:
+            raise RuntimeError("a bug in r1's handling")
+
+        assert members[0].host is not None
+        members[0].host.on_impulses = broken  # type: ignore[method-assign]
+        for seq in range(4, 6):
+            for name in poses:
+                session.put(f"fleet/{name}/wheels/impulses", impulses(seq, 10 * seq))
+        with pytest.raises(RuntimeError, match="r1's handling"):
+            await asyncio.wait_for(runs[0], 5)
+        await until(lambda: len(poses["r2"]) == 5, "r2's poses after r1 failed")
+        assert not draining.done() and not runs[1].done()
+        stop.set()
+        await asyncio.wait_for(asyncio.gather(draining, runs[1]), 5)
+        for member in members:
+            member.close()
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
