@@ -203,7 +203,7 @@ class GatewayHost:
         if not self.direct.allowed():
             return False
         self.core.on_cmd_vel(item[1], self.clock(), item[0])
-        self.direct.send(self._pending("control"), self._flush_locked)
+        self.direct.send(self._pending(), self._flush_locked)
         return True
 
     def estop_direct(self, item: tuple[bool, bytes]) -> bool:
@@ -211,7 +211,7 @@ class GatewayHost:
         if not self.direct.allowed():
             return False
         self.core.on_estop(item[1], self.clock(), item[0])
-        self.direct.send(self._pending("control"), self._flush_locked)
+        self.direct.send(self._pending(), self._flush_locked)
         return True
 
     def _flush_locked(self) -> None:
@@ -226,18 +226,18 @@ class GatewayHost:
 
     # ------------------------------------------------------------------ moving bytes
 
-    def _pending(self, name: LinkName) -> bytes:
-        """Under the lock: what link ``name`` is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes)."""
-        data = self.core.take_outgoing(name)
-        return self.direct.before(data) if name == "control" else data
+    def _pending(self) -> bytes:
+        """Under the lock: what the control link is to be sent, oldest first (a direct take's unsent rest, then the core's
+        new bytes). Only the control link is ever written to: the log link is read-only."""
+        return self.direct.before(self.core.take_outgoing("control"))
 
     def _flush(self) -> None:
         """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`.
 
-        Only the control link is ever written to (the log link is read-only). This runs twice per poll per robot.
+        This runs twice per poll per robot.
         """
         core = self.core
-        data = self._pending("control")
+        data = self._pending()
         if data:
             stream = self._streams["control"]
             if stream is not None and not stream.is_closing():

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import time
+from typing import Any
 
 import pytest
 import zenoh
@@ -22,11 +23,8 @@ def robots() -> list[FleetRobot]:
 START = time.time()
 
 
-def impulses(seq: int, left: int) -> bytes:
-    return encode(WheelImpulses(seq=seq, stamp=START + 0.02 * seq, left=left, right=left, mono=0.02 * seq, source="gw-test"))
-
-
-def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alone(session: zenoh.Session) -> None:
+def two_robots_posing(session: zenoh.Session) -> tuple[list[Member], dict[str, list[Pose]], list[Any]]:
+    """r1 and r2's odometry members (not started), the poses each publishes, and the subscribers that collect them."""
     fleet = robots()
     members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
     poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
@@ -36,6 +34,15 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
         )
         for name in poses
     ]
+    return members, poses, subscribers
+
+
+def impulses(seq: int, left: int) -> bytes:
+    return encode(WheelImpulses(seq=seq, stamp=START + 0.02 * seq, left=left, right=left, mono=0.02 * seq, source="gw-test"))
+
+
+def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alone(session: zenoh.Session) -> None:
+    members, poses, subscribers = two_robots_posing(session)
 
     async def scenario() -> None:
         stop = asyncio.Event()
@@ -103,15 +110,7 @@ def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Se
 
 
 def test_the_fleet_drain_takes_every_robots_samples_and_outlives_a_failing_robot(session: zenoh.Session) -> None:
-    fleet = robots()
-    members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
-    poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
-    subscribers = [
-        session.declare_subscriber(
-            f"fleet/{name}/pose", lambda sample, name=name: poses[name].append(decode(Pose, sample.payload.to_bytes()))
-        )
-        for name in poses
-    ]
+    members, poses, subscribers = two_robots_posing(session)
 
     async def until(condition: object, what: str) -> None:
         for _ in range(250):

@@ -88,10 +88,7 @@ class ControlSession:
             replies = robot.handle(item, self.clock())
             if faults.silent:
                 continue
-            if len(replies) == 1:
-                self._reply(replies[0])
-            else:
-                self._reply(b"".join(replies))
+            self._reply(b"".join(replies))
 
     def close(self) -> None:
         """Close the connection; replies still held or delayed are dropped with it, as a reset link drops them."""

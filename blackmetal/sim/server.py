@@ -13,14 +13,12 @@ from __future__ import annotations
 import asyncio
 import errno
 import logging
-import socket
 import time
 from collections.abc import Awaitable, Callable
-from typing import cast
 
 from blackmetal import robot_model as model
 from blackmetal import wire
-from blackmetal.transport import ByteStream, serve_tcp
+from blackmetal.transport import ByteStream, nodelay, serve_tcp
 
 from .control import ControlSession, ReplySink
 from .physics import SimRobot
@@ -130,7 +128,7 @@ class SimServer:
         session = self._open_control(stream)
         try:
             await stream.pump(session.feed)
-        except (ConnectionError, asyncio.IncompleteReadError):
+        except ConnectionError:
             pass  # a handler ends quietly; the server logs nothing for a closed client
         finally:
             self._close_control(session)
@@ -183,11 +181,8 @@ class _ControlProtocol(asyncio.Protocol):
         self._transport: asyncio.Transport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self._transport = transport = cast(asyncio.Transport, transport)  # uvloop's is no subclass of asyncio's, but is one
-        sock = transport.get_extra_info("socket")
-        if sock is not None:
-            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-        self._session = self._server._open_control(transport)
+        self._transport = nodelay(transport)
+        self._session = self._server._open_control(self._transport)
 
     def data_received(self, data: bytes) -> None:
         if self._session is not None:
