@@ -16,6 +16,7 @@ import logging
 import time
 from dataclasses import dataclass
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import freeze_start_up
 from blackmetal.runtime.fleet import FleetRobot, supervise
@@ -48,13 +49,15 @@ class Member:
     robot: FleetRobot
     settings: GatewaySettings
     session: object
+    #: The fleet's impulses, put back to back at the end of each turn of the loop (one for every member).
+    burst: PutBurst
     host: GatewayHost | None = None
     edge: GatewayZenoh | None = None
     restarts: int = 0
 
     def start(self) -> Member:
         s = self.settings
-        self.edge = GatewayZenoh(self.session, Keys(s.prefix), batched=True)  # type: ignore[arg-type]
+        self.edge = GatewayZenoh(self.session, Keys(s.prefix), burst=self.burst)  # type: ignore[arg-type]
         self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge)
         self.edge.attach(self.host, asyncio.get_running_loop())
         return self
@@ -82,7 +85,8 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
 
     with await open_service_session(base.zenoh, stop, "gateway") as session:
         settings = fleet_settings(base, robots)
-        members = [Member(robot, s, session) for robot, s in zip(robots, settings, strict=True)]
+        burst = PutBurst()
+        members = [Member(robot, s, session, burst) for robot, s in zip(robots, settings, strict=True)]
         by_prefix = {robot.prefix: robot.describe() for robot in robots}
         refuse_taken(session, "gateway", list(by_prefix), describe=by_prefix.__getitem__)
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"gateway {m.robot.id}") for m in members]
@@ -97,4 +101,7 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
         announce_ready(
             "gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout, poll_hz=base.poll_hz
         )
-        await asyncio.gather(*tasks)
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            burst.flush()  # what the last turn held, while the session is still open

@@ -14,6 +14,7 @@ import logging
 import time
 from dataclasses import dataclass
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.fleet import FleetRobot, supervise
 from blackmetal.schemas import ErrorReport, Keys
@@ -42,6 +43,8 @@ class Member:
     robot: FleetRobot
     settings: OdometrySettings
     session: object
+    #: The fleet's poses, put back to back at the end of each turn of the loop (one for every member).
+    burst: PutBurst
     edge: OdometryZenoh | None = None
     host: OdometryHost | None = None
     #: Set with the exception a drain of this robot's samples raised: :meth:`run` raises it, for the supervisor.
@@ -50,7 +53,7 @@ class Member:
     def start(self) -> Member:
         keys = Keys(self.settings.prefix)
         loop = asyncio.get_running_loop()
-        self.edge = OdometryZenoh(self.session, keys, batched=True)  # type: ignore[arg-type]
+        self.edge = OdometryZenoh(self.session, keys, burst=self.burst)  # type: ignore[arg-type]
         self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
         self.edge.attach(self.host, loop, ring=True)  # queries and resets through its intake, impulses from its ring
         self.failure = loop.create_future()
@@ -102,12 +105,16 @@ async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: as
         by_prefix = {robot.prefix: robot.describe() for robot in robots}
         refuse_taken(session, "odometry", list(by_prefix), what="odometry service", describe=by_prefix.__getitem__)
         assert isinstance(session, zenoh.Session)
-        members = [Member(r, s, session) for r, s in zip(robots, settings, strict=True)]
+        burst = PutBurst()
+        members = [Member(r, s, session, burst) for r, s in zip(robots, settings, strict=True)]
         tasks = [asyncio.create_task(supervise(m.start, stop), name=f"odometry {m.robot.id}") for m in members]
         tasks.append(asyncio.create_task(_drain(members, stop), name="odometry drain"))
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
-        await asyncio.gather(*tasks)
+        try:
+            await asyncio.gather(*tasks)
+        finally:
+            burst.flush()  # what the last turn held, while the session is still open
 
 
 async def _drain(members: list[Member], stop: asyncio.Event) -> None:

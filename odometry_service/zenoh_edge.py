@@ -6,6 +6,7 @@ import asyncio
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
@@ -25,22 +26,27 @@ RING = 1024
 class OdometryZenoh(ZenohEdge):
     """Publishes poses and errors; feeds impulses, pose queries and resets to the host."""
 
-    def __init__(self, session: "zenoh.Session", keys: Keys, *, batched: bool = False) -> None:
-        """``batched``: poses go out batched, not express (a fleet host; see :mod:`blackmetal.odometry_service.fleet`)."""
+    def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
+        """``burst`` (a fleet host; see :mod:`blackmetal.odometry_service.fleet`): poses go out batched, not express, held
+        to the end of the loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`)."""
         super().__init__(session)
         self.keys = keys
         # one robot: express, no batching, the lowest latency. A fleet: batched; Zenoh still sends at once
         # while the link is idle and batches under back-pressure, where an express put per pose (a write and
         # a wake of Zenoh's tx thread each) made poses later, not sooner (100 robots at 50 Hz: impulse -> pose
         # p50 1.6-3 ms express, 0.8-1 ms batched) and cost the router a third more per message
-        self._pose = self.publisher(keys.pose, express=not batched)
+        self._burst = burst
+        self._pose = self.publisher(keys.pose, express=burst is None)
         self._errors = self.publisher(keys.errors)
         self._ring: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]] | None = None
         self._host: OdometryHost | None = None
 
     # OdometryOutput
     def pose(self, message: Pose) -> None:
-        self._pose.put(encode(message))
+        if self._burst is not None:
+            self._burst.put(self._pose, encode(message))
+        else:
+            self._pose.put(encode(message))
 
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))

@@ -12,6 +12,7 @@ import zenoh
 
 from blackmetal.odometry_service.fleet import Member, _drain, fleet_settings
 from blackmetal.odometry_service.settings import OdometrySettings
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import Pose, WheelImpulses, decode, encode
 
@@ -26,7 +27,7 @@ START = time.time()
 def two_robots_posing(session: zenoh.Session) -> tuple[list[Member], dict[str, list[Pose]], list[Any]]:
     """r1 and r2's odometry members (not started), the poses each publishes, and the subscribers that collect them."""
     fleet = robots()
-    members = [Member(r, s, session) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
+    members = [Member(r, s, session, PutBurst()) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
     poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
     subscribers = [
         session.declare_subscriber(
@@ -93,7 +94,7 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
 
 def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Session) -> None:
     fleet = robots()[:1]
-    member = Member(fleet[0], fleet_settings(OdometrySettings(), fleet)[0], session)
+    member = Member(fleet[0], fleet_settings(OdometrySettings(), fleet)[0], session, PutBurst())
 
     async def broken_run(stop: asyncio.Event) -> None:
         raise RuntimeError("a bug in r1's timers")

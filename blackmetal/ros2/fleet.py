@@ -30,6 +30,7 @@ import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.fleet import FleetRobot, supervise
 from blackmetal.schemas import ConfigError, ErrorReport, Keys
 
@@ -91,6 +92,8 @@ class Member:
     codec: RosCodec
     ids: Iterator[int]
     distro: Distro = DEFAULT_DISTRO
+    #: The fleet's volatile ROS samples, put back to back at the end of each turn of the loop (one for every node).
+    burst: PutBurst | None = None
     host: Ros2Host | None = None
     edge: Ros2Zenoh | None = None
     restarts: int = 0
@@ -113,6 +116,7 @@ class Member:
             self.ids,
             self.distro,
             rings=True,
+            burst=self.burst,
         )
         options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace), distro=self.distro)
         self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True)
@@ -151,9 +155,10 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     settings = fleet_settings(base, robots)
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+    burst = PutBurst()
     with await open_service_session(base.zenoh, stop, "ros2") as session:
         members = [
-            Member(robot, s, session, codec, ids, distro)
+            Member(robot, s, session, codec, ids, distro, burst)
             for robot, s in zip(robots, settings, strict=True)
             for distro in (s.distros() if s.flavor == Flavor.RMW_ZENOH.value else (DEFAULT_DISTRO,))
         ]
@@ -186,6 +191,7 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
         try:
             await asyncio.gather(*tasks)
         finally:
+            burst.flush()  # what the last turn held, before the nodes' publishers go
             for m in members:
                 if m.edge is not None:
                     m.edge.close()

@@ -40,6 +40,7 @@ import time
 from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING, Any
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
@@ -86,19 +87,30 @@ def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
 
 
 class _RosPublisher:
-    """A Zenoh publisher on a ROS topic; with rmw_zenoh, each sample carries a rising sequence number."""
+    """A Zenoh publisher on a ROS topic; with rmw_zenoh, each sample carries a rising sequence number.
 
-    def __init__(self, publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher", gid: bytes | None) -> None:
+    ``burst`` (a fleet's volatile topics): held to the end of the loop's turn with the other nodes' samples; the
+    attachment is made at once, its source time that of the sample."""
+
+    def __init__(
+        self, publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher", gid: bytes | None, burst: PutBurst | None = None
+    ) -> None:
         self.publisher = publisher
         self.gid = gid
         self.sequence = 0
+        self.burst = burst
 
     def put(self, cdr: bytes) -> None:
-        if self.gid is None:
+        extra: bytes | None = None
+        if self.gid is not None:
+            self.sequence += 1
+            extra = attachment(self.sequence, time.time_ns(), self.gid)
+        if self.burst is not None:
+            self.burst.put(self.publisher, cdr, extra)  # type: ignore[arg-type]
+        elif extra is None:
             self.publisher.put(cdr)
-            return
-        self.sequence += 1
-        self.publisher.put(cdr, attachment=attachment(self.sequence, time.time_ns(), self.gid))
+        else:
+            self.publisher.put(cdr, attachment=extra)
 
 
 class Ros2Zenoh(ZenohEdge):
@@ -119,11 +131,13 @@ class Ros2Zenoh(ZenohEdge):
         ids: Iterator[int] | None = None,
         distro: Distro = DEFAULT_DISTRO,
         rings: bool = False,
+        burst: PutBurst | None = None,
     ) -> None:
         """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
         (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``, several distros) share it.
         ``distro``: whose rmw_zenoh formats the keys and tokens follow. ``rings`` (a fleet node): the robot's streams
-        wait in Zenoh rings for :meth:`drain` rather than a callback each."""
+        wait in Zenoh rings for :meth:`drain` rather than a callback each. ``burst`` (a fleet): the volatile topics' samples
+        are put back to back with the other nodes' at the end of the loop's turn (:mod:`blackmetal.runtime.burst`)."""
         import zenoh
         import zenoh.ext
 
@@ -166,7 +180,7 @@ class Ros2Zenoh(ZenohEdge):
                     key, congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE
                 )
                 self._entities.append(publisher)
-                self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
+                self._publishers[topic.key_name] = _RosPublisher(publisher, gid, burst)
         for service in ros_services or []:
             entity_id = next(ids)
             name = service.full_name(namespace, node_name)
