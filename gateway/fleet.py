@@ -104,4 +104,4 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
         try:
             await asyncio.gather(*tasks)
         finally:
-            burst.flush()  # what the last turn held, while the session is still open
+            burst.flush()  # what the last turn held; refused if its robot's edge already closed (a normal stop)

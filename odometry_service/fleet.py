@@ -114,7 +114,7 @@ async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: as
         try:
             await asyncio.gather(*tasks)
         finally:
-            burst.flush()  # what the last turn held, while the session is still open
+            burst.flush()  # what the last turn held; refused if its robot's edge already closed (a normal stop)
 
 
 async def _drain(members: list[Member], stop: asyncio.Event) -> None:

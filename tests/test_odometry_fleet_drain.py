@@ -4,6 +4,7 @@ Zenoh's threads); a bug in one robot's handling fails that robot alone. The real
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from typing import Any
 
@@ -27,7 +28,8 @@ START = time.time()
 def two_robots_posing(session: zenoh.Session) -> tuple[list[Member], dict[str, list[Pose]], list[Any]]:
     """r1 and r2's odometry members (not started), the poses each publishes, and the subscribers that collect them."""
     fleet = robots()
-    members = [Member(r, s, session, PutBurst()) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
+    burst = PutBurst(max_hold=math.inf)  # one for the fleet, as serve_fleet makes it; held to the end of each turn
+    members = [Member(r, s, session, burst) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
     poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
     subscribers = [
         session.declare_subscriber(
@@ -57,6 +59,7 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
         assert poses == {"r1": [], "r2": []}  # nothing handled on Zenoh's threads: the samples wait in the rings
         for member in members:
             member.drain()
+        assert len(members[0].burst) == 10  # the fleet's poses wait for the end of the loop's turn, put back to back
         for _ in range(100):
             if all(len(p) == 5 for p in poses.values()):
                 break

@@ -11,7 +11,12 @@ from typing import Any
 import pytest
 import zenoh
 
+from blackmetal.gateway.zenoh_edge import GatewayZenoh
+from blackmetal.odometry_service.zenoh_edge import OdometryZenoh
+from blackmetal.ros2.naming import parse_attachment
+from blackmetal.ros2.zenoh_edge import _RosPublisher
 from blackmetal.runtime.burst import PutBurst
+from blackmetal.schemas import ErrorReport, Keys, WheelImpulses, decode, encode, make_pose
 
 Run = Callable[[Coroutine[Any, Any, None]], None]
 
@@ -78,7 +83,86 @@ def test_a_put_refused_by_zenoh_is_dropped_and_the_rest_still_go(session: zenoh.
         subscriber.undeclare()
 
 
-def test_a_put_off_the_loop_is_refused_at_once() -> None:
-    """Only the loop holds puts: a Zenoh thread or a test without a loop gets an error, not a put that never leaves."""
+def test_a_put_off_the_loop_is_refused_at_once(session: zenoh.Session, run_loop: Run) -> None:
+    """Only the loop holds puts: a Zenoh thread or a test without a loop gets an error, not a put that never leaves,
+    also while the loop holds some."""
     with pytest.raises(RuntimeError, match="no running event loop"):
         PutBurst().put(None, b"x")  # type: ignore[arg-type]
+    publisher = session.declare_publisher("burst/a")
+    burst = PutBurst()
+    errors: list[BaseException] = []
+
+    def off_the_loop() -> None:
+        try:
+            burst.put(publisher, b"from a Zenoh thread")
+        except RuntimeError as exc:
+            errors.append(exc)
+
+    async def scenario() -> None:
+        burst.put(publisher, b"held")
+        thread = threading.Thread(target=off_the_loop)
+        thread.start()
+        thread.join(10)
+        assert len(errors) == 1 and len(burst) == 1
+
+    run_loop(scenario())
+
+
+def test_a_put_held_for_max_hold_goes_at_once_with_those_before_it(session: zenoh.Session, run_loop: Run) -> None:
+    """A turn that handles many robots does not keep the first one's sample for all of it."""
+    got, arrived, subscriber = collect(session, "burst/**")
+    a = session.declare_publisher("burst/a")
+    burst = PutBurst(max_hold=0.0)
+
+    async def scenario() -> None:
+        burst.put(a, b"first")
+        assert len(burst) == 1
+        burst.put(a, b"second")  # the first has waited max_hold: both go now, within the turn
+        assert len(burst) == 0
+        with arrived:
+            assert arrived.wait_for(lambda: len(got) == 2, timeout=10), got
+
+    try:
+        run_loop(scenario())
+        assert [payload for _, payload in got] == [b"first", b"second"]
+    finally:
+        subscriber.undeclare()
+
+
+def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.Session, run_loop: Run) -> None:
+    """A fleet gateway's impulses, a fleet odometry's poses and a ROS node's volatile topic wait in the burst, with
+    their rmw_zenoh attachment; an error report goes at once."""
+    got, arrived, subscriber = collect(session, "t/**")
+    attachments: list[bytes] = []
+    ros = session.declare_subscriber("t/ros/odom", lambda sample: attachments.append(sample.attachment.to_bytes()))
+    burst = PutBurst()
+    gateway = GatewayZenoh(session, Keys("t/gw"), burst=burst)
+    odometry = OdometryZenoh(session, Keys("t/odo"), burst=burst)
+    node = _RosPublisher(session.declare_publisher("t/ros/odom"), b"g" * 16, burst)
+    impulses = WheelImpulses(seq=1, stamp=1.0, left=2, right=3, mono=1.0, source="test")
+
+    async def scenario() -> None:
+        gateway.impulses(impulses)
+        odometry.pose(make_pose(1.0, 0.5, 0.25, 0.1))
+        node.put(b"cdr")
+        gateway.error(ErrorReport(stamp=1.0, source="gateway", key="t/gw/cmd_vel", reason="not held"))
+        assert len(burst) == 3
+        with arrived:
+            assert arrived.wait_for(lambda: len(got) == 1, timeout=10), got  # the error alone, before the turn ends
+        assert got[0][0] == "t/gw/errors"
+        await asyncio.sleep(0)
+
+    try:
+        run_loop(scenario())
+        with arrived:
+            assert arrived.wait_for(lambda: len(got) == 4, timeout=10), got
+        keys = [key for key, _ in got]
+        assert keys == ["t/gw/errors", Keys("t/gw").impulses, Keys("t/odo").pose, "t/ros/odom"]
+        assert decode(WheelImpulses, got[1][1]) == impulses and got[1][1] == encode(impulses)
+        sequence, _, gid = parse_attachment(attachments[0])
+        assert (sequence, gid) == (1, b"g" * 16)
+    finally:
+        ros.undeclare()
+        subscriber.undeclare()
+        gateway.close()
+        odometry.close()

@@ -191,7 +191,7 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
         try:
             await asyncio.gather(*tasks)
         finally:
-            burst.flush()  # what the last turn held, before the nodes' publishers go
+            burst.flush()  # what the last turn held (cancelled); refused if its node's edge already closed (a normal stop)
             for m in members:
                 if m.edge is not None:
                     m.edge.close()
