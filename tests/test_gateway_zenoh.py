@@ -83,8 +83,11 @@ def test_drive_through_zenoh_and_watch_the_state(children: list[Child]) -> None:
         # with a JSON encoding header and without a newline
         session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.0}}), encoding=zenoh.Encoding.APPLICATION_JSON)
         wait_for(lambda: abs(truth(session).v) < 1e-9, what="a stop")
-        wait_for(lambda: len(impulses) > 20 and statuses, what="impulses and status")
-        assert impulses[-1].left == 0 and impulses[-1].right == 0
+        # the newest impulse sample may still be one polled before the stop, on a loaded machine: wait for rest
+        wait_for(
+            lambda: len(impulses) > 20 and impulses[-1].left == 0 and impulses[-1].right == 0 and statuses,
+            what="impulses at rest and a status",
+        )
         assert json.loads(statuses[-1])["state_name"] == "READY"
     assert rig.gateway.stop(signal.SIGINT) == 0
 
