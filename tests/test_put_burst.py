@@ -134,7 +134,13 @@ def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.
     their rmw_zenoh attachment; an error report goes at once."""
     got, arrived, subscriber = collect(session, "t/**")
     attachments: list[bytes] = []
-    ros = session.declare_subscriber("t/ros/odom", lambda sample: attachments.append(sample.attachment.to_bytes()))
+
+    def on_ros(sample: zenoh.Sample) -> None:
+        with arrived:  # the same condition: a wait below covers both subscribers
+            attachments.append(sample.attachment.to_bytes() if sample.attachment is not None else b"")
+            arrived.notify_all()
+
+    ros = session.declare_subscriber("t/ros/odom", on_ros)
     burst = PutBurst()
     gateway = GatewayZenoh(session, Keys("t/gw"), burst=burst)
     odometry = OdometryZenoh(session, Keys("t/odo"), burst=burst)
@@ -155,7 +161,7 @@ def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.
     try:
         run_loop(scenario())
         with arrived:
-            assert arrived.wait_for(lambda: len(got) == 4, timeout=10), got
+            assert arrived.wait_for(lambda: len(got) == 4 and attachments, timeout=10), (got, attachments)
         keys = [key for key, _ in got]
         assert keys == ["t/gw/errors", Keys("t/gw").impulses, Keys("t/odo").pose, "t/ros/odom"]
         assert decode(WheelImpulses, got[1][1]) == impulses and got[1][1] == encode(impulses)
