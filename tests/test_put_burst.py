@@ -4,6 +4,7 @@ puts made back to back). The real publishers, on an isolated session."""
 from __future__ import annotations
 
 import asyncio
+import math
 import threading
 from collections.abc import Callable, Coroutine
 from typing import Any
@@ -11,11 +12,15 @@ from typing import Any
 import pytest
 import zenoh
 
+from blackmetal.gateway.fleet import Member as GatewayMember
+from blackmetal.gateway.fleet import fleet_settings as gateway_fleet_settings
+from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.gateway.zenoh_edge import GatewayZenoh
 from blackmetal.odometry_service.zenoh_edge import OdometryZenoh
 from blackmetal.ros2.naming import parse_attachment
 from blackmetal.ros2.zenoh_edge import _RosPublisher
 from blackmetal.runtime.burst import PutBurst
+from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import ErrorReport, Keys, WheelImpulses, decode, encode, make_pose
 
 Run = Callable[[Coroutine[Any, Any, None]], None]
@@ -172,3 +177,26 @@ def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.
         subscriber.undeclare()
         gateway.close()
         odometry.close()
+
+
+def test_a_fleet_gateways_robots_share_the_fleets_burst(session: zenoh.Session, run_loop: Run) -> None:
+    """What ``gateway --fleet`` builds for each robot holds its impulses in the one burst the fleet flushes."""
+    robots = [FleetRobot(i, f"r{i}", "127.0.0.1", 1, 2, f"fleet/r{i}") for i in (1, 2)]
+    burst = PutBurst(max_hold=math.inf)
+    members = [GatewayMember(r, s, session, burst) for r, s in zip(robots, gateway_fleet_settings(GatewaySettings(), robots), strict=True)]
+    impulses = WheelImpulses(seq=1, stamp=1.0, left=2, right=3, mono=1.0, source="test")
+
+    async def scenario() -> None:
+        for member in members:
+            edge = member.start().edge
+            assert edge is not None
+            edge.impulses(impulses)
+        assert len(burst) == 2  # not yet put: the fleet's one burst holds both robots' samples
+        await asyncio.sleep(0)
+        assert len(burst) == 0
+
+    try:
+        run_loop(scenario())
+    finally:
+        for member in members:
+            member.close()
