@@ -1,4 +1,4 @@
-"""A fleet process's telemetry puts, held to the end of the loop's turn and then made back to back.
+"""A fleet process's telemetry puts, held to the end of the loop's turn (1 ms at most) and then made back to back.
 
 Why: a put on an idle Zenoh link wakes Zenoh's sending thread, which writes
 that one message. A fleet process handles its robots one after another, with
