@@ -42,9 +42,11 @@ class Node:
         core = Ros2Core(Ros2Settings(tf=False).options(self.edge.data_keys, self.edge.service_keys), self.keys, self.edge, codec)
         self.host = Ros2Host(core)
         self.direct: list[tuple[str, bool]] = []  # (thread name, taken)
+        self.calls = 0  # direct takes begun: a take forwards its command before it is recorded
         take = self.host.cmd_vel_direct
 
         def recorded(cdr: bytes) -> bool:
+            self.calls += 1
             taken = take(cdr)
             self.direct.append((threading.current_thread().name, taken))
             return taken
@@ -196,6 +198,7 @@ def test_once_the_intake_is_closed_no_command_is_taken_directly(session: zenoh.S
     wait_for(lambda: node.host.core.watched is not None, what="the node to start")
     ros.put(codec.encode_twist(0.1, 0.0))
     wait_for(lambda: commands, what="a command forwarded while the node serves")
+    wait_for(lambda: len(node.direct) == node.calls, what="a direct take in progress to be recorded")
     tried = len(node.direct)  # the first may have gone through the loop, busy starting
     node.edge._intakes[0].close()  # what the edge does first when it closes, before it undeclares the publisher
     ros.put(codec.encode_twist(0.2, 0.0))
