@@ -49,6 +49,7 @@ from .conflict import ConflictNews, GatewayConflict
 from .estop import read_estop
 from .exchange import Completed, Exchange, Lost
 from .health import Counters
+from .latch import AT_START, Latch
 from .links import DropLink, LinkName, Links
 from .log_port import LogPort
 from .params import ParamTable
@@ -96,6 +97,7 @@ class GatewayCore:
         wallclock: Callable[[], float],
         robot: dict[LinkName, str] | None = None,
         source: str | None = None,
+        latch: Latch | None = None,
     ) -> None:
         self.settings = settings
         self.wallclock = wallclock
@@ -104,6 +106,11 @@ class GatewayCore:
         #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
         self.source = source or secrets.token_hex(6)
         self.governor = Governor(settings.safety())
+        #: The e-stop's state as kept on disk (see :mod:`blackmetal.gateway.latch`); the governor starts from it.
+        self.latch = latch or Latch(False, wallclock(), AT_START)
+        self.governor.on_estop(self.latch.engaged, now)
+        #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
+        self._latch_to_save: Latch | None = None
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
@@ -308,24 +315,59 @@ class GatewayCore:
     def on_estop(self, payload: bytes, now: float, release_key: bool = False) -> None:
         """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages (see :mod:`blackmetal.gateway.estop`).
 
-        With ``release_key_only`` set, a release counts only on the release key: on ``estop`` it is refused (and the stop
-        stays as it is: a refused release must not engage a robot that someone released properly meanwhile).
+        A release counts only on the release key unless ``unsafe_release_on_estop``: on ``estop`` it is refused (and the
+        stop stays as it is: a refused release must not engage a robot that someone released properly meanwhile). An
+        engage is in force at once and saved after its EMG_STOP is written; a release waits for its save
+        (:meth:`take_latch`, :meth:`latch_saved`).
         """
         engaged, complaint = read_estop(payload)
         key = self.keys.estop_release if release_key else self.keys.estop
         if complaint is not None:
             self.reject(key, complaint, now, excerpt(payload))
-        elif not engaged and not release_key and self.settings.release_key_only:
+        elif not engaged and not release_key and not self.settings.unsafe_release_on_estop:
             reason = (
-                f"a release on {key} is refused: this gateway runs with --release-key-only, so only "
-                f'{{"engaged": false}} put on {self.keys.estop_release} releases (a right the router may give to a safety role alone)'
+                f'a release on {key} is refused: only {{"engaged": false}} put on {self.keys.estop_release} releases '
+                "(a right the router may give to a safety role alone; `blackmetal estop off` puts there)"
             )
             self.reject(key, reason, now, excerpt(payload))
             return
-        self.governor.on_estop(engaged, now)
-        self._send_due(now)
-        # a health report follows the stop: built when the host takes the events, after it has written the EMG_STOP
+        if engaged:
+            self.governor.on_estop(True, now)
+            if not self.latch.engaged:
+                self.latch = Latch(True, self.wallclock(), key)
+                self._latch_to_save = self.latch
+            self._send_due(now)
+        elif self.latch.engaged:
+            self._latch_to_save = Latch(False, self.wallclock(), key)
+            return  # released once saved: latch_saved
+        else:
+            self.governor.on_estop(False, now)  # released already: a fresh cmd_vel is needed to move, as after any release
+        # a health report follows: built when the host takes the events, after it has written the EMG_STOP and saved it
         self._health_due = now
+
+    def take_latch(self) -> Latch | None:
+        """A change of the e-stop latch to save now (after writing the outgoing bytes), or None."""
+        latch, self._latch_to_save = self._latch_to_save, None
+        return latch
+
+    def latch_saved(self, latch: Latch, failure: str | None, now: float) -> None:
+        """The host saved ``latch`` (``failure``: why it could not): a release takes effect now, or is refused."""
+        key = latch.by
+        if latch.engaged:
+            if failure is not None:
+                self.reporter.report(key, f"the e-stop is engaged, but {failure}: a restart of the gateway may release it", now=now)
+            return
+        if failure is not None:
+            self.reject(key, f"the release is refused, the e-stop stays engaged: {failure}", now)
+            return
+        self.latch = latch
+        self.governor.on_estop(False, now)
+        self._send_due(now)
+        self._health_due = now
+
+    def started_engaged(self, reason: str, now: float) -> None:
+        """Why the gateway started with its e-stop engaged, for ``<prefix>/errors``."""
+        self.reporter.report(self.keys.estop, reason, source="gateway", now=now)
 
     def on_health_seen(self, payload: bytes, now: float) -> None:
         """A health report on our own key: one from another gateway run means two gateways share this prefix."""
@@ -441,6 +483,8 @@ class GatewayCore:
             lost_replies=c.lost_replies,
             polls_skipped=c.polls_skipped,
             estop=governor.estop,
+            estop_since=self.latch.since,
+            estop_by=self.latch.by,
             cmd_timeout_active=governor.link_up and governor.timed_out(now),
             cmd_timeout=governor.settings.cmd_timeout,
             last_rtt_ms=None if rtt is None else round(rtt * 1000, 3),

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import os
 import time
 from dataclasses import dataclass
 
@@ -58,7 +59,7 @@ class Member:
     def start(self) -> Member:
         s = self.settings
         self.edge = GatewayZenoh(self.session, Keys(s.prefix), burst=self.burst)  # type: ignore[arg-type]
-        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge)
+        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge, s.latch_store())
         self.edge.attach(self.host, asyncio.get_running_loop())
         return self
 
@@ -98,6 +99,12 @@ async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asy
             flush=True,
         )
         print(f"  {when_killed('HOST')} for each robot", flush=True)
+        hosts = {m.robot.id: m.host for m in members if m.host is not None}
+        if hosts:
+            print(f"  e-stop states kept in {os.path.dirname(next(iter(hosts.values())).latch.where)}", flush=True)
+        for robot_id, host in hosts.items():
+            if host.start_sentence is not None:
+                print(f"  {robot_id}: {host.start_sentence}", flush=True)
         announce_ready(
             "gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout, poll_hz=base.poll_hz
         )

@@ -35,6 +35,7 @@ from .arbiter import DEFAULT_SOURCE
 from .core import Event, GatewayCore
 from .direct import DirectPath
 from .health import Counters
+from .latch import LatchStore, start_latch
 from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
 from .settings import GatewaySettings
 
@@ -90,6 +91,7 @@ class GatewayHost:
         settings: GatewaySettings,
         connector: Connector,
         output: GatewayOutput,
+        latch: LatchStore,
         clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
     ) -> None:
@@ -98,7 +100,13 @@ class GatewayHost:
         self.output = output
         self.clock = clock
         robot = {name: f"robot:{connector.describe(name)}" for name in LINKS}
-        self.core = GatewayCore(settings, clock(), wallclock, robot)
+        #: Where the e-stop latch is kept; read now, before the first command to the robot, and saved on every change.
+        self.latch = latch
+        start, self.start_sentence = start_latch(latch, wallclock(), settings.unsafe_start_released)
+        self.core = GatewayCore(settings, clock(), wallclock, robot, latch=start)
+        if self.start_sentence is not None:
+            log.warning("%s: %s", settings.prefix, self.start_sentence)
+            self.core.started_engaged(self.start_sentence, clock())
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
         #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`blackmetal.gateway.direct`).
@@ -212,6 +220,8 @@ class GatewayHost:
             return False
         self.core.on_estop(item[1], self.clock(), item[0])
         self.direct.send(self._pending(), self._flush_locked)
+        if self._save_latch():  # after the EMG_STOP left; a release takes effect once saved
+            self.direct.send(self._pending(), self._flush_locked)
         return True
 
     def _flush_locked(self) -> None:
@@ -237,11 +247,9 @@ class GatewayHost:
         This runs twice per poll per robot.
         """
         core = self.core
-        data = self._pending()
-        if data:
-            stream = self._streams["control"]
-            if stream is not None and not stream.is_closing():
-                stream.write(data)
+        self._write(self._pending())
+        if self._save_latch():  # after the EMG_STOP left; a release takes effect once saved
+            self._write(self._pending())
         events = core.take_events()
         if events:
             for event in events:
@@ -254,6 +262,25 @@ class GatewayHost:
                 else:
                     self._outbox.append(event)
         self._timer.poke()
+
+    def _write(self, data: bytes) -> None:
+        """Under the lock: ``data`` to the control stream, if it is open."""
+        if data:
+            stream = self._streams["control"]
+            if stream is not None and not stream.is_closing():
+                stream.write(data)
+
+    def _save_latch(self) -> bool:
+        """Under the lock, once the bytes of the input are written: save a change of the e-stop latch (True: there was one).
+
+        Saved under the lock so that no health is built between the change and its save: health never shows an
+        engaged stop that a restart would not find.
+        """
+        latch = self.core.take_latch()
+        if latch is None:
+            return False
+        self.core.latch_saved(latch, self.latch.save(latch), self.clock())
+        return True
 
     def publish(self) -> None:
         """The loop, holding no lock: hand the core's messages to the output (a put may block; no e-stop waits on it).

@@ -30,7 +30,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     with await open_service_session(settings.zenoh, stop, "gateway") as session:
         refuse_taken(session, "gateway", [keys.prefix])
         edge = GatewayZenoh(session, keys)
-        service = GatewayHost(settings, connector, edge)
+        service = GatewayHost(settings, connector, edge, settings.latch_store())
         edge.attach(service, asyncio.get_running_loop())
         print(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "
@@ -38,6 +38,9 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
             flush=True,
         )
         print(f"  {when_killed(settings.robot)}", flush=True)
+        print(f"  e-stop state kept in {service.latch.where}", flush=True)
+        if service.start_sentence is not None:
+            print(f"  {service.start_sentence}", flush=True)
         announce_ready("gateway", prefix=settings.prefix, cmd_timeout=settings.cmd_timeout)
         freeze_start_up()
         try:

@@ -10,6 +10,7 @@ from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
 from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
+from .latch import FileLatchStore, default_state_dir, latch_path
 from .safety import SafetySettings
 
 
@@ -76,10 +77,26 @@ class GatewaySettings:
         factory=list,
         metavar="NAME:PRIO[:S]",
     )
-    release_key_only: bool = setting(
+    state_dir: str = setting(
+        "",
+        "where the e-stop latch is kept so that a crash, a restart or a reboot does not release it (default: systemd's "
+        "$STATE_DIRECTORY, else $XDG_STATE_HOME/blackmetal, else ~/.local/state/blackmetal)",
+        metavar="DIR",
+    )
+    unsafe_release_on_estop: bool = setting(
         False,
-        "only a put on <prefix>/estop/release releases the e-stop; a release on <prefix>/estop is refused and reported "
-        "(for a router whose access control gives releasing to a safety role alone)",
+        "UNSAFE: let a release put on <prefix>/estop release the e-stop, which any user who may engage it may put; "
+        "by default only <prefix>/estop/release releases (a right a router can give to a safety role alone)",
+    )
+    unsafe_start_released: bool = setting(
+        False,
+        "UNSAFE for a real robot: with no saved e-stop state (a first start, or a lost file) start released instead of "
+        "engaged; blackmetal up sets it for the simulated robots it starts (a corrupt or unreadable state still engages)",
+    )
+    release_key_only: bool = setting(
+        True,
+        "kept for settings written before it was the default: only <prefix>/estop/release releases either way "
+        "(see --unsafe-release-on-estop)",
     )
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
@@ -122,6 +139,10 @@ class GatewaySettings:
                 raise ConfigError(f"{name} must be a TCP port 1-65535")
         validate_prefix(self.prefix)
         check_specs(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
+
+    def latch_store(self) -> FileLatchStore:
+        """Where this robot's e-stop latch is kept (``state_dir``, else the default)."""
+        return FileLatchStore(latch_path(self.state_dir or default_state_dir(), self.prefix), self.prefix)
 
     def arbiter(self) -> Arbiter:
         """The command arbiter these settings describe."""

@@ -70,7 +70,7 @@ KEY_SPECS: tuple[KeySpec, ...] = (
         "estop",
         EStop,
         "publication",
-        "any client -> gateway (engages; a valid release releases unless --release-key-only)",
+        "any client -> gateway (engages; a release here is refused unless --unsafe-release-on-estop)",
         Delivery.COMMAND,
     ),
     KeySpec(
@@ -198,6 +198,10 @@ class Keys:
     def cmd_vel_of(self, source: str) -> str:
         """The key of the command source ``source`` (``default`` is plain ``cmd_vel``)."""
         return self.cmd_vel if source == Sources.DEFAULT else f"{self.prefix}/cmd_vel/{source}"
+
+    def estop_for(self, engage: bool) -> str:
+        """Where an engage goes (``estop``, any user) and where a release goes (``estop/release``, a safety role)."""
+        return self.estop if engage else self.estop_release
 
     def alive(self, role: str) -> str:
         """The liveliness token of ``role`` (``gateway``, ``odometry``, ``sim``) under this prefix."""

@@ -10,6 +10,7 @@ that a newer publisher does not break an older subscriber.
 from __future__ import annotations
 
 import math
+import time
 from typing import Annotated
 
 import msgspec
@@ -213,6 +214,10 @@ class GatewayHealth(msgspec.Struct):
     #: queue up; a poll due while the one before it is unanswered goes out as soon as that one's reading comes).
     polls_skipped: int = 0
     estop: bool = False
+    #: When the e-stop took its present state (Unix time), and what put it there: the key of the engage or release,
+    #: or why the gateway started engaged. Kept across restarts, as the latch itself.
+    estop_since: float | None = None
+    estop_by: str | None = None
     cmd_timeout_active: bool = False
     #: The command timeout (s; 0: none): a client that stalls has its last command run this long at most.
     cmd_timeout: float = 0.5
@@ -233,6 +238,14 @@ class GatewayHealth(msgspec.Struct):
     #: m/s) and its Unix time: what the robot was sent, beside ``estop`` (what the gateway decided).
     last_sent: str | None = None
     last_sent_stamp: float | None = None
+
+    def estop_text(self) -> str:
+        """The e-stop in words, for views and diagnostics: ``ENGAGED since 16:40:01 UTC by robot/estop``."""
+        state = "ENGAGED" if self.estop else "released"
+        if self.estop_since is None:
+            return state
+        when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(self.estop_since))
+        return f"{state} since {when} by {self.estop_by or 'unknown'}"
 
 
 class DriverChange(msgspec.Struct):

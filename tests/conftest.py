@@ -30,6 +30,30 @@ if TYPE_CHECKING:
 #: A test that takes longer than this (s) belongs in the slow tier.
 FAST_TEST_BUDGET_S = 5.0
 
+#: Every gateway a test starts keeps its e-stop latch in that test's (or module's) own folder, never in the user's
+#: ~/.local/state, and a gateway with no saved state there starts released, as `blackmetal up` starts its simulator:
+#: the tests of the latch itself (tests/test_estop_latch.py) set both back to what a deployment has.
+STATE_DIR_ENV = "BLACKMETAL_STATE_DIR"
+os.environ["BLACKMETAL_UNSAFE_START_RELEASED"] = "true"
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _state_dir_per_module(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """Processes a module's fixtures start keep their e-stop latch in the module's own folder."""
+    before = os.environ.get(STATE_DIR_ENV)
+    os.environ[STATE_DIR_ENV] = str(tmp_path_factory.mktemp("state"))
+    yield
+    if before is None:
+        os.environ.pop(STATE_DIR_ENV, None)
+    else:
+        os.environ[STATE_DIR_ENV] = before
+
+
+@pytest.fixture(autouse=True)
+def _state_dir_per_test(tmp_path_factory: pytest.TempPathFactory, monkeypatch: pytest.MonkeyPatch) -> None:
+    """Processes a test starts keep their e-stop latch in the test's own folder."""
+    monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path_factory.mktemp("state")))
+
 
 @pytest.hookimpl(tryfirst=True)  # before ``-m`` selects on the markers
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:

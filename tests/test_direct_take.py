@@ -22,6 +22,7 @@ import pytest
 from helpers import wait_for
 
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.runtime.entry import loop_factory
 from blackmetal.runtime.intake import DIRECT_BURST, DIRECT_WINDOW_S, Intake
@@ -264,7 +265,9 @@ class GatewayRig:
         settings = GatewaySettings(cmd_timeout=0.0)
         settings.check()
         self.output = output or RecordingOutput()
-        host = self.host = GatewayHost(settings, connector_type("127.0.0.1", self.server.control_port, self.server.log_port), self.output)
+        host = self.host = GatewayHost(
+            settings, connector_type("127.0.0.1", self.server.control_port, self.server.log_port), self.output, MemoryLatchStore()
+        )
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
         # wired as GatewayZenoh.attach wires a single robot's gateway

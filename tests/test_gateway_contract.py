@@ -19,6 +19,7 @@ import pytest
 from helpers import free_port
 
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import SimFaults
 from blackmetal.sim.memory import MemoryConnector
@@ -66,7 +67,7 @@ async def start_rig(transport: str, params: RobotParams | None = None, seed: int
     gw_settings = GatewaySettings(**settings)
     gw_settings.check()
     output = RecordingOutput()
-    service = GatewayHost(gw_settings, connector, output)
+    service = GatewayHost(gw_settings, connector, output, MemoryLatchStore())
     stop = asyncio.Event()
     task = asyncio.create_task(service.run(stop))
     rig = Rig(robot, server, service, output, stop, task)
@@ -346,7 +347,7 @@ def test_an_unreachable_robot_is_reported_with_its_reason(caplog: pytest.LogCapt
 
     async def body() -> None:
         settings = GatewaySettings(control_port=port, log_port=port)
-        host = GatewayHost(settings, TcpConnector("127.0.0.1", port, port, timeout=0.5), RecordingOutput())
+        host = GatewayHost(settings, TcpConnector("127.0.0.1", port, port, timeout=0.5), RecordingOutput(), MemoryLatchStore())
         stop = asyncio.Event()
         task = asyncio.create_task(host.run(stop))
         await until(lambda: caplog.text.count("cannot connect") >= 2, "both links to report")

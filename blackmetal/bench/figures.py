@@ -54,6 +54,12 @@ def _service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
     return child
 
 
+def latch_args(stack: ExitStack) -> list[str]:
+    """A bench's gateway keeps its e-stop latch in a folder of its own, released at first: its robots are the bench's own."""
+    folder = stack.enter_context(tempfile.TemporaryDirectory(prefix="blackmetal-bench-state-"))
+    return ["--state-dir", folder, "--unsafe-start-released"]
+
+
 def mini_robot(stack: ExitStack) -> RobotProcess:
     return stack.enter_context(RobotProcess())
 
@@ -64,7 +70,7 @@ def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float, l
         stack,
         "gateway",
         ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
-         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *zenoh_args],
+         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), *zenoh_args],
     )  # fmt: skip
 
 
@@ -157,8 +163,9 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
         gateway(stack, robot, zport, poll_hz)
         session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
         pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
+        release = session.declare_publisher(KEYS.estop_release, express=EXPRESS)
         wait_polls(robot)
-        return estop_latencies(pub, robot, samples)
+        return estop_latencies(pub, release, robot, samples)
 
 
 #: After a release, before the next engage, where the gateway's loop is busy (a fleet): the gateway keeps only the
@@ -166,8 +173,10 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
 RELEASE_SETTLE_S = 0.03
 
 
-def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int, settle: float = 0.0) -> dict[str, float]:
-    """Engage (then release) on ``pub``, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
+def estop_latencies(
+    pub: "zenoh.Publisher", release: "zenoh.Publisher", robot: RobotProcess, samples: int, settle: float = 0.0
+) -> dict[str, float]:
+    """Engage on ``pub`` (then release on ``release``), 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
 
     ``settle``: extra pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without an
     EMG_STOP before the next engage (merged with a release still waiting, or slower than the pause).
@@ -180,7 +189,7 @@ def estop_latencies(pub: "zenoh.Publisher", robot: RobotProcess, samples: int, s
         starts.append(time.time())
         pub.put(b'{"engaged": true}')
         time.sleep(random.uniform(*COMMAND_GAP_S))
-        pub.put(b'{"engaged": false}')
+        release.put(b'{"engaged": false}')
         time.sleep(settle)
     time.sleep(0.3)
     stops = sorted(robot.dump()["emg_stops"][first:])
@@ -209,6 +218,7 @@ def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) ->
         gateway(stack, robot, zport, poll_hz)
         session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
         pub = session.declare_publisher(KEYS.estop, express=EXPRESS)
+        release = session.declare_publisher(KEYS.estop_release, express=EXPRESS)
         wait_polls(robot)
         seconds = 4.0 + samples * 0.05
         children = [
@@ -225,7 +235,7 @@ def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) ->
             starts.append(time.time())
             pub.put(b'{"engaged": true}')
             time.sleep(random.uniform(0.02, 0.04))
-            pub.put(b'{"engaged": false}')
+            release.put(b'{"engaged": false}')
         time.sleep(0.5)
         stops = robot.dump()["emg_stops"]
     latencies = []

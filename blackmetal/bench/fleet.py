@@ -35,7 +35,17 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
-from .figures import RELEASE_SETTLE_S, _service, command_latencies, cpu_seconds, estop_latencies, mini_robot, rss_mb, wait_polls
+from .figures import (
+    RELEASE_SETTLE_S,
+    _service,
+    command_latencies,
+    cpu_seconds,
+    estop_latencies,
+    latch_args,
+    mini_robot,
+    rss_mb,
+    wait_polls,
+)
 from .peers import EXPRESS, _zenoh_conf, free_port
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
@@ -113,7 +123,9 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         fleet_file = Path(folder) / "fleet.toml"
         fleet_file.write_text(write_fleet([*simulated, probe]))
         processes["gateway"] = _service(
-            stack, "gateway", ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *endpoint]
+            stack,
+            "gateway",
+            ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *latch_args(stack), *endpoint],
         )
         processes["odometry"] = _service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
         session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
@@ -151,7 +163,8 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
             view_figures = _views(stack, session, processes, fleet_file, endpoint, robots, seconds)
         probe_keys = Keys(probe.prefix)
         cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
-        estop = estop_latencies(session.declare_publisher(probe_keys.estop, express=EXPRESS), probe_robot, samples, RELEASE_SETTLE_S)
+        engage, release = (session.declare_publisher(key, express=EXPRESS) for key in (probe_keys.estop, probe_keys.estop_release))
+        estop = estop_latencies(engage, release, probe_robot, samples, RELEASE_SETTLE_S)
         consumer.undeclare()
     services = ("router", "gateway", "odometry")
     return {

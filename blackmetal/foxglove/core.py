@@ -177,9 +177,11 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
         _diagnostic(
             "gateway: e-stop",
             DiagnosticLevel.ERROR if health.estop else DiagnosticLevel.OK,
-            "ENGAGED" if health.estop else "released",
+            health.estop_text(),
             hardware_id,
             estop=health.estop,
+            estop_since=health.estop_since,
+            estop_by=health.estop_by,
         ),
         _link("gateway: control link", health.control, hardware_id),
         _link("gateway: log link", health.log, hardware_id),
@@ -726,7 +728,7 @@ class Controls:
 
     def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
         """Put the e-stop; a pending set_estop call that wants the other state is superseded (its re-sends would undo this)."""
-        self.output.command(self.keys.estop, encode(EStop(engaged=engage)))
+        self.output.command(self.keys.estop_for(engage), encode(EStop(engaged=engage)))
         for other, pending in list(self._estop_calls.items()):
             if other != call and pending.engage != engage:
                 self._fail(

@@ -76,6 +76,7 @@ class FoxgloveZenoh(ZenohEdge):
             # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
             keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys.cmd_vel_of(COMMAND_SOURCE), express=True),
             keys.estop: self.publisher(keys.estop, express=True),
+            keys.estop_release: self.publisher(keys.estop_release, express=True),
         }
         self._errors = self.publisher(keys.errors)  # telemetry: never held behind a dead link
         self._handlers: dict[str, Callable[[bytes], None]] = {}

@@ -314,7 +314,7 @@ class Diagnostics:
             ("round trip (ms)", "none" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.1f}"),
             ("lost replies", str(h.lost_replies)),
             (f"lost replies ({WINDOW_S:g} s)", str(lost)),
-            ("e-stop", "engaged" if h.estop else "released"),
+            ("e-stop", h.estop_text()),
             ("command timeout active", _yes(h.cmd_timeout_active)),
             ("active source", h.active_source or "none"),
         ]
@@ -333,7 +333,7 @@ class Diagnostics:
         if h.log.state != "connected":
             checks.append((Level.WARN, f"log link {h.log.state}"))
         if h.estop:
-            checks.append((Level.WARN, "e-stop engaged"))
+            checks.append((Level.WARN, f"e-stop {h.estop_text()}"))
         if h.last_rtt_ms is not None and h.last_rtt_ms > RTT_WARN_MS:
             checks.append((Level.ERROR if h.last_rtt_ms > RTT_ERROR_MS else Level.WARN, f"round trip {h.last_rtt_ms:.0f} ms"))
         if lost:
@@ -728,7 +728,7 @@ class Ros2Core:
             self._reject(self.options.estop_key, str(exc), exc.excerpt, now)
             return
         self.stats.estops += 1
-        self.output.blackmetal(self.keys.estop, encode(estop))
+        self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))
 
     # --------------------------------------------------------------- services
     def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
@@ -783,7 +783,7 @@ class Ros2Core:
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
         """Put the asked e-stop state and ask the gateway's health; again every ESTOP_REPEAT_S until confirmed."""
-        self.output.blackmetal(self.keys.estop, encode(EStop(engaged=pending.engage)))
+        self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))
         self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
         pending.repeat_at = now + ESTOP_REPEAT_S
 

@@ -201,7 +201,8 @@ class Ros2Zenoh(ZenohEdge):
             congestion_control=zenoh.CongestionControl.DROP,
         )
         self._entities.append(self._cmd_vel)
-        self._estop = self.publisher(keys.estop)  # blocking congestion control: a stop is never dropped
+        # blocking congestion control: a stop is never dropped; a release goes to the key a safety role may put on
+        self._estop = {key: self.publisher(key) for key in (keys.estop, keys.estop_release)}
         self._errors = self.publisher(keys.errors)
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
@@ -217,8 +218,8 @@ class Ros2Zenoh(ZenohEdge):
         self._publishers[topic].put(cdr)
 
     def blackmetal(self, key: str, payload: bytes) -> None:
-        """The e-stop (on the loop, never dropped), or the source's command (on the loop or a direct take's Zenoh thread)."""
-        (self._estop if key == self.keys.estop else self._cmd_vel).put(payload)
+        """The e-stop or its release (on the loop, never dropped), or the source's command (on the loop or a direct take's Zenoh thread)."""
+        self._estop.get(key, self._cmd_vel).put(payload)
 
     def error(self, message: ErrorReport) -> None:
         self._errors.put(encode(message))

@@ -26,6 +26,7 @@ import sys
 import tempfile
 import threading
 import time
+from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -74,6 +75,9 @@ BEHIND_RATIO = 0.9
 READY_TIMEOUT_S = 30.0
 #: How often the children are checked: a dead gateway's robot is stopped within about this long.
 CHILD_CHECK_S = 0.05
+#: A gateway that dies is started again (as systemd's Restart=on-failure does), at most this many times in the window (s).
+MAX_RESTARTS = 5
+RESTART_WINDOW_S = 60.0
 #: A fleet robot's health older than this (s; the gateway reports every second) counts as missing.
 HEALTH_STALE_S = 3.0
 #: The fleet's pose rates are measured over one status interval this often (s).
@@ -172,6 +176,12 @@ class ServiceFiles:
 
     def args(self, name: str) -> list[str]:
         return ["--settings", self.files[name]] if name in self.files else []
+
+    def run_dir(self) -> str:
+        """This run's own folder (removed when up ends): the state of the simulated robots it starts."""
+        if self._dir is None:
+            self._dir = tempfile.TemporaryDirectory(prefix="blackmetal-up-")
+        return self._dir.name
 
     def close(self) -> None:
         if self._dir is not None:
@@ -610,6 +620,15 @@ def run(args: argparse.Namespace) -> int:
         files.close()
 
 
+def latch_args(args: argparse.Namespace, files: ServiceFiles) -> list[str]:
+    """Where the gateway keeps its e-stop latch: for up's own simulated robots, in this run's folder, released at
+    first (they are new, as the latch is); for a real robot (``--robot``), the gateway's default (``--state-dir``), so
+    that a latch engaged before a crash, a restart of up or a reboot is still engaged."""
+    if args.robot:
+        return []
+    return ["--state-dir", files.run_dir(), "--unsafe-start-released"]
+
+
 def _start(children: list[ServiceProcess], name: str, command: list[str], verbose: bool) -> ServiceProcess:
     child = ServiceProcess.blackmetal(name, command, echo=verbose, own_session=True)
     children.append(child)
@@ -644,7 +663,7 @@ def _run(
             children,
             "gateway",
             ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
-             "--prefix", prefix, *poll_args, *files.args("gateway"), *zargs],
+             "--prefix", prefix, *poll_args, *latch_args(args, files), *files.args("gateway"), *zargs],
             args.verbose,
         )  # fmt: skip
         odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *files.args("odometry"), *zargs], args.verbose)
@@ -711,7 +730,7 @@ def _run_fleet(
             shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
             if len(groups) > 1:
                 shard_file.write_text(write_fleet(group))
-            gateway_args = ["gateway", "--fleet", str(shard_file), *poll_args, *files.args("gateway"), *zargs]
+            gateway_args = ["gateway", "--fleet", str(shard_file), *poll_args, *latch_args(args, files), *files.args("gateway"), *zargs]
             gateways[_start(children, f"gateway{suffix}", gateway_args, args.verbose)] = group
             odometry_args = ["odometry", "--fleet", str(shard_file), *files.args("odometry"), *zargs]
             odometries.append(_start(children, f"odometry{suffix}", odometry_args, args.verbose))
@@ -785,24 +804,47 @@ def _live(
     render: Callable[[], str],
     stoppers: Mapping[ServiceProcess, Callable[[], str]],
 ) -> int:
-    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines; a dead gateway's robots
-    are stopped first by ``stoppers[gateway]``)."""
+    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines).
+
+    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again, as systemd's
+    ``Restart=on-failure`` does, at most :data:`MAX_RESTARTS` times in :data:`RESTART_WINDOW_S`: it comes back with
+    the e-stop latch it had. Any other child's death ends up.
+    """
     tty = sys.stdout.isatty()
     interval = _status_interval(args)
     next_status = time.monotonic() + interval
+    stoppers = dict(stoppers)
+    restarts: deque[float] = deque()
     while not stop.wait(CHILD_CHECK_S):
-        for child in children:
-            if child.poll() is not None:
-                if tty:
-                    print()
-                if child in stoppers:  # nobody is left to stop its robots: do it now
-                    print(f"blackmetal up: {child.name} gone; {stoppers[child]()}", file=sys.stderr, flush=True)
-                print(
-                    f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
-                    file=sys.stderr,
-                    flush=True,
-                )
-                return 1
+        for child in list(children):
+            if child.poll() is None:
+                continue
+            if tty:
+                print()
+            if child in stoppers:  # nobody is left to stop its robots: do it now
+                print(f"blackmetal up: {child.name} gone; {stoppers[child]()}", file=sys.stderr, flush=True)
+                now = time.monotonic()
+                while restarts and restarts[0] < now - RESTART_WINDOW_S:
+                    restarts.popleft()
+                if len(restarts) < MAX_RESTARTS and not stop.is_set():
+                    restarts.append(now)
+                    print(
+                        f"blackmetal up: {child.name} exited with code {child.proc.returncode}; starting it again "
+                        f"({len(restarts)} of at most {MAX_RESTARTS} restarts in {RESTART_WINDOW_S:g} s); its last lines:\n{child.tail()}",
+                        file=sys.stderr,
+                        flush=True,
+                    )
+                    child.stop(timeout=1.0)  # reaped, its pipes closed
+                    again = ServiceProcess(child.name, child.args, echo=child.echo, own_session=True)
+                    children[children.index(child)] = again
+                    stoppers[again] = stoppers.pop(child)
+                    continue
+            print(
+                f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
+                file=sys.stderr,
+                flush=True,
+            )
+            return 1
         if time.monotonic() < next_status:
             continue
         next_status += interval
