@@ -61,10 +61,12 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
     metadata: list[tuple[str, dict[str, str]]] = []
     schemas: dict[int, str] = {}
     known: dict[int, Channel | None] = {}
+    whole = 0  # where the last whole record ends
     with stream:
         try:
             # in file order: a cut-off end spoils nothing before it
             for record in StreamReader(stream, validate_crcs=False).records:
+                whole = stream.tell()
                 if isinstance(record, Message):
                     out = known.get(record.channel_id)
                     if out is not None:
@@ -84,7 +86,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
         except Exception as exc:  # the mcap package raises several types for a cut-off or damaged file
             if not channels:
                 raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
-            truncated = str(exc) or type(exc).__name__
+            truncated = cut_at(path, whole, exc)
     return Recorded(path, channels, truncated, metadata)
 
 
@@ -248,9 +250,11 @@ def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes,
         stream = open(path, "rb")  # noqa: SIM115 - closed below
     except OSError as exc:
         raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+    whole = 0  # where the last whole record ends: a cut-off file is cut after it
     with stream:
         try:
             for record in StreamReader(stream, emit_chunks=True).records:
+                whole = stream.tell()
                 if isinstance(record, Chunk):
                     chunks.append(_chunk_bytes(record))
                     pending += len(chunks[-1])
@@ -266,11 +270,19 @@ def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes,
                 elif isinstance(record, Message) and record.channel_id in ids:
                     pieces.append(b"\n" + record.data)
         except Exception as exc:  # a cut-off or damaged end
-            if chunks:
-                pieces.append(_chunks_as_lines(chunks, wanted, ids))
-            if not pieces:
+            if not pieces and not chunks:
                 raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
-            truncated = str(exc) or type(exc).__name__
-        if chunks:
+            truncated = cut_at(path, whole, exc)
+        if chunks:  # once: the cut-off end above leaves them to this
             pieces.append(_chunks_as_lines(chunks, wanted, ids))
     return b"\n".join(pieces), truncated
+
+
+def cut_at(path: Path, whole: int, exc: BaseException) -> str:
+    """Where a recording was cut, in words: after which byte the records stop being whole, and what was wrong there."""
+    try:
+        size = path.stat().st_size
+    except OSError:
+        size = whole
+    what = str(exc) or type(exc).__name__
+    return f"cut at byte {whole} of {size}: the last {size - whole} bytes hold no whole record ({what})"

@@ -106,7 +106,12 @@ def run(args: argparse.Namespace) -> int:
             write_poses(result, out)
     if not args.quiet:
         if truncated:
-            print(f"note: the recording ends early (its recorder was stopped abruptly): {truncated}", file=sys.stderr)
+            last = final_pose(result)
+            print(
+                f"note: the recording ends early (its recorder was stopped abruptly), {truncated}; every whole sample before "
+                f"the cut was replayed, the last at stamp {last.stamp:.3f}",
+                file=sys.stderr,
+            )
         print(summary(result), file=sys.stderr)
         for reason in result.rejected[:5]:
             print(f"rejected: {reason}", file=sys.stderr)
