@@ -264,7 +264,7 @@ class Governor:
     def refusal(self, twist: Twist) -> str | None:
         """Why a velocity command would be refused now, if it would (:meth:`on_twist` refuses it then)."""
         if self.estop:
-            return 'emergency stop is engaged: cmd_vel refused until {"engaged": false} is put on estop'
+            return 'emergency stop is engaged: cmd_vel refused until {"engaged": false} is put on estop/release'
         if not self.link_up:
             return "robot control link is down: cmd_vel refused, not queued"
         v, w = twist.linear.x, twist.angular.z

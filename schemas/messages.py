@@ -240,12 +240,18 @@ class GatewayHealth(msgspec.Struct):
     last_sent_stamp: float | None = None
 
     def estop_text(self) -> str:
-        """The e-stop in words, for views and diagnostics: ``ENGAGED since 16:40:01 UTC by robot/estop``."""
-        state = "ENGAGED" if self.estop else "released"
+        """The e-stop in words, for views and diagnostics: ``ENGAGED since 2026-11-27 16:40:01 UTC by robot/estop``."""
+        return ("ENGAGED" if self.estop else "released") + self.estop_origin()
+
+    def estop_origin(self) -> str:
+        """`` since 2026-11-27 16:40:01 UTC by robot/estop``: when the e-stop took its state and what put it there."""
         if self.estop_since is None:
-            return state
-        when = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(self.estop_since))
-        return f"{state} since {when} by {self.estop_by or 'unknown'}"
+            return ""
+        return f" since {self.estop_since_text()} by {self.estop_by or 'unknown'}"
+
+    def estop_since_text(self) -> str:
+        """When the e-stop took its state, in UTC ("" if the gateway does not say)."""
+        return "" if self.estop_since is None else time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime(self.estop_since))
 
 
 class DriverChange(msgspec.Struct):

@@ -219,7 +219,7 @@ def test_each_commander_has_only_its_own_rights_with_the_real_router(children: l
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
-    start_robot(children, endpoint, creds=creds, gateway_extra=("--release-key-only",))
+    start_robot(children, endpoint, creds=creds)  # the gateway as shipped: only estop/release releases
     sessions = {user: zenoh.open(client_conf(endpoint, user, creds[user])) for user in ("operator", "nav", "safety", "viewer")}
     stop = threading.Event()
     try:
@@ -254,11 +254,17 @@ def test_each_commander_has_only_its_own_rights_with_the_real_router(children: l
             thread.join(5)
         viewer.put("robot/estop", json.dumps({"engaged": True}))  # every authenticated user may stop the robot
         wait_for(lambda: (h := health(operator)) is not None and h.estop, what="the viewer's e-stop")
-        operator.put("robot/estop/release", json.dumps({"engaged": False}))  # denied by the router
-        operator.put("robot/estop", json.dumps({"engaged": False}))  # reaches the gateway, which refuses it
-        wait_for(lambda: any("--release-key-only" in e for e in errors), what="the refused release reported")
+        for user in (viewer, nav, operator):  # no role but safety releases another's stop
+            user.put("robot/estop/release", json.dumps({"engaged": False}))  # denied by the router
+            user.put("robot/estop", json.dumps({"engaged": False}))  # reaches the gateway, which refuses it
+        refused = 'a release on robot/estop is refused: only {"engaged": false} put on robot/estop/release releases'
+        wait_for(lambda: sum(refused in e for e in errors) == 3, what="the three refused releases reported")
+        time.sleep(0.3)
         h = health(operator)
-        assert h is not None and h.estop
+        assert h is not None and h.estop and h.estop_by == "robot/estop"
+        operator.put("robot/cmd_vel/teleop", json.dumps({"linear": {"x": 0.2}}))
+        time.sleep(0.3)
+        assert (p := get_pose(viewer, "robot/sim/truth")) is not None and p.v == 0.0, "the operator drove while engaged"
         safety.put("robot/estop/release", json.dumps({"engaged": False}))
         wait_for(lambda: (h := health(operator)) is not None and not h.estop, what="the safety role's release")
         # the gateway's parameters: everyone reads them, only an operator sets them (as locks)

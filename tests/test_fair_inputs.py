@@ -63,7 +63,8 @@ with zenoh.open(conf) as session:
 
 @pytest.fixture
 def rig() -> Iterator[Rig]:
-    made = Rig(Behaviour())
+    # releases on estop count here (--unsafe-release-on-estop), so that one key carries the storm's ONs and OFFs in order
+    made = Rig(Behaviour(), "--unsafe-release-on-estop")
     yield made
     made.close()
 

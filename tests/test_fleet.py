@@ -78,7 +78,7 @@ def _estop_latency(session: zenoh.Session, robot: str) -> float:
         return confirmed[0] - start
     finally:
         sub.undeclare()
-        session.put(f"fleet/{robot}/estop", b'{"engaged": false}')
+        session.put(f"fleet/{robot}/estop/release", b'{"engaged": false}')
 
 
 def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, request: pytest.FixtureRequest) -> None:
@@ -118,7 +118,7 @@ def test_a_fleet_of_twenty_on_one_router(children: list[Child], tmp_path: Path, 
         session.put("fleet/r4/cmd_vel", json.dumps({"linear": {"x": 0.2}}))
         wait_for(lambda: _health(session, "r3").estop, what="r3's e-stop")
         assert not any(_health(session, rid).estop for rid in ids if rid != "r3")
-        session.put("fleet/r3/estop", b'{"engaged": false}')
+        session.put("fleet/r3/estop/release", b'{"engaged": false}')
         wait_for(lambda: not _health(session, "r3").estop, what="r3's release")
 
         # r5's link dies: the others poll on and stop as before

@@ -181,16 +181,22 @@ def test_an_estop_on_r3_shows_as_r3s_alone(fleet: FleetUp) -> None:
     assert code == 0 and "released" in out, out + err
 
 
-def test_a_killed_child_is_reported_and_nothing_is_left(fleet: FleetUp) -> None:
+def test_a_killed_gateway_is_started_again_a_killed_odometry_ends_up_and_nothing_is_left(fleet: FleetUp) -> None:
     os.kill(fleet.children["gateway"], signal.SIGKILL)
-    assert fleet.wait(20) == 1
+    again = fleet.wait_line(r"gateway started again \(pid (\d+)\)")
+    fleet.children["gateway"] = int(again[1])
     out = fleet.output()
     assert f"gateway gone; {N} of {N} robots were sent zero velocity and NORMAL_STOP" in out, out
     # its last lines follow (the gateway's own log lines; on a loaded machine its warnings may have pushed the ready
     # line out of them). No nested regex quantifiers: they backtrack for minutes on an output without the line
-    _, found, tail = out.partition("gateway exited with code -9; its last lines:\n")
+    _, found, tail = out.partition("gateway exited with code -9; starting it again (1 of at most 5 restarts in 60 s); its last lines:\n")
     assert found and " gateway " in tail, out
-    assert not outliving(fleet), "up stopped and reaped the others"
+    after = len(fleet.lines)
+    fleet.status(lambda m: m["up"] == m["n"] == str(N) and int(m["poll_min"]) >= 1, after=after, what=f"{N}/{N} robots up again")
+    os.kill(fleet.children["odometry"], signal.SIGKILL)  # any other child's death ends up
+    assert fleet.wait(20) == 1
+    assert "odometry exited with code -9; its last lines:" in fleet.output()
+    assert not outliving(fleet), "up stopped and reaped the others, the restarted gateway too"
 
 
 def test_ctrl_c_stops_the_whole_fleet_within_three_seconds(fleet: FleetUp) -> None:
@@ -311,9 +317,12 @@ def test_up_spreads_a_fleet_over_two_gateways_and_a_dead_ones_robots_are_stopped
         fleet.wait_line(r"6 simulated robots fleet/r1 \.\.\. fleet/r6 .*\(one simulator, 2 gateway and 2 odometry processes\)")
         fleet.status(lambda m: m["up"] == m["n"] == "6" and int(m["poll_min"]) >= 1, what="6/6 robots up, each polled")
         os.kill(fleet.children["gateway-2"], signal.SIGKILL)
-        assert fleet.wait(20) == 1
+        fleet.children["gateway-2"] = int(fleet.wait_line(r"gateway-2 started again \(pid (\d+)\)")[1])
         out = fleet.output()
         assert "gateway-2 gone; 3 of 3 robots were sent zero velocity and NORMAL_STOP" in out, out
+        assert "gateway-1 gone" not in out
+        fleet.status(lambda m: m["up"] == m["n"] == "6" and int(m["poll_min"]) >= 1, after=len(fleet.lines), what="6/6 up again")
+        assert fleet.stop() == 0
         assert not outliving(fleet)
     finally:
         fleet.stop()

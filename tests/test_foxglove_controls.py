@@ -146,7 +146,9 @@ class Bench:
         self.errors.append(message)
 
     def estops(self) -> list[bool]:
-        return [decode(EStop, payload).engaged for key, payload in self.commands if key == KEYS.estop]
+        puts = [(key, decode(EStop, payload).engaged) for key, payload in self.commands if key in (KEYS.estop, KEYS.estop_release)]
+        assert all(key == KEYS.estop_for(engaged) for key, engaged in puts), puts  # a release goes where a safety role puts
+        return [engaged for _, engaged in puts]
 
 
 def health(estop: bool) -> bytes:

@@ -175,7 +175,7 @@ async def test_estop_latches_and_releases(transport: str) -> None:
         await asyncio.sleep(0.2)
         assert not rig.robot.moving
         assert any("emergency stop" in e.reason for e in rig.output.error_log)
-        rig.service.on_estop(b'{"engaged": false}\n')
+        rig.service.on_estop(b'{"engaged": false}\n', release_key=True)
         assert not rig.service.health().estop
         rig.service.on_cmd_vel(b'{"linear":{"x":0.15}}')
         await until(lambda: rig.robot.target_left == pytest.approx(0.15), "motion after release")
@@ -304,7 +304,7 @@ async def test_hostile_payloads_are_reported_and_never_reach_the_robot(transport
         assert all(abs(r) <= 0.8 and abs(left) <= 0.8 for r, left in seen)
         assert rig.server.malformed_requests == 0
         # and the gateway still serves once the stop is released
-        rig.service.on_estop(b'{"engaged": false}')
+        rig.service.on_estop(b'{"engaged": false}', release_key=True)
         rig.service.on_cmd_vel(b'{"linear":{"x":0.05}}')
         await until(lambda: rig.robot.target_left == pytest.approx(0.05), "service after the burst")
     finally:

@@ -153,7 +153,7 @@ def test_hostile_zenoh_payloads_leave_the_gateway_serving(children: list[Child])
         # a hostile payload on estop fails safe: the stop is engaged, and only a valid release lifts it
         wait_for(lambda: truth(session).v == 0.0, what="the robot stopped by the engaged e-stop")
         assert health(session).estop  # type: ignore[union-attr]
-        session.put("robot/estop", b'{"engaged": false}')
+        session.put("robot/estop/release", b'{"engaged": false}')
         wait_for(lambda: (h := health(session)) is not None and not h.estop, what="the release")
         session.put("robot/cmd_vel", b'{"linear":{"x":0.05}}')
         wait_for(lambda: truth(session).v == pytest.approx(0.05), what="the gateway still serving")

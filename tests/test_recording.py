@@ -116,7 +116,9 @@ def test_a_recording_cut_anywhere_replays_every_whole_sample_in_order(tmp_path: 
     rec = McapRecording(path, Keys())
     stamp0 = 1_795_000_000.0
     for i in range(2000):
-        rec.write("robot/wheels/impulses", encode(WheelImpulses(seq=i, stamp=stamp0 + i / 50, left=400, right=420, mono=i / 50, source="g")))
+        rec.write(
+            "robot/wheels/impulses", encode(WheelImpulses(seq=i, stamp=stamp0 + i / 50, left=400, right=420, mono=i / 50, source="g"))
+        )
         rec.write("robot/pose", encode(make_pose(stamp0 + i / 50, i, 0, 0)))
         if i % 50 == 49:
             rec.flush()

@@ -245,6 +245,8 @@ def test_teleop_keys_to_commands() -> None:
     assert stop.linear.x == 0.0 and t.tick(0.8) == []  # type: ignore[attr-defined]
     msgs = t.on_key("e", 1.0)
     assert msgs[0][0] == "estop" and msgs[0][1].engaged is True  # type: ignore[attr-defined]
+    ((kind, release),) = t.on_key("e", 1.1)  # e again releases, on the release key
+    assert kind == "estop_release" and release.engaged is False  # type: ignore[attr-defined]
 
 
 def test_estop_on_and_off_are_confirmed_by_the_gateway(up: Up) -> None:

@@ -314,7 +314,9 @@ class Diagnostics:
             ("round trip (ms)", "none" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.1f}"),
             ("lost replies", str(h.lost_replies)),
             (f"lost replies ({WINDOW_S:g} s)", str(lost)),
-            ("e-stop", h.estop_text()),
+            ("e-stop", "engaged" if h.estop else "released"),
+            ("e-stop since", h.estop_since_text()),
+            ("e-stop by", h.estop_by or ""),
             ("command timeout active", _yes(h.cmd_timeout_active)),
             ("active source", h.active_source or "none"),
         ]
@@ -333,7 +335,7 @@ class Diagnostics:
         if h.log.state != "connected":
             checks.append((Level.WARN, f"log link {h.log.state}"))
         if h.estop:
-            checks.append((Level.WARN, f"e-stop {h.estop_text()}"))
+            checks.append((Level.WARN, f"e-stop engaged{h.estop_origin()}"))
         if h.last_rtt_ms is not None and h.last_rtt_ms > RTT_WARN_MS:
             checks.append((Level.ERROR if h.last_rtt_ms > RTT_ERROR_MS else Level.WARN, f"round trip {h.last_rtt_ms:.0f} ms"))
         if lost:

@@ -6,7 +6,7 @@ here). This command keeps its session open, repeats the put every 100 ms
 and watches the gateway's health until it reports the new state; it exits 0
 then, or 1 with the reason after ``--timeout`` (default 2 s). A release goes
 on ``<prefix>/estop/release``, the key a secure router gives to a safety
-role alone (a gateway with ``--release-key-only`` releases only there).
+role alone (the only key a gateway releases on, unless ``--unsafe-release-on-estop``).
 """
 
 from __future__ import annotations

@@ -82,7 +82,7 @@ class Teleop:
             out.append(self._stop(now))
         elif key == "e":
             self.estop = not self.estop
-            out.append(("estop", EStop(engaged=self.estop)))
+            out.append(("estop" if self.estop else "estop_release", EStop(engaged=self.estop)))  # a release on its own key
             if self.moving:
                 out.append(self._stop(now))
         elif key in ("+", "="):
@@ -146,6 +146,7 @@ def run(args: argparse.Namespace) -> int:
         publishers = {
             "cmd_vel": session.declare_publisher(keys.cmd_vel_of(args.source), express=True),
             "estop": session.declare_publisher(keys.estop, express=True),
+            "estop_release": session.declare_publisher(keys.estop_release, express=True),
         }
         pose = Latest(session, keys.pose, Pose)
         health = Latest(session, keys.health, GatewayHealth)

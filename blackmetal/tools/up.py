@@ -838,6 +838,7 @@ def _live(
                     again = ServiceProcess(child.name, child.args, echo=child.echo, own_session=True)
                     children[children.index(child)] = again
                     stoppers[again] = stoppers.pop(child)
+                    print(f"blackmetal up: {child.name} started again (pid {again.proc.pid})", file=sys.stderr, flush=True)
                     continue
             print(
                 f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
