@@ -222,6 +222,16 @@ def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> N
     assert len(out.forwarded) == 2 and core.calls == {}
 
 
+def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCodec) -> None:
+    """A release goes on estop/release, the key a secure router gives to the safety role (a release on estop is refused)."""
+    core, out = make_core(codec)
+    core.on_service_request("set_estop", 1, set_bool_request(False), attachment(1, 1, GID), now=10.0)
+    assert out.forwarded == [("robot/estop/release", encode(EStop(engaged=False)))]
+    core.on_estop(codec.encode_bool(False), now=10.1)
+    core.on_estop(codec.encode_bool(True), now=10.2)
+    assert out.forwarded[1:] == [("robot/estop/release", encode(EStop(engaged=False))), ("robot/estop", encode(EStop(engaged=True)))]
+
+
 def test_set_estop_unconfirmed_is_false_at_the_deadline_with_the_reason(codec: RosCodec) -> None:
     core, out = make_core(codec)
     core.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=10.0)

@@ -35,7 +35,8 @@ def run(args: argparse.Namespace) -> int:
             publisher.put(payload)
             health = query(session, keys.health, GatewayHealth, timeout=REPEAT_S * 5)
             if health is not None and health.estop == engage:
-                print(f"blackmetal estop: {'ENGAGED' if engage else 'released'} on {keys.prefix} (confirmed by the gateway)")
+                state = "ENGAGED" if engage else "released"
+                print(f"blackmetal estop: {state} on {keys.prefix} (confirmed by the gateway){health.estop_origin()}")
                 return 0
             if time.monotonic() > deadline:
                 seen = "no health" if health is None else f"health still says estop={health.estop}"
