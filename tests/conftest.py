@@ -1,11 +1,18 @@
-"""Shared fixtures, the two tiers of the suite, and how they share the workers.
+"""Shared fixtures, the tiers of the suite (set by folder), and how they share the workers.
 
-``python -m pytest -m "not slow"`` is the fast tier, run before each commit: unit, property, contract
-and fake-clock tests. ``python -m pytest`` (what CI runs) runs everything, ``slow`` included. A test
-is ``slow`` when it is ``integration`` (starts real processes or Zenoh sessions; any test that uses
-the ``children`` fixture is one, marked or not), or when it is marked ``slow`` itself because it
-takes seconds. A fast-tier test that took longer than ``FAST_TEST_BUDGET_S`` is named at the end of
-the run, so that the tier stays fast.
+The folder says what a test is (docs/contributing.md, "Tests"):
+
+* ``unit/<package>/test_<module>.py``: the tests of one product module, on a fake clock where time matters;
+* ``contract/``: one suite run against every implementation of an interface (memory and TCP);
+* ``integration/``: real processes and Zenoh sessions on loopback; every test there is ``integration`` and ``slow``;
+* ``project/``: the project's own rules (layers, lint, types, docs, this layout).
+
+``python -m pytest -m "not slow"`` is the fast tier, run before each commit: everything outside
+``integration/`` that is not marked ``slow`` (or ``integration``, which implies ``slow``) itself.
+``python -m pytest`` (what CI runs) runs everything. A test outside ``integration/`` that starts
+processes (uses the ``children`` fixture) must say so with ``@pytest.mark.integration``: collection
+stops with its name otherwise. A fast-tier test that took longer than ``FAST_TEST_BUDGET_S`` is named
+at the end of the run, so that the tier stays fast.
 
 With pytest-xdist (``-n 3 --dist loadscope`` in pyproject.toml) each module runs on one worker, so
 module fixtures start once, and the three workers run three modules at a time. Fast-tier tests still run
@@ -19,6 +26,7 @@ import asyncio
 import fcntl
 import os
 from collections.abc import Callable, Coroutine, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import pytest
@@ -32,7 +40,7 @@ FAST_TEST_BUDGET_S = 5.0
 
 #: Every gateway a test starts keeps its e-stop latch in that test's (or module's) own folder, never in the user's
 #: ~/.local/state, and a gateway with no saved state there starts released, as `blackmetal up` starts its simulator:
-#: the tests of the latch itself (tests/test_estop_latch.py) set both back to what a deployment has.
+#: the tests of the latch itself (tests/unit/gateway/test_latch.py) set both back to what a deployment has.
 STATE_DIR_ENV = "BLACKMETAL_STATE_DIR"
 os.environ["BLACKMETAL_UNSAFE_START_RELEASED"] = "true"
 
@@ -55,13 +63,26 @@ def _state_dir_per_test(tmp_path_factory: pytest.TempPathFactory, monkeypatch: p
     monkeypatch.setenv(STATE_DIR_ENV, str(tmp_path_factory.mktemp("state")))
 
 
+#: Every test under this folder is ``integration`` (and so ``slow``), marked or not.
+INTEGRATION = Path(__file__).parent / "integration"
+
+
 @pytest.hookimpl(tryfirst=True)  # before ``-m`` selects on the markers
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    unmarked: list[str] = []
     for item in items:
-        if "children" in getattr(item, "fixturenames", ()) and item.get_closest_marker("integration") is None:
-            item.add_marker(pytest.mark.integration)
+        if item.path.is_relative_to(INTEGRATION):
+            if item.get_closest_marker("integration") is None:
+                item.add_marker(pytest.mark.integration)
+        elif "children" in getattr(item, "fixturenames", ()) and item.get_closest_marker("integration") is None:
+            unmarked.append(item.nodeid)
         if item.get_closest_marker("integration") is not None and item.get_closest_marker("slow") is None:
             item.add_marker(pytest.mark.slow)
+    if unmarked:
+        raise pytest.UsageError(
+            "these tests start processes (the children fixture) outside tests/integration/: mark them "
+            "@pytest.mark.integration or move their module there: " + ", ".join(unmarked)
+        )
 
 
 @pytest.fixture(autouse=True)

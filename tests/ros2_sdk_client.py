@@ -1,4 +1,4 @@
-"""A ROS 2 node made with zenoh-ros2-sdk (ROBOTIS, from PyPI): the independent rmw_zenoh client of tests/test_ros2_sdk.py.
+"""A ROS 2 node made with zenoh-ros2-sdk (ROBOTIS, from PyPI): the independent rmw_zenoh client of tests/integration/test_ros2_sdk.py.
 
 Runs in the SDK's own virtualenv, never in ours (it imports zenoh_ros2_sdk
 and the standard library only), as ``python ros2_sdk_client.py ROUTER_PORT

@@ -1,0 +1,1 @@
+"""The project's own rules: layers, lint, types, the docs and the test layout."""

@@ -1,0 +1,177 @@
+"""The live Foxglove view, seen by a WebSocket client that speaks Foxglove's protocol as the app does."""
+
+from __future__ import annotations
+
+import base64
+import itertools
+import json
+import struct
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+import zenoh
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from helpers import Child, client_config, free_port, start_robot, zenoh_connect_args
+from mcap.reader import make_reader
+from websockets.sync.client import connect
+
+from blackmetal.schemas import Pose, decode
+
+#: The subprotocols Foxglove's app offers.
+SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
+EXPECTED = {
+    "/pose": "foxglove.PoseInFrame",
+    "/tf": "foxglove.FrameTransform",
+    "/path": "foxglove.PosesInFrame",
+    "/truth/pose": "foxglove.PoseInFrame",
+    "/truth/path": "foxglove.PosesInFrame",
+    "/odometry": "Pose",
+    "/wheels": "WheelSpeeds",
+    "/status": "RobotStatus",
+    "/health": "GatewayHealth",
+    "/diagnostics": "diagnostic_msgs/msg/DiagnosticArray",
+    "/errors": "ErrorReport",
+    "/log": "foxglove.Log",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/robot_description": "std_msgs/msg/String",
+}
+
+
+def protobuf_class(channel: dict[str, Any]) -> Any:
+    """The message class of an advertised protobuf channel, built from its FileDescriptorSet."""
+    files = descriptor_pb2.FileDescriptorSet.FromString(base64.b64decode(channel["schema"]))
+    pool = descriptor_pool.DescriptorPool()
+    for file in files.file:
+        pool.Add(file)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(channel["schemaName"]))
+
+
+@pytest.mark.integration
+def test_foxglove_client_sees_the_robot_drive(children: list[Child], tmp_path: Path) -> None:
+    zport = free_port()
+    start_robot(children, zport)
+    mcap_path = tmp_path / "view.mcap"
+    view = Child(["-m", "blackmetal", "foxglove", "--port", "0", "--mcap", str(mcap_path), *zenoh_connect_args(zport)])
+    children.append(view)
+    url = view.ready()["url"]
+    with connect(url, subprotocols=SUBPROTOCOLS, open_timeout=20) as ws, zenoh.open(client_config(zport)) as session:  # type: ignore[arg-type]
+        assert ws.subprotocol in SUBPROTOCOLS
+        channels: dict[str, dict[str, Any]] = {}
+        server_info = None
+        deadline = time.monotonic() + 20
+        while (server_info is None or set(channels) < set(EXPECTED)) and time.monotonic() < deadline:
+            message = ws.recv(timeout=20)
+            if isinstance(message, str):
+                op = json.loads(message)
+                if op["op"] == "serverInfo":
+                    server_info = op
+                elif op["op"] == "advertise":
+                    channels.update({c["topic"]: c for c in op["channels"]})
+        assert server_info is not None and server_info["name"] == "blackmetal"
+        assert {topic: channels[topic]["schemaName"] for topic in EXPECTED} == EXPECTED
+        assert channels["/odometry"]["encoding"] == "json" and channels["/odometry"]["schemaEncoding"] == "jsonschema"
+        pose_class = protobuf_class(channels["/pose"])
+        ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": 7, "channelId": channels["/pose"]["id"]}]}))
+
+        xs: list[float] = []
+        frames: set[str] = set()
+        end = time.monotonic() + 3.0
+        while time.monotonic() < end:  # drive forward at 10 Hz and read what the view sends
+            session.put("robot/cmd_vel", json.dumps({"linear": {"x": 0.3}}))
+            stop_reading = time.monotonic() + 0.1
+            while time.monotonic() < stop_reading:
+                try:
+                    message = ws.recv(timeout=0.05)
+                except TimeoutError:
+                    break
+                if isinstance(message, bytes) and message[0] == 0x01:
+                    (subscription,) = struct.unpack_from("<I", message, 1)
+                    assert subscription == 7
+                    pose = pose_class.FromString(message[13:])
+                    xs.append(pose.pose.position.x)
+                    frames.add(pose.frame_id)
+        replies = [r for r in session.get("robot/pose", timeout=5) if r.ok is not None]
+        odometry_x = decode(Pose, replies[0].ok.payload.to_bytes()).x
+        assert frames == {"odom"}
+        assert len(xs) > 50 and xs[-1] - xs[0] > 0.3, (xs[:3], xs[-3:])
+        assert all(b >= a - 1e-9 for a, b in itertools.pairwise(xs)), "x follows the forward drive"
+        assert abs(xs[-1] - odometry_x) < 0.1
+    assert view.stop() == 0
+    with open(mcap_path, "rb") as handle:
+        topics = {channel.topic for _, channel, _ in make_reader(handle).iter_messages()}
+    assert {"/pose", "/tf", "/path", "/odometry", "/wheels", "/joint_states", "/robot_description"} <= topics, (
+        "an MCAP file takes every channel"
+    )
+
+
+def panels(node: Any) -> Iterator[dict[str, Any]]:
+    """Every panel of a layout (Foxglove's layout format: splits, tabs, stacks of panels)."""
+    if isinstance(node, dict):
+        if node.get("type") == "panel":
+            yield node
+        for value in node.values():
+            yield from panels(value)
+    elif isinstance(node, list):
+        for item in node:
+            yield from panels(item)
+
+
+def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> None:
+    layout = json.loads((Path(__file__).parents[3] / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
+    shown: set[str] = set()
+    published: dict[str, list[dict[str, Any]]] = {}
+    called: dict[str, dict[str, Any]] = {}
+    kinds: set[str] = set()
+    for panel in panels(layout):
+        kind, config = panel["panelType"], panel["config"]
+        kinds.add(kind)
+        if kind == "ThreeDee":
+            shown.update(config["topics"])
+            assert config["followTf"] == "base_link"
+            (urdf,) = config["layers"].values()  # the robot model, from the view's URDF topic (links unprefixed)
+            assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
+                "foxglove.Urdf",
+                "topic",
+                "/robot_description",
+                "",
+            )
+            shown.add(urdf["topic"])
+        elif kind == "Plot":
+            shown.update(path["value"].split(".")[0] for path in config["paths"])
+        elif kind in ("Log", "DiagnosticsSummary"):
+            shown.add(config["topicToRender"])
+        elif kind == "RawMessages":
+            shown.add(config["topicPath"].split(".")[0])
+        elif kind == "Teleop":
+            published.setdefault(config["topic"], []).append(config)
+            assert config["publishRate"] >= 5, "the gateway's source timeout is 0.5 s: the panel must publish faster than that"
+        elif kind == "Publish":
+            published.setdefault(config["topicName"], []).append(config)
+        elif kind == "ServiceCall":
+            called[config["serviceName"]] = json.loads(config["requestPayload"])
+    assert shown and shown <= set(EXPECTED), shown - set(EXPECTED)
+    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description"} <= shown
+    assert {"Teleop", "Publish", "DiagnosticsSummary", "Parameters"} <= kinds
+    assert set(published) == {"/cmd_vel", "/estop"}
+    (stop_button,) = published["/estop"]
+    assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
+    assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
+
+
+def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
+    from blackmetal.foxglove.core import DiagnosticLevel, diagnostics
+    from blackmetal.schemas import GatewayHealth, LinkHealth
+
+    health = GatewayHealth(stamp=12.5, control=LinkHealth("connected"), log=LinkHealth("down"), estop=True, active_source="foxglove")
+    array = diagnostics(health, "robot")
+    levels = {status["name"]: status["level"] for status in array["status"]}
+    assert array["header"]["stamp"] == {"sec": 12, "nsec": 500_000_000}
+    assert levels["gateway: e-stop"] == levels["gateway: log link"] == DiagnosticLevel.ERROR
+    assert levels["gateway: control link"] == DiagnosticLevel.OK
+    assert all(
+        status["hardware_id"] == "robot" and all(isinstance(v["value"], str) for v in status["values"]) for status in array["status"]
+    )
+    assert "driven by foxglove" in {status["message"] for status in array["status"]}
