@@ -1,0 +1,91 @@
+"""The test layout a newcomer relies on: the tests of ``blackmetal/<package>/<module>.py`` are in
+``tests/unit/<package>/test_<module>.py`` (or ``test_<module>_<aspect>.py``), top-level modules under
+``tests/unit/blackmetal/``; docs/contributing.md ("Tests") draws it.
+
+Modules with no test file of their name yet are listed in :data:`NO_TEST_FILE_YET`, and the list is held
+exact both ways: a new module must come with its test file (or be listed, saying so in review), and a
+listed module that got its file, or was renamed or removed, must leave the list. Most of them are run
+end to end by tests/integration; a test file of their name is what is missing.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+UNIT = ROOT / "tests" / "unit"
+
+#: Modules that need no test file of their own, and why.
+EXEMPT = {
+    "__init__": "a package's docstring and re-exports; what it re-exports is tested where it is defined",
+    "__main__": "``python -m`` calls the entry point; the entry is tested through the command",
+}
+#: ``blackmetal/bench/__init__.py`` is the bench itself, not re-exports: tests/integration/test_bench_smoke.py runs it.
+NOT_EXEMPT = {"bench/__init__"}
+
+#: Product modules without tests/unit/<package>/test_<module>.py yet (issue #38 item 5).
+NO_TEST_FILE_YET = {
+    "bench/__init__", "bench/children", "bench/figures", "bench/fleet", "bench/peers", "bench/synth",
+    "foxglove/host", "foxglove/main", "foxglove/model", "foxglove/ports", "foxglove/settings", "foxglove/zenoh_edge",
+    "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health", "gateway/host", "gateway/links",
+    "gateway/log_port", "gateway/main", "gateway/prepare", "gateway/settings", "gateway/zenoh_edge",
+    "odometry_service/batch", "odometry_service/errors", "odometry_service/glitches", "odometry_service/host",
+    "odometry_service/main", "odometry_service/params", "odometry_service/replay", "odometry_service/settings",
+    "odometry_service/zenoh_edge",
+    "recording/recorder", "recording/writer",
+    "ros2/main", "ros2/messages", "ros2/settings",
+    "runtime/entry", "runtime/harness", "runtime/host", "runtime/settings", "runtime/signals", "runtime/zenoh_entities",
+    "runtime/zenoh_setup",
+    "schemas/jsonschema", "schemas/keys", "schemas/messages",
+    "sim/fleet", "sim/main", "sim/memory", "sim/server", "sim/settings",
+    "tools/calibrate", "tools/client", "tools/estop", "tools/list_robots", "tools/params", "tools/record", "tools/router",
+    "tools/square", "tools/stop_robot", "tools/teleop", "tools/up", "tools/watch",
+}  # fmt: skip
+
+#: Folders of tests/unit that are no Python package of the product, and what they test.
+OTHER_UNIT_FOLDERS = {"blackmetal": "the top-level modules blackmetal/*.py", "deploy": "the configurations in deploy/"}
+
+
+def product_modules() -> list[str]:
+    """``package/module`` for every module of the product (``blackmetal/module`` for the top level), symlinked packages included."""
+    modules = [f"blackmetal/{path.stem}" for path in (ROOT / "blackmetal").glob("*.py")]
+    for package in (ROOT / "blackmetal").iterdir():
+        if package.is_dir() and (package / "__init__.py").is_file():  # gateway, odometry_service, schemas are symlinks
+            modules += [f"{package.name}/{path.stem}" for path in package.glob("*.py")]
+    return sorted(modules)
+
+
+def has_test_file(module: str) -> bool:
+    package, name = module.split("/")
+    folder = UNIT / package
+    return (folder / f"test_{name}.py").is_file() or any(folder.glob(f"test_{name}_*.py"))
+
+
+def test_every_product_module_has_its_test_file_or_is_listed_as_not_yet() -> None:
+    wanted = [m for m in product_modules() if m.split("/")[1] not in EXEMPT or m in NOT_EXEMPT]
+    missing = {m for m in wanted if not has_test_file(m)}
+    unlisted = sorted(missing - NO_TEST_FILE_YET)
+    assert not unlisted, (
+        f"no tests/unit/<package>/test_<module>.py for {unlisted}: write it (or add the module to NO_TEST_FILE_YET, and say why in review)"
+    )
+    stale = sorted(NO_TEST_FILE_YET - missing)
+    assert not stale, f"{stale} have a test file now, or no longer exist: take them out of NO_TEST_FILE_YET"
+
+
+def test_every_unit_folder_is_named_after_what_it_tests() -> None:
+    packages = {m.split("/")[0] for m in product_modules()}
+    folders = {path.name for path in UNIT.iterdir() if path.is_dir() and path.name != "__pycache__"}
+    assert folders - packages - set(OTHER_UNIT_FOLDERS) == set(), "tests/unit/<folder> is a package of blackmetal/"
+
+
+def test_test_modules_live_in_the_folder_of_their_kind() -> None:
+    """Only the shared helpers stay in tests/ itself; a test module goes to unit/, contract/, integration/ or project/."""
+    loose = sorted(path.name for path in (ROOT / "tests").glob("test_*.py"))
+    assert loose == [], f"{loose}: move each to tests/unit/<package>/, contract/, integration/ or project/"
+    for folder in ("unit", "contract", "integration", "project"):
+        top = ROOT / "tests" / folder
+        for path in [top, *top.rglob("*")]:
+            if path.is_dir() and path.name != "__pycache__":
+                assert (path / "__init__.py").is_file(), (
+                    f"{path.relative_to(ROOT)} needs an __init__.py: same-named test modules in two folders"
+                )
