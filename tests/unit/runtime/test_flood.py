@@ -20,16 +20,6 @@ from blackmetal.runtime.flood import FLOOD_SAMPLES, FLOOD_WINDOW_S, QUIET_S, Gua
 KEY = "robot/cmd_vel/nav"
 
 
-class Clock:
-    """What ``time.monotonic`` says inside the flood module."""
-
-    def __init__(self) -> None:
-        self.now = 1000.0
-
-    def __call__(self) -> float:
-        return self.now
-
-
 class Handler:
     """A ring buffer's handler that never holds a sample: ``recv`` blocks until the subscriber goes, as Zenoh's does."""
 
@@ -100,9 +90,10 @@ def sample(payload: bytes) -> Any:
 
 
 @pytest.fixture
-def clock(monkeypatch: pytest.MonkeyPatch) -> Clock:
-    fake = Clock()
-    monkeypatch.setattr(flood, "time", SimpleNamespace(monotonic=fake))
+def clock(monkeypatch: pytest.MonkeyPatch) -> SimpleNamespace:
+    """What ``time.monotonic`` says inside the flood module: ``clock.now``."""
+    fake = SimpleNamespace(now=1000.0)
+    monkeypatch.setattr(flood, "time", SimpleNamespace(monotonic=lambda: fake.now))
     return fake
 
 
@@ -122,7 +113,7 @@ class Rig:
         )
         self.guarded.start()
 
-    def put(self, count: int, clock: Clock, spacing_s: float = 0.0) -> None:
+    def put(self, count: int, clock: SimpleNamespace, spacing_s: float = 0.0) -> None:
         for i in range(count):
             self.guarded._on_sample(sample(f"{i}".encode()))
             clock.now += spacing_s
@@ -135,7 +126,7 @@ class Rig:
 
 
 @pytest.fixture
-def rig(clock: Clock) -> Iterator[Rig]:
+def rig(clock: SimpleNamespace) -> Iterator[Rig]:
     made = Rig()
     yield made
     made.guarded.close()
@@ -146,7 +137,7 @@ def test_newest_keeps_only_the_last_sample_of_a_batch() -> None:
     assert newest([]) == []
 
 
-def test_up_to_flood_samples_in_a_window_stay_on_the_callback(rig: Rig, clock: Clock) -> None:
+def test_up_to_flood_samples_in_a_window_stay_on_the_callback(rig: Rig, clock: SimpleNamespace) -> None:
     """Twenty commanders at 100 Hz are no flood: every sample is handed over at once, nothing changes."""
     rig.put(FLOOD_SAMPLES, clock)
     assert len(rig.received) == FLOOD_SAMPLES and rig.received[0] == ("nav", b"0")
@@ -158,7 +149,7 @@ def test_up_to_flood_samples_in_a_window_stay_on_the_callback(rig: Rig, clock: C
     assert rig.loop.soon == [] and rig.session.declared() == ["callback"]
 
 
-def test_one_sample_over_the_limit_asks_the_loop_once_for_the_change(rig: Rig, clock: Clock) -> None:
+def test_one_sample_over_the_limit_asks_the_loop_once_for_the_change(rig: Rig, clock: SimpleNamespace) -> None:
     """The change is made on the loop, never in Zenoh's callback; however long the flood, it is asked for once."""
     rig.put(FLOOD_SAMPLES + 1, clock)
     assert len(rig.loop.soon) == 1 and not rig.guarded.flooded
@@ -167,7 +158,7 @@ def test_one_sample_over_the_limit_asks_the_loop_once_for_the_change(rig: Rig, c
     assert len(rig.received) == 11 * FLOOD_SAMPLES + 1, "every sample of a flood is still handed over until the change"
 
 
-def test_the_change_declares_the_ring_before_the_callback_goes_and_says_why(rig: Rig, clock: Clock) -> None:
+def test_the_change_declares_the_ring_before_the_callback_goes_and_says_why(rig: Rig, clock: SimpleNamespace) -> None:
     rig.put(FLOOD_SAMPLES + 1, clock)
     rig.run_soon()
     assert rig.guarded.flooded and rig.session.declared() == ["ring"]
@@ -182,7 +173,7 @@ def test_the_change_declares_the_ring_before_the_callback_goes_and_says_why(rig:
     assert [delay for delay, _ in rig.loop.later] == [QUIET_S / 2]  # the first look for quiet
 
 
-def test_after_quiet_s_without_a_sample_it_goes_back_to_a_callback(rig: Rig, clock: Clock) -> None:
+def test_after_quiet_s_without_a_sample_it_goes_back_to_a_callback(rig: Rig, clock: SimpleNamespace) -> None:
     rig.put(FLOOD_SAMPLES + 1, clock)
     rig.run_soon()
     clock.now += QUIET_S / 2
@@ -198,7 +189,7 @@ def test_after_quiet_s_without_a_sample_it_goes_back_to_a_callback(rig: Rig, clo
     assert len(rig.loop.soon) == 1
 
 
-def test_a_ring_that_cannot_be_declared_leaves_the_callback_and_the_next_flood_tries_again(rig: Rig, clock: Clock) -> None:
+def test_a_ring_that_cannot_be_declared_leaves_the_callback_and_the_next_flood_tries_again(rig: Rig, clock: SimpleNamespace) -> None:
     rig.session.refuse_rings = True
     rig.put(FLOOD_SAMPLES + 1, clock)
     with pytest.raises(zenoh.ZError):
@@ -211,20 +202,20 @@ def test_a_ring_that_cannot_be_declared_leaves_the_callback_and_the_next_flood_t
     assert rig.guarded.flooded
 
 
-def test_a_flood_while_the_loop_is_closing_still_hands_every_sample_over(rig: Rig, clock: Clock) -> None:
+def test_a_flood_while_the_loop_is_closing_still_hands_every_sample_over(rig: Rig, clock: SimpleNamespace) -> None:
     rig.loop.closed = True
     rig.put(FLOOD_SAMPLES + 5, clock)
     assert len(rig.received) == FLOOD_SAMPLES + 5 and not rig.guarded.flooded
 
 
-def test_a_change_asked_for_before_close_declares_nothing_after_it(rig: Rig, clock: Clock) -> None:
+def test_a_change_asked_for_before_close_declares_nothing_after_it(rig: Rig, clock: SimpleNamespace) -> None:
     rig.put(FLOOD_SAMPLES + 1, clock)
     rig.guarded.close()
     rig.run_soon()
     assert rig.session.declared() == [] and not rig.guarded.flooded and rig.reports == []
 
 
-def test_close_while_flooded_undeclares_the_ring_and_ends_the_pump(rig: Rig, clock: Clock) -> None:
+def test_close_while_flooded_undeclares_the_ring_and_ends_the_pump(rig: Rig, clock: SimpleNamespace) -> None:
     rig.put(FLOOD_SAMPLES + 1, clock)
     rig.run_soon()
     rig.guarded.close()
@@ -232,7 +223,7 @@ def test_close_while_flooded_undeclares_the_ring_and_ends_the_pump(rig: Rig, clo
     assert not [t for t in threading.enumerate() if t.name == f"pump {KEY}"]
 
 
-def test_a_key_with_a_wildcard_hands_over_the_last_chunk_of_each_samples_key(clock: Clock) -> None:
+def test_a_key_with_a_wildcard_hands_over_the_last_chunk_of_each_samples_key(clock: SimpleNamespace) -> None:
     """A guarded ``cmd_vel/*`` tells its channel which source sent each sample."""
     received: list[tuple[str, bytes]] = []
     session = SimpleNamespace(declare_subscriber=lambda key, handler: Subscriber(handler))
