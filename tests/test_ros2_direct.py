@@ -19,8 +19,9 @@ from hypothesis import strategies as st
 
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.host import Ros2Host
-from blackmetal.ros2.messages import TWIST, TWIST_STAMPED, RosCodec
+from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import CMD_VEL_STAMPED, Flavor, services, topics
+from blackmetal.ros2.ros_types import TWIST, TWIST_STAMPED
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.ros2.zenoh_edge import Ros2Zenoh
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Twist, decode
@@ -141,7 +142,7 @@ finite_or_not = st.floats(allow_nan=True, allow_infinity=True, width=64)
 def _reference(codec: RosCodec, payload: bytes, stamped: bool) -> tuple[Any, float] | str:
     """rosbags' reading of the payload (the codec's slow path), or the reason it refuses it."""
     try:
-        message = codec._decode(payload, TWIST_STAMPED if stamped else TWIST)
+        message = codec.decode(payload, TWIST_STAMPED if stamped else TWIST)
         twist = codec._twist(payload, message.twist if stamped else message)
     except PayloadError as exc:
         return exc.reason
@@ -238,7 +239,7 @@ def test_odom_written_straight_is_what_rosbags_writes(
     pose_covariance: list[float],
     twist_covariance: list[float],
 ) -> None:
-    from blackmetal.ros2.messages import Frames
+    from blackmetal.ros2.ros_types import Frames
     from blackmetal.schemas import make_pose
 
     pose = make_pose(stamp, x, y, yaw, v, w)

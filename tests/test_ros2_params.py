@@ -9,7 +9,10 @@ from typing import Any
 import pytest
 from test_ros2_services import PARAMETER_EVENT_HASH, PARAMETER_SERVICE_HASHES, make_core
 
-from blackmetal.ros2.messages import (
+from blackmetal.ros2.messages import RosCodec
+from blackmetal.ros2.naming import PARAMETER_EVENTS, PARAMETER_SERVICES, attachment, parse_attachment
+from blackmetal.ros2.parameters import list_names
+from blackmetal.ros2.ros_types import (
     DESCRIBE_PARAMETERS,
     GET_PARAMETER_TYPES,
     GET_PARAMETERS,
@@ -18,10 +21,7 @@ from blackmetal.ros2.messages import (
     SET_PARAMETERS,
     SET_PARAMETERS_ATOMICALLY,
     ParameterType,
-    RosCodec,
 )
-from blackmetal.ros2.naming import PARAMETER_EVENTS, PARAMETER_SERVICES, attachment, parse_attachment
-from blackmetal.ros2.parameters import list_names
 from blackmetal.schemas import GatewayParams, Param, ParamResult, ParamsSet, ParamsSetReply, decode, encode
 
 GID = bytes(range(16))

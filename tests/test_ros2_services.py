@@ -33,8 +33,9 @@ from blackmetal.ros2.core import (
     Ros2Core,
     Ros2Options,
 )
-from blackmetal.ros2.messages import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level, RosCodec
+from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
+from blackmetal.ros2.ros_types import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
 

@@ -58,7 +58,7 @@ from blackmetal.schemas import (
     encode,
 )
 
-from .messages import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosCodec, RosValue, Transform, excerpt
+from .messages import RosCodec
 from .naming import (
     PARAMETER_EVENTS,
     PARAMETER_SERVICES,
@@ -70,6 +70,7 @@ from .naming import (
     parse_attachment,
 )
 from .parameters import NodeParameters
+from .ros_types import SET_BOOL, TRIGGER, Diagnostic, Frames, Level, RosValue, Transform, excerpt
 
 #: Joint positions are not integrated across a gap longer than this (s): a lost link is not motion.
 MAX_JOINT_GAP_S = 0.5

@@ -31,10 +31,8 @@ from dataclasses import dataclass
 
 from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
 
-from .messages import Descriptor, ParameterType, RosValue
+from .ros_types import ParameterType, RosValue
 
-#: rcl_interfaces' names for the gateway's kinds of value.
-TYPES = {"bool": ParameterType.BOOL, "integer": ParameterType.INTEGER, "double": ParameterType.DOUBLE, "string": ParameterType.STRING}
 SEPARATOR = "."
 
 
@@ -59,10 +57,6 @@ def list_names(names: Sequence[str], prefixes: Sequence[str], depth: int) -> tup
             if prefix not in found:
                 found.append(prefix)
     return out, found
-
-
-def descriptor(param: Param) -> Descriptor:
-    return Descriptor(param.name, TYPES.get(param.type, ParameterType.NOT_SET), param.description, param.read_only, param.min, param.max)
 
 
 def ros_value(param: Param) -> RosValue:
@@ -113,11 +107,11 @@ class NodeParameters:
         return [ros_value(self.table[name]) if name in self.table else None for name in names]
 
     def types(self, names: Sequence[str]) -> list[ParameterType]:
-        return [TYPES.get(self.table[name].type, ParameterType.NOT_SET) if name in self.table else ParameterType.NOT_SET for name in names]
+        return [ParameterType.of(self.table[name].type) if name in self.table else ParameterType.NOT_SET for name in names]
 
-    def describe(self, names: Sequence[str]) -> list[Descriptor]:
-        """Each name's descriptor, in order; an unknown name gets one of type NOT_SET (the .srv asks for one per name)."""
-        return [descriptor(self.table[name]) if name in self.table else Descriptor(name, ParameterType.NOT_SET) for name in names]
+    def describe(self, names: Sequence[str]) -> list[Param]:
+        """Each name's parameter, in order; an unknown name gets one of no kind, NOT_SET (the .srv asks for one per name)."""
+        return [self.table.get(name) or Param(name=name, type="", value="") for name in names]
 
     # ------------------------------------------------------------------ sets
     def _check(self, name: str, value: RosValue) -> tuple[ParamValue | None, str | None]:
