@@ -25,16 +25,12 @@ import zenoh
 from helpers import TIMEOUT, Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 
 from blackmetal.robot_model import Encoders
-from blackmetal.ros2.core import (
-    ESTOP_REPEAT_S,
-    HEALTH_STALE_S,
-    POSE_STALE_S,
-    REJECTED_ERROR_COUNT,
-    Ros2Core,
-    Ros2Options,
-)
+from blackmetal.ros2.calls import ESTOP_REPEAT_S
+from blackmetal.ros2.core import Ros2Core
+from blackmetal.ros2.diagnostics import HEALTH_STALE_S, POSE_STALE_S, REJECTED_ERROR_COUNT
 from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
+from blackmetal.ros2.options import Ros2Options
 from blackmetal.ros2.ros_types import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
@@ -220,7 +216,7 @@ def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> N
     sequence, stamp, gid = parse_attachment(out.replies[1][1] or b"")
     assert (sequence, gid) == (41, GID) and stamp == 1_700_000_000 * 10**9  # the request's id, the server's time
     core.tick(20.0)  # nothing pending any more: no more puts
-    assert len(out.forwarded) == 2 and core.calls == {}
+    assert len(out.forwarded) == 2 and core.calls.pending == {}
 
 
 def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCodec) -> None:
