@@ -25,6 +25,7 @@ import math
 import time
 from collections.abc import Callable
 
+from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
@@ -34,7 +35,6 @@ from .joints import WheelJoints
 from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
-from .ros_types import Diagnostic
 
 #: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
 DEFAULT_CMD_TIMEOUT = 0.5
@@ -271,7 +271,7 @@ class Ros2Core:
         self.calls.on_query_done(tag, now)
 
     # --------------------------------------------------------------- timers
-    def statuses(self, now: float) -> list[Diagnostic]:
+    def statuses(self, now: float) -> list[Status]:
         d = self.diagnostics
         return [d.robot_link(now), d.odometry(now), d.adapter(now, self.stats, self.options, len(self.calls.pending))]
 

@@ -1,8 +1,10 @@
 """ROS 2 ``/diagnostics``: the three statuses (robot link, odometry, adapter) from the latest of what the node saw.
 
 The latest health, pose, odometry reports and liveliness it was fed,
-turned into three ``DiagnosticStatus`` every :data:`DIAGNOSTICS_PERIOD_S`
-by the thresholds below (the README lists them). Pure, ``now`` passed in.
+turned into three ``DiagnosticStatus`` every :data:`DIAGNOSTICS_PERIOD_S`.
+Their levels, words and thresholds are the shared severity table's
+(:mod:`blackmetal.runtime.diagnostics`, which the Foxglove view reads too;
+the README lists them). Pure, ``now`` passed in.
 """
 
 from __future__ import annotations
@@ -11,38 +13,22 @@ import math
 from collections import deque
 from dataclasses import dataclass, field
 
+from blackmetal.runtime import diagnostics as table
+from blackmetal.runtime.diagnostics import WINDOW_S, Check, Status, worst
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys
 
 from .options import Ros2Options
-from .ros_types import Diagnostic, Level
 
 DIAGNOSTICS_PERIOD_S = 1.0
-#: Counting windows for lost replies, rejected samples, bad ROS inputs and failed calls (s).
-WINDOW_S = 10.0
-#: Robot link: STALE after this long without a health report (the gateway reports every 1 s).
-HEALTH_STALE_S = 3.0
-#: Robot link: WARN / ERROR when the measured poll rate is below this fraction of the asked one.
-POLL_WARN_RATIO = 0.9
-POLL_ERROR_RATIO = 0.5
-#: Robot link: WARN / ERROR when the last round trip is longer (ms); the gateway gives a request up after 500 ms.
-RTT_WARN_MS = 100.0
-RTT_ERROR_MS = 250.0
-#: Robot link: ERROR when at least this fraction of the polls of the window lost their reply (any: WARN).
-LOST_ERROR_FRACTION = 0.1
-#: Odometry: WARN when the last pose is older than this (s), STALE beyond POSE_STALE_S.
-POSE_LATE_S = 0.5
-POSE_STALE_S = 2.0
-#: Odometry: ERROR at this many rejected samples in the window (any: WARN); 25 in 10 s is 5 % at 50 Hz.
-REJECTED_ERROR_COUNT = 25
 
 
+@dataclass(slots=True)
 class WindowCount:
     """Events counted over the last :data:`WINDOW_S` seconds, and in all."""
 
-    def __init__(self, window: float = WINDOW_S) -> None:
-        self.window = window
-        self.total = 0
-        self._events: deque[tuple[float, int]] = deque()
+    window: float = WINDOW_S
+    total: int = 0
+    _events: deque[tuple[float, int]] = field(default_factory=deque)
 
     def add(self, now: float, count: int = 1) -> None:
         self._events.append((now, count))
@@ -65,35 +51,30 @@ class AdapterStats:
     failed: WindowCount = field(default_factory=WindowCount)
 
 
-# ------------------------------------------------------------------ diagnostics
 def _yes(value: bool | None) -> str:
     return "unknown" if value is None else ("yes" if value else "no")
 
 
-def _status(name: str, hardware_id: str, checks: list[tuple[Level, str]], ok: str, values: list[tuple[str, str]]) -> Diagnostic:
-    """The worst level of ``checks`` and their reasons, worst first (``ok`` when there are none)."""
-    checks = sorted(checks, key=lambda c: -int(c[0]))
-    level = checks[0][0] if checks else Level.OK
-    message = "; ".join(reason for _, reason in checks) if checks else ok
-    return Diagnostic(level, name, message, hardware_id, tuple(values))
-
-
+@dataclass(slots=True)
 class Diagnostics:
     """The three statuses of ``/diagnostics`` from what it was fed last; pure, ``now`` passed in."""
 
-    def __init__(self, keys: Keys, node: str, expected_poll_hz: float) -> None:
-        self.keys = keys
-        self.label = node.lstrip("/") or node
-        self.expected_poll_hz = expected_poll_hz
-        self.health: GatewayHealth | None = None
-        self.health_at = -math.inf
-        self._lost: deque[tuple[float, int, int]] = deque()  # (now, lost replies, polls) of each health
-        self.gateway_alive: bool | None = None
-        self.odometry_alive: bool | None = None
-        self.pose_at = -math.inf
-        self.poses = 0
-        self.rejected = WindowCount()
-        self.last_rejection = ""
+    keys: Keys
+    node: str
+    expected_poll_hz: float
+    health: GatewayHealth | None = None
+    health_at: float = -math.inf
+    gateway_alive: bool | None = None
+    odometry_alive: bool | None = None
+    pose_at: float = -math.inf
+    poses: int = 0
+    rejected: WindowCount = field(default_factory=WindowCount)
+    last_rejection: str = ""
+    _lost: deque[tuple[float, int, int]] = field(default_factory=deque)  # (now, lost replies, polls) of each health
+
+    @property
+    def label(self) -> str:
+        return self.node.lstrip("/") or self.node
 
     # inputs
     def on_health(self, health: GatewayHealth, now: float) -> None:
@@ -128,14 +109,14 @@ class Diagnostics:
         (_, lost0, polls0), (_, lost1, polls1) = self._lost[0], self._lost[-1]
         return max(0, lost1 - lost0), max(0, polls1 - polls0)
 
-    def robot_link(self, now: float) -> Diagnostic:
+    def robot_link(self, now: float) -> Status:
         h, age = self.health, now - self.health_at
         name, hw = f"{self.label}: robot link", self.keys.prefix
         values = [("gateway alive", _yes(self.gateway_alive)), ("health age (s)", f"{age:.1f}" if h else "never")]
         if self.gateway_alive is False:
-            return _status(name, hw, [(Level.ERROR, f"the gateway is not running (no {self.keys.alive_gateway})")], "", values)
+            return worst(name, hw, [table.GATEWAY_NOT_RUNNING.check(key=self.keys.alive_gateway)], "", values)
         if h is None:
-            return _status(name, hw, [(Level.STALE, f"no gateway health yet on {self.keys.health}")], "", values)
+            return worst(name, hw, [table.NO_HEALTH_YET.check(key=self.keys.health)], "", values)
         lost, polls = self.lost_in_window(now)
         values += [
             ("control link", h.control.state),
@@ -151,30 +132,27 @@ class Diagnostics:
             ("command timeout active", _yes(h.cmd_timeout_active)),
             ("active source", h.active_source or "none"),
         ]
-        if age > HEALTH_STALE_S:
-            return _status(name, hw, [(Level.STALE, f"no gateway health for {age:.1f} s")], "", values)
-        checks: list[tuple[Level, str]] = []
+        if age > table.HEALTH_STALE_S:
+            return worst(name, hw, [table.HEALTH_STALE.check(age=age)], "", values)
+        checks: list[Check] = []
         if h.control.state != "connected":
-            checks.append((Level.ERROR, f"control link {h.control.state}"))
-        else:
-            ratio = h.poll_hz / self.expected_poll_hz
-            if ratio < POLL_WARN_RATIO:
-                level = Level.ERROR if ratio < POLL_ERROR_RATIO else Level.WARN
-                checks.append((level, f"polling at {h.poll_hz:g} Hz of {self.expected_poll_hz:g} Hz"))
+            checks.append(table.CONTROL_LINK_DOWN.check(state=h.control.state))
+        elif (ratio := h.poll_hz / self.expected_poll_hz) < table.POLL_WARN_RATIO:
+            checks.append(table.POLL_SLOW.check(ratio < table.POLL_ERROR_RATIO, hz=h.poll_hz, asked=self.expected_poll_hz))
         if h.conflict_with:
-            checks.append((Level.ERROR, f"another gateway ({h.conflict_with}) on {self.keys.prefix}: commands refused"))
+            checks.append(table.CONFLICT.check(other=h.conflict_with, prefix=self.keys.prefix))
         if h.log.state != "connected":
-            checks.append((Level.WARN, f"log link {h.log.state}"))
+            checks.append(table.LOG_LINK_DOWN.check(state=h.log.state))
         if h.estop:
-            checks.append((Level.WARN, f"e-stop engaged{h.estop_origin()}"))
-        if h.last_rtt_ms is not None and h.last_rtt_ms > RTT_WARN_MS:
-            checks.append((Level.ERROR if h.last_rtt_ms > RTT_ERROR_MS else Level.WARN, f"round trip {h.last_rtt_ms:.0f} ms"))
+            checks.append(table.ESTOP_ENGAGED.check(origin=h.estop_origin()))
+        if h.last_rtt_ms is not None and h.last_rtt_ms > table.RTT_WARN_MS:
+            checks.append(table.ROUND_TRIP_SLOW.check(h.last_rtt_ms > table.RTT_ERROR_MS, ms=h.last_rtt_ms))
         if lost:
-            level = Level.ERROR if lost >= LOST_ERROR_FRACTION * max(polls, 1) else Level.WARN
-            checks.append((level, f"{lost} of {polls} replies lost in {WINDOW_S:g} s"))
-        return _status(name, hw, checks, f"connected, polling at {h.poll_hz:g} Hz", values)
+            severe = lost >= table.LOST_ERROR_FRACTION * max(polls, 1)
+            checks.append(table.REPLIES_LOST.check(severe, lost=lost, polls=polls, window=WINDOW_S))
+        return worst(name, hw, checks, f"connected, polling at {h.poll_hz:g} Hz", values)
 
-    def odometry(self, now: float) -> Diagnostic:
+    def odometry(self, now: float) -> Status:
         age = now - self.pose_at
         recent = self.rejected.recent(now)
         name, hw = f"{self.label}: odometry", self.keys.prefix
@@ -187,20 +165,19 @@ class Diagnostics:
             ("last rejection", self.last_rejection or "none"),
         ]
         if self.odometry_alive is False:
-            return _status(name, hw, [(Level.ERROR, f"the odometry is not running (no {self.keys.alive_odometry})")], "", values)
+            return worst(name, hw, [table.ODOMETRY_NOT_RUNNING.check(key=self.keys.alive_odometry)], "", values)
         if not self.poses:
-            return _status(name, hw, [(Level.STALE, f"no pose yet on {self.keys.pose}")], "", values)
-        if age > POSE_STALE_S:
-            return _status(name, hw, [(Level.STALE, f"no pose for {age:.1f} s")], "", values)
-        checks: list[tuple[Level, str]] = []
-        if age > POSE_LATE_S:
-            checks.append((Level.WARN, f"last pose {age:.1f} s ago"))
+            return worst(name, hw, [table.NO_POSE_YET.check(key=self.keys.pose)], "", values)
+        if age > table.POSE_STALE_S:
+            return worst(name, hw, [table.POSE_STALE.check(age=age)], "", values)
+        checks: list[Check] = []
+        if age > table.POSE_LATE_S:
+            checks.append(table.POSE_LATE.check(age=age))
         if recent:
-            level = Level.ERROR if recent >= REJECTED_ERROR_COUNT else Level.WARN
-            checks.append((level, f"{recent} impulse samples rejected in {WINDOW_S:g} s"))
-        return _status(name, hw, checks, "publishing poses", values)
+            checks.append(table.SAMPLES_REJECTED.check(recent >= table.REJECTED_ERROR_COUNT, count=recent, window=WINDOW_S))
+        return worst(name, hw, checks, "publishing poses", values)
 
-    def adapter(self, now: float, stats: AdapterStats, options: Ros2Options, pending: int) -> Diagnostic:
+    def adapter(self, now: float, stats: AdapterStats, options: Ros2Options, pending: int) -> Status:
         bad, failed = stats.bad_inputs.recent(now), stats.failed.recent(now)
         values = [
             ("flavor", options.flavor),
@@ -219,9 +196,9 @@ class Diagnostics:
             ("odometry covariance", options.covariance),
             ("robot model", "published (robot_description, tf_static, wheels on tf)" if options.robot else "not published"),
         ]
-        checks: list[tuple[Level, str]] = []
+        checks: list[Check] = []
         if bad:
-            checks.append((Level.WARN, f"{bad} bad ROS inputs in {WINDOW_S:g} s (reported on {self.keys.errors})"))
+            checks.append(table.BAD_ROS_INPUTS.check(count=bad, window=WINDOW_S, key=self.keys.errors))
         if failed:
-            checks.append((Level.WARN, f"{failed} service calls failed in {WINDOW_S:g} s"))
-        return _status(f"{self.label}: ROS 2 adapter", self.keys.prefix, checks, f"running; calibration {options.calibration}", values)
+            checks.append(table.CALLS_FAILED.check(count=failed, window=WINDOW_S))
+        return worst(f"{self.label}: ROS 2 adapter", self.keys.prefix, checks, f"running; calibration {options.calibration}", values)

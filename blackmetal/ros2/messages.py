@@ -15,6 +15,7 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+from blackmetal.runtime.diagnostics import Status
 from blackmetal.schemas import EStop, Param, PayloadError, Pose, Twist, Vector3, stamp_parts
 
 from . import cdr
@@ -37,7 +38,6 @@ from .ros_types import (
     TRIGGER,
     TWIST,
     TWIST_STAMPED,
-    Diagnostic,
     Frames,
     ParameterType,
     RosValue,
@@ -146,7 +146,7 @@ class RosCodec:
         )
         return self._serialize(message, JOINT_STATE)
 
-    def diagnostics(self, stamp: float, statuses: Sequence[Diagnostic]) -> bytes:
+    def diagnostics(self, stamp: float, statuses: Sequence[Status]) -> bytes:
         """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
         message = self._DiagArray(
             header=self._header(stamp, ""),

@@ -13,7 +13,7 @@ holds no encoding.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from enum import IntEnum
 from typing import Any
 
@@ -126,26 +126,6 @@ def _as_rosidl(desc: Any) -> Any:
     if kind in (Nodetype.ARRAY, Nodetype.SEQUENCE):
         return (kind, (_as_rosidl(rest[0]), rest[1]))
     return desc
-
-
-class Level(IntEnum):
-    """diagnostic_msgs/DiagnosticStatus levels."""
-
-    OK = 0
-    WARN = 1
-    ERROR = 2
-    STALE = 3
-
-
-@dataclass(frozen=True, slots=True)
-class Diagnostic:
-    """One diagnostic_msgs/DiagnosticStatus: a level, a name, a message, the hardware, key/value pairs."""
-
-    level: Level
-    name: str
-    message: str
-    hardware_id: str = ""
-    values: tuple[tuple[str, str], ...] = field(default=())
 
 
 def excerpt(payload: bytes) -> str:
