@@ -15,6 +15,9 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypeVar
+
+import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSetReply, PayloadError, Pose, decode, encode
@@ -25,6 +28,8 @@ from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ES
 from .options import Ros2Options, Ros2Output
 from .parameters import NodeParameters
 from .ros_types import SET_BOOL, TRIGGER, RosValue, excerpt
+
+T = TypeVar("T", bound=msgspec.Struct)
 
 #: A pending set_estop puts the e-stop again and asks the gateway's health this often (s), as ``blackmetal estop`` does.
 ESTOP_REPEAT_S = 0.1
@@ -64,6 +69,15 @@ class Query:
     RESET = "reset"
     PARAMS = "params"
     PARAMS_SET = "params_set"
+
+
+def decoded(reporter: ErrorReporter, kind: type[T], payload: bytes, key: str, now: float) -> T | None:
+    """``payload`` as a ``kind``; None, reported on ``key`` with the reason, if it is not one."""
+    try:
+        return decode(kind, payload)
+    except PayloadError as exc:
+        reporter.report(key, str(exc), exc.excerpt, now=now)
+        return None
 
 
 @dataclass
@@ -115,15 +129,13 @@ class ServiceCalls:
             except ValueError as exc:
                 reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
                 self.reject(key, reason, excerpt(request_attachment), now)
-                self.stats.failed.add(now)
-                self.output.service_refuse(call, reason)
+                self._refuse(call, reason, now)
                 return
             reply_to = (sequence, gid)
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
         if service in PARAMETER_SERVICES:
             if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
-                self.stats.failed.add(now)
-                self.output.service_refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again")
+                self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
                 return
             self._run_parameter_call(pending, cdr, now)
             return
@@ -166,12 +178,9 @@ class ServiceCalls:
 
     def on_params(self, payload: bytes, now: float) -> None:
         """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
-        try:
-            table = decode(GatewayParams, payload)
-        except PayloadError as exc:
-            self.reporter.report(self.keys.params, str(exc), exc.excerpt, now=now)
-            return
-        self._take_params(table, now)
+        table = decoded(self.reporter, GatewayParams, payload, self.keys.params, now)
+        if table is not None:
+            self._take_params(table, now)
 
     def _take_params(self, table: GatewayParams, now: float) -> None:
         new, changed = self.parameters.on_table(table)
@@ -189,8 +198,7 @@ class ServiceCalls:
             self._parameter_call(pending, cdr, now)
         except PayloadError as exc:
             self.reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
-            self.stats.failed.add(now)
-            self.output.service_refuse(pending.call, f"invalid request: {exc}")
+            self._refuse(pending.call, f"invalid request: {exc}", now)
 
     def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
         """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered.
@@ -203,28 +211,26 @@ class ServiceCalls:
             self.pending[pending.call] = pending
             self.ask_params()
             return
-        if service == "list_parameters":
-            prefixes, depth = codec.list_parameters_request(cdr)
-            self._answer(pending, True, codec.list_parameters_response(*p.names(prefixes, depth)), now)
-        elif service == "get_parameters":
-            self._answer(pending, True, codec.get_parameters_response(p.values(codec.names_request(PARAMETER_SERVICES[service], cdr))), now)
-        elif service == "get_parameter_types":
-            names = codec.names_request(PARAMETER_SERVICES[service], cdr)
-            self._answer(pending, True, codec.get_parameter_types_response(p.types(names)), now)
-        elif service == "describe_parameters":
-            names = codec.names_request(PARAMETER_SERVICES[service], cdr)
-            self._answer(pending, True, codec.describe_parameters_response(p.describe(names)), now)
-        else:
-            pending.parameters = codec.set_parameters_request(PARAMETER_SERVICES[service], cdr)
-            plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
-            pending.refused = plan.refused
-            for reason in plan.refused.values():
-                self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
-            if not plan.values:
-                self._answer_set(pending, None, now)
-                return
-            self.pending[pending.call] = pending
-            self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
+        ros_type = PARAMETER_SERVICES[service]
+        answered_at_once = {
+            "list_parameters": lambda: codec.list_parameters_response(*p.names(*codec.list_parameters_request(cdr))),
+            "get_parameters": lambda: codec.get_parameters_response(p.values(codec.names_request(ros_type, cdr))),
+            "get_parameter_types": lambda: codec.get_parameter_types_response(p.types(codec.names_request(ros_type, cdr))),
+            "describe_parameters": lambda: codec.describe_parameters_response(p.describe(codec.names_request(ros_type, cdr))),
+        }
+        if service in answered_at_once:
+            self._answer(pending, True, answered_at_once[service](), now)
+            return
+        pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
+        pending.refused = plan.refused
+        for reason in plan.refused.values():
+            self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
+        if not plan.values:
+            self._answer_set(pending, None, now)
+            return
+        self.pending[pending.call] = pending
+        self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
 
     def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
         """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
@@ -316,15 +322,17 @@ class ServiceCalls:
             reply_attachment = attachment(sequence, round(self.wallclock() * 1e9), gid)
         self.output.service_reply(pending.call, cdr, reply_attachment)
 
+    def _refuse(self, call: int, reason: str, now: float) -> None:
+        """Answer ``call`` with a Zenoh error reply (there is no request to answer a response to), counted as failed."""
+        self.stats.failed.add(now)
+        self.output.service_refuse(call, reason)
+
     def _timed_out(self, pending: PendingCall, now: float) -> None:
         limit = f"{self.options.service_timeout:g} s"
         if pending.request is not None:  # it waited for the gateway's table, which never came
             self.pending.pop(pending.call, None)
-            self.stats.failed.add(now)
-            reason = (
-                f"the gateway's parameters did not arrive within {limit} ({self.keys.params}): is it running on prefix {self.keys.prefix}?"
-            )
-            self.output.service_refuse(pending.call, reason)
+            where = f"({self.keys.params}): is it running on prefix {self.keys.prefix}?"
+            self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
             return
         if pending.service in SET_CALLS:
             self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")

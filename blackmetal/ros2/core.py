@@ -24,12 +24,13 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
-from .calls import Query, ServiceCalls
+from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .joints import WheelJoints
 from .messages import RosCodec
@@ -43,34 +44,32 @@ DEFAULT_CMD_TIMEOUT = 0.5
 WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
 
 
+@dataclass(eq=False)
 class Ros2Core:
     """Translates between the robot's keys and ROS topics and services (names relative to the node's namespace)."""
 
-    def __init__(
-        self,
-        options: Ros2Options,
-        keys: Keys,
-        output: Ros2Output,
-        codec: RosCodec,
-        wallclock: Callable[[], float] = time.time,
-    ) -> None:
-        self.options = options
-        self.keys = keys
-        self.output = output
-        self.codec = codec
-        self.wallclock = wallclock
-        self.reporter = ErrorReporter("ros2", output.error, wallclock)
-        self.joints = WheelJoints(options.encoders, options.wheel_radius)
-        self.cmd_vel_target = keys.cmd_vel_of(options.source)
-        self.diagnostics = Diagnostics(keys, options.node, options.expected_poll_hz)
+    options: Ros2Options
+    keys: Keys
+    output: Ros2Output
+    codec: RosCodec
+    wallclock: Callable[[], float] = time.time
+    #: The watched topics someone subscribes to; None until the edge reports (then everything is published).
+    watched: set[str] | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        o = self.options
+        self.reporter = ErrorReporter("ros2", self.output.error, self.wallclock)
+        self.joints = WheelJoints(o.encoders, o.wheel_radius)
+        self.cmd_vel_target = self.keys.cmd_vel_of(o.source)
+        self.diagnostics = Diagnostics(self.keys, o.node, o.expected_poll_hz)
         self.stats = AdapterStats()
-        self.calls = ServiceCalls(options, keys, output, codec, wallclock, self.reporter, self.stats, self._follow, self._reject)
+        self.calls = ServiceCalls(
+            o, self.keys, self.output, self.codec, self.wallclock, self.reporter, self.stats, self._follow, self._reject
+        )
         self.parameters = self.calls.parameters
-        #: The watched topics someone subscribes to; None until the edge reports (then everything is published).
-        self.watched: set[str] | None = None
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
-        self._model_published = options.robot is None
+        self._model_published = o.robot is None
 
     def publish_robot_model(self) -> None:
         """``/robot_description`` and ``/tf_static``, once: the edge's transient-local publishers keep them for late joiners."""
@@ -88,10 +87,8 @@ class Ros2Core:
 
     # --------------------------------------------------------------- blackmetal -> ROS
     def on_pose(self, payload: bytes, now: float) -> None:
-        try:
-            pose = decode(Pose, payload)
-        except PayloadError as exc:
-            self.reporter.report(self.keys.pose, str(exc), exc.excerpt, now=now)
+        pose = decoded(self.reporter, Pose, payload, self.keys.pose, now)
+        if pose is None:
             return
         self.diagnostics.on_pose(now)
         o = self.options
@@ -101,10 +98,8 @@ class Ros2Core:
             self.output.ros("tf", self.codec.transform(pose, o.frames))
 
     def on_impulses(self, payload: bytes, now: float) -> None:
-        try:
-            sample = decode(WheelImpulses, payload)
-        except PayloadError as exc:
-            self.reporter.report(self.keys.impulses, str(exc), exc.excerpt, now=now)
+        sample = decoded(self.reporter, WheelImpulses, payload, self.keys.impulses, now)
+        if sample is None:
             return
         self.joints.feed(sample)
         if self._wants("joint_states"):
@@ -117,10 +112,8 @@ class Ros2Core:
 
     def on_health(self, payload: bytes, now: float) -> None:
         """The gateway's health (published, or the answer to our ``get``): diagnostics, and e-stop confirmations."""
-        try:
-            health = decode(GatewayHealth, payload)
-        except PayloadError as exc:
-            self.reporter.report(self.keys.health, str(exc), exc.excerpt, now=now)
+        health = decoded(self.reporter, GatewayHealth, payload, self.keys.health, now)
+        if health is None:
             return
         self.diagnostics.on_health(health, now)
         self.calls.on_health(health, now)
