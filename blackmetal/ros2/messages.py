@@ -28,7 +28,6 @@ from .ros_types import (
     GET_PARAMETERS,
     JOINT_STATE,
     LIST_PARAMETERS,
-    ODOMETRY,
     PARAMETER_EVENT,
     SET_BOOL,
     SET_PARAMETERS,
@@ -55,13 +54,9 @@ class RosCodec:
         t = self.store.types
         self._Time, self._Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
         self._Vector3, self._Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
-        self._Point, self._Pose = t["geometry_msgs/msg/Point"], t["geometry_msgs/msg/Pose"]
-        self._PoseCov, self._Twist = t["geometry_msgs/msg/PoseWithCovariance"], t[TWIST]
-        self._TwistCov, self._Odometry = t["geometry_msgs/msg/TwistWithCovariance"], t[ODOMETRY]
+        self._Twist = t[TWIST]
         self._Transform, self._TransformStamped = t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/TransformStamped"]
-        self._TF, self._JointState = t[TF_MESSAGE], t[JOINT_STATE]
-        self._DiagArray, self._DiagStatus = t[DIAGNOSTIC_ARRAY], t["diagnostic_msgs/msg/DiagnosticStatus"]
-        self._KeyValue = t["diagnostic_msgs/msg/KeyValue"]
+        self._DiagStatus, self._KeyValue = t["diagnostic_msgs/msg/DiagnosticStatus"], t["diagnostic_msgs/msg/KeyValue"]
         self._odometry_frames: dict[Frames, bytes] = {}  # each node's frame names, as written in its /odom
 
     def type_hash(self, ros_type: str) -> str:
@@ -71,42 +66,21 @@ class RosCodec:
         sec, nanosec = stamp_parts(stamp)
         return self._Header(stamp=self._Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
 
-    def _serialize(self, message: Any, ros_type: str) -> bytes:
-        return bytes(self.store.serialize_cdr(message, ros_type))
+    def _write(self, ros_type: str, **fields: Any) -> bytes:
+        """A ``ros_type`` message of ``fields``, in CDR."""
+        return bytes(self.store.serialize_cdr(self.store.types[ros_type](**fields), ros_type))
 
     # --------------------------------------------------------------- out
     def odometry(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
         """nav_msgs/Odometry: pose in ``odom``, twist in ``base_link``; covariances are 36-element arrays.
 
-        Written by :mod:`.cdr` (every /odom of a fleet goes through here); :meth:`odometry_reference` is rosbags'
-        writing of the same message, and a test holds them equal.
+        Written by :mod:`.cdr` (every /odom of a fleet goes through here); a test holds it equal to rosbags' writing
+        of the same message.
         """
         middle = self._odometry_frames.get(frames)
         if middle is None:
             middle = self._odometry_frames[frames] = cdr.odometry_frames(frames)
         return cdr.odometry(pose, middle, pose_covariance, twist_covariance)
-
-    def odometry_reference(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
-        """:meth:`odometry` written by rosbags, field by field (the reference the fast writing is tested against)."""
-        import numpy as np
-
-        q = pose.orientation
-        message = self._Odometry(
-            header=self._header(pose.stamp, frames.odom),
-            child_frame_id=frames.base,
-            pose=self._PoseCov(
-                pose=self._Pose(
-                    position=self._Point(x=pose.x, y=pose.y, z=0.0),
-                    orientation=self._Quaternion(x=q.x, y=q.y, z=q.z, w=q.w),
-                ),
-                covariance=np.asarray(pose_covariance, dtype=np.float64),
-            ),
-            twist=self._TwistCov(
-                twist=self._Twist(linear=self._Vector3(x=pose.v, y=0.0, z=0.0), angular=self._Vector3(x=0.0, y=0.0, z=pose.w)),
-                covariance=np.asarray(twist_covariance, dtype=np.float64),
-            ),
-        )
-        return self._serialize(message, ODOMETRY)
 
     def transform(self, pose: Pose, frames: Frames) -> bytes:
         """tf2_msgs/TFMessage with the one transform odom -> base_link, stamped like the pose."""
@@ -115,7 +89,8 @@ class RosCodec:
 
     def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
         """tf2_msgs/TFMessage of ``transforms``, all stamped ``stamp`` (Unix s)."""
-        message = self._TF(
+        return self._write(
+            TF_MESSAGE,
             transforms=[
                 self._TransformStamped(
                     header=self._header(stamp, t.parent),
@@ -126,29 +101,29 @@ class RosCodec:
                     ),
                 )
                 for t in transforms
-            ]
+            ],
         )
-        return self._serialize(message, TF_MESSAGE)
 
     def string(self, text: str) -> bytes:
         """std_msgs/String (``/robot_description``)."""
-        return self._serialize(self.store.types[STRING](data=text), STRING)
+        return self._write(STRING, data=text)
 
     def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
         import numpy as np
 
-        message = self._JointState(
+        return self._write(
+            JOINT_STATE,
             header=self._header(stamp, ""),
             name=list(names),
             position=np.asarray(positions, dtype=np.float64),
             velocity=np.asarray(velocities, dtype=np.float64),
             effort=np.zeros(0, dtype=np.float64),
         )
-        return self._serialize(message, JOINT_STATE)
 
     def diagnostics(self, stamp: float, statuses: Sequence[Status]) -> bytes:
         """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
-        message = self._DiagArray(
+        return self._write(
+            DIAGNOSTIC_ARRAY,
             header=self._header(stamp, ""),
             status=[
                 self._DiagStatus(
@@ -161,7 +136,6 @@ class RosCodec:
                 for d in statuses
             ],
         )
-        return self._serialize(message, DIAGNOSTIC_ARRAY)
 
     def service_response(self, service: str, success: bool, message: str) -> bytes:
         """The ``<service>_Response`` (SetBool's and Trigger's are both ``bool success, string message``)."""
@@ -196,7 +170,7 @@ class RosCodec:
         return self.store.types["rcl_interfaces/msg/ParameterValue"](**fields)
 
     def _response(self, service: str, **fields: Any) -> bytes:
-        return self._serialize(self.store.types[f"{service}_Response"](**fields), f"{service}_Response")
+        return self._write(f"{service}_Response", **fields)
 
     def list_parameters_response(self, names: Sequence[str], prefixes: Sequence[str]) -> bytes:
         result = self.store.types["rcl_interfaces/msg/ListParametersResult"](names=list(names), prefixes=list(prefixes))
@@ -249,15 +223,19 @@ class RosCodec:
     ) -> bytes:
         """rcl_interfaces/msg/ParameterEvent (``/parameter_events``) from the node ``node`` (fully qualified)."""
         sec, nanosec = stamp_parts(stamp)
-        parameter = self.store.types["rcl_interfaces/msg/Parameter"]
-        message = self.store.types[PARAMETER_EVENT](
+        return self._write(
+            PARAMETER_EVENT,
             stamp=self._Time(sec=sec, nanosec=nanosec),
             node=node,
-            new_parameters=[parameter(name=name, value=self._value(value)) for name, value in new],
-            changed_parameters=[parameter(name=name, value=self._value(value)) for name, value in changed],
+            new_parameters=self._parameters(new),
+            changed_parameters=self._parameters(changed),
             deleted_parameters=[],
         )
-        return self._serialize(message, PARAMETER_EVENT)
+
+    def _parameters(self, pairs: Sequence[tuple[str, RosValue]]) -> list[Any]:
+        """rcl_interfaces/msg/Parameter of each (name, value)."""
+        parameter = self.store.types["rcl_interfaces/msg/Parameter"]
+        return [parameter(name=name, value=self._value(value)) for name, value in pairs]
 
     def names_request(self, service: str, payload: bytes) -> list[str]:
         """The ``names`` of a GetParameters, GetParameterTypes or DescribeParameters request."""
@@ -359,19 +337,17 @@ class RosCodec:
         if service == TRIGGER:
             fields = {"structure_needs_at_least_one_member": 0}
         if "parameters" in fields:
-            parameter = self.store.types["rcl_interfaces/msg/Parameter"]
-            fields["parameters"] = [parameter(name=name, value=self._value(value)) for name, value in fields["parameters"]]
-        return self._serialize(self.store.types[f"{service}_Request"](**fields), f"{service}_Request")
+            fields["parameters"] = self._parameters(fields["parameters"])
+        return self._write(f"{service}_Request", **fields)
 
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
-        twist = self._Twist(linear=self._Vector3(x=linear_x, y=0.0, z=0.0), angular=self._Vector3(x=0.0, y=0.0, z=angular_z))
+        linear, angular = self._Vector3(x=linear_x, y=0.0, z=0.0), self._Vector3(x=0.0, y=0.0, z=angular_z)
         if stamp is None:
-            return self._serialize(twist, TWIST)
-        stamped = self.store.types[TWIST_STAMPED](header=self._header(stamp, frame_id), twist=twist)
-        return self._serialize(stamped, TWIST_STAMPED)
+            return self._write(TWIST, linear=linear, angular=angular)
+        return self._write(TWIST_STAMPED, header=self._header(stamp, frame_id), twist=self._Twist(linear=linear, angular=angular))
 
     def encode_bool(self, value: bool) -> bytes:
-        return self._serialize(self.store.types[BOOL](data=value), BOOL)
+        return self._write(BOOL, data=value)
 
 
 def _as_twist(values: tuple[float, ...]) -> Twist:
