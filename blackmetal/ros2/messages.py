@@ -19,31 +19,8 @@ from blackmetal.runtime.diagnostics import Status
 from blackmetal.schemas import EStop, Param, PayloadError, Pose, Twist, Vector3, stamp_parts
 
 from . import cdr
-from .ros_types import (
-    BOOL,
-    CDR_HEADERS,
-    DESCRIBE_PARAMETERS,
-    DIAGNOSTIC_ARRAY,
-    GET_PARAMETER_TYPES,
-    GET_PARAMETERS,
-    JOINT_STATE,
-    LIST_PARAMETERS,
-    PARAMETER_EVENT,
-    SET_BOOL,
-    SET_PARAMETERS,
-    SET_PARAMETERS_ATOMICALLY,
-    STRING,
-    TF_MESSAGE,
-    TRIGGER,
-    TWIST,
-    TWIST_STAMPED,
-    Frames,
-    ParameterType,
-    RosValue,
-    Transform,
-    excerpt,
-    type_store,
-)
+from . import ros_types as ros
+from .ros_types import Frames, ParameterType, RosValue, Transform, excerpt, type_store
 
 
 class RosCodec:
@@ -54,7 +31,7 @@ class RosCodec:
         t = self.store.types
         self._Time, self._Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
         self._Vector3, self._Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
-        self._Twist = t[TWIST]
+        self._Twist = t[ros.TWIST]
         self._Transform, self._TransformStamped = t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/TransformStamped"]
         self._DiagStatus, self._KeyValue = t["diagnostic_msgs/msg/DiagnosticStatus"], t["diagnostic_msgs/msg/KeyValue"]
         self._odometry_frames: dict[Frames, bytes] = {}  # each node's frame names, as written in its /odom
@@ -90,7 +67,7 @@ class RosCodec:
     def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
         """tf2_msgs/TFMessage of ``transforms``, all stamped ``stamp`` (Unix s)."""
         return self._write(
-            TF_MESSAGE,
+            ros.TF_MESSAGE,
             transforms=[
                 self._TransformStamped(
                     header=self._header(stamp, t.parent),
@@ -106,13 +83,13 @@ class RosCodec:
 
     def string(self, text: str) -> bytes:
         """std_msgs/String (``/robot_description``)."""
-        return self._write(STRING, data=text)
+        return self._write(ros.STRING, data=text)
 
     def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
         import numpy as np
 
         return self._write(
-            JOINT_STATE,
+            ros.JOINT_STATE,
             header=self._header(stamp, ""),
             name=list(names),
             position=np.asarray(positions, dtype=np.float64),
@@ -123,7 +100,7 @@ class RosCodec:
     def diagnostics(self, stamp: float, statuses: Sequence[Status]) -> bytes:
         """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
         return self._write(
-            DIAGNOSTIC_ARRAY,
+            ros.DIAGNOSTIC_ARRAY,
             header=self._header(stamp, ""),
             status=[
                 self._DiagStatus(
@@ -174,15 +151,15 @@ class RosCodec:
 
     def list_parameters_response(self, names: Sequence[str], prefixes: Sequence[str]) -> bytes:
         result = self.store.types["rcl_interfaces/msg/ListParametersResult"](names=list(names), prefixes=list(prefixes))
-        return self._response(LIST_PARAMETERS, result=result)
+        return self._response(ros.LIST_PARAMETERS, result=result)
 
     def get_parameters_response(self, values: Sequence[RosValue | None]) -> bytes:
-        return self._response(GET_PARAMETERS, values=[self._value(v) for v in values])
+        return self._response(ros.GET_PARAMETERS, values=[self._value(v) for v in values])
 
     def get_parameter_types_response(self, types: Sequence[ParameterType]) -> bytes:
         import numpy as np
 
-        return self._response(GET_PARAMETER_TYPES, types=np.asarray([int(t) for t in types], dtype=np.uint8))
+        return self._response(ros.GET_PARAMETER_TYPES, types=np.asarray([int(t) for t in types], dtype=np.uint8))
 
     def describe_parameters_response(self, params: Sequence[Param]) -> bytes:
         """A ParameterDescriptor of each parameter of the gateway's table (a number's range from ``min``/``max``, step
@@ -207,16 +184,16 @@ class RosCodec:
                     integer_range=integers,
                 )
             )
-        return self._response(DESCRIBE_PARAMETERS, descriptors=out)
+        return self._response(ros.DESCRIBE_PARAMETERS, descriptors=out)
 
     def _result(self, successful: bool, reason: str) -> Any:
         return self.store.types["rcl_interfaces/msg/SetParametersResult"](successful=successful, reason=reason)
 
     def set_parameters_response(self, results: Sequence[tuple[bool, str]]) -> bytes:
-        return self._response(SET_PARAMETERS, results=[self._result(ok, reason) for ok, reason in results])
+        return self._response(ros.SET_PARAMETERS, results=[self._result(ok, reason) for ok, reason in results])
 
     def set_parameters_atomically_response(self, successful: bool, reason: str) -> bytes:
-        return self._response(SET_PARAMETERS_ATOMICALLY, result=self._result(successful, reason))
+        return self._response(ros.SET_PARAMETERS_ATOMICALLY, result=self._result(successful, reason))
 
     def parameter_event(
         self, stamp: float, node: str, new: Sequence[tuple[str, RosValue]], changed: Sequence[tuple[str, RosValue]]
@@ -224,7 +201,7 @@ class RosCodec:
         """rcl_interfaces/msg/ParameterEvent (``/parameter_events``) from the node ``node`` (fully qualified)."""
         sec, nanosec = stamp_parts(stamp)
         return self._write(
-            PARAMETER_EVENT,
+            ros.PARAMETER_EVENT,
             stamp=self._Time(sec=sec, nanosec=nanosec),
             node=node,
             new_parameters=self._parameters(new),
@@ -243,7 +220,7 @@ class RosCodec:
 
     def list_parameters_request(self, payload: bytes) -> tuple[list[str], int]:
         """(prefixes, depth) of a ListParameters request."""
-        request = self.decode(payload, f"{LIST_PARAMETERS}_Request")
+        request = self.decode(payload, f"{ros.LIST_PARAMETERS}_Request")
         return [str(p) for p in request.prefixes], int(request.depth)
 
     def set_parameters_request(self, service: str, payload: bytes) -> list[tuple[str, RosValue]]:
@@ -273,7 +250,7 @@ class RosCodec:
         short = ros_type.rsplit("/", 1)[-1]
         if len(payload) < 4:
             raise PayloadError(short, f"{len(payload)} bytes: a CDR message starts with a 4-byte encapsulation header", excerpt(payload))
-        if payload[:2] not in CDR_HEADERS:
+        if payload[:2] not in ros.CDR_HEADERS:
             raise PayloadError(
                 short,
                 f"encapsulation header {payload[:4].hex(' ')} is not plain CDR (expected 00 01 00 00, little-endian)",
@@ -291,7 +268,7 @@ class RosCodec:
         fast = cdr.twist_le(payload)  # rmw_zenoh's own: little-endian, six doubles
         if fast is not None:
             return self._finite_twist(payload, fast)
-        return self._twist(payload, self.decode(payload, TWIST))
+        return self._twist(payload, self.decode(payload, ros.TWIST))
 
     def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
         """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp)."""
@@ -299,7 +276,7 @@ class RosCodec:
         if fast is not None:
             sec, nanosec, values = fast
             return self._finite_twist(payload, values), sec + nanosec * 1e-9
-        message = self.decode(payload, TWIST_STAMPED)
+        message = self.decode(payload, ros.TWIST_STAMPED)
         stamp = message.header.stamp
         return self._twist(payload, message.twist), stamp.sec + stamp.nanosec * 1e-9
 
@@ -307,7 +284,7 @@ class RosCodec:
         """A command read straight from the bytes by :mod:`.cdr` (a ROS command is taken on Zenoh's thread)."""
         if not all(map(math.isfinite, values)):  # rosbags' reading says which are not
             stamped = len(payload) != cdr.TWIST_LE_SIZE
-            return self._twist(payload, self.decode(payload, TWIST_STAMPED).twist if stamped else self.decode(payload, TWIST))
+            return self._twist(payload, self.decode(payload, ros.TWIST_STAMPED).twist if stamped else self.decode(payload, ros.TWIST))
         return _as_twist(values)
 
     def _twist(self, payload: bytes, twist: Any) -> Twist:  # rosbags' message: the reference path, and its errors
@@ -319,22 +296,22 @@ class RosCodec:
 
     def estop(self, payload: bytes) -> EStop:
         """std_msgs/Bool CDR -> EStop(engaged=data)."""
-        message = self.decode(payload, BOOL)
+        message = self.decode(payload, ros.BOOL)
         return EStop(engaged=bool(message.data))
 
     def set_bool(self, payload: bytes) -> bool:
         """std_srvs/SetBool request CDR -> its ``data``."""
-        return bool(self.decode(payload, f"{SET_BOOL}_Request").data)
+        return bool(self.decode(payload, f"{ros.SET_BOOL}_Request").data)
 
     def trigger(self, payload: bytes) -> None:
         """std_srvs/Trigger request CDR (one placeholder byte): PayloadError unless it is one."""
-        self.decode(payload, f"{TRIGGER}_Request")
+        self.decode(payload, f"{ros.TRIGGER}_Request")
 
     # --------------------------------------------------------------- for tests and tools playing the ROS side
     def encode_request(self, service: str, **fields: Any) -> bytes:
         """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields; SetParameters: ``parameters`` as
         (name, value) pairs)."""
-        if service == TRIGGER:
+        if service == ros.TRIGGER:
             fields = {"structure_needs_at_least_one_member": 0}
         if "parameters" in fields:
             fields["parameters"] = self._parameters(fields["parameters"])
@@ -343,11 +320,11 @@ class RosCodec:
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
         linear, angular = self._Vector3(x=linear_x, y=0.0, z=0.0), self._Vector3(x=0.0, y=0.0, z=angular_z)
         if stamp is None:
-            return self._write(TWIST, linear=linear, angular=angular)
-        return self._write(TWIST_STAMPED, header=self._header(stamp, frame_id), twist=self._Twist(linear=linear, angular=angular))
+            return self._write(ros.TWIST, linear=linear, angular=angular)
+        return self._write(ros.TWIST_STAMPED, header=self._header(stamp, frame_id), twist=self._Twist(linear=linear, angular=angular))
 
     def encode_bool(self, value: bool) -> bytes:
-        return self._write(BOOL, data=value)
+        return self._write(ros.BOOL, data=value)
 
 
 def _as_twist(values: tuple[float, ...]) -> Twist:
