@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
 
@@ -77,12 +77,12 @@ class SetPlan:
         return encode(ParamsSet(values=self.values))
 
 
+@dataclass(slots=True)
 class NodeParameters:
     """The gateway's parameter table as the node shows it; see the module docstring."""
 
-    def __init__(self) -> None:
-        self.table: dict[str, Param] = {}
-        self.known = False  # a table has arrived: until then every name is unknown
+    table: dict[str, Param] = field(default_factory=dict)
+    known: bool = False  # a table has arrived: until then every name is unknown
 
     def on_table(self, table: GatewayParams) -> tuple[list[tuple[str, RosValue]], list[tuple[str, RosValue]]]:
         """Take the gateway's table; (new, changed) parameters as ``/parameter_events`` names them."""
