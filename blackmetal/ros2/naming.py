@@ -58,7 +58,7 @@ from enum import StrEnum
 
 from blackmetal.schemas import ConfigError
 
-from . import messages as ros
+from . import ros_types as ros
 
 ADMIN_SPACE = "@ros2_lv"
 ATTACHMENT_SIZE = 33

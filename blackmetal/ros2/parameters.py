@@ -27,14 +27,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
 
-from .messages import Descriptor, ParameterType, RosValue
+from .ros_types import ParameterType, RosValue
 
-#: rcl_interfaces' names for the gateway's kinds of value.
-TYPES = {"bool": ParameterType.BOOL, "integer": ParameterType.INTEGER, "double": ParameterType.DOUBLE, "string": ParameterType.STRING}
 SEPARATOR = "."
 
 
@@ -61,10 +59,6 @@ def list_names(names: Sequence[str], prefixes: Sequence[str], depth: int) -> tup
     return out, found
 
 
-def descriptor(param: Param) -> Descriptor:
-    return Descriptor(param.name, TYPES.get(param.type, ParameterType.NOT_SET), param.description, param.read_only, param.min, param.max)
-
-
 def ros_value(param: Param) -> RosValue:
     """The table's value as the ROS type the table names (a double stays a float when its value is whole)."""
     if param.type == "double" and isinstance(param.value, int) and not isinstance(param.value, bool):
@@ -83,12 +77,12 @@ class SetPlan:
         return encode(ParamsSet(values=self.values))
 
 
+@dataclass(slots=True)
 class NodeParameters:
     """The gateway's parameter table as the node shows it; see the module docstring."""
 
-    def __init__(self) -> None:
-        self.table: dict[str, Param] = {}
-        self.known = False  # a table has arrived: until then every name is unknown
+    table: dict[str, Param] = field(default_factory=dict)
+    known: bool = False  # a table has arrived: until then every name is unknown
 
     def on_table(self, table: GatewayParams) -> tuple[list[tuple[str, RosValue]], list[tuple[str, RosValue]]]:
         """Take the gateway's table; (new, changed) parameters as ``/parameter_events`` names them."""
@@ -113,11 +107,11 @@ class NodeParameters:
         return [ros_value(self.table[name]) if name in self.table else None for name in names]
 
     def types(self, names: Sequence[str]) -> list[ParameterType]:
-        return [TYPES.get(self.table[name].type, ParameterType.NOT_SET) if name in self.table else ParameterType.NOT_SET for name in names]
+        return [ParameterType.of(self.table[name].type) if name in self.table else ParameterType.NOT_SET for name in names]
 
-    def describe(self, names: Sequence[str]) -> list[Descriptor]:
-        """Each name's descriptor, in order; an unknown name gets one of type NOT_SET (the .srv asks for one per name)."""
-        return [descriptor(self.table[name]) if name in self.table else Descriptor(name, ParameterType.NOT_SET) for name in names]
+    def describe(self, names: Sequence[str]) -> list[Param]:
+        """Each name's parameter, in order; an unknown name gets one of no kind, NOT_SET (the .srv asks for one per name)."""
+        return [self.table.get(name) or Param(name=name, type="", value="") for name in names]
 
     # ------------------------------------------------------------------ sets
     def _check(self, name: str, value: RosValue) -> tuple[ParamValue | None, str | None]:

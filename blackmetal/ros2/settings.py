@@ -12,8 +12,7 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
-from .core import RobotModel, Ros2Options, Wheel
-from .messages import Frames, Transform
+from .joints import RobotModel, Wheel
 from .naming import (
     CMD_VEL_STAMPED,
     DEFAULT_DISTRO,
@@ -25,6 +24,8 @@ from .naming import (
     normalise_namespace,
     parse_distros,
 )
+from .options import Ros2Options
+from .ros_types import Frames, Transform
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
 DEFAULT_COVARIANCE = "0.001,0.001,0.001,0.001,0.001,0.01"

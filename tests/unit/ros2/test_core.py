@@ -18,8 +18,8 @@ import zenoh
 from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 
 from blackmetal.robot_model import Encoders
-from blackmetal.ros2.core import Ros2Core, Ros2Options
-from blackmetal.ros2.messages import Frames, RosCodec
+from blackmetal.ros2.core import Ros2Core
+from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import (
     PARAMETER_SERVICES,
     Direction,
@@ -31,6 +31,8 @@ from blackmetal.ros2.naming import (
     parse_attachment,
     split_token,
 )
+from blackmetal.ros2.options import Ros2Options
+from blackmetal.ros2.ros_types import Frames
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
 

@@ -28,8 +28,9 @@ from helpers import Child, client_config, free_port, wait_for
 
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.fleet import fleet_settings, serve_fleet
-from blackmetal.ros2.messages import SET_BOOL, RosCodec
+from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, attachment, gid_of, split_token, tf_frame_prefix, topics
+from blackmetal.ros2.ros_types import SET_BOOL
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import parse_fleet
 from blackmetal.runtime.zenoh_setup import ZenohSettings

@@ -8,7 +8,10 @@ from typing import Any
 
 import pytest
 
-from blackmetal.ros2.messages import (
+from blackmetal.ros2.messages import RosCodec
+from blackmetal.ros2.naming import PARAMETER_EVENTS, PARAMETER_SERVICES, attachment, parse_attachment
+from blackmetal.ros2.parameters import list_names
+from blackmetal.ros2.ros_types import (
     DESCRIBE_PARAMETERS,
     GET_PARAMETER_TYPES,
     GET_PARAMETERS,
@@ -17,10 +20,7 @@ from blackmetal.ros2.messages import (
     SET_PARAMETERS,
     SET_PARAMETERS_ATOMICALLY,
     ParameterType,
-    RosCodec,
 )
-from blackmetal.ros2.naming import PARAMETER_EVENTS, PARAMETER_SERVICES, attachment, parse_attachment
-from blackmetal.ros2.parameters import list_names
 from blackmetal.schemas import GatewayParams, Param, ParamResult, ParamsSet, ParamsSetReply, decode, encode
 from unit.ros2.test_services import PARAMETER_EVENT_HASH, PARAMETER_SERVICE_HASHES, make_core
 
@@ -166,7 +166,7 @@ def test_a_set_goes_to_the_gateways_key_and_is_answered_with_its_results(codec: 
     event = codec.decode(out.ros_out[-1][1], PARAMETER_EVENT)  # the change is on /parameter_events at once
     assert [(p.name, p.value.integer_value) for p in event.changed_parameters] == [("sources.nav.priority", 50)]
     core.on_query_done(tag, now=1.02)  # the query ends after its reply: nothing more
-    assert len(out.replies) == 1 and core.calls == {}
+    assert len(out.replies) == 1 and core.calls.pending == {}
 
 
 def test_arrays_and_unsetting_are_refused_here_and_never_reach_the_gateway(codec: RosCodec) -> None:

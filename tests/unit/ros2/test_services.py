@@ -25,17 +25,14 @@ import zenoh
 from helpers import TIMEOUT, Child, client_config, free_port, start_robot, wait_for, zenoh_connect_args
 
 from blackmetal.robot_model import Encoders
-from blackmetal.ros2.core import (
-    ESTOP_REPEAT_S,
-    HEALTH_STALE_S,
-    POSE_STALE_S,
-    REJECTED_ERROR_COUNT,
-    Ros2Core,
-    Ros2Options,
-)
-from blackmetal.ros2.messages import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames, Level, RosCodec
+from blackmetal.ros2.calls import ESTOP_REPEAT_S
+from blackmetal.ros2.core import Ros2Core
+from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
+from blackmetal.ros2.options import Ros2Options
+from blackmetal.ros2.ros_types import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames
 from blackmetal.ros2.settings import diagonal_matrix
+from blackmetal.runtime.diagnostics import HEALTH_STALE_S, POSE_STALE_S, REJECTED_ERROR_COUNT, Level
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
 
 # ROS 2 Jazzy's hashes (rosidl), not computed here: the adapter's must equal them.
@@ -219,7 +216,7 @@ def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> N
     sequence, stamp, gid = parse_attachment(out.replies[1][1] or b"")
     assert (sequence, gid) == (41, GID) and stamp == 1_700_000_000 * 10**9  # the request's id, the server's time
     core.tick(20.0)  # nothing pending any more: no more puts
-    assert len(out.forwarded) == 2 and core.calls == {}
+    assert len(out.forwarded) == 2 and core.calls.pending == {}
 
 
 def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCodec) -> None:
@@ -316,7 +313,8 @@ def test_diagnostics_levels_follow_the_thresholds(codec: RosCodec) -> None:
 
     core.on_health(health(estop=True, poll_hz=40.0, lost_replies=1, polls=300), now=1.5)  # 1 of 200 lost, 80 %, stopped
     link = at(2.0)["blackmetal: robot link"]
-    assert link["level"] == Level.WARN and "e-stop engaged" in link["message"] and "1 of 200 replies lost" in link["message"]
+    # an engaged e-stop is ERROR (the shared severity table, as in the Foxglove view): the worst reason, first
+    assert link["level"] == Level.ERROR and link["message"].startswith("e-stop engaged") and "1 of 200 replies lost" in link["message"]
     assert "polling at 40 Hz of 50 Hz" in link["message"]
     core.on_health(health(poll_hz=20.0, rtt=300.0), now=2.5)
     link = at(3.0)["blackmetal: robot link"]
@@ -459,7 +457,7 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
         assert success and "e-stop engaged" in message, message
         assert (h := gateway_health(session)) is not None and h.estop is True
         wait_for(lambda: latest("blackmetal: robot link")["values"]["e-stop"] == "engaged", what="the e-stop in /diagnostics")
-        assert latest("blackmetal: robot link")["level"] == Level.WARN
+        assert latest("blackmetal: robot link")["level"] == Level.ERROR  # an engaged e-stop, as in the Foxglove view
         success, message, _ = set_estop.call(set_bool_request(False))
         assert success and "e-stop released" in message, message
         assert (h := gateway_health(session)) is not None and h.estop is False

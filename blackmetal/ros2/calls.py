@@ -1,0 +1,359 @@
+"""The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services.
+
+Each call waits as a :class:`PendingCall` for its confirmation: a
+``set_estop`` puts the e-stop and asks the gateway's health every
+:data:`ESTOP_REPEAT_S` until the health shows the asked state; a
+``reset_odometry`` asks the odometry to reset and waits for its answer; a
+parameter call is answered from the gateway's table
+(:mod:`.parameters`), or, a set, when the gateway has answered. Each call
+is answered once: ``success=true`` when confirmed, ``success=false`` with
+the reason when refused or at its deadline. Pure, ``now`` passed in.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TypeVar
+
+import msgspec
+
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSetReply, PayloadError, Pose, decode, encode
+
+from .diagnostics import AdapterStats
+from .messages import RosCodec
+from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
+from .options import Ros2Options, Ros2Output
+from .parameters import NodeParameters
+from .ros_types import SET_BOOL, TRIGGER, RosValue, excerpt
+
+T = TypeVar("T", bound=msgspec.Struct)
+
+#: A pending set_estop puts the e-stop again and asks the gateway's health this often (s), as ``blackmetal estop`` does.
+ESTOP_REPEAT_S = 0.1
+#: Calls waiting for their confirmation at once; one more is answered success=false at once.
+MAX_PENDING_CALLS = 16
+#: A reset is confirmed by the odometry answering a pose this close to the origin (m, rad).
+RESET_TOLERANCE = 1e-9
+
+
+@dataclass(slots=True)
+class PendingCall:
+    """One service call waiting for the gateway's or the odometry's confirmation."""
+
+    call: int
+    service: str
+    #: (sequence number, client GID) of an rmw_zenoh request, echoed in the reply's attachment; None: none came.
+    reply_to: tuple[int, bytes] | None
+    deadline: float
+    engage: bool = False  # set_estop: the asked state
+    repeat_at: float = math.inf  # set_estop: when to put again and ask the health again
+    health: GatewayHealth | None = None  # set_estop: the latest health seen while waiting
+    #: set_parameters(_atomically): the call's (name, value) pairs and the refusals decided before the gateway answers.
+    parameters: list[tuple[str, RosValue]] = field(default_factory=list)
+    refused: dict[int, str] = field(default_factory=dict)
+    #: A parameter call that came before the gateway's table: its request, run once the table arrives.
+    request: bytes | None = None
+
+
+SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER, **PARAMETER_SERVICES}
+SET_CALLS = ("set_parameters", "set_parameters_atomically")
+
+
+class Query:
+    """What a query of the core asks, so its replies go where they belong."""
+
+    HEALTH = "health"
+    RESET = "reset"
+    PARAMS = "params"
+    PARAMS_SET = "params_set"
+
+
+def decoded(reporter: ErrorReporter, kind: type[T], payload: bytes, key: str, now: float) -> T | None:
+    """``payload`` as a ``kind``; None, reported on ``key`` with the reason, if it is not one."""
+    try:
+        return decode(kind, payload)
+    except PayloadError as exc:
+        reporter.report(key, str(exc), exc.excerpt, now=now)
+        return None
+
+
+@dataclass
+class ServiceCalls:
+    """The calls waiting for their answer, and the queries that will answer them; see the module docstring."""
+
+    options: Ros2Options
+    keys: Keys
+    output: Ros2Output
+    codec: RosCodec
+    wallclock: Callable[[], float]
+    reporter: ErrorReporter
+    stats: AdapterStats
+    #: The core's: follow the robot's streams the node needs now (a set_estop waiting needs the health).
+    follow: Callable[[], None]
+    #: The core's: report and count a bad ROS input.
+    reject: Callable[[str, str, str, float], None]
+    parameters: NodeParameters = field(default_factory=NodeParameters)
+    pending: dict[int, PendingCall] = field(default_factory=dict)
+    #: query tag -> (what it asks, the call it serves)
+    queries: dict[int, tuple[str, int | None]] = field(default_factory=dict)
+    _next_tag: int = 0
+
+    @property
+    def waits_for_health(self) -> bool:
+        return any(pending.service == SET_ESTOP for pending in self.pending.values())
+
+    def on_health(self, health: GatewayHealth, now: float) -> None:
+        """The gateway's health: it confirms a set_estop once it shows the asked state."""
+        for pending in list(self.pending.values()):
+            if pending.service == SET_ESTOP:
+                pending.health = health
+                if health.estop == pending.engage:
+                    state = "engaged" if pending.engage else "released"
+                    self._finish(pending, True, f"e-stop {state} (confirmed by the gateway's health on {self.keys.health})", now)
+
+    def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
+        """A call of ``service`` (``set_estop`` or ``reset_odometry``); answered now if refused, else when confirmed."""
+        key = self.options.service_keys.get(service, service)
+        if service not in SERVICE_TYPES:
+            self.output.service_refuse(call, f"no service {service!r} here")
+            return
+        reply_to = None
+        if request_attachment is not None:
+            try:
+                sequence, _, gid = parse_attachment(request_attachment)
+                if sequence < 0:
+                    raise ValueError(f"sequence number {sequence} is negative")
+            except ValueError as exc:
+                reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
+                self.reject(key, reason, excerpt(request_attachment), now)
+                self._refuse(call, reason, now)
+                return
+            reply_to = (sequence, gid)
+        pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
+        if service in PARAMETER_SERVICES:
+            if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
+                self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
+                return
+            self._run_parameter_call(pending, cdr, now)
+            return
+        try:
+            if service == SET_ESTOP:
+                pending.engage = self.codec.set_bool(cdr)
+            else:
+                self.codec.trigger(cdr)
+        except PayloadError as exc:
+            self.reject(key, str(exc), exc.excerpt, now)
+            self._finish(pending, False, f"invalid request: {exc}", now)
+            return
+        if len(self.pending) >= MAX_PENDING_CALLS:
+            self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
+            return
+        self.pending[call] = pending
+        if service == SET_ESTOP:
+            self.follow()
+            for other in list(self.pending.values()):  # an older call asking the opposite must stop putting it
+                if other.service == SET_ESTOP and other.engage != pending.engage:
+                    state = "on" if pending.engage else "off"
+                    self._finish(other, False, f"superseded: set_estop {state} was called since", now)
+            self._put_estop(pending, now)
+        else:
+            self._ask(Query.RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
+
+    def _put_estop(self, pending: PendingCall, now: float) -> None:
+        """Put the asked e-stop state and ask the gateway's health; again every ESTOP_REPEAT_S until confirmed."""
+        self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))
+        self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
+        pending.repeat_at = now + ESTOP_REPEAT_S
+
+    def _ask(self, what: str, key: str, payload: bytes | None, call: int | None, timeout: float) -> None:
+        self._next_tag += 1
+        self.queries[self._next_tag] = (what, call)
+        self.output.query(key, payload, self._next_tag, timeout)
+
+    def ask_params(self) -> None:
+        self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
+
+    def on_params(self, payload: bytes, now: float) -> None:
+        """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
+        table = decoded(self.reporter, GatewayParams, payload, self.keys.params, now)
+        if table is not None:
+            self._take_params(table, now)
+
+    def _take_params(self, table: GatewayParams, now: float) -> None:
+        new, changed = self.parameters.on_table(table)
+        if new or changed:
+            self.output.ros(PARAMETER_EVENTS, self.codec.parameter_event(self.wallclock(), self.options.node, new, changed))
+        waiting = [(p, p.request) for p in self.pending.values() if p.request is not None]  # calls that waited for it
+        for pending, request in waiting:
+            pending.request = None
+            del self.pending[pending.call]
+            self._run_parameter_call(pending, request, now)
+
+    def _run_parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
+        """:meth:`_parameter_call`; a request that cannot be read is reported and refused."""
+        try:
+            self._parameter_call(pending, cdr, now)
+        except PayloadError as exc:
+            self.reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
+            self._refuse(pending.call, f"invalid request: {exc}", now)
+
+    def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
+        """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered.
+
+        Before the gateway's table has arrived (the node has just started, or the gateway not yet), the call waits
+        for it, at most the service timeout: ``ros2 param list`` at start-up lists the parameters, not nothing."""
+        service, p, codec = pending.service, self.parameters, self.codec
+        if not p.known:
+            pending.request = cdr
+            self.pending[pending.call] = pending
+            self.ask_params()
+            return
+        ros_type = PARAMETER_SERVICES[service]
+        answered_at_once = {
+            "list_parameters": lambda: codec.list_parameters_response(*p.names(*codec.list_parameters_request(cdr))),
+            "get_parameters": lambda: codec.get_parameters_response(p.values(codec.names_request(ros_type, cdr))),
+            "get_parameter_types": lambda: codec.get_parameter_types_response(p.types(codec.names_request(ros_type, cdr))),
+            "describe_parameters": lambda: codec.describe_parameters_response(p.describe(codec.names_request(ros_type, cdr))),
+        }
+        if service in answered_at_once:
+            self._answer(pending, True, answered_at_once[service](), now)
+            return
+        pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
+        pending.refused = plan.refused
+        for reason in plan.refused.values():
+            self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
+        if not plan.values:
+            self._answer_set(pending, None, now)
+            return
+        self.pending[pending.call] = pending
+        self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
+
+    def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
+        """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
+        results = {r.name: r for r in reply.results} if reply is not None else {}
+        answers: list[tuple[bool, str]] = []
+        for i, (name, _) in enumerate(pending.parameters):
+            if i in pending.refused:
+                answers.append((False, pending.refused[i]))
+            elif name in results:
+                answers.append((results[name].successful, results[name].reason))
+            else:
+                answers.append((False, failure or f"the gateway did not answer for {name}"))
+        if pending.service == "set_parameters_atomically":
+            ok = bool(answers) and all(good for good, _ in answers)
+            reasons = "; ".join(dict.fromkeys(reason for good, reason in answers if not good and reason))
+            if not ok and any(good for good, _ in answers):
+                reasons += " (the gateway set the others: it sets each value on its own)"
+            self._answer(pending, ok, self.codec.set_parameters_atomically_response(ok, reasons), now)
+        else:
+            ok = all(good for good, _ in answers)
+            self._answer(pending, ok, self.codec.set_parameters_response(answers), now)
+
+    def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
+        """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
+        if tag not in self.queries:
+            return
+        what, call = self.queries[tag]
+        if what == Query.PARAMS:
+            if ok:
+                self.on_params(payload, now)
+            return
+        pending = self.pending.get(call) if call is not None else None
+        if pending is None:
+            return
+        if what == Query.PARAMS_SET:
+            if not ok:
+                reason = payload.decode(errors="replace") or "no reason given"
+                self._answer_set(pending, None, now, f"the gateway on {self.keys.prefix!r} refused the set: {reason}")
+                return
+            try:
+                reply = decode(ParamsSetReply, payload)
+            except PayloadError as exc:
+                self._answer_set(pending, None, now, f"the gateway answered something that is not a ParamsSetReply: {exc}")
+                return
+            self._take_params(reply.params, now)
+            self._answer_set(pending, reply, now)
+            return
+        if not ok:
+            self._finish(pending, False, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
+            return
+        try:
+            pose = decode(Pose, payload)
+        except PayloadError as exc:
+            self._finish(pending, False, f"the odometry answered something that is not a pose: {exc}", now)
+            return
+        if max(abs(pose.x), abs(pose.y), abs(pose.yaw)) <= RESET_TOLERANCE:
+            self._finish(pending, True, f"odometry reset to x=0 y=0 yaw=0 (confirmed by the odometry on {self.keys.odometry_reset})", now)
+        else:
+            self._finish(pending, False, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
+
+    def on_query_done(self, tag: int, now: float) -> None:
+        """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
+        what, call = self.queries.pop(tag, (Query.HEALTH, None))
+        pending = self.pending.get(call) if call is not None else None
+        if pending is not None and what == Query.PARAMS_SET:
+            where = f"no gateway answered on {self.keys.params_set} (is it running on prefix {self.keys.prefix}?): nothing was set"
+            self._answer_set(pending, None, now, where)
+        elif pending is not None:
+            self._finish(
+                pending, False, f"no odometry answered on {self.keys.odometry_reset} (is it running on prefix {self.keys.prefix}?)", now
+            )
+
+    def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
+        """Answer ``pending`` once, with the std_srvs response."""
+        self._answer(pending, success, self.codec.service_response(SERVICE_TYPES[pending.service], success, message), now)
+
+    def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
+        """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
+        self.pending.pop(pending.call, None)
+        if pending.service == SET_ESTOP:
+            self.follow()  # the health is followed no longer, unless /diagnostics needs it
+        if success:
+            self.stats.confirmed += 1
+        else:
+            self.stats.failed.add(now)
+        reply_attachment = None
+        if pending.reply_to is not None:
+            sequence, gid = pending.reply_to
+            reply_attachment = attachment(sequence, round(self.wallclock() * 1e9), gid)
+        self.output.service_reply(pending.call, cdr, reply_attachment)
+
+    def _refuse(self, call: int, reason: str, now: float) -> None:
+        """Answer ``call`` with a Zenoh error reply (there is no request to answer a response to), counted as failed."""
+        self.stats.failed.add(now)
+        self.output.service_refuse(call, reason)
+
+    def _timed_out(self, pending: PendingCall, now: float) -> None:
+        limit = f"{self.options.service_timeout:g} s"
+        if pending.request is not None:  # it waited for the gateway's table, which never came
+            self.pending.pop(pending.call, None)
+            where = f"({self.keys.params}): is it running on prefix {self.keys.prefix}?"
+            self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
+            return
+        if pending.service in SET_CALLS:
+            self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")
+            return
+        if pending.service == RESET_ODOMETRY:
+            self._finish(pending, False, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
+            return
+        state = "on" if pending.engage else "off"
+        if pending.health is None:
+            seen = f"no health on {self.keys.health}: is the gateway running on prefix {self.keys.prefix}?"
+        else:
+            seen = f"its health still says estop={str(pending.health.estop).lower()}"
+        self._finish(pending, False, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
+
+    def tick(self, now: float) -> None:
+        """Answer the calls past their deadline; put the e-stop again for a set_estop due to repeat."""
+        for pending in list(self.pending.values()):
+            if now >= pending.deadline:
+                self._timed_out(pending, now)
+            elif now >= pending.repeat_at:
+                self._put_estop(pending, now)
+
+    def next_deadline(self) -> float:
+        return min((min(p.deadline, p.repeat_at) for p in self.pending.values()), default=math.inf)

@@ -1,0 +1,70 @@
+"""What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options, and where its messages go.
+
+Apart from the core so that its parts (:mod:`.diagnostics`, :mod:`.calls`)
+read the same options without importing the core that ties them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Protocol
+
+from blackmetal.robot_model import Encoders
+from blackmetal.schemas import ErrorReport, Sources
+
+from .joints import RobotModel
+from .ros_types import Frames
+
+
+class Ros2Output(Protocol):
+    """Where the core's messages go: ROS topics, blackmetal keys, error reports, service answers and queries."""
+
+    def ros(self, topic: str, cdr: bytes) -> None: ...
+    def blackmetal(self, key: str, payload: bytes) -> None: ...
+    def error(self, message: ErrorReport) -> None: ...
+    def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
+        """Answer the service call ``call`` (once) with the CDR response and, for rmw_zenoh, its attachment."""
+
+    def service_refuse(self, call: int, reason: str) -> None:
+        """Answer ``call`` with a Zenoh error reply: it carries no usable request id to answer with a response."""
+
+    def query(self, key: str, payload: bytes | None, tag: int, timeout: float) -> None:
+        """``get`` on ``key``; each reply comes back as ``on_query_reply(tag, ...)``, then ``on_query_done(tag)``."""
+
+    def follow(self, streams: frozenset[str]) -> None:
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``), no others."""
+
+
+@dataclass(frozen=True, slots=True)
+class Ros2Options:
+    frames: Frames
+    pose_covariance: list[float]
+    twist_covariance: list[float]
+    publish_tf: bool
+    joint_names: tuple[str, str]
+    wheel_radius: float
+    encoders: Encoders
+    #: How error reports name the ROS inputs: the Zenoh key each arrives on.
+    cmd_vel_key: str = "cmd_vel"
+    cmd_vel_stamped_key: str = "cmd_vel"
+    estop_key: str = "estop"
+    #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
+    source: str = Sources.ROS2
+    #: A service call not confirmed within this (s) is answered success=false.
+    service_timeout: float = 2.0
+    #: The gateway's --poll-hz, which the robot link's measured poll rate is held against.
+    expected_poll_hz: float = 50.0
+    #: For the diagnostics: the node's fully qualified name, the flavour, the domain.
+    node: str = "/blackmetal"
+    flavor: str = "rmw_zenoh"
+    domain_id: int = 0
+    #: The Zenoh key of each service, which error reports name.
+    service_keys: Mapping[str, str] = field(default_factory=dict)
+    #: The ROS 2 distro whose rmw_zenoh formats the node speaks (for the diagnostics).
+    distro: str = "jazzy"
+    #: /robot_description, /tf_static and the wheels on /tf; None: another node publishes the robot model.
+    robot: RobotModel | None = None
+    #: For the diagnostics: the calibration in use and where /odom's covariance comes from.
+    calibration: str = "none: the nominal constants"
+    covariance: str = "fixed diagonals (--pose-covariance-diagonal, --twist-covariance-diagonal)"
