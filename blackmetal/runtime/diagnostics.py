@@ -1,0 +1,126 @@
+"""The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words.
+
+Why it exists: the ROS 2 adapter's ``/diagnostics`` and the Foxglove view's
+``/diagnostics`` each decided their levels on their own and disagreed (an
+engaged e-stop was ERROR in one, WARN in the other). Both now read their
+levels and texts here. Pure: plain levels and strings, no Zenoh, no ROS
+types; each adapter turns a :class:`Status` into its own message.
+
+An engaged e-stop is ERROR: the robot cannot move until a person acts.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from enum import IntEnum
+
+
+class Level(IntEnum):
+    """diagnostic_msgs/DiagnosticStatus levels; a higher one is worse."""
+
+    OK = 0
+    WARN = 1
+    ERROR = 2
+    STALE = 3
+
+
+#: One condition that holds: its level and its reason in words.
+Check = tuple[Level, str]
+
+
+@dataclass(frozen=True, slots=True)
+class Status:
+    """One diagnostic status: a level, a name, a message, the hardware, key/value pairs."""
+
+    level: Level
+    name: str
+    message: str
+    hardware_id: str = ""
+    values: tuple[tuple[str, str], ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class Condition:
+    """One row of the table: the level of a condition and its text (a ``str.format`` template).
+
+    A graded condition (a rate, a round trip, a count) has a ``severe`` level
+    it takes past its second threshold.
+    """
+
+    level: Level
+    text: str
+    severe: Level | None = None
+
+    def check(self, severe: bool = False, **fields: object) -> Check:
+        """The condition as it holds now, its text filled in with ``fields``."""
+        level = self.severe if severe and self.severe is not None else self.level
+        return level, self.text.format(**fields)
+
+
+def worst(name: str, hardware_id: str, checks: Iterable[Check], ok: str, values: Iterable[tuple[str, str]] = ()) -> Status:
+    """The status of ``checks``: the worst level, their reasons worst first (``ok`` when there are none)."""
+    ordered = sorted(checks, key=lambda c: -int(c[0]))
+    level = ordered[0][0] if ordered else Level.OK
+    message = "; ".join(reason for _, reason in ordered) if ordered else ok
+    return Status(level, name, message, hardware_id, tuple(values))
+
+
+# ---------------------------------------------------------------- the table
+# The gateway, as both views show it.
+#: The e-stop is engaged: nothing moves until a person releases it.
+ESTOP_ENGAGED = Condition(Level.ERROR, "e-stop engaged{origin}")
+#: Another gateway runs on the same prefix: this one refuses commands.
+CONFLICT = Condition(Level.ERROR, "another gateway ({other}) on {prefix}: commands refused")
+#: The same, as the Foxglove view's "gateway: commands" status words it.
+COMMANDS_REFUSED = Condition(Level.ERROR, "refused: another gateway ({other}) on this prefix")
+#: A link to the robot, by its state: connected is OK, connecting WARN, anything else ERROR.
+LINK_LEVELS = {"connected": Level.OK, "connecting": Level.WARN}
+LINK_DOWN = Level.ERROR
+#: The control link (commands, polls) is not connected: the robot cannot be driven.
+CONTROL_LINK_DOWN = Condition(Level.ERROR, "control link {state}")
+#: The log link is not connected: the robot still drives, its log is lost.
+LOG_LINK_DOWN = Condition(Level.WARN, "log link {state}")
+#: Replies lost or malformed since the gateway started (the Foxglove view's "gateway: robot exchange").
+REPLIES_LOST_EVER = Level.WARN
+
+# The ROS 2 adapter's robot link, from the gateway's health and liveliness.
+#: Counting windows for lost replies, rejected samples, bad ROS inputs and failed calls (s).
+WINDOW_S = 10.0
+#: STALE after this long without a health report (the gateway reports every 1 s).
+HEALTH_STALE_S = 3.0
+#: WARN / ERROR when the measured poll rate is below this fraction of the asked one.
+POLL_WARN_RATIO = 0.9
+POLL_ERROR_RATIO = 0.5
+#: WARN / ERROR when the last round trip is longer (ms); the gateway gives a request up after 500 ms.
+RTT_WARN_MS = 100.0
+RTT_ERROR_MS = 250.0
+#: ERROR when at least this fraction of the polls of the window lost their reply (any: WARN).
+LOST_ERROR_FRACTION = 0.1
+GATEWAY_NOT_RUNNING = Condition(Level.ERROR, "the gateway is not running (no {key})")
+NO_HEALTH_YET = Condition(Level.STALE, "no gateway health yet on {key}")
+HEALTH_STALE = Condition(Level.STALE, "no gateway health for {age:.1f} s")
+POLL_SLOW = Condition(Level.WARN, "polling at {hz:g} Hz of {asked:g} Hz", severe=Level.ERROR)
+ROUND_TRIP_SLOW = Condition(Level.WARN, "round trip {ms:.0f} ms", severe=Level.ERROR)
+REPLIES_LOST = Condition(Level.WARN, "{lost} of {polls} replies lost in {window:g} s", severe=Level.ERROR)
+
+# The ROS 2 adapter's odometry, from the poses, the odometry's reports and liveliness.
+#: WARN when the last pose is older than this (s), STALE beyond POSE_STALE_S.
+POSE_LATE_S = 0.5
+POSE_STALE_S = 2.0
+#: ERROR at this many rejected samples in the window (any: WARN); 25 in 10 s is 5 % at 50 Hz.
+REJECTED_ERROR_COUNT = 25
+ODOMETRY_NOT_RUNNING = Condition(Level.ERROR, "the odometry is not running (no {key})")
+NO_POSE_YET = Condition(Level.STALE, "no pose yet on {key}")
+POSE_STALE = Condition(Level.STALE, "no pose for {age:.1f} s")
+POSE_LATE = Condition(Level.WARN, "last pose {age:.1f} s ago")
+SAMPLES_REJECTED = Condition(Level.WARN, "{count} impulse samples rejected in {window:g} s", severe=Level.ERROR)
+
+# The ROS 2 adapter itself.
+BAD_ROS_INPUTS = Condition(Level.WARN, "{count} bad ROS inputs in {window:g} s (reported on {key})")
+CALLS_FAILED = Condition(Level.WARN, "{count} service calls failed in {window:g} s")
+
+
+def link_level(state: str) -> Level:
+    """A link's level by its state, as the Foxglove view shows each link."""
+    return LINK_LEVELS.get(state, LINK_DOWN)
