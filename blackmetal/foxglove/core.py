@@ -60,6 +60,7 @@ from typing import Any, Protocol, cast
 import msgspec
 
 from blackmetal.robot_model import Encoders
+from blackmetal.runtime.diagnostics import COMMANDS_REFUSED, ESTOP_ENGAGED, REPLIES_LOST_EVER, Level, Status, link_level
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import (
     ErrorReport,
@@ -130,39 +131,34 @@ DIAGNOSTICS_SCHEMA: dict[str, Any] = {
 }
 
 
-class DiagnosticLevel(IntEnum):
-    """diagnostic_msgs/msg/DiagnosticStatus levels."""
-
-    OK = 0
-    WARN = 1
-    ERROR = 2
+def _status(name: str, level: Level, message: str, hardware_id: str, **values: Any) -> Status:
+    return Status(level, name, message, hardware_id, tuple((key, "" if value is None else str(value)) for key, value in values.items()))
 
 
-_LINK_LEVELS = {"connected": DiagnosticLevel.OK, "connecting": DiagnosticLevel.WARN}
+def _link(name: str, link: LinkHealth, hardware_id: str) -> Status:
+    return _status(name, link_level(link.state), link.state, hardware_id, connected_since=link.connected_since, reconnects=link.reconnects)
 
 
-def _diagnostic(name: str, level: DiagnosticLevel, message: str, hardware_id: str, **values: Any) -> dict[str, Any]:
-    shown = [{"key": key, "value": "" if value is None else str(value)} for key, value in values.items()]
-    return {"level": int(level), "name": name, "message": message, "hardware_id": hardware_id, "values": shown}
-
-
-def _link(name: str, link: LinkHealth, hardware_id: str) -> dict[str, Any]:
-    level = _LINK_LEVELS.get(link.state, DiagnosticLevel.ERROR)
-    return _diagnostic(name, level, link.state, hardware_id, connected_since=link.connected_since, reconnects=link.reconnects)
+def diagnostic_json(status: Status) -> dict[str, Any]:
+    """One status as diagnostic_msgs/msg/DiagnosticStatus in JSON."""
+    values = [{"key": key, "value": value} for key, value in status.values]
+    return {"level": int(status.level), "name": status.name, "message": status.message, "hardware_id": status.hardware_id, "values": values}
 
 
 def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
-    """The gateway's health as a diagnostic_msgs/msg/DiagnosticArray (JSON): e-stop, links, commands, robot exchange."""
+    """The gateway's health as a diagnostic_msgs/msg/DiagnosticArray (JSON): e-stop, links, commands, robot exchange.
+
+    The levels are the shared table's (:mod:`blackmetal.runtime.diagnostics`), as on ROS 2 ``/diagnostics``.
+    """
     sec, nsec = stamp_parts(health.stamp)
     driver = health.active_source or "nobody"
     if health.conflict_with:
-        command = _diagnostic(
-            "gateway: commands", DiagnosticLevel.ERROR, f"refused: another gateway ({health.conflict_with}) on this prefix", hardware_id
-        )
+        level, message = COMMANDS_REFUSED.check(other=health.conflict_with)
+        command = _status("gateway: commands", level, message, hardware_id)
     else:
-        command = _diagnostic(
+        command = _status(
             "gateway: commands",
-            DiagnosticLevel.OK,
+            Level.OK,
             f"driven by {driver}",
             hardware_id,
             active_source=health.active_source,
@@ -173,10 +169,10 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
             **{f"lock {name}": engaged for name, engaged in health.locks.items()},
         )
     lost = health.lost_replies + health.malformed_replies
-    status = [
-        _diagnostic(
+    statuses = [
+        _status(
             "gateway: e-stop",
-            DiagnosticLevel.ERROR if health.estop else DiagnosticLevel.OK,
+            ESTOP_ENGAGED.level if health.estop else Level.OK,
             health.estop_text(),
             hardware_id,
             estop=health.estop,
@@ -186,9 +182,9 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
         _link("gateway: control link", health.control, hardware_id),
         _link("gateway: log link", health.log, hardware_id),
         command,
-        _diagnostic(
+        _status(
             "gateway: robot exchange",
-            DiagnosticLevel.WARN if lost else DiagnosticLevel.OK,
+            REPLIES_LOST_EVER if lost else Level.OK,
             f"{health.poll_hz:g} Hz polls, rtt {health.last_rtt_ms} ms",
             hardware_id,
             polls=health.polls,
@@ -199,6 +195,7 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
             wheel_speeds=health.wheel_speeds,
         ),
     ]
+    status = [diagnostic_json(s) for s in statuses]
     return {"header": {"stamp": {"sec": sec, "nsec": nsec}, "frame_id": ""}, "status": status}
 
 
