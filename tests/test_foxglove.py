@@ -162,7 +162,7 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
 
 
 def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
-    from blackmetal.foxglove.core import diagnostics
+    from blackmetal.foxglove.diagnostics import diagnostics
     from blackmetal.runtime.diagnostics import Level
     from blackmetal.schemas import GatewayHealth, LinkHealth
 

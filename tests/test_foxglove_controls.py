@@ -25,7 +25,7 @@ from helpers import Child, client_config, free_port, start_robot, wait_for, zeno
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
-from blackmetal.foxglove.core import ASK_PERIOD_S, COMMAND_SOURCE, Controls, ServerRefusal, StatusLevel
+from blackmetal.foxglove.controls import ASK_PERIOD_S, Controls
 from blackmetal.foxglove.host import (
     LEGACY_SUBPROTOCOL,
     OP_BINARY,
@@ -40,6 +40,7 @@ from blackmetal.foxglove.host import (
     switches_protocols,
     ws_frame,
 )
+from blackmetal.foxglove.naming import COMMAND_SOURCE, ServerRefusal, StatusLevel
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
 
 KEYS = Keys("robot")

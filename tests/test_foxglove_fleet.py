@@ -29,13 +29,12 @@ from helpers import Child, client_config, free_port, wait_for, zenoh_listen_args
 from test_foxglove import EXPECTED, panels, protobuf_class
 from test_foxglove_controls import TWIST_FORWARD, Bench, FoxClient, health
 
-from blackmetal.foxglove.core import (
+from blackmetal.foxglove.controls import Controls, FleetControls
+from blackmetal.foxglove.fleet import fleet_settings
+from blackmetal.foxglove.fleet_view import Change, FleetSummary
+from blackmetal.foxglove.naming import (
     COMMAND_SOURCE,
-    Change,
     Control,
-    Controls,
-    FleetControls,
-    FleetSummary,
     Service,
     StatusLevel,
     control_topic,
@@ -44,7 +43,6 @@ from blackmetal.foxglove.core import (
     robot_of,
     service_name,
 )
-from blackmetal.foxglove.fleet import fleet_settings
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.runtime.fleet import parse_fleet
 from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode

@@ -30,8 +30,8 @@ from test_foxglove_controls import TWIST_FORWARD
 from test_foxglove_fleet import FleetClient
 from test_urdf import check_urdf
 
-from blackmetal.foxglove.core import StatusLevel
 from blackmetal.foxglove.model import RobotModel, WheelAngles, moving_joints, turned
+from blackmetal.foxglove.naming import StatusLevel
 from blackmetal.foxglove.params import Parameters, param_name
 from blackmetal.robot_model import WHEEL_SEPARATION, urdf
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamResult, ParamsSet, ParamsSetReply, WheelImpulses, decode, encode

@@ -23,7 +23,8 @@ from helpers import Child, client_config, free_port, wait_for, zenoh_listen_args
 from test_foxglove import protobuf_class
 from test_foxglove_fleet import FleetClient
 
-from blackmetal.foxglove.core import FleetView, Kind
+from blackmetal.foxglove.channels import Kind
+from blackmetal.foxglove.fleet_view import FleetView
 from blackmetal.foxglove.watch import Watch
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, LinkHealth, Pose, RobotStatus, WheelImpulses, encode
 

@@ -1,9 +1,9 @@
 """The Foxglove view's host: the WebSocket server the app connects to and, with ``--mcap``, the MCAP file.
 
-The view (:mod:`blackmetal.foxglove.core`) logs into channels of the
+The view (:mod:`blackmetal.foxglove.live`) logs into channels of the
 current Foxglove context; this host opens what those channels reach (the
 foxglove-sdk server, then the file) and closes them in reverse order. It
-feeds :class:`~blackmetal.foxglove.core.Controls` with what clients publish
+feeds :class:`~blackmetal.foxglove.controls.Controls` with what clients publish
 and call, stamped with the clock, and runs its deadlines on the shared
 :class:`~blackmetal.runtime.host.DeadlineTimer`.
 
@@ -45,7 +45,7 @@ from blackmetal.runtime.host import DeadlineTimer
 from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import BlackmetalError, ConfigError, GatewayParams, Param
 
-from .core import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
+from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
 from .params import Parameters
 from .settings import FoxgloveSettings
 from .watch import Watch

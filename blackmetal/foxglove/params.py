@@ -25,7 +25,7 @@ from typing import Protocol
 
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamsSet, ParamsSetReply, ParamValue, PayloadError, decode, encode
 
-from .core import StatusLevel, robot_of
+from .naming import StatusLevel, robot_of
 
 
 class ParamsOutput(Protocol):

@@ -1,6 +1,6 @@
 """How the view's parts meet, for one robot and for a fleet alike: each robot's port, and the wiring of them all.
 
-:class:`RobotPort` is one robot's side: its :class:`~.core.Controls` send to
+:class:`RobotPort` is one robot's side: its :class:`~.controls.Controls` send to
 the robot's keys through its Zenoh edge and to the clients through the host;
 its edge's answers (health, replies, parameters, liveliness) come back to
 its controls, the view and the parameters. :class:`Wiring` is what the host
@@ -17,8 +17,11 @@ import logging
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport
 
-from .core import FLEET_NAMESPACE, Controls, FleetView, LiveView, StatusLevel
+from .controls import Controls
+from .fleet_view import FleetView
 from .host import FoxgloveHost
+from .live import LiveView
+from .naming import FLEET_NAMESPACE, StatusLevel
 from .watch import Watch
 from .zenoh_edge import DRAIN_PERIOD_S, FoxgloveZenoh, Reply
 
