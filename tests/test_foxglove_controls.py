@@ -26,7 +26,7 @@ from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
 from blackmetal.foxglove.controls import ASK_PERIOD_S, Controls
-from blackmetal.foxglove.host import (
+from blackmetal.foxglove.front import (
     LEGACY_SUBPROTOCOL,
     OP_BINARY,
     OP_CLOSE,

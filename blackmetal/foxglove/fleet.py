@@ -27,7 +27,8 @@ from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
 from .controls import Controls, FleetControls
 from .fleet_view import LOST_AFTER_S, FleetView
-from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .front import INNER_HOST, SUBPROTOCOLS
+from .host import FoxgloveHost
 from .naming import COMMAND_SOURCE, FLEET_NAMESPACE, Service, robot_frame, robot_namespace, service_name, takes
 from .params import Parameters
 from .ports import RobotPort, Wiring

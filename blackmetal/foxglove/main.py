@@ -23,7 +23,8 @@ from blackmetal.schemas import Keys, require_extra
 
 from .controls import Controls
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
-from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .front import INNER_HOST, SUBPROTOCOLS
+from .host import FoxgloveHost
 from .live import LiveView
 from .naming import COMMAND_SOURCE, TAKES, Service
 from .params import Parameters
