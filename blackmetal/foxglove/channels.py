@@ -13,6 +13,7 @@ from enum import Enum
 from typing import Any, Protocol, cast
 
 from blackmetal.schemas import (
+    ErrorReport,
     Pose,
     stamp_parts,
 )
@@ -88,3 +89,10 @@ def transform(stamp: float, parent: str, child: str, xyz: tuple[float, float, fl
         translation=Vector3(x=xyz[0], y=xyz[1], z=xyz[2]),
         rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]),
     )
+
+
+def report_log(report: ErrorReport) -> Any:
+    """An error report as one line of Foxglove's Log panel (a warning, named by who reported it)."""
+    from foxglove.messages import Log, LogLevel
+
+    return Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)

@@ -119,7 +119,50 @@ def _state(engage: bool) -> str:
     return "engaged" if engage else "released"
 
 
-class Controls:
+class FleetOutput(Protocol):
+    """Where :class:`FleetControls` sends what no robot's :class:`Controls` owns."""
+
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
+
+
+class Refusals:
+    """What :class:`Controls` and :class:`FleetControls` both do with what they refuse: tell the client, and report it."""
+
+    def __init__(self, output: FleetOutput, report: Callable[[ErrorReport], None], wallclock: Callable[[], float]) -> None:
+        self.reporter = ErrorReporter("foxglove", report, wallclock)
+        self._tell = output
+        self._last_status: dict[tuple[int | None, str], float] = {}
+
+    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
+        """A status message to that client (at most once per STATUS_PERIOD_S per topic) and a report (rate-limited)."""
+        last = self._last_status.get((client, topic), -math.inf)
+        if now - last >= STATUS_PERIOD_S:
+            self._last_status[(client, topic)] = now
+            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
+        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
+
+    def _unknown_service(self, call: int, client: int, service: str, offered: str, payload: bytes, now: float) -> None:
+        self._tell.answer(call, None, f"unknown service {service!r}: this view offers {offered}")
+        self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+
+    def _forget(self, client: int) -> None:
+        for status_key in [key for key in self._last_status if key[0] == client]:
+            del self._last_status[status_key]
+
+    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
+        """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
+
+        A status message already told the client; a service call failure is
+        followed by a status message, so the refusal shows where the client
+        shows its problems. In a fleet it names no robot: it goes on the fleet's log.
+        """
+        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
+        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
+
+
+class Controls(Refusals):
     """Client publications and service calls -> the robot's keys, with confirmations and refusals; see the module docstring.
 
     Clients are the WebSocket server's client ids; ``call`` numbers service
@@ -134,6 +177,7 @@ class Controls:
         wallclock: Callable[[], float] = time.time,
         namespace: str = "",
     ) -> None:
+        super().__init__(output, output.error, wallclock)
         self.keys = keys
         #: ``""``, or ``/<id>`` for a fleet's robot: it takes ``/<id>/cmd_vel``, ``/<id>/estop``, ``/<id>/set_estop``, ...
         self.namespace = namespace
@@ -141,12 +185,10 @@ class Controls:
         self._services = {service_name(namespace, s): s for s in Service}
         self.output = output
         self.call_timeout = call_timeout
-        self.reporter = ErrorReporter("foxglove", output.error, wallclock)
         self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
         self._topics: dict[tuple[int, int], ClientTopic] = {}
         self._estop_calls: dict[int, EstopCall] = {}
         self._reset_calls: dict[int, ResetCall] = {}
-        self._last_status: dict[tuple[int | None, str], float] = {}
         #: The e-stop state in the gateway's last health (None: no health seen yet).
         self.estop_seen: bool | None = None
 
@@ -175,8 +217,7 @@ class Controls:
         """A client disconnected: its channels are unadvertised."""
         for key in [key for key in self._topics if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
-        for status_key in [key for key in self._last_status if key[0] == client]:
-            del self._last_status[status_key]
+        self._forget(client)
 
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
         """One message a client published: a command, an e-stop, or a refusal (status to that client, report)."""
@@ -213,14 +254,6 @@ class Controls:
                     other, pending.client, Service.SET_ESTOP, f"superseded: the e-stop was {_state(engage)} since this call", "", now
                 )
 
-    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
-        """A status message to that client (at most once per STATUS_PERIOD_S per topic) and a report (rate-limited)."""
-        last = self._last_status.get((client, topic), -math.inf)
-        if now - last >= STATUS_PERIOD_S:
-            self._last_status[(client, topic)] = now
-            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
-        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
-
     # --------------------------------------------------------------- services
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
         """A service call; it is answered later through ``output.answer``: on confirmation, failure or at the time limit."""
@@ -244,8 +277,7 @@ class Controls:
             self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
             self.output.ask_reset(call, encode(target))
         else:
-            self.output.answer(call, None, f"unknown service {service!r}: this view offers {', '.join(self._services)}")
-            self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+            self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
 
     def on_health(self, payload: bytes, now: float) -> None:
         """The gateway's health (published or asked for): it confirms the set_estop calls that wanted what it shows."""
@@ -292,18 +324,6 @@ class Controls:
         self.output.answer(call, None, reason)
         self.reporter.report(f"foxglove:{service_name(self.namespace, service)}", f"client {client}: {reason}", text, now=now)
 
-    # --------------------------------------------------------------- refusals the server made itself
-    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
-        """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
-
-        A status message already told the client; a service call failure is
-        followed by a status message, so the refusal shows where the client
-        shows its problems.
-        """
-        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
-            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
-        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
-
     # --------------------------------------------------------------- timers
     def tick(self, now: float) -> None:
         """Time limits of the waiting calls, the set_estop engage re-sent and health asked again, report summaries."""
@@ -340,14 +360,7 @@ class Controls:
         return len(self._estop_calls) + len(self._reset_calls)
 
 
-class FleetOutput(Protocol):
-    """Where :class:`FleetControls` sends what no robot's :class:`Controls` owns."""
-
-    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
-    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
-
-
-class FleetControls:
+class FleetControls(Refusals):
     """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here.
 
     A client's channel on ``/r3/...`` and a call of ``/r3/...`` go to r3's
@@ -364,22 +377,13 @@ class FleetControls:
         fleet_error: Callable[[ErrorReport], None],
         wallclock: Callable[[], float] = time.time,
     ) -> None:
+        super().__init__(output, fleet_error, wallclock)
         self.robots = robots
-        self.output = output
-        self.reporter = ErrorReporter("foxglove", fleet_error, wallclock)
         #: (client, channel) -> the robot it names, or None with the topic it refused.
         self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
-        self._last_status: dict[tuple[int | None, str], float] = {}
 
     def _takes(self) -> str:
         return f"{takes('/<id>')} for the robots {', '.join(self.robots)}"
-
-    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
-        last = self._last_status.get((client, topic), -math.inf)
-        if now - last >= STATUS_PERIOD_S:
-            self._last_status[(client, topic)] = now
-            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
-        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
 
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
         robot_id = robot_of(topic, self.robots)
@@ -399,8 +403,7 @@ class FleetControls:
     def on_client_gone(self, client: int, now: float) -> None:
         for key in [key for key in self._channels if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
-        for status_key in [key for key in self._last_status if key[0] == client]:
-            del self._last_status[status_key]
+        self._forget(client)
         for controls in self.robots.values():
             controls.on_client_gone(client, now)
 
@@ -419,8 +422,7 @@ class FleetControls:
             self.robots[robot_id].on_service_call(call, client, service, payload, now)
             return
         offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
-        self.output.answer(call, None, f"unknown service {service!r}: this view offers {offered} for the robots {', '.join(self.robots)}")
-        self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+        self._unknown_service(call, client, service, f"{offered} for the robots {', '.join(self.robots)}", payload, now)
 
     def on_health(self, robot_id: str, payload: bytes, now: float) -> None:
         self.robots[robot_id].on_health(payload, now)
@@ -430,12 +432,6 @@ class FleetControls:
 
     def on_reset_done(self, robot_id: str, call: int, now: float) -> None:
         self.robots[robot_id].on_reset_done(call, now)
-
-    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
-        """The server refused a message itself: it names no robot, so it is reported on the fleet's log."""
-        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
-            self.output.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
-        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
 
     def tick(self, now: float) -> None:
         for controls in self.robots.values():

@@ -25,7 +25,7 @@ from blackmetal.schemas import (
     Pose,
 )
 
-from .channels import ChannelFactory, Kind, foxglove_channel, timestamp
+from .channels import ChannelFactory, Kind, foxglove_channel, report_log, timestamp
 from .live import LiveView
 from .naming import (
     FLEET_NAMESPACE,
@@ -327,8 +327,4 @@ class FleetView:
 
     def on_fleet_error(self, report: ErrorReport) -> None:
         """A refusal no robot owns: on ``/fleet/log``."""
-        from foxglove.messages import Log, LogLevel
-
-        self.log.log(
-            Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
-        )
+        self.log.log(report_log(report))

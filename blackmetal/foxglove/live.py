@@ -41,7 +41,7 @@ from blackmetal.schemas import (
     json_schemas,
 )
 
-from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, timestamp, transform
+from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, report_log, timestamp, transform
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
 from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, WheelAngles, joint_state, turned
 
@@ -163,6 +163,11 @@ class LiveView:
         except PayloadError:
             return None
 
+    def _take(self, message_type: type[Any], payload: bytes, *channels: Out) -> tuple[Any, list[bool]]:
+        """The payload decoded and which of ``channels`` anyone takes; (None, ...) when nobody does or it does not decode."""
+        wants = [channel.has_sinks() for channel in channels]
+        return (self._decode(message_type, payload) if any(wants) else None), wants
+
     def _poses(self, pose: Pose, channel: Out, path_channel: Out, trail: Trail) -> None:
         from foxglove.messages import PoseInFrame, PosesInFrame
 
@@ -172,10 +177,7 @@ class LiveView:
             path_channel.log(PosesInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, poses=[fox_pose(p) for p in trail.poses]))
 
     def on_pose(self, payload: bytes) -> None:
-        wants = [self.pose.has_sinks(), self.path.has_sinks(), self.tf.has_sinks(), self.odometry.has_sinks()]
-        if not any(wants):
-            return
-        pose = self._decode(Pose, payload)
+        pose, wants = self._take(Pose, payload, self.pose, self.path, self.tf, self.odometry)
         if pose is None:
             return
         self._poses(pose, self.pose, self.path, self._trail)
@@ -186,9 +188,7 @@ class LiveView:
             self.odometry.log(payload)
 
     def on_truth(self, payload: bytes) -> None:
-        if not (self.truth.has_sinks() or self.truth_path.has_sinks()):
-            return
-        pose = self._decode(Pose, payload)
+        pose, _ = self._take(Pose, payload, self.truth, self.truth_path)
         if pose is not None:
             self._poses(pose, self.truth, self.truth_path, self._truth_trail)
 
@@ -197,10 +197,7 @@ class LiveView:
             self.status.log(payload)
 
     def on_health(self, payload: bytes) -> None:
-        shows, diagnoses = self.health.has_sinks(), self.diagnostics.has_sinks()
-        if not (shows or diagnoses):
-            return
-        health = self._decode(GatewayHealth, payload)
+        health, (shows, diagnoses) = self._take(GatewayHealth, payload, self.health, self.diagnostics)
         if health is None:
             return
         if shows:
@@ -209,10 +206,7 @@ class LiveView:
             self.diagnostics.log(json.dumps(diagnostics(health, self.keys.prefix)).encode())
 
     def on_impulses(self, payload: bytes) -> None:
-        speeds, joints, turns = self.wheels.has_sinks(), self.joint_states.has_sinks(), self.tf.has_sinks()
-        if not (speeds or joints or turns):
-            return
-        sample = self._decode(WheelImpulses, payload)
+        sample, (speeds, joints, turns) = self._take(WheelImpulses, payload, self.wheels, self.joint_states, self.tf)
         if sample is None:
             return
         model = self.model
@@ -236,20 +230,13 @@ class LiveView:
                     self.tf.log(transform(sample.stamp, joint.parent, joint.child, xyz, q))
 
     def on_error(self, payload: bytes) -> None:
-        from foxglove.messages import Log, LogLevel
-
-        shows, logs = self.errors.has_sinks(), self.log.has_sinks()
-        if not (shows or logs):
-            return
-        report = self._decode(ErrorReport, payload)
+        report, (shows, logs) = self._take(ErrorReport, payload, self.errors, self.log)
         if report is None:
             return
         if shows:
             self.errors.log(payload)
         if logs:
-            self.log.log(
-                Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)
-            )
+            self.log.log(report_log(report))
 
     def on_params(self, params: GatewayParams) -> None:
         """The gateway's parameters: a new wheel geometry re-sends the URDF to whoever shows it."""
