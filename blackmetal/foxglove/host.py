@@ -52,12 +52,11 @@ from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, Stat
 from .params import Parameters
 from .sdk import (
     CALL_MARGIN_S,
-    ClientEvent,
-    EventKind,
     ParamsSetIn,
     ServiceCallIn,
     ServiceFailure,
     foxglove_parameter,
+    run,
     sdk_listener,
     start_server,
 )
@@ -139,9 +138,9 @@ class FoxgloveHost:
         self.core: ClientCore | None = None
         self.timer: DeadlineTimer | None = None
         self._handover = Intake(asyncio.get_running_loop())
-        self._put_event = self._handover.channel("client events", self._on_event, capacity=4096)
+        self._put_event = self._handover.channel("client events", run, capacity=4096)
         # a client that subscribes to every channel of a fleet of 100 sends 1,500 subscriptions at once; none may be lost
-        self._put_subscription = self._handover.channel("subscriptions", self._on_subscription, capacity=65536)
+        self._put_subscription = self._handover.channel("subscriptions", run, capacity=65536)
         self._put_call = self._handover.channel("service calls", self._on_call, capacity=256)
         self._put_set = self._handover.channel("parameter sets", self._on_params_set, capacity=256)
         #: Who watches which topic (set by :meth:`watch_with`); None: every key is followed.
@@ -160,7 +159,7 @@ class FoxgloveHost:
         self._our_calls: set[tuple[int, int]] = set()
         self._inflight: set[concurrent.futures.Future[bytes]] = set()
         self._front: asyncio.Server | None = None
-        listener = sdk_listener(self._put_event, self._put_subscription, self._get_params, self._set_params)
+        listener = sdk_listener(self, self._put_event, self._put_subscription, self._get_params, self._set_params)
         self.server = start_server(settings, listener, self._services())
         self.port = settings.port
         self.url = url(settings.host, settings.port)
@@ -339,36 +338,37 @@ class FoxgloveHost:
         self.poke()
 
     # --------------------------------------------------------------- from the SDK's threads, on the loop
-    def _on_event(self, event: ClientEvent) -> None:
-        if event.channel == MARKER_CHANNEL_ID:
-            connection = self._connections.get(event.schema_name) if event.kind is EventKind.ADVERTISE else None
-            if connection is not None and event.topic == MARKER_TOPIC and connection.client is None:
-                connection.client = event.client
-                self._by_client[event.client] = connection
-            if event.client in self._by_client:
-                return  # the marker of a connection through the front
-        core = self.core
-        if core is None:
-            return
-        now = self.clock()
-        if event.kind is EventKind.ADVERTISE:
-            core.on_advertise(event.client, event.channel, event.topic, event.encoding, event.schema_name, now)
-        elif event.kind is EventKind.UNADVERTISE:
-            core.on_unadvertise(event.client, event.channel, now)
-        else:
-            core.on_message(event.client, event.channel, event.data, now)
-        self.poke()
+    # ClientEvents
+    def client_advertised(self, client: int, channel: int, topic: str, encoding: str, schema_name: str) -> None:
+        if channel == MARKER_CHANNEL_ID:
+            connection = self._connections.get(schema_name)
+            if connection is not None and topic == MARKER_TOPIC and connection.client is None:
+                connection.client = client
+                self._by_client[client] = connection
+        self._to_core(client, channel, lambda core, now: core.on_advertise(client, channel, topic, encoding, schema_name, now))
 
-    def _on_subscription(self, event: ClientEvent) -> None:
+    def client_unadvertised(self, client: int, channel: int) -> None:
+        self._to_core(client, channel, lambda core, now: core.on_unadvertise(client, channel, now))
+
+    def client_published(self, client: int, channel: int, data: bytes) -> None:
+        self._to_core(client, channel, lambda core, now: core.on_message(client, channel, data, now))
+
+    def _to_core(self, client: int, channel: int, act: Callable[[ClientCore, float], None]) -> None:
+        if channel == MARKER_CHANNEL_ID and client in self._by_client:
+            return  # the marker of a connection through the front
+        if self.core is not None:
+            act(self.core, self.clock())
+            self.poke()
+
+    def client_subscribed(self, client: int, topic: str, subscribed: bool) -> None:
         watch, viewer = self.watch, self.viewer
         if watch is None or viewer is None:
             return
-        if event.kind is EventKind.SUBSCRIBE:
-            first = watch.subscribe(event.client, event.topic)
-            viewer.subscribed(event.topic)
-            changed = first
+        if subscribed:
+            changed = watch.subscribe(client, topic)
+            viewer.subscribed(topic)
         else:
-            changed = watch.unsubscribe(event.client, event.topic)
+            changed = watch.unsubscribe(client, topic)
         if changed:
             viewer.watch_changed()
         self.poke()

@@ -11,8 +11,8 @@ from __future__ import annotations
 import concurrent.futures
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from enum import Enum
-from typing import Any
+from functools import partial
+from typing import Any, Protocol
 
 from blackmetal.schemas import BlackmetalError, ConfigError, Param
 
@@ -25,25 +25,22 @@ CALL_MARGIN_S = 1.0
 
 
 # --------------------------------------------------------------------------- what the SDK's threads hand over
-class EventKind(Enum):
-    ADVERTISE = "advertise"
-    UNADVERTISE = "unadvertise"
-    MESSAGE = "message"
-    SUBSCRIBE = "subscribe"
-    UNSUBSCRIBE = "unsubscribe"
+#: A client's doing, carried from the SDK's thread to the loop: the host's method with its arguments bound.
+Handover = Callable[[], None]
 
 
-@dataclass(frozen=True, slots=True)
-class ClientEvent:
-    """A client advertised, unadvertised or published (from the SDK's listener, on its thread)."""
+class ClientEvents(Protocol):
+    """What the host does on its loop with what a client did (the listener binds the arguments on the SDK's thread)."""
 
-    kind: EventKind
-    client: int
-    channel: int
-    topic: str = ""
-    encoding: str = ""
-    schema_name: str = ""
-    data: bytes = b""
+    def client_advertised(self, client: int, channel: int, topic: str, encoding: str, schema_name: str) -> None: ...
+    def client_unadvertised(self, client: int, channel: int) -> None: ...
+    def client_published(self, client: int, channel: int, data: bytes) -> None: ...
+    def client_subscribed(self, client: int, topic: str, subscribed: bool) -> None: ...
+
+
+def run(handover: Handover) -> None:
+    """The loop's side of a hand-over: do it."""
+    handover()
 
 
 @dataclass(frozen=True, slots=True)
@@ -71,8 +68,9 @@ class ParamsSetIn:
 
 
 def sdk_listener(
-    put: Callable[[ClientEvent], None],
-    put_subscription: Callable[[ClientEvent], None],
+    events: ClientEvents,
+    put: Callable[[Handover], None],
+    put_subscription: Callable[[Handover], None],
     get_params: Callable[[list[str]], list[Any]],
     set_params: Callable[[int, list[Any]], list[Any]],
 ) -> Any:
@@ -81,10 +79,10 @@ def sdk_listener(
 
     class Listener(ServerListener):
         def on_subscribe(self, client: Any, channel: Any) -> None:
-            put_subscription(ClientEvent(EventKind.SUBSCRIBE, client.id, channel.id, channel.topic))
+            put_subscription(partial(events.client_subscribed, client.id, channel.topic, True))
 
         def on_unsubscribe(self, client: Any, channel: Any) -> None:
-            put_subscription(ClientEvent(EventKind.UNSUBSCRIBE, client.id, channel.id, channel.topic))
+            put_subscription(partial(events.client_subscribed, client.id, channel.topic, False))
 
         def on_get_parameters(self, client: Any, param_names: list[str], request_id: str | None = None) -> list[Any]:
             return get_params(param_names)
@@ -93,13 +91,13 @@ def sdk_listener(
             return set_params(client.id, parameters)
 
         def on_client_advertise(self, client: Any, channel: Any) -> None:
-            put(ClientEvent(EventKind.ADVERTISE, client.id, channel.id, channel.topic, channel.encoding, channel.schema_name))
+            put(partial(events.client_advertised, client.id, channel.id, channel.topic, channel.encoding, channel.schema_name))
 
         def on_client_unadvertise(self, client: Any, client_channel_id: int) -> None:
-            put(ClientEvent(EventKind.UNADVERTISE, client.id, client_channel_id))
+            put(partial(events.client_unadvertised, client.id, client_channel_id))
 
         def on_message_data(self, client: Any, client_channel_id: int, data: bytes) -> None:
-            put(ClientEvent(EventKind.MESSAGE, client.id, client_channel_id, data=bytes(data)))
+            put(partial(events.client_published, client.id, client_channel_id, bytes(data)))
 
     return Listener()
 
