@@ -49,6 +49,11 @@ def _status(name: str, level: Level, message: str, hardware_id: str, **values: A
     return Status(level, name, message, hardware_id, tuple((key, "" if value is None else str(value)) for key, value in values.items()))
 
 
+def _fields(health: GatewayHealth, *names: str) -> dict[str, Any]:
+    """These fields of the health, by name, in this order: the values a status shows as they are."""
+    return {name: getattr(health, name) for name in names}
+
+
 def _link(name: str, link: LinkHealth, hardware_id: str) -> Status:
     return _status(name, link_level(link.state), link.state, hardware_id, connected_since=link.connected_since, reconnects=link.reconnects)
 
@@ -75,10 +80,7 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
             Level.OK,
             f"driven by {driver}",
             hardware_id,
-            active_source=health.active_source,
-            cmd_timeout_active=health.cmd_timeout_active,
-            commands_sent=health.commands_sent,
-            rejected_inputs=health.rejected_inputs,
+            **_fields(health, "active_source", "cmd_timeout_active", "commands_sent", "rejected_inputs"),
             **{f"source {name}": f"priority {s.priority}, age {s.age}, dropped {s.dropped}" for name, s in health.sources.items()},
             **{f"lock {name}": engaged for name, engaged in health.locks.items()},
         )
@@ -89,9 +91,7 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
             ESTOP_ENGAGED.level if health.estop else Level.OK,
             health.estop_text(),
             hardware_id,
-            estop=health.estop,
-            estop_since=health.estop_since,
-            estop_by=health.estop_by,
+            **_fields(health, "estop", "estop_since", "estop_by"),
         ),
         _link("gateway: control link", health.control, hardware_id),
         _link("gateway: log link", health.log, hardware_id),
@@ -101,12 +101,7 @@ def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
             REPLIES_LOST_EVER if lost else Level.OK,
             f"{health.poll_hz:g} Hz polls, rtt {health.last_rtt_ms} ms",
             hardware_id,
-            polls=health.polls,
-            replies=health.replies,
-            lost_replies=health.lost_replies,
-            malformed_replies=health.malformed_replies,
-            full_buffer=health.full_buffer,
-            wheel_speeds=health.wheel_speeds,
+            **_fields(health, "polls", "replies", "lost_replies", "malformed_replies", "full_buffer", "wheel_speeds"),
         ),
     ]
     status = [diagnostic_json(s) for s in statuses]

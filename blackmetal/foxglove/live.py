@@ -196,14 +196,18 @@ class LiveView:
         if self.status.has_sinks() and self._decode(RobotStatus, payload) is not None:
             self.status.log(payload)
 
-    def on_health(self, payload: bytes) -> None:
-        health, (shows, diagnoses) = self._take(GatewayHealth, payload, self.health, self.diagnostics)
-        if health is None:
+    def _echo(self, message_type: type[Any], payload: bytes, raw: Out, derived: Out, build: Callable[[Any], Any]) -> None:
+        """The payload as published on ``raw``, and ``build(message)`` on ``derived``: each only when someone takes it."""
+        message, (shows, derives) = self._take(message_type, payload, raw, derived)
+        if message is None:
             return
         if shows:
-            self.health.log(payload)
-        if diagnoses:
-            self.diagnostics.log(json.dumps(diagnostics(health, self.keys.prefix)).encode())
+            raw.log(payload)
+        if derives:
+            derived.log(build(message))
+
+    def on_health(self, payload: bytes) -> None:
+        self._echo(GatewayHealth, payload, self.health, self.diagnostics, lambda h: json.dumps(diagnostics(h, self.keys.prefix)).encode())
 
     def on_impulses(self, payload: bytes) -> None:
         sample, (speeds, joints, turns) = self._take(WheelImpulses, payload, self.wheels, self.joint_states, self.tf)
@@ -230,13 +234,7 @@ class LiveView:
                     self.tf.log(transform(sample.stamp, joint.parent, joint.child, xyz, q))
 
     def on_error(self, payload: bytes) -> None:
-        report, (shows, logs) = self._take(ErrorReport, payload, self.errors, self.log)
-        if report is None:
-            return
-        if shows:
-            self.errors.log(payload)
-        if logs:
-            self.log.log(report_log(report))
+        self._echo(ErrorReport, payload, self.errors, self.log, report_log)
 
     def on_params(self, params: GatewayParams) -> None:
         """The gateway's parameters: a new wheel geometry re-sends the URDF to whoever shows it."""

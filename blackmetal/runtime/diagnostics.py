@@ -87,33 +87,33 @@ REPLIES_LOST_EVER = Level.WARN
 # The ROS 2 adapter's robot link, from the gateway's health and liveliness.
 #: Counting windows for lost replies, rejected samples, bad ROS inputs and failed calls (s).
 WINDOW_S = 10.0
+GATEWAY_NOT_RUNNING = Condition(Level.ERROR, "the gateway is not running (no {key})")
+NO_HEALTH_YET = Condition(Level.STALE, "no gateway health yet on {key}")
 #: STALE after this long without a health report (the gateway reports every 1 s).
 HEALTH_STALE_S = 3.0
+HEALTH_STALE = Condition(Level.STALE, "no gateway health for {age:.1f} s")
 #: WARN / ERROR when the measured poll rate is below this fraction of the asked one.
 POLL_WARN_RATIO = 0.9
 POLL_ERROR_RATIO = 0.5
+POLL_SLOW = Condition(Level.WARN, "polling at {hz:g} Hz of {asked:g} Hz", severe=Level.ERROR)
 #: WARN / ERROR when the last round trip is longer (ms); the gateway gives a request up after 500 ms.
 RTT_WARN_MS = 100.0
 RTT_ERROR_MS = 250.0
+ROUND_TRIP_SLOW = Condition(Level.WARN, "round trip {ms:.0f} ms", severe=Level.ERROR)
 #: ERROR when at least this fraction of the polls of the window lost their reply (any: WARN).
 LOST_ERROR_FRACTION = 0.1
-GATEWAY_NOT_RUNNING = Condition(Level.ERROR, "the gateway is not running (no {key})")
-NO_HEALTH_YET = Condition(Level.STALE, "no gateway health yet on {key}")
-HEALTH_STALE = Condition(Level.STALE, "no gateway health for {age:.1f} s")
-POLL_SLOW = Condition(Level.WARN, "polling at {hz:g} Hz of {asked:g} Hz", severe=Level.ERROR)
-ROUND_TRIP_SLOW = Condition(Level.WARN, "round trip {ms:.0f} ms", severe=Level.ERROR)
 REPLIES_LOST = Condition(Level.WARN, "{lost} of {polls} replies lost in {window:g} s", severe=Level.ERROR)
 
 # The ROS 2 adapter's odometry, from the poses, the odometry's reports and liveliness.
-#: WARN when the last pose is older than this (s), STALE beyond POSE_STALE_S.
-POSE_LATE_S = 0.5
-POSE_STALE_S = 2.0
-#: ERROR at this many rejected samples in the window (any: WARN); 25 in 10 s is 5 % at 50 Hz.
-REJECTED_ERROR_COUNT = 25
 ODOMETRY_NOT_RUNNING = Condition(Level.ERROR, "the odometry is not running (no {key})")
 NO_POSE_YET = Condition(Level.STALE, "no pose yet on {key}")
-POSE_STALE = Condition(Level.STALE, "no pose for {age:.1f} s")
+#: WARN when the last pose is older than this (s), STALE beyond POSE_STALE_S.
+POSE_LATE_S = 0.5
 POSE_LATE = Condition(Level.WARN, "last pose {age:.1f} s ago")
+POSE_STALE_S = 2.0
+POSE_STALE = Condition(Level.STALE, "no pose for {age:.1f} s")
+#: ERROR at this many rejected samples in the window (any: WARN); 25 in 10 s is 5 % at 50 Hz.
+REJECTED_ERROR_COUNT = 25
 SAMPLES_REJECTED = Condition(Level.WARN, "{count} impulse samples rejected in {window:g} s", severe=Level.ERROR)
 
 # The ROS 2 adapter itself.
