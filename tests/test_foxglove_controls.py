@@ -269,9 +269,9 @@ def test_reset_odometry_answers_with_the_odometrys_pose_or_its_reason(controls: 
     core.on_service_call(5, 7, "reset_odometry", b"{}", 0.0)
     assert [call for call, _ in bench.resets] == [1, 2, 4, 5] and json.loads(bench.resets[1][1])["x"] == 1.5
     core.on_reset_reply(1, encode(Pose(stamp=1.0, x=0.0, y=0.0, yaw=0.0)), None, 0.1)
-    core.on_reset_done(1, 0.1)
+    core.on_reset_reply(1, None, None, 0.1)
     core.on_reset_reply(2, None, b"invalid PoseReset: reset refused", 0.1)
-    core.on_reset_done(4, 0.1)  # nobody answered
+    core.on_reset_reply(4, None, None, 0.1)  # nobody answered
     response, failure = bench.answers[1]
     assert failure is None and response is not None and json.loads(response)["pose"]["x"] == 0.0
     assert "reset refused" in str(bench.answers[2][1]) and bench.answers[3][1] is not None and "no odometry" in str(bench.answers[4][1])

@@ -293,13 +293,18 @@ class Controls(Refusals):
                 self.output.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
 
     def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
-        """The odometry's answer to a reset: its pose, or its reason for refusing."""
+        """The odometry's answer to a reset: its pose, or its reason for refusing (``None, None``: the query ended unanswered)."""
         pending = self._reset_calls.pop(call, None)
         if pending is None:
             return
         if ok is None:
-            reason = (err or b"").decode("utf-8", errors="replace") or "no reason given"
-            self._fail(call, pending.client, Service.RESET_ODOMETRY, f"the odometry refused the reset: {reason}", "", now)
+            if err is None:
+                reason = (
+                    f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
+                )
+            else:
+                reason = f"the odometry refused the reset: {err.decode('utf-8', errors='replace') or 'no reason given'}"
+            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
             return
         try:
             pose = decode(Pose, ok)
@@ -310,13 +315,6 @@ class Controls(Refusals):
             return
         message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
         self.output.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
-
-    def on_reset_done(self, call: int, now: float) -> None:
-        """The reset's query ended: a call still waiting got no answer at all."""
-        pending = self._reset_calls.pop(call, None)
-        if pending is not None:
-            reason = f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
-            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
 
     def _fail(self, call: int, client: int, service: Service, reason: str, text: str, now: float) -> None:
         self._estop_calls.pop(call, None)
@@ -423,15 +421,6 @@ class FleetControls(Refusals):
             return
         offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
         self._unknown_service(call, client, service, f"{offered} for the robots {', '.join(self.robots)}", payload, now)
-
-    def on_health(self, robot_id: str, payload: bytes, now: float) -> None:
-        self.robots[robot_id].on_health(payload, now)
-
-    def on_reset_reply(self, robot_id: str, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
-        self.robots[robot_id].on_reset_reply(call, ok, err, now)
-
-    def on_reset_done(self, robot_id: str, call: int, now: float) -> None:
-        self.robots[robot_id].on_reset_done(call, now)
 
     def tick(self, now: float) -> None:
         for controls in self.robots.values():

@@ -22,14 +22,16 @@ import secrets
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import msgspec
 
-from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.host import Core, DeadlineTimer
 from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ConfigError, GatewayParams, Param
 
+from .controls import Controls, FleetControls
 from .front import (
     HANDSHAKE_TIMEOUT_S,
     HEAD_LIMIT,
@@ -49,11 +51,9 @@ from .front import (
     ws_frame,
 )
 from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
-from .params import Parameters
+from .params import Gateways, Parameters
 from .sdk import (
     CALL_MARGIN_S,
-    ParamsSetIn,
-    ServiceCallIn,
     ServiceFailure,
     foxglove_parameter,
     run,
@@ -74,31 +74,15 @@ class Viewer(Protocol):
         """The watched topics changed: subscribe to the keys they need, and only those."""
 
 
-class ClientCore(Protocol):
-    """What the host feeds with the clients' doings: :class:`Controls` for one robot, ``FleetControls`` for a fleet."""
-
-    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None: ...
-    def on_unadvertise(self, client: int, channel: int, now: float) -> None: ...
-    def on_client_gone(self, client: int, now: float) -> None: ...
-    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None: ...
-    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None: ...
-    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None: ...
-    def tick(self, now: float) -> None: ...
-    def next_deadline(self) -> float: ...
+#: What the host feeds with the clients' doings: one robot's controls, or a fleet's.
+ClientCore = Controls | FleetControls
 
 
-class Timed(Protocol):
-    """A part with timers of its own: the host runs ``tick`` at ``next_deadline``."""
-
-    def tick(self, now: float) -> None: ...
-    def next_deadline(self) -> float: ...
-
-
+@dataclass(slots=True)
 class _Together:
     """Several timed parts as one for the host's one timer."""
 
-    def __init__(self, parts: list[Timed]) -> None:
-        self.parts = parts
+    parts: list[Core]
 
     def tick(self, now: float) -> None:
         for part in self.parts:
@@ -106,14 +90,6 @@ class _Together:
 
     def next_deadline(self) -> float:
         return min(part.next_deadline() for part in self.parts)
-
-
-class ParamsRobots(Protocol):
-    """What :class:`Parameters` asks of a robot's gateway, through its Zenoh edge."""
-
-    def ask_params(self, robot_id: str) -> None: ...
-    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
-    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
 
 
 @dataclass(slots=True)
@@ -141,16 +117,15 @@ class FoxgloveHost:
         self._put_event = self._handover.channel("client events", run, capacity=4096)
         # a client that subscribes to every channel of a fleet of 100 sends 1,500 subscriptions at once; none may be lost
         self._put_subscription = self._handover.channel("subscriptions", run, capacity=65536)
-        self._put_call = self._handover.channel("service calls", self._on_call, capacity=256)
-        self._put_set = self._handover.channel("parameter sets", self._on_params_set, capacity=256)
+        self._put_call = self._handover.channel("service calls", run, capacity=256)
+        self._put_set = self._handover.channel("parameter sets", run, capacity=256)
         #: Who watches which topic (set by :meth:`watch_with`); None: every key is followed.
         self.watch: Watch | None = None
         self.viewer: Viewer | None = None
         self.params: Parameters | None = None
         #: The parameters as the SDK's threads answer getParameters from: replaced whole on the loop, read whole there.
         self._param_snapshot: list[Any] = []
-        self._sets: dict[int, ParamsSetIn] = {}
-        self._timed: list[Any] = []
+        self._sets: dict[int, concurrent.futures.Future[list[Param]]] = {}
         self._connections: dict[str, Connection] = {}
         self._by_client: dict[int, Connection] = {}
         self._calls: dict[int, _Call] = {}
@@ -204,20 +179,19 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: ClientCore, *timed: Timed) -> None:
+    def attach(self, core: ClientCore, *timed: Core) -> None:
         """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
         self.core = core
-        self._timed = [core, *timed]
-        self.timer = DeadlineTimer(_Together(self._timed), self.clock)
+        self.timer = DeadlineTimer(_Together([core, *timed]), self.clock)
         self.timer.start()
 
     def watch_with(self, watch: Watch, viewer: Viewer) -> None:
         """Follow the clients' subscriptions in ``watch`` and tell ``viewer`` (before any client connects)."""
         self.watch, self.viewer = watch, viewer
 
-    def serve_params(self, params: Parameters, robots: ParamsRobots) -> None:
-        """Answer the clients' getParameters and setParameters from ``params``; what it asks of a gateway goes to ``robots``."""
-        self.params, self._params_robots = params, robots
+    def serve_params(self, params: Parameters, gateways: Gateways) -> None:
+        """Answer the clients' getParameters and setParameters from ``params``; what it asks of a gateway goes to ``gateways``."""
+        self.params, params.gateways = params, gateways
 
     async def run(self, stop: asyncio.Event) -> None:
         """Serve until ``stop``: the view's handlers run on the loop as the edge hands payloads over, the core's timers on the loop's timer."""
@@ -231,12 +205,10 @@ class FoxgloveHost:
             self._front = None
         for connection in list(self._connections.values()):
             connection.close()
-        for future in list(self._inflight):
+        futures: list[concurrent.futures.Future[Any]] = [*self._inflight, *self._sets.values()]
+        for future in futures:
             if not future.done():
                 future.set_exception(ServiceFailure("blackmetal foxglove is stopping"))
-        for request in self._sets.values():
-            if not request.future.done():
-                request.future.set_exception(ServiceFailure("blackmetal foxglove is stopping"))
         if self._writer is not None:
             self._writer.close()
             self._writer = None
@@ -387,35 +359,26 @@ class FoxgloveHost:
         future: concurrent.futures.Future[list[Param]] = concurrent.futures.Future()
         values = [(p.name, p.get_value()) for p in parameters]
         try:
-            self._put_set(ParamsSetIn(client, values, future))
+            self._put_set(partial(self._on_params_set, client, values, future))
             answer = future.result(timeout=self.settings.call_timeout + CALL_MARGIN_S)
         except (concurrent.futures.TimeoutError, concurrent.futures.CancelledError, ServiceFailure):
             return self._get_params([name for name, _ in values])  # the values the view knows: nothing it did not see changed
         return [foxglove_parameter(param) for param in answer]
 
-    def _on_params_set(self, request: ParamsSetIn) -> None:
+    def _on_params_set(self, client: int, values: list[tuple[str, object]], future: concurrent.futures.Future[list[Param]]) -> None:
         if self.params is None:
-            request.future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
+            future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
             return
         number = next(self._numbers)
-        self._sets[number] = request
-        self.params.on_set(number, request.client, request.values, self.clock())
+        self._sets[number] = future
+        self.params.on_set(number, client, values, self.clock())
         self.poke()
 
     # ParamsOutput
-    def ask_params(self, robot_id: str) -> None:
-        self._params_robots.ask_params(robot_id)
-
-    def set_params(self, robot_id: str, call: int, payload: bytes) -> None:
-        self._params_robots.set_params(robot_id, call, payload)
-
-    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None:
-        self._params_robots.report(robot_id, topic, reason, text, now)
-
     def parameters_answer(self, call: int, values: list[Param]) -> None:
-        request = self._sets.pop(call, None)
-        if request is not None and not request.future.done():
-            request.future.set_result(values)
+        future = self._sets.pop(call, None)
+        if future is not None and not future.done():
+            future.set_result(values)
 
     def parameters_changed(self, values: list[Param]) -> None:
         """A gateway's table changed: the snapshot is made anew and the changed values go to the clients that follow them."""
@@ -439,21 +402,21 @@ class FoxgloveHost:
         self._inflight.add(future)
         self._our_calls.add((request.client_id, request.call_id))
         try:
-            self._put_call(ServiceCallIn(request.service_name, request.client_id, request.call_id, bytes(request.payload), future))
+            self._put_call(partial(self._on_call, request.service_name, request.client_id, request.call_id, bytes(request.payload), future))
             return future.result(timeout=self.settings.call_timeout + CALL_MARGIN_S)
         except concurrent.futures.TimeoutError:
             raise ServiceFailure(f"no answer within {self.settings.call_timeout + CALL_MARGIN_S:g} s") from None
         finally:
             self._inflight.discard(future)
 
-    def _on_call(self, call: ServiceCallIn) -> None:
+    def _on_call(self, service: str, client: int, call_id: int, payload: bytes, future: concurrent.futures.Future[bytes]) -> None:
         core = self.core
         if core is None:
-            call.future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
+            future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
             return
         number = next(self._numbers)
-        self._calls[number] = _Call(call.client, call.call_id, call.future)
-        core.on_service_call(number, call.client, call.service, call.payload, self.clock())
+        self._calls[number] = _Call(client, call_id, future)
+        core.on_service_call(number, client, service, payload, self.clock())
         self.poke()
 
     # --------------------------------------------------------------- to the clients (ControlsOutput's other half: the robot's keys are its port's)

@@ -71,11 +71,7 @@ class RobotPort:
 
     def on_reset_reply(self, reply: Reply) -> None:
         if self.controls is not None:
-            call, ok, err = reply
-            if ok is None and err is None:
-                self.controls.on_reset_done(call, self.host.clock())
-            else:
-                self.controls.on_reset_reply(call, ok, err, self.host.clock())
+            self.controls.on_reset_reply(*reply, self.host.clock())
             self.host.poke()
 
     def on_params(self, payload: bytes) -> None:
@@ -106,7 +102,7 @@ class RobotPort:
 
 
 class Wiring:
-    """The host's :class:`~.host.Viewer` and :class:`~.host.ParamsRobots` over every robot's port."""
+    """The host's :class:`~.host.Viewer` and the parameters' :class:`~.params.Gateways` over every robot's port."""
 
     def __init__(
         self,
@@ -173,7 +169,7 @@ class Wiring:
         port = self.ports.get(robot_id)
         return port.edge.latest_pose() if port is not None and port.edge is not None else None
 
-    # ParamsRobots
+    # Gateways
     def ask_params(self, robot_id: str) -> None:
         port = self.ports[robot_id]
         if port.edge is not None:

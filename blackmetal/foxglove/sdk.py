@@ -2,15 +2,13 @@
 
 Why apart: the SDK calls back on threads of its own; everything here either
 builds the SDK's objects or carries a client's doing over to the loop (as a
-:class:`ClientEvent`, a :class:`ServiceCallIn` or a :class:`ParamsSetIn`), so
-the host's code runs on the loop only.
+bound call of the host's, :data:`Handover`), so the host's code runs on the
+loop only.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, Protocol
 
@@ -43,28 +41,8 @@ def run(handover: Handover) -> None:
     handover()
 
 
-@dataclass(frozen=True, slots=True)
-class ServiceCallIn:
-    """A service call from the SDK's handler thread, which waits on ``future``."""
-
-    service: str
-    client: int
-    call_id: int
-    payload: bytes
-    future: concurrent.futures.Future[bytes] = field(compare=False)
-
-
 class ServiceFailure(BlackmetalError):
     """Raised in a service handler: the SDK answers the call with a service call failure carrying this text."""
-
-
-@dataclass(frozen=True, slots=True)
-class ParamsSetIn:
-    """A client's setParameters from the SDK's thread, which waits on ``future`` for the values to answer with."""
-
-    client: int
-    values: list[tuple[str, object]]
-    future: concurrent.futures.Future[list[Param]] = field(compare=False)
 
 
 def sdk_listener(
