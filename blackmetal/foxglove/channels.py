@@ -19,6 +19,29 @@ from blackmetal.schemas import (
 )
 
 
+def typed(name: str | list[str], **more: Any) -> dict[str, Any]:
+    """A JSON Schema of one type: ``typed("number", description=...)``."""
+    return {"type": name, **more}
+
+
+def array(items: dict[str, Any], **more: Any) -> dict[str, Any]:
+    return {"type": "array", "items": items, **more}
+
+
+def obj(**properties: Any) -> dict[str, Any]:
+    return {"type": "object", "properties": properties}
+
+
+#: ROS's std_msgs/msg/Header as JSON.
+HEADER = obj(stamp=obj(sec=typed("integer"), nsec=typed("integer")), frame_id=typed("string"))
+
+
+def message_schema(title: str, description: str, properties: dict[str, Any], required: list[str] | None = None) -> dict[str, Any]:
+    """The JSON Schema of a JSON channel's messages, titled with the message type's name (what the panels look for)."""
+    schema = {"title": title, "description": description, **obj(**properties)}
+    return schema if required is None else {**schema, "required": required}
+
+
 def timestamp(stamp: float) -> Any:
     from foxglove.messages import Timestamp
 

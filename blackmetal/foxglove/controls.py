@@ -1,13 +1,7 @@
 """What the view's clients may do (:class:`Controls`, :class:`FleetControls`): publish and call, turned into the robot's keys.
 
-What clients may do (client publish and services, JSON only):
-
-| from the client | schema | to the robot |
-|---|---|---|
-| topic ``/cmd_vel`` | ``geometry_msgs/msg/Twist`` (or ``geometry_msgs/Twist``) | ``<prefix>/cmd_vel/foxglove``: the command source ``foxglove`` |
-| topic ``/estop`` | ``std_msgs/msg/Bool``: ``{"data": true}`` engages, ``{"data": false}`` releases | ``<prefix>/estop`` |
-| service ``set_estop`` | ``std_srvs/srv/SetBool`` | ``<prefix>/estop``; answers once the gateway's health confirms |
-| service ``reset_odometry`` | ``blackmetal/srv/ResetOdometry`` (x, y, yaw; all optional) | a ``get`` on ``<prefix>/odometry/reset``; answers with the odometry's pose |
+What clients may do (client publish and services, JSON only) is the table
+of ``docs/foxglove.md`` (Controls); the names and schemas are :mod:`.naming`'s.
 
 :class:`Controls` is pure and clock-injected like every core: each input
 comes with ``now``; what is due later (a service call's time limit, the

@@ -16,33 +16,26 @@ from blackmetal.schemas import (
     stamp_parts,
 )
 
-_TIME_SCHEMA: dict[str, Any] = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
+from .channels import HEADER, array, message_schema, obj, typed
 
+_STRING = typed("string")
 #: ROS's diagnostic_msgs/msg/DiagnosticArray as JSON, the shape the Diagnostics panels read.
-DIAGNOSTICS_SCHEMA: dict[str, Any] = {
-    "title": "diagnostic_msgs/msg/DiagnosticArray",
-    "description": "the gateway's health as ROS diagnostics, from <prefix>/gateway/health",
-    "type": "object",
-    "properties": {
-        "header": {"type": "object", "properties": {"stamp": _TIME_SCHEMA, "frame_id": {"type": "string"}}},
-        "status": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "level": {"type": "integer", "description": "0 OK, 1 WARN, 2 ERROR, 3 STALE"},
-                    "name": {"type": "string"},
-                    "message": {"type": "string"},
-                    "hardware_id": {"type": "string"},
-                    "values": {
-                        "type": "array",
-                        "items": {"type": "object", "properties": {"key": {"type": "string"}, "value": {"type": "string"}}},
-                    },
-                },
-            },
-        },
+DIAGNOSTICS_SCHEMA = message_schema(
+    "diagnostic_msgs/msg/DiagnosticArray",
+    "the gateway's health as ROS diagnostics, from <prefix>/gateway/health",
+    {
+        "header": HEADER,
+        "status": array(
+            obj(
+                level=typed("integer", description="0 OK, 1 WARN, 2 ERROR, 3 STALE"),
+                name=_STRING,
+                message=_STRING,
+                hardware_id=_STRING,
+                values=array(obj(key=_STRING, value=_STRING)),
+            )
+        ),
     },
-}
+)
 
 
 def _status(name: str, level: Level, message: str, hardware_id: str, **values: Any) -> Status:

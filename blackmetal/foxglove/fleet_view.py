@@ -25,7 +25,7 @@ from blackmetal.schemas import (
     Pose,
 )
 
-from .channels import ChannelFactory, Kind, foxglove_channel, report_log, timestamp
+from .channels import ChannelFactory, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, typed
 from .live import LiveView
 from .naming import (
     FLEET_NAMESPACE,
@@ -38,37 +38,33 @@ LOST_AFTER_S = 2.5
 #: The fleet summary goes out at most this often on health alone (s); a robot lost or back sends it at once.
 SUMMARY_PERIOD_S = 1.0
 
-FLEET_SUMMARY_SCHEMA: dict[str, Any] = {
-    "title": "FleetSummary",
-    "description": "blackmetal: one row per robot of the fleet, from each <prefix>/gateway/health, its liveliness and <prefix>/pose",
-    "type": "object",
-    "properties": {
-        "stamp": {"type": "number", "description": "the newest health's stamp"},
-        "robots_up": {"type": "integer", "description": "robots with a fresh health and both links connected"},
-        "lost": {"type": "array", "items": {"type": "string"}, "description": "ids of the robots lost (no health, or its gateway gone)"},
-        "estop": {"type": "array", "items": {"type": "string"}, "description": "ids of the robots whose e-stop is engaged"},
-        "driving": {"type": "object", "additionalProperties": {"type": "string"}, "description": "id -> the command source that drives it"},
-        "robots": {
-            "type": "array",
-            "items": {
-                "type": "object",
-                "properties": {
-                    "id": {"type": "string"},
-                    "prefix": {"type": "string"},
-                    "link": {"type": "string", "description": "control/log link states, 'no health', or 'lost: <why>'"},
-                    "health_age": {"type": ["number", "null"], "description": "s since its last health arrived"},
-                    "poll_hz": {"type": "number"},
-                    "estop": {"type": ["boolean", "null"]},
-                    "active_source": {"type": ["string", "null"], "description": "who drives (null: nobody)"},
-                    "conflict_with": {"type": ["string", "null"]},
-                    "x": {"type": ["number", "null"]},
-                    "y": {"type": ["number", "null"]},
-                    "yaw": {"type": ["number", "null"]},
-                },
-            },
-        },
+_STRING, _NUMBER_OR_NULL = typed("string"), typed(["number", "null"])
+FLEET_SUMMARY_SCHEMA = message_schema(
+    "FleetSummary",
+    "blackmetal: one row per robot of the fleet, from each <prefix>/gateway/health, its liveliness and <prefix>/pose",
+    {
+        "stamp": typed("number", description="the newest health's stamp"),
+        "robots_up": typed("integer", description="robots with a fresh health and both links connected"),
+        "lost": array(_STRING, description="ids of the robots lost (no health, or its gateway gone)"),
+        "estop": array(_STRING, description="ids of the robots whose e-stop is engaged"),
+        "driving": typed("object", additionalProperties=_STRING, description="id -> the command source that drives it"),
+        "robots": array(
+            obj(
+                id=_STRING,
+                prefix=_STRING,
+                link=typed("string", description="control/log link states, 'no health', or 'lost: <why>'"),
+                health_age=typed(["number", "null"], description="s since its last health arrived"),
+                poll_hz=typed("number"),
+                estop=typed(["boolean", "null"]),
+                active_source=typed(["string", "null"], description="who drives (null: nobody)"),
+                conflict_with=typed(["string", "null"]),
+                x=_NUMBER_OR_NULL,
+                y=_NUMBER_OR_NULL,
+                yaw=_NUMBER_OR_NULL,
+            )
+        ),
     },
-}
+)
 
 
 @dataclass(slots=True)

@@ -1,19 +1,8 @@
 """The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels.
 
 What it shows, built from the robot's payloads: Foxglove's own types where a
-panel needs them, JSON elsewhere.
-
-| Foxglove topic | schema | from |
-|---|---|---|
-| ``/pose`` | ``foxglove.PoseInFrame`` in ``odom`` | ``<prefix>/pose`` |
-| ``/tf`` | ``foxglove.FrameTransform`` odom -> base_link (the 3D panel follows it) | ``<prefix>/pose`` |
-| ``/path`` | ``foxglove.PosesInFrame``, the last ``path_length`` poses, 5 Hz | ``<prefix>/pose`` |
-| ``/truth/pose``, ``/truth/path`` | the same for the simulator's true pose | ``<prefix>/sim/truth`` |
-| ``/odometry`` | blackmetal ``Pose`` (JSON, with v and w for plots) | ``<prefix>/pose`` |
-| ``/wheels`` | wheel speeds in m/s and impulses/s (JSON) | ``<prefix>/wheels/impulses`` |
-| ``/status``, ``/health``, ``/errors`` | blackmetal JSON messages, as published | their keys |
-| ``/diagnostics`` | ``diagnostic_msgs/msg/DiagnosticArray`` (JSON) from the gateway's health | ``<prefix>/gateway/health`` |
-| ``/log`` | ``foxglove.Log``, one per error report (the Log panel) | ``<prefix>/errors`` |
+panel needs them, JSON elsewhere; the table of channels is in
+``docs/foxglove.md`` (Channels), and :meth:`LiveView.feeds` says it in code.
 
 Payloads that do not decode are skipped; the view never crashes on what a
 key carries. The view has no clock and no timers: the paths are throttled on
@@ -41,26 +30,16 @@ from blackmetal.schemas import (
     json_schemas,
 )
 
-from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, report_log, timestamp, transform
+from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
 from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, WheelAngles, joint_state, turned
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
 
-WHEELS_SCHEMA: dict[str, Any] = {
-    "title": "WheelSpeeds",
-    "description": "blackmetal wheel speeds, from <prefix>/wheels/impulses",
-    "type": "object",
-    "properties": {
-        "stamp": {"type": "number"},
-        "left_mps": {"type": "number"},
-        "right_mps": {"type": "number"},
-        "left_impulses": {"type": "integer"},
-        "right_impulses": {"type": "integer"},
-    },
-    "required": ["stamp", "left_mps", "right_mps", "left_impulses", "right_impulses"],
-}
+_WHEELS = {"stamp": typed("number"), "left_mps": typed("number"), "right_mps": typed("number")}
+_WHEELS |= {"left_impulses": typed("integer"), "right_impulses": typed("integer")}
+WHEELS_SCHEMA = message_schema("WheelSpeeds", "blackmetal wheel speeds, from <prefix>/wheels/impulses", _WHEELS, list(_WHEELS))
 
 
 class Trail:
