@@ -77,8 +77,6 @@ class RobotRow:
     pose: Pose | None = None
     #: When its last health arrived (the view's clock); None: none since the summary was last watched.
     seen: float | None = None
-    #: Its gateway's liveliness token: present, gone, or not known yet.
-    token: bool | None = None
     #: Why it is lost ("" while it is not).
     lost: str = ""
 
@@ -131,12 +129,11 @@ class FleetSummary:
 
     def on_token(self, robot_id: str, alive: bool, now: float) -> Presence | None:
         """Its gateway's liveliness token appeared or went: gone is lost at once; present waits for a health."""
+        if alive:
+            return None
         row = self.rows[robot_id]
-        row.token = alive
-        if not alive:
-            row.seen = None
-            return self._lose(row, "its gateway left (liveliness token gone)")
-        return None
+        row.seen = None
+        return self._lose(row, "its gateway left (liveliness token gone)")
 
     def on_pose(self, robot_id: str, pose: Pose) -> None:
         self.rows[robot_id].pose = pose

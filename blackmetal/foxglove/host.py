@@ -428,12 +428,7 @@ class FoxgloveHost:
             return
         import foxglove
 
-        levels = {
-            StatusLevel.INFO: foxglove.StatusLevel.Info,
-            StatusLevel.WARNING: foxglove.StatusLevel.Warning,
-            StatusLevel.ERROR: foxglove.StatusLevel.Error,
-        }
-        self.server.publish_status(message, levels[level])
+        self.server.publish_status(message, getattr(foxglove.StatusLevel, level.name.title()))  # INFO -> Info, ...
 
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
         pending = self._calls.pop(call, None)

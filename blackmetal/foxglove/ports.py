@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from dataclasses import dataclass, field
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport
@@ -101,24 +102,20 @@ class RobotPort:
             self.host.poke()
 
 
+@dataclass
 class Wiring:
     """The host's :class:`~.host.Viewer` and the parameters' :class:`~.params.Gateways` over every robot's port."""
 
-    def __init__(
-        self,
-        ports: dict[str, RobotPort],
-        watch: Watch,
-        fleet: FleetView | None = None,
-        fleet_reporter: ErrorReporter | None = None,
-    ) -> None:
-        """``fleet_reporter``: reports that name no robot (the fleet's log)."""
-        self.ports = ports
-        self.watch = watch
-        self.fleet = fleet
-        self.fleet_reporter = fleet_reporter
-        self._descriptions = {port.view.description_topic: port for port in ports.values()}
-        self._peeking = False
-        self._drain: asyncio.TimerHandle | None = None
+    ports: dict[str, RobotPort]
+    watch: Watch
+    fleet: FleetView | None = None
+    #: Where reports that name no robot go (the fleet's log).
+    fleet_reporter: ErrorReporter | None = None
+    _peeking: bool = field(default=False, init=False)
+    _drain: asyncio.TimerHandle | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        self._descriptions = {port.view.description_topic: port for port in self.ports.values()}
 
     # Viewer
     def subscribed(self, topic: str) -> None:
