@@ -23,6 +23,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
+from operator import call as run
 from typing import Any, Protocol
 
 import msgspec
@@ -56,7 +57,6 @@ from .sdk import (
     CALL_MARGIN_S,
     ServiceFailure,
     foxglove_parameter,
-    run,
     sdk_listener,
     start_server,
 )

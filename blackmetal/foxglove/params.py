@@ -23,6 +23,8 @@ from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import msgspec
+
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamsSet, ParamsSetReply, ParamValue, PayloadError, decode, encode
 
 from .naming import StatusLevel, robot_of
@@ -96,16 +98,7 @@ class Parameters:
         return robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/")
 
     def _shown(self, robot_id: str, param: Param) -> Param:
-        robot = self.robots[robot_id]
-        return Param(
-            param_name(robot.namespace, param.name),
-            param.type,
-            param.value,
-            param.description,
-            param.read_only,
-            param.min,
-            param.max,
-        )
+        return msgspec.structs.replace(param, name=param_name(self.robots[robot_id].namespace, param.name))
 
     def values(self, names: Collection[str] = ()) -> list[Param]:
         """The parameters now, by their shown names (all of them when ``names`` is empty; unknown names are left out)."""

@@ -36,11 +36,6 @@ class ClientEvents(Protocol):
     def client_subscribed(self, client: int, topic: str, subscribed: bool) -> None: ...
 
 
-def run(handover: Handover) -> None:
-    """The loop's side of a hand-over: do it."""
-    handover()
-
-
 class ServiceFailure(BlackmetalError):
     """Raised in a service handler: the SDK answers the call with a service call failure carrying this text."""
 
