@@ -25,20 +25,11 @@ from blackmetal.robot_model import Encoders
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
-from .core import (
-    COMMAND_SOURCE,
-    FLEET_NAMESPACE,
-    LOST_AFTER_S,
-    Controls,
-    FleetControls,
-    FleetView,
-    Service,
-    robot_frame,
-    robot_namespace,
-    service_name,
-    takes,
-)
-from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .controls import Controls, FleetControls
+from .fleet_view import LOST_AFTER_S, FleetView
+from .front import INNER_HOST, SUBPROTOCOLS
+from .host import FoxgloveHost
+from .naming import COMMAND_SOURCE, FLEET_NAMESPACE, Service, robot_frame, robot_namespace, service_name, takes
 from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings

@@ -21,9 +21,12 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys, require_extra
 
-from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
+from .controls import Controls
 from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
-from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .front import INNER_HOST, SUBPROTOCOLS
+from .host import FoxgloveHost
+from .live import LiveView
+from .naming import COMMAND_SOURCE, TAKES, Service
 from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings

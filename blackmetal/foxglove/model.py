@@ -31,34 +31,21 @@ from blackmetal import robot_model as model
 from blackmetal.robot_model import Encoders
 from blackmetal.schemas import ConfigError, GatewayParams, WheelImpulses, stamp_parts
 
+from .channels import HEADER, array, message_schema, typed
+
 #: Integrate no wheel angle across a gap longer than this (s): the wheels were not seen turning then.
 MAX_JOINT_GAP_S = 0.5
 
 #: ROS's std_msgs/msg/String as JSON: what the 3D panel's URDF layer reads.
-STRING_SCHEMA: dict[str, Any] = {
-    "title": "std_msgs/msg/String",
-    "description": "the robot's URDF (blackmetal.robot_model.urdf)",
-    "type": "object",
-    "properties": {"data": {"type": "string"}},
-    "required": ["data"],
-}
+STRING_SCHEMA = message_schema("std_msgs/msg/String", "the robot's URDF (blackmetal.robot_model.urdf)", {"data": typed("string")}, ["data"])
 
-_TIME = {"type": "object", "properties": {"sec": {"type": "integer"}, "nsec": {"type": "integer"}}}
-_NUMBERS = {"type": "array", "items": {"type": "number"}}
-
+_NUMBERS = array(typed("number"))
 #: ROS's sensor_msgs/msg/JointState as JSON.
-JOINT_STATE_SCHEMA: dict[str, Any] = {
-    "title": "sensor_msgs/msg/JointState",
-    "description": "the wheel joints' angles (rad) and speeds (rad/s), integrated from <prefix>/wheels/impulses",
-    "type": "object",
-    "properties": {
-        "header": {"type": "object", "properties": {"stamp": _TIME, "frame_id": {"type": "string"}}},
-        "name": {"type": "array", "items": {"type": "string"}},
-        "position": _NUMBERS,
-        "velocity": _NUMBERS,
-        "effort": _NUMBERS,
-    },
-}
+JOINT_STATE_SCHEMA = message_schema(
+    "sensor_msgs/msg/JointState",
+    "the wheel joints' angles (rad) and speeds (rad/s), integrated from <prefix>/wheels/impulses",
+    {"header": HEADER, "name": array(typed("string")), "position": _NUMBERS, "velocity": _NUMBERS, "effort": _NUMBERS},
+)
 
 
 @dataclass(frozen=True, slots=True)

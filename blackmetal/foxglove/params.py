@@ -23,20 +23,27 @@ from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 from typing import Protocol
 
+import msgspec
+
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamsSet, ParamsSetReply, ParamValue, PayloadError, decode, encode
 
-from .core import StatusLevel, robot_of
+from .naming import StatusLevel, robot_of
 
 
-class ParamsOutput(Protocol):
-    """Where :class:`Parameters` sends what it decides: the gateways' keys, the clients, the reports."""
+class Gateways(Protocol):
+    """What :class:`Parameters` asks of the robots' gateways (through their Zenoh edges), and where it reports."""
 
     def ask_params(self, robot_id: str) -> None: ...
     def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
+
+
+class ParamsOutput(Protocol):
+    """Where :class:`Parameters` sends what it decides for the clients."""
+
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
     def parameters_answer(self, call: int, values: list[Param]) -> None: ...
     def parameters_changed(self, values: list[Param]) -> None: ...
-    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
 
 
 def param_name(namespace: str, name: str) -> str:
@@ -65,10 +72,16 @@ class _Robot:
 class Parameters:
     """Every robot's gateway parameters under Foxglove's names; sets go to the robot's gateway, answers come from its reply."""
 
-    def __init__(self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0) -> None:
-        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet)."""
+    def __init__(
+        self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0, gateways: Gateways | None = None
+    ) -> None:
+        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet); ``gateways``: else given
+        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.serve_params`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
+        self.gateways: Gateways
+        if gateways is not None:
+            self.gateways = gateways
         self.call_timeout = call_timeout
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())
@@ -85,16 +98,7 @@ class Parameters:
         return robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/")
 
     def _shown(self, robot_id: str, param: Param) -> Param:
-        robot = self.robots[robot_id]
-        return Param(
-            param_name(robot.namespace, param.name),
-            param.type,
-            param.value,
-            param.description,
-            param.read_only,
-            param.min,
-            param.max,
-        )
+        return msgspec.structs.replace(param, name=param_name(self.robots[robot_id].namespace, param.name))
 
     def values(self, names: Collection[str] = ()) -> list[Param]:
         """The parameters now, by their shown names (all of them when ``names`` is empty; unknown names are left out)."""
@@ -112,7 +116,7 @@ class Parameters:
         try:
             table = decode(GatewayParams, payload)
         except PayloadError as exc:
-            self.output.report(robot_id, "parameters", f"the gateway's parameters did not decode: {exc}", exc.excerpt, now)
+            self.gateways.report(robot_id, "parameters", f"the gateway's parameters did not decode: {exc}", exc.excerpt, now)
             return None
         self._take(robot_id, table.params)
         return table
@@ -129,7 +133,7 @@ class Parameters:
 
     def on_gateway_back(self, robot_id: str) -> None:
         """The robot's gateway (re)appeared: its table may differ, ask it."""
-        self.output.ask_params(robot_id)
+        self.gateways.ask_params(robot_id)
 
     # ------------------------------------------------------------------ setting
     def on_set(self, call: int, client: int, values: list[tuple[str, object]], now: float) -> None:
@@ -141,20 +145,20 @@ class Parameters:
             if owner is None:
                 reason = f"no parameter {shown!r}: parameters are named /<id>/<name> for the robots {', '.join(self.robots)}"
                 refusals.append(reason)
-                self.output.report(None, "parameters", f"client {client}: {reason}", "", now)
+                self.gateways.report(None, "parameters", f"client {client}: {reason}", "", now)
                 continue
             robot_id, name = owner
             if (isinstance(value, float) and not math.isfinite(value)) or not isinstance(value, (bool, int, float, str)):
                 reason = f"{shown} = {value!r} refused: a parameter takes a number, a bool or a string"
                 refusals.append(reason)
-                self.output.report(robot_id, "parameters", f"client {client}: {reason}", "", now)
+                self.gateways.report(robot_id, "parameters", f"client {client}: {reason}", "", now)
                 continue
             per_robot.setdefault(robot_id, {})[name] = value
         names = [shown for shown, _ in values]
         pending = SetCall(client, names, set(per_robot), now + self.call_timeout, refusals)
         self._calls[call] = pending
         for robot_id, robot_values in per_robot.items():
-            self.output.set_params(robot_id, call, encode(ParamsSet(values=robot_values)))
+            self.gateways.set_params(robot_id, call, encode(ParamsSet(values=robot_values)))
         self._finish_if_done(call)
 
     def on_set_reply(self, robot_id: str, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:

@@ -1,6 +1,6 @@
 """How the view's parts meet, for one robot and for a fleet alike: each robot's port, and the wiring of them all.
 
-:class:`RobotPort` is one robot's side: its :class:`~.core.Controls` send to
+:class:`RobotPort` is one robot's side: its :class:`~.controls.Controls` send to
 the robot's keys through its Zenoh edge and to the clients through the host;
 its edge's answers (health, replies, parameters, liveliness) come back to
 its controls, the view and the parameters. :class:`Wiring` is what the host
@@ -13,12 +13,16 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from dataclasses import dataclass, field
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport
 
-from .core import FLEET_NAMESPACE, Controls, FleetView, LiveView, StatusLevel
+from .controls import Controls
+from .fleet_view import FleetView
 from .host import FoxgloveHost
+from .live import LiveView
+from .naming import FLEET_NAMESPACE, StatusLevel
 from .watch import Watch
 from .zenoh_edge import DRAIN_PERIOD_S, FoxgloveZenoh, Reply
 
@@ -68,11 +72,7 @@ class RobotPort:
 
     def on_reset_reply(self, reply: Reply) -> None:
         if self.controls is not None:
-            call, ok, err = reply
-            if ok is None and err is None:
-                self.controls.on_reset_done(call, self.host.clock())
-            else:
-                self.controls.on_reset_reply(call, ok, err, self.host.clock())
+            self.controls.on_reset_reply(*reply, self.host.clock())
             self.host.poke()
 
     def on_params(self, payload: bytes) -> None:
@@ -102,24 +102,20 @@ class RobotPort:
             self.host.poke()
 
 
+@dataclass
 class Wiring:
-    """The host's :class:`~.host.Viewer` and :class:`~.host.ParamsRobots` over every robot's port."""
+    """The host's :class:`~.host.Viewer` and the parameters' :class:`~.params.Gateways` over every robot's port."""
 
-    def __init__(
-        self,
-        ports: dict[str, RobotPort],
-        watch: Watch,
-        fleet: FleetView | None = None,
-        fleet_reporter: ErrorReporter | None = None,
-    ) -> None:
-        """``fleet_reporter``: reports that name no robot (the fleet's log)."""
-        self.ports = ports
-        self.watch = watch
-        self.fleet = fleet
-        self.fleet_reporter = fleet_reporter
-        self._descriptions = {port.view.description_topic: port for port in ports.values()}
-        self._peeking = False
-        self._drain: asyncio.TimerHandle | None = None
+    ports: dict[str, RobotPort]
+    watch: Watch
+    fleet: FleetView | None = None
+    #: Where reports that name no robot go (the fleet's log).
+    fleet_reporter: ErrorReporter | None = None
+    _peeking: bool = field(default=False, init=False)
+    _drain: asyncio.TimerHandle | None = field(default=None, init=False)
+
+    def __post_init__(self) -> None:
+        self._descriptions = {port.view.description_topic: port for port in self.ports.values()}
 
     # Viewer
     def subscribed(self, topic: str) -> None:
@@ -170,7 +166,7 @@ class Wiring:
         port = self.ports.get(robot_id)
         return port.edge.latest_pose() if port is not None and port.edge is not None else None
 
-    # ParamsRobots
+    # Gateways
     def ask_params(self, robot_id: str) -> None:
         port = self.ports[robot_id]
         if port.edge is not None:

@@ -36,7 +36,8 @@ from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
-from .core import COMMAND_SOURCE, LiveView
+from .live import LiveView
+from .naming import COMMAND_SOURCE
 
 if TYPE_CHECKING:
     import zenoh

@@ -25,8 +25,8 @@ from helpers import Child, client_config, free_port, start_robot, wait_for, zeno
 from websockets.exceptions import InvalidStatus
 from websockets.sync.client import ClientConnection, connect
 
-from blackmetal.foxglove.core import ASK_PERIOD_S, COMMAND_SOURCE, Controls, ServerRefusal, StatusLevel
-from blackmetal.foxglove.host import (
+from blackmetal.foxglove.controls import ASK_PERIOD_S, Controls
+from blackmetal.foxglove.front import (
     LEGACY_SUBPROTOCOL,
     OP_BINARY,
     OP_CLOSE,
@@ -40,6 +40,7 @@ from blackmetal.foxglove.host import (
     switches_protocols,
     ws_frame,
 )
+from blackmetal.foxglove.naming import COMMAND_SOURCE, ServerRefusal, StatusLevel
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
 
 KEYS = Keys("robot")
@@ -268,9 +269,9 @@ def test_reset_odometry_answers_with_the_odometrys_pose_or_its_reason(controls: 
     core.on_service_call(5, 7, "reset_odometry", b"{}", 0.0)
     assert [call for call, _ in bench.resets] == [1, 2, 4, 5] and json.loads(bench.resets[1][1])["x"] == 1.5
     core.on_reset_reply(1, encode(Pose(stamp=1.0, x=0.0, y=0.0, yaw=0.0)), None, 0.1)
-    core.on_reset_done(1, 0.1)
+    core.on_reset_reply(1, None, None, 0.1)
     core.on_reset_reply(2, None, b"invalid PoseReset: reset refused", 0.1)
-    core.on_reset_done(4, 0.1)  # nobody answered
+    core.on_reset_reply(4, None, None, 0.1)  # nobody answered
     response, failure = bench.answers[1]
     assert failure is None and response is not None and json.loads(response)["pose"]["x"] == 0.0
     assert "reset refused" in str(bench.answers[2][1]) and bench.answers[3][1] is not None and "no odometry" in str(bench.answers[4][1])

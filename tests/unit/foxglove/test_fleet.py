@@ -27,13 +27,12 @@ import pytest
 import zenoh
 from helpers import Child, client_config, free_port, wait_for, zenoh_listen_args
 
-from blackmetal.foxglove.core import (
+from blackmetal.foxglove.controls import Controls, FleetControls
+from blackmetal.foxglove.fleet import fleet_settings
+from blackmetal.foxglove.fleet_view import Change, FleetSummary
+from blackmetal.foxglove.naming import (
     COMMAND_SOURCE,
-    Change,
     Control,
-    Controls,
-    FleetControls,
-    FleetSummary,
     Service,
     StatusLevel,
     control_topic,
@@ -42,7 +41,6 @@ from blackmetal.foxglove.core import (
     robot_of,
     service_name,
 )
-from blackmetal.foxglove.fleet import fleet_settings
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.runtime.fleet import parse_fleet
 from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
@@ -162,13 +160,13 @@ def test_fleet_controls_send_each_robots_commands_to_its_prefix_alone() -> None:
     assert not b["r1"].commands and not b["r2"].commands
     core.on_service_call(1, 1, "/r1/set_estop", b'{"data": true}', 0.2)
     assert [decode(EStop, p).engaged for k, p in b["r1"].commands if k == "fleet/r1/estop"] == [True] and b["r1"].health_asks == 1
-    core.on_health("r2", health(True), 0.3)  # r2's e-stop does not answer r1's call
+    core.robots["r2"].on_health(health(True), 0.3)  # r2's e-stop does not answer r1's call
     assert not b["r1"].answers
-    core.on_health("r1", health(True), 0.3)
+    core.robots["r1"].on_health(health(True), 0.3)
     assert b["r1"].answers[1][1] is None
     core.on_service_call(2, 1, "/r2/reset_odometry", b"{}", 0.4)
     assert [call for call, _ in b["r2"].resets] == [2]
-    core.on_reset_done("r2", 2, 0.5)
+    core.robots["r2"].on_reset_reply(2, None, None, 0.5)
     assert "no odometry answered on fleet/r2/odometry/reset" in str(b["r2"].answers[2][1])
     core.on_client_gone(1, 0.6)  # the driver left: one zero to r3, nothing to the others
     assert b["r3"].commands[-1] == ("fleet/r3/cmd_vel/foxglove", encode(Twist())) and not b["r2"].commands

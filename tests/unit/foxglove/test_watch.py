@@ -21,7 +21,8 @@ import pytest
 import zenoh
 from helpers import Child, client_config, free_port, wait_for, zenoh_listen_args
 
-from blackmetal.foxglove.core import FleetView, Kind
+from blackmetal.foxglove.channels import Kind
+from blackmetal.foxglove.fleet_view import FleetView
 from blackmetal.foxglove.watch import Watch
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, LinkHealth, Pose, RobotStatus, WheelImpulses, encode
 from unit.foxglove.test_core import protobuf_class

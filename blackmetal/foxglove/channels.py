@@ -1,0 +1,121 @@
+"""The view's channel plumbing: what a channel carries (:class:`Kind`), how one is made, and Foxglove's message builders.
+
+Why apart: the live view and the fleet view log into the same kinds of
+channel, and tests count messages with a channel factory of their own
+(:data:`ChannelFactory`) instead of the SDK's.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from enum import Enum
+from typing import Any, Protocol, cast
+
+from blackmetal.schemas import (
+    ErrorReport,
+    Pose,
+    stamp_parts,
+)
+
+
+def typed(name: str | list[str], **more: Any) -> dict[str, Any]:
+    """A JSON Schema of one type: ``typed("number", description=...)``."""
+    return {"type": name, **more}
+
+
+def array(items: dict[str, Any], **more: Any) -> dict[str, Any]:
+    return {"type": "array", "items": items, **more}
+
+
+def obj(**properties: Any) -> dict[str, Any]:
+    return {"type": "object", "properties": properties}
+
+
+#: ROS's std_msgs/msg/Header as JSON.
+HEADER = obj(stamp=obj(sec=typed("integer"), nsec=typed("integer")), frame_id=typed("string"))
+
+
+def message_schema(title: str, description: str, properties: dict[str, Any], required: list[str] | None = None) -> dict[str, Any]:
+    """The JSON Schema of a JSON channel's messages, titled with the message type's name (what the panels look for)."""
+    schema = {"title": title, "description": description, **obj(**properties)}
+    return schema if required is None else {**schema, "required": required}
+
+
+def timestamp(stamp: float) -> Any:
+    from foxglove.messages import Timestamp
+
+    sec, nsec = stamp_parts(stamp)
+    return Timestamp(sec=sec, nsec=nsec)
+
+
+def fox_pose(pose: Pose) -> Any:
+    from foxglove.messages import Pose as FoxPose
+    from foxglove.messages import Quaternion, Vector3
+
+    q = pose.orientation
+    return FoxPose(position=Vector3(x=pose.x, y=pose.y, z=0.0), orientation=Quaternion(x=q.x, y=q.y, z=q.z, w=q.w))
+
+
+def json_channel(topic: str, schema: dict[str, Any]) -> Any:
+    """A JSON channel on the current Foxglove context, its schema the JSON Schema ``schema`` (named by its title)."""
+    import foxglove
+
+    full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
+    return foxglove.Channel(topic, schema=full, message_encoding="json")
+
+
+class Kind(Enum):
+    """What a view channel carries: one of Foxglove's own types (protobuf, built by the SDK), or JSON with a schema."""
+
+    POSE = "foxglove.PoseInFrame"
+    POSES = "foxglove.PosesInFrame"
+    TRANSFORM = "foxglove.FrameTransform"
+    LOG = "foxglove.Log"
+    JSON = "json"
+
+
+class Out(Protocol):
+    """A channel as the view uses it: does anyone take it (a client's subscription, the MCAP file), and log a message."""
+
+    def has_sinks(self) -> bool: ...
+    def log(self, msg: Any) -> None: ...
+
+
+#: Makes the view's channels: ``(topic, kind, JSON schema or None) -> channel``. Tests give one that counts.
+ChannelFactory = Callable[[str, Kind, "dict[str, Any] | None"], Out]
+
+
+def foxglove_channel(topic: str, kind: Kind, schema: dict[str, Any] | None = None) -> Out:
+    """A channel on the current Foxglove context (the SDK's typed channels for Foxglove's types)."""
+    from foxglove.channels import FrameTransformChannel, LogChannel, PoseInFrameChannel, PosesInFrameChannel
+
+    typed: dict[Kind, Callable[[str], Any]] = {
+        Kind.POSE: PoseInFrameChannel,
+        Kind.POSES: PosesInFrameChannel,
+        Kind.TRANSFORM: FrameTransformChannel,
+        Kind.LOG: LogChannel,
+    }
+    if kind is Kind.JSON:
+        assert schema is not None
+        return cast(Out, json_channel(topic, schema))
+    return cast(Out, typed[kind](topic))
+
+
+def transform(stamp: float, parent: str, child: str, xyz: tuple[float, float, float], q: tuple[float, float, float, float]) -> Any:
+    from foxglove.messages import FrameTransform, Quaternion, Vector3
+
+    return FrameTransform(
+        timestamp=timestamp(stamp),
+        parent_frame_id=parent,
+        child_frame_id=child,
+        translation=Vector3(x=xyz[0], y=xyz[1], z=xyz[2]),
+        rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3]),
+    )
+
+
+def report_log(report: ErrorReport) -> Any:
+    """An error report as one line of Foxglove's Log panel (a warning, named by who reported it)."""
+    from foxglove.messages import Log, LogLevel
+
+    return Log(timestamp=timestamp(report.stamp), level=LogLevel.Warning, message=f"{report.key}: {report.reason}", name=report.source)

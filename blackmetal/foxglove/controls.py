@@ -1,0 +1,429 @@
+"""What the view's clients may do (:class:`Controls`, :class:`FleetControls`): publish and call, turned into the robot's keys.
+
+What clients may do (client publish and services, JSON only) is the table
+of ``docs/foxglove.md`` (Controls); the names and schemas are :mod:`.naming`'s.
+
+:class:`Controls` is pure and clock-injected like every core: each input
+comes with ``now``; what is due later (a service call's time limit, the
+re-sent engage of a ``set_estop``, summaries of rate-limited error reports)
+runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refused
+client message is answered with a status message to that client and
+reported on ``<prefix>/errors``; a failed service call is answered with a
+service call failure and reported.
+
+A fleet's controls (:class:`FleetControls`) are one :class:`Controls` per
+robot (``/<id>/cmd_vel``, ``/<id>/estop``, services ``/<id>/set_estop``,
+``/<id>/reset_odometry``), each fed only what names its robot.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Protocol
+
+import msgspec
+
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import (
+    ErrorReport,
+    EStop,
+    GatewayHealth,
+    Keys,
+    PayloadError,
+    Pose,
+    PoseReset,
+    Twist,
+    decode,
+    encode,
+    excerpt,
+)
+
+from .naming import (
+    CLIENT_ENCODING,
+    COMMAND_SOURCE,
+    CONTROL_SCHEMAS,
+    Control,
+    ServerRefusal,
+    Service,
+    StatusLevel,
+    control_topic,
+    robot_namespace,
+    robot_of,
+    service_name,
+    takes,
+)
+
+#: A set_estop call re-sends its engage and asks the gateway's health this often (s) until confirmed.
+ASK_PERIOD_S = 0.2
+#: A refused client channel gets at most one status message this often (s); every refusal is still counted in reports.
+STATUS_PERIOD_S = 1.0
+RELEASE_HINT = 'only {"data": false} releases the e-stop'
+
+
+class RosBool(msgspec.Struct, forbid_unknown_fields=True):
+    """std_msgs/msg/Bool and the std_srvs/srv/SetBool request, as JSON: ``{"data": true}``."""
+
+    data: bool
+
+
+class ControlsOutput(Protocol):
+    """Where :class:`Controls` sends what it decides: the robot's keys, the clients, the error reports."""
+
+    def command(self, key: str, payload: bytes) -> None: ...
+    def ask_health(self) -> None: ...
+    def ask_reset(self, call: int, payload: bytes) -> None: ...
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
+    def error(self, message: ErrorReport) -> None: ...
+
+
+@dataclass(slots=True)
+class ClientTopic:
+    """A channel a client advertised: what it controls, or why its messages are refused."""
+
+    topic: str
+    control: Control | None
+    refusal: str | None
+    drove: bool = False
+
+
+@dataclass(slots=True)
+class EstopCall:
+    """A set_estop call waiting for the gateway's health to show ``engage``."""
+
+    client: int
+    engage: bool
+    deadline: float
+    next_ask: float
+
+
+@dataclass(slots=True)
+class ResetCall:
+    """A reset_odometry call waiting for the odometry's answer."""
+
+    client: int
+    deadline: float
+
+
+def _state(engage: bool) -> str:
+    return "engaged" if engage else "released"
+
+
+class FleetOutput(Protocol):
+    """Where :class:`FleetControls` sends what no robot's :class:`Controls` owns."""
+
+    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
+
+
+class Refusals:
+    """What :class:`Controls` and :class:`FleetControls` both do with what they refuse: tell the client, and report it."""
+
+    def __init__(self, output: FleetOutput, report: Callable[[ErrorReport], None], wallclock: Callable[[], float]) -> None:
+        self.reporter = ErrorReporter("foxglove", report, wallclock)
+        self._tell = output
+        self._last_status: dict[tuple[int | None, str], float] = {}
+
+    def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
+        """A status message to that client (at most once per STATUS_PERIOD_S per topic) and a report (rate-limited)."""
+        last = self._last_status.get((client, topic), -math.inf)
+        if now - last >= STATUS_PERIOD_S:
+            self._last_status[(client, topic)] = now
+            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
+        self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
+
+    def _unknown_service(self, call: int, client: int, service: str, offered: str, payload: bytes, now: float) -> None:
+        self._tell.answer(call, None, f"unknown service {service!r}: this view offers {offered}")
+        self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
+
+    def _forget(self, client: int) -> None:
+        for status_key in [key for key in self._last_status if key[0] == client]:
+            del self._last_status[status_key]
+
+    def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
+        """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
+
+        A status message already told the client; a service call failure is
+        followed by a status message, so the refusal shows where the client
+        shows its problems. In a fleet it names no robot: it goes on the fleet's log.
+        """
+        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
+        self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
+
+
+class Controls(Refusals):
+    """Client publications and service calls -> the robot's keys, with confirmations and refusals; see the module docstring.
+
+    Clients are the WebSocket server's client ids; ``call`` numbers service
+    calls (the host's numbering, unique while the view runs).
+    """
+
+    def __init__(
+        self,
+        keys: Keys,
+        output: ControlsOutput,
+        call_timeout: float = 2.0,
+        wallclock: Callable[[], float] = time.time,
+        namespace: str = "",
+    ) -> None:
+        super().__init__(output, output.error, wallclock)
+        self.keys = keys
+        #: ``""``, or ``/<id>`` for a fleet's robot: it takes ``/<id>/cmd_vel``, ``/<id>/estop``, ``/<id>/set_estop``, ...
+        self.namespace = namespace
+        self._controls = {control_topic(namespace, c): c for c in Control}
+        self._services = {service_name(namespace, s): s for s in Service}
+        self.output = output
+        self.call_timeout = call_timeout
+        self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
+        self._topics: dict[tuple[int, int], ClientTopic] = {}
+        self._estop_calls: dict[int, EstopCall] = {}
+        self._reset_calls: dict[int, ResetCall] = {}
+        #: The e-stop state in the gateway's last health (None: no health seen yet).
+        self.estop_seen: bool | None = None
+
+    # --------------------------------------------------------------- client publish
+    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
+        """A client advertised a channel: note what it controls, or refuse it at once (status and report)."""
+        control = self._controls.get(topic)
+        refusal = None
+        if control is None:
+            refusal = f"topic {topic!r} is not taken here: clients publish {takes(self.namespace)}"
+        elif encoding != CLIENT_ENCODING:
+            refusal = f"{topic} must be {CLIENT_ENCODING}-encoded, not {encoding!r}"
+        elif schema_name and schema_name not in CONTROL_SCHEMAS[control]:
+            refusal = f"{topic} carries {' or '.join(CONTROL_SCHEMAS[control])}, not {schema_name!r}"
+        self._topics[(client, channel)] = ClientTopic(topic, control, refusal)
+        if refusal is not None:
+            self._refuse(client, topic, f"{refusal}; its messages are refused", "", now)
+
+    def on_unadvertise(self, client: int, channel: int, now: float) -> None:
+        """A client stopped publishing on a channel: a /cmd_vel that drove sends one zero command, so the robot stops now rather than at the timeout."""
+        topic = self._topics.pop((client, channel), None)
+        if topic is not None and topic.control is Control.CMD_VEL and topic.drove:
+            self.output.command(self.cmd_vel_key, encode(Twist()))
+
+    def on_client_gone(self, client: int, now: float) -> None:
+        """A client disconnected: its channels are unadvertised."""
+        for key in [key for key in self._topics if key[0] == client]:
+            self.on_unadvertise(client, key[1], now)
+        self._forget(client)
+
+    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
+        """One message a client published: a command, an e-stop, or a refusal (status to that client, report)."""
+        topic = self._topics.get((client, channel))
+        if topic is None:
+            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
+            return
+        if topic.refusal is not None:
+            self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
+            return
+        if topic.control is Control.CMD_VEL:
+            try:
+                twist = decode(Twist, data)
+            except PayloadError as exc:
+                self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
+                return
+            topic.drove = True
+            self.output.command(self.cmd_vel_key, encode(twist))
+        elif topic.control is Control.ESTOP:
+            try:
+                wish = decode(RosBool, data)
+            except PayloadError as exc:
+                self._estop(True, now)  # fails safe, as the gateway does: whoever published here meant the stop
+                self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+                return
+            self._estop(wish.data, now)
+
+    def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
+        """Put the e-stop; a pending set_estop call that wants the other state is superseded (its re-sends would undo this)."""
+        self.output.command(self.keys.estop_for(engage), encode(EStop(engaged=engage)))
+        for other, pending in list(self._estop_calls.items()):
+            if other != call and pending.engage != engage:
+                self._fail(
+                    other, pending.client, Service.SET_ESTOP, f"superseded: the e-stop was {_state(engage)} since this call", "", now
+                )
+
+    # --------------------------------------------------------------- services
+    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
+        """A service call; it is answered later through ``output.answer``: on confirmation, failure or at the time limit."""
+        known = self._services.get(service)
+        if known is Service.SET_ESTOP:
+            try:
+                wish = decode(RosBool, payload)
+            except PayloadError as exc:
+                self._estop(True, now)
+                self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+                return
+            self._estop_calls[call] = EstopCall(client, wish.data, now + self.call_timeout, now + ASK_PERIOD_S)
+            self._estop(wish.data, now, call)
+            self.output.ask_health()  # asked after the put: the gateway takes its e-stop samples first
+        elif known is Service.RESET_ODOMETRY:
+            try:
+                target = PoseReset() if not payload.strip() else decode(PoseReset, payload)
+            except PayloadError as exc:
+                self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
+                return
+            self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
+            self.output.ask_reset(call, encode(target))
+        else:
+            self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
+
+    def on_health(self, payload: bytes, now: float) -> None:
+        """The gateway's health (published or asked for): it confirms the set_estop calls that wanted what it shows."""
+        try:
+            health = decode(GatewayHealth, payload)
+        except PayloadError:
+            return  # the gateway's own key: the view shows what it can, the gateway reports its own
+        self.estop_seen = health.estop
+        for call, pending in list(self._estop_calls.items()):
+            if pending.engage == health.estop:
+                del self._estop_calls[call]
+                message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
+                self.output.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
+
+    def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        """The odometry's answer to a reset: its pose, or its reason for refusing (``None, None``: the query ended unanswered)."""
+        pending = self._reset_calls.pop(call, None)
+        if pending is None:
+            return
+        if ok is None:
+            if err is None:
+                reason = (
+                    f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
+                )
+            else:
+                reason = f"the odometry refused the reset: {err.decode('utf-8', errors='replace') or 'no reason given'}"
+            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
+            return
+        try:
+            pose = decode(Pose, ok)
+        except PayloadError as exc:
+            self._fail(
+                call, pending.client, Service.RESET_ODOMETRY, f"the odometry answered something else than a pose: {exc}", exc.excerpt, now
+            )
+            return
+        message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
+        self.output.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
+
+    def _fail(self, call: int, client: int, service: Service, reason: str, text: str, now: float) -> None:
+        self._estop_calls.pop(call, None)
+        self._reset_calls.pop(call, None)
+        self.output.answer(call, None, reason)
+        self.reporter.report(f"foxglove:{service_name(self.namespace, service)}", f"client {client}: {reason}", text, now=now)
+
+    # --------------------------------------------------------------- timers
+    def tick(self, now: float) -> None:
+        """Time limits of the waiting calls, the set_estop engage re-sent and health asked again, report summaries."""
+        for call, pending in list(self._estop_calls.items()):
+            if now >= pending.deadline:
+                seen = (
+                    "no health from the gateway" if self.estop_seen is None else f"its health says the e-stop is {_state(self.estop_seen)}"
+                )
+                reason = (
+                    f"the gateway did not confirm the e-stop {_state(pending.engage)} within {self.call_timeout:g} s ({seen}); "
+                    f"is blackmetal gateway running on prefix {self.keys.prefix!r}?"
+                )
+                self._fail(call, pending.client, Service.SET_ESTOP, reason, "", now)
+            elif now >= pending.next_ask:
+                pending.next_ask = now + ASK_PERIOD_S
+                if pending.engage:  # an engage is safe to repeat; a release is sent once, never over someone's later stop
+                    self.output.command(self.keys.estop, encode(EStop(engaged=True)))
+                self.output.ask_health()
+        for call, reset in list(self._reset_calls.items()):
+            if now >= reset.deadline:
+                reason = f"the odometry did not answer within {self.call_timeout:g} s on {self.keys.odometry_reset}"
+                self._fail(call, reset.client, Service.RESET_ODOMETRY, reason, "", now)
+        self.reporter.tick(now)
+
+    def next_deadline(self) -> float:
+        deadlines = [self.reporter.next_deadline()]
+        deadlines += [min(p.deadline, p.next_ask) for p in self._estop_calls.values()]
+        deadlines += [p.deadline for p in self._reset_calls.values()]
+        return min(deadlines)
+
+    @property
+    def waiting(self) -> int:
+        """Service calls not answered yet."""
+        return len(self._estop_calls) + len(self._reset_calls)
+
+
+class FleetControls(Refusals):
+    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here.
+
+    A client's channel on ``/r3/...`` and a call of ``/r3/...`` go to r3's
+    controls alone, which act on r3's prefix and report on r3's errors key;
+    a topic outside every robot's namespace (or a refusal of the server
+    itself, which names no robot) is refused with a status to that client
+    and reported on ``fleet_error`` (the fleet's log), never on a robot's key.
+    """
+
+    def __init__(
+        self,
+        robots: dict[str, Controls],
+        output: FleetOutput,
+        fleet_error: Callable[[ErrorReport], None],
+        wallclock: Callable[[], float] = time.time,
+    ) -> None:
+        super().__init__(output, fleet_error, wallclock)
+        self.robots = robots
+        #: (client, channel) -> the robot it names, or None with the topic it refused.
+        self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
+
+    def _takes(self) -> str:
+        return f"{takes('/<id>')} for the robots {', '.join(self.robots)}"
+
+    def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
+        robot_id = robot_of(topic, self.robots)
+        self._channels[(client, channel)] = (robot_id, topic)
+        if robot_id is not None:
+            self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
+        else:
+            self._refuse(
+                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes()}; its messages are refused", "", now
+            )
+
+    def on_unadvertise(self, client: int, channel: int, now: float) -> None:
+        robot_id, _ = self._channels.pop((client, channel), (None, ""))
+        if robot_id is not None:
+            self.robots[robot_id].on_unadvertise(client, channel, now)
+
+    def on_client_gone(self, client: int, now: float) -> None:
+        for key in [key for key in self._channels if key[0] == client]:
+            self.on_unadvertise(client, key[1], now)
+        self._forget(client)
+        for controls in self.robots.values():
+            controls.on_client_gone(client, now)
+
+    def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
+        known = self._channels.get((client, channel))
+        if known is None:
+            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
+        elif known[0] is None:
+            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes()}", excerpt(data), now)
+        else:
+            self.robots[known[0]].on_message(client, channel, data, now)
+
+    def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
+        robot_id = robot_of(service, self.robots)
+        if robot_id is not None:
+            self.robots[robot_id].on_service_call(call, client, service, payload, now)
+            return
+        offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
+        self._unknown_service(call, client, service, f"{offered} for the robots {', '.join(self.robots)}", payload, now)
+
+    def tick(self, now: float) -> None:
+        for controls in self.robots.values():
+            controls.tick(now)
+        self.reporter.tick(now)
+
+    def next_deadline(self) -> float:
+        return min([self.reporter.next_deadline(), *(c.next_deadline() for c in self.robots.values())])
+
+    @property
+    def waiting(self) -> int:
+        return sum(c.waiting for c in self.robots.values())

@@ -1,0 +1,284 @@
+"""The front of the view's WebSocket server: a thin proxy before foxglove-sdk, its handshake and frames sans I/O.
+
+**The front.** foxglove-sdk accepts only the WebSocket subprotocol
+``foxglove.sdk.v1`` and answers HTTP 400 to a client that offers only the
+older ``foxglove.websocket.v1`` (Lichtblick before 1.22.1, foxglove_bridge
+0.8-era clients, roslibjs-foxglove), and no option of the SDK changes that.
+The two names stand for the same protocol, so the SDK server listens on a
+free loopback port and a thin front listens where clients connect: it reads
+the HTTP upgrade request, offers ``foxglove.sdk.v1`` to the SDK in place of
+``foxglove.websocket.v1`` when that is all the client offers, writes the
+client's own name back into the 101 answer, and from then on copies bytes
+both ways unchanged. Following the server's frames (never changing them) it
+also lets the view (a) send a status message to one client, which the
+SDK's Python API cannot (its ``publish_status`` goes to every client), and
+(b) see the refusals the SDK sends by itself (bad JSON, an unknown channel
+or service) so they are reported too. To know which SDK client a
+connection is, the front advertises, first thing on each connection, a
+marker channel whose schema name is the connection's random token.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from collections.abc import Callable
+
+import msgspec
+
+from .naming import CLIENT_ENCODING, StatusLevel
+
+#: The subprotocol foxglove-sdk speaks, and the older name of the same protocol.
+SDK_SUBPROTOCOL = "foxglove.sdk.v1"
+LEGACY_SUBPROTOCOL = "foxglove.websocket.v1"
+SUBPROTOCOLS = (SDK_SUBPROTOCOL, LEGACY_SUBPROTOCOL)
+#: The SDK server listens here, on a free port; clients reach it through the front.
+INNER_HOST = "127.0.0.1"
+#: The marker channel the front advertises on each connection (ids are the client's to choose; this one is the last).
+MARKER_CHANNEL_ID = 0xFFFFFFFF
+MARKER_TOPIC = "/.blackmetal/connection"
+HEAD_LIMIT = 64 * 1024
+READ_SIZE = 64 * 1024
+HANDSHAKE_TIMEOUT_S = 10.0
+#: A server text message longer than this is not read for refusals (statuses are short; advertisements can be long).
+TEXT_LIMIT = 64 * 1024
+
+
+OP_CONTINUATION, OP_TEXT, OP_BINARY, OP_CLOSE = 0x0, 0x1, 0x2, 0x8
+
+
+def url(host: str, port: int) -> str:
+    shown = "127.0.0.1" if host in ("0.0.0.0", "::") else host
+    return f"ws://{shown}:{port}"
+
+
+# --------------------------------------------------------------------------- the handshake, sans I/O
+def _header_lines(head: bytes) -> list[str]:
+    return head.decode("latin-1").split("\r\n")
+
+
+def offered_subprotocols(head: bytes) -> list[str]:
+    """The subprotocols an HTTP upgrade request offers, in its order (every Sec-WebSocket-Protocol header, comma lists split)."""
+    offered: list[str] = []
+    for line in _header_lines(head)[1:]:
+        name, _, value = line.partition(":")
+        if name.strip().lower() == "sec-websocket-protocol":
+            offered += [item.strip() for item in value.split(",") if item.strip()]
+    return offered
+
+
+def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
+    """The request for the SDK, and the subprotocol to name in the answer when it had to be renamed (None: unchanged).
+
+    A client that offers ``foxglove.sdk.v1`` is passed on as it is; one that
+    offers ``foxglove.websocket.v1`` without it is offered to the SDK as
+    ``foxglove.sdk.v1``; any other is passed on for the SDK to refuse.
+    """
+    offered = offered_subprotocols(head)
+    if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
+        return head, None
+    lines = [line for line in _header_lines(head) if line.partition(":")[0].strip().lower() != "sec-websocket-protocol"]
+    # the head ends with "\r\n\r\n": the last two lines are empty
+    lines.insert(len(lines) - 2, f"Sec-WebSocket-Protocol: {SDK_SUBPROTOCOL}")
+    return "\r\n".join(lines).encode("latin-1"), LEGACY_SUBPROTOCOL
+
+
+def switches_protocols(response_head: bytes) -> bool:
+    """The server's answer accepts the upgrade (HTTP 101)."""
+    status = _header_lines(response_head)[0].split()
+    return len(status) >= 2 and status[1] == "101"
+
+
+def rewrite_response(head: bytes, subprotocol: str) -> bytes:
+    """The server's 101 answer with ``subprotocol`` as the chosen subprotocol (the one the client offered)."""
+    lines = _header_lines(head)
+    for index, line in enumerate(lines):
+        if line.partition(":")[0].strip().lower() == "sec-websocket-protocol":
+            lines[index] = f"Sec-WebSocket-Protocol: {subprotocol}"
+    return "\r\n".join(lines).encode("latin-1")
+
+
+# --------------------------------------------------------------------------- frames, sans I/O
+def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
+    """One final WebSocket frame; ``mask`` (4 bytes) for frames a client sends."""
+    head = bytearray([0x80 | opcode])
+    masked = 0x80 if mask else 0
+    size = len(payload)
+    if size < 126:
+        head.append(masked | size)
+    elif size < 1 << 16:
+        head.append(masked | 126)
+        head += size.to_bytes(2, "big")
+    else:
+        head.append(masked | 127)
+        head += size.to_bytes(8, "big")
+    if mask:
+        head += mask
+        payload = bytes(byte ^ mask[i % 4] for i, byte in enumerate(payload))
+    return bytes(head) + payload
+
+
+def _header_size(head: bytes | bytearray) -> int:
+    """Bytes in a frame header, as far as its first two bytes tell (2 until they are there)."""
+    if len(head) < 2:
+        return 2
+    length = head[1] & 0x7F
+    extended = 2 if length == 126 else 8 if length == 127 else 0
+    return 2 + extended + (4 if head[1] & 0x80 else 0)
+
+
+class FrameTap:
+    """Follows the frames of one direction of a WebSocket without changing a byte: where messages end, and the text ones.
+
+    :meth:`feed` takes the bytes as they come (any cut) and returns the
+    offsets in them at which a whole message ends: a frame can be inserted
+    there. Complete text messages (up to ``text_limit`` bytes) go to
+    ``on_text``.
+    """
+
+    def __init__(self, on_text: Callable[[bytes], None] | None = None, text_limit: int = TEXT_LIMIT) -> None:
+        self.on_text = on_text
+        self.text_limit = text_limit
+        self.closed = False
+        self._head = bytearray()
+        self._left = 0
+        self._in_frame = False
+        self._opcode = 0
+        self._fin = True
+        self._mask = b""
+        self._offset = 0
+        self._fragmented = False
+        self._text: bytearray | None = None
+
+    @property
+    def at_boundary(self) -> bool:
+        """No frame and no fragmented message is half through."""
+        return not self._in_frame and not self._head and not self._fragmented
+
+    def feed(self, data: bytes) -> list[int]:
+        boundaries: list[int] = []
+        i, size = 0, len(data)
+        while i < size or (self._in_frame and self._left == 0):
+            if not self._in_frame:
+                need = _header_size(self._head)
+                while len(self._head) < need and i < size:
+                    take = min(need - len(self._head), size - i)
+                    self._head += data[i : i + take]
+                    i += take
+                    need = _header_size(self._head)
+                if len(self._head) < need:
+                    break
+                self._start_frame()
+                continue
+            take = min(self._left, size - i)
+            if self._text is not None and self._opcode in (OP_TEXT, OP_CONTINUATION) and take:
+                self._collect(data[i : i + take])
+            i += take
+            self._left -= take
+            if self._left == 0 and self._end_frame():
+                boundaries.append(i)
+        return boundaries
+
+    def _start_frame(self) -> None:
+        head = bytes(self._head)
+        self._head.clear()
+        self._fin = bool(head[0] & 0x80)
+        compressed = bool(head[0] & 0x40)
+        self._opcode = head[0] & 0x0F
+        length = head[1] & 0x7F
+        at = 2
+        if length == 126:
+            length, at = int.from_bytes(head[2:4], "big"), 4
+        elif length == 127:
+            length, at = int.from_bytes(head[2:10], "big"), 10
+        self._mask = head[at : at + 4] if head[1] & 0x80 else b""
+        self._offset = 0
+        self._left = length
+        self._in_frame = True
+        if self._opcode == OP_TEXT:
+            self._text = None if compressed else bytearray()
+        elif self._opcode == OP_BINARY:
+            self._text = None
+
+    def _collect(self, chunk: bytes) -> None:
+        assert self._text is not None
+        if self._mask:
+            chunk = bytes(byte ^ self._mask[(self._offset + k) % 4] for k, byte in enumerate(chunk))
+        self._offset += len(chunk)
+        if len(self._text) + len(chunk) > self.text_limit:
+            self._text = None
+        else:
+            self._text += chunk
+
+    def _end_frame(self) -> bool:
+        """The current frame is complete; True when a whole message ended with it."""
+        self._in_frame = False
+        if self._opcode >= OP_CLOSE:  # a control frame: may come between the frames of a fragmented message
+            if self._opcode == OP_CLOSE:
+                self.closed = True
+            return not self._fragmented
+        if not self._fin:
+            self._fragmented = True
+            return False
+        self._fragmented = False
+        text, self._text = self._text, None
+        if text is not None and self.on_text is not None:
+            self.on_text(bytes(text))
+        return True
+
+
+class _ServerOp(msgspec.Struct):
+    """The fields of a server's JSON message that tell a refusal."""
+
+    op: str
+    level: int = 0
+    message: str = ""
+    service_id: int | None = msgspec.field(default=None, name="serviceId")
+    call_id: int | None = msgspec.field(default=None, name="callId")
+
+
+server_op = msgspec.json.Decoder(_ServerOp)
+
+
+def marker_advertisement(token: str) -> bytes:
+    channel = {"id": MARKER_CHANNEL_ID, "topic": MARKER_TOPIC, "encoding": CLIENT_ENCODING, "schemaName": token}
+    return json.dumps({"op": "advertise", "channels": [channel]}).encode()
+
+
+def status_message(level: StatusLevel, message: str) -> bytes:
+    return json.dumps({"op": "status", "level": int(level), "message": message}).encode()
+
+
+class Connection:
+    """One client connection through the front: its writer, the tap on what the server sends it, statuses waiting for a message boundary."""
+
+    def __init__(
+        self, token: str, writer: asyncio.StreamWriter, upstream: asyncio.StreamWriter, on_text: Callable[[Connection, bytes], None]
+    ) -> None:
+        self.token = token
+        self.writer = writer
+        self.upstream = upstream
+        self.tap = FrameTap(lambda text: on_text(self, text))
+        self.client: int | None = None
+        self.outbox: list[bytes] = []
+        self.busy = False
+
+    def send(self, frame: bytes) -> None:
+        """Send ``frame`` to the client at the next message boundary of the server's stream."""
+        if self.tap.closed or self.writer.is_closing():
+            return
+        self.outbox.append(frame)
+        if not self.busy and self.tap.at_boundary:
+            self.flush()
+
+    def flush(self) -> None:
+        for frame in self.outbox:
+            self.writer.write(frame)
+        self.outbox.clear()
+
+    def close(self) -> None:
+        for writer in (self.writer, self.upstream):
+            try:
+                writer.close()
+            except Exception:
+                pass

@@ -1,0 +1,226 @@
+"""The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels.
+
+What it shows, built from the robot's payloads: Foxglove's own types where a
+panel needs them, JSON elsewhere; the table of channels is in
+``docs/foxglove.md`` (Channels), and :meth:`LiveView.feeds` says it in code.
+
+Payloads that do not decode are skipped; the view never crashes on what a
+key carries. The view has no clock and no timers: the paths are throttled on
+the messages' own stamps.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import deque
+from collections.abc import Callable
+from typing import Any
+
+from blackmetal.robot_model import Encoders
+from blackmetal.schemas import (
+    ErrorReport,
+    GatewayHealth,
+    GatewayParams,
+    Keys,
+    PayloadError,
+    Pose,
+    RobotStatus,
+    WheelImpulses,
+    decode,
+    json_schemas,
+)
+
+from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
+from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
+from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, WheelAngles, joint_state, turned
+
+#: How often the paths are sent (s of message time): a path is big, the pose is not.
+PATH_PERIOD_S = 0.2
+
+_WHEELS = {"stamp": typed("number"), "left_mps": typed("number"), "right_mps": typed("number")}
+_WHEELS |= {"left_impulses": typed("integer"), "right_impulses": typed("integer")}
+WHEELS_SCHEMA = message_schema("WheelSpeeds", "blackmetal wheel speeds, from <prefix>/wheels/impulses", _WHEELS, list(_WHEELS))
+
+
+class Trail:
+    """A bounded path of poses, sent at most every PATH_PERIOD_S."""
+
+    def __init__(self, length: int) -> None:
+        self.poses: deque[Pose] = deque(maxlen=length)
+        self._last_sent = -1e18
+
+    def add(self, pose: Pose) -> bool:
+        """Add a pose; True when the path is due to be sent."""
+        self.poses.append(pose)
+        if pose.stamp - self._last_sent >= PATH_PERIOD_S or pose.stamp < self._last_sent:
+            self._last_sent = pose.stamp
+            return True
+        return False
+
+
+class LiveView:
+    """The view's channels of one robot, and what each of its keys' payloads shows on them.
+
+    Every handler first asks which of its channels anyone takes
+    (``has_sinks``): a payload nobody watches is not even decoded, and only
+    the watched channels' messages are built. :meth:`feeds` says which
+    channels each key feeds, so the host subscribes to a key only while one
+    of them is watched (:class:`~blackmetal.foxglove.watch.Watch`).
+    """
+
+    def __init__(
+        self,
+        keys: Keys,
+        frame: str = "odom",
+        base: str = "base_link",
+        path_length: int = 2000,
+        encoders: Encoders | None = None,
+        namespace: str = "",
+        tf: Out | None = None,
+        frame_prefix: str = "",
+        channel: ChannelFactory = foxglove_channel,
+    ) -> None:
+        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views
+        (else ``<namespace>/tf``); ``frame_prefix`` (``""`` or ``<id>/``) before every link of the robot's URDF."""
+        self.keys = keys
+        self.namespace = namespace
+        self.frame, self.base = frame, base
+        self.model = RobotModel(frame_prefix, encoders)
+        self._angles = WheelAngles()
+        schemas = json_schemas()
+        ns = namespace
+
+        self.pose = channel(f"{ns}/pose", Kind.POSE, None)
+        self.tf = tf if tf is not None else channel(f"{ns}/tf", Kind.TRANSFORM, None)
+        self.tf_topic = "/tf" if tf is not None else f"{ns}/tf"
+        self.path = channel(f"{ns}/path", Kind.POSES, None)
+        self.truth = channel(f"{ns}/truth/pose", Kind.POSE, None)
+        self.truth_path = channel(f"{ns}/truth/path", Kind.POSES, None)
+        self.odometry = channel(f"{ns}/odometry", Kind.JSON, schemas["Pose"])
+        self.wheels = channel(f"{ns}/wheels", Kind.JSON, WHEELS_SCHEMA)
+        self.joint_states = channel(f"{ns}/joint_states", Kind.JSON, JOINT_STATE_SCHEMA)
+        self.description = channel(f"{ns}/robot_description", Kind.JSON, STRING_SCHEMA)
+        self.status = channel(f"{ns}/status", Kind.JSON, schemas["RobotStatus"])
+        self.health = channel(f"{ns}/health", Kind.JSON, schemas["GatewayHealth"])
+        self.diagnostics = channel(f"{ns}/diagnostics", Kind.JSON, DIAGNOSTICS_SCHEMA)
+        self.errors = channel(f"{ns}/errors", Kind.JSON, schemas["ErrorReport"])
+        self.log = channel(f"{ns}/log", Kind.LOG, None)
+        self._trail = Trail(path_length)
+        self._truth_trail = Trail(path_length)
+
+    @property
+    def description_topic(self) -> str:
+        return f"{self.namespace}/robot_description"
+
+    def feeds(self) -> dict[str, set[str]]:
+        """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""
+        k, ns = self.keys, self.namespace
+        return {
+            k.pose: {f"{ns}/pose", self.tf_topic, f"{ns}/path", f"{ns}/odometry"},
+            k.sim_truth: {f"{ns}/truth/pose", f"{ns}/truth/path"},
+            k.impulses: {f"{ns}/wheels", f"{ns}/joint_states", self.tf_topic},
+            k.status: {f"{ns}/status"},
+            k.health: {f"{ns}/health", f"{ns}/diagnostics"},
+            k.errors: {f"{ns}/errors", f"{ns}/log"},
+        }
+
+    def handlers(self) -> dict[str, Callable[[bytes], None]]:
+        """Key -> handler of its payloads."""
+        k = self.keys
+        return {
+            k.pose: self.on_pose,
+            k.sim_truth: self.on_truth,
+            k.impulses: self.on_impulses,
+            k.status: self.on_status,
+            k.health: self.on_health,
+            k.errors: self.on_error,
+        }
+
+    def _decode(self, message_type: type[Any], payload: bytes) -> Any:
+        try:
+            return decode(message_type, payload)
+        except PayloadError:
+            return None
+
+    def _take(self, message_type: type[Any], payload: bytes, *channels: Out) -> tuple[Any, list[bool]]:
+        """The payload decoded and which of ``channels`` anyone takes; (None, ...) when nobody does or it does not decode."""
+        wants = [channel.has_sinks() for channel in channels]
+        return (self._decode(message_type, payload) if any(wants) else None), wants
+
+    def _poses(self, pose: Pose, channel: Out, path_channel: Out, trail: Trail) -> None:
+        from foxglove.messages import PoseInFrame, PosesInFrame
+
+        if channel.has_sinks():
+            channel.log(PoseInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, pose=fox_pose(pose)))
+        if trail.add(pose) and path_channel.has_sinks():
+            path_channel.log(PosesInFrame(timestamp=timestamp(pose.stamp), frame_id=self.frame, poses=[fox_pose(p) for p in trail.poses]))
+
+    def on_pose(self, payload: bytes) -> None:
+        pose, wants = self._take(Pose, payload, self.pose, self.path, self.tf, self.odometry)
+        if pose is None:
+            return
+        self._poses(pose, self.pose, self.path, self._trail)
+        if wants[2]:
+            q = pose.orientation
+            self.tf.log(transform(pose.stamp, self.frame, self.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w)))
+        if wants[3]:
+            self.odometry.log(payload)
+
+    def on_truth(self, payload: bytes) -> None:
+        pose, _ = self._take(Pose, payload, self.truth, self.truth_path)
+        if pose is not None:
+            self._poses(pose, self.truth, self.truth_path, self._truth_trail)
+
+    def on_status(self, payload: bytes) -> None:
+        if self.status.has_sinks() and self._decode(RobotStatus, payload) is not None:
+            self.status.log(payload)
+
+    def _echo(self, message_type: type[Any], payload: bytes, raw: Out, derived: Out, build: Callable[[Any], Any]) -> None:
+        """The payload as published on ``raw``, and ``build(message)`` on ``derived``: each only when someone takes it."""
+        message, (shows, derives) = self._take(message_type, payload, raw, derived)
+        if message is None:
+            return
+        if shows:
+            raw.log(payload)
+        if derives:
+            derived.log(build(message))
+
+    def on_health(self, payload: bytes) -> None:
+        self._echo(GatewayHealth, payload, self.health, self.diagnostics, lambda h: json.dumps(diagnostics(h, self.keys.prefix)).encode())
+
+    def on_impulses(self, payload: bytes) -> None:
+        sample, (speeds, joints, turns) = self._take(WheelImpulses, payload, self.wheels, self.joint_states, self.tf)
+        if sample is None:
+            return
+        model = self.model
+        self._angles.feed(sample, model.encoders, model.body.wheel_radius)
+        if speeds:
+            left, right = model.encoders.to_speeds(float(sample.left), float(sample.right))
+            message = {
+                "stamp": sample.stamp,
+                "left_mps": left,
+                "right_mps": right,
+                "left_impulses": sample.left,
+                "right_impulses": sample.right,
+            }
+            self.wheels.log(json.dumps(message).encode())
+        if joints:
+            self.joint_states.log(json.dumps(joint_state(model, self._angles, sample.stamp)).encode())
+        if turns:
+            for joint, angle in ((model.left, self._angles.positions[0]), (model.right, self._angles.positions[1])):
+                if joint is not None:
+                    xyz, q = turned(joint, angle)
+                    self.tf.log(transform(sample.stamp, joint.parent, joint.child, xyz, q))
+
+    def on_error(self, payload: bytes) -> None:
+        self._echo(ErrorReport, payload, self.errors, self.log, report_log)
+
+    def on_params(self, params: GatewayParams) -> None:
+        """The gateway's parameters: a new wheel geometry re-sends the URDF to whoever shows it."""
+        if self.model.on_params(params):
+            self.describe()
+
+    def describe(self) -> None:
+        """Send the URDF on ``/robot_description`` (to every subscriber: on a new subscription, and when it changes)."""
+        if self.description.has_sinks():
+            self.description.log(self.model.description())

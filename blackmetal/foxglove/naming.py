@@ -1,0 +1,136 @@
+"""The view's names and its protocol's words, in one place: topics, services, frames, schemas of what clients send.
+
+One robot's view uses the bare names (``/cmd_vel``, ``set_estop``, ``odom``);
+a fleet's robot ``r3`` has them under ``/r3`` (``/r3/cmd_vel``,
+``/r3/set_estop``) and its frames under ``r3/`` (``r3/odom``), as
+``ros2 --fleet`` names them. The live view, the controls, the parameters
+and the host all build and parse names here, so they cannot drift apart:
+:func:`robot_namespace`, :func:`robot_frame`, :func:`control_topic`,
+:func:`service_name`, :func:`robot_of`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Collection
+from dataclasses import dataclass
+from enum import Enum, IntEnum
+from typing import Any
+
+from blackmetal.schemas import (
+    Sources,
+)
+
+#: The command source the view's clients drive as (``<prefix>/cmd_vel/foxglove``).
+COMMAND_SOURCE = Sources.FOXGLOVE
+#: The one message encoding clients may publish and call services in.
+CLIENT_ENCODING = "json"
+
+
+class Control(Enum):
+    """The topics a client may publish on."""
+
+    CMD_VEL = "/cmd_vel"
+    ESTOP = "/estop"
+
+
+#: The schema names a client may advertise each control topic with (ROS 2 and ROS 1 spellings).
+CONTROL_SCHEMAS: dict[Control, tuple[str, ...]] = {
+    Control.CMD_VEL: ("geometry_msgs/msg/Twist", "geometry_msgs/Twist"),
+    Control.ESTOP: ("std_msgs/msg/Bool", "std_msgs/Bool"),
+}
+
+
+class Service(Enum):
+    """The services the view offers."""
+
+    SET_ESTOP = "set_estop"
+    RESET_ODOMETRY = "reset_odometry"
+
+
+# --------------------------------------------------------------------------- names: one robot, or a robot of a fleet
+def robot_namespace(robot_id: str) -> str:
+    """The topics of a fleet's robot go under ``/<id>`` (``/r3/odometry``); one robot's view has none (``""``)."""
+    return f"/{robot_id}"
+
+
+def robot_frame(robot_id: str, frame: str) -> str:
+    """A fleet's robot's frame, prefixed as ``ros2 --fleet`` (diff_drive_controller) prefixes it: ``r3/odom``, ``r3/base_link``."""
+    return f"{robot_id}/{frame}"
+
+
+def control_topic(namespace: str, control: Control) -> str:
+    """The topic a client publishes ``control`` on: ``/cmd_vel``, or ``/r3/cmd_vel`` in the namespace ``/r3``."""
+    return f"{namespace}{control.value}"
+
+
+def service_name(namespace: str, service: Service) -> str:
+    """The name ``service`` is advertised under: ``set_estop`` for one robot, ``/r3/set_estop`` for a fleet's (as ROS names it)."""
+    return f"{namespace}/{service.value}" if namespace else service.value
+
+
+def takes(namespace: str = "") -> str:
+    """What clients may publish, for refusals and the startup lines."""
+    return " and ".join(f"{control_topic(namespace, c)} ({CONTROL_SCHEMAS[c][0]})" for c in Control) + ", JSON-encoded"
+
+
+def robot_of(name: str, robot_ids: Collection[str]) -> str | None:
+    """The robot a fleet topic or service name belongs to (``/r3/cmd_vel`` -> ``r3``), None when it names none of ``robot_ids``."""
+    head, slash, rest = name.removeprefix("/").partition("/")
+    return head if name.startswith("/") and slash and rest and head in robot_ids else None
+
+
+TAKES = takes()
+
+
+def _object(properties: dict[str, Any], required: list[str] | None = None) -> dict[str, Any]:
+    return {"type": "object", "properties": properties, "required": required or [], "additionalProperties": False}
+
+
+_NUMBER = {"type": "number"}
+_QUATERNION_SCHEMA = _object({name: _NUMBER for name in ("x", "y", "z", "w")})
+_POSE_SCHEMA = _object({**{name: _NUMBER for name in ("stamp", "x", "y", "yaw", "v", "w")}, "orientation": _QUATERNION_SCHEMA})
+
+
+@dataclass(frozen=True, slots=True)
+class ServiceSpec:
+    """A service as the protocol advertises it: its type, and the JSON Schemas (titled with their names) of request and response."""
+
+    type: str
+    request: dict[str, Any]
+    response: dict[str, Any]
+
+
+SERVICE_SPECS: dict[Service, ServiceSpec] = {
+    Service.SET_ESTOP: ServiceSpec(
+        "std_srvs/srv/SetBool",
+        {"title": "std_srvs/srv/SetBool_Request", **_object({"data": {"type": "boolean"}}, ["data"])},
+        {"title": "std_srvs/srv/SetBool_Response", **_object({"success": {"type": "boolean"}, "message": {"type": "string"}})},
+    ),
+    Service.RESET_ODOMETRY: ServiceSpec(
+        "blackmetal/srv/ResetOdometry",
+        {"title": "blackmetal/srv/ResetOdometry_Request", **_object({"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER})},
+        {
+            "title": "blackmetal/srv/ResetOdometry_Response",
+            **_object({"success": {"type": "boolean"}, "message": {"type": "string"}, "pose": _POSE_SCHEMA}),
+        },
+    ),
+}
+
+
+class StatusLevel(IntEnum):
+    """A status message's level in the Foxglove WebSocket protocol."""
+
+    INFO = 0
+    WARNING = 1
+    ERROR = 2
+
+
+class ServerRefusal(Enum):
+    """What the WebSocket server itself sent a client when it refused something (the view saw it go out)."""
+
+    STATUS = "status"
+    SERVICE_CALL_FAILURE = "serviceCallFailure"
+
+
+#: The fleet's own topics (``/fleet/summary``, ``/fleet/log``): a robot may not have this id in the fleet view.
+FLEET_NAMESPACE = "/fleet"
