@@ -1,4 +1,7 @@
-"""Odometry core: conversion, glitches, filter rules, exact arcs, and streaming == batch."""
+"""Odometry core: conversion, exact arcs, the sample rules and accuracy.
+
+The glitch rules are test_glitches.py's; streaming == batch is test_batch.py's.
+"""
 
 from __future__ import annotations
 
@@ -6,18 +9,15 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
 
 from blackmetal import robot_model as facts
 from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
-from blackmetal.odometry_service.batch import linear_scan, run_batch
+from blackmetal.odometry_service.batch import run_batch
 from blackmetal.odometry_service.errors import SampleRejected
-from blackmetal.odometry_service.glitches import Glitches
 from blackmetal.odometry_service.integrator import Odometry
 from blackmetal.odometry_service.params import OdometryParams
 from blackmetal.odometry_service.sample_order import EpochStart, EpochTally, SampleOrder, Verdict
-from blackmetal.robot_model import PARALLEL_MIN, Encoders, arc_step
+from blackmetal.robot_model import Encoders, arc_step
 from blackmetal.schemas import WheelImpulses
 
 IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
@@ -76,43 +76,6 @@ def test_yaw_is_wrapped_in_the_published_pose() -> None:
     assert pose.yaw == pytest.approx(math.remainder(odo.yaw, math.tau), abs=1e-12)
     assert pose.orientation.z == pytest.approx(math.sin(pose.yaw / 2))
     assert pose.w == pytest.approx(1.0, abs=0.01) and pose.v == pytest.approx(0.0, abs=1e-3)
-
-
-def test_filter_rules_on_one_wheel() -> None:
-    g = Glitches(alpha=0.5, spike_limit=0.84)
-
-    def left(x: float) -> tuple[float, float, float | None]:
-        update = g.update(x, 0.0)  # the right wheel stands still: no cross-wheel estimate
-        return update.left, update.filtered_left, update.revise_left
-
-    assert left(0.4) == (0.4, 0.4, None)  # from rest: no ramp
-    assert left(0.2) == (0.2, pytest.approx(0.3), None)  # low-pass on the published speed
-    assert left(0.0) == (0.2, pytest.approx(0.25), None)  # a single zero is held
-    assert left(0.3) == (0.3, pytest.approx(0.275), None)  # ... and it was a dropout
-    assert left(0.0)[0] == 0.3
-    assert left(0.0) == (0.0, 0.0, 0.0)  # second zero: a real stop; the held step is revised to 0
-    assert left(0.0) == (0.0, 0.0, None)
-    assert left(0.5) == (0.5, 0.5, None)  # first non-zero after a stop resets
-    assert left(5.0) == (0.5, 0.5, None)  # a spike is replaced by the last trustworthy reading
-    assert g.spikes == 1 and g.dropouts == 1
-
-
-def test_a_dropout_while_both_wheels_change_keeps_the_curvature() -> None:
-    g = Glitches(alpha=0.0, spike_limit=0.84)
-    g.update(0.2, 0.1)
-    update = g.update(0.0, 0.3)  # left dropped while the right went 0.1 -> 0.3
-    assert (update.left, update.right) == (pytest.approx(0.6), 0.3)
-
-
-def test_a_dropout_at_a_joint_stop_is_kept_and_a_dropped_start_is_restored() -> None:
-    g = Glitches(alpha=0.0, spike_limit=0.84)
-    g.update(0.3, 0.3)
-    g.update(0.0, 0.15)  # left dropped on the last, partial interval before the stop
-    update = g.update(0.0, 0.0)
-    assert update.revise_left is None and update.revise_right is None  # the estimate (0.15) stands
-    g.update(0.0, 0.0)
-    g.update(0.0, 0.1)  # joint start, left's first reading dropped
-    assert g.update(0.3, 0.3).revise_left == pytest.approx(0.1)
 
 
 def test_the_low_pass_does_not_bias_the_distance() -> None:
@@ -246,93 +209,6 @@ def test_reset_to_a_given_pose() -> None:
     assert odo.x < 1.0  # heading 3 rad points backwards
 
 
-# ----------------------------------------------------------------------------- streaming == batch
-
-
-def stream(messages: list[WheelImpulses], params: OdometryParams) -> tuple[list[tuple[float, ...]], Odometry]:
-    odo = Odometry(params)
-    poses = []
-    for msg in messages:
-        try:
-            odo.feed(msg)
-        except SampleRejected:
-            continue
-        poses.append((odo.stamp, odo.x, odo.y, odo.yaw, odo.v, odo.w))
-    return poses, odo
-
-
-@pytest.mark.parametrize("alpha", [0.0, 0.3, 0.9])
-def test_batch_equals_streaming_on_a_faulty_square(alpha: float) -> None:
-    params = OdometryParams(filter_alpha=alpha)
-    log = synth_log(square_legs(), dropout=0.05, spike=0.02, seed=3)
-    poses, odo = stream(log.messages(), params)
-    batch = run_batch(log.seq, log.stamp, log.left, log.right, params)
-    expected = np.array(poses)
-    got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
-    assert got.shape == expected.shape
-    np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
-    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
-
-
-def test_batch_equals_streaming_on_a_log_long_enough_for_two_threads() -> None:
-    """From PARALLEL_MIN samples the wheels and the trigonometry run on two threads: same poses."""
-    params = OdometryParams()
-    legs = square_legs(side=0.5) * 60
-    log = synth_log(legs, dropout=0.02, spike=0.01, seed=5)
-    assert len(log) >= PARALLEL_MIN
-    poses, odo = stream(log.messages(), params)
-    batch = run_batch(log.seq, log.stamp, log.left, log.right, params)
-    got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
-    np.testing.assert_allclose(got, np.array(poses), rtol=0, atol=1e-9)
-    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
-
-
-def test_batch_equals_streaming_on_an_irregular_log() -> None:
-    params = OdometryParams()
-    log = synth_log(square_legs(side=0.5), dropout=0.05, spike=0.02, seed=4)
-    msgs = log.messages()
-    msgs.insert(100, msgs[99])  # duplicate
-    msgs.insert(200, msgs[150])  # out of order
-    msgs[300] = WheelImpulses(seq=msgs[300].seq, stamp=msgs[299].stamp - 1.0, left=0, right=0)  # backwards
-    restart = [WheelImpulses(seq=i, stamp=m.stamp + 1.0, left=m.left, right=m.right) for i, m in enumerate(msgs[400:])]
-    msgs = msgs[:400] + restart  # gateway restarted, with a 1 s gap too
-    poses, odo = stream(msgs, params)
-    arr = np.array([(m.seq, m.stamp, m.left, m.right) for m in msgs])
-    batch = run_batch(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2], arr[:, 3], params)
-    np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw]), np.array(poses)[:, 1:4], atol=1e-9)
-    assert len(batch.rejected) == 3 and batch.restarts == odo.restarts == 1
-
-
-@settings(max_examples=60, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.sampled_from([0, 0, 0, 150, -150, 203, 400, 5000]), st.sampled_from([0, 0, -211, 211, -400, -9000])),
-        min_size=1,
-        max_size=120,
-    ),
-    st.lists(st.floats(0.0, 0.02), min_size=120, max_size=120),
-    st.floats(0.0, 0.95),
-)
-def test_batch_equals_streaming_on_random_logs(readings: list[tuple[int, int]], dts: list[float], alpha: float) -> None:
-    params = OdometryParams(filter_alpha=alpha, max_gap=0.015)
-    stamps = 1000.0 + np.cumsum(dts[: len(readings)])
-    msgs = [WheelImpulses(seq=k, stamp=float(t), left=lw, right=r) for k, (t, (lw, r)) in enumerate(zip(stamps, readings, strict=False))]
-    poses, _ = stream(msgs, params)
-    batch = run_batch(np.arange(len(msgs)), stamps, np.array([m.left for m in msgs]), np.array([m.right for m in msgs]), params)
-    np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw, batch.v, batch.w]), np.array(poses)[:, 1:], atol=1e-9)
-
-
-def test_linear_scan_matches_the_recursion() -> None:
-    rng = np.random.default_rng(0)
-    a = rng.choice([0.0, 0.3, 1.0], 5000, p=[0.05, 0.9, 0.05])
-    b = rng.normal(size=5000)
-    y, prev = np.empty(5000), 0.0
-    for k in range(5000):
-        prev = a[k] * prev + b[k]
-        y[k] = prev
-    np.testing.assert_allclose(linear_scan(a, b), y, atol=1e-12)
-
-
 # ----------------------------------------------------------------------------- accuracy
 
 
@@ -360,19 +236,3 @@ def test_stop_and_go_legs_are_exact() -> None:
     exact = exact_pose(legs)
     assert math.hypot(result.x[-1] - exact[0], result.y[-1] - exact[1]) < 2e-3
     assert abs(result.yaw[-1] - exact[2]) < 5e-3
-
-
-_reading = st.sampled_from([0.0, -0.0, 0.3, -0.3, 0.31, 1.2, -1.2, 9.0, -9.0, math.inf, math.nan]) | st.floats(-3.0, 3.0)
-
-
-@settings(max_examples=300, deadline=None)
-@given(st.lists(st.tuples(_reading, _reading), max_size=40), st.floats(0.0, 0.95))
-def test_the_written_out_glitch_cases_do_what_every_rule_does(readings: list[tuple[float, float]], alpha: float) -> None:
-    fast, reference = Glitches(alpha, 2.0), Glitches(alpha, 2.0)
-
-    def state(g: Glitches) -> str:
-        return repr((g.left, g.right, g.spikes, g.dropouts, g.started, g.started2))
-
-    for left, right in readings:
-        assert repr(fast.update(left, right)) == repr(reference._update(left, right))
-        assert state(fast) == state(reference)
