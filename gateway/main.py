@@ -2,18 +2,16 @@
 
 from __future__ import annotations
 
-import argparse
 import asyncio
-import sys
 
 from blackmetal.runtime.edge import refuse_taken
-from blackmetal.runtime.entry import freeze_start_up, run_single_or_fleet, service_parser
+from blackmetal.runtime.entry import ServiceCommand, freeze_start_up
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 from blackmetal.transport import TcpConnector
 
-from .fleet import fleet_settings, serve_fleet
+from .fleet import FLEET
 from .host import GatewayHost
 from .settings import GatewaySettings, when_killed
 from .zenoh_edge import GatewayZenoh
@@ -49,21 +47,5 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
             edge.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal gateway", __doc__, GatewaySettings, parser)
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="serve every robot of this fleet file (TOML [[robot]] tables) in this one process, on one Zenoh session; "
-        "the other options are every robot's defaults",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    sys.setswitchinterval(SWITCH_INTERVAL_S)
-    return run_single_or_fleet("gateway", args, GatewaySettings, serve, fleet_settings, serve_fleet)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("gateway", GatewaySettings, __doc__, serve, FLEET, switch_interval=SWITCH_INTERVAL_S)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main

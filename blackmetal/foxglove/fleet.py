@@ -22,6 +22,7 @@ import logging
 from collections.abc import Callable
 
 from blackmetal.robot_model import Encoders
+from blackmetal.runtime.entry import Fleet
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
@@ -184,3 +185,12 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                     edge.close()
     finally:
         host.close()
+
+
+FLEET = Fleet(
+    "show every robot of this fleet file (TOML [[robot]] tables) in one view on one port, each under /<id>/ "
+    "and on its prefix, with /fleet/summary; not with --prefix",
+    fleet_settings,
+    serve_fleet,
+    SINGLE_ROBOT_OPTIONS,
+)

@@ -13,16 +13,15 @@ r3/base_link), with /fleet/summary.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
+from blackmetal.runtime.entry import ServiceCommand
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
-from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
+from .fleet import FLEET
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
 from .params import Parameters
 from .ports import RobotPort, Wiring
@@ -85,20 +84,5 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
         host.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal foxglove", __doc__, FoxgloveSettings, parser)
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="show every robot of this fleet file (TOML [[robot]] tables) in one view on one port, each under /<id>/ "
-        "and on its prefix, with /fleet/summary; not with --prefix",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    return run_single_or_fleet("foxglove", args, FoxgloveSettings, serve, fleet_settings, serve_fleet, SINGLE_ROBOT_OPTIONS)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("foxglove", FoxgloveSettings, __doc__, serve, FLEET)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main

@@ -18,17 +18,16 @@ robot_state_publisher publishes them).
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import itertools
 
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
+from blackmetal.runtime.entry import ServiceCommand
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
 from .core import Ros2Core
-from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
+from .fleet import FLEET
 from .host import Ros2Host
 from .messages import RosCodec
 from .naming import DEFAULT_DISTRO, Direction, Flavor, full_topic, normalise_namespace, services, topics
@@ -113,20 +112,5 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
                 edge.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal ros2", __doc__, Ros2Settings, parser)
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="one ROS node per robot of this fleet file (TOML [[robot]] tables), each under the namespace of its id and "
-        "on its prefix, in this one process on one Zenoh session; not with --namespace, --prefix, --node-name",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    return run_single_or_fleet("ros2", args, Ros2Settings, serve, fleet_settings, serve_fleet, SINGLE_ROBOT_OPTIONS)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("ros2", Ros2Settings, __doc__, serve, FLEET)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main
