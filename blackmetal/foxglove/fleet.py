@@ -93,10 +93,40 @@ def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
     return report
 
 
+async def serve_views(
+    base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[], None]
+) -> None:
+    """What the view of one robot and of a fleet share once the server listens and the parts are wired: the Zenoh
+    session, each robot's edge on its port, ``announce()``, serving until ``stop``; then all of it undone."""
+    from blackmetal.runtime.zenoh_setup import open_service_session
+
+    with await open_service_session(base.zenoh, stop, "foxglove") as session:
+        loop = asyncio.get_running_loop()
+        fleet = wiring.fleet
+        edges: list[FoxgloveZenoh] = []
+        try:
+            for robot_id, port in wiring.ports.items():
+                edge = FoxgloveZenoh(session, port.view.keys, query_timeout=base.call_timeout)
+                edges.append(edge)
+                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (None, None)
+                edge.attach(port.view, port, loop, handlers=handlers, on_error=port.on_bug, presence=presence)
+                port.edge = edge
+            wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+            for port in wiring.ports.values():
+                port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
+            announce()
+            await host.run(stop)
+        finally:
+            wiring.stop()
+            for port in wiring.ports.values():
+                port.edge = None
+            for edge in reversed(edges):
+                edge.close()
+
+
 async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     """One server, one session: every robot's view and controls until ``stop``."""
     from blackmetal.runtime.harness import announce_ready
-    from blackmetal.runtime.zenoh_setup import open_service_session
 
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     settings = fleet_settings(base, robots)
@@ -123,66 +153,46 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         wiring = Wiring(ports, watch, view, core.reporter)
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
-        with await open_service_session(base.zenoh, stop, "foxglove") as session:
-            loop = asyncio.get_running_loop()
-            edges: list[FoxgloveZenoh] = []
-            try:
-                for r, s in zip(robots, settings, strict=True):
-                    edge = FoxgloveZenoh(session, Keys(s.prefix), query_timeout=base.call_timeout)
-                    edges.append(edge)
-                    port = ports[r.id]
-                    edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug, presence=port.on_token)
-                    port.edge = edge
-                wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
-                for robot_view in view.views.values():
-                    robot_view.describe()  # each URDF, into the MCAP file if there is one (a client gets it when it subscribes)
-                address = host.url
-                print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
-                for r, s in zip(robots, settings, strict=True):
-                    ns = robot_namespace(r.id)
-                    print(
-                        f"  {ns + '/':<8} <-> prefix {s.prefix}, frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}",
-                        flush=True,
-                    )
-                print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
+
+        def announce() -> None:
+            address = host.url
+            print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
+            for r, s in zip(robots, settings, strict=True):
+                ns = robot_namespace(r.id)
                 print(
-                    f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf", flush=True
-                )
-                print(
-                    "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>", flush=True
-                )
-                print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
-                print(
-                    f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+                    f"  {ns + '/':<8} <-> prefix {s.prefix}, frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}",
                     flush=True,
                 )
-                print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
-                if base.mcap:
-                    print(f"  writing the same channels to {base.mcap}", flush=True)
-                announce_ready(
-                    "foxglove",
-                    url=address,
-                    port=host.port,
-                    prefix=robots[0].prefix,
-                    prefixes=[s.prefix for s in settings],
-                    subprotocols=list(SUBPROTOCOLS),
-                    services=list(services),
-                    robots={
-                        r.id: {
-                            "prefix": s.prefix,
-                            "namespace": robot_namespace(r.id),
-                            "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
-                        }
-                        for r, s in zip(robots, settings, strict=True)
-                    },
-                )
-                await host.run(stop)
-            finally:
-                wiring.stop()
-                for port in ports.values():
-                    port.edge = None
-                for edge in reversed(edges):
-                    edge.close()
+            print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
+            print(f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf", flush=True)
+            print("  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>", flush=True)
+            print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
+            print(
+                f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+                flush=True,
+            )
+            print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
+            if base.mcap:
+                print(f"  writing the same channels to {base.mcap}", flush=True)
+            announce_ready(
+                "foxglove",
+                url=address,
+                port=host.port,
+                prefix=robots[0].prefix,
+                prefixes=[s.prefix for s in settings],
+                subprotocols=list(SUBPROTOCOLS),
+                services=list(services),
+                robots={
+                    r.id: {
+                        "prefix": s.prefix,
+                        "namespace": robot_namespace(r.id),
+                        "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
+                    }
+                    for r, s in zip(robots, settings, strict=True)
+                },
+            )
+
+        await serve_views(base, stop, host, wiring, announce)
     finally:
         host.close()
 

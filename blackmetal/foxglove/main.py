@@ -17,17 +17,15 @@ import asyncio
 
 from blackmetal.runtime.entry import ServiceCommand
 from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
-from .fleet import FLEET
+from .fleet import FLEET, serve_views
 from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
 from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
-from .zenoh_edge import FoxgloveZenoh
 
 #: The one robot's id where the parts name robots (its names carry no namespace).
 ONE_ROBOT = ""
@@ -49,13 +47,10 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
         wiring = Wiring({ONE_ROBOT: port}, watch)
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
-        with await open_service_session(settings.zenoh, stop, "foxglove") as session:
-            edge = FoxgloveZenoh(session, keys, query_timeout=settings.call_timeout)
-            edge.attach(view, port, asyncio.get_running_loop(), on_error=port.on_bug)
-            port.edge = edge
-            wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
-            view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
-            edge.ask_params()
+
+        def announce() -> None:
+            assert port.edge is not None
+            port.edge.ask_params()
             address = host.url
             print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
             print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
@@ -74,12 +69,8 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
                 subprotocols=list(SUBPROTOCOLS),
                 services=[s.value for s in Service],
             )
-            try:
-                await host.run(stop)
-            finally:
-                wiring.stop()
-                port.edge = None
-                edge.close()
+
+        await serve_views(settings, stop, host, wiring, announce)
     finally:
         host.close()
 
