@@ -14,7 +14,7 @@ from __future__ import annotations
 import asyncio
 import os
 
-from blackmetal.runtime.entry import Fleet, freeze_start_up
+from blackmetal.runtime.entry import Fleet, freeze_start_up, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.service import Member, Role, serve_fleet
@@ -55,16 +55,13 @@ async def serve(base: GatewaySettings, robots: list[FleetRobot], stop: asyncio.E
 
     def announce(members: list[Member[GatewaySettings]]) -> None:
         freeze_start_up()
-        print(
+        say(
             f"blackmetal gateway ready: a fleet of {len(members)} robots ({', '.join(r.prefix for r in robots[:3])}"
             f"{', ...' if len(robots) > 3 else ''}), polling at {base.poll_hz:g} Hz",
-            flush=True,
+            f"  {when_killed('HOST')} for each robot",
+            f"  e-stop states kept in {os.path.dirname(members[0].host.latch.where)}",
+            *(f"  {m.robot.id}: {m.host.start_sentence}" for m in members if m.host.start_sentence is not None),
         )
-        print(f"  {when_killed('HOST')} for each robot", flush=True)
-        print(f"  e-stop states kept in {os.path.dirname(members[0].host.latch.where)}", flush=True)
-        for m in members:
-            if m.host.start_sentence is not None:
-                print(f"  {m.robot.id}: {m.host.start_sentence}", flush=True)
         announce_ready(
             "gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout, poll_hz=base.poll_hz
         )

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 from blackmetal.runtime.edge import refuse_taken
-from blackmetal.runtime.entry import ServiceCommand, freeze_start_up
+from blackmetal.runtime.entry import ServiceCommand, freeze_start_up, say
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
@@ -30,15 +30,13 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
         edge = GatewayZenoh(session, keys)
         service = GatewayHost(settings, connector, edge, settings.latch_store())
         edge.attach(service, asyncio.get_running_loop())
-        print(
+        say(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "
             f"prefix {settings.prefix}, polling at {settings.poll_hz:g} Hz",
-            flush=True,
+            f"  {when_killed(settings.robot)}",
+            f"  e-stop state kept in {service.latch.where}",
+            service.start_sentence and f"  {service.start_sentence}",
         )
-        print(f"  {when_killed(settings.robot)}", flush=True)
-        print(f"  e-stop state kept in {service.latch.where}", flush=True)
-        if service.start_sentence is not None:
-            print(f"  {service.start_sentence}", flush=True)
         announce_ready("gateway", prefix=settings.prefix, cmd_timeout=settings.cmd_timeout)
         freeze_start_up()
         try:

@@ -20,9 +20,10 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from typing import Any
 
 from blackmetal.robot_model import Encoders
-from blackmetal.runtime.entry import Fleet
+from blackmetal.runtime.entry import Fleet, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
@@ -94,10 +95,12 @@ def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
 
 
 async def serve_views(
-    base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[], None]
+    base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[str], dict[str, Any]]
 ) -> None:
     """What the view of one robot and of a fleet share once the server listens and the parts are wired: the Zenoh
-    session, each robot's edge on its port, ``announce()``, serving until ``stop``; then all of it undone."""
+    session, each robot's edge on its port, the announcement (``announce(url)`` says what is the view's own and returns
+    its part of the harness's ready message), serving until ``stop``; then all of it undone."""
+    from blackmetal.runtime.harness import announce_ready
     from blackmetal.runtime.zenoh_setup import open_service_session
 
     with await open_service_session(base.zenoh, stop, "foxglove") as session:
@@ -114,7 +117,12 @@ async def serve_views(
             wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
             for port in wiring.ports.values():
                 port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
-            announce()
+            info = announce(host.url)
+            say(
+                f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {host.url})",
+                f"  writing the same channels to {base.mcap}" if base.mcap else None,
+            )
+            announce_ready("foxglove", url=host.url, port=host.port, subprotocols=list(SUBPROTOCOLS), **info)
             await host.run(stop)
         finally:
             wiring.stop()
@@ -126,7 +134,6 @@ async def serve_views(
 
 async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     """One server, one session: every robot's view and controls until ``stop``."""
-    from blackmetal.runtime.harness import announce_ready
 
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     settings = fleet_settings(base, robots)
@@ -154,43 +161,29 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
 
-        def announce() -> None:
-            address = host.url
-            print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
-            for r, s in zip(robots, settings, strict=True):
-                ns = robot_namespace(r.id)
-                print(
-                    f"  {ns + '/':<8} <-> prefix {s.prefix}, frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}",
-                    flush=True,
-                )
-            print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
-            print(f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf", flush=True)
-            print("  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>", flush=True)
-            print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
-            print(
-                f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
-                flush=True,
-            )
-            print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
-            if base.mcap:
-                print(f"  writing the same channels to {base.mcap}", flush=True)
-            announce_ready(
-                "foxglove",
-                url=address,
-                port=host.port,
-                prefix=robots[0].prefix,
-                prefixes=[s.prefix for s in settings],
-                subprotocols=list(SUBPROTOCOLS),
-                services=list(services),
-                robots={
-                    r.id: {
-                        "prefix": s.prefix,
-                        "namespace": robot_namespace(r.id),
-                        "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
-                    }
+        def announce(address: str) -> dict[str, Any]:
+            say(
+                f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}",
+                *(
+                    f"  {robot_namespace(r.id) + '/':<8} <-> prefix {s.prefix}, "
+                    f"frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}"
                     for r, s in zip(robots, settings, strict=True)
-                },
+                ),
+                f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
+                f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf",
+                "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>",
+                f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})",
+                f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
             )
+            robots_info = {
+                r.id: {
+                    "prefix": s.prefix,
+                    "namespace": robot_namespace(r.id),
+                    "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
+                }
+                for r, s in zip(robots, settings, strict=True)
+            }
+            return {"prefix": robots[0].prefix, "prefixes": [s.prefix for s in settings], "services": list(services), "robots": robots_info}
 
         await serve_views(base, stop, host, wiring, announce)
     finally:

@@ -14,14 +14,14 @@ r3/base_link), with /fleet/summary.
 from __future__ import annotations
 
 import asyncio
+from typing import Any
 
-from blackmetal.runtime.entry import ServiceCommand
-from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.entry import ServiceCommand, say
 from blackmetal.schemas import Keys, require_extra
 
 from .core import COMMAND_SOURCE, TAKES, Controls, LiveView, Service
 from .fleet import FLEET, serve_views
-from .host import INNER_HOST, SUBPROTOCOLS, FoxgloveHost
+from .host import SUBPROTOCOLS, FoxgloveHost
 from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
@@ -48,27 +48,18 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
 
-        def announce() -> None:
+        def announce(address: str) -> dict[str, Any]:
             assert port.edge is not None
             port.edge.ask_params()
-            address = host.url
-            print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
-            print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
-            print(f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}", flush=True)
-            print(f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})", flush=True)
-            print(f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}", flush=True)
-            print(f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}", flush=True)
-            print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
-            if settings.mcap:
-                print(f"  writing the same channels to {settings.mcap}", flush=True)
-            announce_ready(
-                "foxglove",
-                url=address,
-                port=host.port,
-                prefix=keys.prefix,
-                subprotocols=list(SUBPROTOCOLS),
-                services=[s.value for s in Service],
+            say(
+                f"blackmetal foxglove: {keys.prefix} on {address}",
+                f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
+                f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}",
+                f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})",
+                f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+                f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}",
             )
+            return {"prefix": keys.prefix, "services": [s.value for s in Service]}
 
         await serve_views(settings, stop, host, wiring, announce)
     finally:

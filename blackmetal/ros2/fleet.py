@@ -25,9 +25,11 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import itertools
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
+from typing import Any
 
-from blackmetal.runtime.entry import Fleet
+from blackmetal.runtime.burst import PutBurst
+from blackmetal.runtime.entry import Fleet, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.service import Member, Role, serve_fleet
@@ -79,34 +81,33 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
     return out
 
 
-def node(codec: RosCodec, ids: Iterator[int], distro: Distro) -> Callable[[Member[Ros2Settings]], tuple[Ros2Zenoh, Ros2Host]]:
-    """How one robot's node of ``distro`` is declared (new entity ids on each start, as a node created again has)."""
-
-    def build(member: Member[Ros2Settings]) -> tuple[Ros2Zenoh, Ros2Host]:
-        s = member.settings
-        namespace = normalise_namespace(s.namespace)
-        edge = Ros2Zenoh(
-            member.session,
-            Keys(s.prefix),
-            codec,
-            Flavor(s.flavor),
-            s.domain_id,
-            namespace,
-            s.node_name,
-            topics(s.tf, absolute_tf=True, robot_model=s.robot_model),
-            services(),
-            s.source,
-            ids,
-            distro,
-            rings=True,
-            burst=member.burst,
-        )
-        options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace), distro=distro)
-        host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=True)
-        edge.attach(host, asyncio.get_running_loop())
-        return edge, host
-
-    return build
+def declare_node(
+    session: Any, s: Ros2Settings, codec: RosCodec, ids: Iterator[int], distro: Distro, burst: PutBurst | None = None
+) -> tuple[Ros2Zenoh, Ros2Host]:
+    """One node of ``distro`` for the robot of ``s``, attached to the running loop. With the fleet's ``burst``, a fleet's
+    node: its transforms on the absolute /tf, its frames prefixed by its namespace, its robot streams in rings, supervised."""
+    fleet = burst is not None
+    namespace = normalise_namespace(s.namespace)
+    edge = Ros2Zenoh(
+        session,
+        Keys(s.prefix),
+        codec,
+        Flavor(s.flavor),
+        s.domain_id,
+        namespace,
+        s.node_name,
+        topics(s.tf, absolute_tf=fleet, robot_model=s.robot_model),
+        services(),
+        s.source,
+        ids,
+        distro,
+        rings=fleet,
+        burst=burst,
+    )
+    options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace) if fleet else "", distro=distro)
+    host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=fleet)
+    edge.attach(host, asyncio.get_running_loop())
+    return edge, host
 
 
 async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
@@ -114,7 +115,11 @@ async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Even
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
     failure = "ROS 2 node of {robot} failed ({exc!r}, its %s node); starting it again in {pause:g} s"
-    roles = {d: Role("ros2", node(codec, ids, d), failure % d.value) for d in Distro}
+
+    def role(d: Distro) -> Role[Ros2Settings]:
+        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst), failure % d.value)
+
+    roles = {d: role(d) for d in Distro}
     parts = [
         (roles[distro], robot, s)
         for robot, s in zip(robots, fleet_settings(base, robots), strict=True)
@@ -122,16 +127,14 @@ async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Even
     ]
 
     def announce(members: list[Member[Ros2Settings]]) -> None:
-        print(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})", flush=True)
+        say(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})")
         nodes: dict[str, dict[str, object]] = {}
         for m in members:
             name = full_topic(normalise_namespace(m.settings.namespace), m.settings.node_name)
             frames = m.host.core.options.frames
             distro = next(d.value for d, role in roles.items() if role is m.role)
-            print(
-                f"  {name:<24} {distro:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, "
-                f"frames {frames.odom} -> {frames.base}",
-                flush=True,
+            say(
+                f"  {name:<24} {distro:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, frames {frames.odom} -> {frames.base}"
             )
             entry = {
                 "node": name,

@@ -110,6 +110,14 @@ class ServiceCommand(Generic[S]):
         return self.run(self.build_parser().parse_args(argv))
 
 
+def say(*lines: str | None) -> None:
+    """What a service tells its user as it starts, each line flushed at once (a harness or a pipe reads it live); None
+    lines are left out."""
+    for line in lines:
+        if line is not None:
+            print(line, flush=True)
+
+
 def freeze_start_up() -> None:
     """Once per process, when a service has built what it keeps: out of the garbage collector's sight.
 
