@@ -103,20 +103,9 @@ class GatewaySettings:
     def check(self) -> None:
         """Refuse settings that cannot work, naming the setting."""
         check_positive(
-            poll_hz=self.poll_hz,
-            wheel_separation=self.wheel_separation,
-            max_wheel_speed=self.max_wheel_speed,
-            keepalive=self.keepalive,
-            reply_timeout=self.reply_timeout,
-            silence_timeout=self.silence_timeout,
-            log_silence_timeout=self.log_silence_timeout,
-            connect_timeout=self.connect_timeout,
-            health_period=self.health_period,
-            max_command_hz=self.max_command_hz,
-            linear_accel=self.linear_accel,
-            angular_accel=self.angular_accel,
-            impulses_left=self.impulses_left,
-            impulses_right=self.impulses_right,
+            self,
+            "poll_hz wheel_separation max_wheel_speed keepalive reply_timeout silence_timeout log_silence_timeout "
+            "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right",
         )
         for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
             if not 0.5 * nominal <= getattr(self, name) <= 2.0 * nominal:

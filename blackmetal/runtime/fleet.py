@@ -28,7 +28,6 @@ from __future__ import annotations
 
 import dataclasses
 import re
-import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -38,7 +37,7 @@ import msgspec
 
 from blackmetal.schemas import ConfigError, validate_prefix
 
-from .settings import plain_words
+from .settings import plain_words, read_config
 
 T = TypeVar("T")
 
@@ -173,15 +172,7 @@ def parse_fleet(data: dict[str, Any], source: str = "fleet file") -> list[FleetR
 
 def load_fleet(path: str | Path) -> list[FleetRobot]:
     """The robots of the fleet file at ``path`` (TOML)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read fleet file {path}: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"fleet file {path} is not valid TOML: {exc}") from None
+    data = read_config(Path(path), "fleet file", toml=True)
     return parse_fleet(data, f"fleet file {path}")
 
 
