@@ -41,15 +41,9 @@ def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Ev
             runner.run(_main(load()))
     except asyncio.CancelledError:
         pass  # stopped while it still waited for its router or hub (open_service_session): a requested stop
-    except ZenohUnavailable as exc:
+    except (BlackmetalError, OSError) as exc:
         print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 1
-    except BlackmetalError as exc:
-        print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, BlackmetalError) and not isinstance(exc, ZenohUnavailable) else 1
     logging.getLogger(f"blackmetal.{name}").info("stopped")
     return 0
 

@@ -60,7 +60,6 @@ class Member(Generic[S]):
     host: Any = None
     #: Set with the exception a drain of this robot's samples raised: :meth:`run` raises it, for the supervisor.
     failure: asyncio.Future[None] | None = None
-    restarts: int = 0
 
     def start(self) -> Member[S]:
         """Build the robot's edge and host unless they are built (before the fleet is announced); after a failure, anew."""
@@ -105,7 +104,6 @@ class Member(Generic[S]):
 
     def failed(self, exc: Exception, pause: float) -> None:
         """Report the failure on the robot's errors key (its edge is still open); it starts again in ``pause`` s."""
-        self.restarts += 1
         reason = self.role.failure.format(robot=self.robot.describe(), exc=exc, pause=pause)
         logging.getLogger(f"blackmetal.{self.role.service}").error("%s", reason)
         key = getattr(self.edge.keys, self.role.error_key)
