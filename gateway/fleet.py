@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import asyncio
 import os
+from typing import Any
 
+from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.entry import Fleet, freeze_start_up, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.harness import announce_ready
@@ -38,16 +40,20 @@ def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[Gate
     ]
 
 
-def build(member: Member[GatewaySettings]) -> tuple[GatewayZenoh, GatewayHost]:
-    """One robot's edge and host on the fleet's session, its impulses in the fleet's burst."""
-    s = member.settings
-    edge = GatewayZenoh(member.session, Keys(s.prefix), burst=member.burst)
+def build(session: Any, s: GatewaySettings, burst: PutBurst | None = None) -> tuple[GatewayZenoh, GatewayHost]:
+    """One robot's edge and host; in a fleet, its impulses in the fleet's ``burst``."""
+    edge = GatewayZenoh(session, Keys(s.prefix), burst=burst)
     host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge, s.latch_store())
     edge.attach(host, asyncio.get_running_loop())
     return edge, host
 
 
-ROLE = Role("gateway", build, "gateway of {robot} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s", "health")
+ROLE: Role[GatewaySettings] = Role(
+    "gateway",
+    lambda m: build(m.session, m.settings, m.burst),
+    "gateway of {robot} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s",
+    "health",
+)
 
 
 async def serve(base: GatewaySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:

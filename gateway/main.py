@@ -8,13 +8,9 @@ from blackmetal.runtime.edge import refuse_taken
 from blackmetal.runtime.entry import ServiceCommand, freeze_start_up, say
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
-from blackmetal.schemas import Keys
-from blackmetal.transport import TcpConnector
 
-from .fleet import FLEET
-from .host import GatewayHost
+from .fleet import FLEET, build
 from .settings import GatewaySettings, when_killed
-from .zenoh_edge import GatewayZenoh
 
 #: Zenoh delivers samples on its own threads; a short GIL switch interval lets
 #: them hand a command over without waiting out the default 5 ms slice.
@@ -23,13 +19,9 @@ SWITCH_INTERVAL_S = 0.0005
 
 async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     """Open the Zenoh session, run the service until ``stop``, close everything."""
-    connector = TcpConnector(settings.robot, settings.control_port, settings.log_port, settings.connect_timeout)
-    keys = Keys(settings.prefix)
     with await open_service_session(settings.zenoh, stop, "gateway") as session:
-        refuse_taken(session, "gateway", [keys.prefix])
-        edge = GatewayZenoh(session, keys)
-        service = GatewayHost(settings, connector, edge, settings.latch_store())
-        edge.attach(service, asyncio.get_running_loop())
+        refuse_taken(session, "gateway", [settings.prefix])
+        edge, service = build(session, settings)
         say(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "
             f"prefix {settings.prefix}, polling at {settings.poll_hz:g} Hz",
