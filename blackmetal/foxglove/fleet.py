@@ -137,24 +137,20 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
 
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     settings = fleet_settings(base, robots)
+    keys = {r.id: Keys(s.prefix) for r, s in zip(robots, settings, strict=True)}
     services = {service_name(robot_namespace(r.id), s): s for r in robots for s in Service}
     host = FoxgloveHost(base, services=services)
     try:
         await host.start()  # the port is taken before Zenoh opens
-        view = FleetView(
-            [(r.id, Keys(s.prefix), encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock
-        )
+        view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
         ports = {r.id: RobotPort(r.id, host, view.views[r.id]) for r in robots}
         controls = {
-            r.id: Controls(Keys(s.prefix), ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id))
-            for r, s in zip(robots, settings, strict=True)
+            r.id: Controls(keys[r.id], ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots
         }
         core = FleetControls(controls, host, _fleet_error(view))
         for robot_id, port in ports.items():
             port.controls, port.fleet = controls[robot_id], view
-        params = Parameters(
-            {r.id: (Keys(s.prefix), robot_namespace(r.id)) for r, s in zip(robots, settings, strict=True)}, host, base.call_timeout
-        )
+        params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
         host.attach(core, params, view)
         watch = Watch(view.feeds(), record_all=bool(base.mcap))
         wiring = Wiring(ports, watch, view, core.reporter)
@@ -165,9 +161,9 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
             say(
                 f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}",
                 *(
-                    f"  {robot_namespace(r.id) + '/':<8} <-> prefix {s.prefix}, "
+                    f"  {robot_namespace(r.id) + '/':<8} <-> prefix {keys[r.id].prefix}, "
                     f"frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}"
-                    for r, s in zip(robots, settings, strict=True)
+                    for r in robots
                 ),
                 f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
                 f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf",
@@ -177,13 +173,18 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
             )
             robots_info = {
                 r.id: {
-                    "prefix": s.prefix,
+                    "prefix": keys[r.id].prefix,
                     "namespace": robot_namespace(r.id),
                     "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
                 }
-                for r, s in zip(robots, settings, strict=True)
+                for r in robots
             }
-            return {"prefix": robots[0].prefix, "prefixes": [s.prefix for s in settings], "services": list(services), "robots": robots_info}
+            return {
+                "prefix": robots[0].prefix,
+                "prefixes": [k.prefix for k in keys.values()],
+                "services": list(services),
+                "robots": robots_info,
+            }
 
         await serve_views(base, stop, host, wiring, announce)
     finally:
