@@ -81,7 +81,7 @@ class Member(Generic[S]):
 
     def fail(self, exc: Exception) -> None:
         """A bug in this robot's handling: :meth:`run` ends with it. A host that supervises its core (``fail``) is told
-        itself, so that it stops taking samples on Zenoh's threads at once."""
+        instead: it stops taking samples on Zenoh's threads at once, and its run ends with the failure."""
         host_fail = getattr(self.host, "fail", None)
         if host_fail is not None:
             host_fail(exc)
