@@ -132,7 +132,7 @@ async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Even
         for m in members:
             name = full_topic(normalise_namespace(m.settings.namespace), m.settings.node_name)
             frames = m.host.core.options.frames
-            distro = next(d.value for d, role in roles.items() if role is m.role)
+            distro = next(d.value for d, r in roles.items() if r is m.role)
             say(
                 f"  {name:<24} {distro:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, frames {frames.odom} -> {frames.base}"
             )
