@@ -12,23 +12,20 @@ channels, and a bug in its handling fails only its host, which is stopped
 from __future__ import annotations
 
 import asyncio
-import logging
 import os
-import time
-from dataclasses import dataclass
+from typing import Any
 
 from blackmetal.runtime.burst import PutBurst
-from blackmetal.runtime.edge import refuse_taken
-from blackmetal.runtime.entry import freeze_start_up
-from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.schemas import ErrorReport, Keys
+from blackmetal.runtime.entry import Fleet, freeze_start_up, say
+from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.service import Member, Role, serve_fleet
+from blackmetal.schemas import Keys
 from blackmetal.transport import TcpConnector
 
 from .host import GatewayHost
 from .settings import GatewaySettings, when_killed
 from .zenoh_edge import GatewayZenoh
-
-log = logging.getLogger("blackmetal.gateway")
 
 
 def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[GatewaySettings]:
@@ -43,72 +40,45 @@ def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[Gate
     ]
 
 
-@dataclass
-class Member:
-    """One robot of the fleet: its settings, and the host that serves it now (a :class:`~blackmetal.runtime.fleet.Served`)."""
-
-    robot: FleetRobot
-    settings: GatewaySettings
-    session: object
-    #: The fleet's impulses, put back to back at the end of each turn of the loop (one for every member).
-    burst: PutBurst
-    host: GatewayHost | None = None
-    edge: GatewayZenoh | None = None
-    restarts: int = 0
-
-    def start(self) -> Member:
-        s = self.settings
-        self.edge = GatewayZenoh(self.session, Keys(s.prefix), burst=self.burst)  # type: ignore[arg-type]
-        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge, s.latch_store())
-        self.edge.attach(self.host, asyncio.get_running_loop())
-        return self
-
-    async def run(self, stop: asyncio.Event) -> None:
-        assert self.host is not None
-        await self.host.run(stop)
-
-    def failed(self, exc: Exception, pause: float) -> None:
-        assert self.edge is not None
-        self.restarts += 1
-        reason = f"gateway of {self.robot.describe()} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s"
-        log.error("%s", reason)
-        self.edge.error(ErrorReport(stamp=time.time(), source="gateway", key=self.edge.keys.health, reason=reason))
-
-    def close(self) -> None:
-        if self.edge is not None:
-            self.edge.close()
+def build(session: Any, s: GatewaySettings, burst: PutBurst | None = None) -> tuple[GatewayZenoh, GatewayHost]:
+    """One robot's edge and host; in a fleet, its impulses in the fleet's ``burst``."""
+    edge = GatewayZenoh(session, Keys(s.prefix), burst=burst)
+    host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge, s.latch_store())
+    edge.attach(host, asyncio.get_running_loop())
+    return edge, host
 
 
-async def serve_fleet(base: GatewaySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
+ROLE: Role[GatewaySettings] = Role(
+    "gateway",
+    lambda m: build(m.session, m.settings, m.burst),
+    "gateway of {robot} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s",
+    "health",
+)
+
+
+async def serve(base: GatewaySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     """Open one Zenoh session and serve every robot of the fleet on it until ``stop``."""
-    from blackmetal.runtime.harness import announce_ready
-    from blackmetal.runtime.zenoh_setup import open_service_session
 
-    with await open_service_session(base.zenoh, stop, "gateway") as session:
-        settings = fleet_settings(base, robots)
-        burst = PutBurst()
-        members = [Member(robot, s, session, burst) for robot, s in zip(robots, settings, strict=True)]
-        by_prefix = {robot.prefix: robot.describe() for robot in robots}
-        refuse_taken(session, "gateway", list(by_prefix), describe=by_prefix.__getitem__)
-        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"gateway {m.robot.id}") for m in members]
-        await asyncio.sleep(0)  # every robot's edge, host and core are built in its task's first step
+    def announce(members: list[Member[GatewaySettings]]) -> None:
         freeze_start_up()
-        print(
+        say(
             f"blackmetal gateway ready: a fleet of {len(members)} robots ({', '.join(r.prefix for r in robots[:3])}"
             f"{', ...' if len(robots) > 3 else ''}), polling at {base.poll_hz:g} Hz",
-            flush=True,
+            f"  {when_killed('HOST')} for each robot",
+            f"  e-stop states kept in {os.path.dirname(members[0].host.latch.where)}",
+            *(f"  {m.robot.id}: {m.host.start_sentence}" for m in members if m.host.start_sentence is not None),
         )
-        print(f"  {when_killed('HOST')} for each robot", flush=True)
-        hosts = {m.robot.id: m.host for m in members if m.host is not None}
-        if hosts:
-            print(f"  e-stop states kept in {os.path.dirname(next(iter(hosts.values())).latch.where)}", flush=True)
-        for robot_id, host in hosts.items():
-            if host.start_sentence is not None:
-                print(f"  {robot_id}: {host.start_sentence}", flush=True)
         announce_ready(
             "gateway", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], cmd_timeout=base.cmd_timeout, poll_hz=base.poll_hz
         )
-        try:
-            await asyncio.gather(*tasks)
-        finally:
-            burst.flush()  # what the last turn held; refused if its robot's edge already closed (a normal stop)
+
+    parts = [(ROLE, robot, s) for robot, s in zip(robots, fleet_settings(base, robots), strict=True)]
+    await serve_fleet(base.zenoh, stop, parts, announce, refuse="gateway")
+
+
+FLEET = Fleet(
+    "serve every robot of this fleet file (TOML [[robot]] tables) in this one process, on one Zenoh session; "
+    "the other options are every robot's defaults",
+    fleet_settings,
+    serve,
+)

@@ -23,6 +23,8 @@ def when_killed(robot: str) -> str:
     )
 
 
+#: The gateway's settings the safety governor takes as they are.
+SAFETY_SETTINGS = ("wheel_separation", "max_wheel_speed", "cmd_timeout", "keepalive", "linear_accel", "angular_accel", "max_command_hz")
 #: Upper bounds of the time settings, each with why: beyond them a setting is a typo, not a robot's need.
 TIME_LIMITS = (
     ("cmd_timeout", 60.0, "a deadman that waits longer than a minute stops nothing (0 disables it, knowingly)"),
@@ -103,20 +105,9 @@ class GatewaySettings:
     def check(self) -> None:
         """Refuse settings that cannot work, naming the setting."""
         check_positive(
-            poll_hz=self.poll_hz,
-            wheel_separation=self.wheel_separation,
-            max_wheel_speed=self.max_wheel_speed,
-            keepalive=self.keepalive,
-            reply_timeout=self.reply_timeout,
-            silence_timeout=self.silence_timeout,
-            log_silence_timeout=self.log_silence_timeout,
-            connect_timeout=self.connect_timeout,
-            health_period=self.health_period,
-            max_command_hz=self.max_command_hz,
-            linear_accel=self.linear_accel,
-            angular_accel=self.angular_accel,
-            impulses_left=self.impulses_left,
-            impulses_right=self.impulses_right,
+            self,
+            "poll_hz wheel_separation max_wheel_speed keepalive reply_timeout silence_timeout log_silence_timeout "
+            "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right",
         )
         for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
             if not 0.5 * nominal <= getattr(self, name) <= 2.0 * nominal:
@@ -149,15 +140,9 @@ class GatewaySettings:
         return Arbiter(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
 
     def safety(self) -> SafetySettings:
-        return SafetySettings(
-            wheel_separation=self.wheel_separation,
-            max_wheel_speed=self.max_wheel_speed,
-            cmd_timeout=self.cmd_timeout,
-            keepalive=self.keepalive,
-            linear_accel=self.linear_accel,
-            angular_accel=self.angular_accel,
-            max_command_hz=self.max_command_hz,
-            wheel_gain=model.WheelGain(
-                left=self.impulses_left / model.IMPULSES_PER_METER_LEFT, right=self.impulses_right / model.IMPULSES_PER_METER_RIGHT
-            ),
+        """The governor's settings: the ones of the same name, and each wheel's gain from its calibration."""
+        same = {name: getattr(self, name) for name in SAFETY_SETTINGS}
+        gain = model.WheelGain(
+            left=self.impulses_left / model.IMPULSES_PER_METER_LEFT, right=self.impulses_right / model.IMPULSES_PER_METER_RIGHT
         )
+        return SafetySettings(**same, wheel_gain=gain)

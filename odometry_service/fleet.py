@@ -10,21 +10,17 @@ others go on.
 from __future__ import annotations
 
 import asyncio
-import logging
-import time
-from dataclasses import dataclass
 
-from blackmetal.runtime.burst import PutBurst
-from blackmetal.runtime.edge import refuse_taken
-from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.schemas import ErrorReport, Keys
+from blackmetal.runtime.entry import Fleet
+from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.service import Member, Role, serve_fleet
+from blackmetal.schemas import Keys
 
 from .core import OdometryCore
 from .host import OdometryHost
 from .settings import OdometrySettings
 from .zenoh_edge import OdometryZenoh
-
-log = logging.getLogger("blackmetal.odometry")
 
 #: How often the fleet's loop takes every robot's waiting impulse samples (s): a pose is at most this much later
 #: than a callback would have made it, and the loop wakes 200 times a second for the whole fleet.
@@ -36,90 +32,27 @@ def fleet_settings(base: OdometrySettings, robots: list[FleetRobot]) -> list[Odo
     return [robot.settings("odometry", base, {"prefix": robot.prefix}) for robot in robots]
 
 
-@dataclass
-class Member:
-    """One robot's odometry in the fleet process (a :class:`~blackmetal.runtime.fleet.Served`): started again from zero after a bug."""
-
-    robot: FleetRobot
-    settings: OdometrySettings
-    session: object
-    #: The fleet's poses, put back to back at the end of each turn of the loop (one for every member).
-    burst: PutBurst
-    edge: OdometryZenoh | None = None
-    host: OdometryHost | None = None
-    #: Set with the exception a drain of this robot's samples raised: :meth:`run` raises it, for the supervisor.
-    failure: asyncio.Future[None] | None = None
-
-    def start(self) -> Member:
-        keys = Keys(self.settings.prefix)
-        loop = asyncio.get_running_loop()
-        self.edge = OdometryZenoh(self.session, keys, burst=self.burst)  # type: ignore[arg-type]
-        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
-        self.edge.attach(self.host, loop, ring=True)  # queries and resets through its intake, impulses from its ring
-        self.failure = loop.create_future()
-        return self
-
-    def drain(self) -> None:
-        """On the loop, from the fleet's drain: this robot's waiting impulse samples to its odometry."""
-        edge, failure = self.edge, self.failure
-        if edge is None or failure is None or failure.done():
-            return
-        try:
-            edge.drain()
-        except Exception as exc:  # a bug in this robot's handling: it alone is started again
-            failure.set_exception(exc if not isinstance(exc, StopIteration) else RuntimeError(repr(exc)))
-
-    async def run(self, stop: asyncio.Event) -> None:
-        assert self.host is not None and self.failure is not None
-        failure = self.failure
-        serving = asyncio.ensure_future(self.host.run(stop))
-        try:
-            await asyncio.wait({serving, failure}, return_when=asyncio.FIRST_COMPLETED)
-            if failure.done():
-                failure.result()
-            serving.result()  # the host's own failure (its timers), for the supervisor as well
-        finally:
-            serving.cancel()
-            failure.cancel()
-
-    def failed(self, exc: Exception, pause: float) -> None:
-        assert self.edge is not None
-        reason = f"odometry of {self.robot.describe()} failed ({exc!r}): starting again from zero in {pause:g} s"
-        log.error("%s", reason)
-        self.edge.error(ErrorReport(stamp=time.time(), source="odometry", key=self.edge.keys.pose, reason=reason))
-
-    def close(self) -> None:
-        if self.edge is not None:
-            self.edge.close()
+def build(member: Member[OdometrySettings]) -> tuple[OdometryZenoh, OdometryHost]:
+    """One robot's odometry, from zero: queries and resets through its intake, impulses from its ring (the fleet's drain)."""
+    keys = Keys(member.settings.prefix)
+    edge = OdometryZenoh(member.session, keys, burst=member.burst)
+    host = OdometryHost(OdometryCore(member.settings.params(), keys, edge))
+    edge.attach(host, asyncio.get_running_loop(), ring=True)
+    return edge, host
 
 
-async def serve_fleet(base: OdometrySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
+ROLE = Role("odometry", build, "odometry of {robot} failed ({exc!r}): starting again from zero in {pause:g} s", "pose")
+
+
+async def serve(base: OdometrySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     """Open one Zenoh session and run every robot's odometry on it until ``stop``."""
-    import zenoh
 
-    from blackmetal.runtime.harness import announce_ready
-    from blackmetal.runtime.zenoh_setup import open_service_session
-
-    settings = fleet_settings(base, robots)
-    with await open_service_session(base.zenoh, stop, "odometry") as session:
-        by_prefix = {robot.prefix: robot.describe() for robot in robots}
-        refuse_taken(session, "odometry", list(by_prefix), what="odometry service", describe=by_prefix.__getitem__)
-        assert isinstance(session, zenoh.Session)
-        burst = PutBurst()
-        members = [Member(r, s, session, burst) for r, s in zip(robots, settings, strict=True)]
-        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"odometry {m.robot.id}") for m in members]
-        tasks.append(asyncio.create_task(_drain(members, stop), name="odometry drain"))
+    def announce(members: list[Member[OdometrySettings]]) -> None:
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
-        try:
-            await asyncio.gather(*tasks)
-        finally:
-            burst.flush()  # what the last turn held; refused if its robot's edge already closed (a normal stop)
+
+    parts = [(ROLE, robot, s) for robot, s in zip(robots, fleet_settings(base, robots), strict=True)]
+    await serve_fleet(base.zenoh, stop, parts, announce, refuse="odometry service", drain_every=(DRAIN_PERIOD_S, None))
 
 
-async def _drain(members: list[Member], stop: asyncio.Event) -> None:
-    """Every DRAIN_PERIOD_S until ``stop``: each robot's waiting impulse samples to its odometry (see OdometryZenoh.drain)."""
-    while not stop.is_set():
-        for member in members:
-            member.drain()
-        await asyncio.sleep(DRAIN_PERIOD_S)
+FLEET = Fleet("run the odometry of every robot of this fleet file in this one process, on one Zenoh session", fleet_settings, serve)

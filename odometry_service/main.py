@@ -2,17 +2,16 @@
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 
 from blackmetal.runtime.edge import refuse_taken
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
+from blackmetal.runtime.entry import ServiceCommand
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
 from .core import OdometryCore
-from .fleet import fleet_settings, serve_fleet
+from .fleet import FLEET
 from .host import OdometryHost
 from .settings import OdometrySettings
 from .zenoh_edge import OdometryZenoh
@@ -34,17 +33,5 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
             edge.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal odometry", __doc__, OdometrySettings, parser)
-    parser.add_argument(
-        "--fleet", metavar="FILE", help="run the odometry of every robot of this fleet file in this one process, on one Zenoh session"
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    return run_single_or_fleet("odometry", args, OdometrySettings, serve, fleet_settings, serve_fleet)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("odometry", OdometrySettings, __doc__, serve, FLEET)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main

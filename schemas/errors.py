@@ -14,7 +14,7 @@ classes, so a new class, a new parent or a moved module is drawn here)::
     ├── PayloadError (also ValueError)   blackmetal.schemas.errors: bytes on a key are not a valid message
     ├── ProtocolError                    blackmetal.wire: a command the robot must never see, or a bad wire value
     ├── ChildFailed                      blackmetal.runtime.harness: a child process exited or was not ready in time; its last lines
-    ├── ServiceFailure                   blackmetal.foxglove.host: a Foxglove service call that could not be done; its text goes to the caller
+    ├── ServiceFailure                   blackmetal.foxglove.sdk:  a Foxglove service call that could not be done; its text goes to the caller
     ├── OdometryError                    blackmetal.odometry_service.errors
     │   ├── SampleRejected               blackmetal.odometry_service.errors: an impulse sample that cannot be integrated
     │   │   └── UnstampedSample          blackmetal.odometry_service.errors: a live sample without ``mono`` or ``source``

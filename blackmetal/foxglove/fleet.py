@@ -20,8 +20,10 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from typing import Any
 
 from blackmetal.robot_model import Encoders
+from blackmetal.runtime.entry import Fleet, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.schemas import ConfigError, ErrorReport, Keys, require_extra
 
@@ -83,95 +85,107 @@ def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
     return report
 
 
-async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
-    """One server, one session: every robot's view and controls until ``stop``."""
+async def serve_views(
+    base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[str], dict[str, Any]]
+) -> None:
+    """What the view of one robot and of a fleet share once the server listens and the parts are wired: the Zenoh
+    session, each robot's edge on its port, the announcement (``announce(url)`` says what is the view's own and returns
+    its part of the harness's ready message), serving until ``stop``; then all of it undone."""
     from blackmetal.runtime.harness import announce_ready
     from blackmetal.runtime.zenoh_setup import open_service_session
 
+    with await open_service_session(base.zenoh, stop, "foxglove") as session:
+        loop = asyncio.get_running_loop()
+        fleet = wiring.fleet
+        edges: list[FoxgloveZenoh] = []
+        try:
+            for robot_id, port in wiring.ports.items():
+                edge = FoxgloveZenoh(session, port.view.keys, query_timeout=base.call_timeout)
+                edges.append(edge)
+                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (None, None)
+                edge.attach(port.view, port, loop, handlers=handlers, on_error=port.on_bug, presence=presence)
+                port.edge = edge
+            wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
+            for port in wiring.ports.values():
+                port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
+            info = announce(host.url)
+            say(
+                f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {host.url})",
+                f"  writing the same channels to {base.mcap}" if base.mcap else None,
+            )
+            announce_ready("foxglove", url=host.url, port=host.port, subprotocols=list(SUBPROTOCOLS), **info)
+            await host.run(stop)
+        finally:
+            wiring.stop()
+            for port in wiring.ports.values():
+                port.edge = None
+            for edge in reversed(edges):
+                edge.close()
+
+
+async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
+    """One server, one session: every robot's view and controls until ``stop``."""
+
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     settings = fleet_settings(base, robots)
+    keys = {r.id: Keys(s.prefix) for r, s in zip(robots, settings, strict=True)}
     services = {service_name(robot_namespace(r.id), s): s for r in robots for s in Service}
     host = FoxgloveHost(base, services=services)
     try:
         await host.start()  # the port is taken before Zenoh opens
-        view = FleetView(
-            [(r.id, Keys(s.prefix), encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock
-        )
+        view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
         ports = {r.id: RobotPort(r.id, host, view.views[r.id]) for r in robots}
         controls = {
-            r.id: Controls(Keys(s.prefix), ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id))
-            for r, s in zip(robots, settings, strict=True)
+            r.id: Controls(keys[r.id], ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots
         }
         core = FleetControls(controls, host, _fleet_error(view))
         for robot_id, port in ports.items():
             port.controls, port.fleet = controls[robot_id], view
-        params = Parameters(
-            {r.id: (Keys(s.prefix), robot_namespace(r.id)) for r, s in zip(robots, settings, strict=True)}, host, base.call_timeout
-        )
+        params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
         host.attach(core, params, view)
         watch = Watch(view.feeds(), record_all=bool(base.mcap))
         wiring = Wiring(ports, watch, view, core.reporter)
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
-        with await open_service_session(base.zenoh, stop, "foxglove") as session:
-            loop = asyncio.get_running_loop()
-            edges: list[FoxgloveZenoh] = []
-            try:
-                for r, s in zip(robots, settings, strict=True):
-                    edge = FoxgloveZenoh(session, Keys(s.prefix), query_timeout=base.call_timeout)
-                    edges.append(edge)
-                    port = ports[r.id]
-                    edge.attach(view.views[r.id], port, loop, handlers=view.handlers(r.id), on_error=port.on_bug, presence=port.on_token)
-                    port.edge = edge
-                wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
-                for robot_view in view.views.values():
-                    robot_view.describe()  # each URDF, into the MCAP file if there is one (a client gets it when it subscribes)
-                address = host.url
-                print(f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}", flush=True)
-                for r, s in zip(robots, settings, strict=True):
-                    ns = robot_namespace(r.id)
-                    print(
-                        f"  {ns + '/':<8} <-> prefix {s.prefix}, frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}",
-                        flush=True,
-                    )
-                print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
-                print(
-                    f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf", flush=True
-                )
-                print(
-                    "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>", flush=True
-                )
-                print(f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})", flush=True)
-                print(
-                    f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
-                    flush=True,
-                )
-                print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
-                if base.mcap:
-                    print(f"  writing the same channels to {base.mcap}", flush=True)
-                announce_ready(
-                    "foxglove",
-                    url=address,
-                    port=host.port,
-                    prefix=robots[0].prefix,
-                    prefixes=[s.prefix for s in settings],
-                    subprotocols=list(SUBPROTOCOLS),
-                    services=list(services),
-                    robots={
-                        r.id: {
-                            "prefix": s.prefix,
-                            "namespace": robot_namespace(r.id),
-                            "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
-                        }
-                        for r, s in zip(robots, settings, strict=True)
-                    },
-                )
-                await host.run(stop)
-            finally:
-                wiring.stop()
-                for port in ports.values():
-                    port.edge = None
-                for edge in reversed(edges):
-                    edge.close()
+
+        def announce(address: str) -> dict[str, Any]:
+            say(
+                f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}",
+                *(
+                    f"  {robot_namespace(r.id) + '/':<8} <-> prefix {keys[r.id].prefix}, "
+                    f"frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}"
+                    for r in robots
+                ),
+                f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
+                f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf",
+                "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>",
+                f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})",
+                f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+            )
+            robots_info = {
+                r.id: {
+                    "prefix": keys[r.id].prefix,
+                    "namespace": robot_namespace(r.id),
+                    "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
+                }
+                for r in robots
+            }
+            return {
+                "prefix": robots[0].prefix,
+                "prefixes": [k.prefix for k in keys.values()],
+                "services": list(services),
+                "robots": robots_info,
+            }
+
+        await serve_views(base, stop, host, wiring, announce)
     finally:
         host.close()
+
+
+FLEET = Fleet(
+    "show every robot of this fleet file (TOML [[robot]] tables) in one view on one port, each under /<id>/ "
+    "and on its prefix, with /fleet/summary; not with --prefix",
+    fleet_settings,
+    serve_fleet,
+    SINGLE_ROBOT_OPTIONS,
+)

@@ -13,17 +13,15 @@ r3/base_link), with /fleet/summary.
 
 from __future__ import annotations
 
-import argparse
 import asyncio
+from typing import Any
 
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
-from blackmetal.runtime.harness import announce_ready
-from blackmetal.runtime.zenoh_setup import open_service_session
+from blackmetal.runtime.entry import ServiceCommand, say
 from blackmetal.schemas import Keys, require_extra
 
 from .controls import Controls
-from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
-from .front import INNER_HOST, SUBPROTOCOLS
+from .fleet import FLEET, serve_views
+from .front import SUBPROTOCOLS
 from .host import FoxgloveHost
 from .live import LiveView
 from .naming import COMMAND_SOURCE, TAKES, Service
@@ -31,7 +29,6 @@ from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
-from .zenoh_edge import FoxgloveZenoh
 
 #: The one robot's id where the parts name robots (its names carry no namespace).
 ONE_ROBOT = ""
@@ -53,55 +50,24 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
         wiring = Wiring({ONE_ROBOT: port}, watch)
         host.watch_with(watch, wiring)
         host.serve_params(params, wiring)
-        with await open_service_session(settings.zenoh, stop, "foxglove") as session:
-            edge = FoxgloveZenoh(session, keys, query_timeout=settings.call_timeout)
-            edge.attach(view, port, asyncio.get_running_loop(), on_error=port.on_bug)
-            port.edge = edge
-            wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
-            view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
-            edge.ask_params()
-            address = host.url
-            print(f"blackmetal foxglove: {keys.prefix} on {address}", flush=True)
-            print(f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}", flush=True)
-            print(f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}", flush=True)
-            print(f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})", flush=True)
-            print(f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}", flush=True)
-            print(f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}", flush=True)
-            print(f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {address})", flush=True)
-            if settings.mcap:
-                print(f"  writing the same channels to {settings.mcap}", flush=True)
-            announce_ready(
-                "foxglove",
-                url=address,
-                port=host.port,
-                prefix=keys.prefix,
-                subprotocols=list(SUBPROTOCOLS),
-                services=[s.value for s in Service],
+
+        def announce(address: str) -> dict[str, Any]:
+            assert port.edge is not None
+            port.edge.ask_params()
+            say(
+                f"blackmetal foxglove: {keys.prefix} on {address}",
+                f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
+                f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}",
+                f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})",
+                f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
+                f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}",
             )
-            try:
-                await host.run(stop)
-            finally:
-                wiring.stop()
-                port.edge = None
-                edge.close()
+            return {"prefix": keys.prefix, "services": [s.value for s in Service]}
+
+        await serve_views(settings, stop, host, wiring, announce)
     finally:
         host.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal foxglove", __doc__, FoxgloveSettings, parser)
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="show every robot of this fleet file (TOML [[robot]] tables) in one view on one port, each under /<id>/ "
-        "and on its prefix, with /fleet/summary; not with --prefix",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    return run_single_or_fleet("foxglove", args, FoxgloveSettings, serve, fleet_settings, serve_fleet, SINGLE_ROBOT_OPTIONS)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("foxglove", FoxgloveSettings, __doc__, serve, FLEET)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main

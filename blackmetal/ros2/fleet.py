@@ -25,14 +25,15 @@ from __future__ import annotations
 import asyncio
 import dataclasses
 import itertools
-import logging
-import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from typing import Any
 
 from blackmetal.runtime.burst import PutBurst
-from blackmetal.runtime.fleet import FleetRobot, supervise
-from blackmetal.schemas import ConfigError, ErrorReport, Keys
+from blackmetal.runtime.entry import Fleet, say
+from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.harness import announce_ready
+from blackmetal.runtime.service import Member, Role, serve_fleet
+from blackmetal.schemas import ConfigError, Keys
 
 from .core import Ros2Core
 from .host import Ros2Host
@@ -45,8 +46,6 @@ from .zenoh_edge import Ros2Zenoh
 #: callback would have made it, and the loop wakes 200 times a second for the whole fleet.
 DRAIN_PERIOD_S = 0.005
 IDLE_DRAIN_PERIOD_S = 0.1
-
-log = logging.getLogger("blackmetal.ros2")
 
 #: Options for one robot's node: with --fleet each robot's entry decides them.
 SINGLE_ROBOT_OPTIONS = {
@@ -82,101 +81,63 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
     return out
 
 
-@dataclass
-class Member:
-    """One robot's node: its settings, and the host that serves it now (a :class:`~blackmetal.runtime.fleet.Served`)."""
-
-    robot: FleetRobot
-    settings: Ros2Settings
-    session: object
-    codec: RosCodec
-    ids: Iterator[int]
-    distro: Distro = DEFAULT_DISTRO
-    #: The fleet's volatile ROS samples, put back to back at the end of each turn of the loop (one for every node).
-    burst: PutBurst | None = None
-    host: Ros2Host | None = None
-    edge: Ros2Zenoh | None = None
-    restarts: int = 0
-
-    def declare(self) -> Ros2Zenoh:
-        """Declare this robot's node (new entity ids on each start, as a node created again has), its host, and attach them."""
-        s = self.settings
-        namespace = normalise_namespace(s.namespace)
-        edge = Ros2Zenoh(
-            self.session,  # type: ignore[arg-type]
-            Keys(s.prefix),
-            self.codec,
-            Flavor(s.flavor),
-            s.domain_id,
-            namespace,
-            s.node_name,
-            topics(s.tf, absolute_tf=True, robot_model=s.robot_model),
-            services(),
-            s.source,
-            self.ids,
-            self.distro,
-            rings=True,
-            burst=self.burst,
-        )
-        options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace), distro=self.distro)
-        self.host = Ros2Host(Ros2Core(options, edge.keys, edge, self.codec), supervised=True)
-        self.edge = edge
-        edge.attach(self.host, asyncio.get_running_loop())
-        return edge
-
-    def start(self) -> Member:
-        """The node declared before the fleet was announced serves first; after a failure, a new one."""
-        if self.edge is None or self.host is None:
-            self.declare()
-        return self
-
-    async def run(self, stop: asyncio.Event) -> None:
-        assert self.host is not None
-        await self.host.run(stop)
-
-    def failed(self, exc: Exception, pause: float) -> None:
-        assert self.edge is not None
-        self.restarts += 1
-        reason = f"ROS 2 node of {self.robot.describe()} failed ({exc!r}, its {self.distro.value} node); starting it again in {pause:g} s"
-        log.error("%s", reason)
-        self.edge.error(ErrorReport(stamp=time.time(), source="ros2", key=self.edge.keys.errors, reason=reason))
-
-    def close(self) -> None:
-        if self.edge is not None:
-            self.edge.close()
-        self.edge = self.host = None
+def declare_node(
+    session: Any, s: Ros2Settings, codec: RosCodec, ids: Iterator[int], distro: Distro, burst: PutBurst | None = None
+) -> tuple[Ros2Zenoh, Ros2Host]:
+    """One node of ``distro`` for the robot of ``s``, attached to the running loop. With the fleet's ``burst``, a fleet's
+    node: its transforms on the absolute /tf, its frames prefixed by its namespace, its robot streams in rings, supervised."""
+    fleet = burst is not None
+    namespace = normalise_namespace(s.namespace)
+    edge = Ros2Zenoh(
+        session,
+        Keys(s.prefix),
+        codec,
+        Flavor(s.flavor),
+        s.domain_id,
+        namespace,
+        s.node_name,
+        topics(s.tf, absolute_tf=fleet, robot_model=s.robot_model),
+        services(),
+        s.source,
+        ids,
+        distro,
+        rings=fleet,
+        burst=burst,
+    )
+    options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace) if fleet else "", distro=distro)
+    host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=fleet)
+    edge.attach(host, asyncio.get_running_loop())
+    return edge, host
 
 
-async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
+async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     """Open one Zenoh session and serve one ROS node per robot of the fleet on it until ``stop``."""
-    from blackmetal.runtime.harness import announce_ready
-    from blackmetal.runtime.zenoh_setup import open_service_session
-
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
-    settings = fleet_settings(base, robots)
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
-    burst = PutBurst()
-    with await open_service_session(base.zenoh, stop, "ros2") as session:
-        members = [
-            Member(robot, s, session, codec, ids, distro, burst)
-            for robot, s in zip(robots, settings, strict=True)
-            for distro in (s.distros() if s.flavor == Flavor.RMW_ZENOH.value else (DEFAULT_DISTRO,))
-        ]
-        for member in members:  # every node declared and serving before the fleet is announced
-            member.declare()
-        print(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})", flush=True)
+    failure = "ROS 2 node of {robot} failed ({exc!r}, its %s node); starting it again in {pause:g} s"
+
+    def role(d: Distro) -> Role[Ros2Settings]:
+        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst), failure % d.value)
+
+    roles = {d: role(d) for d in Distro}
+    parts = [
+        (roles[distro], robot, s)
+        for robot, s in zip(robots, fleet_settings(base, robots), strict=True)
+        for distro in (s.distros() if s.flavor == Flavor.RMW_ZENOH.value else (DEFAULT_DISTRO,))
+    ]
+
+    def announce(members: list[Member[Ros2Settings]]) -> None:
+        say(f"blackmetal ros2 ready: a fleet of {len(members)} nodes ({base.flavor})")
         nodes: dict[str, dict[str, object]] = {}
         for m in members:
-            assert m.edge is not None and m.host is not None
-            node = full_topic(normalise_namespace(m.settings.namespace), m.settings.node_name)
+            name = full_topic(normalise_namespace(m.settings.namespace), m.settings.node_name)
             frames = m.host.core.options.frames
-            print(
-                f"  {node:<24} {m.distro.value:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, "
-                f"frames {frames.odom} -> {frames.base}",
-                flush=True,
+            distro = next(d.value for d, r in roles.items() if r is m.role)
+            say(
+                f"  {name:<24} {distro:<8} domain {m.settings.domain_id} <-> prefix {m.settings.prefix}, frames {frames.odom} -> {frames.base}"
             )
             entry = {
-                "node": node,
+                "node": name,
                 "prefix": m.settings.prefix,
                 "keys": dict(m.edge.data_keys),
                 "services": dict(m.edge.service_keys),
@@ -184,34 +145,16 @@ async def serve_fleet(base: Ros2Settings, robots: list[FleetRobot], stop: asynci
                 "frames": dataclasses.asdict(frames),
             }
             robot_entry = nodes.setdefault(m.robot.id, {**entry, "by_distro": {}})  # the first distro's at the top
-            robot_entry["by_distro"][m.distro.value] = entry  # type: ignore[index]
+            robot_entry["by_distro"][distro] = entry  # type: ignore[index]
         announce_ready("ros2", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots], flavor=base.flavor, nodes=nodes)
-        tasks = [asyncio.create_task(supervise(m.start, stop), name=f"ros2 {m.robot.id}") for m in members]
-        tasks.append(asyncio.create_task(_drain(members, stop), name="ros2 drain"))
-        try:
-            await asyncio.gather(*tasks)
-        finally:
-            burst.flush()  # what the last turn held (cancelled); refused if its node's edge already closed (a normal stop)
-            for m in members:
-                if m.edge is not None:
-                    m.edge.close()
+
+    await serve_fleet(base.zenoh, stop, parts, announce, drain_every=(DRAIN_PERIOD_S, IDLE_DRAIN_PERIOD_S))
 
 
-async def _drain(members: list[Member], stop: asyncio.Event) -> None:
-    """Every DRAIN_PERIOD_S until ``stop``: each node's followed robot samples to its core (see Ros2Zenoh.drain).
-
-    While no node follows anything (nobody watches), it looks only every IDLE_DRAIN_PERIOD_S: an idle view costs
-    nothing; the first samples after someone subscribes wait at most that long in their ring.
-    """
-    while not stop.is_set():
-        active = False
-        for member in members:
-            edge, host = member.edge, member.host
-            if edge is None or host is None or not edge.following():
-                continue
-            active = True
-            try:
-                edge.drain()
-            except Exception as exc:  # a bug in this node's handling: it alone is started again
-                host.fail(exc)
-        await asyncio.sleep(DRAIN_PERIOD_S if active else IDLE_DRAIN_PERIOD_S)
+FLEET = Fleet(
+    "one ROS node per robot of this fleet file (TOML [[robot]] tables), each under the namespace of its id and "
+    "on its prefix, in this one process on one Zenoh session; not with --namespace, --prefix, --node-name",
+    fleet_settings,
+    serve,
+    SINGLE_ROBOT_OPTIONS,
+)

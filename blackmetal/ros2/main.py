@@ -18,17 +18,15 @@ robot_state_publisher publishes them).
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import itertools
 
-from blackmetal.runtime.entry import run_single_or_fleet, service_parser
+from blackmetal.runtime.entry import ServiceCommand, say
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
-from .core import Ros2Core
-from .fleet import SINGLE_ROBOT_OPTIONS, fleet_settings, serve_fleet
+from .fleet import FLEET, declare_node
 from .host import Ros2Host
 from .messages import RosCodec
 from .naming import DEFAULT_DISTRO, Direction, Flavor, full_topic, normalise_namespace, services, topics
@@ -51,50 +49,21 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
         nodes: list[tuple[str, Ros2Zenoh, Ros2Host]] = []
         try:
             for distro in distros:
-                edge = Ros2Zenoh(
-                    session,
-                    keys,
-                    codec,
-                    flavor,
-                    settings.domain_id,
-                    namespace,
-                    settings.node_name,
-                    ros_topics,
-                    ros_services,
-                    settings.source,
-                    ids,
-                    distro,
-                )
-                options = settings.options(edge.data_keys, edge.service_keys, distro=distro)
-                host = Ros2Host(Ros2Core(options, keys, edge, codec))
-                edge.attach(host, asyncio.get_running_loop())
-                nodes.append((distro.value, edge, host))
+                nodes.append((distro.value, *declare_node(session, settings, codec, ids, distro)))
             node = full_topic(namespace, settings.node_name)
             which = ", ".join(d for d, _, _ in nodes) if flavor is Flavor.RMW_ZENOH else "any distro"
-            print(
-                f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}",
-                flush=True,
-            )
-            width = max(
-                len(n)
-                for n in [
-                    *(t.full_name(namespace) for t in ros_topics),
-                    *(s.full_name(namespace, settings.node_name) for s in ros_services),
-                ]
-            )
+            say(f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}")
+            names = [*(t.full_name(namespace) for t in ros_topics), *(s.full_name(namespace, settings.node_name) for s in ros_services)]
+            width = max(len(n) for n in names)
             for distro_name, edge, _ in nodes:
-                if len(nodes) > 1:
-                    print(f"  {distro_name}:", flush=True)
+                say(f"  {distro_name}:" if len(nodes) > 1 else None)
                 for topic in ros_topics:
                     way = "ROS -> robot" if topic.direction is Direction.SUBSCRIBE else "robot -> ROS"
-                    print(
-                        f"  {topic.full_name(namespace):<{width}} {topic.ros_type:<41} {way}  on {edge.data_keys[topic.key_name]}",
-                        flush=True,
-                    )
+                    say(f"  {topic.full_name(namespace):<{width}} {topic.ros_type:<41} {way}  on {edge.data_keys[topic.key_name]}")
                 for service in ros_services:
                     name, key = service.full_name(namespace, settings.node_name), edge.service_keys[service.name]
-                    print(f"  {name:<{width}} {service.ros_type:<41} service       on {key}", flush=True)
-            print(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}", flush=True)
+                    say(f"  {name:<{width}} {service.ros_type:<41} service       on {key}")
+            say(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}")
             first = nodes[0][1]
             announce_ready(
                 "ros2",
@@ -113,20 +82,5 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
                 edge.close()
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = service_parser("blackmetal ros2", __doc__, Ros2Settings, parser)
-    parser.add_argument(
-        "--fleet",
-        metavar="FILE",
-        help="one ROS node per robot of this fleet file (TOML [[robot]] tables), each under the namespace of its id and "
-        "on its prefix, in this one process on one Zenoh session; not with --namespace, --prefix, --node-name",
-    )
-    return parser
-
-
-def run(args: argparse.Namespace) -> int:
-    return run_single_or_fleet("ros2", args, Ros2Settings, serve, fleet_settings, serve_fleet, SINGLE_ROBOT_OPTIONS)
-
-
-def main(argv: list[str] | None = None) -> int:
-    return run(build_parser().parse_args(argv))
+COMMAND = ServiceCommand("ros2", Ros2Settings, __doc__, serve, FLEET)
+build_parser, run, main = COMMAND.build_parser, COMMAND.run, COMMAND.main

@@ -139,12 +139,10 @@ class Ros2Settings:
         check_ros_name("node name", self.node_name)
         normalise_namespace(self.namespace)
         check_source_name(self.source)
-        check_positive(service_timeout=self.service_timeout, expected_poll_hz=self.expected_poll_hz)
+        check_positive(self, "service_timeout expected_poll_hz")
         diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
         diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
-        for name in ("wheel_radius", "wheel_separation", "impulses_left", "impulses_right"):
-            if not getattr(self, name) > 0:
-                raise ConfigError(f"{name} must be positive, got {getattr(self, name)}")
+        check_positive(self, "wheel_radius wheel_separation impulses_left impulses_right")
         for name in ("odom_frame", "base_frame", "left_joint", "right_joint"):
             if not getattr(self, name):
                 raise ConfigError(f"{name} must not be empty")

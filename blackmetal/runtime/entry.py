@@ -9,7 +9,8 @@ import logging
 import os
 import sys
 from collections.abc import Awaitable, Callable, Mapping
-from typing import TypeVar
+from dataclasses import dataclass, field
+from typing import Generic, TypeVar
 
 from blackmetal.schemas import BlackmetalError, ZenohUnavailable
 
@@ -40,46 +41,75 @@ def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Ev
             runner.run(_main(load()))
     except asyncio.CancelledError:
         pass  # stopped while it still waited for its router or hub (open_service_session): a requested stop
-    except ZenohUnavailable as exc:
+    except (BlackmetalError, OSError) as exc:
         print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 1
-    except BlackmetalError as exc:
-        print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"blackmetal {name}: {exc}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(exc, BlackmetalError) and not isinstance(exc, ZenohUnavailable) else 1
     logging.getLogger(f"blackmetal.{name}").info("stopped")
     return 0
 
 
-def run_single_or_fleet(
-    name: str,
-    args: argparse.Namespace,
-    kind: type[S],
-    serve: Callable[[S, asyncio.Event], Awaitable[None]],
-    fleet_settings: Callable[[S, list[FleetRobot]], object],
-    serve_fleet: Callable[[S, list[FleetRobot], asyncio.Event], Awaitable[None]],
-    single_robot: Mapping[str, str] | None = None,
-) -> int:
-    """:func:`run_service` for one robot, or with ``--fleet FILE`` for every robot of the file in this process.
+@dataclass(frozen=True)
+class Fleet(Generic[S]):
+    """What ``--fleet FILE`` means to a service: every robot of the file in this one process."""
 
-    With a fleet, the settings in ``single_robot`` (name -> why) are refused,
-    and every robot's settings (``fleet_settings``) are checked before the
-    service opens Zenoh or a port.
-    """
-    if not getattr(args, "fleet", None):
-        return run_service(name, lambda: load_settings(kind, args), serve)
+    #: The option's help.
+    help: str
+    #: Each robot's settings from the command line's (one sentence naming the robot for a mistake).
+    settings: Callable[[S, list[FleetRobot]], list[S]]
+    serve: Callable[[S, list[FleetRobot], asyncio.Event], Awaitable[None]]
+    #: Settings that name one robot (name -> why), refused with --fleet.
+    single_robot: Mapping[str, str] = field(default_factory=dict)
 
-    def load_fleet_settings() -> tuple[S, list[FleetRobot]]:
-        base = load_settings(kind, args)
-        if single_robot:
-            refuse_single_robot_options(vars(args), base, single_robot)
-        robots = load_fleet(args.fleet)
-        fleet_settings(base, robots)
-        return base, robots
 
-    return run_service(name, load_fleet_settings, lambda loaded, stop: serve_fleet(*loaded, stop))
+@dataclass(frozen=True)
+class ServiceCommand(Generic[S]):
+    """A service's command, declared: its settings, how it serves one robot, and its fleet; gives ``build_parser``, ``run``, ``main``."""
+
+    name: str
+    settings: type[S]
+    doc: str | None
+    serve: Callable[[S, asyncio.Event], Awaitable[None]]
+    fleet: Fleet[S] | None = None
+    #: The interpreter's switch interval (s) for this process, when the service needs another than Python's.
+    switch_interval: float | None = None
+
+    def build_parser(self, parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
+        parser = service_parser(f"blackmetal {self.name}", self.doc, self.settings, parser)
+        if self.fleet is not None:
+            parser.add_argument("--fleet", metavar="FILE", help=self.fleet.help)
+        return parser
+
+    def run(self, args: argparse.Namespace) -> int:
+        """:func:`run_service` for one robot, or with ``--fleet FILE`` for every robot of the file in this process.
+
+        With a fleet, the settings that name one robot are refused, and every
+        robot's settings are checked before the service opens Zenoh or a port.
+        """
+        if self.switch_interval is not None:
+            sys.setswitchinterval(self.switch_interval)
+        fleet = self.fleet
+        if fleet is None or not getattr(args, "fleet", None):
+            return run_service(self.name, lambda: load_settings(self.settings, args), self.serve)
+
+        def load_fleet_settings() -> tuple[S, list[FleetRobot]]:
+            base = load_settings(self.settings, args)
+            refuse_single_robot_options(vars(args), base, fleet.single_robot)
+            robots = load_fleet(args.fleet)
+            fleet.settings(base, robots)
+            return base, robots
+
+        return run_service(self.name, load_fleet_settings, lambda loaded, stop: fleet.serve(*loaded, stop))
+
+    def main(self, argv: list[str] | None = None) -> int:
+        return self.run(self.build_parser().parse_args(argv))
+
+
+def say(*lines: str | None) -> None:
+    """What a service tells its user as it starts, each line flushed at once (a harness or a pipe reads it live); None
+    lines are left out."""
+    for line in lines:
+        if line is not None:
+            print(line, flush=True)
 
 
 def freeze_start_up() -> None:

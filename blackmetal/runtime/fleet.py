@@ -26,21 +26,18 @@ prefix or port, an unknown key, a value of the wrong type.
 
 from __future__ import annotations
 
-import asyncio
 import dataclasses
-import logging
 import re
-import tomllib
-from collections.abc import Callable, Mapping
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import Any, TypeVar
 
 import msgspec
 
 from blackmetal.schemas import ConfigError, validate_prefix
 
-from .settings import plain_words
+from .settings import plain_words, read_config
 
 T = TypeVar("T")
 
@@ -175,15 +172,7 @@ def parse_fleet(data: dict[str, Any], source: str = "fleet file") -> list[FleetR
 
 def load_fleet(path: str | Path) -> list[FleetRobot]:
     """The robots of the fleet file at ``path`` (TOML)."""
-    path = Path(path)
-    try:
-        text = path.read_text()
-    except OSError as exc:
-        raise ConfigError(f"cannot read fleet file {path}: {exc.strerror}") from None
-    try:
-        data = tomllib.loads(text)
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(f"fleet file {path} is not valid TOML: {exc}") from None
+    data = read_config(Path(path), "fleet file", toml=True)
     return parse_fleet(data, f"fleet file {path}")
 
 
@@ -229,46 +218,3 @@ def write_fleet(robots: list[FleetRobot]) -> str:
             lines += [f"{name} = {value!r}" if not isinstance(value, str) else f'{name} = "{value}"' for name, value in table.items()]
         lines.append("")
     return "\n".join(lines)
-
-
-#: A robot whose service failed of a bug is started again after this pause, doubling up to RESTART_CAP_S.
-RESTART_FIRST_S = 0.5
-RESTART_CAP_S = 10.0
-
-
-class Served(Protocol):
-    """One robot's service in a fleet process, as :func:`supervise` runs it."""
-
-    async def run(self, stop: asyncio.Event) -> None:
-        """Serve until ``stop``; an exception is a bug of this robot's handling."""
-
-    def failed(self, exc: Exception, pause: float) -> None:
-        """Report the failure (on the robot's errors key; the service's edge is still open), restarting in ``pause`` s."""
-
-    def close(self) -> None:
-        """Undeclare what the service declared."""
-
-
-async def supervise(start: Callable[[], Served], stop: asyncio.Event) -> None:
-    """The one fleet supervisor: ``start()`` a robot's service and run it until ``stop``; one that fails is started again.
-
-    A failure stays that robot's: the others share the loop and go on. The
-    pause doubles from RESTART_FIRST_S up to RESTART_CAP_S, so a robot that
-    fails at once costs the fleet little.
-    """
-    pause = RESTART_FIRST_S
-    while not stop.is_set():
-        served = start()
-        try:
-            await served.run(stop)
-            return
-        except Exception as exc:
-            logging.getLogger("blackmetal.fleet").debug("a fleet member failed", exc_info=exc)
-            served.failed(exc, pause)
-        finally:
-            served.close()
-        try:
-            await asyncio.wait_for(stop.wait(), pause)
-        except TimeoutError:
-            pass
-        pause = min(pause * 2, RESTART_CAP_S)

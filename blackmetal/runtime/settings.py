@@ -108,18 +108,22 @@ def add_setting_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
         parser.add_argument(flag, **kwargs)
 
 
-def read_settings_file(path: str | Path) -> dict[str, Any]:
-    """The settings in a TOML or JSON5 file, names with dashes or underscores."""
-    path = Path(path)
+def read_config(path: Path, what: str, toml: bool) -> Any:
+    """The TOML (else JSON5) file at ``path``; a ConfigError naming ``what`` it is when it cannot be read or parsed."""
     try:
         text = path.read_text()
     except OSError as exc:
-        raise ConfigError(f"cannot read settings file {path}: {exc.strerror}") from None
+        raise ConfigError(f"cannot read {what} {path}: {exc.strerror}") from None
     try:
-        data = tomllib.loads(text) if path.suffix == ".toml" else json5.loads(text)
-    except (tomllib.TOMLDecodeError, ValueError) as exc:
-        kind = "TOML" if path.suffix == ".toml" else "JSON5"
-        raise ConfigError(f"settings file {path} is not valid {kind}: {exc}") from None
+        return tomllib.loads(text) if toml else json5.loads(text)
+    except ValueError as exc:  # TOMLDecodeError is one
+        raise ConfigError(f"{what} {path} is not valid {'TOML' if toml else 'JSON5'}: {exc}") from None
+
+
+def read_settings_file(path: str | Path) -> dict[str, Any]:
+    """The settings in a TOML or JSON5 file, names with dashes or underscores."""
+    path = Path(path)
+    data = read_config(path, "settings file", toml=path.suffix == ".toml")
     if not isinstance(data, dict):
         raise ConfigError(f"settings file {path} must hold a table (TOML) or an object (JSON5) of settings")
     return {str(key).replace("-", "_"): value for key, value in data.items()}
@@ -207,8 +211,9 @@ def plain_words(text: str, values: Mapping[str, Any], origin: Mapping[str, str])
     return f"{where}: {name} must be {wanted}, got {values.get(name)!r} ({_KINDS.get(got, got)})"
 
 
-def check_positive(**values: float | None) -> None:
-    """Raise ConfigError naming the first value that is set but not positive."""
-    for name, value in values.items():
+def check_positive(settings: object, names: str) -> None:
+    """Raise ConfigError naming the first of the settings ``names`` (separated by spaces) that is set but not positive."""
+    for name in names.split():
+        value = getattr(settings, name)
         if value is not None and not value > 0:
             raise ConfigError(f"{name} must be positive, got {value}")

@@ -43,15 +43,7 @@ class SimSettings:
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
     def check(self) -> None:
-        check_positive(
-            wheel_separation=self.wheel_separation,
-            watchdog=self.watchdog,
-            truth_hz=self.truth_hz,
-            log_interval=self.log_interval,
-            accel_limit=self.accel_limit,
-            left_wheel_scale=self.left_wheel_scale,
-            right_wheel_scale=self.right_wheel_scale,
-        )
+        check_positive(self, "wheel_separation watchdog truth_hz log_interval accel_limit left_wheel_scale right_wheel_scale")
         for name in ("left_wheel_scale", "right_wheel_scale"):
             if not 0.5 <= getattr(self, name) <= 2.0:
                 raise ConfigError(f"{name} must be within 0.5..2.0, got {getattr(self, name)}")

@@ -37,7 +37,7 @@ NO_TEST_FILE_YET = {
     "ros2/main", "ros2/settings",
     "runtime/entry", "runtime/harness", "runtime/host", "runtime/settings", "runtime/signals",
     "runtime/zenoh_entities", "runtime/zenoh_setup",
-    "sim/fleet", "sim/main", "sim/memory", "sim/server", "sim/settings",
+    "sim/main", "sim/memory", "sim/server", "sim/settings",
     "tools/calibrate", "tools/client", "tools/estop", "tools/list_robots", "tools/params", "tools/record",
     "tools/router", "tools/square", "tools/stop_robot", "tools/teleop", "tools/up", "tools/watch",
 }  # fmt: skip

@@ -11,10 +11,11 @@ from typing import Any
 import pytest
 import zenoh
 
-from blackmetal.odometry_service.fleet import Member, _drain, fleet_settings
+from blackmetal.odometry_service.fleet import DRAIN_PERIOD_S, ROLE, fleet_settings
 from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.service import Member, drain
 from blackmetal.schemas import Pose, WheelImpulses, decode, encode
 
 
@@ -25,11 +26,11 @@ def robots() -> list[FleetRobot]:
 START = time.time()
 
 
-def two_robots_posing(session: zenoh.Session) -> tuple[list[Member], dict[str, list[Pose]], list[Any]]:
+def two_robots_posing(session: zenoh.Session) -> tuple[list[Member[OdometrySettings]], dict[str, list[Pose]], list[Any]]:
     """r1 and r2's odometry members (not started), the poses each publishes, and the subscribers that collect them."""
     fleet = robots()
     burst = PutBurst(max_hold=math.inf)  # one for the fleet, as serve_fleet makes it; held to the end of each turn
-    members = [Member(r, s, session, burst) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
+    members = [Member(ROLE, r, s, session, burst) for r, s in zip(fleet, fleet_settings(OdometrySettings(), fleet), strict=True)]
     poses: dict[str, list[Pose]] = {"r1": [], "r2": []}
     subscribers = [
         session.declare_subscriber(
@@ -97,7 +98,7 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
 
 def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Session) -> None:
     fleet = robots()[:1]
-    member = Member(fleet[0], fleet_settings(OdometrySettings(), fleet)[0], session, PutBurst())
+    member = Member(ROLE, fleet[0], fleet_settings(OdometrySettings(), fleet)[0], session, PutBurst())
 
     async def broken_run(stop: asyncio.Event) -> None:
         raise RuntimeError("a bug in r1's timers")
@@ -128,7 +129,7 @@ def test_the_fleet_drain_takes_every_robots_samples_and_outlives_a_failing_robot
         for member in members:
             member.start()
         runs = [asyncio.ensure_future(member.run(stop)) for member in members]
-        draining = asyncio.ensure_future(_drain(members, stop))
+        draining = asyncio.ensure_future(drain(members, stop, DRAIN_PERIOD_S))
         for seq in range(1, 4):
             for name in poses:
                 session.put(f"fleet/{name}/wheels/impulses", impulses(seq, 10 * seq))

@@ -27,7 +27,7 @@ import zenoh
 from helpers import Child, client_config, free_port, wait_for
 
 from blackmetal.ros2.core import Ros2Core
-from blackmetal.ros2.fleet import fleet_settings, serve_fleet
+from blackmetal.ros2.fleet import fleet_settings, serve
 from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, attachment, gid_of, split_token, tf_frame_prefix, topics
 from blackmetal.ros2.ros_types import SET_BOOL
@@ -233,7 +233,7 @@ def test_a_node_that_fails_is_started_again_and_the_others_go_on(monkeypatch: py
     base = Ros2Settings(zenoh=ZenohSettings(listen=[f"tcp/127.0.0.1:{port}"]))
     loop = asyncio.new_event_loop()
     stop = asyncio.Event()
-    thread = threading.Thread(target=lambda: loop.run_until_complete(serve_fleet(base, robots, stop)), daemon=True)
+    thread = threading.Thread(target=lambda: loop.run_until_complete(serve(base, robots, stop)), daemon=True)
     thread.start()
 
     def hub() -> zenoh.Session | None:

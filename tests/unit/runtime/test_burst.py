@@ -12,7 +12,7 @@ from typing import Any
 import pytest
 import zenoh
 
-from blackmetal.gateway.fleet import Member as GatewayMember
+from blackmetal.gateway.fleet import ROLE as GATEWAY
 from blackmetal.gateway.fleet import fleet_settings as gateway_fleet_settings
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.gateway.zenoh_edge import GatewayZenoh
@@ -21,6 +21,7 @@ from blackmetal.ros2.naming import parse_attachment
 from blackmetal.ros2.zenoh_edge import _RosPublisher
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.fleet import FleetRobot
+from blackmetal.runtime.service import Member
 from blackmetal.schemas import ErrorReport, Keys, WheelImpulses, decode, encode, make_pose
 
 Run = Callable[[Coroutine[Any, Any, None]], None]
@@ -183,7 +184,9 @@ def test_a_fleet_gateways_robots_share_the_fleets_burst(session: zenoh.Session, 
     """What ``gateway --fleet`` builds for each robot holds its impulses in the one burst the fleet flushes."""
     robots = [FleetRobot(i, f"r{i}", "127.0.0.1", 1, 2, f"fleet/r{i}") for i in (1, 2)]
     burst = PutBurst(max_hold=math.inf)
-    members = [GatewayMember(r, s, session, burst) for r, s in zip(robots, gateway_fleet_settings(GatewaySettings(), robots), strict=True)]
+    members = [
+        Member(GATEWAY, r, s, session, burst) for r, s in zip(robots, gateway_fleet_settings(GatewaySettings(), robots), strict=True)
+    ]
     impulses = WheelImpulses(seq=1, stamp=1.0, left=2, right=3, mono=1.0, source="test")
 
     async def scenario() -> None:
