@@ -35,18 +35,9 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
-from .figures import (
-    RELEASE_SETTLE_S,
-    _service,
-    command_latencies,
-    cpu_seconds,
-    estop_latencies,
-    latch_args,
-    mini_robot,
-    rss_mb,
-    wait_polls,
-)
+from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
 from .peers import EXPRESS, _zenoh_conf, free_port
+from .rig import cpu_seconds, latch_args, mini_robot, rss_mb, service, wait_polls
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
 POLL_HZ = 50.0
@@ -112,22 +103,22 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
     with ExitStack() as stack, tempfile.TemporaryDirectory(prefix="blackmetal-bench-fleet-") as folder:
         zport = free_port()
         endpoint = ["-e", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"]
-        processes = {"router": _service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
+        processes = {"router": service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
         probe_robot = mini_robot(stack)
         simulated: list[FleetRobot] = []
         if robots > 1:
             sim_file = Path(folder) / "simulated.toml"
-            processes["sim"] = _service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
+            processes["sim"] = service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
             simulated = load_fleet(sim_file)
         probe = FleetRobot(robots, PROBE, "127.0.0.1", probe_robot.control_port, probe_robot.log_port, f"fleet/{PROBE}")
         fleet_file = Path(folder) / "fleet.toml"
         fleet_file.write_text(write_fleet([*simulated, probe]))
-        processes["gateway"] = _service(
+        processes["gateway"] = service(
             stack,
             "gateway",
             ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *latch_args(stack), *endpoint],
         )
-        processes["odometry"] = _service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
+        processes["odometry"] = service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
         session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
         poses: collections.Counter[str] = collections.Counter()
         counting = session.declare_subscriber("fleet/*/pose", lambda sample: poses.update((str(sample.key_expr),)))
@@ -189,8 +180,8 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
 def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file: Path, endpoint: list[str], robots: int,
            seconds: float) -> dict[str, Any]:  # fmt: skip
     """The views' cost idle, then the whole host while a Foxglove client and an /odom subscriber watch every robot."""
-    processes["ros2"] = _service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
-    processes["foxglove"] = _service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
+    processes["ros2"] = service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
+    processes["foxglove"] = service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
     pids = {name: child.proc.pid for name, child in processes.items()}
     views = {name: pids[name] for name in ("ros2", "foxglove")}
     # idle means after the start: a view still declaring a few hundred robots on a saturated host is starting, not idle
