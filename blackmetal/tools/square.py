@@ -34,6 +34,7 @@ from .client import (
     Latest,
     ToolError,
     add_client_arguments,
+    add_drive_arguments,
     connect,
     require_gateway,
     require_pose,
@@ -362,8 +363,7 @@ def run(args: argparse.Namespace) -> int:
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="blackmetal square", description=__doc__)
     parser.add_argument("--size", type=float, default=1.0, help="side length, m (default 1)")
-    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
-    parser.add_argument("--turn-rate", type=float, default=0.6, help="turn rate, rad/s (default 0.6)")
+    add_drive_arguments(parser, turn_rate=0.6)
     parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
     parser.add_argument("--both", action="store_true", help="counter-clockwise, then clockwise (UMBmark)")
     parser.add_argument(

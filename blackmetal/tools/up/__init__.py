@@ -30,7 +30,7 @@ from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, open_when_reacha
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Keys, require_extra, validate_prefix
 
 from ..client import tool
-from .launch import STOP_BUDGET_S, run_fleet, run_one
+from .launch import STOP_BUDGET_S, Launch, run_fleet, run_one
 from .settings import ServiceFiles, ros2_extra
 from .status import FleetStatus
 from .topology import ROBOTS_PER_PROCESS, Topology, check_fleet_options, process_count, shards
@@ -135,11 +135,12 @@ def run(args: argparse.Namespace) -> int:
         if session is None:
             return 0  # Ctrl-C while waiting for the router
         children: list[ServiceProcess] = []
+        launch = Launch(args, files, topology, children)
         try:
             if fleet:
                 with tempfile.TemporaryDirectory(prefix="blackmetal-fleet-") as workdir:
-                    return run_fleet(args, session, topology, files, children, stop, Path(workdir) / "fleet.toml")
-            return run_one(args, keys, session, topology, files, children, stop)
+                    return run_fleet(launch, session, stop, Path(workdir) / "fleet.toml")
+            return run_one(launch, keys, session, stop)
         finally:
             # odometry and gateway first (the gateway stops the robot), then the simulator
             stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)

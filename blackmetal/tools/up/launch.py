@@ -15,7 +15,9 @@ import time
 from collections import deque
 from collections.abc import Callable, Mapping
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import zenoh
 
@@ -39,71 +41,72 @@ MAX_RESTARTS = 5
 RESTART_WINDOW_S = 60.0
 
 
-def _start(children: list[ServiceProcess], name: str, command: list[str], verbose: bool) -> ServiceProcess:
-    child = ServiceProcess.blackmetal(name, command, echo=verbose, own_session=True)
-    children.append(child)
-    return child
+@dataclass
+class Launch:
+    """What every child of one run shares: up's options, the settings file's parts, the Zenoh arguments; and the children."""
+
+    args: argparse.Namespace
+    files: ServiceFiles
+    topology: Topology
+    children: list[ServiceProcess]
+
+    def start(self, name: str, command: list[str]) -> ServiceProcess:
+        """``blackmetal COMMAND...`` with the service's part of the settings file and the Zenoh arguments, in its own session."""
+        full = [*command, *self.files.args(command[0]), *self.topology.child_args()]
+        child = ServiceProcess.blackmetal(name, full, echo=self.args.verbose, own_session=True)
+        self.children.append(child)
+        return child
+
+    def ready(self, name: str, command: list[str]) -> dict[str, Any]:
+        return self.start(name, command).wait_ready(READY_TIMEOUT_S)
+
+    @property
+    def sim_args(self) -> list[str]:
+        return ["--seed", str(self.args.seed)] if self.args.seed is not None else []
+
+    @property
+    def gateway_args(self) -> list[str]:
+        return [*(["--poll-hz", str(self.args.poll_hz)] if self.args.poll_hz is not None else []), *latch_args(self.args, self.files)]
+
+    def foxglove(self, *where: str) -> str | None:
+        """The Foxglove view's URL, when asked for one."""
+        if not self.args.foxglove:
+            return None
+        return str(self.ready("foxglove", ["foxglove", *where, "--port", str(self.args.foxglove_port)])["url"])
 
 
-def run_one(
-    args: argparse.Namespace,
-    keys: Keys,
-    session: zenoh.Session,
-    topology: Topology,
-    files: ServiceFiles,
-    children: list[ServiceProcess],
-    stop: threading.Event,
-) -> int:
-    zargs = topology.child_args()
-    hub = topology.endpoint
-    poll_args = ["--poll-hz", str(args.poll_hz)] if args.poll_hz is not None else []
-    prefix = keys.prefix
+def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.Event) -> int:
+    args, prefix, hub = launch.args, keys.prefix, launch.topology.endpoint
     try:
         if args.robot:
             host, control_port, log_port = args.robot, args.control_port, args.log_port
             where = f"robot {host}:{control_port}/{log_port}"
         else:
-            sim_args = ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *files.args("sim"), *zargs]
-            if args.seed is not None:
-                sim_args += ["--seed", str(args.seed)]
-            ready = _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
+            ready = launch.ready("sim", ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *launch.sim_args])
             host, control_port, log_port = ready["host"], ready["control_port"], ready["log_port"]
             where = f"simulated robot on {host}:{control_port} (log {log_port})"
-        gateway = _start(
-            children,
+        gateway = launch.start(
             "gateway",
-            ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port),
-             "--prefix", prefix, *poll_args, *latch_args(args, files), *files.args("gateway"), *zargs],
-            args.verbose,
+            ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port), "--prefix", prefix, *launch.gateway_args],
         )  # fmt: skip
-        odometry = _start(children, "odometry", ["odometry", "--prefix", prefix, *files.args("odometry"), *zargs], args.verbose)
-        ros2_args = ["ros2", "--flavor", args.ros2, "--prefix", prefix, *files.args("ros2"), *ros2_extra(args), *zargs]
-        ros2 = _start(children, "ros2", ros2_args, args.verbose) if args.ros2 else None
+        odometry = launch.start("odometry", ["odometry", "--prefix", prefix])
+        ros2 = launch.start("ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *ros2_extra(args)]) if args.ros2 else None
         cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         odometry.wait_ready(READY_TIMEOUT_S)
         ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
-        view = None
-        if args.foxglove:
-            view_args = ["foxglove", "--prefix", prefix, "--port", str(args.foxglove_port), *files.args("foxglove"), *zargs]
-            view = _start(children, "foxglove", view_args, args.verbose).wait_ready(READY_TIMEOUT_S)["url"]
+        view = launch.foxglove("--prefix", prefix)
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
-    print(f"blackmetal is up: {where}, {topology.describe()}, prefix {prefix}", flush=True)
+    print(f"blackmetal is up: {where}, {launch.topology.describe()}, prefix {prefix}", flush=True)
     if ros2_node:
         print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
     if view:
         print(f"Foxglove: open a Foxglove WebSocket connection to {view} (layout: deploy/foxglove/blackmetal.layout.json)", flush=True)
     print(drive_help(keys, hub, cmd_timeout), flush=True)
-    announce_ready(
-        "up",
-        endpoint=hub,
-        prefix=prefix,
-        robot=host,
-        control_port=control_port,
-        log_port=log_port,
-        children={child.name: child.proc.pid for child in children},
-    )
+    children = launch.children
+    announce_ready("up", endpoint=hub, prefix=prefix, robot=host, control_port=control_port, log_port=log_port,
+                   children={child.name: child.proc.pid for child in children})  # fmt: skip
     status = StatusLine(session, keys, with_truth=not args.robot)
 
     def stop_the_robot() -> str:
@@ -113,24 +116,11 @@ def run_one(
     return live(args, children, stop, status.render, {gateway: stop_the_robot})
 
 
-def run_fleet(
-    args: argparse.Namespace,
-    session: zenoh.Session,
-    topology: Topology,
-    files: ServiceFiles,
-    children: list[ServiceProcess],
-    stop: threading.Event,
-    fleet_file: Path,
-) -> int:
+def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fleet_file: Path) -> int:
     """``--robots N``: one simulator for all, then the fleet gateway and odometry on the file it writes."""
-    zargs = topology.child_args()
-    hub = topology.endpoint
-    poll_args = ["--poll-hz", str(args.poll_hz)] if args.poll_hz is not None else []
+    args, hub = launch.args, launch.topology.endpoint
     try:
-        sim_args = ["sim", "--robots", str(args.robots), "--write-fleet", str(fleet_file), *files.args("sim"), *zargs]
-        if args.seed is not None:
-            sim_args += ["--seed", str(args.seed)]
-        _start(children, "sim", sim_args, args.verbose).wait_ready(READY_TIMEOUT_S)
+        launch.ready("sim", ["sim", "--robots", str(args.robots), "--write-fleet", str(fleet_file), *launch.sim_args])
         robots = load_fleet(fleet_file)  # with the ports the simulator bound
         groups = shards(robots, process_count(len(robots), args.processes))
         gateways: dict[ServiceProcess, list[FleetRobot]] = {}
@@ -140,25 +130,16 @@ def run_fleet(
             shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
             if len(groups) > 1:
                 shard_file.write_text(write_fleet(group))
-            gateway_args = ["gateway", "--fleet", str(shard_file), *poll_args, *latch_args(args, files), *files.args("gateway"), *zargs]
-            gateways[_start(children, f"gateway{suffix}", gateway_args, args.verbose)] = group
-            odometry_args = ["odometry", "--fleet", str(shard_file), *files.args("odometry"), *zargs]
-            odometries.append(_start(children, f"odometry{suffix}", odometry_args, args.verbose))
-        ros2 = None
-        if args.ros2:  # one ROS node per robot, /<id>/..., in one adapter process
-            ros2_args = ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *files.args("ros2"), *ros2_extra(args), *zargs]
-            ros2 = _start(children, "ros2", ros2_args, args.verbose)
+            gateways[launch.start(f"gateway{suffix}", ["gateway", "--fleet", str(shard_file), *launch.gateway_args])] = group
+            odometries.append(launch.start(f"odometry{suffix}", ["odometry", "--fleet", str(shard_file)]))
+        # one ROS node per robot, /<id>/..., in one adapter process
+        ros2 = launch.start("ros2", ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *ros2_extra(args)]) if args.ros2 else None
         announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]
         cmd_timeout = float(announced[0].get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
         poll_hz = float(announced[0].get("poll_hz", default_of(GatewaySettings, "poll_hz")))
-        for odometry in odometries:
-            odometry.wait_ready(READY_TIMEOUT_S)
-        if ros2 is not None:
-            ros2.wait_ready(READY_TIMEOUT_S)
-        view = None
-        if args.foxglove:  # every robot in one view, /<id>/...
-            view_args = ["foxglove", "--fleet", str(fleet_file), "--port", str(args.foxglove_port), *files.args("foxglove"), *zargs]
-            view = _start(children, "foxglove", view_args, args.verbose).wait_ready(READY_TIMEOUT_S)["url"]
+        for child in [*odometries, *([ros2] if ros2 else [])]:
+            child.wait_ready(READY_TIMEOUT_S)
+        view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
     except ChildFailed as exc:
         print(f"blackmetal up: {exc}", file=sys.stderr)
         return 1
@@ -167,7 +148,7 @@ def run_fleet(
         "one gateway, one odometry process" if len(gateways) == 1 else f"{len(gateways)} gateway and {len(gateways)} odometry processes"
     )
     print(
-        f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {topology.describe()}",
+        f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {launch.topology.describe()}",
         flush=True,
     )
     if args.ros2:
@@ -178,16 +159,12 @@ def run_fleet(
         print(f"Foxglove: every robot in one view at {view}, topics /r1/... and /fleet/summary "
               "(layout for r1-r3: deploy/foxglove/blackmetal-fleet.layout.json)", flush=True)  # fmt: skip
     print(fleet_drive_help(robots, hub, cmd_timeout), flush=True)
-    announce_ready(
-        "up",
-        endpoint=hub,
-        prefixes=[r.prefix for r in robots],
-        robots=[[r.id, r.prefix, r.host, r.control_port, r.log_port] for r in robots],
-        children={child.name: child.proc.pid for child in children},
-    )
+    robot_rows = [[r.id, r.prefix, r.host, r.control_port, r.log_port] for r in robots]
+    announce_ready("up", endpoint=hub, prefixes=[r.prefix for r in robots], robots=robot_rows,
+                   children={child.name: child.proc.pid for child in launch.children})  # fmt: skip
     status = FleetStatus(session, robots, interval=_status_interval(args), poll_hz=poll_hz)
     stoppers = {gateway: functools.partial(_stop_fleet, group) for gateway, group in gateways.items()}
-    return live(args, children, stop, status.render, stoppers)
+    return live(args, launch.children, stop, status.render, stoppers)
 
 
 def _stop_fleet(robots: list[FleetRobot]) -> str:
