@@ -41,7 +41,6 @@ import math
 import signal
 import sys
 import time
-from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -49,10 +48,7 @@ from blackmetal.runtime.harness import ChildFailed
 from blackmetal.schemas import require_extra
 
 from . import children, command_path, offline, telemetry
-from .runner import Figure, one_sentence
-from .runner import measure as measure_figures
-from .runner import table as figure_table
-from .runner import with_baselines as _with_baselines
+from .runner import Figure, measure, one_sentence, table
 
 #: Every figure, in the order they are measured (a baseline before the figures that need it).
 FIGURES: tuple[Figure, ...] = (
@@ -75,21 +71,6 @@ FIGURE_NAMES = tuple(figure.name for figure in FIGURES)
 #: The table's order: the command path, then what the services publish, then the offline figures and the costs.
 TABLE_ORDER = ("forwarder", "cmd_vel", "estop", "estop_flood", "pose", "ros2_cmd_vel", "ros2_odom", "poll", "replay",
                "calibration", "arbiter", "recorder", "memory", "flood")  # fmt: skip
-
-
-def with_baselines(names: set[str]) -> set[str]:
-    """``names`` and every figure they need as a baseline."""
-    return _with_baselines(FIGURES, names)
-
-
-def measure(quick: bool, progress: Callable[[str], object] = print, only: set[str] | None = None) -> dict[str, Any]:
-    """Every figure (or those in ``only`` and their baselines), each next to its baseline (:func:`.runner.measure`)."""
-    return measure_figures(FIGURES, quick, progress, only)
-
-
-def table(f: dict[str, Any]) -> str:
-    """The figures as a table; a skipped or failed figure is one row that says why."""
-    return figure_table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, f)
 
 
 def _figure_names(text: str) -> set[str]:
@@ -172,7 +153,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             if args.fleet:
                 return _fleet(args, started)
-            result = measure(args.quick, progress=_say, only=args.only)
+            result = measure(FIGURES, args.quick, _say, args.only)
         except KeyboardInterrupt:
             pass
         finally:
@@ -199,19 +180,22 @@ def _fleet(args: argparse.Namespace, started: float) -> int:
         return 1
     print(fleet_table(runs))
     print(f"(took {time.monotonic() - started:.0f} s)", flush=True)
-    if args.json:
-        try:
-            with open(args.json, "w") as handle:
-                json.dump(_finite({"fleet": runs}), handle, indent=2, allow_nan=False)
-        except OSError as exc:
-            _say(f"blackmetal bench: cannot write {args.json}: {exc.strerror}")
-            return 1
-    return 0
+    return _write_json({"fleet": runs}, args.json)
 
 
 def _report(result: dict[str, Any], json_path: str | None) -> int:
-    print(table(result))
+    print(table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, result))
     print(f"(took {result['duration_s']:.0f} s)", flush=True)
+    if _write_json(result, json_path):
+        return 1
+    if result["failed"]:
+        _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
+        return 1
+    return 0
+
+
+def _write_json(result: dict[str, Any], json_path: str | None) -> int:
+    """``result`` as JSON into ``json_path`` when given: 0, or 1 with one line when it cannot be written."""
     if json_path:
         try:
             with open(json_path, "w") as handle:
@@ -219,7 +203,4 @@ def _report(result: dict[str, Any], json_path: str | None) -> int:
         except OSError as exc:
             _say(f"blackmetal bench: cannot write {json_path}: {exc.strerror}")
             return 1
-    if result["failed"]:
-        _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
-        return 1
     return 0

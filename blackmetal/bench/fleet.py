@@ -36,8 +36,9 @@ from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
 from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
-from .peers import EXPRESS, _zenoh_conf, free_port
+from .peers import EXPRESS, free_port
 from .rig import cpu_seconds, latch_args, mini_robot, rss_mb, service, wait_polls
+from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
 POLL_HZ = 50.0
@@ -119,7 +120,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
             ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *latch_args(stack), *endpoint],
         )
         processes["odometry"] = service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
-        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        session = client_session(stack, zport)
         poses: collections.Counter[str] = collections.Counter()
         counting = session.declare_subscriber("fleet/*/pose", lambda sample: poses.update((str(sample.key_expr),)))
         wait_polls(probe_robot)
@@ -139,11 +140,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         rates += [0.0] * (robots - len(rates))
         cpu = {name: (cpu1[name] - cpu0[name]) / elapsed for name in pids}
         rss = {name: rss_mb(pid) for name, pid in pids.items()}
-        polls = [
-            decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz
-            for r in session.get("fleet/*/gateway/health", timeout=5)
-            if r.ok is not None
-        ]
+        polls = _poll_rates(session)
 
         # poses still flow to a consumer (the router forwards them, as to a fleet view), but the bench's Python
         # count of 5,000 a second, on the machine's two cores with everything else, is not part of the fleet
@@ -177,6 +174,13 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
     }
 
 
+def _poll_rates(session: Any) -> list[float]:
+    """Every fleet gateway's poll rate, as its robots' health reports say."""
+    return [
+        decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz for r in session.get("fleet/*/gateway/health", timeout=5) if r.ok is not None
+    ]
+
+
 def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file: Path, endpoint: list[str], robots: int,
            seconds: float) -> dict[str, Any]:  # fmt: skip
     """The views' cost idle, then the whole host while a Foxglove client and an /odom subscriber watch every robot."""
@@ -201,9 +205,7 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     got0, odom0, t0 = watcher.received, odoms[0], time.monotonic()
     watched = _window(pids, seconds)
     elapsed = time.monotonic() - t0
-    polls = [
-        decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz for r in session.get("fleet/*/gateway/health", timeout=5) if r.ok is not None
-    ]
+    polls = _poll_rates(session)
     return {
         "idle": {name: idle[name] for name in ("ros2", "foxglove")},
         "watched": watched,

@@ -100,23 +100,25 @@ class Cancelled(ToolError):
     pass
 
 
+@dataclass
 class Driver:
     """Closed-loop legs on the odometry pose, publishing cmd_vel at 20 Hz."""
 
-    def __init__(self, publisher: zenoh.Publisher, pose: Latest, truth: Latest | None, speed: float, turn_rate: float,
-                 stop: threading.Event, cmd_timeout: float = 0.5) -> None:  # fmt: skip
-        self.publisher = publisher
-        self.approach_gain = approach_gain(cmd_timeout)
-        self.pose = pose
-        self.truth = truth
-        self.speed = speed
-        self.turn_rate = turn_rate
-        self.stop = stop
-        self.odometry_path: list[tuple[float, float]] = []
-        self.truth_path: list[tuple[float, float]] = []
-        self._moved_at = time.monotonic()
-        self._last_pose: tuple[float, float, float] | None = None
-        self._rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
+    publisher: zenoh.Publisher
+    pose: Latest
+    truth: Latest | None
+    speed: float
+    turn_rate: float
+    stop: threading.Event
+    cmd_timeout: float = 0.5
+    odometry_path: list[tuple[float, float]] = field(default_factory=list)
+    truth_path: list[tuple[float, float]] = field(default_factory=list)
+    _moved_at: float = field(default_factory=time.monotonic)
+    _last_pose: tuple[float, float, float] | None = None
+    _rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
+
+    def __post_init__(self) -> None:
+        self.approach_gain = approach_gain(self.cmd_timeout)
 
     def _send(self, v: float, w: float) -> None:
         if v or w:
