@@ -14,7 +14,7 @@ import functools
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 import msgspec
@@ -78,15 +78,19 @@ class Latest:
         self._sub.undeclare()
 
 
-def first_reply(replies: Any, message_type: type[T]) -> T | None:
-    """The first answer among ``replies`` (a ``get``'s) that decodes as ``message_type``, or None."""
+def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
+    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
     for reply in replies:
         if reply.ok is not None:
             try:
-                return decode(message_type, to_bytes(reply.ok.payload))
+                yield decode(message_type, to_bytes(reply.ok.payload))
             except PayloadError:
                 continue
-    return None
+
+
+def first_reply(replies: Any, message_type: type[T]) -> T | None:
+    """The first answer among ``replies`` that decodes as ``message_type``, or None."""
+    return next(decoded_replies(replies, message_type), None)
 
 
 def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
