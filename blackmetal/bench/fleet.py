@@ -37,7 +37,7 @@ from blackmetal.schemas import GatewayHealth, Keys, decode
 
 from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
 from .peers import EXPRESS, free_port
-from .rig import cpu_seconds, latch_args, mini_robot, rss_mb, service, wait_polls
+from .rig import cpu_seconds, cpu_window, latch_args, mini_robot, rss_mb, service, wait_polls
 from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
@@ -46,14 +46,6 @@ PROBE = "probe"
 #: The views count as started once both together use at most this much in a second (cores), or after SETTLE_MAX_S.
 SETTLED_CORES = 0.05
 SETTLE_MAX_S = 20.0
-
-
-def _window(pids: dict[str, int], seconds: float) -> dict[str, float]:
-    """Each process's CPU share (cores) over ``seconds``."""
-    cpu0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
-    time.sleep(seconds)
-    cpu1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
-    return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
 
 
 class _FoxgloveWatcher:
@@ -190,9 +182,9 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     views = {name: pids[name] for name in ("ros2", "foxglove")}
     # idle means after the start: a view still declaring a few hundred robots on a saturated host is starting, not idle
     settle_until = time.monotonic() + SETTLE_MAX_S
-    while sum(_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
+    while sum(cpu_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
         pass
-    idle = _window(pids, seconds)
+    idle = cpu_window(pids, seconds)
     watcher = _FoxgloveWatcher(stack, processes["foxglove"].ready_info["url"], robots)
     odoms = [0]
 
@@ -203,7 +195,7 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     stack.callback(odom.undeclare)
     time.sleep(3.0)
     got0, odom0, t0 = watcher.received, odoms[0], time.monotonic()
-    watched = _window(pids, seconds)
+    watched = cpu_window(pids, seconds)
     elapsed = time.monotonic() - t0
     polls = _poll_rates(session)
     return {

@@ -40,6 +40,14 @@ def cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
 
 
+def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
+    """Each process's CPU share (cores) over the next ``seconds``."""
+    cpu0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    time.sleep(seconds)
+    cpu1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
+
+
 def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
     """``blackmetal COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
     child = spawn_blackmetal(name, command)

@@ -18,7 +18,7 @@ from pathlib import Path
 from . import peers
 from .children import spawn
 from .peers import free_port, percentiles
-from .rig import KEYS, cpu_seconds, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
+from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
 from .runner import Figure, Plan, Result, Row, latency_rows, met, noisy, rounds, spreads
 
 
@@ -42,9 +42,7 @@ def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
         started = time.monotonic()
         time.sleep(seconds)
         end, elapsed = dict(counts), time.monotonic() - started
-        cpu, cpu_started = cpu_seconds(adapter.proc.pid), time.monotonic()
-        time.sleep(warmup)
-        cpu_pct = 100 * (cpu_seconds(adapter.proc.pid) - cpu) / (time.monotonic() - cpu_started)
+        cpu_pct = 100 * cpu_window({"adapter": adapter.proc.pid}, warmup)["adapter"]
     pose_hz = (end["pose"] - start["pose"]) / elapsed
     odom_hz = (end["odom"] - start["odom"]) / elapsed
     return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
@@ -132,11 +130,7 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
         wait_polls(robot)
         time.sleep(warmup)
         start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
-        cpu0, t0 = cpu_seconds(gw.proc.pid), time.monotonic()
-        odo_cpu0 = cpu_seconds(odo.proc.pid)
-        time.sleep(seconds)
-        cpu1, t1 = cpu_seconds(gw.proc.pid), time.monotonic()
-        odo_cpu1 = cpu_seconds(odo.proc.pid)
+        cpu = cpu_window({"gateway": gw.proc.pid, "odometry": odo.proc.pid}, seconds)
         end_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
     return {
         "bare_zenoh_mb": baseline,
@@ -146,8 +140,8 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
         "odometry_over_bare_mb": end_rss[1] - baseline,
         "gateway_growth_mb": end_rss[0] - start_rss[0],
         "odometry_growth_mb": end_rss[1] - start_rss[1],
-        "gateway_cpu_pct": 100 * (cpu1 - cpu0) / (t1 - t0),
-        "odometry_cpu_pct": 100 * (odo_cpu1 - odo_cpu0) / (t1 - t0),
+        "gateway_cpu_pct": 100 * cpu["gateway"],
+        "odometry_cpu_pct": 100 * cpu["odometry"],
         "seconds": seconds,
     }
 
