@@ -35,18 +35,10 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
-from .figures import (
-    RELEASE_SETTLE_S,
-    _service,
-    command_latencies,
-    cpu_seconds,
-    estop_latencies,
-    latch_args,
-    mini_robot,
-    rss_mb,
-    wait_polls,
-)
-from .peers import EXPRESS, _zenoh_conf, free_port
+from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
+from .peers import EXPRESS, free_port
+from .rig import cpu_seconds, cpu_window, latch_args, mini_robot, rss_mb, service, wait_polls
+from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
 POLL_HZ = 50.0
@@ -54,14 +46,6 @@ PROBE = "probe"
 #: The views count as started once both together use at most this much in a second (cores), or after SETTLE_MAX_S.
 SETTLED_CORES = 0.05
 SETTLE_MAX_S = 20.0
-
-
-def _window(pids: dict[str, int], seconds: float) -> dict[str, float]:
-    """Each process's CPU share (cores) over ``seconds``."""
-    cpu0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
-    time.sleep(seconds)
-    cpu1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
-    return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
 
 
 class _FoxgloveWatcher:
@@ -112,23 +96,23 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
     with ExitStack() as stack, tempfile.TemporaryDirectory(prefix="blackmetal-bench-fleet-") as folder:
         zport = free_port()
         endpoint = ["-e", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"]
-        processes = {"router": _service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
+        processes = {"router": service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
         probe_robot = mini_robot(stack)
         simulated: list[FleetRobot] = []
         if robots > 1:
             sim_file = Path(folder) / "simulated.toml"
-            processes["sim"] = _service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
+            processes["sim"] = service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
             simulated = load_fleet(sim_file)
         probe = FleetRobot(robots, PROBE, "127.0.0.1", probe_robot.control_port, probe_robot.log_port, f"fleet/{PROBE}")
         fleet_file = Path(folder) / "fleet.toml"
         fleet_file.write_text(write_fleet([*simulated, probe]))
-        processes["gateway"] = _service(
+        processes["gateway"] = service(
             stack,
             "gateway",
             ["gateway", "--fleet", str(fleet_file), "--poll-hz", str(POLL_HZ), "--cmd-timeout", "0", *latch_args(stack), *endpoint],
         )
-        processes["odometry"] = _service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
-        session = stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+        processes["odometry"] = service(stack, "odometry", ["odometry", "--fleet", str(fleet_file), *endpoint])
+        session = client_session(stack, zport)
         poses: collections.Counter[str] = collections.Counter()
         counting = session.declare_subscriber("fleet/*/pose", lambda sample: poses.update((str(sample.key_expr),)))
         wait_polls(probe_robot)
@@ -148,11 +132,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         rates += [0.0] * (robots - len(rates))
         cpu = {name: (cpu1[name] - cpu0[name]) / elapsed for name in pids}
         rss = {name: rss_mb(pid) for name, pid in pids.items()}
-        polls = [
-            decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz
-            for r in session.get("fleet/*/gateway/health", timeout=5)
-            if r.ok is not None
-        ]
+        polls = _poll_rates(session)
 
         # poses still flow to a consumer (the router forwards them, as to a fleet view), but the bench's Python
         # count of 5,000 a second, on the machine's two cores with everything else, is not part of the fleet
@@ -186,18 +166,25 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
     }
 
 
+def _poll_rates(session: Any) -> list[float]:
+    """Every fleet gateway's poll rate, as its robots' health reports say."""
+    return [
+        decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz for r in session.get("fleet/*/gateway/health", timeout=5) if r.ok is not None
+    ]
+
+
 def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file: Path, endpoint: list[str], robots: int,
            seconds: float) -> dict[str, Any]:  # fmt: skip
     """The views' cost idle, then the whole host while a Foxglove client and an /odom subscriber watch every robot."""
-    processes["ros2"] = _service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
-    processes["foxglove"] = _service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
+    processes["ros2"] = service(stack, "ros2", ["ros2", "--fleet", str(fleet_file), *endpoint])
+    processes["foxglove"] = service(stack, "foxglove", ["foxglove", "--fleet", str(fleet_file), "--port", "0", *endpoint])
     pids = {name: child.proc.pid for name, child in processes.items()}
     views = {name: pids[name] for name in ("ros2", "foxglove")}
     # idle means after the start: a view still declaring a few hundred robots on a saturated host is starting, not idle
     settle_until = time.monotonic() + SETTLE_MAX_S
-    while sum(_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
+    while sum(cpu_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
         pass
-    idle = _window(pids, seconds)
+    idle = cpu_window(pids, seconds)
     watcher = _FoxgloveWatcher(stack, processes["foxglove"].ready_info["url"], robots)
     odoms = [0]
 
@@ -208,11 +195,9 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     stack.callback(odom.undeclare)
     time.sleep(3.0)
     got0, odom0, t0 = watcher.received, odoms[0], time.monotonic()
-    watched = _window(pids, seconds)
+    watched = cpu_window(pids, seconds)
     elapsed = time.monotonic() - t0
-    polls = [
-        decode(GatewayHealth, r.ok.payload.to_bytes()).poll_hz for r in session.get("fleet/*/gateway/health", timeout=5) if r.ok is not None
-    ]
+    polls = _poll_rates(session)
     return {
         "idle": {name: idle[name] for name in ("ros2", "foxglove")},
         "watched": watched,

@@ -143,19 +143,11 @@ class MiniRobot:
                         log_clients.remove(client)
 
 
-def _robot_main() -> None:
+def robot_main() -> None:
     """Child process: a MiniRobot; announces its ports, then prints its arrivals and polls as JSON on 'dump'.
 
-    It ends on 'quit', when the bench closes its stdin (the bench is gone) and on SIGINT (Ctrl-C reaches
-    the whole process group), quietly.
+    It ends on 'quit', when the bench closes its stdin (the bench is gone) and on SIGINT, quietly (``__main__``).
     """
-    try:
-        _robot_serve()
-    except KeyboardInterrupt:
-        pass
-
-
-def _robot_serve() -> None:
     robot = MiniRobot().start()
     announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
     for line in sys.stdin:
@@ -209,7 +201,8 @@ class RobotProcess:
         self.child.stop(timeout=3)
 
 
-def _percentiles(samples: list[float]) -> dict[str, float]:
+def percentiles(samples: list[float]) -> dict[str, float]:
+    """p50, p99 and max of ``samples`` (s) in ms, and their number."""
     if not samples:
         raise TimeoutError("not one sample arrived in the measuring window")
     ordered = sorted(samples)
@@ -217,15 +210,8 @@ def _percentiles(samples: list[float]) -> dict[str, float]:
     return {"p50_ms": pick(0.5) * 1e3, "p99_ms": pick(0.99) * 1e3, "max_ms": ordered[-1] * 1e3, "n": len(ordered)}
 
 
-def _echo_main(port: int) -> None:
-    """Child process: answer every ping with a pong, from the main thread (not the callback); SIGINT ends it quietly."""
-    try:
-        _echo_serve(port)
-    except KeyboardInterrupt:
-        pass
-
-
-def _echo_serve(port: int) -> None:
+def echo_main(port: int) -> None:
+    """Child process: answer every ping with a pong, from the main thread (not the callback)."""
     import zenoh
 
     inbox: queue.SimpleQueue[bytes] = queue.SimpleQueue()
@@ -240,27 +226,20 @@ def _echo_serve(port: int) -> None:
             pub.put(payload)
 
 
-def _flooder_main(port: int, key: str, seconds: float) -> None:
-    """Child process: put a moving command on ``key`` in a tight loop for ``seconds`` (an attacker's flood); SIGINT ends it."""
-    try:
-        import zenoh
+def flooder_main(port: int, key: str, seconds: float) -> None:
+    """Child process: put a moving command on ``key`` in a tight loop for ``seconds`` (an attacker's flood)."""
+    import zenoh
 
-        with zenoh.open(_zenoh_conf(connect=port)) as session:
-            pub = session.declare_publisher(key)
-            announce_ready("flooder")
-            end = time.monotonic() + seconds
-            sent = 0
-            while time.monotonic() < end:
-                for _ in range(100):
-                    pub.put(b'{"linear":{"x":0.5}}')
-                sent += 100
-            print(json.dumps({"sent": sent}), flush=True)
-    except KeyboardInterrupt:
-        pass
-
-
-def percentiles(samples: list[float]) -> dict[str, float]:
-    return _percentiles(samples)
+    with zenoh.open(_zenoh_conf(connect=port)) as session:
+        pub = session.declare_publisher(key)
+        announce_ready("flooder")
+        end = time.monotonic() + seconds
+        sent = 0
+        while time.monotonic() < end:
+            for _ in range(100):
+                pub.put(b'{"linear":{"x":0.5}}')
+            sent += 100
+        print(json.dumps({"sent": sent}), flush=True)
 
 
 #: Pause between latency samples, the same for a figure and its baseline: an idle machine
@@ -293,4 +272,5 @@ def zenoh_hop(samples: int = 300, gap: tuple[float, float] = COMMAND_GAP_S) -> d
             session.put("bench/ping", b"quit")
     finally:
         child.stop(timeout=3)
-    return {**_percentiles(hops), "rtt_p50_ms": 2 * _percentiles(hops)["p50_ms"], "rtt_p99_ms": 2 * _percentiles(hops)["p99_ms"]}
+    hop = percentiles(hops)
+    return {**hop, "rtt_p50_ms": 2 * hop["p50_ms"], "rtt_p99_ms": 2 * hop["p99_ms"]}

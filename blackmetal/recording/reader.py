@@ -11,7 +11,7 @@ import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, BinaryIO
 
 from blackmetal.schemas import ConfigError, require_extra
 
@@ -43,6 +43,14 @@ def is_mcap(path: str | Path) -> bool:
         return False
 
 
+def _open(path: Path) -> BinaryIO:
+    """The recording opened for reading (the caller closes it), or ConfigError saying why not."""
+    try:
+        return open(path, "rb")
+    except OSError as exc:
+        raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+
+
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded:
     """Every message of the chosen topics (all by default), and the metadata records; a truncated end is noted, not fatal."""
     require_extra("reading MCAP", "record", "mcap")
@@ -54,10 +62,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
     wanted = None if topics is None else set(topics)
     channels: dict[str, Channel] = {}
     truncated = None
-    try:
-        stream = open(path, "rb")  # noqa: SIM115 - closed below
-    except OSError as exc:
-        raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+    stream = _open(path)
     metadata: list[tuple[str, dict[str, str]]] = []
     schemas: dict[int, str] = {}
     known: dict[int, Channel | None] = {}
@@ -246,10 +251,7 @@ def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes,
     chunks: list[bytes] = []  # decompressed, not yet read: read together, up to _BATCH bytes
     pending = 0
     truncated = None
-    try:
-        stream = open(path, "rb")  # noqa: SIM115 - closed below
-    except OSError as exc:
-        raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+    stream = _open(path)
     whole = 0  # where the last whole record ends: a cut-off file is cut after it
     with stream:
         try:

@@ -206,15 +206,7 @@ def as_residuals(figures: ResidualFigures) -> Residuals | None:
     """The file's residuals; None when the speeds could not be compared (no time steps)."""
     if not (math.isfinite(figures.v_mps) and math.isfinite(figures.w_radps)):
         return None
-    return Residuals(
-        steps=figures.steps,
-        path_m=figures.path_m,
-        x_m=figures.x_m,
-        y_m=figures.y_m,
-        yaw_rad=figures.yaw_rad,
-        v_mps=figures.v_mps,
-        w_radps=figures.w_radps,
-    )
+    return Residuals(**{name: getattr(figures, name) for name in Residuals.__dataclass_fields__})
 
 
 def trajectory(recordings: list[Recording], used: Constants, reference: str) -> tuple[Constants, list[str], Residuals | None]:

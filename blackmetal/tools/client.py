@@ -14,7 +14,7 @@ import functools
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from typing import Any, TypeVar
 
 import msgspec
@@ -40,11 +40,6 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the robot's services (default 5)")
     add_zenoh_arguments(parser)
-
-
-def client_settings(args: argparse.Namespace) -> ZenohSettings:
-    """The Zenoh flags (no endpoint, no config file, no discovery: a client of the default endpoint)."""
-    return zenoh_settings(args)
 
 
 def where(settings: ZenohSettings) -> str:
@@ -83,62 +78,65 @@ class Latest:
         self._sub.undeclare()
 
 
-def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
-    """The first valid answer to a ``get`` on ``key``, or None."""
-    for reply in session.get(key, payload=payload, timeout=timeout):
+def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
+    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
+    for reply in replies:
         if reply.ok is not None:
             try:
-                return decode(message_type, to_bytes(reply.ok.payload))
+                yield decode(message_type, to_bytes(reply.ok.payload))
             except PayloadError:
                 continue
-    return None
 
 
-def _require(session: zenoh.Session, key: str, message_type: type[T], timeout: float, missing: str) -> T:
-    """The first valid answer on ``key`` within ``timeout`` (asked once a second), or ToolError(``missing``)."""
+def first_reply(replies: Any, message_type: type[T]) -> T | None:
+    """The first answer among ``replies`` that decodes as ``message_type``, or None."""
+    return next(decoded_replies(replies, message_type), None)
+
+
+def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
+    """The first valid answer to a ``get`` on ``key``, or None."""
+    return first_reply(session.get(key, payload=payload, timeout=timeout), message_type)
+
+
+def _require(session: zenoh.Session, key: str, message_type: type[T], settings: ZenohSettings, timeout: float, who: str, hint: str) -> T:
+    """The first valid answer on ``key`` within ``timeout`` (asked once a second), or ToolError: no ``who`` answered, ``hint``."""
     deadline = time.monotonic() + timeout
     while True:
         value = query(session, key, message_type, timeout=1.0)
         if value is not None:
             return value
         if time.monotonic() > deadline:
-            raise ToolError(missing)
+            raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {where(settings)}). {hint}")
         time.sleep(0.2)
 
 
 def require_gateway(session: zenoh.Session, keys: Keys, settings: ZenohSettings, timeout: float) -> GatewayHealth:
-    return _require(
-        session,
-        keys.health,
-        GatewayHealth,
-        timeout,
-        f"no gateway answered on {keys.health} within {timeout:g} s (Zenoh: {where(settings)}). "
-        "Is `blackmetal up` (or a gateway) running, with the same --prefix and a reachable endpoint (-e)?",
-    )
+    hint = "Is `blackmetal up` (or a gateway) running, with the same --prefix and a reachable endpoint (-e)?"
+    return _require(session, keys.health, GatewayHealth, settings, timeout, "gateway", hint)
 
 
 def require_pose(session: zenoh.Session, keys: Keys, settings: ZenohSettings, timeout: float) -> Pose:
-    return _require(
-        session,
-        keys.pose,
-        Pose,
-        timeout,
-        f"no odometry service answered on {keys.pose} within {timeout:g} s (Zenoh: {where(settings)}). "
-        "Is `blackmetal up` (or `blackmetal odometry`) running?",
-    )
+    hint = "Is `blackmetal up` (or `blackmetal odometry`) running?"
+    return _require(session, keys.pose, Pose, settings, timeout, "odometry service", hint)
+
+
+def add_drive_arguments(parser: argparse.ArgumentParser, turn_rate: float) -> None:
+    """``--speed`` and ``--turn-rate``, as every tool that drives the robot takes them."""
+    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
+    parser.add_argument("--turn-rate", type=float, default=turn_rate, help=f"turn rate, rad/s (default {turn_rate:g})")
 
 
 def connect(args: argparse.Namespace) -> tuple[Keys, ZenohSettings, zenoh.Session]:
     """The key space, the Zenoh settings and an open session for a tool; BlackmetalError says what is wrong."""
     keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
-    settings = client_settings(args)
+    settings = zenoh_settings(args)
     return keys, settings, open_session(settings)
 
 
 def connect_waiting(args: argparse.Namespace, stop: threading.Event, name: str) -> tuple[Keys, ZenohSettings, zenoh.Session | None]:
     """As :func:`connect`, for a tool that runs as a service (the recorder): waits for its endpoint; None if stopped first."""
     keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
-    settings = client_settings(args)
+    settings = zenoh_settings(args)
     return keys, settings, open_when_reachable(settings, stop, name)
 
 

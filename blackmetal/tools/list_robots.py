@@ -21,9 +21,9 @@ import msgspec
 import zenoh
 
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
-from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, PayloadError, Pose, ZenohUnreachable, decode, to_bytes
+from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, Pose, ZenohUnreachable
 
-from .client import connect, tool, where
+from .client import connect, first_reply, tool, where
 
 #: How often the router is tried again while --wait lasts.
 RETRY_S = 0.2
@@ -89,20 +89,10 @@ class RobotRow:
         }
 
 
-def _first(replies: Any, message_type: type[msgspec.Struct]) -> Any:
-    for reply in replies:
-        if reply.ok is not None:
-            try:
-                return decode(message_type, to_bytes(reply.ok.payload))
-            except PayloadError:
-                continue
-    return None
-
-
 def robot_rows(session: zenoh.Session, prefixes: list[str], timeout: float = QUERY_S) -> list[RobotRow]:
     """Each prefix's health and pose; every query is sent before any answer is awaited."""
     asked = [(p, session.get(Keys(p).health, timeout=timeout), session.get(Keys(p).pose, timeout=timeout)) for p in prefixes]
-    return [RobotRow(prefix, _first(health, GatewayHealth), _first(pose, Pose)) for prefix, health, pose in asked]
+    return [RobotRow(prefix, first_reply(health, GatewayHealth), first_reply(pose, Pose)) for prefix, health, pose in asked]
 
 
 HEADER = ("prefix", "link (control/log)", "poll", "x (m)", "y (m)", "yaw (°)", "e-stop", "drives")

@@ -92,11 +92,9 @@ def run(args: argparse.Namespace) -> int:
             Path(args.export_jsonl).write_bytes(b"".join(line + b"\n" for line in lines))
         result = read_log(data).replay(settings.params())
         comparison = compare(result, args.file, args.prefix) if args.compare and is_mcap(args.file) else None
-    except BlackmetalError as exc:
-        print(f"blackmetal replay: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:
-        print(f"blackmetal replay: cannot write {exc.filename}: {exc.strerror}", file=sys.stderr)
+    except (BlackmetalError, OSError) as exc:  # a file it cannot read is a ConfigError; one it cannot write, an OSError
+        why = f"cannot write {exc.filename}: {exc.strerror}" if isinstance(exc, OSError) else exc
+        print(f"blackmetal replay: {why}", file=sys.stderr)
         return 2
     if not len(result):
         print(f"blackmetal replay: {args.file} holds no usable impulse sample: nothing to replay", file=sys.stderr)

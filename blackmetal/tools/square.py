@@ -34,6 +34,7 @@ from .client import (
     Latest,
     ToolError,
     add_client_arguments,
+    add_drive_arguments,
     connect,
     require_gateway,
     require_pose,
@@ -99,23 +100,25 @@ class Cancelled(ToolError):
     pass
 
 
+@dataclass
 class Driver:
     """Closed-loop legs on the odometry pose, publishing cmd_vel at 20 Hz."""
 
-    def __init__(self, publisher: zenoh.Publisher, pose: Latest, truth: Latest | None, speed: float, turn_rate: float,
-                 stop: threading.Event, cmd_timeout: float = 0.5) -> None:  # fmt: skip
-        self.publisher = publisher
-        self.approach_gain = approach_gain(cmd_timeout)
-        self.pose = pose
-        self.truth = truth
-        self.speed = speed
-        self.turn_rate = turn_rate
-        self.stop = stop
-        self.odometry_path: list[tuple[float, float]] = []
-        self.truth_path: list[tuple[float, float]] = []
-        self._moved_at = time.monotonic()
-        self._last_pose: tuple[float, float, float] | None = None
-        self._rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
+    publisher: zenoh.Publisher
+    pose: Latest
+    truth: Latest | None
+    speed: float
+    turn_rate: float
+    stop: threading.Event
+    cmd_timeout: float = 0.5
+    odometry_path: list[tuple[float, float]] = field(default_factory=list)
+    truth_path: list[tuple[float, float]] = field(default_factory=list)
+    _moved_at: float = field(default_factory=time.monotonic)
+    _last_pose: tuple[float, float, float] | None = None
+    _rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
+
+    def __post_init__(self) -> None:
+        self.approach_gain = approach_gain(self.cmd_timeout)
 
     def _send(self, v: float, w: float) -> None:
         if v or w:
@@ -362,8 +365,7 @@ def run(args: argparse.Namespace) -> int:
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="blackmetal square", description=__doc__)
     parser.add_argument("--size", type=float, default=1.0, help="side length, m (default 1)")
-    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
-    parser.add_argument("--turn-rate", type=float, default=0.6, help="turn rate, rad/s (default 0.6)")
+    add_drive_arguments(parser, turn_rate=0.6)
     parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
     parser.add_argument("--both", action="store_true", help="counter-clockwise, then clockwise (UMBmark)")
     parser.add_argument(

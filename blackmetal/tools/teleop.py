@@ -25,7 +25,7 @@ import zenoh
 
 from blackmetal.schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
 
-from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
+from .client import Latest, add_client_arguments, add_drive_arguments, connect, require_gateway, tool, where
 
 #: Key -> (forward, turn) direction.
 DRIVE_KEYS: dict[str, tuple[float, float]] = {
@@ -196,8 +196,7 @@ def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
     parser = parser or argparse.ArgumentParser(prog="blackmetal teleop", description=__doc__)
-    parser.add_argument("--speed", type=float, default=0.2, help="forward speed, m/s (default 0.2)")
-    parser.add_argument("--turn-rate", type=float, default=0.8, help="turn rate, rad/s (default 0.8)")
+    add_drive_arguments(parser, turn_rate=0.8)
     parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
     parser.add_argument(
         "--source", default=Sources.TELEOP, help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"

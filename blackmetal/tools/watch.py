@@ -22,7 +22,7 @@ from blackmetal.schemas import (
     to_bytes,
 )
 
-from .client import Latest, add_client_arguments, connect, require_gateway, tool, where
+from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool, where
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -38,14 +38,8 @@ def _link(link: LinkHealth) -> str:
 
 def recent_errors(session: zenoh.Session, key: str, timeout: float) -> list[ErrorReport]:
     """The reports every service on ``key`` still keeps (each answers a get with its latest), oldest first."""
-    found = []
-    for reply in session.get(key, consolidation=zenoh.ConsolidationMode.NONE, timeout=min(timeout, 2.0)):
-        if reply.ok is not None:
-            try:
-                found.append(decode(ErrorReport, to_bytes(reply.ok.payload)))
-            except PayloadError:
-                continue
-    return sorted(found, key=lambda report: report.stamp)
+    replies = session.get(key, consolidation=zenoh.ConsolidationMode.NONE, timeout=min(timeout, 2.0))
+    return sorted(decoded_replies(replies, ErrorReport), key=lambda report: report.stamp)
 
 
 def describe_sources(health: GatewayHealth) -> str:

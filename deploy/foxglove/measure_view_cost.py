@@ -25,7 +25,8 @@ from pathlib import Path
 
 from websockets.sync.client import connect
 
-from blackmetal.bench.figures import _service, cpu_seconds
+from blackmetal.bench.rig import cpu_seconds
+from blackmetal.bench.rig import service as _service
 from blackmetal.runtime.ports import free_port
 
 

@@ -75,11 +75,14 @@ def test_bench_quick_produces_every_figure(tmp_path) -> None:  # type: ignore[no
         "batch odometry, parsed columns",
         "calibration of a 2 m square pair",
         "recorder at 200 Hz polling",
+        "minimal forwarder -> robot socket p50",
+        "cmd_vel -> robot socket p50, against the forwarder",
     ):
         assert row in proc.stdout
     figures = json.loads(out.read_text())
     assert set(figures) >= {
         "cmd_vel_to_robot_ms",
+        "forwarder_to_robot_ms",
         "zenoh_hop_ms",
         "impulse_to_pose_ms",
         "two_hops_ms",

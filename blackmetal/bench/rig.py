@@ -1,0 +1,120 @@
+"""The processes a figure stands up (a mini robot, a gateway, the odometry, the ROS 2 adapter) and what it reads of them.
+
+Every figure starts its processes on an ExitStack: each is stopped when the
+figure ends, however it ends (in reverse order: clients, then the gateway,
+then the robot), from the moment it exists.
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from contextlib import ExitStack
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+from blackmetal.runtime.harness import ServiceProcess
+from blackmetal.schemas import Keys
+
+from .children import spawn, spawn_blackmetal
+from .peers import RobotProcess, _zenoh_conf, free_port
+
+if TYPE_CHECKING:
+    import zenoh
+
+KEYS = Keys()
+
+CLK_TCK = os.sysconf("SC_CLK_TCK")
+
+
+def rss_mb(pid: int) -> float:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1]) / 1024
+    return float("nan")
+
+
+def cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / CLK_TCK  # utime + stime
+
+
+def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
+    """Each process's CPU share (cores) over the next ``seconds``."""
+    cpu0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    time.sleep(seconds)
+    cpu1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, time.monotonic()
+    return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
+
+
+def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
+    """``blackmetal COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
+    child = spawn_blackmetal(name, command)
+    stack.callback(child.stop)
+    child.wait_ready()
+    return child
+
+
+def peer(stack: ExitStack, name: str, args: list[str]) -> ServiceProcess:
+    """``python -m blackmetal.bench NAME ARGS``, one of the bench's own peer processes, as :func:`service` starts one."""
+    child = spawn(name, ["-m", "blackmetal.bench", name, *args])
+    stack.callback(child.stop, 3)
+    child.wait_ready()
+    return child
+
+
+def latch_args(stack: ExitStack) -> list[str]:
+    """A bench's gateway keeps its e-stop latch in a folder of its own, released at first: its robots are the bench's own."""
+    folder = stack.enter_context(tempfile.TemporaryDirectory(prefix="blackmetal-bench-state-"))
+    return ["--state-dir", folder, "--unsafe-start-released"]
+
+
+def mini_robot(stack: ExitStack) -> RobotProcess:
+    return stack.enter_context(RobotProcess())
+
+
+def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float) -> ServiceProcess:
+    """A gateway listening on ``zport`` for ``robot``, polling at ``poll_hz``, without a command timeout."""
+    return service(
+        stack,
+        "gateway",
+        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}"],
+    )  # fmt: skip
+
+
+def _client_of(zport: int, listen: int | None) -> list[str]:
+    return ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
+
+
+def odometry(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
+    """The odometry, a client of the gateway's endpoint; with ``listen``, a peer that clients can reach directly."""
+    return service(stack, "odometry", ["odometry", *_client_of(zport, listen)])
+
+
+def ros2_adapter(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
+    """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint; with ``listen``, a peer ROS nodes reach directly."""
+    return service(stack, "ros2", ["ros2", *_client_of(zport, listen)])
+
+
+def session(stack: ExitStack, zport: int) -> "zenoh.Session":
+    """The bench's own Zenoh session, a client of the process listening on ``zport``."""
+    import zenoh
+
+    return stack.enter_context(zenoh.open(_zenoh_conf(connect=zport)))
+
+
+def robot_and_gateway(stack: ExitStack, poll_hz: float = 50.0) -> tuple[RobotProcess, int, ServiceProcess]:
+    """A mini robot and its gateway, on a free Zenoh port: most figures start there."""
+    robot = mini_robot(stack)
+    zport = free_port()
+    return robot, zport, gateway(stack, robot, zport, poll_hz)
+
+
+def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not robot.dump()["polls"]:
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"the gateway did not poll the robot within {timeout:g} s")
+        time.sleep(0.1)
