@@ -37,7 +37,7 @@ def test_a_figure_whose_baseline_failed_is_skipped_and_says_why() -> None:
     figures = (_figure("broken", ran), _figure("after", ran, needs=("broken",)))
     result = measure(figures, True, lines.append, {"after"})
     assert ran == ["broken"] and result["measured"] == []
-    assert result["failed"]["broken"].startswith("unexpected RuntimeError at test_bench_runner.py:")
+    assert result["failed"]["broken"].startswith("unexpected RuntimeError at test_runner.py:")
     assert result["skipped"] == {"after": "needs the broken figure as its baseline, which failed"}
     assert "after title: skipped, needs the broken figure as its baseline, which failed" in lines
     text = table({figure.name: figure for figure in figures}, ("after", "broken"), result)
