@@ -140,14 +140,12 @@ class ServiceCalls:
             self._run_parameter_call(pending, cdr, now)
             return
         try:
-            if service == SET_ESTOP:
-                pending.engage = self.codec.set_bool(cdr)
-            else:
-                self.codec.trigger(cdr)
+            request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
             self.reject(key, str(exc), exc.excerpt, now)
             self._finish(pending, False, f"invalid request: {exc}", now)
             return
+        pending.engage = service == SET_ESTOP and bool(request.data)
         if len(self.pending) >= MAX_PENDING_CALLS:
             self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
             return
@@ -212,14 +210,8 @@ class ServiceCalls:
             self.ask_params()
             return
         ros_type = PARAMETER_SERVICES[service]
-        answered_at_once = {
-            "list_parameters": lambda: codec.list_parameters_response(*p.names(*codec.list_parameters_request(cdr))),
-            "get_parameters": lambda: codec.get_parameters_response(p.values(codec.names_request(ros_type, cdr))),
-            "get_parameter_types": lambda: codec.get_parameter_types_response(p.types(codec.names_request(ros_type, cdr))),
-            "describe_parameters": lambda: codec.describe_parameters_response(p.describe(codec.names_request(ros_type, cdr))),
-        }
-        if service in answered_at_once:
-            self._answer(pending, True, answered_at_once[service](), now)
+        if service not in SET_CALLS:
+            self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
             return
         pending.parameters = codec.set_parameters_request(ros_type, cdr)
         plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
@@ -248,10 +240,9 @@ class ServiceCalls:
             reasons = "; ".join(dict.fromkeys(reason for good, reason in answers if not good and reason))
             if not ok and any(good for good, _ in answers):
                 reasons += " (the gateway set the others: it sets each value on its own)"
-            self._answer(pending, ok, self.codec.set_parameters_atomically_response(ok, reasons), now)
-        else:
-            ok = all(good for good, _ in answers)
-            self._answer(pending, ok, self.codec.set_parameters_response(answers), now)
+            answers = [(ok, reasons)]
+        ok = all(good for good, _ in answers)
+        self._answer(pending, ok, self.codec.set_parameters_response(PARAMETER_SERVICES[pending.service], answers), now)
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
@@ -305,7 +296,7 @@ class ServiceCalls:
 
     def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
         """Answer ``pending`` once, with the std_srvs response."""
-        self._answer(pending, success, self.codec.service_response(SERVICE_TYPES[pending.service], success, message), now)
+        self._answer(pending, success, self.codec.response(SERVICE_TYPES[pending.service], success=success, message=message), now)
 
     def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
         """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
@@ -36,6 +36,7 @@ from .joints import WheelJoints
 from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
+from .ros_types import BOOL, STRING
 
 #: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
 DEFAULT_CMD_TIMEOUT = 0.5
@@ -76,7 +77,7 @@ class Ros2Core:
         robot = self.options.robot
         if robot is None:
             return
-        self.output.ros(ROBOT_DESCRIPTION, self.codec.string(robot.urdf))
+        self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
         self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
         self._model_published = True
 
@@ -208,10 +209,7 @@ class Ros2Core:
         """
         key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
         try:
-            if stamped:
-                twist, stamp = self.codec.twist_stamped(cdr)
-            else:
-                twist, stamp = self.codec.twist(cdr), 0.0
+            twist, stamp = self.codec.twist_stamped(cdr) if stamped else (self.codec.twist(cdr), 0.0)
         except PayloadError as exc:
             if report:
                 self._reject(key, str(exc), exc.excerpt, now)
@@ -240,7 +238,7 @@ class Ros2Core:
 
     def on_estop(self, cdr: bytes, now: float) -> None:
         try:
-            estop = self.codec.estop(cdr)
+            estop = EStop(engaged=bool(self.codec.decode(cdr, BOOL).data))
         except PayloadError as exc:
             self._reject(self.options.estop_key, str(exc), exc.excerpt, now)
             return

@@ -32,7 +32,7 @@ from blackmetal.ros2.naming import (
     split_token,
 )
 from blackmetal.ros2.options import Ros2Options
-from blackmetal.ros2.ros_types import Frames
+from blackmetal.ros2.ros_types import BOOL, Frames
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
 
@@ -241,7 +241,7 @@ def test_twist_stamped_and_estop(codec: RosCodec) -> None:
     assert out.errors[0].key.endswith("TwistStamped_/RIHS01_stamped")
     twist = decode(Twist, out.forwarded[0][1])
     assert (twist.linear.x, twist.angular.z) == (0.3, -0.4)
-    adapter.on_estop(codec.encode_bool(True), now=1.0)
+    adapter.on_estop(codec.encode(BOOL, data=True), now=1.0)
     adapter.on_estop(b"\x00\x01\x00\x00", now=1.0)  # no data byte
     assert decode(EStop, out.forwarded[-1][1]).engaged is True and out.forwarded[-1][0] == "robot/estop"
     assert len(out.errors) == 2

@@ -30,7 +30,7 @@ from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
 from blackmetal.ros2.options import Ros2Options
-from blackmetal.ros2.ros_types import DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames
+from blackmetal.ros2.ros_types import BOOL, DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.runtime.diagnostics import HEALTH_STALE_S, POSE_STALE_S, REJECTED_ERROR_COUNT, Level
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, decode, encode, make_pose
@@ -67,6 +67,16 @@ def set_bool_request(value: bool) -> bytes:
 
 
 TRIGGER_REQUEST = b"\x00\x01\x00\x00\x00"  # the empty request's placeholder byte
+
+
+def encode_request(codec: RosCodec, service: str, **fields: Any) -> bytes:
+    """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields; SetParameters: ``parameters`` as
+    (name, value) pairs)."""
+    if service == TRIGGER:
+        fields = {"structure_needs_at_least_one_member": 0}
+    if "parameters" in fields:
+        fields["parameters"] = codec.parameters(fields["parameters"])
+    return codec.encode(f"{service}_Request", **fields)
 
 
 class Cdr:
@@ -118,10 +128,10 @@ def read_diagnostics(data: bytes) -> dict[str, dict[str, Any]]:
 def test_hashes_keys_and_the_independent_reader_agree_with_the_codec(codec: RosCodec) -> None:
     assert codec.type_hash(SET_BOOL) == SET_BOOL_HASH and codec.type_hash(TRIGGER) == TRIGGER_HASH
     assert codec.type_hash(DIAGNOSTIC_ARRAY) == DIAGNOSTIC_ARRAY_HASH
-    assert codec.set_bool(set_bool_request(True)) is True and codec.set_bool(set_bool_request(False)) is False
-    codec.trigger(TRIGGER_REQUEST)
-    assert codec.encode_request(TRIGGER) == TRIGGER_REQUEST and codec.encode_request(SET_BOOL, data=True) == set_bool_request(True)
-    assert read_response(codec.service_response(SET_BOOL, True, "done")) == (True, "done")
+    assert codec.request(SET_BOOL, set_bool_request(True)).data is True and codec.request(SET_BOOL, set_bool_request(False)).data is False
+    codec.request(TRIGGER, TRIGGER_REQUEST)
+    assert encode_request(codec, TRIGGER) == TRIGGER_REQUEST and encode_request(codec, SET_BOOL, data=True) == set_bool_request(True)
+    assert read_response(codec.response(SET_BOOL, success=True, message="done")) == (True, "done")
     node = NodeIdentity(domain_id=0, zid="abc", name="blackmetal")
     token = node.entity_token(7, ServiceRole.SERVER, "/set_estop", SET_BOOL, SET_BOOL_HASH, Qos())
     assert token == f"@ros2_lv/0/abc/0/7/SS/%/%/blackmetal/%set_estop/std_srvs::srv::dds_::SetBool_/{SET_BOOL_HASH}/::,10:,:,:,,"
@@ -224,8 +234,8 @@ def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCo
     core, out = make_core(codec)
     core.on_service_request("set_estop", 1, set_bool_request(False), attachment(1, 1, GID), now=10.0)
     assert out.forwarded == [("robot/estop/release", encode(EStop(engaged=False)))]
-    core.on_estop(codec.encode_bool(False), now=10.1)
-    core.on_estop(codec.encode_bool(True), now=10.2)
+    core.on_estop(codec.encode(BOOL, data=False), now=10.1)
+    core.on_estop(codec.encode(BOOL, data=True), now=10.2)
     assert out.forwarded[1:] == [("robot/estop/release", encode(EStop(engaged=False))), ("robot/estop", encode(EStop(engaged=True)))]
 
 
