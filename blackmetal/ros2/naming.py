@@ -61,6 +61,7 @@ from blackmetal.schemas import ConfigError
 from . import ros_types as ros
 
 ADMIN_SPACE = "@ros2_lv"
+ENCLAVE = "/"  # the node's security enclave: the root one, as a node started without --enclave
 ATTACHMENT_SIZE = 33
 GID_SIZE = 16
 _ATTACHMENT = struct.Struct("<qqB16s")
@@ -237,19 +238,18 @@ def bridge_data_key(topic: str) -> str:
 
 @dataclass(frozen=True, slots=True)
 class NodeIdentity:
-    """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace."""
+    """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace (in the root enclave, ``/``)."""
 
     domain_id: int
     zid: str
     name: str
     namespace: str = "/"
-    enclave: str = "/"
     node_id: int = 0
 
     def _head(self, entity_id: int, kind: str) -> str:
         return (
             f"{ADMIN_SPACE}/{self.domain_id}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
-            f"{mangle(self.enclave)}/{mangle(self.namespace)}/{mangle(self.name)}"
+            f"{mangle(ENCLAVE)}/{mangle(self.namespace)}/{mangle(self.name)}"
         )
 
     def node_token(self) -> str:
@@ -278,11 +278,6 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
         raise ValueError(f"an rmw_zenoh attachment is {ATTACHMENT_SIZE} bytes with a length byte 16, got {len(data)} bytes")
     sequence, stamp, _, gid = _ATTACHMENT.unpack(data)
     return sequence, stamp, gid
-
-
-def split_token(token: str) -> list[str]:
-    """The parts rmw_zenoh's parser splits a token into (``Entity::make``)."""
-    return token.split("/")
 
 
 @dataclass(frozen=True, slots=True)

@@ -28,7 +28,7 @@ from blackmetal.robot_model import Encoders
 from blackmetal.ros2.calls import ESTOP_REPEAT_S
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment, split_token
+from blackmetal.ros2.naming import PARAMETER_SERVICES, NodeIdentity, Qos, ServiceRole, attachment, gid_of, parse_attachment
 from blackmetal.ros2.options import Ros2Options
 from blackmetal.ros2.ros_types import BOOL, DIAGNOSTIC_ARRAY, SET_BOOL, TRIGGER, Frames
 from blackmetal.ros2.settings import diagonal_matrix
@@ -437,7 +437,7 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
         # the servers, as `ros2 service list` finds them
         def service_servers() -> dict[str, list[str]]:
             tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-            return {split_token(t)[9]: split_token(t)[10:12] for t in tokens if split_token(t)[5] == "SS"}
+            return {t.split("/")[9]: t.split("/")[10:12] for t in tokens if t.split("/")[5] == "SS"}
 
         # a liveliness query on a loaded machine may come back before every token has answered: ask until both have
         servers = wait_for(lambda: len(found := service_servers()) >= 8 and found, what="the service servers' tokens")
