@@ -252,28 +252,24 @@ class RosCodec:
         return self.decode(payload, f"{service}_Request")
 
     def twist(self, payload: bytes) -> Twist:
-        """geometry_msgs/Twist CDR -> a blackmetal Twist; PayloadError if invalid or not finite."""
-        fast = cdr.twist_le(payload)  # rmw_zenoh's own: little-endian, six doubles
-        if fast is not None:
-            return self._finite_twist(payload, fast)
+        """geometry_msgs/Twist CDR -> a blackmetal Twist; PayloadError if invalid or not finite.
+
+        rmw_zenoh's own (little-endian, six doubles) is read straight from the bytes by :mod:`.cdr` (a ROS command is
+        taken on Zenoh's thread); anything else, or a number not finite, by rosbags, which says what is wrong."""
+        fast = cdr.twist_le(payload)
+        if fast is not None and all(map(math.isfinite, fast)):
+            return _as_twist(fast)
         return self._twist(payload, self.decode(payload, ros.TWIST))
 
     def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
-        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp)."""
+        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp),
+        read as :meth:`twist` reads a Twist."""
         fast = cdr.twist_stamped_le(payload)
-        if fast is not None:
-            sec, nanosec, values = fast
-            return self._finite_twist(payload, values), sec + nanosec * 1e-9
+        if fast is not None and all(map(math.isfinite, fast[2])):
+            return _as_twist(fast[2]), fast[0] + fast[1] * 1e-9
         message = self.decode(payload, ros.TWIST_STAMPED)
         stamp = message.header.stamp
         return self._twist(payload, message.twist), stamp.sec + stamp.nanosec * 1e-9
-
-    def _finite_twist(self, payload: bytes, values: tuple[float, ...]) -> Twist:
-        """A command read straight from the bytes by :mod:`.cdr` (a ROS command is taken on Zenoh's thread)."""
-        if not all(map(math.isfinite, values)):  # rosbags' reading says which are not
-            stamped = len(payload) != cdr.TWIST_LE_SIZE
-            return self._twist(payload, self.decode(payload, ros.TWIST_STAMPED).twist if stamped else self.decode(payload, ros.TWIST))
-        return _as_twist(values)
 
     def _twist(self, payload: bytes, twist: Any) -> Twist:  # rosbags' message: the reference path, and its errors
         values = {f"{part}.{axis}": getattr(getattr(twist, part), axis) for part in ("linear", "angular") for axis in "xyz"}

@@ -120,18 +120,13 @@ def parse_distros(text: str, origin: str = "--distro") -> tuple[Distro, ...]:
     names = [part.strip().lower() for part in text.split(",") if part.strip()]
     if not names:
         raise ConfigError(f"{origin} names no ROS 2 distro; give one of {', '.join(d.value for d in Distro)} (or several, comma-separated)")
-    out: list[Distro] = []
     for name in names:
-        try:
-            distro = Distro(name)
-        except ValueError:
+        if name not in {d.value for d in Distro}:
             raise ConfigError(
                 f"{origin} {name!r} is not a ROS 2 distro rmw_zenoh is released for: give {', '.join(d.value for d in Distro)} "
                 "(or several, comma-separated, e.g. humble,jazzy)"
-            ) from None
-        if distro not in out:
-            out.append(distro)
-    return tuple(out)
+            )
+    return tuple(dict.fromkeys(Distro(name) for name in names))
 
 
 def type_hash_of(distro: Distro, computed: str) -> str:
@@ -175,13 +170,9 @@ class Qos:
     def keyexpr(self) -> str:
         """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
 
-        def field(name: str, value: int) -> str:
-            return "" if RMW_ZENOH_DEFAULTS[name] == value else str(value)
-
-        return (
-            f"{field('reliability', self.reliability)}:{field('durability', self.durability)}:"
-            f"{field('history', self.history)},{field('depth', self.depth)}:,:,:,,"
-        )
+        fields = ("" if getattr(self, name) == default else str(getattr(self, name)) for name, default in RMW_ZENOH_DEFAULTS.items())
+        reliability, durability, history, depth = fields
+        return f"{reliability}:{durability}:{history},{depth}:,:,:,,"
 
 
 def check_ros_name(kind: str, name: str) -> str:
