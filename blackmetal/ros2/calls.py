@@ -260,57 +260,54 @@ class ServiceCalls:
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
-        if tag not in self.queries:
-            return
-        what, call = self.queries[tag]
-        if what == Query.HEALTH:
+        what, call = self.queries.get(tag, ("", None))
+        if what in (Query.HEALTH, Query.PARAMS):
             if ok:
-                self.on_health(payload, now)
-            return
-        if what == Query.PARAMS:
-            if ok:
-                self.on_params(payload, now)
+                (self.on_health if what == Query.HEALTH else self.on_params)(payload, now)
             return
         pending = self.pending.get(call) if call is not None else None
         if pending is None:
             return
         if what == Query.PARAMS_SET:
-            if not ok:
-                reason = payload.decode(errors="replace") or "no reason given"
-                self._answer_set(pending, None, now, f"the gateway on {self.keys.prefix!r} refused the set: {reason}")
-                return
             try:
+                if not ok:
+                    reason = payload.decode(errors="replace") or "no reason given"
+                    return self._fail(pending, f"the gateway on {self.keys.prefix!r} refused the set: {reason}", now)
                 reply = decode(ParamsSetReply, payload)
             except PayloadError as exc:
-                self._answer_set(pending, None, now, f"the gateway answered something that is not a ParamsSetReply: {exc}")
-                return
+                return self._fail(pending, f"the gateway answered something that is not a ParamsSetReply: {exc}", now)
             self._take_params(reply.params, now)
-            self._answer_set(pending, reply, now)
-            return
-        if not ok:
-            self._finish(pending, False, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
-            return
+            return self._answer_set(pending, reply, now)
         try:
+            if not ok:
+                return self._fail(pending, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
             pose = decode(Pose, payload)
         except PayloadError as exc:
-            self._finish(pending, False, f"the odometry answered something that is not a pose: {exc}", now)
-            return
+            return self._fail(pending, f"the odometry answered something that is not a pose: {exc}", now)
         if max(abs(pose.x), abs(pose.y), abs(pose.yaw)) <= RESET_TOLERANCE:
             self._finish(pending, True, f"odometry reset to x=0 y=0 yaw=0 (confirmed by the odometry on {self.keys.odometry_reset})", now)
         else:
-            self._finish(pending, False, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
+            self._fail(pending, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
 
     def on_query_done(self, tag: int, now: float) -> None:
         """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
         what, call = self.queries.pop(tag, (Query.HEALTH, None))
         pending = self.pending.get(call) if call is not None else None
-        if pending is not None and what == Query.PARAMS_SET:
-            where = f"no gateway answered on {self.keys.params_set} (is it running on prefix {self.keys.prefix}?): nothing was set"
-            self._answer_set(pending, None, now, where)
-        elif pending is not None:
-            self._finish(
-                pending, False, f"no odometry answered on {self.keys.odometry_reset} (is it running on prefix {self.keys.prefix}?)", now
+        if pending is not None:
+            who, key, nothing = (
+                ("gateway", self.keys.params_set, ": nothing was set")
+                if what == Query.PARAMS_SET
+                else ("odometry", self.keys.odometry_reset, "")
             )
+            self._fail(pending, f"no {who} answered on {key} (is it running on prefix {self.keys.prefix}?){nothing}", now)
+
+    def _fail(self, pending: PendingCall, reason: str, now: float) -> None:
+        """Answer ``pending`` as failed: a set call's every result (those refused here keep their reason), else the
+        std_srvs response."""
+        if pending.service in SET_CALLS:
+            self._answer_set(pending, None, now, reason)
+        else:
+            self._finish(pending, False, reason, now)
 
     def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
         """Answer ``pending`` once, with the std_srvs response."""
@@ -344,17 +341,15 @@ class ServiceCalls:
             self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
             return
         if pending.service in SET_CALLS:
-            self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")
-            return
+            return self._fail(pending, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set", now)
         if pending.service == RESET_ODOMETRY:
-            self._finish(pending, False, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
-            return
+            return self._fail(pending, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
         state = "on" if pending.engage else "off"
         if pending.health is None:
             seen = f"no health on {self.keys.health}: is the gateway running on prefix {self.keys.prefix}?"
         else:
             seen = f"its health still says estop={str(pending.health.estop).lower()}"
-        self._finish(pending, False, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
+        self._fail(pending, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
 
     def _tick_calls(self, now: float) -> None:
         """Answer the calls past their deadline; put the e-stop again for a set_estop due to repeat."""
