@@ -25,10 +25,10 @@ from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, Params
 
 from .diagnostics import AdapterStats
 from .messages import RosCodec
-from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
+from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment, services
 from .options import Ros2Options, Ros2Output
 from .parameters import NodeParameters
-from .ros_types import SET_BOOL, TRIGGER, RosValue, excerpt
+from .ros_types import RosValue, excerpt
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -59,7 +59,7 @@ class PendingCall:
     request: bytes | None = None
 
 
-SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER, **PARAMETER_SERVICES}
+SERVICE_TYPES = {service.name: service.ros_type for service in services()}
 SET_CALLS = ("set_parameters", "set_parameters_atomically")
 
 
@@ -228,7 +228,7 @@ class ServiceCalls:
             self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
             return
         pending.parameters = codec.set_parameters_request(ros_type, cdr)
-        plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
+        plan = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
         pending.refused = plan.refused
         for reason in plan.refused.values():
             self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
