@@ -77,7 +77,7 @@ class Ros2Core(ServiceCalls):
         o = self.options
         if self._wants("odom"):
             self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
-        if o.publish_tf and self._wants("tf"):
+        if self._wants("tf"):
             self.output.ros("tf", self.codec.transform(pose, o.frames))
 
     def on_impulses(self, payload: bytes, now: float) -> None:
@@ -89,7 +89,7 @@ class Ros2Core(ServiceCalls):
             cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
             self.output.ros("joint_states", cdr)
         robot = self.options.robot
-        if robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf"):
+        if robot is not None and robot.wheel_tf and self._wants("tf"):
             wheels = [wheel.transform(angle) for wheel, angle in zip(robot.wheels, self.joints.positions, strict=True)]
             self.output.ros("tf", self.codec.transforms(sample.stamp, wheels))
 
@@ -126,18 +126,18 @@ class Ros2Core(ServiceCalls):
 
     # --------------------------------------------------------------- who watches
     def _wants(self, topic: str) -> bool:
-        return self.watched is None or topic in self.watched
+        """Someone watches ``topic`` (all of them until the edge reports); /tf only if the node publishes it."""
+        return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
     def needs(self) -> frozenset[str]:
         """The robot's streams the watched topics need: poses for /odom, /tf and /diagnostics; impulses for
         /joint_states and the wheels on /tf; error reports and the gateway's health for /diagnostics; the health, too,
         while a set_estop waits for it to confirm."""
         robot = self.options.robot
-        wheel_tf = robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf")
         out = set()
-        if self._wants("odom") or (self.options.publish_tf and self._wants("tf")) or self._wants("diagnostics"):
+        if any(map(self._wants, ("odom", "tf", "diagnostics"))):
             out.add("pose")
-        if self._wants("joint_states") or wheel_tf:
+        if self._wants("joint_states") or (robot is not None and robot.wheel_tf and self._wants("tf")):
             out.add("impulses")
         if self._wants("diagnostics"):
             out.update(("errors", "health"))
