@@ -13,7 +13,6 @@ the reason when refused or at its deadline. Pure, ``now`` passed in.
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypeVar
@@ -81,46 +80,33 @@ def decoded(reporter: ErrorReporter, kind: type[T], payload: bytes, key: str, no
         return None
 
 
-@dataclass(eq=False)
+@dataclass
 class ServiceCalls:
-    """The calls waiting for their answer, and the queries that will answer them; see the module docstring.
-
-    The base of :class:`~blackmetal.ros2.core.Ros2Core`, which adds the topics, and so the streams the node
-    follows (:meth:`_follow`) and the gateway's health (:meth:`on_health`)."""
+    """The calls waiting for their answer, and the queries that will answer them; see the module docstring."""
 
     options: Ros2Options
     keys: Keys
     output: Ros2Output
     codec: RosCodec
-    wallclock: Callable[[], float] = time.time
-    parameters: NodeParameters = field(default_factory=NodeParameters, init=False)
-    pending: dict[int, PendingCall] = field(default_factory=dict, init=False)
+    wallclock: Callable[[], float]
+    reporter: ErrorReporter
+    stats: AdapterStats
+    #: The core's: follow the robot's streams the node needs now (a set_estop waiting needs the health).
+    follow: Callable[[], None]
+    #: The core's: report and count a bad ROS input.
+    reject: Callable[[str, str, str, float], None]
+    parameters: NodeParameters = field(default_factory=NodeParameters)
+    pending: dict[int, PendingCall] = field(default_factory=dict)
     #: query tag -> (what it asks, the call it serves)
-    queries: dict[int, tuple[str, int | None]] = field(default_factory=dict, init=False)
-    stats: AdapterStats = field(default_factory=AdapterStats, init=False)
-    _next_tag: int = field(default=0, init=False)
-
-    def __post_init__(self) -> None:
-        self.reporter = ErrorReporter("ros2", self.output.error, self.wallclock)
-
-    def _follow(self) -> None:
-        """The core's: follow the robot's streams the node needs now (a set_estop waiting needs the health)."""
-
-    def on_health(self, payload: bytes, now: float) -> None:
-        """The core's: the gateway's health (published, or the answer to a set_estop's ``get``); it feeds
-        :meth:`_confirm_estop`."""
-
-    def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
-        """A bad ROS input: reported, counted, never forwarded."""
-        self.stats.bad_inputs.add(now)
-        self.reporter.report(key, reason, snippet, now=now)
+    queries: dict[int, tuple[str, int | None]] = field(default_factory=dict)
+    _next_tag: int = 0
 
     @property
     def waits_for_health(self) -> bool:
         return any(pending.service == SET_ESTOP for pending in self.pending.values())
 
-    def _confirm_estop(self, health: GatewayHealth, now: float) -> None:
-        """The gateway's health confirms a set_estop once it shows the asked state."""
+    def on_health(self, health: GatewayHealth, now: float) -> None:
+        """The gateway's health: it confirms a set_estop once it shows the asked state."""
         for pending in list(self.pending.values()):
             if pending.service == SET_ESTOP:
                 pending.health = health
@@ -142,7 +128,7 @@ class ServiceCalls:
                     raise ValueError(f"sequence number {sequence} is negative")
             except ValueError as exc:
                 reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
-                self._reject(key, reason, excerpt(request_attachment), now)
+                self.reject(key, reason, excerpt(request_attachment), now)
                 self._refuse(call, reason, now)
                 return
             reply_to = (sequence, gid)
@@ -156,7 +142,7 @@ class ServiceCalls:
         try:
             request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
-            self._reject(key, str(exc), exc.excerpt, now)
+            self.reject(key, str(exc), exc.excerpt, now)
             self._finish(pending, False, f"invalid request: {exc}", now)
             return
         pending.engage = service == SET_ESTOP and bool(request.data)
@@ -165,7 +151,7 @@ class ServiceCalls:
             return
         self.pending[call] = pending
         if service == SET_ESTOP:
-            self._follow()
+            self.follow()
             for other in list(self.pending.values()):  # an older call asking the opposite must stop putting it
                 if other.service == SET_ESTOP and other.engage != pending.engage:
                     state = "on" if pending.engage else "off"
@@ -209,7 +195,7 @@ class ServiceCalls:
         try:
             self._parameter_call(pending, cdr, now)
         except PayloadError as exc:
-            self._reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
+            self.reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
             self._refuse(pending.call, f"invalid request: {exc}", now)
 
     def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
@@ -261,9 +247,9 @@ class ServiceCalls:
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
         what, call = self.queries.get(tag, ("", None))
-        if what in (Query.HEALTH, Query.PARAMS):
+        if what == Query.PARAMS:
             if ok:
-                (self.on_health if what == Query.HEALTH else self.on_params)(payload, now)
+                self.on_params(payload, now)
             return
         pending = self.pending.get(call) if call is not None else None
         if pending is None:
@@ -317,7 +303,7 @@ class ServiceCalls:
         """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
         self.pending.pop(pending.call, None)
         if pending.service == SET_ESTOP:
-            self._follow()  # the health is followed no longer, unless /diagnostics needs it
+            self.follow()  # the health is followed no longer, unless /diagnostics needs it
         if success:
             self.stats.confirmed += 1
         else:
@@ -351,7 +337,7 @@ class ServiceCalls:
             seen = f"its health still says estop={str(pending.health.estop).lower()}"
         self._fail(pending, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
 
-    def _tick_calls(self, now: float) -> None:
+    def tick(self, now: float) -> None:
         """Answer the calls past their deadline; put the e-stop again for a set_estop due to repeat."""
         for pending in list(self.pending.values()):
             if now >= pending.deadline:
@@ -359,5 +345,5 @@ class ServiceCalls:
             elif now >= pending.repeat_at:
                 self._put_estop(pending, now)
 
-    def _calls_deadline(self) -> float:
+    def next_deadline(self) -> float:
         return min((min(p.deadline, p.repeat_at) for p in self.pending.values()), default=math.inf)

@@ -9,8 +9,8 @@ exactly as to any other client. Whatever cannot be decoded is reported on
 ``<prefix>/errors`` with the reason and is never forwarded.
 
 The services, and the gateway's parameters as the node's, are answered by
-the core's base, :class:`.calls.ServiceCalls`; ``/diagnostics`` is built by
-:mod:`.diagnostics`; this module ties them to the node's inputs and timers.
+:mod:`.calls`; ``/diagnostics`` is built by :mod:`.diagnostics`; this
+module ties them to the node's inputs and timers.
 
 Every input comes with ``now`` (the receiver's monotonic time); what is due
 later (diagnostics, e-stop repeats, call deadlines, summaries of
@@ -22,15 +22,20 @@ rate-limited error reports) goes out in :meth:`Ros2Core.tick`, at
 from __future__ import annotations
 
 import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 from blackmetal.runtime.diagnostics import Status
-from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, PayloadError, Pose, WheelImpulses, decode, encode
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
-from .calls import ServiceCalls, decoded
-from .diagnostics import DIAGNOSTICS_PERIOD_S, Diagnostics
+from .calls import Query, ServiceCalls, decoded
+from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .joints import WheelJoints
+from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
+from .options import Ros2Options, Ros2Output
 from .ros_types import BOOL, STRING
 
 #: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
@@ -41,20 +46,28 @@ WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
 
 
 @dataclass(eq=False)
-class Ros2Core(ServiceCalls):
-    """Translates between the robot's keys and ROS topics and services (names relative to the node's namespace).
+class Ros2Core:
+    """Translates between the robot's keys and ROS topics and services (names relative to the node's namespace)."""
 
-    The services, and the queries that answer them, are its base's (:class:`~.calls.ServiceCalls`)."""
-
+    options: Ros2Options
+    keys: Keys
+    output: Ros2Output
+    codec: RosCodec
+    wallclock: Callable[[], float] = time.time
     #: The watched topics someone subscribes to; None until the edge reports (then everything is published).
     watched: set[str] | None = field(default=None, init=False)
 
     def __post_init__(self) -> None:
-        super().__post_init__()
         o = self.options
+        self.reporter = ErrorReporter("ros2", self.output.error, self.wallclock)
         self.joints = WheelJoints(o.encoders, o.wheel_radius)
         self.cmd_vel_target = self.keys.cmd_vel_of(o.source)
         self.diagnostics = Diagnostics(self.keys, o.node, o.expected_poll_hz)
+        self.stats = AdapterStats()
+        self.calls = ServiceCalls(
+            o, self.keys, self.output, self.codec, self.wallclock, self.reporter, self.stats, self._follow, self._reject
+        )
+        self.parameters = self.calls.parameters
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
         self._model_published = o.robot is None
@@ -67,6 +80,11 @@ class Ros2Core(ServiceCalls):
         self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
         self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
         self._model_published = True
+
+    def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
+        """A bad ROS input: reported, counted, never forwarded."""
+        self.stats.bad_inputs.add(now)
+        self.reporter.report(key, reason, snippet, now=now)
 
     # --------------------------------------------------------------- blackmetal -> ROS
     def on_pose(self, payload: bytes, now: float) -> None:
@@ -99,7 +117,7 @@ class Ros2Core(ServiceCalls):
         if health is None:
             return
         self.diagnostics.on_health(health, now)
-        self._confirm_estop(health, now)
+        self.calls.on_health(health, now)
 
     def on_error_report(self, payload: bytes, now: float) -> None:
         """A report on ``<prefix>/errors`` (ours included): the odometry's count as rejected samples."""
@@ -112,14 +130,14 @@ class Ros2Core(ServiceCalls):
     def on_alive(self, who: str, alive: bool, now: float) -> None:
         """The gateway's or the odometry's liveliness token appeared (True) or went away (False)."""
         if who == "gateway" and alive and self.diagnostics.gateway_alive is False:
-            self.ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
+            self.calls.ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
         self.diagnostics.on_alive(who, alive)
 
     # --------------------------------------------------------------- parameters
     def start(self) -> None:
         """Once, when the node starts serving: ask the gateway for its parameter table, and follow only what is watched
         (the edge reports each topic's matching status from now on)."""
-        self.ask_params()
+        self.calls.ask_params()
         if self.watched is None:
             self.watched = set()
         self._follow()
@@ -141,7 +159,7 @@ class Ros2Core(ServiceCalls):
             out.add("impulses")
         if self._wants("diagnostics"):
             out.update(("errors", "health"))
-        if self.waits_for_health:
+        if self.calls.waits_for_health:
             out.add("health")
         return frozenset(out)
 
@@ -165,6 +183,10 @@ class Ros2Core(ServiceCalls):
         self._follow()
         if matched and topic == "diagnostics":
             self._next_diagnostics = min(self._next_diagnostics, now)  # a new watcher gets the statuses at once
+
+    def on_params(self, payload: bytes, now: float) -> None:
+        """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
+        self.calls.on_params(payload, now)
 
     # --------------------------------------------------------------- ROS -> blackmetal
     def on_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False) -> None:
@@ -223,17 +245,33 @@ class Ros2Core(ServiceCalls):
         self.stats.estops += 1
         self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))
 
+    # --------------------------------------------------------------- services
+    def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
+        """A call of one of the node's services; answered now if refused, else when confirmed (:mod:`.calls`)."""
+        self.calls.on_service_request(service, call, cdr, request_attachment, now)
+
+    def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
+        """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
+        if self.calls.queries.get(tag, ("", None))[0] != Query.HEALTH:
+            self.calls.on_query_reply(tag, ok, payload, now)
+        elif ok:
+            self.on_health(payload, now)
+
+    def on_query_done(self, tag: int, now: float) -> None:
+        """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
+        self.calls.on_query_done(tag, now)
+
     # --------------------------------------------------------------- timers
     def statuses(self, now: float) -> list[Status]:
         d = self.diagnostics
-        return [d.robot_link(now), d.odometry(now), d.adapter(now, self.stats, self.options, len(self.pending))]
+        return [d.robot_link(now), d.odometry(now), d.adapter(now, self.stats, self.options, len(self.calls.pending))]
 
     def tick(self, now: float) -> None:
         """Run what is due at ``now``: the robot model (first tick), call deadlines and e-stop repeats, diagnostics,
         error-report summaries."""
         if not self._model_published:
             self.publish_robot_model()
-        self._tick_calls(now)
+        self.calls.tick(now)
         if now >= self._next_diagnostics:
             if self._wants("diagnostics"):  # nobody subscribes: nothing encoded
                 self.output.ros("diagnostics", self.codec.diagnostics(self.wallclock(), self.statuses(now)))
@@ -245,6 +283,6 @@ class Ros2Core(ServiceCalls):
         """When :meth:`tick` has something to do next."""
         diagnostics = self._next_diagnostics if self._wants("diagnostics") else math.inf  # nobody watches: no timer
         deadline = min(diagnostics, self.reporter.next_deadline())
-        if self.pending:  # asked after every pose: the common case, no call pending, builds nothing
-            deadline = min(deadline, self._calls_deadline())
+        if self.calls.pending:  # asked after every pose: the common case, no call pending, builds nothing
+            deadline = min(deadline, self.calls.next_deadline())
         return deadline

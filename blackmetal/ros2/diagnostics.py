@@ -26,6 +26,7 @@ DIAGNOSTICS_PERIOD_S = 1.0
 class WindowCount:
     """Events counted over the last :data:`WINDOW_S` seconds, and in all."""
 
+    window: float = WINDOW_S
     total: int = 0
     _events: deque[tuple[float, int]] = field(default_factory=deque)
 
@@ -34,7 +35,7 @@ class WindowCount:
         self.total += count
 
     def recent(self, now: float) -> int:
-        while self._events and self._events[0][0] <= now - WINDOW_S:
+        while self._events and self._events[0][0] <= now - self.window:
             self._events.popleft()
         return sum(count for _, count in self._events)
 

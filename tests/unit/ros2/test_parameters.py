@@ -166,7 +166,7 @@ def test_a_set_goes_to_the_gateways_key_and_is_answered_with_its_results(codec: 
     event = codec.decode(out.ros_out[-1][1], PARAMETER_EVENT)  # the change is on /parameter_events at once
     assert [(p.name, p.value.integer_value) for p in event.changed_parameters] == [("sources.nav.priority", 50)]
     core.on_query_done(tag, now=1.02)  # the query ends after its reply: nothing more
-    assert len(out.replies) == 1 and core.pending == {}
+    assert len(out.replies) == 1 and core.calls.pending == {}
 
 
 def test_arrays_and_unsetting_are_refused_here_and_never_reach_the_gateway(codec: RosCodec) -> None:

@@ -226,7 +226,7 @@ def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> N
     sequence, stamp, gid = parse_attachment(out.replies[1][1] or b"")
     assert (sequence, gid) == (41, GID) and stamp == 1_700_000_000 * 10**9  # the request's id, the server's time
     core.tick(20.0)  # nothing pending any more: no more puts
-    assert len(out.forwarded) == 2 and core.pending == {}
+    assert len(out.forwarded) == 2 and core.calls.pending == {}
 
 
 def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCodec) -> None:
