@@ -24,10 +24,10 @@ from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, Params
 
 from .diagnostics import AdapterStats
 from .messages import RosCodec
-from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment
+from .naming import PARAMETER_EVENTS, PARAMETER_SERVICES, RESET_ODOMETRY, SET_ESTOP, attachment, parse_attachment, services
 from .options import Ros2Options, Ros2Output
 from .parameters import NodeParameters
-from .ros_types import SET_BOOL, TRIGGER, RosValue, excerpt
+from .ros_types import RosValue, excerpt
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -58,7 +58,7 @@ class PendingCall:
     request: bytes | None = None
 
 
-SERVICE_TYPES = {SET_ESTOP: SET_BOOL, RESET_ODOMETRY: TRIGGER, **PARAMETER_SERVICES}
+SERVICE_TYPES = {service.name: service.ros_type for service in services()}
 SET_CALLS = ("set_parameters", "set_parameters_atomically")
 
 
@@ -140,14 +140,12 @@ class ServiceCalls:
             self._run_parameter_call(pending, cdr, now)
             return
         try:
-            if service == SET_ESTOP:
-                pending.engage = self.codec.set_bool(cdr)
-            else:
-                self.codec.trigger(cdr)
+            request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
             self.reject(key, str(exc), exc.excerpt, now)
             self._finish(pending, False, f"invalid request: {exc}", now)
             return
+        pending.engage = service == SET_ESTOP and bool(request.data)
         if len(self.pending) >= MAX_PENDING_CALLS:
             self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
             return
@@ -212,17 +210,11 @@ class ServiceCalls:
             self.ask_params()
             return
         ros_type = PARAMETER_SERVICES[service]
-        answered_at_once = {
-            "list_parameters": lambda: codec.list_parameters_response(*p.names(*codec.list_parameters_request(cdr))),
-            "get_parameters": lambda: codec.get_parameters_response(p.values(codec.names_request(ros_type, cdr))),
-            "get_parameter_types": lambda: codec.get_parameter_types_response(p.types(codec.names_request(ros_type, cdr))),
-            "describe_parameters": lambda: codec.describe_parameters_response(p.describe(codec.names_request(ros_type, cdr))),
-        }
-        if service in answered_at_once:
-            self._answer(pending, True, answered_at_once[service](), now)
+        if service not in SET_CALLS:
+            self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
             return
         pending.parameters = codec.set_parameters_request(ros_type, cdr)
-        plan = p.plan(pending.parameters) if service == "set_parameters" else p.plan_atomically(pending.parameters)
+        plan = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
         pending.refused = plan.refused
         for reason in plan.refused.values():
             self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
@@ -248,16 +240,13 @@ class ServiceCalls:
             reasons = "; ".join(dict.fromkeys(reason for good, reason in answers if not good and reason))
             if not ok and any(good for good, _ in answers):
                 reasons += " (the gateway set the others: it sets each value on its own)"
-            self._answer(pending, ok, self.codec.set_parameters_atomically_response(ok, reasons), now)
-        else:
-            ok = all(good for good, _ in answers)
-            self._answer(pending, ok, self.codec.set_parameters_response(answers), now)
+            answers = [(ok, reasons)]
+        ok = all(good for good, _ in answers)
+        self._answer(pending, ok, self.codec.set_parameters_response(PARAMETER_SERVICES[pending.service], answers), now)
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
-        if tag not in self.queries:
-            return
-        what, call = self.queries[tag]
+        what, call = self.queries.get(tag, ("", None))
         if what == Query.PARAMS:
             if ok:
                 self.on_params(payload, now)
@@ -266,46 +255,49 @@ class ServiceCalls:
         if pending is None:
             return
         if what == Query.PARAMS_SET:
-            if not ok:
-                reason = payload.decode(errors="replace") or "no reason given"
-                self._answer_set(pending, None, now, f"the gateway on {self.keys.prefix!r} refused the set: {reason}")
-                return
             try:
+                if not ok:
+                    reason = payload.decode(errors="replace") or "no reason given"
+                    return self._fail(pending, f"the gateway on {self.keys.prefix!r} refused the set: {reason}", now)
                 reply = decode(ParamsSetReply, payload)
             except PayloadError as exc:
-                self._answer_set(pending, None, now, f"the gateway answered something that is not a ParamsSetReply: {exc}")
-                return
+                return self._fail(pending, f"the gateway answered something that is not a ParamsSetReply: {exc}", now)
             self._take_params(reply.params, now)
-            self._answer_set(pending, reply, now)
-            return
-        if not ok:
-            self._finish(pending, False, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
-            return
+            return self._answer_set(pending, reply, now)
         try:
+            if not ok:
+                return self._fail(pending, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
             pose = decode(Pose, payload)
         except PayloadError as exc:
-            self._finish(pending, False, f"the odometry answered something that is not a pose: {exc}", now)
-            return
+            return self._fail(pending, f"the odometry answered something that is not a pose: {exc}", now)
         if max(abs(pose.x), abs(pose.y), abs(pose.yaw)) <= RESET_TOLERANCE:
             self._finish(pending, True, f"odometry reset to x=0 y=0 yaw=0 (confirmed by the odometry on {self.keys.odometry_reset})", now)
         else:
-            self._finish(pending, False, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
+            self._fail(pending, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
 
     def on_query_done(self, tag: int, now: float) -> None:
         """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
         what, call = self.queries.pop(tag, (Query.HEALTH, None))
         pending = self.pending.get(call) if call is not None else None
-        if pending is not None and what == Query.PARAMS_SET:
-            where = f"no gateway answered on {self.keys.params_set} (is it running on prefix {self.keys.prefix}?): nothing was set"
-            self._answer_set(pending, None, now, where)
-        elif pending is not None:
-            self._finish(
-                pending, False, f"no odometry answered on {self.keys.odometry_reset} (is it running on prefix {self.keys.prefix}?)", now
+        if pending is not None:
+            who, key, nothing = (
+                ("gateway", self.keys.params_set, ": nothing was set")
+                if what == Query.PARAMS_SET
+                else ("odometry", self.keys.odometry_reset, "")
             )
+            self._fail(pending, f"no {who} answered on {key} (is it running on prefix {self.keys.prefix}?){nothing}", now)
+
+    def _fail(self, pending: PendingCall, reason: str, now: float) -> None:
+        """Answer ``pending`` as failed: a set call's every result (those refused here keep their reason), else the
+        std_srvs response."""
+        if pending.service in SET_CALLS:
+            self._answer_set(pending, None, now, reason)
+        else:
+            self._finish(pending, False, reason, now)
 
     def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
         """Answer ``pending`` once, with the std_srvs response."""
-        self._answer(pending, success, self.codec.service_response(SERVICE_TYPES[pending.service], success, message), now)
+        self._answer(pending, success, self.codec.response(SERVICE_TYPES[pending.service], success=success, message=message), now)
 
     def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
         """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
@@ -335,17 +327,15 @@ class ServiceCalls:
             self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
             return
         if pending.service in SET_CALLS:
-            self._answer_set(pending, None, now, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set")
-            return
+            return self._fail(pending, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set", now)
         if pending.service == RESET_ODOMETRY:
-            self._finish(pending, False, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
-            return
+            return self._fail(pending, f"the odometry did not answer the reset within {limit} ({self.keys.odometry_reset})", now)
         state = "on" if pending.engage else "off"
         if pending.health is None:
             seen = f"no health on {self.keys.health}: is the gateway running on prefix {self.keys.prefix}?"
         else:
             seen = f"its health still says estop={str(pending.health.estop).lower()}"
-        self._finish(pending, False, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
+        self._fail(pending, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
 
     def tick(self, now: float) -> None:
         """Answer the calls past their deadline; put the e-stop again for a set_estop due to repeat."""

@@ -28,7 +28,7 @@ from dataclasses import dataclass, field
 
 from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
@@ -36,6 +36,7 @@ from .joints import WheelJoints
 from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
+from .ros_types import BOOL, STRING
 
 #: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
 DEFAULT_CMD_TIMEOUT = 0.5
@@ -76,7 +77,7 @@ class Ros2Core:
         robot = self.options.robot
         if robot is None:
             return
-        self.output.ros(ROBOT_DESCRIPTION, self.codec.string(robot.urdf))
+        self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
         self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
         self._model_published = True
 
@@ -94,7 +95,7 @@ class Ros2Core:
         o = self.options
         if self._wants("odom"):
             self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
-        if o.publish_tf and self._wants("tf"):
+        if self._wants("tf"):
             self.output.ros("tf", self.codec.transform(pose, o.frames))
 
     def on_impulses(self, payload: bytes, now: float) -> None:
@@ -106,7 +107,7 @@ class Ros2Core:
             cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
             self.output.ros("joint_states", cdr)
         robot = self.options.robot
-        if robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf"):
+        if robot is not None and robot.wheel_tf and self._wants("tf"):
             wheels = [wheel.transform(angle) for wheel, angle in zip(robot.wheels, self.joints.positions, strict=True)]
             self.output.ros("tf", self.codec.transforms(sample.stamp, wheels))
 
@@ -143,18 +144,18 @@ class Ros2Core:
 
     # --------------------------------------------------------------- who watches
     def _wants(self, topic: str) -> bool:
-        return self.watched is None or topic in self.watched
+        """Someone watches ``topic`` (all of them until the edge reports); /tf only if the node publishes it."""
+        return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
     def needs(self) -> frozenset[str]:
         """The robot's streams the watched topics need: poses for /odom, /tf and /diagnostics; impulses for
         /joint_states and the wheels on /tf; error reports and the gateway's health for /diagnostics; the health, too,
         while a set_estop waits for it to confirm."""
         robot = self.options.robot
-        wheel_tf = robot is not None and robot.wheel_tf and self.options.publish_tf and self._wants("tf")
         out = set()
-        if self._wants("odom") or (self.options.publish_tf and self._wants("tf")) or self._wants("diagnostics"):
+        if any(map(self._wants, ("odom", "tf", "diagnostics"))):
             out.add("pose")
-        if self._wants("joint_states") or wheel_tf:
+        if self._wants("joint_states") or (robot is not None and robot.wheel_tf and self._wants("tf")):
             out.add("impulses")
         if self._wants("diagnostics"):
             out.update(("errors", "health"))
@@ -208,10 +209,7 @@ class Ros2Core:
         """
         key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
         try:
-            if stamped:
-                twist, stamp = self.codec.twist_stamped(cdr)
-            else:
-                twist, stamp = self.codec.twist(cdr), 0.0
+            twist, stamp = self.codec.twist_stamped(cdr) if stamped else (self.codec.twist(cdr), 0.0)
         except PayloadError as exc:
             if report:
                 self._reject(key, str(exc), exc.excerpt, now)
@@ -240,7 +238,7 @@ class Ros2Core:
 
     def on_estop(self, cdr: bytes, now: float) -> None:
         try:
-            estop = self.codec.estop(cdr)
+            estop = EStop(engaged=bool(self.codec.decode(cdr, BOOL).data))
         except PayloadError as exc:
             self._reject(self.options.estop_key, str(exc), exc.excerpt, now)
             return

@@ -2,11 +2,11 @@
 
 The adapter's whole contact with ROS messages: blackmetal messages in, CDR
 bytes out (``/odom``, ``/tf``, ``/joint_states``, ``/diagnostics``, service
-responses), and CDR bytes in, blackmetal messages out (``/cmd_vel``,
-``/estop``, service requests). Decoding is strict: a payload that is not
-exactly one valid message of the expected type, or that carries a
-non-finite number, is a :class:`PayloadError` saying why. The hot paths
-(``/odom`` out, commands in) are written by hand in :mod:`.cdr`.
+responses), and CDR bytes in, blackmetal messages out (``/cmd_vel``;
+``/estop`` and service requests as rosbags reads them). Decoding is strict:
+a payload that is not exactly one valid message of the expected type, or
+that carries a non-finite number, is a :class:`PayloadError` saying why. The
+hot paths (``/odom`` out, commands in) are written by hand in :mod:`.cdr`.
 """
 
 from __future__ import annotations
@@ -16,10 +16,11 @@ from collections.abc import Sequence
 from typing import Any
 
 from blackmetal.runtime.diagnostics import Status
-from blackmetal.schemas import EStop, Param, PayloadError, Pose, Twist, Vector3, stamp_parts
+from blackmetal.schemas import Param, PayloadError, Pose, Twist, Vector3, stamp_parts
 
 from . import cdr
 from . import ros_types as ros
+from .parameters import NodeParameters
 from .ros_types import Frames, ParameterType, RosValue, Transform, excerpt, type_store
 
 
@@ -28,24 +29,28 @@ class RosCodec:
 
     def __init__(self) -> None:
         self.store = type_store()
-        t = self.store.types
-        self._Time, self._Header = t["builtin_interfaces/msg/Time"], t["std_msgs/msg/Header"]
-        self._Vector3, self._Quaternion = t["geometry_msgs/msg/Vector3"], t["geometry_msgs/msg/Quaternion"]
-        self._Twist = t[ros.TWIST]
-        self._Transform, self._TransformStamped = t["geometry_msgs/msg/Transform"], t["geometry_msgs/msg/TransformStamped"]
-        self._DiagStatus, self._KeyValue = t["diagnostic_msgs/msg/DiagnosticStatus"], t["diagnostic_msgs/msg/KeyValue"]
         self._odometry_frames: dict[Frames, bytes] = {}  # each node's frame names, as written in its /odom
 
     def type_hash(self, ros_type: str) -> str:
         return str(self.store.hash_rihs01(ros_type))
 
-    def _header(self, stamp: float, frame_id: str) -> Any:
-        sec, nanosec = stamp_parts(stamp)
-        return self._Header(stamp=self._Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
+    def message(self, ros_type: str, **fields: Any) -> Any:
+        """A ``ros_type`` message of ``fields``, as rosbags' dataclass (``geometry_msgs/msg/Vector3``, ...)."""
+        return self.store.types[ros_type](**fields)
 
-    def _write(self, ros_type: str, **fields: Any) -> bytes:
+    def encode(self, ros_type: str, **fields: Any) -> bytes:
         """A ``ros_type`` message of ``fields``, in CDR."""
-        return bytes(self.store.serialize_cdr(self.store.types[ros_type](**fields), ros_type))
+        return bytes(self.store.serialize_cdr(self.message(ros_type, **fields), ros_type))
+
+    def time(self, stamp: float) -> Any:
+        sec, nanosec = stamp_parts(stamp)
+        return self.message("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec)
+
+    def header(self, stamp: float, frame_id: str) -> Any:
+        return self.message("std_msgs/msg/Header", stamp=self.time(stamp), frame_id=frame_id)
+
+    def vector3(self, x: float, y: float, z: float) -> Any:
+        return self.message("geometry_msgs/msg/Vector3", x=x, y=y, z=z)
 
     # --------------------------------------------------------------- out
     def odometry(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
@@ -66,31 +71,29 @@ class RosCodec:
 
     def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
         """tf2_msgs/TFMessage of ``transforms``, all stamped ``stamp`` (Unix s)."""
-        return self._write(
+        return self.encode(
             ros.TF_MESSAGE,
             transforms=[
-                self._TransformStamped(
-                    header=self._header(stamp, t.parent),
+                self.message(
+                    "geometry_msgs/msg/TransformStamped",
+                    header=self.header(stamp, t.parent),
                     child_frame_id=t.child,
-                    transform=self._Transform(
-                        translation=self._Vector3(x=t.translation[0], y=t.translation[1], z=t.translation[2]),
-                        rotation=self._Quaternion(x=t.rotation[0], y=t.rotation[1], z=t.rotation[2], w=t.rotation[3]),
+                    transform=self.message(
+                        "geometry_msgs/msg/Transform",
+                        translation=self.vector3(*t.translation),
+                        rotation=self.message("geometry_msgs/msg/Quaternion", **dict(zip("xyzw", t.rotation, strict=True))),
                     ),
                 )
                 for t in transforms
             ],
         )
 
-    def string(self, text: str) -> bytes:
-        """std_msgs/String (``/robot_description``)."""
-        return self._write(ros.STRING, data=text)
-
     def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
         import numpy as np
 
-        return self._write(
+        return self.encode(
             ros.JOINT_STATE,
-            header=self._header(stamp, ""),
+            header=self.header(stamp, ""),
             name=list(names),
             position=np.asarray(positions, dtype=np.float64),
             velocity=np.asarray(velocities, dtype=np.float64),
@@ -99,135 +102,118 @@ class RosCodec:
 
     def diagnostics(self, stamp: float, statuses: Sequence[Status]) -> bytes:
         """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
-        return self._write(
+        return self.encode(
             ros.DIAGNOSTIC_ARRAY,
-            header=self._header(stamp, ""),
+            header=self.header(stamp, ""),
             status=[
-                self._DiagStatus(
+                self.message(
+                    "diagnostic_msgs/msg/DiagnosticStatus",
                     level=int(d.level),
                     name=d.name,
                     message=d.message,
                     hardware_id=d.hardware_id,
-                    values=[self._KeyValue(key=k, value=v) for k, v in d.values],
+                    values=[self.message("diagnostic_msgs/msg/KeyValue", key=k, value=v) for k, v in d.values],
                 )
                 for d in statuses
             ],
         )
 
-    def service_response(self, service: str, success: bool, message: str) -> bytes:
-        """The ``<service>_Response`` (SetBool's and Trigger's are both ``bool success, string message``)."""
-        return self._response(service, success=success, message=message)
+    def response(self, service: str, **fields: Any) -> bytes:
+        """The ``<service>_Response`` of ``fields`` (SetBool's and Trigger's are both ``bool success, string message``)."""
+        return self.encode(f"{service}_Response", **fields)
 
     # --------------------------------------------------------------- parameters (rcl_interfaces)
     def _value(self, value: RosValue | None) -> Any:
-        """A ParameterValue of a bool, int, float or str (None: PARAMETER_NOT_SET)."""
+        """A ParameterValue of a bool, int, float or str (None: PARAMETER_NOT_SET).
+
+        Each kind's field is ``<kind>_value`` (``bool_value``, ``byte_array_value``, ...); every field is written,
+        the kind's with the value, the others empty."""
         import numpy as np
 
-        kinds: dict[type, tuple[ParameterType, str]] = {
-            bool: (ParameterType.BOOL, "bool_value"),
-            int: (ParameterType.INTEGER, "integer_value"),
-            float: (ParameterType.DOUBLE, "double_value"),
-            str: (ParameterType.STRING, "string_value"),
+        empty: dict[ParameterType, Any] = {
+            ParameterType.BOOL: False,
+            ParameterType.INTEGER: 0,
+            ParameterType.DOUBLE: 0.0,
+            ParameterType.STRING: "",
+            ParameterType.BYTE_ARRAY: np.zeros(0, dtype=np.uint8),
+            ParameterType.BOOL_ARRAY: np.zeros(0, dtype=np.bool_),
+            ParameterType.INTEGER_ARRAY: np.zeros(0, dtype=np.int64),
+            ParameterType.DOUBLE_ARRAY: np.zeros(0, dtype=np.float64),
+            ParameterType.STRING_ARRAY: [],
         }
-        fields: dict[str, Any] = {
-            "type": int(ParameterType.NOT_SET),
-            "bool_value": False,
-            "integer_value": 0,
-            "double_value": 0.0,
-            "string_value": "",
-            "byte_array_value": np.zeros(0, dtype=np.uint8),
-            "bool_array_value": np.zeros(0, dtype=np.bool_),
-            "integer_array_value": np.zeros(0, dtype=np.int64),
-            "double_array_value": np.zeros(0, dtype=np.float64),
-            "string_array_value": [],
-        }
+        fields = {f"{kind.name.lower()}_value": zero for kind, zero in empty.items()}
+        kind = ParameterType.NOT_SET
         if value is not None and not isinstance(value, ParameterType):
-            kind, name = kinds[type(value)]
-            fields["type"], fields[name] = int(kind), value
-        return self.store.types["rcl_interfaces/msg/ParameterValue"](**fields)
+            kind = {bool: ParameterType.BOOL, int: ParameterType.INTEGER, float: ParameterType.DOUBLE, str: ParameterType.STRING}[
+                type(value)
+            ]
+            fields[f"{kind.name.lower()}_value"] = value
+        return self.message("rcl_interfaces/msg/ParameterValue", type=int(kind), **fields)
 
-    def _response(self, service: str, **fields: Any) -> bytes:
-        return self._write(f"{service}_Response", **fields)
-
-    def list_parameters_response(self, names: Sequence[str], prefixes: Sequence[str]) -> bytes:
-        result = self.store.types["rcl_interfaces/msg/ListParametersResult"](names=list(names), prefixes=list(prefixes))
-        return self._response(ros.LIST_PARAMETERS, result=result)
-
-    def get_parameters_response(self, values: Sequence[RosValue | None]) -> bytes:
-        return self._response(ros.GET_PARAMETERS, values=[self._value(v) for v in values])
-
-    def get_parameter_types_response(self, types: Sequence[ParameterType]) -> bytes:
+    def parameter_response(self, service: str, payload: bytes, table: NodeParameters) -> bytes:
+        """The response of ``list_parameters``, ``get_parameters``, ``get_parameter_types`` or ``describe_parameters``
+        (``service``: its type) to the request ``payload``, answered from ``table``."""
         import numpy as np
 
-        return self._response(ros.GET_PARAMETER_TYPES, types=np.asarray([int(t) for t in types], dtype=np.uint8))
+        request = self.request(service, payload)
+        if service == ros.LIST_PARAMETERS:
+            names, prefixes = table.names([str(p) for p in request.prefixes], int(request.depth))
+            return self.response(service, result=self.message("rcl_interfaces/msg/ListParametersResult", names=names, prefixes=prefixes))
+        asked = [str(name) for name in request.names]
+        if service == ros.GET_PARAMETERS:
+            return self.response(service, values=[self._value(v) for v in table.values(asked)])
+        if service == ros.GET_PARAMETER_TYPES:
+            return self.response(service, types=np.asarray([int(t) for t in table.types(asked)], dtype=np.uint8))
+        return self.response(service, descriptors=[self._descriptor(p) for p in table.describe(asked)])
 
-    def describe_parameters_response(self, params: Sequence[Param]) -> bytes:
-        """A ParameterDescriptor of each parameter of the gateway's table (a number's range from ``min``/``max``, step
-        0: any value; a kind rcl_interfaces does not have: NOT_SET)."""
-        t = self.store.types
-        out = []
-        for p in params:
-            kind, floats, integers = ParameterType.of(p.type), [], []
-            if p.min is not None and p.max is not None and kind is ParameterType.DOUBLE:
-                floats = [t["rcl_interfaces/msg/FloatingPointRange"](from_value=p.min, to_value=p.max, step=0.0)]
-            elif p.min is not None and p.max is not None and kind is ParameterType.INTEGER:
-                integers = [t["rcl_interfaces/msg/IntegerRange"](from_value=int(p.min), to_value=int(p.max), step=0)]
-            out.append(
-                t["rcl_interfaces/msg/ParameterDescriptor"](
-                    name=p.name,
-                    type=int(kind),
-                    description=p.description,
-                    additional_constraints="",
-                    read_only=p.read_only,
-                    dynamic_typing=False,
-                    floating_point_range=floats,
-                    integer_range=integers,
-                )
-            )
-        return self._response(ros.DESCRIBE_PARAMETERS, descriptors=out)
+    def _descriptor(self, p: Param) -> Any:
+        """A ParameterDescriptor of a parameter of the gateway's table (a number's range from ``min``/``max``, step 0:
+        any value; a kind rcl_interfaces does not have: NOT_SET)."""
+        kind, floats, integers = ParameterType.of(p.type), [], []
+        if p.min is not None and p.max is not None and kind is ParameterType.DOUBLE:
+            floats = [self.message("rcl_interfaces/msg/FloatingPointRange", from_value=p.min, to_value=p.max, step=0.0)]
+        elif p.min is not None and p.max is not None and kind is ParameterType.INTEGER:
+            integers = [self.message("rcl_interfaces/msg/IntegerRange", from_value=int(p.min), to_value=int(p.max), step=0)]
+        return self.message(
+            "rcl_interfaces/msg/ParameterDescriptor",
+            name=p.name,
+            type=int(kind),
+            description=p.description,
+            additional_constraints="",
+            read_only=p.read_only,
+            dynamic_typing=False,
+            floating_point_range=floats,
+            integer_range=integers,
+        )
 
-    def _result(self, successful: bool, reason: str) -> Any:
-        return self.store.types["rcl_interfaces/msg/SetParametersResult"](successful=successful, reason=reason)
-
-    def set_parameters_response(self, results: Sequence[tuple[bool, str]]) -> bytes:
-        return self._response(ros.SET_PARAMETERS, results=[self._result(ok, reason) for ok, reason in results])
-
-    def set_parameters_atomically_response(self, successful: bool, reason: str) -> bytes:
-        return self._response(ros.SET_PARAMETERS_ATOMICALLY, result=self._result(successful, reason))
+    def set_parameters_response(self, service: str, results: Sequence[tuple[bool, str]]) -> bytes:
+        """SetParameters' response, one result per parameter; SetParametersAtomically's, its one result (the only one
+        in ``results``)."""
+        out = [self.message("rcl_interfaces/msg/SetParametersResult", successful=ok, reason=reason) for ok, reason in results]
+        return self.response(service, results=out) if service == ros.SET_PARAMETERS else self.response(service, result=out[0])
 
     def parameter_event(
         self, stamp: float, node: str, new: Sequence[tuple[str, RosValue]], changed: Sequence[tuple[str, RosValue]]
     ) -> bytes:
         """rcl_interfaces/msg/ParameterEvent (``/parameter_events``) from the node ``node`` (fully qualified)."""
-        sec, nanosec = stamp_parts(stamp)
-        return self._write(
+        return self.encode(
             ros.PARAMETER_EVENT,
-            stamp=self._Time(sec=sec, nanosec=nanosec),
+            stamp=self.time(stamp),
             node=node,
-            new_parameters=self._parameters(new),
-            changed_parameters=self._parameters(changed),
+            new_parameters=self.parameters(new),
+            changed_parameters=self.parameters(changed),
             deleted_parameters=[],
         )
 
-    def _parameters(self, pairs: Sequence[tuple[str, RosValue]]) -> list[Any]:
+    def parameters(self, pairs: Sequence[tuple[str, RosValue]]) -> list[Any]:
         """rcl_interfaces/msg/Parameter of each (name, value)."""
-        parameter = self.store.types["rcl_interfaces/msg/Parameter"]
-        return [parameter(name=name, value=self._value(value)) for name, value in pairs]
-
-    def names_request(self, service: str, payload: bytes) -> list[str]:
-        """The ``names`` of a GetParameters, GetParameterTypes or DescribeParameters request."""
-        return [str(name) for name in self.decode(payload, f"{service}_Request").names]
-
-    def list_parameters_request(self, payload: bytes) -> tuple[list[str], int]:
-        """(prefixes, depth) of a ListParameters request."""
-        request = self.decode(payload, f"{ros.LIST_PARAMETERS}_Request")
-        return [str(p) for p in request.prefixes], int(request.depth)
+        return [self.message("rcl_interfaces/msg/Parameter", name=name, value=self._value(value)) for name, value in pairs]
 
     def set_parameters_request(self, service: str, payload: bytes) -> list[tuple[str, RosValue]]:
         """The (name, value) pairs of a SetParameters(Atomically) request; a value that is not a bool, an integer, a
         double or a string comes as its :class:`ParameterType` alone (the caller refuses it)."""
         out: list[tuple[str, RosValue]] = []
-        for parameter in self.decode(payload, f"{service}_Request").parameters:
+        for parameter in self.request(service, payload).parameters:
             v = parameter.value
             try:
                 kind = ParameterType(v.type)
@@ -261,31 +247,29 @@ class RosCodec:
         except Exception as exc:  # rosbags raises SerdeError, struct.error, IndexError... for bad bytes
             raise PayloadError(short, f"not a valid CDR {ros_type} ({len(payload)} bytes): {exc}", excerpt(payload)) from None
 
-    def twist(self, payload: bytes, stamped: bool = False) -> Twist:
-        """geometry_msgs/Twist (or TwistStamped) CDR -> a blackmetal Twist; PayloadError if invalid or not finite."""
-        if stamped:
-            return self.twist_stamped(payload)[0]
-        fast = cdr.twist_le(payload)  # rmw_zenoh's own: little-endian, six doubles
-        if fast is not None:
-            return self._finite_twist(payload, fast)
+    def request(self, service: str, payload: bytes) -> Any:
+        """A ``<service>_Request``, as rosbags' dataclass; PayloadError if it is not exactly one."""
+        return self.decode(payload, f"{service}_Request")
+
+    def twist(self, payload: bytes) -> Twist:
+        """geometry_msgs/Twist CDR -> a blackmetal Twist; PayloadError if invalid or not finite.
+
+        rmw_zenoh's own (little-endian, six doubles) is read straight from the bytes by :mod:`.cdr` (a ROS command is
+        taken on Zenoh's thread); anything else, or a number not finite, by rosbags, which says what is wrong."""
+        fast = cdr.twist_le(payload)
+        if fast is not None and all(map(math.isfinite, fast)):
+            return _as_twist(fast)
         return self._twist(payload, self.decode(payload, ros.TWIST))
 
     def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
-        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp)."""
+        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp),
+        read as :meth:`twist` reads a Twist."""
         fast = cdr.twist_stamped_le(payload)
-        if fast is not None:
-            sec, nanosec, values = fast
-            return self._finite_twist(payload, values), sec + nanosec * 1e-9
+        if fast is not None and all(map(math.isfinite, fast[2])):
+            return _as_twist(fast[2]), fast[0] + fast[1] * 1e-9
         message = self.decode(payload, ros.TWIST_STAMPED)
         stamp = message.header.stamp
         return self._twist(payload, message.twist), stamp.sec + stamp.nanosec * 1e-9
-
-    def _finite_twist(self, payload: bytes, values: tuple[float, ...]) -> Twist:
-        """A command read straight from the bytes by :mod:`.cdr` (a ROS command is taken on Zenoh's thread)."""
-        if not all(map(math.isfinite, values)):  # rosbags' reading says which are not
-            stamped = len(payload) != cdr.TWIST_LE_SIZE
-            return self._twist(payload, self.decode(payload, ros.TWIST_STAMPED).twist if stamped else self.decode(payload, ros.TWIST))
-        return _as_twist(values)
 
     def _twist(self, payload: bytes, twist: Any) -> Twist:  # rosbags' message: the reference path, and its errors
         values = {f"{part}.{axis}": getattr(getattr(twist, part), axis) for part in ("linear", "angular") for axis in "xyz"}
@@ -294,37 +278,14 @@ class RosCodec:
             raise PayloadError("Twist", f"{', '.join(bad)} must be finite numbers, got {[values[b] for b in bad]}", excerpt(payload))
         return _as_twist(tuple(values.values()))
 
-    def estop(self, payload: bytes) -> EStop:
-        """std_msgs/Bool CDR -> EStop(engaged=data)."""
-        message = self.decode(payload, ros.BOOL)
-        return EStop(engaged=bool(message.data))
-
-    def set_bool(self, payload: bytes) -> bool:
-        """std_srvs/SetBool request CDR -> its ``data``."""
-        return bool(self.decode(payload, f"{ros.SET_BOOL}_Request").data)
-
-    def trigger(self, payload: bytes) -> None:
-        """std_srvs/Trigger request CDR (one placeholder byte): PayloadError unless it is one."""
-        self.decode(payload, f"{ros.TRIGGER}_Request")
-
-    # --------------------------------------------------------------- for tests and tools playing the ROS side
-    def encode_request(self, service: str, **fields: Any) -> bytes:
-        """A ``<service>_Request`` as a ROS client sends it (Trigger: no fields; SetParameters: ``parameters`` as
-        (name, value) pairs)."""
-        if service == ros.TRIGGER:
-            fields = {"structure_needs_at_least_one_member": 0}
-        if "parameters" in fields:
-            fields["parameters"] = self._parameters(fields["parameters"])
-        return self._write(f"{service}_Request", **fields)
-
+    # --------------------------------------------------------------- for tools playing the ROS side
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
-        linear, angular = self._Vector3(x=linear_x, y=0.0, z=0.0), self._Vector3(x=0.0, y=0.0, z=angular_z)
+        linear, angular = self.vector3(linear_x, 0.0, 0.0), self.vector3(0.0, 0.0, angular_z)
         if stamp is None:
-            return self._write(ros.TWIST, linear=linear, angular=angular)
-        return self._write(ros.TWIST_STAMPED, header=self._header(stamp, frame_id), twist=self._Twist(linear=linear, angular=angular))
-
-    def encode_bool(self, value: bool) -> bytes:
-        return self._write(ros.BOOL, data=value)
+            return self.encode(ros.TWIST, linear=linear, angular=angular)
+        return self.encode(
+            ros.TWIST_STAMPED, header=self.header(stamp, frame_id), twist=self.message(ros.TWIST, linear=linear, angular=angular)
+        )
 
 
 def _as_twist(values: tuple[float, ...]) -> Twist:

@@ -61,6 +61,7 @@ from blackmetal.schemas import ConfigError
 from . import ros_types as ros
 
 ADMIN_SPACE = "@ros2_lv"
+ENCLAVE = "/"  # the node's security enclave: the root one, as a node started without --enclave
 ATTACHMENT_SIZE = 33
 GID_SIZE = 16
 _ATTACHMENT = struct.Struct("<qqB16s")
@@ -119,18 +120,13 @@ def parse_distros(text: str, origin: str = "--distro") -> tuple[Distro, ...]:
     names = [part.strip().lower() for part in text.split(",") if part.strip()]
     if not names:
         raise ConfigError(f"{origin} names no ROS 2 distro; give one of {', '.join(d.value for d in Distro)} (or several, comma-separated)")
-    out: list[Distro] = []
     for name in names:
-        try:
-            distro = Distro(name)
-        except ValueError:
+        if name not in {d.value for d in Distro}:
             raise ConfigError(
                 f"{origin} {name!r} is not a ROS 2 distro rmw_zenoh is released for: give {', '.join(d.value for d in Distro)} "
                 "(or several, comma-separated, e.g. humble,jazzy)"
-            ) from None
-        if distro not in out:
-            out.append(distro)
-    return tuple(out)
+            )
+    return tuple(dict.fromkeys(Distro(name) for name in names))
 
 
 def type_hash_of(distro: Distro, computed: str) -> str:
@@ -174,13 +170,9 @@ class Qos:
     def keyexpr(self) -> str:
         """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
 
-        def field(name: str, value: int) -> str:
-            return "" if RMW_ZENOH_DEFAULTS[name] == value else str(value)
-
-        return (
-            f"{field('reliability', self.reliability)}:{field('durability', self.durability)}:"
-            f"{field('history', self.history)},{field('depth', self.depth)}:,:,:,,"
-        )
+        fields = ("" if getattr(self, name) == default else str(getattr(self, name)) for name, default in RMW_ZENOH_DEFAULTS.items())
+        reliability, durability, history, depth = fields
+        return f"{reliability}:{durability}:{history},{depth}:,:,:,,"
 
 
 def check_ros_name(kind: str, name: str) -> str:
@@ -237,19 +229,18 @@ def bridge_data_key(topic: str) -> str:
 
 @dataclass(frozen=True, slots=True)
 class NodeIdentity:
-    """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace."""
+    """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace (in the root enclave, ``/``)."""
 
     domain_id: int
     zid: str
     name: str
     namespace: str = "/"
-    enclave: str = "/"
     node_id: int = 0
 
     def _head(self, entity_id: int, kind: str) -> str:
         return (
             f"{ADMIN_SPACE}/{self.domain_id}/{self.zid}/{self.node_id}/{entity_id}/{kind}/"
-            f"{mangle(self.enclave)}/{mangle(self.namespace)}/{mangle(self.name)}"
+            f"{mangle(ENCLAVE)}/{mangle(self.namespace)}/{mangle(self.name)}"
         )
 
     def node_token(self) -> str:
@@ -278,11 +269,6 @@ def parse_attachment(data: bytes) -> tuple[int, int, bytes]:
         raise ValueError(f"an rmw_zenoh attachment is {ATTACHMENT_SIZE} bytes with a length byte 16, got {len(data)} bytes")
     sequence, stamp, _, gid = _ATTACHMENT.unpack(data)
     return sequence, stamp, gid
-
-
-def split_token(token: str) -> list[str]:
-    """The parts rmw_zenoh's parser splits a token into (``Entity::make``)."""
-    return token.split("/")
 
 
 @dataclass(frozen=True, slots=True)

@@ -129,8 +129,11 @@ class NodeParameters:
             return None, f"{name} must be a finite number, got {value!r}"
         return value, None
 
-    def plan(self, parameters: Sequence[tuple[str, RosValue]]) -> SetPlan:
-        """``set_parameters``: each value on its own; what this side refuses never reaches the gateway."""
+    def plan(self, parameters: Sequence[tuple[str, RosValue]], atomically: bool = False) -> SetPlan:
+        """``set_parameters``: each value on its own; what this side refuses never reaches the gateway.
+
+        ``atomically`` (``set_parameters_atomically``): every value checked against the table first as well; one
+        refusal refuses them all."""
         values: dict[str, ParamValue] = {}
         refused: dict[int, str] = {}
         for i, (name, value) in enumerate(parameters):
@@ -140,19 +143,11 @@ class NodeParameters:
             else:
                 values.pop(name, None)  # a name given twice: the last value wins, as rclcpp sets them in order
                 values[name] = checked
+        if atomically:
+            reasons = [*refused.values(), *(r for name, value in values.items() if (r := self.refusal(name, value)) is not None)]
+            if reasons:
+                return SetPlan({}, {i: "; ".join(reasons) for i in range(len(parameters))})
         return SetPlan(values, refused)
-
-    def plan_atomically(self, parameters: Sequence[tuple[str, RosValue]]) -> SetPlan:
-        """``set_parameters_atomically``: every value checked against the table first; one refusal refuses them all."""
-        plan = self.plan(parameters)
-        reasons = list(plan.refused.values())
-        for name, value in plan.values.items():
-            reason = self.refusal(name, value)
-            if reason is not None:
-                reasons.append(reason)
-        if reasons:
-            return SetPlan({}, {i: "; ".join(reasons) for i in range(len(parameters))})
-        return plan
 
     def refusal(self, name: str, value: ParamValue) -> str | None:
         """Why the gateway would refuse ``name = value`` by its table (read-only, unknown, wrong kind, out of range)."""

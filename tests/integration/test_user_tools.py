@@ -275,7 +275,7 @@ def test_up_with_ros2_serves_odom_and_takes_the_estop_from_ros(up: Up) -> None:
         wait_for(lambda: len(odoms) >= 3, what="/odom from blackmetal up --ros2")
 
         def estop_is(engaged: bool) -> bool:
-            session.put(estop_key, codec.encode_bool(engaged))
+            session.put(estop_key, codec.encode("std_msgs/msg/Bool", data=engaged))
             health = get(session, "robot/gateway/health", GatewayHealth)
             return health is not None and health.estop is engaged
 

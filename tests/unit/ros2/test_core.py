@@ -29,10 +29,9 @@ from blackmetal.ros2.naming import (
     gid_of,
     normalise_namespace,
     parse_attachment,
-    split_token,
 )
 from blackmetal.ros2.options import Ros2Options
-from blackmetal.ros2.ros_types import Frames
+from blackmetal.ros2.ros_types import BOOL, Frames
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode, make_pose
 
@@ -132,7 +131,7 @@ def test_tokens_qos_and_attachment_in_rmw_zenoh_format() -> None:
     assert node.node_token() == "@ros2_lv/0/abc123/0/0/NN/%/%r1/blackmetal"
     token = node.entity_token(3, Direction.PUBLISH, "/r1/odom", "nav_msgs/msg/Odometry", ODOM_HASH, Qos())
     assert token == f"@ros2_lv/0/abc123/0/3/MP/%/%r1/blackmetal/%r1%odom/nav_msgs::msg::dds_::Odometry_/{ODOM_HASH}/::,10:,:,:,,"
-    parts = split_token(token)
+    parts = token.split("/")
     assert len(parts) == 13 and all(parts)
     gid = gid_of(token)
     data = attachment(7, 1_700_000_000_123_456_789, gid)
@@ -241,7 +240,7 @@ def test_twist_stamped_and_estop(codec: RosCodec) -> None:
     assert out.errors[0].key.endswith("TwistStamped_/RIHS01_stamped")
     twist = decode(Twist, out.forwarded[0][1])
     assert (twist.linear.x, twist.angular.z) == (0.3, -0.4)
-    adapter.on_estop(codec.encode_bool(True), now=1.0)
+    adapter.on_estop(codec.encode(BOOL, data=True), now=1.0)
     adapter.on_estop(b"\x00\x01\x00\x00", now=1.0)  # no data byte
     assert decode(EStop, out.forwarded[-1][1]).engaged is True and out.forwarded[-1][0] == "robot/estop"
     assert len(out.errors) == 2
@@ -375,21 +374,21 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
 
         # the ROS graph: one node token, one token per topic and service, each as rmw_zenoh's parser splits it
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        nodes = [t for t in tokens if split_token(t)[5] == "NN"]
-        entities = [t for t in tokens if split_token(t)[5] in ("MP", "MS", "SS")]
-        assert len(nodes) == 1 and split_token(nodes[0])[6:] == ["%", "%", "blackmetal"] and len(split_token(nodes[0])) == 9
+        nodes = [t for t in tokens if t.split("/")[5] == "NN"]
+        entities = [t for t in tokens if t.split("/")[5] in ("MP", "MS", "SS")]
+        assert len(nodes) == 1 and nodes[0].split("/")[6:] == ["%", "%", "blackmetal"] and len(nodes[0].split("/")) == 9
         # /cmd_vel twice: Twist and TwistStamped; the robot model's two; /parameter_events and six parameter services
         assert len(entities) == len(tokens) - 1 == 18
         for token in tokens:
-            assert all(split_token(token)), token
+            assert all(token.split("/")), token
         for token in entities:
-            assert len(split_token(token)) == 13, token
-        published = {split_token(t)[9] for t in entities if split_token(t)[5] == "MP"}
-        subscribed = {split_token(t)[9] for t in entities if split_token(t)[5] == "MS"}
-        served = {split_token(t)[9] for t in entities if split_token(t)[5] == "SS"}
+            assert len(token.split("/")) == 13, token
+        published = {t.split("/")[9] for t in entities if t.split("/")[5] == "MP"}
+        subscribed = {t.split("/")[9] for t in entities if t.split("/")[5] == "MS"}
+        served = {t.split("/")[9] for t in entities if t.split("/")[5] == "SS"}
         assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static", "%parameter_events"}
         assert subscribed == {"%cmd_vel", "%estop"}
-        cmd_vel_types = sorted(split_token(t)[10] for t in entities if split_token(t)[9] == "%cmd_vel")
+        cmd_vel_types = sorted(t.split("/")[10] for t in entities if t.split("/")[9] == "%cmd_vel")
         assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
         params = {f"%blackmetal%{name}" for name in PARAMETER_SERVICES}  # node-private, as rclcpp's ~/list_parameters
         assert served == {"%set_estop", "%reset_odometry"} | params
@@ -437,6 +436,6 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
         # node + 9 topics + 8 services, none from the bridges
-        assert len(tokens) == 18 and all(split_token(t)[7] == "%r1" for t in tokens)
-        names = {split_token(t)[9] for t in tokens if len(split_token(t)) == 13}
+        assert len(tokens) == 18 and all(t.split("/")[7] == "%r1" for t in tokens)
+        names = {t.split("/")[9] for t in tokens if len(t.split("/")) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

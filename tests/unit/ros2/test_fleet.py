@@ -29,7 +29,7 @@ from helpers import Child, client_config, free_port, wait_for
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.fleet import fleet_settings, serve
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import PARAMETER_SERVICES, attachment, gid_of, split_token, tf_frame_prefix, topics
+from blackmetal.ros2.naming import PARAMETER_SERVICES, attachment, gid_of, tf_frame_prefix, topics
 from blackmetal.ros2.ros_types import SET_BOOL
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.fleet import parse_fleet
@@ -163,7 +163,7 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
 
         # the ROS graph: one node per robot in its namespace, its topics and services under it, /tf and /diagnostics absolute
         def tokens() -> list[list[str]]:
-            return [split_token(str(r.ok.key_expr)) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
+            return [str(r.ok.key_expr).split("/") for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
         wait_for(lambda: len(tokens()) == 3 * 19, what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services each)")
         graph = tokens()
@@ -251,7 +251,7 @@ def test_a_node_that_fails_is_started_again_and_the_others_go_on(monkeypatch: py
 
             def node_ids(rid: str) -> set[int]:
                 found = session.liveliness().get(f"@ros2_lv/0/*/*/*/NN/%/%{rid}/blackmetal", timeout=2)
-                return {int(split_token(str(r.ok.key_expr))[3]) for r in found if r.ok is not None}
+                return {int(str(r.ok.key_expr).split("/")[3]) for r in found if r.ok is not None}
 
             def pose_both(count: int = 5) -> None:
                 for _ in range(count):

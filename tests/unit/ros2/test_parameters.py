@@ -22,7 +22,7 @@ from blackmetal.ros2.ros_types import (
     ParameterType,
 )
 from blackmetal.schemas import GatewayParams, Param, ParamResult, ParamsSet, ParamsSetReply, decode, encode
-from unit.ros2.test_services import PARAMETER_EVENT_HASH, PARAMETER_SERVICE_HASHES, make_core
+from unit.ros2.test_services import PARAMETER_EVENT_HASH, PARAMETER_SERVICE_HASHES, encode_request, make_core
 
 GID = bytes(range(16))
 TABLE = GatewayParams(
@@ -102,19 +102,19 @@ def test_the_first_table_is_new_parameters_and_a_change_is_changed_parameters(co
 
 def test_list_get_types_and_describe_are_answered_from_the_table_at_once(codec: RosCodec) -> None:
     core, out = with_table(codec)
-    call(core, "list_parameters", codec.encode_request(LIST_PARAMETERS, prefixes=[], depth=0), 1)
+    call(core, "list_parameters", encode_request(codec, LIST_PARAMETERS, prefixes=[], depth=0), 1)
     listed = codec.decode(out.replies[1][0], f"{LIST_PARAMETERS}_Response").result
     assert listed.names == sorted(p.name for p in TABLE.params) and listed.prefixes == ["sources.nav"]
     assert parse_attachment(out.replies[1][1] or b"")[0] == 1 and out.queries == []  # the request's id; nothing asked
 
-    call(core, "get_parameters", codec.encode_request(GET_PARAMETERS, names=["sources.nav.priority", "nope", "robot"]), 2)
+    call(core, "get_parameters", encode_request(codec, GET_PARAMETERS, names=["sources.nav.priority", "nope", "robot"]), 2)
     values = codec.decode(out.replies[2][0], f"{GET_PARAMETERS}_Response").values
     assert [(v.type, v.integer_value, v.string_value) for v in values] == [(2, 10, ""), (0, 0, ""), (4, 0, "127.0.0.1")]
 
-    call(core, "get_parameter_types", codec.encode_request(GET_PARAMETER_TYPES, names=["release_key_only", "nope"]), 3)
+    call(core, "get_parameter_types", encode_request(codec, GET_PARAMETER_TYPES, names=["release_key_only", "nope"]), 3)
     assert list(codec.decode(out.replies[3][0], f"{GET_PARAMETER_TYPES}_Response").types) == [1, 0]
 
-    call(core, "describe_parameters", codec.encode_request(DESCRIBE_PARAMETERS, names=["max_wheel_speed", "sources.nav.priority"]), 4)
+    call(core, "describe_parameters", encode_request(codec, DESCRIBE_PARAMETERS, names=["max_wheel_speed", "sources.nav.priority"]), 4)
     speed, priority = codec.decode(out.replies[4][0], f"{DESCRIBE_PARAMETERS}_Response").descriptors
     assert (speed.type, speed.read_only, speed.description) == (3, False, "per-wheel speed limit")
     assert [(r.from_value, r.to_value) for r in speed.floating_point_range] == [(0.01, 0.8)] and not speed.integer_range
@@ -124,7 +124,7 @@ def test_list_get_types_and_describe_are_answered_from_the_table_at_once(codec: 
 def test_a_call_before_the_gateways_table_waits_for_it_or_says_why_it_never_came(codec: RosCodec) -> None:
     core, out = make_core(codec)
     core.start()  # asks the gateway's table; the answer is not in yet (a node that has just started)
-    call(core, "list_parameters", codec.encode_request(LIST_PARAMETERS, prefixes=[], depth=0), 1, now=0.1)
+    call(core, "list_parameters", encode_request(codec, LIST_PARAMETERS, prefixes=[], depth=0), 1, now=0.1)
     assert out.replies == {} and out.refused == {}  # not an empty list: it waits for the table
     assert [q[0] for q in out.queries] == ["robot/gateway/params"] * 2  # and asks for it again
     core.on_query_reply(out.queries[-1][2], True, encode(TABLE), now=0.2)
@@ -132,7 +132,7 @@ def test_a_call_before_the_gateways_table_waits_for_it_or_says_why_it_never_came
     assert listed.names == sorted(p.name for p in TABLE.params)
 
     late, late_out = make_core(codec)
-    call(late, "get_parameters", codec.encode_request(GET_PARAMETERS, names=["max_wheel_speed"]), 7, now=1.0)
+    call(late, "get_parameters", encode_request(codec, GET_PARAMETERS, names=["max_wheel_speed"]), 7, now=1.0)
     late.tick(1.0 + late.options.service_timeout)  # no gateway ever answers
     assert late_out.replies == {} and "parameters did not arrive" in late_out.refused[7] and "prefix robot" in late_out.refused[7]
 
@@ -144,7 +144,7 @@ def results(codec: RosCodec, cdr: bytes) -> list[tuple[bool, str]]:
 def test_a_set_goes_to_the_gateways_key_and_is_answered_with_its_results(codec: RosCodec) -> None:
     core, out = with_table(codec)
     # an integer for a double parameter is that double (``ros2 param set /blackmetal max_wheel_speed 1``)
-    request = codec.encode_request(SET_PARAMETERS, parameters=[("max_wheel_speed", 1), ("sources.nav.priority", 50)])
+    request = encode_request(codec, SET_PARAMETERS, parameters=[("max_wheel_speed", 1), ("sources.nav.priority", 50)])
     call(core, "set_parameters", request, 7)
     ((key, payload, tag, _),) = out.queries
     assert key == "robot/gateway/params/set" and 7 not in out.replies
@@ -193,12 +193,12 @@ def test_arrays_and_unsetting_are_refused_here_and_never_reach_the_gateway(codec
 
 def test_an_atomic_set_with_one_bad_value_sets_none(codec: RosCodec) -> None:
     core, out = with_table(codec)
-    bad = codec.encode_request(SET_PARAMETERS_ATOMICALLY, parameters=[("max_wheel_speed", 0.5), ("wheel_radius", 0.2)])
+    bad = encode_request(codec, SET_PARAMETERS_ATOMICALLY, parameters=[("max_wheel_speed", 0.5), ("wheel_radius", 0.2)])
     call(core, "set_parameters_atomically", bad, 1)
     assert out.queries == []
     result = codec.decode(out.replies[1][0], f"{SET_PARAMETERS_ATOMICALLY}_Response").result
     assert not result.successful and "wheel_radius is read-only" in result.reason
-    good = codec.encode_request(SET_PARAMETERS_ATOMICALLY, parameters=[("max_wheel_speed", 0.5), ("sources.nav.priority", 20)])
+    good = encode_request(codec, SET_PARAMETERS_ATOMICALLY, parameters=[("max_wheel_speed", 0.5), ("sources.nav.priority", 20)])
     call(core, "set_parameters_atomically", good, 2)
     ((_, payload, tag, _),) = out.queries
     assert decode(ParamsSet, payload or b"").values == {"max_wheel_speed": 0.5, "sources.nav.priority": 20}
@@ -210,17 +210,17 @@ def test_an_atomic_set_with_one_bad_value_sets_none(codec: RosCodec) -> None:
 
 def test_a_set_nobody_answers_fails_with_what_to_check(codec: RosCodec) -> None:
     core, out = with_table(codec)
-    call(core, "set_parameters", codec.encode_request(SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 1)
+    call(core, "set_parameters", encode_request(codec, SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 1)
     core.on_query_done(out.queries[0][2], now=1.5)
     ((ok, reason),) = results(codec, out.replies[1][0])
     assert not ok and "no gateway answered on robot/gateway/params/set" in reason and "nothing was set" in reason
 
-    call(core, "set_parameters", codec.encode_request(SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 2, now=2.0)
+    call(core, "set_parameters", encode_request(codec, SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 2, now=2.0)
     core.tick(4.0)  # the service timeout (2 s) passes without an answer or the query's end
     ((ok, reason),) = results(codec, out.replies[2][0])
     assert not ok and "did not answer within 2 s" in reason
 
-    call(core, "set_parameters", codec.encode_request(SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 3, now=5.0)
+    call(core, "set_parameters", encode_request(codec, SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 3, now=5.0)
     core.on_query_reply(out.queries[-1][2], False, b"not allowed", now=5.1)  # an error reply (the router's ACL, a bad payload)
     ((ok, reason),) = results(codec, out.replies[3][0])
     assert not ok and "refused the set: not allowed" in reason

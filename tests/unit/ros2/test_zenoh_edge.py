@@ -178,12 +178,14 @@ def test_a_command_read_from_its_bytes_is_what_rosbags_reads(
     flip: tuple[int, int],
 ) -> None:
     lx, ly, lz, ax, ay, az = values
-    linear, angular = codec._Vector3(x=lx, y=ly, z=lz), codec._Vector3(x=ax, y=ay, z=az)
+    linear, angular = codec.vector3(lx, ly, lz), codec.vector3(ax, ay, az)
     if stamped:
-        header = codec._Header(stamp=codec._Time(sec=sec, nanosec=nanosec), frame_id=frame_id)
-        payload = codec._write(TWIST_STAMPED, header=header, twist=codec._Twist(linear=linear, angular=angular))
+        header = codec.message(
+            "std_msgs/msg/Header", stamp=codec.message("builtin_interfaces/msg/Time", sec=sec, nanosec=nanosec), frame_id=frame_id
+        )
+        payload = codec.encode(TWIST_STAMPED, header=header, twist=codec.message(TWIST, linear=linear, angular=angular))
     else:
-        payload = codec._write(TWIST, linear=linear, angular=angular)
+        payload = codec.encode(TWIST, linear=linear, angular=angular)
     for candidate in (payload, payload[: len(payload) - cut % 9], _flipped(payload, *flip)):
         assert repr(_fast(codec, candidate, stamped)) == repr(_reference(codec, candidate, stamped))
 
