@@ -22,6 +22,7 @@ from blackmetal.ros2.options import Ros2Options
 from blackmetal.ros2.ros_types import SET_BOOL, TRIGGER, Frames
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, Keys, encode, make_pose
+from unit.ros2.test_services import encode_request
 
 GID = bytes(range(16))
 
@@ -100,7 +101,7 @@ def test_a_service_the_node_does_not_have_is_refused_with_its_name(codec: RosCod
 
 def test_an_attachment_with_a_negative_sequence_number_is_refused_and_reported_on_the_services_key(codec: RosCodec) -> None:
     calls, out = service_calls(codec)
-    request = codec.encode_request(SET_BOOL, data=True)
+    request = encode_request(codec, SET_BOOL, data=True)
     calls.on_service_request("set_estop", 1, request, attachment(-1, 0, GID), now=0.0)
     assert out.refused[1].startswith("service request with an attachment that is not rmw_zenoh's: sequence number -1")
     assert out.rejected == [("0/set_estop/k", out.refused[1])] and out.put == [] and calls.stats.failed.total == 1
@@ -108,7 +109,7 @@ def test_an_attachment_with_a_negative_sequence_number_is_refused_and_reported_o
 
 def test_a_set_estop_is_put_again_until_its_deadline_and_the_health_is_followed_meanwhile(codec: RosCodec) -> None:
     calls, out = service_calls(codec)
-    calls.on_service_request("set_estop", 7, codec.encode_request(SET_BOOL, data=True), attachment(3, 0, GID), now=0.0)
+    calls.on_service_request("set_estop", 7, encode_request(codec, SET_BOOL, data=True), attachment(3, 0, GID), now=0.0)
     assert out.put == [("r1/estop", encode(EStop(engaged=True)))] and out.queries[0][0] == "r1/gateway/health"
     assert calls.waits_for_health and out.follows == 1
     assert calls.next_deadline() == ESTOP_REPEAT_S
@@ -124,7 +125,7 @@ def test_a_set_estop_is_put_again_until_its_deadline_and_the_health_is_followed_
 def test_more_calls_than_can_wait_are_answered_false_at_once(codec: RosCodec) -> None:
     calls, out = service_calls(codec)
     for call in range(MAX_PENDING_CALLS + 1):
-        calls.on_service_request("reset_odometry", call, codec.encode_request(TRIGGER), None, now=0.0)
+        calls.on_service_request("reset_odometry", call, encode_request(codec, TRIGGER), None, now=0.0)
     assert len(calls.pending) == MAX_PENDING_CALLS and list(out.replies) == [MAX_PENDING_CALLS]
     assert answer(codec, out, MAX_PENDING_CALLS) == (
         False,
@@ -143,7 +144,7 @@ def test_more_calls_than_can_wait_are_answered_false_at_once(codec: RosCodec) ->
 )
 def test_a_reset_is_true_only_when_the_odometry_answers_the_origin(codec: RosCodec, ok: bool, payload: bytes, message: str) -> None:
     calls, out = service_calls(codec)
-    calls.on_service_request("reset_odometry", 1, codec.encode_request(TRIGGER), None, now=0.0)
+    calls.on_service_request("reset_odometry", 1, encode_request(codec, TRIGGER), None, now=0.0)
     (key, tag, timeout), *_ = out.queries
     assert (key, timeout) == ("r1/odometry/reset", 2.0)
     calls.on_query_reply(tag, ok, payload, now=0.1)
