@@ -44,9 +44,9 @@ from blackmetal.schemas import (
 )
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
-from .arbiter import DEFAULT_SOURCE, Admission, NewDriver, Why
+from .arbiter import Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
-from .estop import read_estop
+from .estop import EStopInput
 from .exchange import Completed, Exchange, Lost
 from .health import Counters
 from .latch import AT_START, Latch
@@ -222,7 +222,7 @@ class GatewayCore:
 
     # ------------------------------------------------------------------ Zenoh inputs
 
-    def on_cmd_vel(self, payload: bytes, now: float, source: str = DEFAULT_SOURCE) -> None:
+    def on_cmd_vel(self, source: str, payload: bytes, now: float) -> None:
         """A payload from command source ``source`` (``<prefix>/cmd_vel[/<source>]``): checked, arbitrated, sent or reported."""
         try:
             twist = decode(Twist, payload)
@@ -312,24 +312,25 @@ class GatewayCore:
             reason = f"a lock released: {named(source)} drives"
         self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
 
-    def on_estop(self, payload: bytes, now: float, release_key: bool = False) -> None:
-        """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages (see :mod:`blackmetal.gateway.estop`).
+    def on_estop(self, estop: EStopInput, now: float) -> None:
+        """A payload put on ``<prefix>/estop`` (or ``estop/release``), read once (:func:`~blackmetal.gateway.estop.read_estop`):
+        anything but a valid release engages.
 
         A release counts only on the release key unless ``unsafe_release_on_estop``: on ``estop`` it is refused (and the
         stop stays as it is: a refused release must not engage a robot that someone released properly meanwhile). An
         engage is in force at once and saved after its EMG_STOP is written; a release waits for its save
         (:meth:`take_latch`, :meth:`latch_saved`).
         """
-        engaged, complaint = read_estop(payload)
+        engaged, release_key = estop.engaged, estop.release_key
         key = self.keys.estop_release if release_key else self.keys.estop
-        if complaint is not None:
-            self.reject(key, complaint, now, excerpt(payload))
+        if estop.complaint is not None:
+            self.reject(key, estop.complaint, now, estop.snippet)
         elif not engaged and not release_key and not self.settings.unsafe_release_on_estop:
             reason = (
                 f'a release on {key} is refused: only {{"engaged": false}} put on {self.keys.estop_release} releases '
                 "(a right the router may give to a safety role alone; `blackmetal estop off` puts there)"
             )
-            self.reject(key, reason, now, excerpt(payload))
+            self.reject(key, reason, now, estop.snippet)
             return
         if engaged:
             self.governor.on_estop(True, now)

@@ -59,7 +59,7 @@ class Member:
     def start(self) -> Member:
         s = self.settings
         self.edge = GatewayZenoh(self.session, Keys(s.prefix), burst=self.burst)  # type: ignore[arg-type]
-        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge, s.latch_store())
+        self.host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), self.edge.publish, s.latch_store())
         self.edge.attach(self.host, asyncio.get_running_loop())
         return self
 
@@ -72,7 +72,7 @@ class Member:
         self.restarts += 1
         reason = f"gateway of {self.robot.describe()} failed ({exc!r}): the robot was stopped; starting again in {pause:g} s"
         log.error("%s", reason)
-        self.edge.error(ErrorReport(stamp=time.time(), source="gateway", key=self.edge.keys.health, reason=reason))
+        self.edge.publish(ErrorReport(stamp=time.time(), source="gateway", key=self.edge.keys.health, reason=reason))
 
     def close(self) -> None:
         if self.edge is not None:

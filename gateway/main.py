@@ -30,7 +30,7 @@ async def serve(settings: GatewaySettings, stop: asyncio.Event) -> None:
     with await open_service_session(settings.zenoh, stop, "gateway") as session:
         refuse_taken(session, "gateway", [keys.prefix])
         edge = GatewayZenoh(session, keys)
-        service = GatewayHost(settings, connector, edge, settings.latch_store())
+        service = GatewayHost(settings, connector, edge.publish, settings.latch_store())
         edge.attach(service, asyncio.get_running_loop())
         print(
             f"blackmetal gateway ready: robot {settings.robot}:{settings.control_port} (log {settings.log_port}), "

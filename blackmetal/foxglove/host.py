@@ -5,7 +5,7 @@ current Foxglove context; this host opens what those channels reach (the
 foxglove-sdk server, then the file) and closes them in reverse order. It
 feeds :class:`~blackmetal.foxglove.core.Controls` with what clients publish
 and call, stamped with the clock, and runs its deadlines on the shared
-:class:`~blackmetal.runtime.host.DeadlineTimer`.
+:class:`~blackmetal.runtime.driver.CoreTimer`.
 
 **The front.** foxglove-sdk accepts only the WebSocket subprotocol
 ``foxglove.sdk.v1`` and answers HTTP 400 to a client that offers only the
@@ -41,7 +41,7 @@ from typing import Any, Protocol
 
 import msgspec
 
-from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.driver import CoreTimer
 from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import BlackmetalError, ConfigError, GatewayParams, Param
 
@@ -487,7 +487,7 @@ class FoxgloveHost:
         self.clock = clock
         self.service_names = services if services is not None else {s.value: s for s in Service}
         self.core: ClientCore | None = None
-        self.timer: DeadlineTimer | None = None
+        self.timer: CoreTimer | None = None
         self._handover = Intake(asyncio.get_running_loop())
         self._put_event = self._handover.channel("client events", self._on_event, capacity=4096)
         # a client that subscribes to every channel of a fleet of 100 sends 1,500 subscriptions at once; none may be lost
@@ -559,7 +559,7 @@ class FoxgloveHost:
         """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
         self.core = core
         self._timed = [core, *timed]
-        self.timer = DeadlineTimer(_Together(self._timed), self.clock)
+        self.timer = CoreTimer(_Together(self._timed), self.clock)
         self.timer.start()
 
     def watch_with(self, watch: Watch, viewer: Viewer) -> None:

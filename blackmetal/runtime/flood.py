@@ -16,8 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 from blackmetal.schemas import payload_bytes
 
+from .driver import queue_only
 from .intake import Intake
-from .zenoh_entities import Item, chunk_and_payload, undeclare
+from .zenoh_entities import chunk_and_payload, undeclare
 
 if TYPE_CHECKING:
     import zenoh
@@ -37,10 +38,10 @@ CALLBACK_GONE_S = 1.0
 PUMP_PERIOD_S = 0.002
 
 #: What of a batch a pump hands over (all of it unless said otherwise): a latest-slot input needs only its newest.
-Pick = Callable[[list[Item]], list[Item]]
+Pick = Callable[[list[Any]], list[Any]]
 
 
-def newest(batch: list[Item]) -> list[Item]:
+def newest(batch: list[Any]) -> list[Any]:
     """A :data:`Pick` for an input of which only the newest sample counts (a command source, a lock)."""
     return batch[-1:]
 
@@ -74,15 +75,25 @@ class GuardedInput:
         self,
         session: "zenoh.Session",
         key: str,
-        put: Callable[[tuple[str, bytes]], None],
+        put: Callable[[Any], None],
         intake: Intake,
         on_flood: Callable[[str, str], None] | None = None,
         *,
         capacity: int = 64,
         quiet_s: float = QUIET_S,
         pick: Pick | None = None,
+        name: str | None = None,
+        decode: Callable[[bytes], Any] | None = None,
+        skip: frozenset[str] = frozenset(),
     ) -> None:
-        """``pick``: what of each batch the pump hands over while the input floods (default: every sample)."""
+        """``pick``: what of each batch the pump hands over while the input floods (default: every sample).
+
+        A sample becomes the item ``(name, payload)``: ``name`` is the key's
+        last chunk unless given (``cmd_vel`` is the source ``default``); with
+        ``decode``, the item is ``decode(payload)`` instead, decoded once, where
+        it enters. Samples whose last chunk is in ``skip`` (names another
+        input takes) are not handed over.
+        """
         self.session = session
         self.pick = pick
         self.key = key
@@ -91,6 +102,8 @@ class GuardedInput:
         self.on_flood = on_flood
         self.capacity = capacity
         self.quiet_s = quiet_s
+        self.decode = decode
+        self.skip = skip
         self._subscriber: Any = None
         self._pump: threading.Thread | None = None
         #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
@@ -106,9 +119,11 @@ class GuardedInput:
         #: Tells the pump to end (its subscriber is going).
         self._pump_stop = threading.Event()
         #: A key without wildcards has one last chunk: no key expression to turn into text per sample.
-        self._chunk = None if "*" in key else key.rpartition("/")[2]
+        self._chunk = name or (None if "*" in key else key.rpartition("/")[2])
 
-    def _item(self, sample: "zenoh.Sample") -> tuple[str, bytes]:
+    def _item(self, sample: "zenoh.Sample") -> Any:
+        if self.decode is not None:
+            return self.decode(payload_bytes(sample))
         return chunk_and_payload(sample) if self._chunk is None else (self._chunk, payload_bytes(sample))
 
     @property
@@ -124,7 +139,9 @@ class GuardedInput:
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
-        self.put(self._item(sample))
+        item = self._item(sample)
+        if not self.skip or item[0] not in self.skip:
+            self.put(item)
         now = time.monotonic()
         with self._count_lock:
             if now - self._window_start > FLOOD_WINDOW_S:
@@ -180,6 +197,7 @@ class GuardedInput:
         """
         import zenoh
 
+        queue_only()  # the direct-take rule: a pump never runs the core, it only queues
         drained = self.intake.drained
         callback_gone.wait(CALLBACK_GONE_S)
         while not stop.is_set():
@@ -193,7 +211,9 @@ class GuardedInput:
                 return
             handed = time.monotonic()
             self._last_sample = handed
-            items = [self._item(sample) for sample in batch]
+            items = [item for item in map(self._item, batch) if not self.skip or item[0] not in self.skip]
+            if not items:
+                continue
             drained.clear()
             for item in items if self.pick is None else self.pick(items):
                 self.put(item)

@@ -13,10 +13,11 @@ more than was waiting when it began, so an emergency stop is handled before
 a backlog (or a flood) of anything else.
 
 One exception to "the loop drains": a channel given ``direct`` is taken in
-the putting thread, under the core's lock, when the core is free and nothing
-of its priority or higher waits (:meth:`Intake.channel`); the gateway sends
-a command to the robot that way without waiting for its loop to wake
-(:mod:`blackmetal.gateway.direct`). The threads and locks are drawn in
+the thread that delivers it (never a pump: :func:`~blackmetal.runtime.driver.delivering`),
+under the core's lock, when the core is free and nothing of its priority or
+higher waits (:meth:`Intake.channel`); the gateway sends a command to the
+robot that way without waiting for its loop to wake
+(:mod:`blackmetal.runtime.driver`). The threads and locks are drawn in
 ``docs/threads.md``.
 """
 
@@ -31,7 +32,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any, Generic, TypeVar
 
-from .host import CoreLock
+from .driver import CoreLock, delivering
 
 T = TypeVar("T")
 
@@ -132,7 +133,6 @@ class Intake:
         self.guard = threading.Lock()
         self._channels: list[Channel[Any]] = []
         self._scheduled = False
-        self._serving = False
         self._closed = False  # closed: nothing is handed over or handled any more (the edge is undeclaring)
         #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
         self.drained = threading.Event()
@@ -171,7 +171,7 @@ class Intake:
         guard = self.guard
 
         def put(item: T) -> None:
-            if direct is not None and self._try_direct(channel, direct, item):
+            if direct is not None and delivering() and self._try_direct(channel, direct, item):
                 self.drained.set()  # handled: a pump that put it need not wait for a drain that nothing scheduled
                 return
             with guard:
@@ -194,8 +194,6 @@ class Intake:
         if lock is None or not lock.acquire(blocking=False):
             return False
         try:
-            if self._serving:
-                return False  # the loop's own handler put it: it waits for the drain, as it always did
             with self.guard:
                 if self._closed:
                     return False  # the edge is undeclaring: nothing is handled any more (close() holds the lock)
@@ -252,11 +250,7 @@ class Intake:
             if self._closed:
                 return  # scheduled before the close: its handlers would publish through undeclared entities
         with self.lock if self.lock is not None else contextlib.nullcontext():
-            self._serving = True
-            try:
-                self._serve_channels()
-            finally:
-                self._serving = False
+            self._serve_channels()
         if self.after_drain is not None:
             self.after_drain()
         self.drained.set()
