@@ -54,7 +54,7 @@ class Member:
         keys = Keys(self.settings.prefix)
         loop = asyncio.get_running_loop()
         self.edge = OdometryZenoh(self.session, keys, burst=self.burst)  # type: ignore[arg-type]
-        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge))
+        self.host = OdometryHost(OdometryCore(self.settings.params(), keys, self.edge.publish))
         self.edge.attach(self.host, loop, ring=True)  # queries and resets through its intake, impulses from its ring
         self.failure = loop.create_future()
         return self
@@ -86,7 +86,7 @@ class Member:
         assert self.edge is not None
         reason = f"odometry of {self.robot.describe()} failed ({exc!r}): starting again from zero in {pause:g} s"
         log.error("%s", reason)
-        self.edge.error(ErrorReport(stamp=time.time(), source="odometry", key=self.edge.keys.pose, reason=reason))
+        self.edge.publish(ErrorReport(stamp=time.time(), source="odometry", key=self.edge.keys.pose, reason=reason))
 
     def close(self) -> None:
         if self.edge is not None:
