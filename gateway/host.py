@@ -1,4 +1,4 @@
-"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
+"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O core, and sleeps.
 
 All decisions are in :class:`~blackmetal.gateway.core.GatewayCore`; this
 module opens the robot's streams through an injected

@@ -162,7 +162,8 @@ class ErrorReporter:
     behind the core's back.
     """
 
-    source: str
+    #: The service whose reports these are (``gateway``, ``odometry``...): each report's ``source`` unless another says it.
+    service: str
     publish: Callable[[ErrorReport], None]
     wallclock: Callable[[], float] = time.time
     limiter: ReportLimiter = field(default_factory=ReportLimiter)
@@ -171,8 +172,10 @@ class ErrorReporter:
     #: The latest reports published, oldest first: a ``get`` on the errors key answers with them.
     recent: deque[ErrorReport] = field(default_factory=lambda: deque(maxlen=RECENT_REPORTS), init=False)
 
-    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float, family: str | None = None) -> None:
+    def report(self, key: str, reason: str, excerpt: str = "", by: str | None = None, *, now: float, family: str | None = None) -> None:
         """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
+
+        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``.
 
         ``family`` (e.g. ``robot/lock/*``) is what the limit counts against;
         give it wherever a client picks the key's last chunk. Default: the key.
@@ -182,7 +185,7 @@ class ErrorReporter:
             self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
-                    source=source or self.source,
+                    source=by or self.service,
                     key=key,
                     reason=reason,
                     excerpt=excerpt,
@@ -209,7 +212,7 @@ class ErrorReporter:
             self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
-                    source=self.source,
+                    source=self.service,
                     key=key,
                     reason=f"{suppressed} more reports on {key} were rate-limited"
                     if key != OTHER_KEYS
