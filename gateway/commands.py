@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import (
     DriverChange,
+    ErrorReport,
     GatewayHealth,
     GatewayParams,
     Keys,
@@ -27,7 +28,9 @@ from blackmetal.schemas import (
     ParamsSet,
     ParamsSetReply,
     PayloadError,
+    RobotStatus,
     Twist,
+    WheelImpulses,
     decode,
     encode,
     excerpt,
@@ -38,12 +41,13 @@ from .conflict import ConflictNews, GatewayConflict
 from .estop import EStopInput
 from .health import Counters
 from .latch import Latch
+from .links import DropLink
 from .params import ParamTable
 from .safety import Governor
 from .settings import GatewaySettings
 
-if TYPE_CHECKING:
-    from .core import Event
+#: What the core produces besides bytes: messages to publish, and links to drop.
+Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams | DropLink
 
 
 class ClientInputs:

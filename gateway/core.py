@@ -24,10 +24,7 @@ from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import (
-    DriverChange,
-    ErrorReport,
     GatewayHealth,
-    GatewayParams,
     Keys,
     RobotStatus,
     SourceHealth,
@@ -36,12 +33,12 @@ from blackmetal.schemas import (
 )
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
-from .commands import ClientInputs
+from .commands import ClientInputs, Event
 from .conflict import ConflictNews, GatewayConflict
 from .exchange import Completed, Exchange, Lost
 from .health import Counters
 from .latch import AT_START, Latch
-from .links import DropLink, LinkName, Links
+from .links import LinkName, Links
 from .log_port import LogPort
 from .params import ParamTable
 from .polling import PollSchedule
@@ -51,8 +48,6 @@ from .settings import GatewaySettings
 
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
-
-Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams | DropLink
 
 
 #: The poll, sent 50-100 times a second per robot: one request object, its bytes encoded once.
