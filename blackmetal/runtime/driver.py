@@ -33,6 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Iterable
 from contextlib import AbstractContextManager
+from dataclasses import dataclass, field
 from typing import Any, Protocol
 
 log = logging.getLogger("blackmetal.runtime")
@@ -102,6 +103,7 @@ class Core(Protocol):
     def next_deadline(self) -> float: ...
 
 
+@dataclass(eq=False)
 class CoreTimer:
     """Runs ``core.tick`` at ``core.next_deadline()`` on the running loop.
 
@@ -112,25 +114,16 @@ class CoreTimer:
     produced), then ``after_unlock`` once the lock is released.
     """
 
-    def __init__(
-        self,
-        core: Core,
-        clock: Callable[[], float] = time.monotonic,
-        after_tick: Callable[[], None] | None = None,
-        on_error: Callable[[BaseException], None] | None = None,
-        lock: AbstractContextManager[object] | None = None,
-        after_unlock: Callable[[], None] | None = None,
-    ) -> None:
-        self.core = core
-        self.lock = lock if lock is not None else contextlib.nullcontext()
-        self.clock = clock
-        self.after_tick = after_tick
-        self.after_unlock = after_unlock
-        #: Called (and the timer stopped) when tick or after_tick raise: the driver fails through it.
-        self.on_error = on_error
-        self._timer: asyncio.TimerHandle | None = None
-        self._timer_at = math.inf
-        self._running = False
+    core: Core
+    clock: Callable[[], float] = time.monotonic
+    after_tick: Callable[[], None] | None = None
+    #: Called (and the timer stopped) when tick or after_tick raise: the driver fails through it.
+    on_error: Callable[[BaseException], None] | None = None
+    lock: AbstractContextManager[object] = field(default_factory=contextlib.nullcontext)
+    after_unlock: Callable[[], None] | None = None
+    _timer: asyncio.TimerHandle | None = field(default=None, init=False)
+    _timer_at: float = field(default=math.inf, init=False)
+    _running: bool = field(default=False, init=False)
 
     def start(self) -> None:
         """Run the core's due timers now and keep running them at each deadline until :meth:`stop`."""
