@@ -46,16 +46,16 @@ M = TypeVar("M", bound=Message)
 
 @dataclass
 class RecordingOutput:
-    """Where a test's gateway publishes: every message kept, in order."""
+    """Where a test's gateway publishes: every message kept, by type (each type has its key: :meth:`Keys.message_for`)."""
 
-    messages: list[Message] = field(default_factory=list)
+    messages: dict[type, list[Any]] = field(default_factory=dict)
 
     def __call__(self, message: Message) -> None:
-        self.messages.append(message)
+        self.messages.setdefault(type(message), []).append(message)
 
     def of(self, kind: type[M]) -> list[M]:
-        """The messages of one type, in order (each type has its key: :meth:`Keys.message_for`)."""
-        return [m for m in self.messages if isinstance(m, kind)]
+        """The messages of one type so far, in order (the list grows as more come)."""
+        return self.messages.setdefault(kind, [])
 
 
 class GatewayHost:
