@@ -273,12 +273,17 @@ class Ros2Zenoh(ZenohEdge):
         on_stamped = on(functools.partial(core.on_cmd_vel, stamped=True))
         stamped = intake.channel(CMD_VEL_STAMPED, on_stamped, latest=True, priority=5, direct=host.direct(stamped=True))
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
-        #   stream      key                  channel: ring drains and callbacks meet the same handler             ring
+        # the robot streams it follows: ring drains and callbacks meet the same handler
+        #   stream      key                 core method             channel                              ring
+        streams: dict[str, tuple[str, Callable[..., Any], dict[str, Any], int]] = {
+            "pose": (self.keys.pose, core.on_pose, {"capacity": 256}, RING),
+            "impulses": (self.keys.impulses, core.on_impulses, {"capacity": 256}, RING),
+            "errors": (self.keys.errors, core.on_error_report, {"capacity": 256}, RING),
+            "health": (self.keys.health, core.on_health, {"latest": True, "priority": 8}, 1),
+        }
         self._streams = {
-            "pose": (self.keys.pose, intake.channel("pose", on(core.on_pose), capacity=256), on(core.on_pose), RING),
-            "impulses": (self.keys.impulses, intake.channel("impulses", on(core.on_impulses), capacity=256), on(core.on_impulses), RING),
-            "errors": (self.keys.errors, intake.channel("errors", on(core.on_error_report), capacity=256), on(core.on_error_report), RING),
-            "health": (self.keys.health, intake.channel("health", on(core.on_health), latest=True, priority=8), on(core.on_health), 1),
+            name: (key, intake.channel(name, on(method), **options), on(method), ring)
+            for name, (key, method, options, ring) in streams.items()
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.on_params), latest=True, priority=8))
         matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
