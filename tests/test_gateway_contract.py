@@ -48,6 +48,12 @@ class Rig:
         """A payload on ``estop`` (``release_key``: on ``estop/release``), as the loop takes it."""
         self.service.driver.take(self.service.core.on_estop, read_estop(payload, release_key=release_key))
 
+    async def __aenter__(self) -> Rig:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
     async def close(self) -> None:
         self.stop.set()
         await asyncio.wait_for(self.task, 5.0)
@@ -97,8 +103,7 @@ def contract(test: Callable[..., Awaitable[None]]) -> Callable[..., None]:
 
 @contract
 async def test_cmd_vel_moves_the_robot_and_a_left_turn_is_a_left_turn(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0) as rig:
         # with and without trailing newline: what command-line clients send
         rig.cmd_vel(b'{"linear":{"x":0.2},"angular":{"z":0.4}}\n')
         await until(lambda: rig.robot.target_right > 0, "the command to reach the robot")
@@ -114,8 +119,6 @@ async def test_cmd_vel_moves_the_robot_and_a_left_turn_is_a_left_turn(transport:
             rig.cmd_vel(b'{"linear":{"x":0.1}}')
         await asyncio.sleep(0.2)
         assert rig.robot.counters["velocity_commands"] == sent
-    finally:
-        await rig.close()
     # shutdown leaves the robot standing: zero velocity and NORMAL_STOP
     assert rig.robot.target_left == rig.robot.target_right == 0.0
     assert rig.robot.counters["normal_stops"] == 1
@@ -123,8 +126,7 @@ async def test_cmd_vel_moves_the_robot_and_a_left_turn_is_a_left_turn(transport:
 
 @contract
 async def test_impulses_are_published_raw_with_sequence_and_stamps(transport: str) -> None:
-    rig = await start_rig(transport, poll_hz=100.0, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, poll_hz=100.0, cmd_timeout=0.0) as rig:
         rig.cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: len(rig.output.of(WheelImpulses)) > 150, "150 impulse samples")
         start = len(rig.output.of(WheelImpulses))
@@ -138,43 +140,34 @@ async def test_impulses_are_published_raw_with_sequence_and_stamps(transport: st
         moving = [m for m in log[-50:]]
         assert all(m.left in (202, 203) and m.right in (-211, -210) for m in moving)  # raw, right mirrored
         assert abs(log[-1].stamp - time.time()) < 5.0
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_command_timeout_brakes_within_timeout_plus_a_poll(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.3, poll_hz=50.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.3, poll_hz=50.0) as rig:
         started = time.monotonic()
         rig.cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
         await until(lambda: rig.robot.target_left == 0.0, "the command-timeout brake")
         assert time.monotonic() - started >= 0.29  # never before the timeout
         assert rig.service.health().cmd_timeout_active
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_keepalive_keeps_a_long_run_going_past_the_robot_watchdog(transport: str) -> None:
     # the robot's watchdog shortened to 1 s and the keep-alive to 0.4 s keep this quick
-    rig = await start_rig(transport, RobotParams(watchdog=1.0), cmd_timeout=0.0, keepalive=0.4)
-    try:
+    async with await start_rig(transport, RobotParams(watchdog=1.0), cmd_timeout=0.0, keepalive=0.4) as rig:
         rig.cmd_vel(b'{"linear":{"x":0.1}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
         await asyncio.sleep(3.0)
         rig.robot.advance(time.monotonic())
         assert rig.robot.moving and rig.robot.counters["watchdog_stops"] == 0
         assert rig.service.counters.keepalives >= 5
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_estop_latches_and_releases(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0) as rig:
         rig.cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
         rig.estop(b'{"engaged": true}')
@@ -188,28 +181,22 @@ async def test_estop_latches_and_releases(transport: str) -> None:
         assert not rig.service.health().estop
         rig.cmd_vel(b'{"linear":{"x":0.15}}')
         await until(lambda: rig.robot.target_left == pytest.approx(0.15), "motion after release")
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_full_buffer_is_recovered(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0, seed=5)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0, seed=5) as rig:
         rig.robot.faults = SimFaults(full_buffer=0.5)
         for speed in (0.1, 0.2, 0.3, 0.25, 0.15):
             rig.cmd_vel(b'{"linear":{"x":%.2f}}' % speed)
             await until(lambda s=speed: rig.robot.target_left == pytest.approx(s), f"{speed} m/s despite FULL_BUFFER")
         assert rig.robot.counters["full_buffer"] > 0
         assert rig.service.counters.full_buffer > 0 and rig.service.counters.full_buffer_retries > 0
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_garbled_link_keeps_impulses_flowing(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0, poll_hz=100.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0, poll_hz=100.0) as rig:
         rig.cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
         rig.robot.faults = SimFaults(garbage=0.3, split=0.3, glue=0.3)
@@ -220,14 +207,11 @@ async def test_garbled_link_keeps_impulses_flowing(transport: str) -> None:
         assert health.garbage_bytes > 0 and health.control.state == "connected"
         recent = rig.output.of(WheelImpulses)[-30:]
         assert all(m.left in (202, 203) for m in recent)
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_reconnects_after_a_drop_and_never_resumes_old_motion(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0) as rig:
         rig.cmd_vel(b'{"linear":{"x":0.2}}')
         await until(lambda: rig.robot.target_left > 0, "motion")
         dropped_at = time.monotonic()
@@ -240,14 +224,11 @@ async def test_reconnects_after_a_drop_and_never_resumes_old_motion(transport: s
         await asyncio.sleep(0.3)
         assert rig.robot.target_left == 0.0  # the old 0.2 m/s was not replayed
         assert rig.service.health().control.reconnects >= 1
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_a_silent_robot_is_detected_and_reconnected(transport: str) -> None:
-    rig = await start_rig(transport, silence_timeout=0.5)
-    try:
+    async with await start_rig(transport, silence_timeout=0.5) as rig:
         rig.robot.faults = SimFaults(silent=True)
         await until(lambda: rig.service.control.reconnects >= 1, "a reconnect after silence")
         assert not rig.service.control.connected or rig.service.control.reconnects >= 1
@@ -255,8 +236,6 @@ async def test_a_silent_robot_is_detected_and_reconnected(transport: str) -> Non
         start = len(rig.output.of(WheelImpulses))
         await until(lambda: len(rig.output.of(WheelImpulses)) > start + 10, "impulses after the robot speaks again")
         assert any("silent" in e.reason for e in rig.output.of(ErrorReport))
-    finally:
-        await rig.close()
 
 
 HOSTILE = [
@@ -322,30 +301,24 @@ async def test_hostile_payloads_are_reported_and_never_reach_the_robot(transport
 
 @contract
 async def test_commands_while_the_link_is_down_are_refused_not_queued(transport: str) -> None:
-    rig = await start_rig(transport, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0) as rig:
         await rig.server.close()  # the robot goes away entirely
         rig.server.drop_clients()
         await until(lambda: not rig.service.control.connected, "the link to go down")
         rig.cmd_vel(b'{"linear":{"x":0.3}}')
         assert any("link is down" in e.reason for e in rig.output.of(ErrorReport))
         assert rig.service.health().control.state in ("down", "connecting")
-    finally:
-        await rig.close()
 
 
 @contract
 async def test_status_from_the_log_port(transport: str) -> None:
-    rig = await start_rig(transport)
-    try:
+    async with await start_rig(transport) as rig:
         await until(lambda: len(rig.output.of(RobotStatus)) >= 1, "a status report")
         status = rig.output.of(RobotStatus)[0]
         assert (status.state_name, status.direction_name) == ("READY", "NORTH")
         rig.server.state = 3
         await until(lambda: rig.output.of(RobotStatus)[-1].state_name == "RUN", "a state change")
         await until(lambda: len(rig.output.of(GatewayHealth)) >= 2, "periodic health")
-    finally:
-        await rig.close()
 
 
 def test_an_unreachable_robot_is_reported_with_its_reason(caplog: pytest.LogCaptureFixture) -> None:
@@ -402,8 +375,7 @@ def test_a_bug_in_handling_fails_the_host_visibly_and_leaves_the_robot_standing(
 @contract
 async def test_inputs_taken_directly_on_another_thread_reach_the_robot_in_order(transport: str) -> None:
     """The direct path (a Zenoh thread holding the core lock) over either stream: sent at once where the stream can, else by the loop."""
-    rig = await start_rig(transport, cmd_timeout=0.0)
-    try:
+    async with await start_rig(transport, cmd_timeout=0.0) as rig:
         service = rig.service
 
         def on_zenohs_thread(take: Callable[[Any], bool], item: Any) -> bool:
@@ -421,5 +393,3 @@ async def test_inputs_taken_directly_on_another_thread_reach_the_robot_in_order(
         rig.cmd_vel(b'{"linear":{"x":0.2}}')  # refused on the loop: the stop taken on the other thread holds
         await until(lambda: any("emergency stop" in e.reason for e in rig.output.of(ErrorReport)), "the refused command's report")
         assert rig.robot.target_left == 0.0 and rig.server.malformed_requests == 0
-    finally:
-        await rig.close()
