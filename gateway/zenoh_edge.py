@@ -1,5 +1,11 @@
 """Zenoh edge of the gateway: declarations only, no logic.
 
+Its inputs are one table (:meth:`GatewayZenoh.attach`): each key, the intake
+channel it feeds, the core method the runtime's driver calls with ``now``,
+and how a sample is named or decoded where it enters (the e-stop is read
+once, here, into an :class:`~blackmetal.gateway.estop.EStopInput`). Its
+outputs go to the key the key space gives their type (:meth:`ZenohEdge.routes`).
+
 Inputs go through the one intake of :mod:`blackmetal.runtime.intake`: the
 callbacks copy the payload and the service's loop runs the handlers. Each
 input has its own bounded intake, so a flood of one can neither delay,
@@ -17,7 +23,7 @@ mask nor expire another:
 
 Health queries are answered from the loop. Commands and e-stops are taken
 directly on the Zenoh thread that delivers them when their robot's core is
-free (the intake's ``direct``, :mod:`blackmetal.gateway.direct`), in a fleet
+free (the intake's ``direct``, under the driver's rule: :mod:`blackmetal.runtime.driver`), in a fleet
 host too: each robot has its own core lock, so one robot's loop work never
 holds another's e-stop back.
 """

@@ -1,6 +1,6 @@
-"""The safety governor's timing contract, property-tested: what the host's DeadlineTimer relies on.
+"""The safety governor's timing contract, property-tested: what the driver's CoreTimer relies on.
 
-The host (``blackmetal.runtime.host.DeadlineTimer``) runs the core's ``tick(now)``
+The driver's timer (``blackmetal.runtime.driver.CoreTimer``) runs the core's ``tick(now)``
 at ``next_deadline()`` and after every input, and sleeps in between. Of the
 governor it needs two things, for any sequence of inputs:
 
