@@ -1,6 +1,6 @@
 """The service driver: what sits between Zenoh and a pure core, in one place, under one rule.
 
-A core (the gateway's robot connection, the odometry, the ROS 2 adapter) is
+A core (the gateway's, the odometry's, the ROS 2 adapter's) is
 pure and clock-injected: fed inputs with ``now``, it runs its due timers in
 ``tick(now)`` and says in ``next_deadline()`` when next. :class:`Driver`
 runs one on the service's loop and owns everything around it:
@@ -9,8 +9,8 @@ runs one on the service's loop and owns everything around it:
   never re-entered (a drain holds it and calls handlers that do not take it);
 * the core timer (:class:`CoreTimer`): ``tick`` at the core's deadline;
 * the inputs: :meth:`Driver.handler` makes an intake channel's handler
-  (``method(*item, now)``, then the host's ``after_locked``), :meth:`Driver.call`
-  runs one input from a thread that does not hold the lock;
+  (``method(*item, now)``, then the host's ``after_locked``), :meth:`Driver.take`
+  runs one input on the loop outside a drain;
 * publishing: what the core produced waits in :attr:`Driver.outbox` and is
   published by the loop once it holds no lock (:meth:`Driver.publish`);
 * failure: :meth:`Driver.fail` ends :meth:`Driver.serve` with the exception;
@@ -235,16 +235,12 @@ class Driver:
         self.after_locked()
         return result
 
-    def call(self, method: Callable[..., Any], *args: Any) -> Any:
-        """A thread that does not hold the lock: ``method(*args, now)`` under it, ``after_locked``, then publish; its result."""
+    def take(self, method: Callable[..., Any], *args: Any) -> Any:
+        """The loop, holding no lock (between drains: a link's reads, a start): ``method(*args, now)`` under the lock,
+        ``after_locked``, then what it produced published; its result."""
         with self.lock:
             result = method(*args, self.clock())
             self.after_locked()
-        return result
-
-    def take(self, method: Callable[..., Any], *args: Any) -> Any:
-        """As :meth:`call`, and what it produced published at once (the loop, between drains: a link's reads, a start)."""
-        result = self.call(method, *args)
         self.publish()
         return result
 
