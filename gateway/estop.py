@@ -11,6 +11,7 @@ to stop the robot must never be ignored on a technicality.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any
 
 import msgspec
@@ -41,10 +42,26 @@ def _meaning(value: Any) -> bool | None:
     return None
 
 
-def read_estop(payload: Any) -> tuple[bool, str | None]:
-    """``(engage, complaint)``: whether the stop is engaged after this payload, and what to report (None = nothing)."""
+@dataclass(frozen=True, slots=True)
+class EStopInput:
+    """A payload on an e-stop key, read once where it enters (the Zenoh callback) and carried so to the core."""
+
+    #: Put on ``<prefix>/estop/release`` (else ``<prefix>/estop``).
+    release_key: bool
+    #: Whether the stop is engaged after this payload (anything but a valid release engages).
+    engaged: bool
+    #: What to report (None = nothing).
+    complaint: str | None = None
+    #: The payload's excerpt for a report; empty unless a report may need it.
+    snippet: str = ""
+
+
+def read_estop(payload: Any, release_key: bool = False) -> EStopInput:
+    """The payload's meaning (see the module docstring), read once."""
     try:
-        return decode(EStop, payload).engaged, None
+        if decode(EStop, payload).engaged:
+            return EStopInput(release_key, True)
+        return EStopInput(release_key, False, None, "" if release_key else excerpt(payload))
     except PayloadError as exc:
         strict_reason = str(exc)
     data = to_bytes(payload)
@@ -55,7 +72,12 @@ def read_estop(payload: Any) -> tuple[bool, str | None]:
         except (msgspec.DecodeError, ValueError, RecursionError):
             pass  # unreadable: engages below, and is reported
     if meaning is True:
-        return True, None
+        return EStopInput(release_key, True)
+    snippet = excerpt(data)
     if meaning is False:
-        return True, f"{excerpt(data)!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}"
-    return True, f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}"
+        return EStopInput(
+            release_key, True, f"{snippet!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}", snippet
+        )
+    return EStopInput(
+        release_key, True, f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}", snippet
+    )

@@ -9,7 +9,7 @@ not the alignment of all that follow.
 A request unanswered for ``reply_timeout`` is reported lost, but it keeps
 its place for ``late_horizon``: a slow robot's late reply is taken by the
 request it answers (with the true round trip). While such a request is in
-doubt (its reply may be late, or lost), the connection sends nothing new but
+doubt (its reply may be late, or lost), the core sends nothing new but
 stops: the queue drains, by late replies or at the horizon, and pairing is
 exact again; a reply is never attributed to a request sent after it.
 """

@@ -43,7 +43,7 @@ def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[Gate
 def build(session: Any, s: GatewaySettings, burst: PutBurst | None = None) -> tuple[GatewayZenoh, GatewayHost]:
     """One robot's edge and host; in a fleet, its impulses in the fleet's ``burst``."""
     edge = GatewayZenoh(session, Keys(s.prefix), burst=burst)
-    host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge, s.latch_store())
+    host = GatewayHost(s, TcpConnector(s.robot, s.control_port, s.log_port, s.connect_timeout), edge.publish, s.latch_store())
     edge.attach(host, asyncio.get_running_loop())
     return edge, host
 

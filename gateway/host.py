@@ -1,39 +1,37 @@
-"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O connection, and sleeps.
+"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O core, and sleeps.
 
 All decisions are in :class:`~blackmetal.gateway.core.GatewayCore`; this
 module opens the robot's streams through an injected
 :class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
-pipe in tests), reconnects with backoff, feeds what it reads, writes what
-the connection wants written, hands messages to a :class:`GatewayOutput`,
-and sleeps until the connection's next deadline or the next input
-(:class:`~blackmetal.runtime.host.DeadlineTimer`, shared by every service).
+pipe in tests), reconnects with backoff, feeds what it reads and writes what
+the core wants written. The rest is the runtime's
+:class:`~blackmetal.runtime.driver.Driver`: the core lock, the core timer,
+publishing once the lock is released (each message to ``output``, which
+routes it by its type to its key) and failure.
 
 Commands and e-stops may also be taken on the Zenoh thread that delivers
-them (:meth:`GatewayHost.cmd_vel_direct`, :meth:`GatewayHost.estop_direct`),
-through the one :class:`~blackmetal.gateway.direct.DirectPath`: its lock guards the core
-and the streams' writes, the loop holds it whenever it is in the core, and
-every ``now`` is read inside it, so the core never sees time go back. Messages are published
-only on the loop and never under that lock (:meth:`GatewayHost.publish`):
-a Zenoh put that blocks must not hold up an e-stop's direct take. The
-threads and locks are drawn in ``docs/threads.md``.
+them (:meth:`GatewayHost.direct`, under the driver's direct-take rule): the
+bytes go to the robot at once, on the stream's own duplicate of the socket
+and only while the loop has nothing queued on it (what cannot go now goes
+first in the loop's next write). The threads and locks are drawn in
+``docs/threads.md``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, TypeVar
 
-from blackmetal.runtime.host import DeadlineTimer
-from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, ParamsSetReply, RobotStatus, WheelImpulses
+from blackmetal.runtime.driver import Driver
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, RobotStatus, WheelImpulses
 from blackmetal.transport import ByteStream, Connector
 
-from .arbiter import DEFAULT_SOURCE
-from .core import Event, GatewayCore
-from .direct import DirectPath
+from .core import GatewayCore
 from .health import Counters
 from .latch import LatchStore, start_latch
 from .links import LINKS, DropLink, LinkName, LinkState, ReconnectBackoff
@@ -42,45 +40,22 @@ from .settings import GatewaySettings
 log = logging.getLogger("blackmetal.gateway")
 
 
-class GatewayOutput(Protocol):
-    """Where the gateway's messages go."""
-
-    def impulses(self, message: WheelImpulses) -> None: ...
-    def status(self, message: RobotStatus) -> None: ...
-    def health(self, message: GatewayHealth) -> None: ...
-    def error(self, message: ErrorReport) -> None: ...
-    def driver(self, message: DriverChange) -> None: ...
-    def params(self, message: GatewayParams) -> None: ...
+Message = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams
+M = TypeVar("M", bound=Message)
 
 
 @dataclass
 class RecordingOutput:
-    """A GatewayOutput that keeps everything, for tests and tools."""
+    """Where a test's gateway publishes: every message kept, by type (each type has its key: :meth:`Keys.message_for`)."""
 
-    impulse_log: list[WheelImpulses] = field(default_factory=list)
-    status_log: list[RobotStatus] = field(default_factory=list)
-    health_log: list[GatewayHealth] = field(default_factory=list)
-    error_log: list[ErrorReport] = field(default_factory=list)
-    driver_log: list[DriverChange] = field(default_factory=list)
-    params_log: list[GatewayParams] = field(default_factory=list)
+    messages: dict[type, list[Any]] = field(default_factory=dict)
 
-    def impulses(self, message: WheelImpulses) -> None:
-        self.impulse_log.append(message)
+    def __call__(self, message: Message) -> None:
+        self.messages.setdefault(type(message), []).append(message)
 
-    def status(self, message: RobotStatus) -> None:
-        self.status_log.append(message)
-
-    def health(self, message: GatewayHealth) -> None:
-        self.health_log.append(message)
-
-    def error(self, message: ErrorReport) -> None:
-        self.error_log.append(message)
-
-    def driver(self, message: DriverChange) -> None:
-        self.driver_log.append(message)
-
-    def params(self, message: GatewayParams) -> None:
-        self.params_log.append(message)
+    def of(self, kind: type[M]) -> list[M]:
+        """The messages of one type so far, in order (the list grows as more come)."""
+        return self.messages.setdefault(kind, [])
 
 
 class GatewayHost:
@@ -90,7 +65,7 @@ class GatewayHost:
         self,
         settings: GatewaySettings,
         connector: Connector,
-        output: GatewayOutput,
+        output: Callable[[Message], None],
         latch: LatchStore,
         clock: Callable[[], float] = time.monotonic,
         wallclock: Callable[[], float] = time.time,
@@ -109,16 +84,12 @@ class GatewayHost:
             self.core.started_engaged(self.start_sentence, clock())
         self._streams: dict[LinkName, ByteStream | None] = {name: None for name in LINKS}
         self._drop_reason: dict[LinkName, str] = {}
-        #: The lock, the control stream and the send-now rule of inputs taken on a Zenoh thread (:mod:`blackmetal.gateway.direct`).
-        self.direct = DirectPath()
+        self.driver = Driver(self.core, clock, after_locked=self._flush_locked, publish=self._publish, name=settings.prefix, logger=log)
         #: Held by whoever is in the core or writes to a stream: the loop, or a Zenoh thread taking a command directly.
-        self.lock = self.direct.lock
-        #: Messages the core produced, published by the loop once it holds no lock (:meth:`publish`).
-        self._outbox: list[Event] = []
-        self._timer = DeadlineTimer(self.core, clock, after_tick=self._flush, on_error=self.fail, lock=self.lock, after_unlock=self.publish)
-        self._failure: asyncio.Future[None] | None = None
-
-    # ------------------------------------------------------------------ what tests and the edge see
+        self.lock = self.driver.lock
+        #: Bytes a direct take could not write at once; the loop writes them before anything newer.
+        self._unsent = b""
+        self._flush_scheduled = False
 
     @property
     def counters(self) -> Counters:
@@ -129,129 +100,83 @@ class GatewayHost:
         return self.core.links["control"]
 
     def health(self) -> GatewayHealth:
+        """The health now, from a thread that does not hold the lock."""
         with self.lock:
             return self.core.health(self.clock())
 
-    def fail(self, exc: BaseException) -> None:
-        """A bug in this robot's handling: :meth:`run` ends with it (after stopping the robot), for a supervisor to restart."""
-        log.error("%s: %r", self.core.keys.prefix, exc, exc_info=exc)
-        with self.lock:
-            self.direct.shut()  # a core that raised is driven by nobody but the loop's stop from now on
-        if self._failure is not None and not self._failure.done():
-            self._failure.set_exception(exc)
+    def _publish(self, message: Message) -> None:
+        if isinstance(message, ErrorReport):
+            log.warning("error on %s: %s", message.key, message.reason)
+        self.output(message)
 
-    # The loop's inputs: each runs the core under the lock, then publishes what it produced once no lock is held.
+    # ------------------------------------------------------------------ taken on the Zenoh thread that delivers it
 
-    def _input(self, handle: Callable[..., object], *args: object) -> None:
-        """The loop: ``handle(*args, now)`` on the core under the lock, the bytes it wants sent, then what it produced published."""
-        with self.lock:
-            handle(*args, self.clock())
-            self._flush()
-        self.publish()
+    def direct(self, method: Callable[..., object], *, unpack: bool = True) -> Callable[[Any], bool]:
+        """An intake channel's direct take (the intake holds the lock): ``method(*item, now)`` (``unpack`` False:
+        ``method(item, now)``), its bytes sent at once.
 
-    def on_cmd_vel(self, payload: bytes, source: str = DEFAULT_SOURCE) -> None:
-        self._input(lambda now: self.core.on_cmd_vel(payload, now, source))
-
-    def on_source_cmd_vel(self, item: tuple[str, bytes]) -> None:
-        """``(source, payload)`` from ``<prefix>/cmd_vel/<source>``."""
-        self.on_cmd_vel(item[1], item[0])
-
-    def on_superseded(self, source: str, count: int) -> None:
-        """``count`` commands of ``source`` were superseded in the intake before the loop took them."""
-        self._input(self.core.on_superseded, source, count)
-
-    def on_named_lock(self, item: tuple[str, bytes]) -> None:
-        """``(name, payload)`` from ``<prefix>/lock/<name>``."""
-        self._input(self.core.on_lock, item[0], item[1])
-
-    def on_estop(self, payload: bytes, release_key: bool = False) -> None:
-        """A payload on ``<prefix>/estop`` (``release_key``: on ``<prefix>/estop/release``)."""
-        self._input(lambda now: self.core.on_estop(payload, now, release_key))
-
-    def on_estop_input(self, item: tuple[bool, bytes]) -> None:
-        """``(release_key, payload)`` from the e-stop channel, which both e-stop keys feed."""
-        self.on_estop(item[1], item[0])
-
-    def on_input_flood(self, key: str, reason: str) -> None:
-        """An input began or stopped flooding (the edge changed how it takes it): reported on ``<prefix>/errors``."""
-        self._input(self.core.note_input, key, reason)
-
-    def on_health_seen(self, payload: bytes) -> None:
-        self._input(self.core.on_health_seen, payload)
-
-    def recent_errors(self) -> list[ErrorReport]:
-        """The core's latest error reports, oldest first (a get on ``<prefix>/errors`` answers with them)."""
-        with self.lock:
-            return list(self.core.reporter.recent)
-
-    def params(self) -> GatewayParams:
-        with self.lock:
-            return self.core.params_now()
-
-    def set_params(self, payload: bytes) -> ParamsSetReply | str:
-        """A get on ``<prefix>/gateway/params/set``: the core's answer (a str: why the payload is no ParamsSet)."""
-        try:
-            with self.lock:
-                try:
-                    return self.core.on_params_set(payload, self.clock())
-                finally:
-                    self._flush()
-        finally:
-            self.publish()
-
-    # ------------------------------------------------------------------ taken on a Zenoh thread (Intake direct)
-
-    def cmd_vel_direct(self, item: tuple[str, bytes]) -> bool:
-        """Under :attr:`lock`, on the thread that delivered it: handle ``(source, payload)`` and send the result at once.
-
-        False (the loop takes it, as any input) until the host runs. What
-        the command produced besides the control link's bytes (reports, the
-        next deadline) waits for the loop's flush, scheduled here.
+        False (the loop takes it, as any input) unless the driver's rule
+        allows it. What the input produced besides the control link's bytes
+        (reports, the next deadline) waits for the loop's flush, scheduled here.
         """
-        if not self.direct.allowed():
-            return False
-        self.core.on_cmd_vel(item[1], self.clock(), item[0])
-        self.direct.send(self._pending(), self._flush_locked)
-        return True
+        driver, clock = self.driver, self.clock
 
-    def estop_direct(self, item: tuple[bool, bytes]) -> bool:
-        """As :meth:`cmd_vel_direct`, for ``(release_key, payload)``: EMG_STOP leaves for the robot without waiting for the loop."""
-        if not self.direct.allowed():
-            return False
-        self.core.on_estop(item[1], self.clock(), item[0])
-        self.direct.send(self._pending(), self._flush_locked)
-        if self._save_latch():  # after the EMG_STOP left; a release takes effect once saved
-            self.direct.send(self._pending(), self._flush_locked)
-        return True
+        def take(item: Any) -> bool:
+            if not driver.may_take_directly():
+                return False
+            if unpack:
+                method(*item, clock())
+            else:
+                method(item, clock())
+            self._send_now_locked()
+            if self._save_latch_locked():  # after the EMG_STOP left; a release takes effect once saved
+                self._send_now_locked()
+            if not self._flush_scheduled:
+                self._flush_scheduled = True
+                driver.schedule(self._flush_after_direct)
+            return True
 
-    def _flush_locked(self) -> None:
+        return take
+
+    def _send_now_locked(self) -> None:
+        """What the control stream is due, as far as it takes it now; the rest goes first in the loop's next write."""
+        data = self._pending_locked()
+        if data:
+            stream = self._streams["control"]
+            sent = stream.write_now(data) if stream is not None and not stream.is_closing() else 0
+            if sent < len(data):
+                self._unsent = data[sent:]
+
+    def _flush_after_direct(self) -> None:
         """The loop, after a direct take: its reports, the rest of its bytes, the next deadline; a failure fails the host."""
         try:
             with self.lock:
-                self.direct.flushed()
-                self._flush()
-            self.publish()
+                self._flush_scheduled = False
+                self._flush_locked()
+            self.driver.publish()
         except Exception as exc:
-            self.fail(exc)
+            self.driver.fail(exc)
 
     # ------------------------------------------------------------------ moving bytes
 
-    def _pending(self) -> bytes:
-        """Under the lock: what the control link is to be sent, oldest first (a direct take's unsent rest, then the core's
-        new bytes). Only the control link is ever written to: the log link is read-only."""
-        return self.direct.before(self.core.take_outgoing("control"))
+    def _pending_locked(self) -> bytes:
+        """What the control link is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes).
+        Only the control link is ever written to: the log link is read-only."""
+        data = self.core.take_outgoing("control")
+        rest, self._unsent = self._unsent, b""
+        return rest + data if rest else data
 
-    def _flush(self) -> None:
-        """Under the lock: write what the connection wants written; act on drops; keep its messages for :meth:`publish`.
+    def _flush_locked(self) -> None:
+        """Write what the core wants written; act on drops; keep its messages for the driver to publish.
 
         This runs twice per poll per robot.
         """
-        core = self.core
-        self._write(self._pending())
-        if self._save_latch():  # after the EMG_STOP left; a release takes effect once saved
-            self._write(self._pending())
-        events = core.take_events()
+        self._write_locked(self._pending_locked())
+        if self._save_latch_locked():  # after the EMG_STOP left; a release takes effect once saved
+            self._write_locked(self._pending_locked())
+        events = self.core.take_events()
         if events:
+            outbox = self.driver.outbox
             for event in events:
                 if isinstance(event, DropLink):
                     stream = self._streams[event.link]
@@ -260,18 +185,17 @@ class GatewayHost:
                         self._drop_reason[event.link] = event.reason
                         stream.close()
                 else:
-                    self._outbox.append(event)
-        self._timer.poke()
+                    outbox.append(event)
+        self.driver.timer.poke()
 
-    def _write(self, data: bytes) -> None:
-        """Under the lock: ``data`` to the control stream, if it is open."""
+    def _write_locked(self, data: bytes) -> None:
         if data:
             stream = self._streams["control"]
             if stream is not None and not stream.is_closing():
                 stream.write(data)
 
-    def _save_latch(self) -> bool:
-        """Under the lock, once the bytes of the input are written: save a change of the e-stop latch (True: there was one).
+    def _save_latch_locked(self) -> bool:
+        """Once the bytes of the input are written: save a change of the e-stop latch (True: there was one).
 
         Saved under the lock so that no health is built between the change and its save: health never shows an
         engaged stop that a restart would not find.
@@ -282,35 +206,9 @@ class GatewayHost:
         self.core.latch_saved(latch, self.latch.save(latch), self.clock())
         return True
 
-    def publish(self) -> None:
-        """The loop, holding no lock: hand the core's messages to the output (a put may block; no e-stop waits on it).
-
-        Called while the loop still holds the lock (an input handled inside a
-        drain), it leaves them for the outermost holder, which calls it again.
-        """
-        if not self._outbox or self.lock.held():
-            return
-        events, self._outbox = self._outbox, []
-        output = self.output
-        for event in events:
-            if isinstance(event, WheelImpulses):
-                output.impulses(event)
-            elif isinstance(event, RobotStatus):
-                output.status(event)
-            elif isinstance(event, GatewayHealth):
-                output.health(event)
-            elif isinstance(event, ErrorReport):
-                log.warning("error on %s: %s", event.key, event.reason)
-                output.error(event)
-            elif isinstance(event, DriverChange):
-                output.driver(event)
-            elif isinstance(event, GatewayParams):
-                output.params(event)
-
     async def _run_link(self, name: LinkName, stop: asyncio.Event) -> None:
         """Connect, read until the stream ends, reconnect with backoff; until ``stop`` is set."""
-        core = self.core
-        lock = self.lock
+        core, lock, driver = self.core, self.lock, self.driver
         backoff = ReconnectBackoff()
         first_failure = True
         while not stop.is_set():
@@ -332,62 +230,35 @@ class GatewayHost:
             log.info("%s link: connected to %s", name, self.connector.describe(name))
             with lock:
                 self._streams[name] = stream
-                if name == "control":
-                    self.direct.stream_up(stream)
-                core.link_up(name, self.clock())
-                self._flush()
-            self.publish()
+            driver.take(core.link_up, name)
             reason = "closed by the robot"
-
-            def deliver(data: bytes, name: LinkName = name) -> None:
-                with lock:
-                    core.receive(name, data, self.clock())
-                    self._flush()
-                self.publish()
-
-            try:
-                await stream.pump(deliver)  # a bug in the core raises here, and the link's task fails with it
+            try:  # a bug in the core raises here, and the link's task fails with it
+                await stream.pump(functools.partial(driver.take, core.receive, name))
             except (ConnectionError, OSError) as exc:
                 reason = f"connection error: {exc}"
             finally:
                 with lock:  # nobody writes to it from now on, from any thread
                     self._streams[name] = None
                     if name == "control":
-                        self.direct.stream_down()
+                        self._unsent = b""
                     stream.close()
             reason = self._drop_reason.pop(name, reason)
             if stop.is_set():
                 reason = "gateway stopping"
             else:
                 log.warning("%s link: %s; reconnecting", name, reason)
-            with lock:
-                core.link_down(name, reason, self.clock())
-                self._flush()
-            self.publish()
+            driver.take(core.link_down, name, reason)
             if not stop.is_set():
                 await _sleep_or_stop(stop, backoff.failed(self.clock()))
 
     async def run(self, stop: asyncio.Event) -> None:
-        """Run until ``stop`` is set, then stop the robot and close the links."""
+        """Run until ``stop`` is set (or the driver fails: raised here), then stop the robot and close the links."""
         link_stop = asyncio.Event()
-        with self.lock:
-            self.direct.open(asyncio.get_running_loop())
+        self.driver.open()
         tasks = [asyncio.create_task(self._run_link(name, link_stop), name=f"{name}-link") for name in LINKS]
-        failure: asyncio.Future[None] = asyncio.get_running_loop().create_future()
-        self._failure = failure
-        for task in tasks:
-            task.add_done_callback(self._link_done)
-        self._timer.start()
-        stopped: asyncio.Future[Any] = asyncio.ensure_future(stop.wait())
         try:
-            await asyncio.wait({stopped, failure}, return_when=asyncio.FIRST_COMPLETED)
-            if failure.done():
-                failure.result()  # raises the failure, after the finally below has stopped the robot
+            await self.driver.serve(stop, tasks)  # from its end on the loop takes every input (the core refuses motion once stopping)
         finally:
-            with self.lock:
-                self.direct.shut()  # from now on the loop takes every input (and the core refuses motion once stopping)
-            stopped.cancel()
-            self._timer.stop()
             await self._stop_robot()
             link_stop.set()
             with self.lock:
@@ -398,18 +269,10 @@ class GatewayHost:
             for task in tasks:
                 task.cancel()
 
-    def _link_done(self, task: asyncio.Task[None]) -> None:
-        """A link task that dies of a bug fails the host: it must not leave the robot unserved, silently."""
-        if not task.cancelled() and task.exception() is not None:
-            self.fail(task.exception())  # type: ignore[arg-type]
-
     async def _stop_robot(self) -> None:
         """Zero velocity and NORMAL_STOP, so the robot is left standing; wait briefly for the replies."""
-        with self.lock:
-            self.core.stop_robot(self.clock())
-            self._flush()
-            stream = self._streams["control"]
-        self.publish()
+        self.driver.take(self.core.stop_robot)
+        stream = self._streams["control"]
         if stream is None:
             return
         try:

@@ -39,7 +39,7 @@ class DropLink:
 
 @dataclass
 class LinkState:
-    """What the connection knows of one link: up or not, since when, how often."""
+    """What the core knows of one link: up or not, since when, how often."""
 
     status: LinkStatus = LinkStatus.DOWN
     #: ``status is CONNECTED``, kept with it (by :class:`Links`, which alone sets either): the core asks several times per poll.

@@ -1,6 +1,6 @@
 """What velocity the robot should get, and when: limits, timeout, e-stop, dedup, keep-alive, confirmed stops.
 
-Pure and clock-injected: the robot connection calls
+Pure and clock-injected: the gateway's core calls
 :meth:`Governor.next_command` and :meth:`Governor.emg_stop_due` on every
 event and at every deadline (:meth:`Governor.next_deadline`) and sends what
 they return; it reports the robot's answers back (:meth:`~Governor.on_accepted`,
@@ -37,172 +37,78 @@ again, spaced the same way.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
-from enum import Enum
+from dataclasses import replace
+from typing import NamedTuple
 
-from blackmetal.robot_model import MAX_WHEEL_SPEED, STANDSTILL, UNITY_GAIN, WHEEL_SEPARATION, WheelGain, WheelSpeeds, twist_to_wheels
+from blackmetal.robot_model import STANDSTILL, WheelSpeeds, twist_to_wheels
 from blackmetal.schemas import Twist
 
-#: Pause before the first re-send of a command the robot did not take; it doubles up to RETRY_CAP_S.
-RETRY_FIRST_S = 0.005
-RETRY_CAP_S = 0.25
-#: After a stop is accepted, the wheels may take this long to come to rest before the stop is asked for again.
-STOP_GRACE_S = 0.5
-#: Rim speed below which a wheel counts as standing (m/s).
-STANDING_SPEED = 0.01
-#: While an acceleration limit holds the twist back from the commanded one, it is stepped at least this often (s).
-RAMP_STEP_S = 0.02
+from .safety_states import (
+    NOTHING_DUE,
+    RAMP_STEP_S,
+    RETRY_CAP_S,
+    STANDING_SPEED,
+    STILL,
+    STOP_GRACE_S,
+    CommandReason,
+    Driving,
+    Due,
+    EStopped,
+    Mode,
+    Offline,
+    Robot,
+    SafetySettings,
+    Sent,
+    State,
+    Velocity,
+    VelocityCommand,
+    retry_delay,
+)
 
-#: A body twist: (v m/s, w rad/s).
-Velocity = tuple[float, float]
-STILL: Velocity = (0.0, 0.0)
-
-
-def retry_delay(attempt: int) -> float:
-    """Pause before re-send number ``attempt`` (1, 2, ...): 5 ms doubling, at most 250 ms."""
-    return min(RETRY_FIRST_S * 2.0 ** max(attempt - 1, 0), RETRY_CAP_S)
-
-
-@dataclass(frozen=True, slots=True)
-class SafetySettings:
-    wheel_separation: float = WHEEL_SEPARATION
-    #: Per-wheel limit (m/s); faster commands are scaled down, keeping the curvature.
-    max_wheel_speed: float = MAX_WHEEL_SPEED
-    #: Brake when no valid cmd_vel arrived for this long (s); 0 disables.
-    cmd_timeout: float = 0.5
-    #: Repeat an unchanged, non-zero command this often so the robot's 10 s watchdog never fires (s).
-    keepalive: float = 5.0
-    #: Optional acceleration limits on the body twist (m/s^2, rad/s^2); None = off.
-    linear_accel: float | None = None
-    angular_accel: float | None = None
-    #: A cmd_vel beyond these is not a command but a client bug: rejected, not scaled.
-    plausible_linear: float = 10.0
-    plausible_angular: float = 50.0
-    #: How often a motion command the robot did not take is re-sent before giving up until the next change.
-    full_buffer_retries: int = 5
-    #: At most this many velocity commands per second reach the robot; a flood is coalesced to the latest.
-    max_command_hz: float = 500.0
-    #: Per-wheel correction of the commanded m/s: calibrated impulses per metre over the
-    #: nominal ones the robot's firmware uses, so a wheel larger than its drawing is asked for less.
-    wheel_gain: WheelGain = UNITY_GAIN
+__all__ = [
+    "CommandReason",
+    "Driving",
+    "EStopped",
+    "Governor",
+    "Mode",
+    "Offline",
+    "Robot",
+    "SafetySettings",
+    "Sent",
+    "State",
+    "VelocityCommand",
+]
 
 
-class Mode(Enum):
-    """What the governor is doing, named; every decision starts from it (the :data:`State`'s kind)."""
+class _Planned(NamedTuple):
+    """The decision made for one state object at one look (:meth:`Governor.plan`)."""
 
-    OFFLINE = "offline"  # no control link: nothing is sent and nothing is due
-    ESTOP = "estop"  # the e-stop is latched: EMG_STOP (again while the wheels still turn), never motion
-    DRIVING = "driving"  # limits, command timeout, coalescing, retries, keep-alive, confirmed stops
-
-
-class CommandReason(Enum):
-    """Why a velocity command goes out; the connection counts and reports by it."""
-
-    NEW = "new"  # the wanted wheel speeds changed
-    KEEPALIVE = "keepalive"  # unchanged motion, repeated before the robot's watchdog fires
-    RETRY = "retry"  # the robot did not take the previous one
-    STOP_AGAIN = "stop-again"  # the wheels still turn although the robot accepted a stop
+    of: State
+    now: float
+    congested: bool
+    settings: SafetySettings
+    state: State
+    due: Due
 
 
-@dataclass(frozen=True, slots=True)
-class VelocityCommand:
-    """A velocity to send now, and why."""
+class _Deadline(NamedTuple):
+    """The decision taken at -inf for one state object (:meth:`Governor.next_deadline`), and whether time changes
+    nothing before it (not ramping): then it holds at any look before it."""
 
+    of: State
+    congested: bool
+    settings: SafetySettings
+    due: Due
+    settled: bool
+
+
+class _WheelsOf(NamedTuple):
+    """The wheel speeds asked for one twist under one settings, and whether they were scaled down."""
+
+    twist: Velocity
+    settings: SafetySettings
     wheels: WheelSpeeds
-    reason: CommandReason
-
-
-# ---------------------------------------------------------------------- the state
-
-
-@dataclass(frozen=True, slots=True)
-class Sent:
-    """The last velocity command written on this link, when, and its re-sends since the robot did not take it."""
-
-    wheels: WheelSpeeds
-    at: float
-    resends: int = 0
-    #: When it is re-sent next (None: no re-send planned).
-    resend_at: float | None = None
-
-
-@dataclass(frozen=True, slots=True)
-class Robot:
-    """What this link told the robot and heard back; every new link starts from nothing."""
-
-    sent: Sent | None = None
-    #: The wheel speeds the robot last accepted (RECIEVE_OK), and when.
-    accepted: WheelSpeeds | None = None
-    accepted_at: float = -math.inf
-    #: The wheels turned at the last poll.
-    moving: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class Offline:
-    """No control link: nothing is sent and nothing is due; a latched e-stop stays latched for the next link."""
-
-    estop: bool = False
-
-
-@dataclass(frozen=True, slots=True)
-class EStopped:
-    """The e-stop is latched on a live link: EMG_STOP goes out, and again while the wheels still turn; never motion."""
-
-    robot: Robot
-    #: When EMG_STOP is due (pending) or was (written): the wheels get STOP_GRACE_S from then to come to rest.
-    emg_at: float
-    emg_pending: bool = True
-    emg_resends: int = 0
-    #: When the last valid cmd_vel was heard (the command timeout in health still counts from it).
-    heard_at: float = -math.inf
-
-    @property
-    def recheck_at(self) -> float:
-        """When EMG_STOP is asked for again because the wheels still turn (inf: they stand, or it is still to go out)."""
-        return self.emg_at + STOP_GRACE_S if self.robot.moving and not self.emg_pending else math.inf
-
-    def emg_again(self, now: float) -> EStopped:
-        """EMG_STOP once more, after a pause that grows with each time."""
-        resends = self.emg_resends + 1
-        return replace(self, emg_at=now + retry_delay(resends), emg_pending=True, emg_resends=resends)
-
-
-@dataclass(frozen=True, slots=True)
-class Driving:
-    """A live link, no e-stop: the commanded twist goes out through the limits, the timeout, the ramp and the rate cap.
-
-    What it sends next (a new command or one held for the rate cap, a re-send,
-    a stop asked for again, a keep-alive) is not stored but read off it by
-    :meth:`Governor.plan`.
-    """
-
-    robot: Robot
-    target: Velocity = STILL
-    #: When ``target`` was commanded; the command timeout counts from it (-inf: a fresh cmd_vel is needed to move).
-    heard_at: float = -math.inf
-    #: The twist after the acceleration limits, as of ``current_at``; while it equals the target it holds from then on
-    #: (``current_at`` moves only while it changes: whoever changes the target brings it up to now first).
-    current: Velocity = STILL
-    current_at: float = -math.inf
-
-
-#: Everything the governor knows, as one value.
-State = Offline | EStopped | Driving
-
-
-@dataclass(frozen=True, slots=True)
-class Due:
-    """What a state does next with no new input, and from when (``at <= now``: now)."""
-
-    at: float
-    #: The velocity command then (None: only a look again: the command timeout, a ramp step, a check of the wheels).
-    command: VelocityCommand | None = None
-    #: EMG_STOP then, ahead of any velocity.
-    emg_stop: bool = False
-
-
-NOTHING_DUE = Due(math.inf)
+    scaled: bool
 
 
 # ---------------------------------------------------------------------- the governor
@@ -217,11 +123,11 @@ class Governor:
         # The decision is asked three times per input (emg_stop_due, next_command, next_deadline) of one state at one
         # time: each answer is kept for the state object it was made of (states are immutable), and the wheel speeds
         # for the twist and settings they were made of. A command costs one decision, not three.
-        self._planned: tuple[State, float, bool, SafetySettings, State, Due] | None = None
+        self._planned: _Planned | None = None
         # The last one also tells whether time changes nothing before the deadline (not ramping): then that decision
         # holds at any look before it.
-        self._deadline: tuple[State, bool, SafetySettings, Due, bool] | None = None
-        self._wheels_of: tuple[Velocity, SafetySettings, tuple[WheelSpeeds, bool]] | None = None
+        self._deadline: _Deadline | None = None
+        self._wheels_of: _WheelsOf | None = None
 
     @property
     def mode(self) -> Mode:
@@ -257,7 +163,7 @@ class Governor:
     @property
     def scaled(self) -> bool:
         """The current command is scaled down to the wheel limit (keeping its curvature)."""
-        return isinstance(self.state, Driving) and self._wheels(self.state.current)[1]
+        return isinstance(self.state, Driving) and self._wheels(self.state.current).scaled
 
     # ------------------------------------------------------------------ inputs
 
@@ -378,20 +284,27 @@ class Governor:
         """
         state = self.state
         kept = self._deadline
-        if kept is not None and kept[4] and kept[0] is state and now < kept[3].at and kept[1] == congested and kept[2] is self.settings:
-            return state, kept[3]  # time changes nothing before the deadline: the decision kept for this state holds
+        if (
+            kept is not None
+            and kept.settled
+            and kept.of is state
+            and now < kept.due.at
+            and kept.congested == congested
+            and kept.settings is self.settings
+        ):
+            return state, kept.due  # time changes nothing before the deadline: the decision kept for this state holds
         planned = self._planned
         if (
             planned is not None
-            and planned[0] is self.state
-            and planned[1] == now
-            and planned[2] == congested
-            and planned[3] is self.settings
+            and planned.of is self.state
+            and planned.now == now
+            and planned.congested == congested
+            and planned.settings is self.settings
         ):
-            return planned[4], planned[5]
+            return planned.state, planned.due
         state = self._advance(self.state, now)
         due = self._due(state, now, congested)
-        self._planned = (self.state, now, congested, self.settings, state, due)
+        self._planned = _Planned(self.state, now, congested, self.settings, state, due)
         return state, due
 
     def next_command(self, now: float, congested: bool = False) -> VelocityCommand | None:
@@ -420,13 +333,13 @@ class Governor:
         """
         state = self.state
         kept = self._deadline
-        if kept is not None and kept[0] is state and kept[1] == congested and kept[2] is self.settings:
-            return kept[3].at
+        if kept is not None and kept.of is state and kept.congested == congested and kept.settings is self.settings:
+            return kept.due.at
         due = self._due(state, -math.inf, congested)
         # not ramping: before due.at time changes nothing (no brake, no step, no re-check) and the decision is the same
         # at any look (it depends on the look's time only to rank re-sends already due)
         settled = not isinstance(state, Driving) or state.current == state.target
-        self._deadline = (state, congested, self.settings, due, settled)
+        self._deadline = _Deadline(state, congested, self.settings, due, settled)
         return due.at
 
     # ------------------------------------------------------------------ the decision's parts
@@ -471,7 +384,7 @@ class Governor:
             return NOTHING_DUE
         if isinstance(state, EStopped):
             return Due(state.emg_at, emg_stop=True) if state.emg_pending else Due(state.recheck_at)
-        wheels = self._wheels(state.current)[0]
+        wheels = self._wheels(state.current).wheels
         # a ramp is stepped at least every RAMP_STEP_S; congested, only on its way to a stop (motion waits anyway)
         ramping = state.current != state.target and (not congested or state.target == STILL)
         send = self._send(state, wheels, now, congested)
@@ -506,18 +419,17 @@ class Governor:
         timeout = self.settings.cmd_timeout
         return state.heard_at + timeout if timeout > 0 and state.target != STILL else math.inf
 
-    def _wheels(self, twist: Velocity) -> tuple[WheelSpeeds, bool]:
+    def _wheels(self, twist: Velocity) -> _WheelsOf:
         """The wheel speeds the robot is asked for to drive ``twist``, as the wire carries them, and whether they were scaled down."""
         s = self.settings
         kept = self._wheels_of
-        if kept is not None and kept[0] == twist and kept[1] is s:
-            return kept[2]
+        if kept is not None and kept.twist == twist and kept.settings is s:
+            return kept
         wheels, scaled = twist_to_wheels(*twist, s.wheel_separation, s.max_wheel_speed)
         if not s.wheel_gain.is_unity:
             wheels = wheels.scaled(s.wheel_gain)
-        result = (wheels.rounded(), scaled)
-        self._wheels_of = (twist, s, result)
-        return result
+        kept = self._wheels_of = _WheelsOf(twist, s, wheels.rounded(), scaled)
+        return kept
 
 
 def _sending(sent: Sent | None, command: VelocityCommand, now: float) -> Sent:

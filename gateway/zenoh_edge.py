@@ -1,5 +1,11 @@
 """Zenoh edge of the gateway: declarations only, no logic.
 
+Its inputs are one table (:meth:`GatewayZenoh.attach`): each key, the intake
+channel it feeds, the core method the runtime's driver calls with ``now``,
+and how a sample is named or decoded where it enters (the e-stop is read
+once, here, into an :class:`~blackmetal.gateway.estop.EStopInput`). Its
+outputs go to the key the key space gives their type (:meth:`ZenohEdge.routes`).
+
 Inputs go through the one intake of :mod:`blackmetal.runtime.intake`: the
 callbacks copy the payload and the service's loop runs the handlers. Each
 input has its own bounded intake, so a flood of one can neither delay,
@@ -17,7 +23,7 @@ mask nor expire another:
 
 Health queries are answered from the loop. Commands and e-stops are taken
 directly on the Zenoh thread that delivers them when their robot's core is
-free (the intake's ``direct``, :mod:`blackmetal.gateway.direct`), in a fleet
+free (the intake's ``direct``, under the driver's rule: :mod:`blackmetal.runtime.driver`), in a fleet
 host too: each robot has its own core lock, so one robot's loop work never
 holds another's e-stop back.
 """
@@ -26,8 +32,7 @@ from __future__ import annotations
 
 import asyncio
 import functools
-from collections.abc import Callable
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import msgspec
 
@@ -35,21 +40,10 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.flood import newest
 from blackmetal.runtime.intake import Intake
-from blackmetal.runtime.zenoh_entities import Item
-from blackmetal.schemas import (
-    DriverChange,
-    ErrorReport,
-    GatewayHealth,
-    GatewayParams,
-    Keys,
-    RobotStatus,
-    WheelImpulses,
-    encode,
-    payload_bytes,
-)
+from blackmetal.schemas import Keys, encode, payload_bytes
 
 from .arbiter import DEFAULT_SOURCE
-from .estop import read_estop
+from .estop import EStopInput, read_estop
 
 if TYPE_CHECKING:
     import zenoh
@@ -58,24 +52,21 @@ if TYPE_CHECKING:
 
 #: Inputs on names nobody configured, waiting to be refused: a flood of new names keeps the newest few.
 UNKNOWN_NAMES_CAPACITY = 8
+#: Queries waiting for the loop, per queryable.
+QUERIES_CAPACITY = 16
 
 
-def _as_name(name: str, put: Callable[[tuple[str, bytes]], None]) -> Callable[[tuple[str, bytes]], None]:
-    """A put that hands ``(name, payload)`` over, whatever key chunk the sample came on."""
-    return lambda item: put((name, item[1]))
-
-
-def _engages(item: tuple[bool, bytes]) -> bool:
+def _engages(item: EStopInput) -> bool:
     """An e-stop sample that engages: it is latched in the intake until handled (see Channel)."""
-    return read_estop(item[1])[0]
+    return item.engaged
 
 
-def _estop_batch(batch: list[Item]) -> list[Item]:
+def _estop_batch(batch: list[EStopInput]) -> list[EStopInput]:
     """What a storm's pump hands over of a batch of e-stop samples: the first that engages, if the newest does not, and the newest."""
     last = batch[-1]
-    if read_estop(last[1])[0]:
+    if last.engaged:
         return [last]
-    first_on = next((item for item in batch if read_estop(item[1])[0]), None)
+    first_on = next((item for item in batch if item.engaged), None)
     return [last] if first_on is None else [first_on, last]
 
 
@@ -93,99 +84,73 @@ class GatewayZenoh(ZenohEdge):
         """
         super().__init__(session)
         self.keys = keys
-        self._burst = burst
-        self._impulses = self.publisher(keys.impulses, express=burst is None)
-        self._status = self.publisher(keys.status)
-        self._health = self.publisher(keys.health)
-        self._errors = self.publisher(keys.errors)
-        self._driver = self.publisher(keys.driver)
-        self._params = self.publisher(keys.params)
-
-    # GatewayOutput
-    def impulses(self, message: WheelImpulses) -> None:
-        if self._burst is not None:
-            self._burst.put(self._impulses, encode(message))
-        else:
-            self._impulses.put(encode(message))
-
-    def status(self, message: RobotStatus) -> None:
-        self._status.put(encode(message))
-
-    def health(self, message: GatewayHealth) -> None:
-        self._health.put(encode(message))
-
-    def error(self, message: ErrorReport) -> None:
-        self._errors.put(encode(message))
-
-    def driver(self, message: DriverChange) -> None:
-        self._driver.put(encode(message))
-
-    def params(self, message: GatewayParams) -> None:
-        self._params.put(encode(message))
+        self.routes(keys, (keys.impulses, keys.status, keys.health, keys.errors, keys.driver, keys.params), fast=keys.impulses, burst=burst)
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
-        """Declare the subscribers, queryable and liveliness token that feed ``service``."""
-        keys = self.keys
-        arbiter = service.core.arbiter
+        """Declare the subscribers, queryables and liveliness token that feed ``service``, as the table below says."""
+        keys, core, driver = self.keys, service.core, service.driver
+        sources, locks = core.arbiter.names, core.arbiter.lock_names
         # a bug in handling one input fails this robot's host, visibly; what the inputs produced is published after each drain
-        intake = self.intake(loop, on_error=service.fail, lock=service.lock, after_drain=service.publish)
-        estop = intake.channel("estop", service.on_estop_input, latest=True, latch=_engages, priority=2, direct=service.estop_direct)
-        flood = service.on_input_flood
-        # guarded too: a storm of e-stop samples must not keep Zenoh's thread in Python while its final ON waits behind
-        # them. One subscriber per key, exact: one on estop/** matching both keys delayed a storm's final ON by 0.2-0.3 s
-        # inside Zenoh (1.10), where two exact ones took 2-3 ms. Samples of the two keys keep their order while they come
-        # through callbacks (one Zenoh thread); while both keys flood, each has its own pump, and a release may be taken
-        # a turn after an ON put after it (see docs/safety.md).
-        self.guarded(keys.estop, lambda item: estop((False, item[1])), intake, flood, pick=_estop_batch)
-        self.guarded(keys.estop_release, lambda item: estop((True, item[1])), intake, flood, pick=_estop_batch)
-        sources: dict[str, Callable[[tuple[str, bytes]], None]] = {}
-        for name in arbiter.names:
-            put = intake.channel(
+        intake = self.intake(loop, on_error=driver.fail, lock=driver.lock, after_drain=driver.publish)
+        on = driver.handler
+        estop = intake.channel(
+            "estop",
+            on(core.on_estop, unpack=False),
+            latest=True,
+            latch=_engages,
+            priority=2,
+            direct=service.direct(core.on_estop, unpack=False),
+        )
+        cmd_vel = {
+            name: intake.channel(
                 f"cmd_vel/{name}",
-                service.on_source_cmd_vel,
+                on(core.on_cmd_vel),
                 latest=True,
                 priority=1,
-                direct=service.cmd_vel_direct,
-                on_dropped=functools.partial(service.on_superseded, name),
+                direct=service.direct(core.on_cmd_vel),
+                on_dropped=functools.partial(driver.run_locked, core.on_superseded, name),
             )
-            sources[name] = put
-            self.guarded(keys.cmd_vel_of(name), _as_name(name, put), intake, flood, pick=newest)
-        unknown_source = intake.channel("cmd_vel/?", service.on_source_cmd_vel, capacity=UNKNOWN_NAMES_CAPACITY)
-        default = sources.get(DEFAULT_SOURCE)
-
-        def any_source(item: tuple[str, bytes]) -> None:
-            """``<prefix>/cmd_vel/<name>``: configured names come through their own subscriber (``cmd_vel/default`` here)."""
-            name = item[0]
-            if name == DEFAULT_SOURCE and default is not None:
-                default(item)
-            elif name not in sources:
-                unknown_source(item)
-
-        self.guarded(keys.any_cmd_vel_source, any_source, intake, flood)
-        locks: set[str] = set()
-        for name in arbiter.lock_names:
-            put_lock = intake.channel(f"lock/{name}", service.on_named_lock, latest=True, priority=1)
-            locks.add(name)
-            self.guarded(keys.lock_of(name), _as_name(name, put_lock), intake, flood, pick=newest)
-        unknown_lock = intake.channel("lock/?", service.on_named_lock, capacity=UNKNOWN_NAMES_CAPACITY)
-        self.guarded(keys.any_lock, lambda item: None if item[0] in locks else unknown_lock(item), intake, flood)
-        self.queryable(keys.health, intake.channel("health?", lambda q: self._answer_health(service, q), capacity=16))
-        self.queryable(
-            keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, service.recent_errors()), capacity=16)
-        )
-        self.queryable(keys.params, intake.channel("params?", lambda q: self._answer(q, keys.params, service.params()), capacity=16))
-        self.queryable(keys.params_set, intake.channel("params set?", lambda q: self._answer_set(service, q), capacity=16))
+            for name in sources
+        }
+        lock = {name: intake.channel(f"lock/{name}", on(core.on_lock), latest=True, priority=1) for name in locks}
+        unknown_source = intake.channel("cmd_vel/?", on(core.on_cmd_vel), capacity=UNKNOWN_NAMES_CAPACITY)
+        unknown_lock = intake.channel("lock/?", on(core.on_lock), capacity=UNKNOWN_NAMES_CAPACITY)
+        release, engage = functools.partial(read_estop, release_key=True), functools.partial(read_estop, release_key=False)
+        # Every subscriber a client may flood, one per key, exact: one on estop/** matching both keys delayed a storm's
+        # final ON by 0.2-0.3 s inside Zenoh (1.10), where two exact ones took 2-3 ms. Samples of the two e-stop keys keep
+        # their order while they come through callbacks (one Zenoh thread); while both keys flood, each has its own pump,
+        # and a release may be taken a turn after an ON put after it (see docs/safety.md).
+        #   key                                 channel                      item: decoded once, here
+        guarded: list[tuple[str, Any, dict[str, Any]]] = [
+            (keys.estop, estop, {"decode": engage, "pick": _estop_batch}),
+            (keys.estop_release, estop, {"decode": release, "pick": _estop_batch}),
+            *((keys.cmd_vel_of(name), cmd_vel[name], {"name": name, "pick": newest}) for name in sources),
+            *((f"{keys.cmd_vel}/{DEFAULT_SOURCE}", cmd_vel[name], {"pick": newest}) for name in sources if name == DEFAULT_SOURCE),
+            (keys.any_cmd_vel_source, unknown_source, {"skip": frozenset(sources)}),
+            *((keys.lock_of(name), lock[name], {"pick": newest}) for name in locks),
+            (keys.any_lock, unknown_lock, {"skip": frozenset(locks)}),
+        ]
+        flood = functools.partial(driver.take, core.note_input)
+        for key, put, options in guarded:
+            self.guarded(key, put, intake, flood, **options)
+        now = driver.clock
+        #   channel        key              answered on the loop, under the core lock, with
+        queries = [
+            ("health?", keys.health, lambda q: self._answer(q, keys.health, core.health(now()))),
+            ("errors?", keys.errors, lambda q: self.answer_recent(q, keys.errors, list(core.reporter.recent))),
+            ("params?", keys.params, lambda q: self._answer(q, keys.params, core.params_now())),
+            ("params set?", keys.params_set, lambda q: self._answer_set(q, on(core.on_params_set, unpack=False))),
+        ]
+        for name, key, answer in queries:
+            self.queryable(key, intake.channel(name, answer, capacity=QUERIES_CAPACITY))
         # every gateway publishes its health once a second: another run's report on our key is a second gateway
-        self.subscriber(keys.health, intake.channel("health seen", service.on_health_seen, capacity=16))
+        self.subscriber(keys.health, intake.channel("health seen", on(core.on_health_seen, unpack=False), capacity=QUERIES_CAPACITY))
         self.token(keys.alive_gateway)
         return intake
 
-    def _answer_health(self, service: "GatewayHost", query: "zenoh.Query") -> None:
-        self._answer(query, self.keys.health, service.health())
-
-    def _answer_set(self, service: "GatewayHost", query: "zenoh.Query") -> None:
+    def _answer_set(self, query: "zenoh.Query", set_params: Any) -> None:
         """Set parameters; a payload that is no ParamsSet is answered with an error reply saying why."""
-        reply = service.set_params(payload_bytes(query))
+        reply = set_params(payload_bytes(query))
         if isinstance(reply, str):
             with query:
                 query.reply_err(reply)

@@ -13,7 +13,6 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Protocol
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
@@ -26,21 +25,19 @@ from .params import OdometryParams
 DROPPED_REPORT_PERIOD_S = 1.0
 
 
-class OdometryOutput(Protocol):
-    def pose(self, message: Pose) -> None: ...
-    def error(self, message: ErrorReport) -> None: ...
+#: Where the odometry's messages go (its edge routes each by its type to its key: :meth:`ZenohEdge.publish`).
+OdometryOutput = Callable[[Pose | ErrorReport], None]
 
 
 @dataclass
 class RecordingOdometryOutput:
+    """An :data:`OdometryOutput` that keeps everything, for tests."""
+
     poses: list[Pose] = field(default_factory=list)
     errors: list[ErrorReport] = field(default_factory=list)
 
-    def pose(self, message: Pose) -> None:
-        self.poses.append(message)
-
-    def error(self, message: ErrorReport) -> None:
-        self.errors.append(message)
+    def __call__(self, message: Pose | ErrorReport) -> None:
+        (self.poses if isinstance(message, Pose) else self.errors).append(message)  # type: ignore[arg-type]
 
 
 class OdometryCore:
@@ -62,7 +59,7 @@ class OdometryCore:
         self.odometry = Odometry(params, live=True)
         self.keys = keys
         self.output = output
-        self.reporter = ErrorReporter("odometry", output.error, wallclock)
+        self.reporter = ErrorReporter("odometry", output, wallclock)
         self.rejected = 0
         self._dropped = 0  # dropped samples not yet reported
         self._dropped_due = -math.inf  # when they may be reported
@@ -79,7 +76,7 @@ class OdometryCore:
         except SampleRejected as exc:
             self.reject(self.keys.impulses, str(exc), excerpt(payload), now=now)
             return
-        self.output.pose(pose)
+        self.output(pose)
         while self.odometry.events:
             self.reporter.report(self.keys.impulses, self.odometry.events.pop(0), now=now)
 

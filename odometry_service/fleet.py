@@ -36,7 +36,7 @@ def build(member: Member[OdometrySettings]) -> tuple[OdometryZenoh, OdometryHost
     """One robot's odometry, from zero: queries and resets through its intake, impulses from its ring (the fleet's drain)."""
     keys = Keys(member.settings.prefix)
     edge = OdometryZenoh(member.session, keys, burst=member.burst)
-    host = OdometryHost(OdometryCore(member.settings.params(), keys, edge))
+    host = OdometryHost(OdometryCore(member.settings.params(), keys, edge.publish))
     edge.attach(host, asyncio.get_running_loop(), ring=True)
     return edge, host
 

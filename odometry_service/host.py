@@ -3,7 +3,7 @@
 All decisions are in :class:`~blackmetal.odometry_service.core.OdometryCore`; the Zenoh
 edge hands payloads and queries over to this host on the loop
 (:mod:`blackmetal.runtime.edge`), the host passes them on with ``now`` and
-pokes the shared :class:`~blackmetal.runtime.host.DeadlineTimer`, which runs
+pokes the shared :class:`~blackmetal.runtime.driver.CoreTimer`, which runs
 ``core.tick`` at the core's next deadline. No timer of its own.
 """
 
@@ -13,7 +13,7 @@ import asyncio
 import time
 from collections.abc import Callable
 
-from blackmetal.runtime.host import DeadlineTimer
+from blackmetal.runtime.driver import CoreTimer
 from blackmetal.schemas import Pose
 
 from .core import OdometryCore
@@ -25,7 +25,7 @@ class OdometryHost:
     def __init__(self, core: OdometryCore, clock: Callable[[], float] = time.monotonic) -> None:
         self.core = core
         self.clock = clock
-        self.timer = DeadlineTimer(core, clock)
+        self.timer = CoreTimer(core, clock)
         self._dropped: Callable[[], int] = lambda: 0
         self._dropped_seen = 0
 

@@ -23,7 +23,7 @@ async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
     with await open_service_session(settings.zenoh, stop, "odometry") as session:
         refuse_taken(session, "odometry", [keys.prefix], what="odometry service")
         edge = OdometryZenoh(session, keys)
-        host = OdometryHost(OdometryCore(settings.params(), keys, edge))
+        host = OdometryHost(OdometryCore(settings.params(), keys, edge.publish))
         intake = edge.attach(host, asyncio.get_running_loop())
         print(f"blackmetal odometry ready: {keys.impulses} -> {keys.pose}", flush=True)
         announce_ready("odometry", prefix=settings.prefix)

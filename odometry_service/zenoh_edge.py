@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, encode, payload_bytes
+from blackmetal.schemas import Keys, PayloadError, encode, payload_bytes
 
 from .host import OdometryHost
 
@@ -35,21 +35,9 @@ class OdometryZenoh(ZenohEdge):
         # while the link is idle and batches under back-pressure, where an express put per pose (a write and
         # a wake of Zenoh's tx thread each) made poses later, not sooner (100 robots at 50 Hz: impulse -> pose
         # p50 1.6-3 ms express, 0.8-1 ms batched) and cost the router a third more per message
-        self._burst = burst
-        self._pose = self.publisher(keys.pose, express=burst is None)
-        self._errors = self.publisher(keys.errors)
+        self.routes(keys, (keys.pose, keys.errors), fast=keys.pose, burst=burst)
         self._ring: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]] | None = None
         self._host: OdometryHost | None = None
-
-    # OdometryOutput
-    def pose(self, message: Pose) -> None:
-        if self._burst is not None:
-            self._burst.put(self._pose, encode(message))
-        else:
-            self._pose.put(encode(message))
-
-    def error(self, message: ErrorReport) -> None:
-        self._errors.put(encode(message))
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop, *, ring: bool = False) -> Intake:
         """Declare the inputs that feed ``host``. ``ring`` (a fleet): impulse samples wait in a Zenoh ring for :meth:`drain`

@@ -3,7 +3,7 @@
 Every error a blackmetal module raises on purpose derives from
 :class:`BlackmetalError`; a command catches that root and prints one
 sentence instead of a traceback. The whole tree, each class with the module
-that defines it (``tests/test_error_tree.py`` checks the drawing against the
+that defines it (``tests/unit/schemas/test_errors.py`` checks the drawing against the
 classes, so a new class, a new parent or a moved module is drawn here)::
 
     BlackmetalError                      blackmetal.schemas.errors

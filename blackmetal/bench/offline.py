@@ -197,7 +197,7 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
 
     def core(i: int) -> None:
         clock[0] += 0.01  # 100 Hz: each command goes on to the robot (no coalescing)
-        conn.on_cmd_vel(payloads[i], clock[0], "teleop")
+        conn.on_cmd_vel("teleop", payloads[i], clock[0])
         conn.take_outgoing("control")
         conn.take_events()
 

@@ -5,7 +5,7 @@ current Foxglove context; this host opens what those channels reach (the
 foxglove-sdk server, then the file) and closes them in reverse order. It
 feeds :class:`~blackmetal.foxglove.controls.Controls` with what clients publish
 and call, stamped with the clock, and runs its deadlines on the shared
-:class:`~blackmetal.runtime.host.DeadlineTimer`.
+:class:`~blackmetal.runtime.driver.CoreTimer`.
 
 The front (:mod:`.front`) and the SDK glue (:mod:`.sdk`) are apart; this
 module joins them with the view.
@@ -28,7 +28,7 @@ from typing import Any, Protocol
 
 import msgspec
 
-from blackmetal.runtime.host import Core, DeadlineTimer
+from blackmetal.runtime.driver import Core, CoreTimer
 from blackmetal.runtime.intake import Intake
 from blackmetal.schemas import ConfigError, GatewayParams, Param
 
@@ -112,7 +112,7 @@ class FoxgloveHost:
         self.clock = clock
         self.service_names = services if services is not None else {s.value: s for s in Service}
         self.core: ClientCore | None = None
-        self.timer: DeadlineTimer | None = None
+        self.timer: CoreTimer | None = None
         self._handover = Intake(asyncio.get_running_loop())
         self._put_event = self._handover.channel("client events", run, capacity=4096)
         # a client that subscribes to every channel of a fleet of 100 sends 1,500 subscriptions at once; none may be lost
@@ -182,7 +182,7 @@ class FoxgloveHost:
     def attach(self, core: ClientCore, *timed: Core) -> None:
         """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
         self.core = core
-        self.timer = DeadlineTimer(_Together([core, *timed]), self.clock)
+        self.timer = CoreTimer(_Together([core, *timed]), self.clock)
         self.timer.start()
 
     def watch_with(self, watch: Watch, viewer: Viewer) -> None:

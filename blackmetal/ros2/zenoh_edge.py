@@ -10,7 +10,7 @@ zenoh-bridge-ros2dds maps them. Inputs (samples, service calls, replies to
 the adapter's own queries, liveliness changes) are handed over to the host
 on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`), but for
 ``/cmd_vel``: it is decoded and forwarded on the Zenoh thread that delivers
-it when the core is free (:meth:`~blackmetal.ros2.host.Ros2Host.cmd_vel_direct`),
+it when the core is free (:meth:`~blackmetal.ros2.host.Ros2Host.direct`),
 put with drop congestion control as rmw_zenoh put it, so that thread never
 waits on a link.
 
@@ -35,6 +35,7 @@ every 500 ms for their sample-miss detection.
 from __future__ import annotations
 
 import asyncio
+import functools
 import itertools
 import time
 from collections.abc import Callable, Iterator
@@ -44,7 +45,7 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ErrorReport, Keys, Sources, encode, payload_bytes
+from blackmetal.schemas import ErrorReport, Keys, Sources, payload_bytes
 
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
@@ -193,7 +194,7 @@ class Ros2Zenoh(ZenohEdge):
             self.service_keys[service.name] = key
         # A ROS command is forwarded as it came: rmw_zenoh puts a KEEP_LAST topic (Nav2's, teleop's /cmd_vel) with drop
         # congestion control (jazzy rmw_zenoh_cpp/src/detail/rmw_publisher_data.cpp, PublisherData::make). So does this
-        # hop, on the Zenoh thread that took it (Ros2Host.cmd_vel_direct): a put that drops never waits on a link.
+        # hop, on the Zenoh thread that took it (Ros2Host.direct): a put that drops never waits on a link.
         self._cmd_vel = self.session.declare_publisher(
             keys.cmd_vel_of(source),
             encoding=zenoh.Encoding.APPLICATION_JSON,
@@ -203,7 +204,7 @@ class Ros2Zenoh(ZenohEdge):
         self._entities.append(self._cmd_vel)
         # blocking congestion control: a stop is never dropped; a release goes to the key a safety role may put on
         self._estop = {key: self.publisher(key) for key in (keys.estop, keys.estop_release)}
-        self._errors = self.publisher(keys.errors)
+        self.routes(keys, [keys.errors])
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
         # what follow() may subscribe: key, its intake channel, the host's handler (rings), ring size
@@ -222,7 +223,7 @@ class Ros2Zenoh(ZenohEdge):
         self._estop.get(key, self._cmd_vel).put(payload)
 
     def error(self, message: ErrorReport) -> None:
-        self._errors.put(encode(message))
+        self.publish(message)
 
     def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
         entry = self._calls.pop(call, None)
@@ -257,21 +258,34 @@ class Ros2Zenoh(ZenohEdge):
     # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
         # supervised: a bug fails this node alone; /cmd_vel is taken directly on Zenoh's thread when the core is free
-        intake = self.intake(loop, on_error=host.fail if host.supervised else None, lock=host.lock)
+        driver, core = host.driver, host.core
+        intake = self.intake(loop, on_error=driver.on_error(), lock=host.lock)
         self._host = host
+
+        def on(method: Callable[..., Any]) -> Callable[[Any], Any]:
+            return driver.handler(method, unpack=False)
+
         self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
-        self.subscriber(self.data_keys["estop"], intake.channel("estop", host.on_estop, capacity=64, priority=10))
-        twist = intake.channel("cmd_vel", host.on_cmd_vel, latest=True, priority=5, direct=host.cmd_vel_direct)
+        # the inputs: key, channel (name, the core method the driver calls with now, options)
+        self.subscriber(self.data_keys["estop"], intake.channel("estop", on(core.on_estop), capacity=64, priority=10))
+        twist = intake.channel("cmd_vel", on(core.on_cmd_vel), latest=True, priority=5, direct=host.direct())
         self.subscriber(self.data_keys["cmd_vel"], twist)
-        stamped = intake.channel(CMD_VEL_STAMPED, host.on_cmd_vel_stamped, latest=True, priority=5, direct=host.cmd_vel_stamped_direct)
+        on_stamped = on(functools.partial(core.on_cmd_vel, stamped=True))
+        stamped = intake.channel(CMD_VEL_STAMPED, on_stamped, latest=True, priority=5, direct=host.direct(stamped=True))
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
-        self._streams = {
-            "pose": (self.keys.pose, intake.channel("pose", host.on_pose, capacity=256), host.on_pose, RING),
-            "impulses": (self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=256), host.on_impulses, RING),
-            "errors": (self.keys.errors, intake.channel("errors", host.on_error_report, capacity=256), host.on_error_report, RING),
-            "health": (self.keys.health, intake.channel("health", host.on_health, latest=True, priority=8), host.on_health, 1),
+        # the robot streams it follows: ring drains and callbacks meet the same handler
+        #   stream      key                 core method             channel                              ring
+        streams: dict[str, tuple[str, Callable[..., Any], dict[str, Any], int]] = {
+            "pose": (self.keys.pose, core.on_pose, {"capacity": 256}, RING),
+            "impulses": (self.keys.impulses, core.on_impulses, {"capacity": 256}, RING),
+            "errors": (self.keys.errors, core.on_error_report, {"capacity": 256}, RING),
+            "health": (self.keys.health, core.on_health, {"latest": True, "priority": 8}, 1),
         }
-        self.subscriber(self.keys.params, intake.channel("params", host.on_params, latest=True, priority=8))
+        self._streams = {
+            name: (key, intake.channel(name, on(method), **options), on(method), ring)
+            for name, (key, method, options, ring) in streams.items()
+        }
+        self.subscriber(self.keys.params, intake.channel("params", on(core.on_params), latest=True, priority=8))
         matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
@@ -293,7 +307,7 @@ class Ros2Zenoh(ZenohEdge):
 
     def _on_matched(self, event: tuple[str, bool]) -> None:
         assert self._host is not None
-        self._host.on_matched(*event)
+        self._host.driver.run_locked(self._host.core.on_matched, *event)
 
     def follow(self, streams: frozenset[str]) -> None:
         """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
@@ -352,10 +366,7 @@ class Ros2Zenoh(ZenohEdge):
 
     @staticmethod
     def _on_alive(host: Ros2Host, who: str) -> Callable[[bool], None]:
-        def handler(alive: bool) -> None:
-            host.on_alive(who, alive)
-
-        return handler
+        return lambda alive: host.driver.run_locked(host.core.on_alive, who, alive)
 
     def _on_call(self, service: str) -> Callable[["zenoh.Query"], None]:
         def handler(query: "zenoh.Query") -> None:
@@ -370,15 +381,15 @@ class Ros2Zenoh(ZenohEdge):
         self._calls[self._next_call] = (query, self.service_keys[service])
         payload = b"" if query.payload is None else bytes(query.payload.to_bytes())
         extra = None if query.attachment is None else bytes(query.attachment.to_bytes())
-        self._host.on_service_request(service, self._next_call, payload, extra)
+        self._host.driver.run_locked(self._host.core.on_service_request, service, self._next_call, payload, extra)
 
     def _on_query_event(self, event: tuple[int, bool | None, bytes]) -> None:
         assert self._host is not None
         tag, ok, payload = event
         if ok is None:
-            self._host.on_query_done(tag)
+            self._host.driver.run_locked(self._host.core.on_query_done, tag)
         else:
-            self._host.on_query_reply(tag, ok, payload)
+            self._host.driver.run_locked(self._host.core.on_query_reply, tag, ok, payload)
 
     def close(self) -> None:
         for query, _ in self._calls.values():  # unanswered calls end with the adapter

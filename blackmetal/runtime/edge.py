@@ -13,9 +13,12 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import TYPE_CHECKING, Any
 
+import msgspec
+
 from blackmetal.schemas import ConfigError, Delivery, ErrorReport, Keys, any_alive, delivery_of, encode, payload_bytes
 
-from .flood import GuardedInput, Pick
+from .burst import PutBurst
+from .flood import GuardedInput
 from .intake import Intake
 from .zenoh_entities import chunk_and_payload, undeclare
 
@@ -60,6 +63,8 @@ class ZenohEdge:
 
     def __init__(self, session: "zenoh.Session") -> None:
         self.session = session
+        #: Each message type the service publishes -> its publisher, and the burst that holds it (None: put at once).
+        self._routes: dict[type, tuple[Any, PutBurst | None]] = {}
         self._entities: list[Any] = []
         self._guarded: list[GuardedInput] = []
         self._intakes: list[Intake] = []
@@ -85,6 +90,26 @@ class ZenohEdge:
         self._entities.append(publisher)
         return publisher
 
+    def routes(self, keys: Keys, published: Iterable[str], *, fast: str | None = None, burst: PutBurst | None = None) -> None:
+        """A publisher for each key of ``published``; :meth:`publish` routes a message to it by its type (:meth:`Keys.message_for`).
+
+        ``fast`` (the service's high-rate telemetry): express for one robot, the
+        lowest latency; in a fleet (``burst``) batched, held to the end of the
+        loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`).
+        """
+        for key in published:
+            message = keys.message_for(key)
+            assert message is not None, key
+            self._routes[message] = (self.publisher(key, express=key == fast and burst is None), burst if key == fast else None)
+
+    def publish(self, message: msgspec.Struct) -> None:
+        """``message`` put on its key (see :meth:`routes`)."""
+        publisher, burst = self._routes[type(message)]
+        if burst is None:
+            publisher.put(encode(message))
+        else:
+            burst.put(publisher, encode(message))
+
     def watch_matching(self, publisher: Any, on_change: Callable[[bool], None]) -> None:
         """Whether anyone subscribes to ``publisher``'s key: ``on_change`` now, and on a Zenoh thread at each change.
 
@@ -109,13 +134,14 @@ class ZenohEdge:
     def guarded(
         self,
         key: str,
-        put: Callable[[tuple[str, bytes]], None],
+        put: Callable[[Any], None],
         intake: Intake,
         on_flood: Callable[[str, str], None] | None = None,
-        pick: Pick | None = None,
+        **options: Any,
     ) -> "GuardedInput":
-        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`)."""
-        guarded = GuardedInput(self.session, key, put, intake, on_flood, pick=pick)
+        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`
+        for ``options``)."""
+        guarded = GuardedInput(self.session, key, put, intake, on_flood, **options)
         guarded.start()
         self._guarded.append(guarded)
         return guarded

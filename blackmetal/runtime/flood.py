@@ -12,12 +12,14 @@ import math
 import threading
 import time
 from collections.abc import Callable
+from dataclasses import KW_ONLY, dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from blackmetal.schemas import payload_bytes
 
+from .driver import queue_only
 from .intake import Intake
-from .zenoh_entities import Item, chunk_and_payload, undeclare
+from .zenoh_entities import chunk_and_payload, undeclare
 
 if TYPE_CHECKING:
     import zenoh
@@ -37,14 +39,15 @@ CALLBACK_GONE_S = 1.0
 PUMP_PERIOD_S = 0.002
 
 #: What of a batch a pump hands over (all of it unless said otherwise): a latest-slot input needs only its newest.
-Pick = Callable[[list[Item]], list[Item]]
+Pick = Callable[[list[Any]], list[Any]]
 
 
-def newest(batch: list[Item]) -> list[Item]:
+def newest(batch: list[Any]) -> list[Any]:
     """A :data:`Pick` for an input of which only the newest sample counts (a command source, a lock)."""
     return batch[-1:]
 
 
+@dataclass(eq=False)
 class GuardedInput:
     """An input that a client may flood: Python callbacks at sane rates, Zenoh's ring buffer while it floods.
 
@@ -70,45 +73,44 @@ class GuardedInput:
     whose next sample supersedes them).
     """
 
-    def __init__(
-        self,
-        session: "zenoh.Session",
-        key: str,
-        put: Callable[[tuple[str, bytes]], None],
-        intake: Intake,
-        on_flood: Callable[[str, str], None] | None = None,
-        *,
-        capacity: int = 64,
-        quiet_s: float = QUIET_S,
-        pick: Pick | None = None,
-    ) -> None:
-        """``pick``: what of each batch the pump hands over while the input floods (default: every sample)."""
-        self.session = session
-        self.pick = pick
-        self.key = key
-        self.put = put
-        self.intake = intake
-        self.on_flood = on_flood
-        self.capacity = capacity
-        self.quiet_s = quiet_s
-        self._subscriber: Any = None
-        self._pump: threading.Thread | None = None
-        #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
-        self._count_lock = threading.Lock()
-        self._window_start = -math.inf
-        self._window_count = 0
-        self._changing = False
-        self._last_sample = 0.0
-        self._quiet_check: asyncio.TimerHandle | None = None
-        self._closed = False
-        #: Set by Zenoh once the callback subscriber is gone and its queued samples are all handed over.
-        self._callback_gone = threading.Event()
-        #: Tells the pump to end (its subscriber is going).
-        self._pump_stop = threading.Event()
-        #: A key without wildcards has one last chunk: no key expression to turn into text per sample.
-        self._chunk = None if "*" in key else key.rpartition("/")[2]
+    session: "zenoh.Session"
+    key: str
+    put: Callable[[Any], None]
+    intake: Intake
+    on_flood: Callable[[str, str], None] | None = None
+    _: KW_ONLY
+    capacity: int = 64
+    quiet_s: float = QUIET_S
+    #: What of each batch the pump hands over while the input floods (default: every sample).
+    pick: Pick | None = None
+    #: A sample becomes the item ``(name, payload)``: ``name`` is the key's last chunk unless given (``cmd_vel`` is the
+    #: source ``default``); with ``decode``, the item is ``decode(payload)`` instead, decoded once, where it enters.
+    name: str | None = None
+    decode: Callable[[bytes], Any] | None = None
+    #: Samples whose last chunk is one of these (names another input takes) are not handed over.
+    skip: frozenset[str] = frozenset()
+    _subscriber: Any = field(default=None, init=False)
+    _pump: threading.Thread | None = field(default=None, init=False)
+    #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
+    _count_lock: threading.Lock = field(default_factory=threading.Lock, init=False)
+    _window_start: float = field(default=-math.inf, init=False)
+    _window_count: int = field(default=0, init=False)
+    _changing: bool = field(default=False, init=False)
+    _last_sample: float = field(default=0.0, init=False)
+    _quiet_check: asyncio.TimerHandle | None = field(default=None, init=False)
+    _closed: bool = field(default=False, init=False)
+    #: Set by Zenoh once the callback subscriber is gone and its queued samples are all handed over.
+    _callback_gone: threading.Event = field(default_factory=threading.Event, init=False)
+    #: Tells the pump to end (its subscriber is going).
+    _pump_stop: threading.Event = field(default_factory=threading.Event, init=False)
 
-    def _item(self, sample: "zenoh.Sample") -> tuple[str, bytes]:
+    def __post_init__(self) -> None:
+        #: A key without wildcards has one last chunk: no key expression to turn into text per sample.
+        self._chunk = self.name or (None if "*" in self.key else self.key.rpartition("/")[2])
+
+    def _item(self, sample: "zenoh.Sample") -> Any:
+        if self.decode is not None:
+            return self.decode(payload_bytes(sample))
         return chunk_and_payload(sample) if self._chunk is None else (self._chunk, payload_bytes(sample))
 
     @property
@@ -124,7 +126,9 @@ class GuardedInput:
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
-        self.put(self._item(sample))
+        item = self._item(sample)
+        if not self.skip or item[0] not in self.skip:
+            self.put(item)
         now = time.monotonic()
         with self._count_lock:
             if now - self._window_start > FLOOD_WINDOW_S:
@@ -180,6 +184,7 @@ class GuardedInput:
         """
         import zenoh
 
+        queue_only()  # the direct-take rule: a pump never runs the core, it only queues
         drained = self.intake.drained
         callback_gone.wait(CALLBACK_GONE_S)
         while not stop.is_set():
@@ -193,7 +198,9 @@ class GuardedInput:
                 return
             handed = time.monotonic()
             self._last_sample = handed
-            items = [self._item(sample) for sample in batch]
+            items = [item for item in map(self._item, batch) if not self.skip or item[0] not in self.skip]
+            if not items:
+                continue
             drained.clear()
             for item in items if self.pick is None else self.pick(items):
                 self.put(item)

@@ -13,10 +13,11 @@ more than was waiting when it began, so an emergency stop is handled before
 a backlog (or a flood) of anything else.
 
 One exception to "the loop drains": a channel given ``direct`` is taken in
-the putting thread, under the core's lock, when the core is free and nothing
-of its priority or higher waits (:meth:`Intake.channel`); the gateway sends
-a command to the robot that way without waiting for its loop to wake
-(:mod:`blackmetal.gateway.direct`). The threads and locks are drawn in
+the thread that delivers it (never a pump: :func:`~blackmetal.runtime.driver.delivering`),
+under the core's lock, when the core is free and nothing of its priority or
+higher waits (:meth:`Intake.channel`); the gateway sends a command to the
+robot that way without waiting for its loop to wake
+(:mod:`blackmetal.runtime.driver`). The threads and locks are drawn in
 ``docs/threads.md``.
 """
 
@@ -29,9 +30,10 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import InitVar, dataclass, field
 from typing import Any, Generic, TypeVar
 
-from .host import CoreLock
+from .driver import CoreLock, delivering
 
 T = TypeVar("T")
 
@@ -41,6 +43,7 @@ DIRECT_BURST = 20
 DIRECT_WINDOW_S = 0.1
 
 
+@dataclass(eq=False)
 class Channel(Generic[T]):
     """One input of a service: items from any thread, handled on the loop in arrival order.
 
@@ -51,30 +54,25 @@ class Channel(Generic[T]):
     item; the newest item still follows it (an OFF newer than the ON).
     """
 
-    def __init__(
-        self,
-        name: str,
-        handler: Callable[[T], None],
-        capacity: int,
-        priority: int,
-        latch: Callable[[T], bool] | None = None,
-        on_dropped: Callable[[int], None] | None = None,
-    ) -> None:
-        self.name = name
-        self.handler = handler
-        self.priority = priority
-        self.latch = latch
-        self.on_dropped = on_dropped
-        self.items: deque[T] = deque(maxlen=capacity)
-        self.latched: T | None = None
-        self.dropped = 0
-        #: Dropped since the handler was last told (``on_dropped``).
-        self.unreported = 0
-        self.received = 0
-        #: Items taken directly (in the putting thread), and the current window of the direct budget.
-        self.direct_taken = 0
-        self.window_start = -math.inf
-        self.window_direct = 0
+    name: str
+    handler: Callable[[T], None]
+    capacity: InitVar[int]
+    priority: int
+    latch: Callable[[T], bool] | None = None
+    on_dropped: Callable[[int], None] | None = None
+    items: deque[T] = field(init=False)
+    latched: T | None = None
+    dropped: int = 0
+    #: Dropped since the handler was last told (``on_dropped``).
+    unreported: int = 0
+    received: int = 0
+    #: Items taken directly (in the putting thread), and the current window of the direct budget.
+    direct_taken: int = 0
+    window_start: float = -math.inf
+    window_direct: int = 0
+
+    def __post_init__(self, capacity: int) -> None:
+        self.items = deque(maxlen=capacity)
 
     def waiting(self) -> bool:
         return self.latched is not None or bool(self.items)
@@ -101,6 +99,7 @@ class Channel(Generic[T]):
         return self.items.popleft() if self.items else None
 
 
+@dataclass(eq=False)
 class Intake:
     """Thread-safe hand-over from Zenoh's threads to one asyncio loop: the service's one intake.
 
@@ -112,30 +111,22 @@ class Intake:
     waiting for it) to handle an item at once.
     """
 
-    def __init__(
-        self,
-        loop: asyncio.AbstractEventLoop,
-        on_error: Callable[[BaseException], None] | None = None,
-        lock: CoreLock | None = None,
-        clock: Callable[[], float] = time.monotonic,
-        after_drain: Callable[[], None] | None = None,
-    ) -> None:
-        self.loop = loop
-        self.clock = clock
-        #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
-        self.on_error = on_error
-        #: The core's lock, for a service whose core other threads may drive: drains hold it, direct takes need it.
-        self.lock = lock
-        #: Called on the loop after every drain, outside :attr:`lock` (the gateway publishes what the inputs produced).
-        self.after_drain = after_drain
-        #: Guards the channels' contents and counters and ``_scheduled``; never held while a handler runs.
-        self.guard = threading.Lock()
-        self._channels: list[Channel[Any]] = []
-        self._scheduled = False
-        self._serving = False
-        self._closed = False  # closed: nothing is handed over or handled any more (the edge is undeclaring)
-        #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
-        self.drained = threading.Event()
+    loop: asyncio.AbstractEventLoop
+    #: Called with an exception a handler raised (the drain goes on with the next item); None: the loop's handler.
+    on_error: Callable[[BaseException], None] | None = None
+    #: The core's lock, for a service whose core other threads may drive: drains hold it, direct takes need it.
+    lock: CoreLock | None = None
+    clock: Callable[[], float] = time.monotonic
+    #: Called on the loop after every drain, outside :attr:`lock` (the gateway publishes what the inputs produced).
+    after_drain: Callable[[], None] | None = None
+    #: Guards the channels' contents and counters and ``_scheduled``; never held while a handler runs.
+    guard: threading.Lock = field(default_factory=threading.Lock, init=False)
+    _channels: list[Channel[Any]] = field(default_factory=list, init=False)
+    _scheduled: bool = field(default=False, init=False)
+    #: Closed: nothing is handed over or handled any more (the edge is undeclaring).
+    _closed: bool = field(default=False, init=False)
+    #: Set after every drain: a pump thread waits on it before it hands over more (see GuardedInput).
+    drained: threading.Event = field(default_factory=threading.Event, init=False)
 
     def channel(
         self,
@@ -171,7 +162,7 @@ class Intake:
         guard = self.guard
 
         def put(item: T) -> None:
-            if direct is not None and self._try_direct(channel, direct, item):
+            if direct is not None and delivering() and self._try_direct(channel, direct, item):
                 self.drained.set()  # handled: a pump that put it need not wait for a drain that nothing scheduled
                 return
             with guard:
@@ -194,8 +185,6 @@ class Intake:
         if lock is None or not lock.acquire(blocking=False):
             return False
         try:
-            if self._serving:
-                return False  # the loop's own handler put it: it waits for the drain, as it always did
             with self.guard:
                 if self._closed:
                     return False  # the edge is undeclaring: nothing is handled any more (close() holds the lock)
@@ -252,11 +241,7 @@ class Intake:
             if self._closed:
                 return  # scheduled before the close: its handlers would publish through undeclared entities
         with self.lock if self.lock is not None else contextlib.nullcontext():
-            self._serving = True
-            try:
-                self._serve_channels()
-            finally:
-                self._serving = False
+            self._serve_channels()
         if self.after_drain is not None:
             self.after_drain()
         self.drained.set()

@@ -13,6 +13,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 
 from blackmetal.schemas import ErrorReport
 
@@ -42,6 +43,7 @@ class _Bucket:
         return self.last + missing / rate if rate > 0 else (self.last if not missing else math.inf)
 
 
+@dataclass
 class ReportLimiter:
     """Token buckets per key family (``rate`` a second after a burst of ``burst``) under one overall budget. Clock injected.
 
@@ -53,23 +55,15 @@ class ReportLimiter:
     all families publish together, summaries included.
     """
 
-    def __init__(
-        self,
-        rate: float = 5.0,
-        burst: int = 10,
-        overall_rate: float = 10.0,
-        overall_burst: int = 30,
-        max_tracked: int = MAX_TRACKED,
-    ) -> None:
-        self.rate = rate
-        self.burst = burst
-        self.overall_rate = overall_rate
-        self.overall_burst = overall_burst
-        self.max_tracked = max_tracked
-        self._families: dict[str, _Bucket] = {}
-        self._overall: _Bucket | None = None
-        #: No family can be idle before this: a flood of new names then costs no scan of the table per report.
-        self._evict_at = -math.inf
+    rate: float = 5.0
+    burst: int = 10
+    overall_rate: float = 10.0
+    overall_burst: int = 30
+    max_tracked: int = MAX_TRACKED
+    _families: dict[str, _Bucket] = field(default_factory=dict, init=False)
+    _overall: _Bucket | None = field(default=None, init=False)
+    #: No family can be idle before this: a flood of new names then costs no scan of the table per report.
+    _evict_at: float = field(default=-math.inf, init=False)
 
     def _family(self, family: str, now: float) -> tuple[str, _Bucket]:
         bucket = self._families.get(family)
@@ -158,6 +152,7 @@ SUMMARY_PERIOD_S = 1.0
 RECENT_REPORTS = 20
 
 
+@dataclass(eq=False)
 class ErrorReporter:
     """Builds ErrorReports and hands the admitted ones to ``publish``; the one owner of suppressed-report summaries.
 
@@ -167,25 +162,20 @@ class ErrorReporter:
     behind the core's back.
     """
 
-    def __init__(
-        self,
-        source: str,
-        publish: Callable[[ErrorReport], None],
-        wallclock: Callable[[], float] = time.time,
-        limiter: ReportLimiter | None = None,
-        summary_period: float = SUMMARY_PERIOD_S,
-    ) -> None:
-        self.source = source
-        self.publish = publish
-        self.wallclock = wallclock
-        self.limiter = limiter or ReportLimiter()
-        self.summary_period = summary_period
-        self._next_summary = -math.inf
-        #: The latest reports published, oldest first: a ``get`` on the errors key answers with them.
-        self.recent: deque[ErrorReport] = deque(maxlen=RECENT_REPORTS)
+    #: The service whose reports these are (``gateway``, ``odometry``...): each report's ``source`` unless another says it.
+    service: str
+    publish: Callable[[ErrorReport], None]
+    wallclock: Callable[[], float] = time.time
+    limiter: ReportLimiter = field(default_factory=ReportLimiter)
+    summary_period: float = SUMMARY_PERIOD_S
+    _next_summary: float = field(default=-math.inf, init=False)
+    #: The latest reports published, oldest first: a ``get`` on the errors key answers with them.
+    recent: deque[ErrorReport] = field(default_factory=lambda: deque(maxlen=RECENT_REPORTS), init=False)
 
-    def report(self, key: str, reason: str, excerpt: str = "", source: str | None = None, *, now: float, family: str | None = None) -> None:
+    def report(self, key: str, reason: str, excerpt: str = "", by: str | None = None, *, now: float, family: str | None = None) -> None:
         """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
+
+        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``.
 
         ``family`` (e.g. ``robot/lock/*``) is what the limit counts against;
         give it wherever a client picks the key's last chunk. Default: the key.
@@ -195,7 +185,7 @@ class ErrorReporter:
             self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
-                    source=source or self.source,
+                    source=by or self.service,
                     key=key,
                     reason=reason,
                     excerpt=excerpt,
@@ -222,7 +212,7 @@ class ErrorReporter:
             self._publish(
                 ErrorReport(
                     stamp=self.wallclock(),
-                    source=self.source,
+                    source=self.service,
                     key=key,
                     reason=f"{suppressed} more reports on {key} were rate-limited"
                     if key != OTHER_KEYS

@@ -107,7 +107,7 @@ class Member(Generic[S]):
         reason = self.role.failure.format(robot=self.robot.describe(), exc=exc, pause=pause)
         logging.getLogger(f"blackmetal.{self.role.service}").error("%s", reason)
         key = getattr(self.edge.keys, self.role.error_key)
-        self.edge.error(ErrorReport(stamp=time.time(), source=self.role.service, key=key, reason=reason))
+        self.edge.publish(ErrorReport(stamp=time.time(), source=self.role.service, key=key, reason=reason))
 
     def close(self) -> None:
         """Undeclare what the robot's edge declared; the next :meth:`start` builds anew."""

@@ -14,6 +14,7 @@ import asyncio
 import logging
 from collections import deque
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Protocol
 
 from blackmetal import wire
@@ -42,29 +43,22 @@ class ReplySink(Protocol):
     def is_closing(self) -> bool: ...
 
 
+@dataclass(eq=False)
 class ControlSession:
     """Feeds one client's bytes to the robot and writes its replies to ``sink``, faults applied."""
 
-    def __init__(
-        self,
-        robot: SimRobot,
-        sink: ReplySink,
-        clock: Callable[[], float],
-        loop: asyncio.AbstractEventLoop,
-        on_malformed: Callable[[], None],
-    ) -> None:
-        self.robot = robot
-        self.sink = sink
-        self.clock = clock
-        self._loop = loop
-        self._on_malformed = on_malformed
-        self._decoder = wire.RequestDecoder()
-        #: Replies waiting for their time (loop time), in the order of their requests; written by :meth:`_write_due`.
-        self._later: deque[tuple[float, bytes]] = deque()
-        self._later_timer: asyncio.TimerHandle | None = None
-        #: Replies held back to be glued to the next ones, or written after GLUE_HOLD_S.
-        self._held = bytearray()
-        self._held_timer: asyncio.TimerHandle | None = None
+    robot: SimRobot
+    sink: ReplySink
+    clock: Callable[[], float]
+    _loop: asyncio.AbstractEventLoop
+    _on_malformed: Callable[[], None]
+    _decoder: wire.RequestDecoder = field(default_factory=wire.RequestDecoder, init=False)
+    #: Replies waiting for their time (loop time), in the order of their requests; written by :meth:`_write_due`.
+    _later: deque[tuple[float, bytes]] = field(default_factory=deque, init=False)
+    _later_timer: asyncio.TimerHandle | None = field(default=None, init=False)
+    #: Replies held back to be glued to the next ones, or written after GLUE_HOLD_S.
+    _held: bytearray = field(default_factory=bytearray, init=False)
+    _held_timer: asyncio.TimerHandle | None = field(default=None, init=False)
 
     @property
     def closed(self) -> bool:

@@ -15,6 +15,7 @@ import errno
 import logging
 import time
 from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
 
 from blackmetal import robot_model as model
 from blackmetal import wire
@@ -26,33 +27,25 @@ from .physics import SimRobot
 log = logging.getLogger("blackmetal.sim")
 
 
+@dataclass(eq=False)
 class SimServer:
     """Serves one :class:`SimRobot` on a control port and a log port."""
 
-    def __init__(
-        self,
-        robot: SimRobot,
-        host: str = "127.0.0.1",
-        control_port: int = model.CONTROL_PORT,
-        log_port: int = model.LOG_PORT,
-        log_interval: float = 1.0,
-        clock: Callable[[], float] = time.monotonic,
-    ) -> None:
-        self.robot = robot
-        self.host = host
-        self.control_port = control_port
-        self.log_port = log_port
-        self.log_interval = log_interval
-        self.clock = clock
-        self.state = 1  # READY: the real robot only ever reports READY ...
-        self.direction = 1  # ... and NORTH
-        self.connections = 0
-        self.malformed_requests = 0
-        self._servers: list[asyncio.base_events.Server] = []
-        self._control: ControlSession | None = None
-        self._log_streams: set[ByteStream] = set()
-        self._tasks: set[asyncio.Task[None]] = set()
-        self._closing = asyncio.Event()
+    robot: SimRobot
+    host: str = "127.0.0.1"
+    control_port: int = model.CONTROL_PORT
+    log_port: int = model.LOG_PORT
+    log_interval: float = 1.0
+    clock: Callable[[], float] = time.monotonic
+    state: int = field(default=1, init=False)  # READY: the real robot only ever reports READY ...
+    direction: int = field(default=1, init=False)  # ... and NORTH
+    connections: int = field(default=0, init=False)
+    malformed_requests: int = field(default=0, init=False)
+    _servers: list[asyncio.Server] = field(default_factory=list, init=False)
+    _control: ControlSession | None = field(default=None, init=False)
+    _log_streams: set[ByteStream] = field(default_factory=set, init=False)
+    _tasks: set[asyncio.Task[None]] = field(default_factory=set, init=False)
+    _closing: asyncio.Event = field(default_factory=asyncio.Event, init=False)
 
     async def start(self) -> None:
         """Bind both ports (0 = pick a free one; the bound ports replace 0)."""

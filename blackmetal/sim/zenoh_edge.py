@@ -61,8 +61,8 @@ class SimZenoh(ZenohEdge):
         #: Someone subscribes to the truth: set by Zenoh's matching listener (on its thread: one bool, nothing else).
         self.watched = True
         self.watch_matching(self._truth, self._on_matching)
-        errors = self.publisher(keys.errors)
-        self.reporter = ErrorReporter("sim", lambda report: errors.put(encode(report)))
+        self.routes(keys, (keys.errors,))
+        self.reporter = ErrorReporter("sim", self.publish)
 
     def attach(self, loop: asyncio.AbstractEventLoop) -> Intake:
         intake = self.intake(loop)

@@ -41,7 +41,7 @@ def test_one_wheel_commands_reach_the_wire_and_the_robot_as_that_wheel() -> None
         conn = GatewayCore(GatewaySettings(cmd_timeout=0.0), 0.0, wallclock=lambda: 0.0)
         robot = SimRobot(RobotParams(), now=0.0)
         conn.link_up("control", 0.0)
-        conn.on_cmd_vel(json.dumps({"linear": {"x": v}, "angular": {"z": w}}).encode(), 0.01)
+        conn.on_cmd_vel("default", json.dumps({"linear": {"x": v}, "angular": {"z": w}}).encode(), 0.01)
         data = conn.take_outgoing("control")
         frames = [json.loads(frame) for frame in data.replace(b"}{", b"}\n{").splitlines()]  # the exact bytes for the robot
         (frame,) = [

@@ -18,6 +18,7 @@ from helpers import TRUE_ESTOPS
 
 from blackmetal import wire
 from blackmetal.gateway.core import GatewayCore
+from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.links import DropLink
 from blackmetal.gateway.settings import GatewaySettings
@@ -104,7 +105,7 @@ class Bench:
 
     def cmd(self, payload: bytes) -> None:
         """Put ``payload`` on cmd_vel, then let 5 ms pass (commands are spaced by the 500/s cap)."""
-        self.conn.on_cmd_vel(payload, self.t)
+        self.conn.on_cmd_vel("default", payload, self.t)
         self.settle()
         self.run(0.005)
 
@@ -192,14 +193,14 @@ def test_estop_goes_out_first_latches_and_releases() -> None:
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
     bench.cmd(b'{"linear":{"x":0.2}}')
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     bench.settle()
     assert bench.requests[-1][1].command is CommandCode.EMG_STOP  # at once, ahead of the next poll
     assert not bench.robot.moving and bench.robot.counters["emergency_stops"] == 1
     bench.cmd(b'{"linear":{"x":0.2}}')
     assert any("emergency stop" in e.reason for e in bench.of(ErrorReport))
     assert not bench.robot.moving
-    bench.conn.on_estop(b'{"engaged": false}', bench.t, release_key=True)
+    bench.conn.on_estop(read_estop(b'{"engaged": false}', release_key=True), bench.t)
     bench.settle()
     bench.cmd(b'{"linear":{"x":0.15}}')
     assert bench.robot.target_left == pytest.approx(0.15)
@@ -339,7 +340,7 @@ def test_emg_stop_and_prepare_retries_stay_under_50_a_second() -> None:
     bench = Bench(cmd_timeout=0.0)
     bench.full_buffer_until = math.inf
     bench.connect()
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     bench.run(3.0)
     assert 3 <= bench.count(CommandCode.EMG_STOP) <= 3 * 50
     assert 3 <= bench.count(CommandCode.PREPARE_WHEEL_CONTROLLER) <= 3 * 50
@@ -356,7 +357,7 @@ def test_any_true_meaning_engages_the_stop_without_complaint(payload: bytes) -> 
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
     bench.cmd(b'{"linear":{"x":0.2}}')
-    bench.conn.on_estop(payload, bench.t)
+    bench.conn.on_estop(read_estop(payload), bench.t)
     bench.settle()
     assert bench.conn.health(bench.t).estop and bench.robot.counters["emergency_stops"] == 1
     assert not bench.of(ErrorReport)
@@ -367,7 +368,7 @@ def test_anything_but_a_valid_release_engages_and_is_reported(payload: bytes) ->
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
     bench.cmd(b'{"linear":{"x":0.2}}')
-    bench.conn.on_estop(payload, bench.t)
+    bench.conn.on_estop(read_estop(payload), bench.t)
     bench.settle()
     assert bench.conn.health(bench.t).estop and bench.robot.counters["emergency_stops"] == 1
     (report,) = bench.of(ErrorReport)
@@ -377,9 +378,9 @@ def test_anything_but_a_valid_release_engages_and_is_reported(payload: bytes) ->
 def test_only_a_valid_release_releases() -> None:
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     bench.settle()
-    bench.conn.on_estop(b' {"engaged":false}\n', bench.t, release_key=True)
+    bench.conn.on_estop(read_estop(b' {"engaged":false}\n', release_key=True), bench.t)
     bench.settle()
     assert not bench.conn.health(bench.t).estop
 
@@ -468,9 +469,9 @@ def test_the_operator_holds_the_robot_while_navigation_publishes_and_nothing_jum
     bench = Bench()
     bench.connect()
     for k in range(100):  # 5 s: nav at 20 Hz wants 0.3 m/s, the operator at 10 Hz holds 0
-        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
+        bench.conn.on_cmd_vel("nav", twist_payload(0.3), bench.t)
         if k % 2 == 0:
-            bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+            bench.conn.on_cmd_vel("teleop", twist_payload(0.0), bench.t)
         bench.settle()
         bench.run(0.05)
     assert all(left == right == 0.0 for _, left, right in bench.velocity())  # not one motion command
@@ -485,13 +486,13 @@ def test_when_the_operator_lets_go_navigation_takes_over_through_the_acceleratio
     bench = Bench(linear_accel=1.0)
     bench.connect()
     for _ in range(10):
-        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
-        bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+        bench.conn.on_cmd_vel("nav", twist_payload(0.3), bench.t)
+        bench.conn.on_cmd_vel("teleop", twist_payload(0.0), bench.t)
         bench.settle()
         bench.run(0.05)
     released = bench.t  # the operator stops publishing; nav goes on
     for _ in range(30):
-        bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")
+        bench.conn.on_cmd_vel("nav", twist_payload(0.3), bench.t)
         bench.settle()
         bench.run(0.05)
     moving = [(t, left) for t, left, _ in bench.velocity() if left > 0]
@@ -506,13 +507,13 @@ def test_when_the_operator_lets_go_navigation_takes_over_through_the_acceleratio
 def test_the_estop_is_above_every_source_and_unknown_sources_are_named() -> None:
     bench = Bench()
     bench.connect()
-    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
-    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+    bench.conn.on_cmd_vel("teleop", twist_payload(0.2), bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
+    bench.conn.on_cmd_vel("teleop", twist_payload(0.2), bench.t)
     bench.settle()
     bench.run(0.2)
     assert bench.count(CommandCode.EMG_STOP) == 1 and any("emergency stop is engaged" in e.reason for e in bench.of(ErrorReport))
-    bench.conn.on_cmd_vel(twist_payload(0.1), bench.t, "joystick")
+    bench.conn.on_cmd_vel("joystick", twist_payload(0.1), bench.t)
     bench.settle()
     unknown = [e for e in bench.of(ErrorReport) if e.key == "robot/cmd_vel/joystick"]
     assert unknown and "teleop, foxglove, default, ros2, nav" in unknown[0].reason
@@ -521,12 +522,12 @@ def test_the_estop_is_above_every_source_and_unknown_sources_are_named() -> None
 def test_a_heartbeat_lock_that_is_not_refreshed_stops_the_robot_within_its_timeout() -> None:
     bench = Bench(lock=["supervisor:255:0.3"], cmd_timeout=0.0)
     bench.connect()
-    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+    bench.conn.on_cmd_vel("teleop", twist_payload(0.2), bench.t)
     bench.settle()
     assert all(left == 0.0 for _, left, _ in bench.velocity())  # no heartbeat yet: the lock holds the robot
     for _ in range(10):
         bench.conn.on_lock("supervisor", b'{"locked": false}', bench.t)
-        bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "teleop")
+        bench.conn.on_cmd_vel("teleop", twist_payload(0.2), bench.t)
         bench.settle()
         bench.run(0.1)
     assert bench.velocity()[-1][1:] == (0.2, 0.2)
@@ -546,25 +547,25 @@ def test_a_heartbeat_lock_that_is_not_refreshed_stops_the_robot_within_its_timeo
 def test_a_release_counts_only_on_the_release_key_by_default() -> None:
     bench = Bench()
     bench.connect()
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
-    bench.conn.on_estop(b'{"engaged": false}', bench.t)  # on estop: refused, reported, the stop stays
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": false}'), bench.t)  # on estop: refused, reported, the stop stays
     bench.settle()
     assert bench.conn.governor.estop
     (report,) = [e for e in bench.of(ErrorReport) if e.key == "robot/estop"]
     assert 'only {"engaged": false} put on robot/estop/release releases' in report.reason
-    bench.conn.on_estop(b'{"engaged": false}', bench.t, release_key=True)
+    bench.conn.on_estop(read_estop(b'{"engaged": false}', release_key=True), bench.t)
     bench.settle()
     assert not bench.conn.governor.estop
-    bench.conn.on_estop(b"garbage", bench.t, release_key=True)  # anything but a release engages, on either key
+    bench.conn.on_estop(read_estop(b"garbage", release_key=True), bench.t)  # anything but a release engages, on either key
     assert bench.conn.governor.estop
 
 
 def test_the_unsafe_setting_lets_a_release_on_estop_release() -> None:
     bench = Bench(unsafe_release_on_estop=True)
     bench.connect()
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     bench.settle()
-    bench.conn.on_estop(b'{"engaged": false}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": false}'), bench.t)
     bench.settle()
     assert not bench.conn.governor.estop and not bench.of(ErrorReport)
 
@@ -574,9 +575,9 @@ def test_every_change_of_driver_is_published_with_who_from_whom_and_why() -> Non
 
     bench = Bench(lock=["pause:200"])
     bench.connect()
-    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t, "nav")
+    bench.conn.on_cmd_vel("nav", twist_payload(0.2), bench.t)
     bench.run(0.1)
-    bench.conn.on_cmd_vel(twist_payload(0.1), bench.t, "teleop")
+    bench.conn.on_cmd_vel("teleop", twist_payload(0.1), bench.t)
     bench.run(0.1)
     bench.conn.on_lock("pause", b'{"locked": true}', bench.t)
     bench.run(0.1)
@@ -592,10 +593,10 @@ def test_health_says_what_the_robot_was_last_sent() -> None:
     bench = Bench()
     bench.connect()
     assert bench.conn.health(bench.t).last_sent == "velocity 0.000 0.000"  # the zero velocity after connecting
-    bench.conn.on_cmd_vel(twist_payload(0.2), bench.t)
+    bench.conn.on_cmd_vel("default", twist_payload(0.2), bench.t)
     bench.run(0.05)
     assert bench.conn.health(bench.t).last_sent == "velocity 0.200 0.200"
-    bench.conn.on_estop(b'{"engaged": true}', bench.t)
+    bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     health = bench.conn.health(bench.t)
     assert health.estop and health.last_sent == "EMG_STOP" and health.last_sent_stamp is not None
 

@@ -21,11 +21,13 @@ from typing import Any
 import pytest
 from helpers import wait_for
 
+from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
 from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.runtime.entry import loop_factory
 from blackmetal.runtime.intake import DIRECT_BURST, DIRECT_WINDOW_S, Intake
+from blackmetal.schemas import ErrorReport, GatewayHealth
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.sim.server import SimServer
 from blackmetal.transport import TcpConnector, TcpStream
@@ -271,10 +273,14 @@ class GatewayRig:
         self.stop = self.gateway_thread.call(asyncio.Event)
         self.task = asyncio.run_coroutine_threadsafe(host.run(self.stop), self.gateway_thread.loop)
         # wired as GatewayZenoh.attach wires a single robot's gateway
-        intake = Intake(self.gateway_thread.loop, on_error=host.fail, lock=host.lock, after_drain=host.publish)
-        estop = intake.channel("estop", host.on_estop_input, latest=True, priority=2, direct=host.estop_direct)
-        self.estop = lambda payload: estop((False, payload))
-        self.command = intake.channel("cmd_vel", host.on_source_cmd_vel, capacity=64, priority=1, direct=host.cmd_vel_direct)
+        driver, core = host.driver, host.core
+        intake = Intake(self.gateway_thread.loop, on_error=driver.fail, lock=host.lock, after_drain=driver.publish)
+        on_estop = driver.handler(core.on_estop, unpack=False)
+        estop = intake.channel("estop", on_estop, latest=True, priority=2, direct=host.direct(core.on_estop, unpack=False))
+        self.estop = lambda payload: estop(read_estop(payload))
+        self.command = intake.channel(
+            "cmd_vel", driver.handler(core.on_cmd_vel), capacity=64, priority=1, direct=host.direct(core.on_cmd_vel)
+        )
         self.intake = intake
         wait_for(lambda: host.control.connected and self.robot.counters["prepare"] >= 1, what="the gateway to connect")
 
@@ -305,15 +311,15 @@ def test_a_command_and_an_estop_reach_the_robot_while_the_gateways_loop_is_busy(
         wait_for(lambda: rig.robot.target_left > 0, timeout=10, what="the command at the robot, the gateway's loop busy")
         rig.estop(b'{"engaged": true}')
         wait_for(lambda: rig.robot.counters["emergency_stops"] == 1, timeout=10, what="EMG_STOP at the robot, the loop busy")
-        assert not any(h.estop for h in rig.output.health_log)  # reports wait for the loop; only the robot could not
+        assert not any(h.estop for h in rig.output.of(GatewayHealth))  # reports wait for the loop; only the robot could not
     finally:
         release.set()
-    wait_for(lambda: any(h.estop for h in rig.output.health_log), what="the e-stop's health report, from the loop")
+    wait_for(lambda: any(h.estop for h in rig.output.of(GatewayHealth)), what="the e-stop's health report, from the loop")
     assert rig.intake.stats() == {"estop": (1, 0), "cmd_vel": (1, 0)}
     assert rig.direct_taken() == {"estop": 1, "cmd_vel": 1}
     # and the e-stop latched in the one core, whichever thread took it
     rig.command(("default", b'{"linear":{"x":0.2}}'))
-    wait_for(lambda: any("emergency stop" in e.reason for e in rig.output.error_log), what="the refused command's report")
+    wait_for(lambda: any("emergency stop" in e.reason for e in rig.output.of(ErrorReport)), what="the refused command's report")
     assert rig.server.malformed_requests == 0
 
 
@@ -341,11 +347,11 @@ class BrokenOutput(RecordingOutput):
 
     broken = False
 
-    def health(self, message: Any) -> None:
-        if self.broken:
+    def __call__(self, message: Any) -> None:
+        if self.broken and isinstance(message, GatewayHealth):
             self.broken = False
             raise RuntimeError("output broke")
-        super().health(message)
+        super().__call__(message)
 
 
 def test_a_failure_in_the_flush_after_a_direct_take_fails_the_host_and_stops_direct_takes() -> None:

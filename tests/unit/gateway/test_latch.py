@@ -16,10 +16,11 @@ from typing import Any
 import pytest
 
 from blackmetal import wire
+from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
 from blackmetal.gateway.latch import AT_START, FileLatchStore, Latch, MemoryLatchStore, Untrusted, latch_path, start_latch
 from blackmetal.gateway.settings import GatewaySettings
-from blackmetal.schemas import ErrorReport
+from blackmetal.schemas import ErrorReport, GatewayHealth
 from blackmetal.sim.memory import MemoryConnector
 from blackmetal.sim.physics import SimRobot
 from blackmetal.sim.server import SimServer
@@ -94,9 +95,9 @@ def test_an_engage_is_saved_once_with_its_key_and_time_and_health_says_so() -> N
     bench = Bench()
     bench.connect()
     bench.run(0.5)
-    bench.conn.on_estop(ENGAGE, bench.t)
+    bench.conn.on_estop(read_estop(ENGAGE), bench.t)
     bench.settle()
-    bench.conn.on_estop(ENGAGE, bench.t + 0.1)  # an engage repeated (as tools do until confirmed) changes nothing kept
+    bench.conn.on_estop(read_estop(ENGAGE), bench.t + 0.1)  # an engage repeated (as tools do until confirmed) changes nothing kept
     bench.settle()
     assert bench.latch.saves == [Latch(True, WALL0 + 0.5, "robot/estop")]
     health = bench.conn.health(bench.t)
@@ -107,9 +108,9 @@ def test_an_engage_is_saved_once_with_its_key_and_time_and_health_says_so() -> N
 def test_a_release_takes_effect_only_once_saved() -> None:
     bench = Bench()
     bench.connect()
-    bench.conn.on_estop(ENGAGE, bench.t)
+    bench.conn.on_estop(read_estop(ENGAGE), bench.t)
     bench.settle()
-    bench.conn.on_estop(RELEASE, bench.t, release_key=True)
+    bench.conn.on_estop(read_estop(RELEASE, release_key=True), bench.t)
     assert bench.conn.governor.estop  # not before the host saved it
     latch = bench.conn.take_latch()
     assert latch is not None and not latch.engaged and latch.by == "robot/estop/release"
@@ -121,9 +122,9 @@ def test_a_release_that_cannot_be_saved_is_refused_and_the_stop_stays() -> None:
     bench = Bench(cmd_timeout=0.0)
     bench.latch.failing = "the e-stop state cannot be saved to /x (Read-only file system): check ..."
     bench.connect()
-    bench.conn.on_estop(ENGAGE, bench.t)
+    bench.conn.on_estop(read_estop(ENGAGE), bench.t)
     bench.settle()
-    bench.conn.on_estop(RELEASE, bench.t, release_key=True)
+    bench.conn.on_estop(read_estop(RELEASE, release_key=True), bench.t)
     bench.settle()
     bench.cmd(b'{"linear":{"x":0.2}}')
     assert bench.conn.governor.estop and not bench.robot.moving
@@ -198,15 +199,15 @@ def test_the_host_writes_the_emg_stop_before_it_saves_the_latch_and_shows_it_in_
             while not host.control.connected:
                 assert time.monotonic() < deadline
                 await asyncio.sleep(0.01)
-            host.on_estop(ENGAGE)
-            while not any(h.estop for h in output.health_log):
+            host.driver.take(host.core.on_estop, read_estop(ENGAGE))
+            while not any(h.estop for h in output.of(GatewayHealth)):
                 assert time.monotonic() < deadline
                 await asyncio.sleep(0.01)
             save = journal.entries.index(("save", True))
             emg = next(k for k, (kind, what) in enumerate(journal.entries) if kind == "bytes" and CommandCode.EMG_STOP in what)
             assert emg < save
             before = len(journal.entries)
-            host.on_estop(RELEASE, release_key=True)
+            host.driver.take(host.core.on_estop, read_estop(RELEASE, release_key=True))
             assert ("save", False) in journal.entries[before:] and not host.health().estop
         finally:
             stop.set()

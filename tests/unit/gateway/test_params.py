@@ -79,8 +79,8 @@ def test_each_value_is_set_on_its_own() -> None:
 def test_a_new_priority_hands_the_robot_over_at_once() -> None:
     bench = Bench(cmd_timeout=0.0, source=["teleop:100:5", "nav:10:5"])
     bench.connect()
-    bench.conn.on_cmd_vel(b'{"linear":{"x":0.1}}', bench.t, "teleop")
-    bench.conn.on_cmd_vel(b'{"linear":{"x":0.4}}', bench.t, "nav")
+    bench.conn.on_cmd_vel("teleop", b'{"linear":{"x":0.1}}', bench.t)
+    bench.conn.on_cmd_vel("nav", b'{"linear":{"x":0.4}}', bench.t)
     bench.settle()
     bench.run(0.01)
     assert bench.velocity()[-1][1:] == pytest.approx((0.1, 0.1))  # teleop outranks nav

@@ -1,6 +1,6 @@
-"""The safety governor's timing contract, property-tested: what the host's DeadlineTimer relies on.
+"""The safety governor's timing contract, property-tested: what the driver's CoreTimer relies on.
 
-The host (``blackmetal.runtime.host.DeadlineTimer``) runs the core's ``tick(now)``
+The driver's timer (``blackmetal.runtime.driver.CoreTimer``) runs the core's ``tick(now)``
 at ``next_deadline()`` and after every input, and sleeps in between. Of the
 governor it needs two things, for any sequence of inputs:
 
@@ -29,6 +29,7 @@ from typing import Any
 from hypothesis import HealthCheck, example, given, note, settings
 from hypothesis import strategies as st
 
+from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.safety import Driving, Governor, SafetySettings, State, VelocityCommand
 from blackmetal.robot_model import WheelSpeeds
 from blackmetal.schemas import ErrorReport, Twist, Vector3
@@ -222,11 +223,11 @@ def handed_over_after(refuse: str) -> tuple[Any, float]:
 
     bench = Bench(cmd_timeout=0.0)
     bench.connect()
-    bench.conn.on_cmd_vel(twist_payload(0.0), bench.t, "teleop")
+    bench.conn.on_cmd_vel("teleop", twist_payload(0.0), bench.t)
     bench.run(0.3)
-    bench.conn.on_cmd_vel(twist_payload(0.3), bench.t, "nav")  # dropped quietly: teleop drives
+    bench.conn.on_cmd_vel("nav", twist_payload(0.3), bench.t)  # dropped quietly: teleop drives
     if refuse == "estop":
-        bench.conn.on_estop(b'{"engaged": true}', bench.t)
+        bench.conn.on_estop(read_estop(b'{"engaged": true}'), bench.t)
     else:
         mine = bench.conn.health(bench.t)
         other = GatewayHealth(stamp=mine.stamp, control=mine.control, log=mine.log, source="another-run")

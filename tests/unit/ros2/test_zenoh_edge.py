@@ -8,7 +8,7 @@ from __future__ import annotations
 import asyncio
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
@@ -44,15 +44,20 @@ class Node:
         self.host = Ros2Host(core)
         self.direct: list[tuple[str, bool]] = []  # (thread name, taken)
         self.calls = 0  # direct takes begun: a take forwards its command before it is recorded
-        take = self.host.cmd_vel_direct
+        make = self.host.direct
 
-        def recorded(cdr: bytes) -> bool:
-            self.calls += 1
-            taken = take(cdr)
-            self.direct.append((threading.current_thread().name, taken))
-            return taken
+        def direct(stamped: bool = False) -> Callable[[bytes], bool]:
+            take = make(stamped)
 
-        self.host.cmd_vel_direct = recorded  # type: ignore[method-assign]
+            def recorded(cdr: bytes) -> bool:
+                self.calls += 1
+                taken = take(cdr)
+                self.direct.append((threading.current_thread().name, taken))
+                return taken
+
+            return take if stamped else recorded
+
+        self.host.direct = direct  # type: ignore[method-assign]
         self.loop = asyncio.new_event_loop()
         self.stop = asyncio.Event()
         self.thread = threading.Thread(target=self.loop.run_until_complete, args=(self.host.run(self.stop),), name="node loop")

@@ -154,10 +154,10 @@ def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.
     impulses = WheelImpulses(seq=1, stamp=1.0, left=2, right=3, mono=1.0, source="test")
 
     async def scenario() -> None:
-        gateway.impulses(impulses)
-        odometry.pose(make_pose(1.0, 0.5, 0.25, 0.1))
+        gateway.publish(impulses)
+        odometry.publish(make_pose(1.0, 0.5, 0.25, 0.1))
         node.put(b"cdr")
-        gateway.error(ErrorReport(stamp=1.0, source="gateway", key="t/gw/cmd_vel", reason="not held"))
+        gateway.publish(ErrorReport(stamp=1.0, source="gateway", key="t/gw/cmd_vel", reason="not held"))
         assert len(burst) == 3
         with arrived:
             assert arrived.wait_for(lambda: len(got) == 1, timeout=10), got  # the error alone, before the turn ends
@@ -193,7 +193,7 @@ def test_a_fleet_gateways_robots_share_the_fleets_burst(session: zenoh.Session, 
         for member in members:
             edge = member.start().edge
             assert edge is not None
-            edge.impulses(impulses)
+            edge.publish(impulses)
         assert len(burst) == 2  # not yet put: the fleet's one burst holds both robots' samples
         await asyncio.sleep(0)
         assert len(burst) == 0

@@ -9,15 +9,17 @@ from __future__ import annotations
 
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 import pytest
 from helpers import wait_for
 
+from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.host import RecordingOutput
 from blackmetal.gateway.zenoh_edge import _engages
-from blackmetal.runtime.host import CoreLock
+from blackmetal.runtime.driver import CoreLock
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import GatewayHealth
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, WheelImpulses
 from unit.gateway.test_direct_take import GatewayRig, LoopThread
 
 ON, OFF = b'{"engaged": true}', b'{"engaged": false}'
@@ -43,7 +45,7 @@ class GatewayInputs:
         self.handled: list[tuple[str, object]] = []
         self.superseded: dict[str, int] = {}
         intake = self.intake = Intake(loop_thread.loop, lock=CoreLock())
-        self.estop = intake.channel("estop", lambda item: self.handled.append(("estop", item[1])), latest=True, latch=_engages, priority=2)
+        self.estop = intake.channel("estop", lambda item: self.handled.append(("estop", item)), latest=True, latch=_engages, priority=2)
         self.sources = {
             name: intake.channel(
                 f"cmd_vel/{name}",
@@ -90,13 +92,13 @@ def test_an_estop_storm_is_two_handlings_at_most_and_the_newest_state_wins(
     release = loop_thread.hold()
     try:
         for payload in storm:
-            intake.estop((False, payload))
+            intake.estop(read_estop(payload))
             intake.sources["nav"](("nav", b"go"))
     finally:
         release.set()
     settle(loop_thread)
-    assert [item for kind, item in intake.handled if kind == "estop"] == expected
-    assert intake.handled[: len(expected)] == [("estop", item) for item in expected]  # ahead of every command
+    assert [item for kind, item in intake.handled if kind == "estop"] == [read_estop(item) for item in expected]
+    assert intake.handled[: len(expected)] == [("estop", read_estop(item)) for item in expected]  # ahead of every command
 
 
 def test_no_command_is_taken_directly_while_an_estop_on_waits(loop_thread: LoopThread) -> None:
@@ -110,7 +112,7 @@ def test_no_command_is_taken_directly_while_an_estop_on_waits(loop_thread: LoopT
     release = loop_thread.hold()
     try:
         with lock:  # the loop is in the core: the ON cannot be taken directly, it waits in its slot
-            estop((False, ON))
+            estop(read_estop(ON))
         command(("default", b"go"))  # the core is free now, but the ON waits: no command overtakes it
         assert order == []
     finally:
@@ -128,11 +130,11 @@ class BlockingOutput(RecordingOutput):
         self.blocked = threading.Event()
         self.unblock = threading.Event()
 
-    def health(self, message: GatewayHealth) -> None:
-        if self.armed.is_set() and not self.blocked.is_set():
+    def __call__(self, message: Any) -> None:
+        if isinstance(message, GatewayHealth) and self.armed.is_set() and not self.blocked.is_set():
             self.blocked.set()
             self.unblock.wait(20)
-        super().health(message)
+        super().__call__(message)
 
 
 def test_a_publication_that_blocks_does_not_delay_an_estops_bytes_to_the_robot() -> None:
@@ -161,21 +163,9 @@ class LockCheckingOutput(RecordingOutput):
         if self.lock is not None and self.lock.held():
             self.under_lock.append(kind)
 
-    def impulses(self, message) -> None:  # type: ignore[no-untyped-def]
-        self._check("impulses")
-        super().impulses(message)
-
-    def health(self, message: GatewayHealth) -> None:
-        self._check("health")
-        super().health(message)
-
-    def error(self, message) -> None:  # type: ignore[no-untyped-def]
-        self._check("error")
-        super().error(message)
-
-    def driver(self, message) -> None:  # type: ignore[no-untyped-def]
-        self._check("driver")
-        super().driver(message)
+    def __call__(self, message: Any) -> None:
+        self._check(type(message).__name__)
+        super().__call__(message)
 
 
 def test_nothing_is_published_while_the_core_lock_is_held() -> None:
@@ -199,9 +189,12 @@ def test_nothing_is_published_while_the_core_lock_is_held() -> None:
         release.set()
         holder.join(10)
         rig.estop(OFF)
-        wait_for(lambda: len(output.impulse_log) > 20 and output.error_log and output.driver_log, what="impulses, errors and a driver")
-        count = len(output.health_log)
-        wait_for(lambda: len(output.health_log) > count, what="a health report after the e-stop")
+        wait_for(
+            lambda: len(output.of(WheelImpulses)) > 20 and output.of(ErrorReport) and output.of(DriverChange),
+            what="impulses, errors and a driver",
+        )
+        count = len(output.of(GatewayHealth))
+        wait_for(lambda: len(output.of(GatewayHealth)) > count, what="a health report after the e-stop")
     finally:
         rig.close()
     assert output.under_lock == []

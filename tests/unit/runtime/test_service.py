@@ -36,7 +36,7 @@ class FakeEdge:
             raise RuntimeError("a bug in this robot's handling")
         self.drained += 1
 
-    def error(self, message: ErrorReport) -> None:
+    def publish(self, message: ErrorReport) -> None:
         self.errors.append(message)
 
     def close(self) -> None:
