@@ -1,10 +1,6 @@
-"""What every user tool needs: a Zenoh session with sensible defaults, latest values, clear failures.
+"""What every user tool needs: a Zenoh session, latest values, and failures that say what to check.
 
-Tools (teleop, watch, square) connect, like every process, to
-``tcp/127.0.0.1:7447`` when given no endpoint (the demo's and the router's
-default; see :data:`blackmetal.runtime.zenoh_setup.DEFAULT_ENDPOINT`), and
-fail at once with a message that says what to check, not a traceback, when
-nothing answers. The recorder, a service, waits for its endpoint instead.
+A tool fails at once when nothing answers; the recorder, a service, waits for its endpoint instead.
 """
 
 from __future__ import annotations

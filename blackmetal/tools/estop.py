@@ -47,9 +47,7 @@ def run(args: argparse.Namespace) -> int:
             time.sleep(REPEAT_S)
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal estop", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("state", choices=("on", "off"), help="on engages the stop, off releases it")
     parser.add_argument("--timeout", type=float, default=2.0, metavar="S", help="confirmation time limit (default 2)")
     add_client_arguments(parser)
-    return parser

@@ -69,8 +69,6 @@ def run(args: argparse.Namespace) -> int:
         )
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal params", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("assignments", nargs="*", metavar="NAME=VALUE", help="parameters to set, e.g. max_wheel_speed=0.3")
     add_client_arguments(parser)
-    return parser

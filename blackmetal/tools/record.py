@@ -67,8 +67,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal record", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="FILE.mcap", help="the recording (default blackmetal-<date>-<time>.mcap)")
     parser.add_argument(
         "-k", "--key", action="append", metavar="KEYEXPR", help="record this key expression (repeatable; default <prefix>/**)"
@@ -76,4 +75,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     parser.add_argument("--split-size", type=float, metavar="MB", help="start a new file (name-001.mcap, ...) after this many MB")
     add_client_arguments(parser)
-    return parser

@@ -362,8 +362,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal square", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=float, default=1.0, help="side length, m (default 1)")
     add_drive_arguments(parser, turn_rate=0.6)
     parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
@@ -375,4 +374,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--json", action="store_true", help="also print the closures as JSON")
     parser.add_argument("--record", metavar="FILE.mcap", help="record the run (impulses, poses, truth, cmd_vel) for replay and calibration")
     add_client_arguments(parser)
-    return parser

@@ -194,12 +194,10 @@ def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, 
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal teleop", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     add_drive_arguments(parser, turn_rate=0.8)
     parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
     parser.add_argument(
         "--source", default=Sources.TELEOP, help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"
     )
     add_client_arguments(parser)
-    return parser

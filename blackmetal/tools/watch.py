@@ -124,8 +124,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal watch", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=0.0, help="quit after this many seconds (default: run until Ctrl-C)")
     add_client_arguments(parser)
-    return parser
