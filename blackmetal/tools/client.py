@@ -38,10 +38,6 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
     add_zenoh_arguments(parser)
 
 
-def where(settings: ZenohSettings) -> str:
-    return settings.where()
-
-
 class Latest:
     """Keeps the newest value of a key, decoded; the callback only stores it."""
 
@@ -102,7 +98,7 @@ def _require(session: zenoh.Session, key: str, message_type: type[T], settings: 
         if value is not None:
             return value
         if time.monotonic() > deadline:
-            raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {where(settings)}). {hint}")
+            raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {settings.where()}). {hint}")
         time.sleep(0.2)
 
 

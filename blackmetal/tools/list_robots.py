@@ -23,7 +23,7 @@ import zenoh
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
 from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, Pose, ZenohUnreachable
 
-from .client import connect, first_reply, tool, where
+from .client import connect, first_reply, tool
 
 #: How often the router is tried again while --wait lasts.
 RETRY_S = 0.2
@@ -146,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
     if not robots:
-        print(f"blackmetal robots: no live gateway found via {where(settings)} within {args.wait:g} s", file=sys.stderr)
+        print(f"blackmetal robots: no live gateway found via {settings.where()} within {args.wait:g} s", file=sys.stderr)
         return 1
     if output == "table":
         print(table(rows))

@@ -19,7 +19,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import ConfigError, require_extra
 
-from .client import add_client_arguments, connect_waiting, tool, where
+from .client import add_client_arguments, connect_waiting, tool
 
 
 def default_name() -> str:
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         split = None if args.split_size is None else int(args.split_size * 1e6)
         recording = McapRecording(path, keys, split_bytes=split)
         recorder = SessionRecorder(session, keyexprs, recording)
-        print(f"blackmetal record: {', '.join(keyexprs)} via {where(settings)} -> {path} (Ctrl-C to finish)", flush=True)
+        print(f"blackmetal record: {', '.join(keyexprs)} via {settings.where()} -> {path} (Ctrl-C to finish)", flush=True)
         announce_ready("record", file=str(path), keys=keyexprs)
         started = time.monotonic()
         deadline = started + args.duration if args.duration else None

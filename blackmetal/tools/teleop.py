@@ -25,7 +25,7 @@ import zenoh
 
 from blackmetal.schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
 
-from .client import Latest, add_client_arguments, add_drive_arguments, connect, require_gateway, tool, where
+from .client import Latest, add_client_arguments, add_drive_arguments, connect, require_gateway, tool
 
 #: Key -> (forward, turn) direction.
 DRIVE_KEYS: dict[str, tuple[float, float]] = {
@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         pose = Latest(session, keys.pose, Pose)
         health = Latest(session, keys.health, GatewayHealth)
         health.value = health0
-        print(f"blackmetal teleop on {args.prefix} via {where(settings)}: {HELP}", flush=True)
+        print(f"blackmetal teleop on {args.prefix} via {settings.where()}: {HELP}", flush=True)
         return _loop(teleop, publishers, pose, health)
 
 

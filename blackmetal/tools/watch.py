@@ -22,7 +22,7 @@ from blackmetal.schemas import (
     to_bytes,
 )
 
-from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool, where
+from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         period = 0.2 if tty else 1.0
         deadline = time.monotonic() + args.duration if args.duration else math.inf
         last_count, last_time = 0, time.monotonic()
-        print(f"blackmetal watch on {keys.prefix} via {where(settings)} (Ctrl-C to quit)", flush=True)
+        print(f"blackmetal watch on {keys.prefix} via {settings.where()} (Ctrl-C to quit)", flush=True)
         while True:  # at once (what is known already, recent errors included), then every period, and at the end
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
