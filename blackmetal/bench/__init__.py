@@ -135,11 +135,8 @@ def _say(text: str) -> None:
 def run(args: argparse.Namespace) -> int:
     """Measure, print the table, write the JSON.
 
-    Exit codes: 0 when every figure was measured or skipped for a missing
-    extra; 1 when a figure failed (the others are still measured and
-    reported) or the JSON cannot be written; 2 for an unusable option;
-    128 + the signal's number when SIGINT or SIGTERM stopped it. Every child
-    process it started is stopped before it returns, whichever way it ends.
+    Exit 0 when every figure was measured or skipped for a missing extra; 1 when one failed or the JSON cannot
+    be written; 2 for an unusable option; 128 + the signal's number when SIGINT or SIGTERM stopped it.
     """
     if args.json and not Path(args.json).resolve().parent.is_dir():
         _say(f"blackmetal bench: --json {args.json}: the folder {Path(args.json).resolve().parent} does not exist")

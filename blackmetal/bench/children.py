@@ -1,18 +1,8 @@
 """Every child process the bench starts, and how they all stop: none outlives the bench.
 
-A child is started with :func:`spawn` (a :class:`ServiceProcess`, known here
-from the moment it exists) and each figure stops its own children in a
-``finally``. :func:`stop_all` is the net under those: it stops whatever still
-runs (SIGINT, then SIGKILL after a grace period); :func:`shutdown`, at the
-very end, also stops any process whose parent is the bench that was started
-some other way.
-
-:func:`stopping_on_signals` makes SIGTERM behave as Ctrl-C does: the first
-SIGINT or SIGTERM raises ``KeyboardInterrupt`` in the main thread, so every
-``finally`` runs, and :func:`stop_signal` tells which signal it was. Later
-signals are ignored while the bench stops, so its cleanup is never cut
-short; a signal that comes while a child is being started or stopped is held
-until that is done.
+Each figure stops its own children in a ``finally``; :func:`stop_all` and :func:`shutdown` are the net
+under those. The first SIGINT or SIGTERM raises ``KeyboardInterrupt`` so every ``finally`` runs; later
+signals are ignored so the cleanup is never cut short.
 """
 
 from __future__ import annotations

@@ -1,11 +1,6 @@
 """The command path's figures: a command or an e-stop put on Zenoh -> its bytes at the robot's socket.
 
-``cmd_vel`` against one plain Zenoh hop and the minimal forwarder (the floor
-of any Python gateway, :mod:`blackmetal.bench.forwarder`), measured round by
-round in the same run; ``forwarder`` alone; ``estop``; the e-stop under a
-flood; ROS 2's ``/cmd_vel`` through the adapter; a 5 kHz ``cmd_vel`` flood.
-The robot is the bench's mini robot in its own process, stamping arrivals
-with the kernel's receive time.
+The robot is the bench's mini robot in its own process, stamping arrivals with the kernel's receive time.
 """
 
 from __future__ import annotations

@@ -1,25 +1,7 @@
 """``blackmetal bench --fleet``: one router, N robots behind one fleet gateway and one fleet odometry, measured together.
 
-At each size, N-1 robots are simulated (``sim --robots N-1``) and one is the
-bench's own mini robot (``fleet/probe``), which stamps command arrivals at its
-socket. All poll at 50 Hz. In one window: the CPU share of the router, the
-simulator (reported apart: it stands in for the robots), the fleet gateway
-and the fleet odometry; their resident memory; every robot's pose rate (min
-and median); the messages published into the router per second (impulses,
-poses, health and status, from the measured rates). Then, with the fleet
-still running, ``cmd_vel`` -> bytes at the probe's socket (p50/p99) and the
-e-stop -> EMG_STOP (p50/p99), as many samples of each. Meanwhile the poses
-still flow to the bench (the router forwards them, as to a fleet view), but
-no longer into a Python callback: the bench's own count of 5,000 poses a
-second, on the same two cores, is not part of the fleet.
-
-``--views`` (#29) then adds the ROS 2 and the Foxglove fleet views (``ros2
---fleet``, ``foxglove --fleet``) on the same fleet: their CPU with nobody
-watching, then the whole host's (router, simulator, gateway, odometry, both
-views) with one Foxglove client subscribed to every robot's pose and one
-Zenoh subscriber on every robot's ``/odom``, the pose and ``/odom`` rates the
-clients received, and the command and e-stop latencies measured while they
-watch (instead of before the views).
+What is measured, in which window, and why the bench's own pose count is no
+part of the fleet: docs/performance.md ("Fleets").
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """The command path's floor: the least any Python gateway can do between Zenoh and the robot's socket.
 
-One Zenoh subscriber on ``cmd_vel`` whose callback, on Zenoh's own thread,
-decodes the JSON twist (msgspec, the schemas' Twist), turns it into wheel
-speeds (the robot model's kinematics) and writes one set-velocity request
-(the wire codec's bytes) to the robot's control socket (TCP_NODELAY).
-Nothing else: no safety, no arbiter, no loop, no replies read. The bench
-runs it in its own process, as it runs the gateway, and sets the gateway's
-``cmd_vel`` latency beside it.
+Decode, kinematics, one wire request, on Zenoh's thread; no safety, no arbiter, no replies read
+(docs/performance.md).
 """
 
 from __future__ import annotations

@@ -1,9 +1,4 @@
-"""The offline figures: replay, calibration and the arbiter's cost, on synthetic logs and a fake clock, with no robot.
-
-Each runs in fresh processes (or, for the arbiter, pure in this one) against
-the streaming path or the gateway core's whole handling, measured in the
-same run.
-"""
+"""The offline figures: replay, calibration and the arbiter's cost, on synthetic logs and a fake clock, with no robot."""
 
 from __future__ import annotations
 
@@ -131,10 +126,7 @@ def calibration_speed(samples: int) -> dict[str, float]:
 
 
 def replay_throughput(samples: int, stream_samples: int, mcap: bool = True) -> dict[str, float]:
-    """``blackmetal replay`` (file reading included) against the streaming path, per sample, each in a fresh process.
-
-    With ``mcap`` (it needs the record extra), also the same samples replayed from an MCAP recording.
-    """
+    """``blackmetal replay`` (file reading included) against the streaming path, each in a fresh process; MCAP too with ``mcap``."""
     legs = square_legs(side=2.0) * max(1, samples // 3900 + 1)
     log = synth_log(legs, dropout=0.01, spike=0.005, seed=1)
     with tempfile.TemporaryDirectory() as folder:

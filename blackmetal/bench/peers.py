@@ -1,9 +1,6 @@
 """The benchmark's peers: a minimal robot and a Zenoh echo, each in its own process.
 
-The minimal robot answers at once (status for every command, zeros for
-polls, a log report per second) and records when velocity commands and polls
-arrive, so that simulator costs do not pollute the gateway's figures and its
-thread never competes with the measuring client for the GIL.
+The minimal robot answers at once and stamps arrivals, so simulator costs and the GIL stay out of the gateway's figures.
 """
 
 from __future__ import annotations
@@ -144,10 +141,7 @@ class MiniRobot:
 
 
 def robot_main() -> None:
-    """Child process: a MiniRobot; announces its ports, then prints its arrivals and polls as JSON on 'dump'.
-
-    It ends on 'quit', when the bench closes its stdin (the bench is gone) and on SIGINT, quietly (``__main__``).
-    """
+    """Child process: a MiniRobot; announces its ports, then dumps its arrivals as JSON on 'dump', ends on 'quit' or EOF."""
     robot = MiniRobot().start()
     announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
     for line in sys.stdin:

@@ -1,8 +1,6 @@
-"""The processes a figure stands up (a mini robot, a gateway, the odometry, the ROS 2 adapter) and what it reads of them.
+"""The processes a figure stands up and what it reads of them.
 
-Every figure starts its processes on an ExitStack: each is stopped when the
-figure ends, however it ends (in reverse order: clients, then the gateway,
-then the robot), from the moment it exists.
+Each goes on the figure's ExitStack from the moment it exists, so it stops however the figure ends.
 """
 
 from __future__ import annotations

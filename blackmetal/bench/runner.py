@@ -1,8 +1,6 @@
-"""The bench's runner: what a figure is, how any figure is measured, skipped or failed, and how the table is laid out.
+"""The bench's runner: what a figure is, how any figure is measured, skipped or failed, and the table's layout.
 
-It knows no figure by name: each family module (``command_path``,
-``telemetry``, ``offline``) declares its figures, each in one place, as a
-:class:`Figure`.
+It knows no figure by name: each family module declares its figures as :class:`Figure`.
 """
 
 from __future__ import annotations
@@ -142,12 +140,8 @@ def one_sentence(exc: Exception) -> str:
 def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], object], only: set[str] | None) -> Result:
     """Every figure (or those in ``only`` and their baselines), each next to its baseline.
 
-    A figure whose optional extra is not installed is skipped with one line
-    saying what to install; a figure that fails is reported with one line and
-    the others still run. Either way its entries in the result say so
-    (``{"skipped": why}``, ``{"failed": why}``), as do the result's
-    ``skipped`` and ``failed``. Every child process a figure started is
-    stopped when it ends, however it ends.
+    A figure skipped for a missing extra, or failed, is one line and ``{"skipped": why}`` or ``{"failed": why}``
+    in the result; the others still run.
     """
     plan = Plan(quick, progress)
     chosen = with_baselines(figures, only) if only is not None else {figure.name for figure in figures}

@@ -1,12 +1,7 @@
 """Synthetic impulse logs with a known exact answer, for tests, benchmarks and demos.
 
-A drive is a list of legs with constant wheel speeds. Readings are what an
-encoder counter read at jittered instants reports: impulses per second over
-the interval since the previous reading, in whole impulses with the
-remainder carried (so counts are never lost), the right wheel mirrored;
-then single-sample dropouts (never two in a row on one wheel) and spikes are
-injected. The exact final pose comes from
-integrating the legs in closed form.
+Readings are whole impulses per second with the remainder carried (counts are never lost), at
+jittered instants, with single-sample dropouts and spikes; the exact pose integrates the legs in closed form.
 """
 
 from __future__ import annotations

@@ -1,9 +1,4 @@
-"""The telemetry figures: what the services publish and what it costs them.
-
-Impulse -> Pose against two Zenoh hops, the sustained poll rate, ROS 2's
-``/odom`` rate against the pose rate, the recorder's load, and resident
-memory and CPU against a bare Python process with zenoh imported.
-"""
+"""The telemetry figures: what the services publish and what it costs them (docs/performance.md)."""
 
 from __future__ import annotations
 

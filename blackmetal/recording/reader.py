@@ -1,9 +1,4 @@
-"""Reading MCAP recordings back, with the ``mcap`` package, including files cut short by a kill.
-
-Reads the data section front to back (the ``mcap`` package's streaming
-reader), so a file whose recorder was killed yields every message of its
-closed chunks; :attr:`Recorded.truncated` says the end was missing.
-"""
+"""Reading MCAP recordings back, front to back, so a file cut short by a kill yields its closed chunks."""
 
 from __future__ import annotations
 
@@ -235,10 +230,7 @@ def _chunk_bytes(chunk: Any) -> bytes:
 def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes, str | None]:
     """The payloads of the wanted topics as JSON lines, for the numpy replay: >= 1 M messages/s.
 
-    Walks the file with the ``mcap`` package's streaming reader, chunk by
-    chunk, and pulls the payloads out of each decompressed chunk without
-    building a Python object per message. Returns the text and, for a file
-    cut short, what was missing at its end.
+    No Python object per message; also returns what a file cut short was missing at its end.
     """
     require_extra("reading MCAP", "record", "mcap")
     from mcap.records import Channel as ChannelRecord

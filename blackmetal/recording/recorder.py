@@ -1,11 +1,4 @@
-"""Records Zenoh keys into an MCAP recording on a thread of its own: the Zenoh callbacks only queue.
-
-Used by ``blackmetal record``, ``blackmetal square --record`` and
-``blackmetal foxglove --mcap``. The callback takes the arrival time and the
-payload bytes and appends them to a queue; a writer thread drains the queue
-every few milliseconds, closes the chunk in progress at least once per
-``flush_period`` and finishes the file on :meth:`stop`.
-"""
+"""Records Zenoh keys into an MCAP recording on a thread of its own: the Zenoh callbacks only queue."""
 
 from __future__ import annotations
 

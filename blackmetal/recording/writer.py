@@ -1,18 +1,7 @@
 """MCAP recordings of the robot's keys, written with the ``mcap`` package: evidence first.
 
-One channel per key, registered when the key first speaks. A key that
-carries a known message gets message encoding ``json`` and that message's
-JSON Schema (schema encoding ``jsonschema``), so Foxglove, the ``mcap`` CLI
-and any MCAP reader understand the file without blackmetal; other keys get a
-channel without a schema. Payloads are written byte for byte as received,
-invalid ones included. Log time is the arrival time; publish time is the
-message's own ``stamp`` where it has one.
-
-Chunks are closed by :meth:`McapRecording.flush`, which the recorder calls
-at least once a second, so a recorder killed mid-run loses at most the last
-second: everything before is in closed chunks that ordinary streaming MCAP
-readers read. ``split_bytes`` rotates to a new file (``name-001.mcap``, ...)
-once a file has grown that large.
+Payloads go in byte for byte, invalid ones included; known messages get their JSON Schema. Chunks are
+closed at least once a second, so a killed recorder loses at most the last second (docs/commands/recording.md).
 """
 
 from __future__ import annotations

@@ -333,8 +333,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal calibrate", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("recordings", nargs="+", metavar="RECORDING", help="MCAP recordings or JSON-lines impulse logs")
     parser.add_argument("-o", "--output", metavar="FILE.toml", help="write the constants as a settings file")
     parser.add_argument("--reference", metavar="KEY", help="reference pose channel for the trajectory fit (default <prefix>/sim/truth)")
@@ -350,4 +349,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--size", type=float, metavar="M", help="UMBmark: the squares' side (default: as recorded)")
     parser.add_argument("--prefix", help="the robot's prefix in the recordings (default: the one they hold)")
     add_setting_arguments(parser, PipelineSettings)
-    return parser

@@ -1,10 +1,6 @@
-"""What every user tool needs: a Zenoh session with sensible defaults, latest values, clear failures.
+"""What every user tool needs: a Zenoh session, latest values, and failures that say what to check.
 
-Tools (teleop, watch, square) connect, like every process, to
-``tcp/127.0.0.1:7447`` when given no endpoint (the demo's and the router's
-default; see :data:`blackmetal.runtime.zenoh_setup.DEFAULT_ENDPOINT`), and
-fail at once with a message that says what to check, not a traceback, when
-nothing answers. The recorder, a service, waits for its endpoint instead.
+A tool fails at once when nothing answers; the recorder, a service, waits for its endpoint instead.
 """
 
 from __future__ import annotations
@@ -40,10 +36,6 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--prefix", default=DEFAULT_PREFIX, help=f"key-expression prefix (default {DEFAULT_PREFIX})")
     parser.add_argument("--wait", type=float, default=5.0, help="seconds to wait for the robot's services (default 5)")
     add_zenoh_arguments(parser)
-
-
-def where(settings: ZenohSettings) -> str:
-    return settings.where()
 
 
 class Latest:
@@ -106,7 +98,7 @@ def _require(session: zenoh.Session, key: str, message_type: type[T], settings: 
         if value is not None:
             return value
         if time.monotonic() > deadline:
-            raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {where(settings)}). {hint}")
+            raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {settings.where()}). {hint}")
         time.sleep(0.2)
 
 

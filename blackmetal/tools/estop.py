@@ -16,7 +16,7 @@ import time
 
 from blackmetal.schemas import GatewayHealth
 
-from .client import ToolError, add_client_arguments, connect, query, require_gateway, tool, where
+from .client import ToolError, add_client_arguments, connect, query, require_gateway, tool
 
 REPEAT_S = 0.1
 
@@ -42,14 +42,12 @@ def run(args: argparse.Namespace) -> int:
                 seen = "no health" if health is None else f"health still says estop={health.estop}"
                 raise ToolError(
                     f"the gateway on {keys.prefix} did not confirm the e-stop {args.state} within {args.timeout:g} s ({seen}; "
-                    f"Zenoh: {where(settings)}). Is this user allowed to put on {key}?"
+                    f"Zenoh: {settings.where()}). Is this user allowed to put on {key}?"
                 )
             time.sleep(REPEAT_S)
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal estop", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("state", choices=("on", "off"), help="on engages the stop, off releases it")
     parser.add_argument("--timeout", type=float, default=2.0, metavar="S", help="confirmation time limit (default 2)")
     add_client_arguments(parser)
-    return parser

@@ -23,7 +23,7 @@ import zenoh
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
 from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, Pose, ZenohUnreachable
 
-from .client import connect, first_reply, tool, where
+from .client import connect, first_reply, tool
 
 #: How often the router is tried again while --wait lasts.
 RETRY_S = 0.2
@@ -122,10 +122,7 @@ def table(rows: list[RobotRow]) -> str:
 
 
 def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSettings, zenoh.Session]:
-    """The tool's session; a router that comes up before ``deadline`` is still met (scripts start it just before).
-
-    When nothing answers by then, the same one sentence as every tool.
-    """
+    """The tool's session; a router that comes up before ``deadline`` is still met (scripts start it just before)."""
     while True:
         try:
             _, settings, session = connect(args)
@@ -149,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
     if not robots:
-        print(f"blackmetal robots: no live gateway found via {where(settings)} within {args.wait:g} s", file=sys.stderr)
+        print(f"blackmetal robots: no live gateway found via {settings.where()} within {args.wait:g} s", file=sys.stderr)
         return 1
     if output == "table":
         print(table(rows))
@@ -159,8 +156,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal robots", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--wait", type=float, default=5.0, help="seconds to reach the router and collect answers (default 5, like every tool)"
     )
@@ -173,4 +169,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     shape.add_argument("--json", action="store_true", help="one JSON array: per robot its prefix, link, poll rate, pose, e-stop, "
                        "active source and the whole health")  # fmt: skip
     add_zenoh_arguments(parser)
-    return parser

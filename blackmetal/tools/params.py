@@ -14,7 +14,7 @@ import json
 
 from blackmetal.schemas import GatewayParams, Param, ParamsSetReply, ParamValue, decode, to_bytes
 
-from .client import ToolError, add_client_arguments, connect, query, require_gateway, tool, where
+from .client import ToolError, add_client_arguments, connect, query, require_gateway, tool
 
 
 def parse_assignment(text: str) -> tuple[str, ParamValue]:
@@ -64,13 +64,11 @@ def run(args: argparse.Namespace) -> int:
                     print(f"{result.name}: {'set' if result.successful else 'refused: ' + result.reason}")
                 return 0 if all(r.successful for r in answer.results) else 1
         raise ToolError(
-            f"no answer on {keys.params_set} within {args.wait:g} s (Zenoh: {where(settings)}): setting parameters is an "
+            f"no answer on {keys.params_set} within {args.wait:g} s (Zenoh: {settings.where()}): setting parameters is an "
             "operator's right; does this user have it (BLACKMETAL_ZENOH_USER)?"
         )
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal params", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("assignments", nargs="*", metavar="NAME=VALUE", help="parameters to set, e.g. max_wheel_speed=0.3")
     add_client_arguments(parser)
-    return parser

@@ -19,7 +19,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import ConfigError, require_extra
 
-from .client import add_client_arguments, connect_waiting, tool, where
+from .client import add_client_arguments, connect_waiting, tool
 
 
 def default_name() -> str:
@@ -43,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
         split = None if args.split_size is None else int(args.split_size * 1e6)
         recording = McapRecording(path, keys, split_bytes=split)
         recorder = SessionRecorder(session, keyexprs, recording)
-        print(f"blackmetal record: {', '.join(keyexprs)} via {where(settings)} -> {path} (Ctrl-C to finish)", flush=True)
+        print(f"blackmetal record: {', '.join(keyexprs)} via {settings.where()} -> {path} (Ctrl-C to finish)", flush=True)
         announce_ready("record", file=str(path), keys=keyexprs)
         started = time.monotonic()
         deadline = started + args.duration if args.duration else None
@@ -67,8 +67,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal record", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", metavar="FILE.mcap", help="the recording (default blackmetal-<date>-<time>.mcap)")
     parser.add_argument(
         "-k", "--key", action="append", metavar="KEYEXPR", help="record this key expression (repeatable; default <prefix>/**)"
@@ -76,4 +75,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--duration", type=float, metavar="S", help="stop after this many seconds (default: until Ctrl-C)")
     parser.add_argument("--split-size", type=float, metavar="MB", help="start a new file (name-001.mcap, ...) after this many MB")
     add_client_arguments(parser)
-    return parser

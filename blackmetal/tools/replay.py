@@ -122,8 +122,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal replay", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("file", help="MCAP recording, or JSON-lines file of WheelImpulses")
     parser.add_argument("-o", "--output", metavar="FILE", help="write every pose as JSON lines")
     parser.add_argument("-q", "--quiet", action="store_true", help="no summary on stderr")
@@ -131,4 +130,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--compare", action="store_true", help="print the largest difference from the live poses of the recording")
     parser.add_argument("--export-jsonl", metavar="FILE", help="also write the impulses as JSON lines")
     add_setting_arguments(parser, PipelineSettings)
-    return parser

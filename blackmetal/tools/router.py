@@ -64,11 +64,9 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal router", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-c", "--config", metavar="FILE", help="Zenoh router configuration (JSON5)")
     parser.add_argument("-l", "--listen", action="append", metavar="ENDPOINT", help="listen endpoint, replaces the file's (repeatable)")
     parser.add_argument("-e", "--connect", action="append", metavar="ENDPOINT", help="another router to connect to (repeatable)")
     parser.add_argument("--multicast-scouting", action="store_true", help="discover peers and routers on the LAN (default: off)")
     parser.add_argument("--no-multicast-scouting", action="store_true", help="no discovery (the default; accepted for older scripts)")
-    return parser

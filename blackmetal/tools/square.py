@@ -25,6 +25,7 @@ from typing import Any
 
 import zenoh
 
+from blackmetal.odometry_service.calibration import centre_of_gravity
 from blackmetal.recording.recorder import SessionRecorder
 from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.signals import stop_on_signals
@@ -39,7 +40,6 @@ from .client import (
     require_gateway,
     require_pose,
     tool,
-    where,
 )
 
 RATE_HZ = 20.0
@@ -254,11 +254,7 @@ def umbmark_figure(runs: list[Run]) -> str | None:
         ends[run.direction].append((run.truth.dx, run.truth.dy))
     if not errors["clockwise"] or not errors["counter-clockwise"]:
         return None
-
-    def cg(points: list[tuple[float, float]]) -> tuple[float, float]:
-        return sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points)
-
-    cw, ccw = cg(errors["clockwise"]), cg(errors["counter-clockwise"])
+    cw, ccw = centre_of_gravity(errors["clockwise"]), centre_of_gravity(errors["counter-clockwise"])
     e_max = max(math.hypot(*cw), math.hypot(*ccw))
     cw_end = " ".join(f"--cw-end={x:.4f},{y:.4f}" for x, y in ends["clockwise"])
     ccw_end = " ".join(f"--ccw-end={x:.4f},{y:.4f}" for x, y in ends["counter-clockwise"])
@@ -327,7 +323,7 @@ def run(args: argparse.Namespace) -> int:
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
             driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
-            print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {where(settings)}", flush=True)
+            print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {settings.where()}", flush=True)
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
                 started = time.time_ns()
@@ -362,8 +358,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal square", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--size", type=float, default=1.0, help="side length, m (default 1)")
     add_drive_arguments(parser, turn_rate=0.6)
     parser.add_argument("--clockwise", action="store_true", help="drive clockwise (default counter-clockwise)")
@@ -375,4 +370,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--json", action="store_true", help="also print the closures as JSON")
     parser.add_argument("--record", metavar="FILE.mcap", help="record the run (impulses, poses, truth, cmd_vel) for replay and calibration")
     add_client_arguments(parser)
-    return parser

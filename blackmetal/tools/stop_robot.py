@@ -72,13 +72,11 @@ def _status_reply(sock: socket.socket, decoder: wire.ReplyDecoder, until: float)
     return None
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal stop-robot", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", metavar="HOST", help="the robot's address (default: the settings file's, else 127.0.0.1)")
     parser.add_argument("--control-port", type=int, metavar="PORT", help=f"(default: the settings file's, else {model.CONTROL_PORT})")
     parser.add_argument("--settings", metavar="FILE", help="the gateway's settings file, for the robot's address and port")
     parser.add_argument("--timeout", type=float, default=3.0, metavar="S", help="give up after this long (default 3)")
-    return parser
 
 
 def run(args: argparse.Namespace) -> int:

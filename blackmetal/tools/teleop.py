@@ -25,7 +25,7 @@ import zenoh
 
 from blackmetal.schemas import EStop, GatewayHealth, Pose, Sources, Twist, Vector3, encode
 
-from .client import Latest, add_client_arguments, add_drive_arguments, connect, require_gateway, tool, where
+from .client import Latest, add_client_arguments, add_drive_arguments, connect, require_gateway, tool
 
 #: Key -> (forward, turn) direction.
 DRIVE_KEYS: dict[str, tuple[float, float]] = {
@@ -151,7 +151,7 @@ def run(args: argparse.Namespace) -> int:
         pose = Latest(session, keys.pose, Pose)
         health = Latest(session, keys.health, GatewayHealth)
         health.value = health0
-        print(f"blackmetal teleop on {args.prefix} via {where(settings)}: {HELP}", flush=True)
+        print(f"blackmetal teleop on {args.prefix} via {settings.where()}: {HELP}", flush=True)
         return _loop(teleop, publishers, pose, health)
 
 
@@ -194,12 +194,10 @@ def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, 
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal teleop", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     add_drive_arguments(parser, turn_rate=0.8)
     parser.add_argument("--hold", type=float, default=0.7, help="a key counts as held this long after its last repeat, s")
     parser.add_argument(
         "--source", default=Sources.TELEOP, help="command source to publish as, on <prefix>/cmd_vel/SOURCE (default teleop, priority 100)"
     )
     add_client_arguments(parser)
-    return parser

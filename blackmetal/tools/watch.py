@@ -22,7 +22,7 @@ from blackmetal.schemas import (
     to_bytes,
 )
 
-from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool, where
+from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
         period = 0.2 if tty else 1.0
         deadline = time.monotonic() + args.duration if args.duration else math.inf
         last_count, last_time = 0, time.monotonic()
-        print(f"blackmetal watch on {keys.prefix} via {where(settings)} (Ctrl-C to quit)", flush=True)
+        print(f"blackmetal watch on {keys.prefix} via {settings.where()} (Ctrl-C to quit)", flush=True)
         while True:  # at once (what is known already, recent errors included), then every period, and at the end
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
@@ -124,8 +124,6 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(prog="blackmetal watch", description=__doc__)
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--duration", type=float, default=0.0, help="quit after this many seconds (default: run until Ctrl-C)")
     add_client_arguments(parser)
-    return parser

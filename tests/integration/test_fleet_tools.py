@@ -30,22 +30,6 @@ STATUS = re.compile(
 )
 
 
-class NoSession:
-    """Stands in for a Zenoh session where a status line is rendered from fed health: nothing arrives."""
-
-    def liveliness(self) -> "NoSession":
-        return self
-
-    def declare_subscriber(self, *args: object, **kwargs: object) -> "NoSession":
-        return self
-
-    def try_recv(self) -> None:  # an empty pose ring
-        return None
-
-    def undeclare(self) -> None:
-        return None
-
-
 class FleetUp(Child):
     """``blackmetal up --robots n`` as a hub on a free loopback port; its children's pids once ready."""
 
@@ -258,56 +242,6 @@ def test_up_robots_with_foxglove_serves_every_robot_in_one_view() -> None:
         wait_for(lambda: re.search(rf"Foxglove: every robot in one view at ws://127\.0\.0\.1:{port}", up.output()), what="the view's URL")
     finally:
         up.stop()
-
-
-def test_the_status_says_connecting_before_a_robot_was_ever_up_and_down_after() -> None:
-    """The fleet status line's words, from health reports alone (no processes)."""
-    from blackmetal.runtime.fleet import numbered_fleet
-    from blackmetal.schemas import GatewayHealth, LinkHealth
-    from blackmetal.tools.up import FleetStatus
-
-    robots = numbered_fleet(2)
-    status = FleetStatus(NoSession(), robots)  # type: ignore[arg-type]
-
-    def health(state: str) -> GatewayHealth:
-        return GatewayHealth(stamp=0.0, control=LinkHealth(state=state), log=LinkHealth(state=state))
-
-    status.health["fleet/r1"] = (health("down"), time.monotonic())
-    line = status.render()
-    assert "connecting 2: r1, r2" in line and "link down" not in line and "no health" not in line, line
-    status.health["fleet/r1"] = (health("connected"), time.monotonic())
-    status.health["fleet/r2"] = (health("connected"), time.monotonic())
-    assert "connecting" not in status.render()
-    status.health["fleet/r2"] = (health("down"), time.monotonic())
-    assert "link down 1: r2" in status.render()
-    refused = LinkHealth(state="down", reason="cannot connect to 127.0.0.1:9: connection refused")
-    status.health["fleet/r2"] = (GatewayHealth(stamp=0.0, control=refused, log=refused), time.monotonic())
-    assert "link down 1: r2 (r2: cannot connect to 127.0.0.1:9: connection refused)" in status.render()  # why, not just down
-
-
-def test_the_fleet_is_spread_over_processes_one_per_150_robots_at_most_one_per_core() -> None:
-    from blackmetal.runtime.fleet import numbered_fleet
-    from blackmetal.tools.up import process_count, shards
-
-    assert [process_count(n, None, cores=2) for n in (1, 100, 150, 151, 300, 1000)] == [1, 1, 1, 2, 2, 2]
-    assert process_count(1000, None, cores=8) == 7 and process_count(10, 3, cores=1) == 3  # asked: as asked
-    groups = shards(numbered_fleet(7), 3)
-    assert [[r.id for r in g] for g in groups] == [["r1", "r2", "r3"], ["r4", "r5"], ["r6", "r7"]]
-
-
-def test_the_status_says_when_the_fleet_is_behind_its_rate() -> None:
-    from blackmetal.runtime.fleet import numbered_fleet
-    from blackmetal.schemas import GatewayHealth, LinkHealth
-    from blackmetal.tools.up import FleetStatus
-
-    status = FleetStatus(NoSession(), numbered_fleet(3), poll_hz=50.0)  # type: ignore[arg-type]
-    link = LinkHealth(state="connected")
-    for rid, hz in (("r1", 49.0), ("r2", 48.0), ("r3", 47.0)):
-        status.health[f"fleet/{rid}"] = (GatewayHealth(stamp=0.0, control=link, log=link, poll_hz=hz), time.monotonic())
-    assert "BEHIND" not in status.render()
-    for rid, hz in (("r1", 41.0), ("r2", 40.0), ("r3", 48.0)):
-        status.health[f"fleet/{rid}"] = (GatewayHealth(stamp=0.0, control=link, log=link, poll_hz=hz), time.monotonic())
-    assert "BEHIND 50 Hz: the host is short of CPU" in status.render()
 
 
 def test_up_spreads_a_fleet_over_two_gateways_and_a_dead_ones_robots_are_stopped() -> None:

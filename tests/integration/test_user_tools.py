@@ -20,7 +20,6 @@ import zenoh
 from helpers import Child, client_config, free_port, wait_for
 
 from blackmetal.schemas import GatewayHealth, GatewayParams, Pose, decode
-from blackmetal.tools.teleop import Teleop, parse_keys
 
 pytestmark = pytest.mark.integration
 
@@ -232,21 +231,6 @@ def test_up_reports_a_child_that_dies() -> None:
         assert found and "odometry ready" in tail, demo.output()
     finally:
         demo.stop()
-
-
-def test_teleop_keys_to_commands() -> None:
-    assert parse_keys(b"w\x1b[Aa \x1b[Dq\x03") == ["w", "up", "a", "space", "left", "q", "quit"]
-    t = Teleop(speed=0.2, turn_rate=0.8, hold=0.5, rate=10.0)
-    ((kind, twist),) = t.on_key("up", 0.0)
-    assert kind == "cmd_vel" and twist.linear.x == 0.2  # type: ignore[attr-defined]
-    assert t.on_key("up", 0.03) == []  # key repeat faster than 10 Hz: no extra message
-    assert t.tick(0.05) == [] and len(t.tick(0.11)) == 1  # 10 Hz while held
-    ((kind, stop),) = t.tick(0.7)  # released: one zero command
-    assert stop.linear.x == 0.0 and t.tick(0.8) == []  # type: ignore[attr-defined]
-    msgs = t.on_key("e", 1.0)
-    assert msgs[0][0] == "estop" and msgs[0][1].engaged is True  # type: ignore[attr-defined]
-    ((kind, release),) = t.on_key("e", 1.1)  # e again releases, on the release key
-    assert kind == "estop_release" and release.engaged is False  # type: ignore[attr-defined]
 
 
 def test_estop_on_and_off_are_confirmed_by_the_gateway(up: Up) -> None:

@@ -1,8 +1,4 @@
-"""Starting up's processes and keeping them running: a gateway that dies has its robots stopped and is started again.
-
-The supervision loop (:func:`live`) also prints the status line; it is the
-only loop up runs once everything is ready.
-"""
+"""Starting up's processes and keeping them running: a gateway that dies has its robots stopped and is started again."""
 
 from __future__ import annotations
 

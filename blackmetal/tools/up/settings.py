@@ -1,8 +1,4 @@
-"""``up --settings FILE``: one file with any service's keys, split into each service's own settings file.
-
-Apart from the topology and the launch because it is pure bookkeeping of
-keys: which service takes which key, and what up decides itself.
-"""
+"""``up --settings FILE``: one file with any service's keys, split into each service's own settings file."""
 
 from __future__ import annotations
 

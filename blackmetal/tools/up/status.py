@@ -1,7 +1,6 @@
 """What up prints: how to drive the robot (or the fleet), then one live status line.
 
-The status line's subscriptions only store what they receive; the lines
-are built when printed, on up's main thread.
+The subscriptions only store; the line is built when printed, on up's main thread.
 """
 
 from __future__ import annotations
@@ -117,11 +116,8 @@ def _named(ids: list[str]) -> str:
 class PoseSampler:
     """Each robot's poses per second, measured over one status interval every :data:`POSE_SAMPLE_EVERY_S`.
 
-    Counting every pose costs the status line more than the router's own work
-    (0.1 cores at 100 robots: 5,000 poses a second delivered into ``up``'s
-    session, even into a ring): so one subscriber on ``**/pose`` is declared
-    for one interval, its ring emptied and counted at the next line, and
-    undeclared. The line shows the rates of the last such window.
+    Counting every pose cost more than the router's own work (0.1 cores at 100 robots), so one ``**/pose``
+    subscriber is declared for one interval, counted and undeclared.
     """
 
     def __init__(self, session: zenoh.Session, prefixes: list[str], interval: float) -> None:
@@ -152,11 +148,7 @@ class PoseSampler:
 
 
 class FleetStatus:
-    """Subscriptions for the fleet's one-line status: gateways alive, each robot's health, poses and errors.
-
-    The callbacks only store (a decoded health, a count); :meth:`render` does
-    the arithmetic. Poses are sampled, not followed (:class:`PoseSampler`).
-    """
+    """Subscriptions for the fleet's one-line status; the callbacks only store, :meth:`render` does the arithmetic."""
 
     def __init__(self, session: zenoh.Session, robots: list[FleetRobot], interval: float = 2.0, poll_hz: float = 50.0) -> None:
         """``interval``: the time between two :meth:`render` calls; ``poll_hz``: the rate the gateways were asked for."""

@@ -1,8 +1,4 @@
-"""Where up's processes meet (the Zenoh topology) and how many processes carry a fleet of robots.
-
-Pure decisions from up's options, kept apart from the launch so that they
-can be read, and tested, without starting anything.
-"""
+"""Where up's processes meet (the Zenoh topology) and how many carry a fleet: pure decisions, testable without a launch."""
 
 from __future__ import annotations
 

@@ -242,29 +242,3 @@ def test_calibrate_then_drive_again(children: list[Child], tmp_path: Path) -> No
     print(f"closure error against the truth before {before.closures}, after {after.closures}; UMBmark:\n{umb.stdout}")
     for direction in before.closures:
         assert after.closures[direction] * 10 <= before.closures[direction], (direction, before.closures, after.closures)
-
-
-def test_square_prints_the_true_ends_and_umbmarks_return_error() -> None:
-    """`square --both`: E_max,syst from the true ends less the odometry's, and a calibrate command with the true ends."""
-    from blackmetal.tools.square import Closure, Run, umbmark_figure
-
-    runs = [
-        Run("counter-clockwise", odometry=Closure(0.002, 0.001, 0.0), truth=Closure(-0.022, 0.029, 0.0)),
-        Run("clockwise", odometry=Closure(0.001, 0.002, 0.0), truth=Closure(-0.014, -0.014, 0.0)),
-    ]
-    figure = umbmark_figure(runs)
-    assert figure is not None
-    assert "UMBmark E_max,syst 36.9 mm" in figure  # hypot(-0.024, 0.028), not the true end's 36.4 mm
-    assert figure.endswith("blackmetal calibrate RECORDING --cw-end=-0.0140,-0.0140 --ccw-end=-0.0220,0.0290")
-    assert umbmark_figure(runs[:1]) is None  # one direction only
-    assert umbmark_figure([Run("clockwise", odometry=Closure(0, 0, 0), truth=None), runs[0]]) is None  # no truth
-
-
-def test_square_approaches_a_corner_no_faster_than_the_command_timeout_allows() -> None:
-    """A stalled square's last command runs for the gateway's command timeout: at gain 1/timeout it ends at the corner."""
-    from blackmetal.tools.square import MAX_APPROACH_GAIN, approach_gain
-
-    assert approach_gain(0.5) == 2.0
-    assert approach_gain(0.15) == pytest.approx(1 / 0.15)
-    assert approach_gain(0.0) == 2.0  # no timeout: the default's gain, not an unbounded one
-    assert approach_gain(0.01) == MAX_APPROACH_GAIN

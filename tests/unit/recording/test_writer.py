@@ -1,0 +1,42 @@
+"""McapRecording: channels, schemas and payloads as received, and the split into files."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from blackmetal.recording.writer import McapRecording
+from blackmetal.schemas import Keys, WheelImpulses, decode, encode, json_schemas, make_pose
+
+from .test_reader import read_all
+
+
+def test_channels_schemas_and_bytes_as_received(tmp_path: Path) -> None:
+    path = tmp_path / "r.mcap"
+    rec = McapRecording(path, Keys())
+    pose = encode(make_pose(1_795_000_000.5, 1.0, 2.0, 0.3))
+    rec.write("robot/pose", pose, 1_795_000_001_000_000_000)
+    rec.write("robot/pose", b"\x00not json", 1_795_000_002_000_000_000)  # evidence: kept byte for byte
+    rec.write("robot/something/new", b'{"a": 1}', 1_795_000_003_000_000_000)
+    rec.close()
+    found = read_all(path)
+    (s1, c1, m1), (_, _, m2) = found["robot/pose"]
+    assert s1.name == "Pose" and s1.encoding == "jsonschema" and json.loads(s1.data) == json_schemas()["Pose"]
+    assert c1.message_encoding == "json"
+    assert m1.data == pose and m2.data == b"\x00not json"
+    assert m1.log_time == 1_795_000_001_000_000_000 and m1.publish_time == 1_795_000_000_500_000_000  # its own stamp
+    assert m2.publish_time == m2.log_time  # no stamp: the arrival time
+    ((schema, channel, _),) = found["robot/something/new"]
+    assert schema is None and channel.schema_id == 0
+
+
+def test_split_size_rotates_into_readable_files(tmp_path: Path) -> None:
+    rec = McapRecording(tmp_path / "r.mcap", Keys(), split_bytes=20_000)
+    for i in range(3000):
+        rec.write("robot/wheels/impulses", encode(WheelImpulses(seq=i, stamp=1_795_000_000 + i / 100, left=i, right=-i)))
+        if i % 100 == 0:
+            rec.flush()
+    rec.close()
+    assert len(rec.files) >= 3 and rec.files[1].name == "r-001.mcap"
+    seqs = [decode(WheelImpulses, m.data).seq for f in rec.files for _, _, m in read_all(f)["robot/wheels/impulses"]]
+    assert seqs == list(range(3000))
