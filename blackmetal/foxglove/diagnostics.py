@@ -10,11 +10,7 @@ from __future__ import annotations
 from typing import Any
 
 from blackmetal.runtime.diagnostics import COMMANDS_REFUSED, ESTOP_ENGAGED, REPLIES_LOST_EVER, Level, Status, link_level
-from blackmetal.schemas import (
-    GatewayHealth,
-    LinkHealth,
-    stamp_parts,
-)
+from blackmetal.schemas import GatewayHealth, LinkHealth, stamp_parts
 
 from .channels import HEADER, array, message_schema, obj, typed
 

@@ -36,7 +36,7 @@ from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
-from .zenoh_edge import FoxgloveZenoh
+from .zenoh_edge import NO_EDGE, FoxgloveZenoh
 
 log = logging.getLogger("blackmetal.foxglove")
 
@@ -102,9 +102,9 @@ async def serve_views(
             for robot_id, port in wiring.ports.items():
                 edge = FoxgloveZenoh(session, port.view.keys, query_timeout=base.call_timeout)
                 edges.append(edge)
-                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (None, None)
-                edge.attach(port.view, port, loop, handlers=handlers, on_error=port.on_bug, presence=presence)
-                port.edge = edge
+                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (port.view.handlers(), None)
+                edge.attach(handlers, port, loop, on_error=port.on_bug, presence=presence)
+                port.plug(edge)
             wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
             for port in wiring.ports.values():
                 port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
@@ -118,7 +118,7 @@ async def serve_views(
         finally:
             wiring.stop()
             for port in wiring.ports.values():
-                port.edge = None
+                port.plug(NO_EDGE)
             for edge in reversed(edges):
                 edge.close()
 
@@ -134,13 +134,9 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
     try:
         await host.start()  # the port is taken before Zenoh opens
         view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
-        ports = {r.id: RobotPort(r.id, host, view.views[r.id]) for r in robots}
-        controls = {
-            r.id: Controls(keys[r.id], ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots
-        }
+        controls = {r.id: Controls(keys[r.id], host, call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots}
+        ports = {r.id: RobotPort(r.id, host, view.views[r.id], controls[r.id], view) for r in robots}
         core = FleetControls(controls, host, _fleet_error(view))
-        for robot_id, port in ports.items():
-            port.controls, port.fleet = controls[robot_id], view
         params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
         host.attach(core, params, view)
         watch = Watch(view.feeds(), record_all=bool(base.mcap))

@@ -18,20 +18,11 @@ from enum import Enum
 from typing import Any
 
 from blackmetal.robot_model import Encoders
-from blackmetal.schemas import (
-    ErrorReport,
-    GatewayHealth,
-    Keys,
-    Pose,
-)
+from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, Pose
 
 from .channels import ChannelFactory, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, typed
 from .live import LiveView
-from .naming import (
-    FLEET_NAMESPACE,
-    robot_frame,
-    robot_namespace,
-)
+from .naming import FLEET_NAMESPACE, robot_frame, robot_namespace
 
 #: A robot whose gateway's health (published once a second) has not arrived for this long (s, the view's clock) is lost.
 LOST_AFTER_S = 2.5

@@ -53,13 +53,7 @@ from .front import (
 )
 from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
 from .params import Gateways, Parameters
-from .sdk import (
-    CALL_MARGIN_S,
-    ServiceFailure,
-    foxglove_parameter,
-    sdk_listener,
-    start_server,
-)
+from .sdk import CALL_MARGIN_S, ServiceFailure, foxglove_parameter, sdk_listener, start_server
 from .settings import FoxgloveSettings
 from .watch import Watch
 

@@ -16,9 +16,7 @@ from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import Any
 
-from blackmetal.schemas import (
-    Sources,
-)
+from blackmetal.schemas import Sources
 
 #: The command source the view's clients drive as (``<prefix>/cmd_vel/foxglove``).
 COMMAND_SOURCE = Sources.FOXGLOVE

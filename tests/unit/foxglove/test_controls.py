@@ -159,7 +159,7 @@ def health(estop: bool) -> bytes:
 @pytest.fixture
 def controls() -> tuple[Controls, Bench]:
     bench = Bench()
-    return Controls(KEYS, bench, call_timeout=2.0, wallclock=lambda: 1000.0), bench
+    return Controls(KEYS, bench, call_timeout=2.0, wallclock=lambda: 1000.0, robot=bench), bench
 
 
 def test_cmd_vel_drives_as_the_source_foxglove_and_stops_when_its_publisher_goes(controls: tuple[Controls, Bench]) -> None:

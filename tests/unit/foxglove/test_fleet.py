@@ -140,7 +140,8 @@ class FleetBench:
         self.answers: dict[int, tuple[bytes | None, str | None]] = {}
         self.fleet_errors: list[ErrorReport] = []
         robots = {
-            rid: Controls(Keys(f"fleet/{rid}"), self.benches[rid], wallclock=lambda: 1000.0, namespace=robot_namespace(rid)) for rid in IDS
+            rid: Controls(Keys(f"fleet/{rid}"), b, wallclock=lambda: 1000.0, namespace=robot_namespace(rid), robot=b)
+            for rid, b in self.benches.items()
         }
         self.core = FleetControls(robots, self, self.fleet_errors.append, wallclock=lambda: 1000.0)
 
