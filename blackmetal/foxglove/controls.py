@@ -124,20 +124,16 @@ class Refusals:
     def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
         """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
 
-        A status message already told the client; a service call failure is
-        followed by a status message, so the refusal shows where the client
-        shows its problems. In a fleet it names no robot: it goes on the fleet's log.
-        """
+        A service call failure also gets a status, so it shows where the client shows its problems."""
         if kind is ServerRefusal.SERVICE_CALL_FAILURE:
             self.clients.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
         self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
 
 
 class Controls(Refusals):
-    """Client publications and service calls -> the robot's keys, with confirmations and refusals; see the module docstring.
+    """Client publications and service calls -> the robot's keys, with confirmations and refusals.
 
-    Clients are the WebSocket server's client ids; ``call`` numbers service
-    calls (the host's numbering, unique while the view runs).
+    Clients are the WebSocket server's client ids; ``call`` numbers service calls (the host's, unique while the view runs).
     """
 
     def __init__(
@@ -332,14 +328,8 @@ class Controls(Refusals):
 
 
 class FleetControls(Refusals):
-    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here.
-
-    A client's channel on ``/r3/...`` and a call of ``/r3/...`` go to r3's
-    controls alone, which act on r3's prefix and report on r3's errors key;
-    a topic outside every robot's namespace (or a refusal of the server
-    itself, which names no robot) is refused with a status to that client
-    and reported on ``fleet_error`` (the fleet's log), never on a robot's key.
-    """
+    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here
+    and reported on ``fleet_error`` (the fleet's log), never on a robot's key."""
 
     def __init__(
         self,

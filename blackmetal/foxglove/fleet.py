@@ -1,18 +1,7 @@
 """``blackmetal foxglove --fleet FILE``: every robot of a fleet file in one view, on one WebSocket server, one Zenoh session.
 
-Each robot's channels are the single-robot view's under ``/<id>/``
-(``/r3/odometry``, ``/r3/path``, ``/r3/diagnostics``, ...), its transforms
-``<id>/odom`` -> ``<id>/base_link`` on the one ``/tf`` (frames named as
-``ros2 --fleet`` names them), and ``/fleet/summary`` has one row per robot
-(link, poll rate, e-stop, who drives, pose). Clients drive a robot on
-``/<id>/cmd_vel`` and ``/<id>/estop`` and call ``/<id>/set_estop`` and
-``/<id>/reset_odometry``; each acts on that robot's prefix alone, and a
-robot's bad input is refused and reported on its own ``<prefix>/errors``.
-What names no robot is refused too, and shown on ``/fleet/log``.
-
-What the robots share is the process, the loop, the server and the session;
-a bug in handling one robot's payload is reported on that robot's errors
-key (rate-limited) and the view goes on with the next payload.
+Names and behaviour: docs/foxglove.md ("A fleet in one view"). What the robots share is the process, the loop,
+the server and the session; a bug in handling one robot's payload is reported on that robot's errors key.
 """
 
 from __future__ import annotations

@@ -1,14 +1,7 @@
-"""The Foxglove view's host: the WebSocket server the app connects to and, with ``--mcap``, the MCAP file.
+"""The Foxglove view's host: the WebSocket server the app connects to (behind :mod:`.front`) and, with ``--mcap``, the MCAP file.
 
-The view (:mod:`blackmetal.foxglove.live`) logs into channels of the
-current Foxglove context; this host opens what those channels reach (the
-foxglove-sdk server, then the file) and closes them in reverse order. It
-feeds :class:`~blackmetal.foxglove.controls.Controls` with what clients publish
-and call, stamped with the clock, and runs its deadlines on the shared
-:class:`~blackmetal.runtime.host.DeadlineTimer`.
-
-The front (:mod:`.front`) and the SDK glue (:mod:`.sdk`) are apart; this
-module joins them with the view.
+It feeds the controls with what clients publish and call, stamped with the clock, runs their deadlines on the
+shared :class:`~blackmetal.runtime.host.DeadlineTimer`, and closes what it opened in reverse order.
 """
 
 from __future__ import annotations

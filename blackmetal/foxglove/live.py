@@ -1,12 +1,7 @@
-"""The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels.
+"""The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels (docs/foxglove.md, "Channels").
 
-What it shows, built from the robot's payloads: Foxglove's own types where a
-panel needs them, JSON elsewhere; the table of channels is in
-``docs/foxglove.md`` (Channels), and :meth:`LiveView.feeds` says it in code.
-
-Payloads that do not decode are skipped; the view never crashes on what a
-key carries. The view has no clock and no timers: the paths are throttled on
-the messages' own stamps.
+Payloads that do not decode are skipped; the view never crashes on what a key carries. It has no clock: the
+paths are throttled on the messages' own stamps.
 """
 
 from __future__ import annotations
@@ -61,11 +56,8 @@ class Trail:
 class LiveView:
     """The view's channels of one robot, and what each of its keys' payloads shows on them.
 
-    Every handler first asks which of its channels anyone takes
-    (``has_sinks``): a payload nobody watches is not even decoded, and only
-    the watched channels' messages are built. :meth:`feeds` says which
-    channels each key feeds, so the host subscribes to a key only while one
-    of them is watched (:class:`~blackmetal.foxglove.watch.Watch`).
+    Every handler first asks which of its channels anyone takes (``has_sinks``): a payload nobody watches is
+    not even decoded. :meth:`feeds` says which channels each key feeds, for :class:`~.watch.Watch`.
     """
 
     def __init__(

@@ -137,10 +137,8 @@ class FoxgloveZenoh(ZenohEdge):
                 self._declared[key] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
 
     def drain(self) -> int:
-        """On the loop: hand every sample the watched keys' rings hold to its handler, oldest first; how many there were.
-
-        A handler that raises is reported through ``on_error`` (the robot's
-        errors key) and the next sample goes on."""
+        """On the loop: every sample the watched keys' rings hold to its handler, oldest first; how many there were.
+        A handler that raises is reported through ``on_error`` and the next sample goes on."""
         taken = 0
         for key, subscriber in list(self._declared.items()):
             handler = self._handlers[key]
