@@ -127,11 +127,8 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         ports = {r.id: RobotPort(r.id, host, view.views[r.id], controls[r.id], view) for r in robots}
         core = FleetControls(controls, host, _fleet_error(view))
         params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
-        host.attach(core, params, view)
-        watch = Watch(view.feeds(), record_all=bool(base.mcap))
-        wiring = Wiring(ports, watch, view, core.reporter)
-        host.watch_with(watch, wiring)
-        host.serve_params(params, wiring)
+        wiring = Wiring(ports, Watch(view.feeds(), record_all=bool(base.mcap)), view, core.reporter)
+        host.attach(core, params, wiring, view)
 
         def announce(address: str) -> dict[str, Any]:
             say(

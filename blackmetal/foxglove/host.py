@@ -51,8 +51,10 @@ from .settings import FoxgloveSettings
 from .watch import Watch
 
 
-class Viewer(Protocol):
-    """What the host tells the view about its clients' subscriptions."""
+class Viewer(Gateways, Protocol):
+    """What the host tells the view about its clients' subscriptions (followed in ``watch``), and the parameters' gateways."""
+
+    watch: Watch
 
     def subscribed(self, topic: str) -> None:
         """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
@@ -106,8 +108,6 @@ class FoxgloveHost:
         self._put_subscription = self._handover.channel("subscriptions", run, capacity=65536)
         self._put_call = self._handover.channel("service calls", run, capacity=256)
         self._put_set = self._handover.channel("parameter sets", run, capacity=256)
-        #: Who watches which topic (set by :meth:`watch_with`); None: every key is followed.
-        self.watch: Watch | None = None
         self.viewer: Viewer | None = None
         self.params: Parameters | None = None
         #: The parameters as the SDK's threads answer getParameters from: replaced whole on the loop, read whole there.
@@ -166,19 +166,13 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: ClientCore, *timed: Core) -> None:
-        """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
-        self.core = core
-        self.timer = DeadlineTimer(_Together([core, *timed]), self.clock)
+    def attach(self, core: ClientCore, params: Parameters, viewer: Viewer, *timed: Core) -> None:
+        """Feed ``core`` and ``params`` (their gateways: ``viewer``), tell ``viewer`` the clients' subscriptions,
+        and run the timers of all and of ``timed`` (until :meth:`close`)."""
+        self.core, self.params, self.viewer = core, params, viewer
+        params.gateways = viewer
+        self.timer = DeadlineTimer(_Together([core, params, *timed]), self.clock)
         self.timer.start()
-
-    def watch_with(self, watch: Watch, viewer: Viewer) -> None:
-        """Follow the clients' subscriptions in ``watch`` and tell ``viewer`` (before any client connects)."""
-        self.watch, self.viewer = watch, viewer
-
-    def serve_params(self, params: Parameters, gateways: Gateways) -> None:
-        """Answer the clients' getParameters and setParameters from ``params``; what it asks of a gateway goes to ``gateways``."""
-        self.params, params.gateways = params, gateways
 
     async def run(self, stop: asyncio.Event) -> None:
         """Serve until ``stop``: the view's handlers run on the loop as the edge hands payloads over, the core's timers on the loop's timer."""
@@ -245,7 +239,7 @@ class FoxgloveHost:
                     if self.core is not None:
                         self.core.on_client_gone(connection.client, self.clock())
                         self.poke()
-                    if self.watch is not None and self.viewer is not None and self.watch.client_gone(connection.client):
+                    if self.viewer is not None and self.viewer.watch.client_gone(connection.client):
                         self.viewer.watch_changed()  # the SDK says so too, subscription by subscription; this is the same end, once
 
     @staticmethod
@@ -320,9 +314,10 @@ class FoxgloveHost:
             self.poke()
 
     def client_subscribed(self, client: int, topic: str, subscribed: bool) -> None:
-        watch, viewer = self.watch, self.viewer
-        if watch is None or viewer is None:
+        viewer = self.viewer
+        if viewer is None:
             return
+        watch = viewer.watch
         if subscribed:
             changed = watch.subscribe(client, topic)
             viewer.subscribed(topic)

@@ -64,7 +64,7 @@ class Parameters:
         self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0, gateways: Gateways | None = None
     ) -> None:
         """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet); ``gateways``: else given
-        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.serve_params`), before any gateway answers."""
+        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
         self.gateways: Gateways
