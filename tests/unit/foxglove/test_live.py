@@ -159,20 +159,3 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
     (stop_button,) = published["/estop"]
     assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
     assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
-
-
-def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
-    from blackmetal.foxglove.diagnostics import diagnostics
-    from blackmetal.runtime.diagnostics import Level
-    from blackmetal.schemas import GatewayHealth, LinkHealth
-
-    health = GatewayHealth(stamp=12.5, control=LinkHealth("connected"), log=LinkHealth("down"), estop=True, active_source="foxglove")
-    array = diagnostics(health, "robot")
-    levels = {status["name"]: status["level"] for status in array["status"]}
-    assert array["header"]["stamp"] == {"sec": 12, "nsec": 500_000_000}
-    assert levels["gateway: e-stop"] == levels["gateway: log link"] == Level.ERROR
-    assert levels["gateway: control link"] == Level.OK
-    assert all(
-        status["hardware_id"] == "robot" and all(isinstance(v["value"], str) for v in status["values"]) for status in array["status"]
-    )
-    assert "driven by foxglove" in {status["message"] for status in array["status"]}
