@@ -27,9 +27,6 @@ NOT_EXEMPT = {"bench/__init__"}
 NO_TEST_FILE_YET = {
     "bench/__init__", "bench/children", "bench/command_path", "bench/fleet", "bench/forwarder", "bench/offline",
     "bench/peers", "bench/rig", "bench/synth", "bench/telemetry",
-    "foxglove/channels", "foxglove/diagnostics", "foxglove/fleet_view", "foxglove/front", "foxglove/host",
-    "foxglove/live", "foxglove/main", "foxglove/model", "foxglove/naming", "foxglove/ports", "foxglove/sdk",
-    "foxglove/settings", "foxglove/zenoh_edge",
     "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health", "gateway/host", "gateway/links",
     "gateway/log_port", "gateway/main", "gateway/prepare", "gateway/settings", "gateway/zenoh_edge",
     "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",

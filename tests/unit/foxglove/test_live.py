@@ -159,3 +159,28 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
     (stop_button,) = published["/estop"]
     assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
     assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
+
+
+def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipped() -> None:
+    from blackmetal.foxglove.live import LiveView
+    from blackmetal.schemas import Keys, encode
+    from unit.foxglove.test_fleet_view import Logged
+
+    logs: dict[str, list[Any]] = {}
+    keys = Keys("robot")
+    view = LiveView(keys, namespace="/r1", channel=lambda topic, kind, schema: Logged(topic, kind, schema, logs))
+    assert {topic.removeprefix("/r1") for topic in logs} == set(EXPECTED) | {"/tf"}
+    assert view.feeds() == {
+        keys.pose: {"/r1/pose", "/r1/tf", "/r1/path", "/r1/odometry"},
+        keys.sim_truth: {"/r1/truth/pose", "/r1/truth/path"},
+        keys.impulses: {"/r1/wheels", "/r1/joint_states", "/r1/tf"},
+        keys.status: {"/r1/status"},
+        keys.health: {"/r1/health", "/r1/diagnostics"},
+        keys.errors: {"/r1/errors", "/r1/log"},
+    }
+    assert set(view.handlers()) == set(view.feeds())
+    pose = encode(Pose(stamp=1.0, x=1.0, y=2.0, yaw=0.0))
+    view.handlers()[keys.pose](pose)
+    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/tf"]) == len(logs["/r1/path"]) == 1
+    view.handlers()[keys.pose](b"not a pose")
+    assert len(logs["/r1/odometry"]) == 1, "skipped, never raised"
