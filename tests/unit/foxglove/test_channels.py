@@ -4,18 +4,7 @@ from __future__ import annotations
 
 import json
 
-from blackmetal.foxglove.channels import (
-    HEADER,
-    Kind,
-    array,
-    foxglove_channel,
-    message_schema,
-    obj,
-    report_log,
-    timestamp,
-    transform,
-    typed,
-)
+from blackmetal.foxglove.channels import HEADER, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, transform, typed
 from blackmetal.schemas import ErrorReport
 
 
