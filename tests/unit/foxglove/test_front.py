@@ -8,24 +8,19 @@ import random
 
 import pytest
 
+from blackmetal.foxglove import front
 from blackmetal.foxglove.front import (
     LEGACY_SUBPROTOCOL,
-    MARKER_CHANNEL_ID,
-    MARKER_TOPIC,
     OP_BINARY,
     OP_CLOSE,
     OP_CONTINUATION,
     OP_TEXT,
     SDK_SUBPROTOCOL,
     FrameTap,
-    marker_advertisement,
     offered_subprotocols,
     rewrite_request,
     rewrite_response,
-    server_op,
-    status_message,
     switches_protocols,
-    url,
     ws_frame,
 )
 from blackmetal.foxglove.naming import StatusLevel
@@ -116,14 +111,18 @@ def test_a_text_longer_than_the_limit_is_not_read_but_its_end_is_found() -> None
 
 
 def test_the_messages_the_front_sends_and_reads() -> None:
-    assert url("0.0.0.0", 8765) == "ws://127.0.0.1:8765" and url("::", 1) == "ws://127.0.0.1:1" and url("10.0.0.2", 9) == "ws://10.0.0.2:9"
-    advertise = json.loads(marker_advertisement("abc"))
+    assert (
+        front.url("0.0.0.0", 8765) == "ws://127.0.0.1:8765"
+        and front.url("::", 1) == "ws://127.0.0.1:1"
+        and front.url("10.0.0.2", 9) == "ws://10.0.0.2:9"
+    )
+    advertise = json.loads(front.marker_advertisement("abc"))
     assert advertise["op"] == "advertise"
-    assert advertise["channels"] == [{"id": MARKER_CHANNEL_ID, "topic": MARKER_TOPIC, "encoding": "json", "schemaName": "abc"}]
-    assert json.loads(status_message(StatusLevel.ERROR, "no")) == {"op": "status", "level": 2, "message": "no"}
-    failure = server_op.decode(b'{"op": "serviceCallFailure", "serviceId": 3, "callId": 7, "message": "x", "extra": 1}')
+    assert advertise["channels"] == [{"id": front.MARKER_CHANNEL_ID, "topic": front.MARKER_TOPIC, "encoding": "json", "schemaName": "abc"}]
+    assert json.loads(front.status_message(StatusLevel.ERROR, "no")) == {"op": "status", "level": 2, "message": "no"}
+    failure = front.server_op.decode(b'{"op": "serviceCallFailure", "serviceId": 3, "callId": 7, "message": "x", "extra": 1}')
     assert (failure.op, failure.service_id, failure.call_id, failure.message) == ("serviceCallFailure", 3, 7, "x")
-    assert server_op.decode(b'{"op": "status", "level": 1, "message": "m"}').level == 1
+    assert front.server_op.decode(b'{"op": "status", "level": 1, "message": "m"}').level == 1
 
 
 @pytest.mark.parametrize(
