@@ -12,11 +12,7 @@ from collections.abc import Callable
 from enum import Enum
 from typing import Any, Protocol, cast
 
-from blackmetal.schemas import (
-    ErrorReport,
-    Pose,
-    stamp_parts,
-)
+from blackmetal.schemas import ErrorReport, Pose, stamp_parts
 
 
 def typed(name: str | list[str], **more: Any) -> dict[str, Any]:

@@ -1,19 +1,9 @@
 """What the view's clients may do (:class:`Controls`, :class:`FleetControls`): publish and call, turned into the robot's keys.
 
-What clients may do (client publish and services, JSON only) is the table
-of ``docs/foxglove.md`` (Controls); the names and schemas are :mod:`.naming`'s.
-
-:class:`Controls` is pure and clock-injected like every core: each input
-comes with ``now``; what is due later (a service call's time limit, the
-re-sent engage of a ``set_estop``, summaries of rate-limited error reports)
-runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refused
-client message is answered with a status message to that client and
-reported on ``<prefix>/errors``; a failed service call is answered with a
-service call failure and reported.
-
-A fleet's controls (:class:`FleetControls`) are one :class:`Controls` per
-robot (``/<id>/cmd_vel``, ``/<id>/estop``, services ``/<id>/set_estop``,
-``/<id>/reset_odometry``), each fed only what names its robot.
+The table of what clients may do is ``docs/foxglove.md`` (Controls); names and schemas are :mod:`.naming`'s.
+:class:`Controls` is pure and clock-injected like every core: each input comes with ``now``, what is due later
+runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refusal is a status to that client and a
+report on ``<prefix>/errors``. A fleet's :class:`FleetControls` feed each robot's :class:`Controls` only what names it.
 """
 
 from __future__ import annotations
@@ -28,19 +18,7 @@ from typing import Protocol
 import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import (
-    ErrorReport,
-    EStop,
-    GatewayHealth,
-    Keys,
-    PayloadError,
-    Pose,
-    PoseReset,
-    Twist,
-    decode,
-    encode,
-    excerpt,
-)
+from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, PoseReset, Twist, decode, encode, excerpt
 
 from .naming import (
     CLIENT_ENCODING,
@@ -56,6 +34,7 @@ from .naming import (
     service_name,
     takes,
 )
+from .zenoh_edge import NO_EDGE
 
 #: A set_estop call re-sends its engage and asks the gateway's health this often (s) until confirmed.
 ASK_PERIOD_S = 0.2
@@ -70,14 +49,12 @@ class RosBool(msgspec.Struct, forbid_unknown_fields=True):
     data: bool
 
 
-class ControlsOutput(Protocol):
-    """Where :class:`Controls` sends what it decides: the robot's keys, the clients, the error reports."""
+class RobotSide(Protocol):
+    """Where :class:`Controls` sends to the robot: its Zenoh edge (:data:`~.zenoh_edge.NO_EDGE` while no session is open)."""
 
     def command(self, key: str, payload: bytes) -> None: ...
     def ask_health(self) -> None: ...
     def ask_reset(self, call: int, payload: bytes) -> None: ...
-    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
-    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
     def error(self, message: ErrorReport) -> None: ...
 
 
@@ -113,8 +90,8 @@ def _state(engage: bool) -> str:
     return "engaged" if engage else "released"
 
 
-class FleetOutput(Protocol):
-    """Where :class:`FleetControls` sends what no robot's :class:`Controls` owns."""
+class Clients(Protocol):
+    """Where the controls answer the clients: the host."""
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
@@ -123,9 +100,9 @@ class FleetOutput(Protocol):
 class Refusals:
     """What :class:`Controls` and :class:`FleetControls` both do with what they refuse: tell the client, and report it."""
 
-    def __init__(self, output: FleetOutput, report: Callable[[ErrorReport], None], wallclock: Callable[[], float]) -> None:
+    def __init__(self, clients: Clients, report: Callable[[ErrorReport], None], wallclock: Callable[[], float]) -> None:
         self.reporter = ErrorReporter("foxglove", report, wallclock)
-        self._tell = output
+        self.clients = clients
         self._last_status: dict[tuple[int | None, str], float] = {}
 
     def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
@@ -133,11 +110,11 @@ class Refusals:
         last = self._last_status.get((client, topic), -math.inf)
         if now - last >= STATUS_PERIOD_S:
             self._last_status[(client, topic)] = now
-            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
+            self.clients.status(client, StatusLevel.ERROR, f"blackmetal refused a message on {topic}: {reason}")
         self.reporter.report(f"foxglove:{topic}", f"client {client}: {reason}", text, now=now)
 
     def _unknown_service(self, call: int, client: int, service: str, offered: str, payload: bytes, now: float) -> None:
-        self._tell.answer(call, None, f"unknown service {service!r}: this view offers {offered}")
+        self.clients.answer(call, None, f"unknown service {service!r}: this view offers {offered}")
         self.reporter.report(f"foxglove:{service}", f"client {client}: unknown service", excerpt(payload), now=now)
 
     def _forget(self, client: int) -> None:
@@ -147,37 +124,35 @@ class Refusals:
     def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
         """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
 
-        A status message already told the client; a service call failure is
-        followed by a status message, so the refusal shows where the client
-        shows its problems. In a fleet it names no robot: it goes on the fleet's log.
-        """
+        A service call failure also gets a status, so it shows where the client shows its problems."""
         if kind is ServerRefusal.SERVICE_CALL_FAILURE:
-            self._tell.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
+            self.clients.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
         self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
 
 
 class Controls(Refusals):
-    """Client publications and service calls -> the robot's keys, with confirmations and refusals; see the module docstring.
+    """Client publications and service calls -> the robot's keys, with confirmations and refusals.
 
-    Clients are the WebSocket server's client ids; ``call`` numbers service
-    calls (the host's numbering, unique while the view runs).
+    Clients are the WebSocket server's client ids; ``call`` numbers service calls (the host's, unique while the view runs).
     """
 
     def __init__(
         self,
         keys: Keys,
-        output: ControlsOutput,
+        clients: Clients,
         call_timeout: float = 2.0,
         wallclock: Callable[[], float] = time.time,
         namespace: str = "",
+        robot: RobotSide = NO_EDGE,
     ) -> None:
-        super().__init__(output, output.error, wallclock)
+        super().__init__(clients, lambda message: self.robot.error(message), wallclock)
+        #: The robot's edge while the session is open; it may change (the view plugs it in and out).
+        self.robot = robot
         self.keys = keys
         #: ``""``, or ``/<id>`` for a fleet's robot: it takes ``/<id>/cmd_vel``, ``/<id>/estop``, ``/<id>/set_estop``, ...
         self.namespace = namespace
         self._controls = {control_topic(namespace, c): c for c in Control}
         self._services = {service_name(namespace, s): s for s in Service}
-        self.output = output
         self.call_timeout = call_timeout
         self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
         self._topics: dict[tuple[int, int], ClientTopic] = {}
@@ -205,7 +180,7 @@ class Controls(Refusals):
         """A client stopped publishing on a channel: a /cmd_vel that drove sends one zero command, so the robot stops now rather than at the timeout."""
         topic = self._topics.pop((client, channel), None)
         if topic is not None and topic.control is Control.CMD_VEL and topic.drove:
-            self.output.command(self.cmd_vel_key, encode(Twist()))
+            self.robot.command(self.cmd_vel_key, encode(Twist()))
 
     def on_client_gone(self, client: int, now: float) -> None:
         """A client disconnected: its channels are unadvertised."""
@@ -229,7 +204,7 @@ class Controls(Refusals):
                 self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
                 return
             topic.drove = True
-            self.output.command(self.cmd_vel_key, encode(twist))
+            self.robot.command(self.cmd_vel_key, encode(twist))
         elif topic.control is Control.ESTOP:
             try:
                 wish = decode(RosBool, data)
@@ -241,7 +216,7 @@ class Controls(Refusals):
 
     def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
         """Put the e-stop; a pending set_estop call that wants the other state is superseded (its re-sends would undo this)."""
-        self.output.command(self.keys.estop_for(engage), encode(EStop(engaged=engage)))
+        self.robot.command(self.keys.estop_for(engage), encode(EStop(engaged=engage)))
         for other, pending in list(self._estop_calls.items()):
             if other != call and pending.engage != engage:
                 self._fail(
@@ -250,7 +225,7 @@ class Controls(Refusals):
 
     # --------------------------------------------------------------- services
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
-        """A service call; it is answered later through ``output.answer``: on confirmation, failure or at the time limit."""
+        """A service call; it is answered later through ``clients.answer``: on confirmation, failure or at the time limit."""
         known = self._services.get(service)
         if known is Service.SET_ESTOP:
             try:
@@ -261,7 +236,7 @@ class Controls(Refusals):
                 return
             self._estop_calls[call] = EstopCall(client, wish.data, now + self.call_timeout, now + ASK_PERIOD_S)
             self._estop(wish.data, now, call)
-            self.output.ask_health()  # asked after the put: the gateway takes its e-stop samples first
+            self.robot.ask_health()  # asked after the put: the gateway takes its e-stop samples first
         elif known is Service.RESET_ODOMETRY:
             try:
                 target = PoseReset() if not payload.strip() else decode(PoseReset, payload)
@@ -269,7 +244,7 @@ class Controls(Refusals):
                 self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
                 return
             self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
-            self.output.ask_reset(call, encode(target))
+            self.robot.ask_reset(call, encode(target))
         else:
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
 
@@ -284,7 +259,7 @@ class Controls(Refusals):
             if pending.engage == health.estop:
                 del self._estop_calls[call]
                 message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
-                self.output.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
+                self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
 
     def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
         """The odometry's answer to a reset: its pose, or its reason for refusing (``None, None``: the query ended unanswered)."""
@@ -308,12 +283,12 @@ class Controls(Refusals):
             )
             return
         message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
-        self.output.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
+        self.clients.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
 
     def _fail(self, call: int, client: int, service: Service, reason: str, text: str, now: float) -> None:
         self._estop_calls.pop(call, None)
         self._reset_calls.pop(call, None)
-        self.output.answer(call, None, reason)
+        self.clients.answer(call, None, reason)
         self.reporter.report(f"foxglove:{service_name(self.namespace, service)}", f"client {client}: {reason}", text, now=now)
 
     # --------------------------------------------------------------- timers
@@ -332,8 +307,8 @@ class Controls(Refusals):
             elif now >= pending.next_ask:
                 pending.next_ask = now + ASK_PERIOD_S
                 if pending.engage:  # an engage is safe to repeat; a release is sent once, never over someone's later stop
-                    self.output.command(self.keys.estop, encode(EStop(engaged=True)))
-                self.output.ask_health()
+                    self.robot.command(self.keys.estop, encode(EStop(engaged=True)))
+                self.robot.ask_health()
         for call, reset in list(self._reset_calls.items()):
             if now >= reset.deadline:
                 reason = f"the odometry did not answer within {self.call_timeout:g} s on {self.keys.odometry_reset}"
@@ -353,23 +328,17 @@ class Controls(Refusals):
 
 
 class FleetControls(Refusals):
-    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here.
-
-    A client's channel on ``/r3/...`` and a call of ``/r3/...`` go to r3's
-    controls alone, which act on r3's prefix and report on r3's errors key;
-    a topic outside every robot's namespace (or a refusal of the server
-    itself, which names no robot) is refused with a status to that client
-    and reported on ``fleet_error`` (the fleet's log), never on a robot's key.
-    """
+    """One :class:`Controls` per robot (namespace ``/<id>``), each fed only what names its robot; the rest is refused here
+    and reported on ``fleet_error`` (the fleet's log), never on a robot's key."""
 
     def __init__(
         self,
         robots: dict[str, Controls],
-        output: FleetOutput,
+        clients: Clients,
         fleet_error: Callable[[ErrorReport], None],
         wallclock: Callable[[], float] = time.time,
     ) -> None:
-        super().__init__(output, fleet_error, wallclock)
+        super().__init__(clients, fleet_error, wallclock)
         self.robots = robots
         #: (client, channel) -> the robot it names, or None with the topic it refused.
         self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}

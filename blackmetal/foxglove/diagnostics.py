@@ -1,8 +1,6 @@
 """The gateway's health as ROS ``diagnostic_msgs/msg/DiagnosticArray`` (JSON) for Foxglove's Diagnostics panels.
 
-The levels and their words are the shared table's
-(:mod:`blackmetal.runtime.diagnostics`), so ``/diagnostics`` says the same in
-Foxglove as on ROS 2; this module only shapes them as the panels read them.
+The levels and words are the shared table's (:mod:`blackmetal.runtime.diagnostics`), as on ROS 2 ``/diagnostics``.
 """
 
 from __future__ import annotations
@@ -10,11 +8,7 @@ from __future__ import annotations
 from typing import Any
 
 from blackmetal.runtime.diagnostics import COMMANDS_REFUSED, ESTOP_ENGAGED, REPLIES_LOST_EVER, Level, Status, link_level
-from blackmetal.schemas import (
-    GatewayHealth,
-    LinkHealth,
-    stamp_parts,
-)
+from blackmetal.schemas import GatewayHealth, LinkHealth, stamp_parts
 
 from .channels import HEADER, array, message_schema, obj, typed
 
@@ -58,10 +52,7 @@ def diagnostic_json(status: Status) -> dict[str, Any]:
 
 
 def diagnostics(health: GatewayHealth, hardware_id: str) -> dict[str, Any]:
-    """The gateway's health as a diagnostic_msgs/msg/DiagnosticArray (JSON): e-stop, links, commands, robot exchange.
-
-    The levels are the shared table's (:mod:`blackmetal.runtime.diagnostics`), as on ROS 2 ``/diagnostics``.
-    """
+    """The gateway's health as a diagnostic_msgs/msg/DiagnosticArray (JSON): e-stop, links, commands, robot exchange."""
     sec, nsec = stamp_parts(health.stamp)
     driver = health.active_source or "nobody"
     if health.conflict_with:

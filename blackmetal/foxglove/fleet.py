@@ -1,18 +1,7 @@
 """``blackmetal foxglove --fleet FILE``: every robot of a fleet file in one view, on one WebSocket server, one Zenoh session.
 
-Each robot's channels are the single-robot view's under ``/<id>/``
-(``/r3/odometry``, ``/r3/path``, ``/r3/diagnostics``, ...), its transforms
-``<id>/odom`` -> ``<id>/base_link`` on the one ``/tf`` (frames named as
-``ros2 --fleet`` names them), and ``/fleet/summary`` has one row per robot
-(link, poll rate, e-stop, who drives, pose). Clients drive a robot on
-``/<id>/cmd_vel`` and ``/<id>/estop`` and call ``/<id>/set_estop`` and
-``/<id>/reset_odometry``; each acts on that robot's prefix alone, and a
-robot's bad input is refused and reported on its own ``<prefix>/errors``.
-What names no robot is refused too, and shown on ``/fleet/log``.
-
-What the robots share is the process, the loop, the server and the session;
-a bug in handling one robot's payload is reported on that robot's errors
-key (rate-limited) and the view goes on with the next payload.
+Names and behaviour: docs/foxglove.md ("A fleet in one view"). What the robots share is the process, the loop,
+the server and the session; a bug in handling one robot's payload is reported on that robot's errors key.
 """
 
 from __future__ import annotations
@@ -36,7 +25,7 @@ from .params import Parameters
 from .ports import RobotPort, Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
-from .zenoh_edge import FoxgloveZenoh
+from .zenoh_edge import NO_EDGE, FoxgloveZenoh
 
 log = logging.getLogger("blackmetal.foxglove")
 
@@ -102,9 +91,9 @@ async def serve_views(
             for robot_id, port in wiring.ports.items():
                 edge = FoxgloveZenoh(session, port.view.keys, query_timeout=base.call_timeout)
                 edges.append(edge)
-                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (None, None)
-                edge.attach(port.view, port, loop, handlers=handlers, on_error=port.on_bug, presence=presence)
-                port.edge = edge
+                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (port.view.handlers(), None)
+                edge.attach(handlers, port, loop, on_error=port.on_bug, presence=presence)
+                port.plug(edge)
             wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
             for port in wiring.ports.values():
                 port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
@@ -118,7 +107,7 @@ async def serve_views(
         finally:
             wiring.stop()
             for port in wiring.ports.values():
-                port.edge = None
+                port.plug(NO_EDGE)
             for edge in reversed(edges):
                 edge.close()
 
@@ -134,19 +123,12 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
     try:
         await host.start()  # the port is taken before Zenoh opens
         view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
-        ports = {r.id: RobotPort(r.id, host, view.views[r.id]) for r in robots}
-        controls = {
-            r.id: Controls(keys[r.id], ports[r.id], call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots
-        }
+        controls = {r.id: Controls(keys[r.id], host, call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots}
+        ports = {r.id: RobotPort(r.id, host, view.views[r.id], controls[r.id], view) for r in robots}
         core = FleetControls(controls, host, _fleet_error(view))
-        for robot_id, port in ports.items():
-            port.controls, port.fleet = controls[robot_id], view
         params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
-        host.attach(core, params, view)
-        watch = Watch(view.feeds(), record_all=bool(base.mcap))
-        wiring = Wiring(ports, watch, view, core.reporter)
-        host.watch_with(watch, wiring)
-        host.serve_params(params, wiring)
+        wiring = Wiring(ports, Watch(view.feeds(), record_all=bool(base.mcap)), view, core.reporter)
+        host.attach(core, params, wiring, view)
 
         def announce(address: str) -> dict[str, Any]:
             say(

@@ -1,10 +1,6 @@
 """A fleet in one view (``--fleet``): one :class:`~.live.LiveView` per robot, and the fleet's summary and log.
 
-:class:`FleetView` is one live view per robot with its topics under
-``/<id>`` and its frames ``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``,
-and ``/fleet/summary`` (:class:`FleetSummary`) with ``/fleet/log``. Apart
-from the live view because the summary has a clock and a notion of a robot
-lost, which one robot's view has not.
+Apart from the live view because the summary has a clock and a notion of a robot lost, which one robot's view has not.
 """
 
 from __future__ import annotations
@@ -14,24 +10,14 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from enum import Enum
 from typing import Any
 
 from blackmetal.robot_model import Encoders
-from blackmetal.schemas import (
-    ErrorReport,
-    GatewayHealth,
-    Keys,
-    Pose,
-)
+from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, Pose
 
 from .channels import ChannelFactory, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, typed
 from .live import LiveView
-from .naming import (
-    FLEET_NAMESPACE,
-    robot_frame,
-    robot_namespace,
-)
+from .naming import FLEET_NAMESPACE, robot_frame, robot_namespace
 
 #: A robot whose gateway's health (published once a second) has not arrived for this long (s, the view's clock) is lost.
 LOST_AFTER_S = 2.5
@@ -81,30 +67,20 @@ class RobotRow:
     lost: str = ""
 
 
-class Change(Enum):
-    LOST = "lost"
-    BACK = "back"
-
-
 @dataclass(frozen=True, slots=True)
 class Presence:
     """A robot lost or back, and why: what the fleet's log says and why the summary goes out at once."""
 
     robot_id: str
-    change: Change
+    lost: bool
     reason: str
 
 
 class FleetSummary:
     """The fleet at a glance, one row per robot; pure, on the view's clock (``now``, passed in).
 
-    A robot is **lost** when its gateway's liveliness token goes, or when no
-    health of it has arrived for :data:`LOST_AFTER_S` (its host dropped off:
-    the token lingers until the router's lease ends), and **back** with its
-    next health. Health is followed only while someone watches the summary
-    or the fleet's log (the host subscribes then); :meth:`suspend` forgets
-    the arrival times when nobody does, so no robot is called lost for a
-    silence nobody listened to.
+    Lost and back as docs/foxglove.md says; :meth:`suspend` forgets the arrival times while nobody follows
+    health, so no robot is called lost for a silence nobody listened to.
     """
 
     def __init__(self, robots: list[tuple[str, str]]) -> None:
@@ -116,7 +92,7 @@ class FleetSummary:
         if row.lost:
             return None
         row.lost = reason
-        return Presence(row.id, Change.LOST, reason)
+        return Presence(row.id, True, reason)
 
     def on_health(self, robot_id: str, health: GatewayHealth, now: float) -> Presence | None:
         row = self.rows[robot_id]
@@ -124,7 +100,7 @@ class FleetSummary:
         self._newest = max(self._newest, health.stamp)
         if row.lost:
             row.lost = ""
-            return Presence(robot_id, Change.BACK, "its gateway's health arrives again")
+            return Presence(robot_id, False, "its gateway's health arrives again")
         return None
 
     def on_token(self, robot_id: str, alive: bool, now: float) -> Presence | None:
@@ -195,14 +171,10 @@ class FleetSummary:
 
 
 class FleetView:
-    """One :class:`LiveView` per robot under ``/<id>/``, frames ``<id>/odom`` -> ``<id>/base_link`` on one ``/tf``,
-    each robot's URDF with its links under ``<id>/``, ``/fleet/summary`` and ``/fleet/log``.
+    """One :class:`LiveView` per robot under ``/<id>/`` (frames ``<id>/...`` on one ``/tf``), ``/fleet/summary`` and ``/fleet/log``.
 
-    The summary is on the view's clock (``clock``, the host's): it goes out
-    at most every :data:`SUMMARY_PERIOD_S` on health, and at once when a
-    robot is lost or back (:meth:`tick` at :meth:`next_deadline` finds the
-    silent ones), with a line on ``/fleet/log``. Its poses are the latest
-    each robot published, read when it is made (``poses``), never a stream.
+    The summary goes out at most every :data:`SUMMARY_PERIOD_S` on health, at once when a robot is lost or back;
+    its poses are the latest each robot published, read when it is made (``poses``), never a stream.
     """
 
     def __init__(
@@ -251,10 +223,6 @@ class FleetView:
             feeds[view.keys.health] |= self.fleet_topics
         return feeds
 
-    def peeks(self) -> dict[str, set[str]]:
-        """Keys the summary reads the latest of when it is made (no stream): every robot's pose."""
-        return {view.keys.pose: {f"{FLEET_NAMESPACE}/summary"} for view in self.views.values()}
-
     def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:
         """Key -> handler for one robot's keys: its own view, and the summary from its health."""
         view = self.views[robot_id]
@@ -300,15 +268,9 @@ class FleetView:
 
         if self.log.has_sinks():
             for change in changes:
-                level = LogLevel.Error if change.change is Change.LOST else LogLevel.Info
-                self.log.log(
-                    Log(
-                        timestamp=timestamp(time.time()),
-                        level=level,
-                        message=f"{change.robot_id} {change.change.value}: {change.reason}",
-                        name="fleet",
-                    )
-                )
+                level, word = (LogLevel.Error, "lost") if change.lost else (LogLevel.Info, "back")
+                message = f"{change.robot_id} {word}: {change.reason}"
+                self.log.log(Log(timestamp=timestamp(time.time()), level=level, message=message, name="fleet"))
         if self.summary_channel.has_sinks():
             for robot_id, view in self.views.items():
                 payload = self.poses(robot_id)

@@ -1,21 +1,10 @@
 """The front of the view's WebSocket server: a thin proxy before foxglove-sdk, its handshake and frames sans I/O.
 
-**The front.** foxglove-sdk accepts only the WebSocket subprotocol
-``foxglove.sdk.v1`` and answers HTTP 400 to a client that offers only the
-older ``foxglove.websocket.v1`` (Lichtblick before 1.22.1, foxglove_bridge
-0.8-era clients, roslibjs-foxglove), and no option of the SDK changes that.
-The two names stand for the same protocol, so the SDK server listens on a
-free loopback port and a thin front listens where clients connect: it reads
-the HTTP upgrade request, offers ``foxglove.sdk.v1`` to the SDK in place of
-``foxglove.websocket.v1`` when that is all the client offers, writes the
-client's own name back into the 101 answer, and from then on copies bytes
-both ways unchanged. Following the server's frames (never changing them) it
-also lets the view (a) send a status message to one client, which the
-SDK's Python API cannot (its ``publish_status`` goes to every client), and
-(b) see the refusals the SDK sends by itself (bad JSON, an unknown channel
-or service) so they are reported too. To know which SDK client a
-connection is, the front advertises, first thing on each connection, a
-marker channel whose schema name is the connection's random token.
+foxglove-sdk accepts only the subprotocol ``foxglove.sdk.v1``; older clients offer only ``foxglove.websocket.v1``,
+the same protocol (docs/foxglove.md, "Foxglove and Lichtblick"). The front renames it in the handshake, then copies
+bytes both ways unchanged. Following the server's frames (never changing them) it also lets the view send a status
+to one client (the SDK's ``publish_status`` goes to all) and see the refusals the SDK sends by itself. To know which
+SDK client a connection is, it advertises first a marker channel whose schema name is the connection's random token.
 """
 
 from __future__ import annotations
@@ -70,10 +59,7 @@ def offered_subprotocols(head: bytes) -> list[str]:
 def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
     """The request for the SDK, and the subprotocol to name in the answer when it had to be renamed (None: unchanged).
 
-    A client that offers ``foxglove.sdk.v1`` is passed on as it is; one that
-    offers ``foxglove.websocket.v1`` without it is offered to the SDK as
-    ``foxglove.sdk.v1``; any other is passed on for the SDK to refuse.
-    """
+    Only a client offering ``foxglove.websocket.v1`` without ``foxglove.sdk.v1`` is renamed; any other passes as it is."""
     offered = offered_subprotocols(head)
     if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
         return head, None
@@ -130,10 +116,8 @@ def _header_size(head: bytes | bytearray) -> int:
 class FrameTap:
     """Follows the frames of one direction of a WebSocket without changing a byte: where messages end, and the text ones.
 
-    :meth:`feed` takes the bytes as they come (any cut) and returns the
-    offsets in them at which a whole message ends: a frame can be inserted
-    there. Complete text messages (up to ``text_limit`` bytes) go to
-    ``on_text``.
+    :meth:`feed` takes the bytes in any cut and returns the offsets where a whole message ends (a frame can go there);
+    whole text messages (up to ``text_limit`` bytes) go to ``on_text``.
     """
 
     def __init__(self, on_text: Callable[[bytes], None] | None = None, text_limit: int = TEXT_LIMIT) -> None:

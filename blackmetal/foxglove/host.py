@@ -1,14 +1,7 @@
-"""The Foxglove view's host: the WebSocket server the app connects to and, with ``--mcap``, the MCAP file.
+"""The Foxglove view's host: the WebSocket server the app connects to (behind :mod:`.front`) and, with ``--mcap``, the MCAP file.
 
-The view (:mod:`blackmetal.foxglove.live`) logs into channels of the
-current Foxglove context; this host opens what those channels reach (the
-foxglove-sdk server, then the file) and closes them in reverse order. It
-feeds :class:`~blackmetal.foxglove.controls.Controls` with what clients publish
-and call, stamped with the clock, and runs its deadlines on the shared
-:class:`~blackmetal.runtime.driver.CoreTimer`.
-
-The front (:mod:`.front`) and the SDK glue (:mod:`.sdk`) are apart; this
-module joins them with the view.
+It feeds the controls with what clients publish and call, stamped with the clock, runs their deadlines on the
+shared :class:`~blackmetal.runtime.driver.CoreTimer`, and closes what it opened in reverse order.
 """
 
 from __future__ import annotations
@@ -53,19 +46,15 @@ from .front import (
 )
 from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
 from .params import Gateways, Parameters
-from .sdk import (
-    CALL_MARGIN_S,
-    ServiceFailure,
-    foxglove_parameter,
-    sdk_listener,
-    start_server,
-)
+from .sdk import CALL_MARGIN_S, ServiceFailure, foxglove_parameter, sdk_listener, start_server
 from .settings import FoxgloveSettings
 from .watch import Watch
 
 
-class Viewer(Protocol):
-    """What the host tells the view about its clients' subscriptions."""
+class Viewer(Gateways, Protocol):
+    """What the host tells the view about its clients' subscriptions (followed in ``watch``), and the parameters' gateways."""
+
+    watch: Watch
 
     def subscribed(self, topic: str) -> None:
         """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
@@ -119,8 +108,6 @@ class FoxgloveHost:
         self._put_subscription = self._handover.channel("subscriptions", run, capacity=65536)
         self._put_call = self._handover.channel("service calls", run, capacity=256)
         self._put_set = self._handover.channel("parameter sets", run, capacity=256)
-        #: Who watches which topic (set by :meth:`watch_with`); None: every key is followed.
-        self.watch: Watch | None = None
         self.viewer: Viewer | None = None
         self.params: Parameters | None = None
         #: The parameters as the SDK's threads answer getParameters from: replaced whole on the loop, read whole there.
@@ -179,19 +166,13 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: ClientCore, *timed: Core) -> None:
-        """Feed ``core`` from now on, and run its timers and those of ``timed`` (until :meth:`close`)."""
-        self.core = core
-        self.timer = CoreTimer(_Together([core, *timed]), self.clock)
+    def attach(self, core: ClientCore, params: Parameters, viewer: Viewer, *timed: Core) -> None:
+        """Feed ``core`` and ``params`` (their gateways: ``viewer``), tell ``viewer`` the clients' subscriptions,
+        and run the timers of all and of ``timed`` (until :meth:`close`)."""
+        self.core, self.params, self.viewer = core, params, viewer
+        params.gateways = viewer
+        self.timer = CoreTimer(_Together([core, params, *timed]), self.clock)
         self.timer.start()
-
-    def watch_with(self, watch: Watch, viewer: Viewer) -> None:
-        """Follow the clients' subscriptions in ``watch`` and tell ``viewer`` (before any client connects)."""
-        self.watch, self.viewer = watch, viewer
-
-    def serve_params(self, params: Parameters, gateways: Gateways) -> None:
-        """Answer the clients' getParameters and setParameters from ``params``; what it asks of a gateway goes to ``gateways``."""
-        self.params, params.gateways = params, gateways
 
     async def run(self, stop: asyncio.Event) -> None:
         """Serve until ``stop``: the view's handlers run on the loop as the edge hands payloads over, the core's timers on the loop's timer."""
@@ -258,7 +239,7 @@ class FoxgloveHost:
                     if self.core is not None:
                         self.core.on_client_gone(connection.client, self.clock())
                         self.poke()
-                    if self.watch is not None and self.viewer is not None and self.watch.client_gone(connection.client):
+                    if self.viewer is not None and self.viewer.watch.client_gone(connection.client):
                         self.viewer.watch_changed()  # the SDK says so too, subscription by subscription; this is the same end, once
 
     @staticmethod
@@ -333,9 +314,10 @@ class FoxgloveHost:
             self.poke()
 
     def client_subscribed(self, client: int, topic: str, subscribed: bool) -> None:
-        watch, viewer = self.watch, self.viewer
-        if watch is None or viewer is None:
+        viewer = self.viewer
+        if viewer is None:
             return
+        watch = viewer.watch
         if subscribed:
             changed = watch.subscribe(client, topic)
             viewer.subscribed(topic)

@@ -1,12 +1,7 @@
-"""The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels.
+"""The live view of one robot (:class:`LiveView`): its keys' payloads shown on Foxglove channels (docs/foxglove.md, "Channels").
 
-What it shows, built from the robot's payloads: Foxglove's own types where a
-panel needs them, JSON elsewhere; the table of channels is in
-``docs/foxglove.md`` (Channels), and :meth:`LiveView.feeds` says it in code.
-
-Payloads that do not decode are skipped; the view never crashes on what a
-key carries. The view has no clock and no timers: the paths are throttled on
-the messages' own stamps.
+Payloads that do not decode are skipped; the view never crashes on what a key carries. It has no clock: the
+paths are throttled on the messages' own stamps.
 """
 
 from __future__ import annotations
@@ -41,6 +36,16 @@ _WHEELS = {"stamp": typed("number"), "left_mps": typed("number"), "right_mps": t
 _WHEELS |= {"left_impulses": typed("integer"), "right_impulses": typed("integer")}
 WHEELS_SCHEMA = message_schema("WheelSpeeds", "blackmetal wheel speeds, from <prefix>/wheels/impulses", _WHEELS, list(_WHEELS))
 
+#: Each key the view follows (a :class:`Keys` attribute) -> its handler, and the topics it feeds (under the namespace).
+FEEDS = {
+    "pose": ("on_pose", ("/pose", "/tf", "/path", "/odometry")),
+    "sim_truth": ("on_truth", ("/truth/pose", "/truth/path")),
+    "impulses": ("on_impulses", ("/wheels", "/joint_states", "/tf")),
+    "status": ("on_status", ("/status",)),
+    "health": ("on_health", ("/health", "/diagnostics")),
+    "errors": ("on_error", ("/errors", "/log")),
+}
+
 
 class Trail:
     """A bounded path of poses, sent at most every PATH_PERIOD_S."""
@@ -61,11 +66,8 @@ class Trail:
 class LiveView:
     """The view's channels of one robot, and what each of its keys' payloads shows on them.
 
-    Every handler first asks which of its channels anyone takes
-    (``has_sinks``): a payload nobody watches is not even decoded, and only
-    the watched channels' messages are built. :meth:`feeds` says which
-    channels each key feeds, so the host subscribes to a key only while one
-    of them is watched (:class:`~blackmetal.foxglove.watch.Watch`).
+    Every handler first asks which of its channels anyone takes (``has_sinks``): a payload nobody watches is
+    not even decoded. :meth:`feeds` says which channels each key feeds, for :class:`~.watch.Watch`.
     """
 
     def __init__(
@@ -112,29 +114,16 @@ class LiveView:
     def description_topic(self) -> str:
         return f"{self.namespace}/robot_description"
 
+    def _topic(self, topic: str) -> str:
+        return self.tf_topic if topic == "/tf" else f"{self.namespace}{topic}"
+
     def feeds(self) -> dict[str, set[str]]:
         """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""
-        k, ns = self.keys, self.namespace
-        return {
-            k.pose: {f"{ns}/pose", self.tf_topic, f"{ns}/path", f"{ns}/odometry"},
-            k.sim_truth: {f"{ns}/truth/pose", f"{ns}/truth/path"},
-            k.impulses: {f"{ns}/wheels", f"{ns}/joint_states", self.tf_topic},
-            k.status: {f"{ns}/status"},
-            k.health: {f"{ns}/health", f"{ns}/diagnostics"},
-            k.errors: {f"{ns}/errors", f"{ns}/log"},
-        }
+        return {getattr(self.keys, key): {self._topic(t) for t in topics} for key, (_, topics) in FEEDS.items()}
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
         """Key -> handler of its payloads."""
-        k = self.keys
-        return {
-            k.pose: self.on_pose,
-            k.sim_truth: self.on_truth,
-            k.impulses: self.on_impulses,
-            k.status: self.on_status,
-            k.health: self.on_health,
-            k.errors: self.on_error,
-        }
+        return {getattr(self.keys, key): getattr(self, handler) for key, (handler, _) in FEEDS.items()}
 
     def _decode(self, message_type: type[Any], payload: bytes) -> Any:
         try:

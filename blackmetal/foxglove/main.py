@@ -42,17 +42,12 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
     try:
         await host.start()  # the port is taken before Zenoh opens: a port in use is one sentence, at once
         view = LiveView(keys, path_length=settings.path_length)
-        port = RobotPort(ONE_ROBOT, host, view)
-        port.controls = Controls(keys, port, call_timeout=settings.call_timeout)
+        port = RobotPort(ONE_ROBOT, host, view, Controls(keys, host, call_timeout=settings.call_timeout))
         params = Parameters({ONE_ROBOT: (keys, "")}, host, call_timeout=settings.call_timeout)
-        host.attach(port.controls, params)
-        watch = Watch(view.feeds(), record_all=bool(settings.mcap))
-        wiring = Wiring({ONE_ROBOT: port}, watch)
-        host.watch_with(watch, wiring)
-        host.serve_params(params, wiring)
+        wiring = Wiring({ONE_ROBOT: port}, Watch(view.feeds(), record_all=bool(settings.mcap)))
+        host.attach(port.controls, params, wiring)
 
         def announce(address: str) -> dict[str, Any]:
-            assert port.edge is not None
             port.edge.ask_params()
             say(
                 f"blackmetal foxglove: {keys.prefix} on {address}",

@@ -1,23 +1,8 @@
-"""The robot in the 3D panel: its URDF, and the wheels turning (pure).
+"""The robot in the 3D panel: its URDF, and the wheels turning (pure); docs/foxglove.md ("The robot model").
 
-The URDF is :func:`blackmetal.robot_model.urdf` (the one ``blackmetal urdf``
-prints), each link prefixed as in a fleet (``r2/base_link``), with the wheel
-separation and radius the robot's gateway runs with (its read-only
-parameters ``wheel_separation`` and ``wheel_radius``; the robot model's until
-the gateway answers). It goes out on ``/robot_description``
-(``std_msgs/msg/String``): Foxglove's 3D panel lists that topic as a URDF of
-its own and its URDF layer reads any ``std_msgs/String`` topic, and the
-robot's links are primitives (no meshes), so no asset needs fetching.
-
-The 3D panel places each URDF link by the transforms it knows: the URDF's
-joints at their zero angle, then whatever arrives on a transform topic. So
-the wheels turn in the panel through transforms: :class:`WheelAngles`
-integrates each wheel's angle from the gateway's impulses, and the view
-sends ``base_link -> left_wheel`` and ``-> right_wheel`` on ``/tf``, each
-turned about its joint's axis; ``/joint_states`` carries the same angles
-(``sensor_msgs/msg/JointState``) for the panels that read joint states. The
-joints (name, parent, child, origin, axis) are read from the URDF text
-itself, so they cannot disagree with what the panel draws.
+The panel places URDF links by the transforms it receives, so the wheels turn through transforms: :class:`WheelAngles`
+integrates each wheel's angle from the impulses. The joints are read from the URDF text itself, so they cannot
+disagree with what the panel draws.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """The view's names and its protocol's words, in one place: topics, services, frames, schemas of what clients send.
 
-One robot's view uses the bare names (``/cmd_vel``, ``set_estop``, ``odom``);
-a fleet's robot ``r3`` has them under ``/r3`` (``/r3/cmd_vel``,
-``/r3/set_estop``) and its frames under ``r3/`` (``r3/odom``), as
-``ros2 --fleet`` names them. The live view, the controls, the parameters
-and the host all build and parse names here, so they cannot drift apart:
-:func:`robot_namespace`, :func:`robot_frame`, :func:`control_topic`,
-:func:`service_name`, :func:`robot_of`.
+One robot's view uses the bare names (``/cmd_vel``, ``set_estop``, ``odom``); a fleet's robot ``r3`` has them
+under ``/r3`` and its frames under ``r3/``, as ``ros2 --fleet`` names them. Every part builds and parses names here.
 """
 
 from __future__ import annotations
@@ -16,9 +11,7 @@ from dataclasses import dataclass
 from enum import Enum, IntEnum
 from typing import Any
 
-from blackmetal.schemas import (
-    Sources,
-)
+from blackmetal.schemas import Sources
 
 #: The command source the view's clients drive as (``<prefix>/cmd_vel/foxglove``).
 COMMAND_SOURCE = Sources.FOXGLOVE

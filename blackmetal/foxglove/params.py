@@ -1,19 +1,7 @@
-"""The gateway's parameters through Foxglove's parameters capability (pure, clock-injected).
+"""The gateway's parameters through Foxglove's parameters capability (pure, clock-injected); docs/foxglove.md ("Parameters").
 
-The view keeps no parameter of its own: it shows each gateway's table, read
-from ``<prefix>/gateway/params`` (a get at the start and whenever the
-gateway comes back; the gateway publishes it on every change), and sets
-through a get on ``<prefix>/gateway/params/set`` with a
-:class:`~blackmetal.schemas.ParamsSet`, the same key and so the same rights
-as any operator. Each value is set or refused by the gateway on its own; the
-Foxglove protocol's answer to ``setParameters`` carries values only, so a
-refusal reaches the user as a status message with the gateway's reason
-(to the client that set it), and the answer shows the parameter at the
-value it kept.
-
-Names: one robot's are the gateway's (``max_wheel_speed``,
-``sources.nav.priority``); a fleet's robot's go under its namespace
-(``/r2/max_wheel_speed``), as its topics and services do.
+The view keeps no parameter of its own: it shows each gateway's table and sets through the gateway's set key,
+with an operator's rights. Foxglove's answer to a set carries values only, so a refusal is a status with the reason.
 """
 
 from __future__ import annotations
@@ -76,7 +64,7 @@ class Parameters:
         self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0, gateways: Gateways | None = None
     ) -> None:
         """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet); ``gateways``: else given
-        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.serve_params`), before any gateway answers."""
+        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
         self.gateways: Gateways
@@ -130,10 +118,6 @@ class Parameters:
                 changed.append(self._shown(robot_id, param))
         if changed:
             self.output.parameters_changed(changed)
-
-    def on_gateway_back(self, robot_id: str) -> None:
-        """The robot's gateway (re)appeared: its table may differ, ask it."""
-        self.gateways.ask_params(robot_id)
 
     # ------------------------------------------------------------------ setting
     def on_set(self, call: int, client: int, values: list[tuple[str, object]], now: float) -> None:

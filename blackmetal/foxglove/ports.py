@@ -1,12 +1,7 @@
 """How the view's parts meet, for one robot and for a fleet alike: each robot's port, and the wiring of them all.
 
-:class:`RobotPort` is one robot's side: its :class:`~.controls.Controls` send to
-the robot's keys through its Zenoh edge and to the clients through the host;
-its edge's answers (health, replies, parameters, liveliness) come back to
-its controls, the view and the parameters. :class:`Wiring` is what the host
-asks of the view as a whole: which keys to follow as clients subscribe and
-unsubscribe (:class:`~.watch.Watch`), the URDF to a new subscriber, and
-parameter gets and sets to the right robot's gateway.
+:class:`RobotPort` takes one robot's edge's answers (health, replies, parameters, liveliness) to its controls,
+view and parameters; :class:`Wiring` is what the host and the parameters ask of the view as a whole.
 """
 
 from __future__ import annotations
@@ -16,64 +11,42 @@ import logging
 from dataclasses import dataclass, field
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport
 
 from .controls import Controls
 from .fleet_view import FleetView
 from .host import FoxgloveHost
 from .live import LiveView
-from .naming import FLEET_NAMESPACE, StatusLevel
+from .naming import FLEET_NAMESPACE
 from .watch import Watch
-from .zenoh_edge import DRAIN_PERIOD_S, FoxgloveZenoh, Reply
+from .zenoh_edge import DRAIN_PERIOD_S, NO_EDGE, FoxgloveZenoh, NoEdge, Reply
 
 log = logging.getLogger("blackmetal.foxglove")
 
 
+@dataclass
 class RobotPort:
-    """One robot's side of the view: its controls' output (its Zenoh edge; the shared server), and its edge's answers in."""
+    """One robot's side of the view: its view and controls, its Zenoh edge while the session is open, and the edge's answers in."""
 
-    def __init__(self, robot_id: str, host: FoxgloveHost, view: LiveView) -> None:
-        self.robot_id = robot_id
-        self.host = host
-        self.view = view
-        self.controls: Controls | None = None
-        self.edge: FoxgloveZenoh | None = None
-        #: The fleet view, told when the robot's gateway comes and goes (None for one robot).
-        self.fleet: FleetView | None = None
+    robot_id: str
+    host: FoxgloveHost
+    view: LiveView
+    controls: Controls
+    #: The fleet view, told when the robot's gateway comes and goes (None for one robot).
+    fleet: FleetView | None = None
+    edge: FoxgloveZenoh | NoEdge = NO_EDGE
 
-    # ControlsOutput: the robot's keys through its edge (nowhere before the session opens and after it closes), the clients through the host
-    def command(self, key: str, payload: bytes) -> None:
-        if self.edge is not None:
-            self.edge.command(key, payload)
-
-    def ask_health(self) -> None:
-        if self.edge is not None:
-            self.edge.ask_health()
-
-    def ask_reset(self, call: int, payload: bytes) -> None:
-        if self.edge is not None:
-            self.edge.ask_reset(call, payload)
-
-    def error(self, message: ErrorReport) -> None:
-        if self.edge is not None:
-            self.edge.error(message)
-
-    def status(self, client: int | None, level: StatusLevel, message: str) -> None:
-        self.host.status(client, level, message)
-
-    def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
-        self.host.answer(call, response, failure)
+    def plug(self, edge: FoxgloveZenoh | NoEdge) -> None:
+        """The robot's keys are reached through ``edge`` from now on (:data:`NO_EDGE`: nowhere)."""
+        self.edge = self.controls.robot = edge
 
     # Answers: from the edge, on the loop
     def on_health(self, payload: bytes) -> None:
-        if self.controls is not None:
-            self.controls.on_health(payload, self.host.clock())
-            self.host.poke()
+        self.controls.on_health(payload, self.host.clock())
+        self.host.poke()
 
     def on_reset_reply(self, reply: Reply) -> None:
-        if self.controls is not None:
-            self.controls.on_reset_reply(*reply, self.host.clock())
-            self.host.poke()
+        self.controls.on_reset_reply(*reply, self.host.clock())
+        self.host.poke()
 
     def on_params(self, payload: bytes) -> None:
         """The gateway's parameter table: to the parameters (and the clients following them) and the URDF (its wheel geometry)."""
@@ -88,18 +61,16 @@ class RobotPort:
         """The robot's gateway came (ask its parameters: it may have restarted with others) or went."""
         if self.fleet is not None:
             self.fleet.on_token(self.robot_id, alive)
-        if alive and self.edge is not None:
+        if alive:
             self.edge.ask_params()
         self.host.poke()
 
     def on_bug(self, exc: BaseException) -> None:
         """A handler of this robot's payloads raised: reported on its errors key (rate-limited); the view goes on."""
-        log.error("view of robot %s: handler failed: %r", self.robot_id or self.view.keys.prefix, exc)
-        if self.controls is not None:
-            self.controls.reporter.report(
-                "foxglove:view", f"showing {self.robot_id or self.view.keys.prefix} failed: {exc!r}", now=self.host.clock()
-            )
-            self.host.poke()
+        name = self.robot_id or self.view.keys.prefix
+        log.error("view of robot %s: handler failed: %r", name, exc)
+        self.controls.reporter.report("foxglove:view", f"showing {name} failed: {exc!r}", now=self.host.clock())
+        self.host.poke()
 
 
 @dataclass
@@ -127,9 +98,8 @@ class Wiring:
         """Subscribe each robot's edge to the keys its watched topics need, and keep the summary's poses while it is watched."""
         needed = self.watch.needed()
         for port in self.ports.values():
-            if port.edge is not None:
-                port.edge.want({key for key in port.view.handlers() if key in needed})
-        following = any(port.edge is not None and port.edge.declared for port in self.ports.values())
+            port.edge.want({key for key in port.view.handlers() if key in needed})
+        following = any(port.edge.declared for port in self.ports.values())
         if following and self._drain is None:
             self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
         elif not following and self._drain is not None:
@@ -143,18 +113,15 @@ class Wiring:
             if peek != self._peeking:
                 self._peeking = peek
                 for port in self.ports.values():
-                    if port.edge is not None:
-                        port.edge.peek(peek)
+                    port.edge.peek(peek)
             self.fleet.poses = self.latest_pose
 
     def _take(self) -> None:
         """Every :data:`DRAIN_PERIOD_S` while a key is followed: what the watched keys brought, to the view."""
         self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
         for port in self.ports.values():
-            if port.edge is not None:
-                port.edge.drain()
-        port_host = next(iter(self.ports.values())).host
-        port_host.poke()
+            port.edge.drain()
+        next(iter(self.ports.values())).host.poke()
 
     def stop(self) -> None:
         """No more draining (the edges are closing)."""
@@ -164,27 +131,25 @@ class Wiring:
 
     def latest_pose(self, robot_id: str) -> bytes | None:
         port = self.ports.get(robot_id)
-        return port.edge.latest_pose() if port is not None and port.edge is not None else None
+        return port.edge.latest_pose() if port is not None else None
 
     # Gateways
     def ask_params(self, robot_id: str) -> None:
-        port = self.ports[robot_id]
-        if port.edge is not None:
-            port.edge.ask_params()
+        self.ports[robot_id].edge.ask_params()
 
     def set_params(self, robot_id: str, call: int, payload: bytes) -> None:
         port = self.ports[robot_id]
-        if port.edge is not None:
-            port.edge.set_params(call, payload)
+        if isinstance(port.edge, NoEdge):
+            port.on_params_reply((call, None, None))  # no session: nothing can answer
         else:
-            self.ports[robot_id].host.on_params_reply(robot_id, (call, None, None))
+            port.edge.set_params(call, payload)
 
     def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None:
         """What the view refused of a parameter set: on the robot's errors key, or the fleet's log when it names none."""
         port = self.ports.get(robot_id) if robot_id is not None else None
         if port is None and len(self.ports) == 1:
             port = next(iter(self.ports.values()))
-        if port is not None and port.controls is not None:
+        if port is not None:
             port.controls.reporter.report(f"foxglove:{topic}", reason, text, now=now)
         elif self.fleet_reporter is not None:
             self.fleet_reporter.report(f"foxglove:{topic}", reason, text, now=now)

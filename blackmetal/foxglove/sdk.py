@@ -1,9 +1,7 @@
-"""The foxglove-sdk glue: its server, its services, its listener, and what its threads hand over to the view's loop.
+"""The foxglove-sdk glue: its server, its services, its listener.
 
-Why apart: the SDK calls back on threads of its own; everything here either
-builds the SDK's objects or carries a client's doing over to the loop (as a
-bound call of the host's, :data:`Handover`), so the host's code runs on the
-loop only.
+Why apart: the SDK calls back on threads of its own; everything here builds the SDK's objects or carries a
+client's doing over to the loop (:data:`Handover`), so the host's code runs on the loop only.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """Who watches what: the Foxglove topics clients subscribe to, and the Zenoh keys the view needs for them (pure).
 
-A view that nobody watches should cost almost nothing (issue #29): every
-sample a Zenoh subscriber takes crosses into Python, so the view declares a
-subscriber on a robot's key only while some client (or the MCAP file)
-subscribes to a channel that key feeds, and undeclares it when the last one
-goes. :class:`Watch` keeps the subscriptions the WebSocket server reports
-(per client, so a client that vanishes takes all of its own with it) and
-answers which keys are needed; the host declares and undeclares to match.
+A view nobody watches costs almost nothing (issue #29; docs/foxglove.md, "Only what is watched"): the host
+declares a subscriber on a key only while a client (or the MCAP file) takes a channel that key feeds.
 """
 
 from __future__ import annotations
@@ -48,11 +43,6 @@ class Watch:
 
     def watched(self, topic: str) -> bool:
         return self.record_all or topic in self._clients
-
-    @property
-    def topics(self) -> set[str]:
-        """The topics with at least one subscriber."""
-        return set(self._clients)
 
     def needed(self) -> set[str]:
         """The keys that feed a watched topic (every key while an MCAP file records)."""

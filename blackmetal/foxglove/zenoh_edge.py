@@ -1,28 +1,9 @@
 """Zenoh edge of the Foxglove view: declarations only; payloads and replies handed over to the view's loop.
 
-What the view shows comes through subscribers it declares **only while
-someone watches** (:meth:`FoxgloveZenoh.want`, from the host's
-:class:`~blackmetal.foxglove.watch.Watch`): a robot's pose, impulses,
-truth, status, health and errors cost the view nothing while no client
-subscribes to a channel they feed. While watched, they cost little: each
-such subscriber keeps its samples in a ring of Zenoh's own (the newest
-:data:`RING` samples; no Python runs and no thread wakes per sample, and a
-slow loop drops the oldest telemetry rather than holding Zenoh), and the
-view's loop takes them every :data:`DRAIN_PERIOD_S` (:meth:`drain`): a
-view refreshed at 50 Hz, a few hundred microseconds of work a tick instead
-of three thread hand-overs per sample. Always declared, because they carry
-nothing until something changes: the gateway's parameters, and (in a
-fleet) its liveliness token. The fleet summary reads each robot's latest
-pose from a one-slot ring (:meth:`FoxgloveZenoh.peek`): no Python runs per
-pose.
-
-It publishes what the view's clients command and its own error reports,
-with congestion control by kind: a command (``<prefix>/cmd_vel/foxglove``)
-and the e-stop (``<prefix>/estop``) block rather than drop, as safety needs;
-error reports are telemetry and are dropped rather than held behind a slow
-or dead link. It asks the gateway's health, parameters and parameter sets,
-and the odometry's reset, for the services; replies come back through the
-same hand-over, never handled on a Zenoh thread.
+A robot's keys are subscribed **only while someone watches** a channel they feed (:meth:`FoxgloveZenoh.want`),
+each into a ring of Zenoh's own that the loop drains every :data:`DRAIN_PERIOD_S`: no Python runs per sample
+(docs/foxglove.md, "Only what is watched"). Commands and the e-stop block rather than drop; error reports drop.
+Replies come back through the same hand-over, never handled on a Zenoh thread.
 """
 
 from __future__ import annotations
@@ -36,7 +17,6 @@ from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
-from .live import LiveView
 from .naming import COMMAND_SOURCE
 
 if TYPE_CHECKING:
@@ -51,12 +31,34 @@ DRAIN_PERIOD_S = 0.02
 
 
 class Answers(Protocol):
-    """Who takes the gateway's health, parameters and the replies: the host, or a fleet's robot's port."""
+    """Who takes the gateway's health, parameters and the replies: the robot's port."""
 
     def on_health(self, payload: bytes) -> None: ...
     def on_reset_reply(self, reply: Reply) -> None: ...
     def on_params(self, payload: bytes) -> None: ...
     def on_params_reply(self, reply: Reply) -> None: ...
+
+
+class NoEdge:
+    """A robot's edge before the Zenoh session opens and after it closes: what is sent goes nowhere, nothing is followed."""
+
+    declared: frozenset[str] = frozenset()
+
+    def command(self, key: str, payload: bytes) -> None: ...
+    def error(self, message: ErrorReport) -> None: ...
+    def ask_health(self) -> None: ...
+    def ask_params(self) -> None: ...
+    def ask_reset(self, call: int, payload: bytes) -> None: ...
+    def want(self, keys: set[str]) -> None: ...
+    def peek(self, on: bool) -> None: ...
+    def latest_pose(self) -> bytes | None: ...
+
+    def drain(self) -> int:
+        return 0
+
+
+#: The edge of every robot while no session is open.
+NO_EDGE = NoEdge()
 
 
 def _error_bytes(reply: "zenoh.Reply") -> bytes:
@@ -85,25 +87,19 @@ class FoxgloveZenoh(ZenohEdge):
         self._declared: dict[str, Any] = {}
         self._peek: Any = None
         self._peeked: bytes | None = None
-        self._health_reply: Callable[[bytes], None] = lambda payload: None
-        self._reset_reply: Callable[[Reply], None] = lambda reply: None
-        self._params_reply: Callable[[bytes], None] = lambda payload: None
-        self._set_reply: Callable[[Reply], None] = lambda reply: None
 
     def attach(
         self,
-        view: LiveView,
+        handlers: dict[str, Callable[[bytes], None]],
         host: Answers,
         loop: asyncio.AbstractEventLoop,
-        handlers: dict[str, Callable[[bytes], None]] | None = None,
         on_error: Callable[[BaseException], None] | None = None,
         presence: Callable[[bool], None] | None = None,
     ) -> Intake:
-        """Hand-over channels for ``handlers`` (default: the view's; declared by :meth:`want`), the gateway's parameters
-        (declared now), and with ``presence`` its liveliness token (present: True, gone: False).
-        ``on_error`` takes what a handler raised (None: the loop's handler)."""
+        """Hand-over channels for ``handlers`` (declared by :meth:`want`), the gateway's parameters (declared now), and with
+        ``presence`` its liveliness token (present: True, gone: False). ``on_error`` takes what a handler raised."""
         handover = self.intake(loop, on_error=on_error)
-        handlers = dict(handlers if handlers is not None else view.handlers())
+        handlers = dict(handlers)
         show_health = handlers[self.keys.health]
 
         def on_health(payload: bytes) -> None:
@@ -112,7 +108,8 @@ class FoxgloveZenoh(ZenohEdge):
 
         handlers[self.keys.health] = on_health
         self._handlers, self._on_error = handlers, on_error
-        self.subscriber(self.keys.params, handover.channel("params", host.on_params, capacity=16))
+        self._params = handover.channel("params", host.on_params, capacity=16)  # published and asked for alike
+        self.subscriber(self.keys.params, self._params)
         if presence is not None:
             put = handover.channel("alive", presence, capacity=64)
 
@@ -125,7 +122,6 @@ class FoxgloveZenoh(ZenohEdge):
             self._entities.append(token)
         self._health_reply = handover.channel("health?", host.on_health, capacity=64)
         self._reset_reply = handover.channel("reset?", host.on_reset_reply, capacity=64)  # replies, then the end, in order
-        self._params_reply = handover.channel("params?", host.on_params, capacity=16)
         self._set_reply = handover.channel("params set?", host.on_params_reply, capacity=64)
         return handover
 
@@ -141,10 +137,8 @@ class FoxgloveZenoh(ZenohEdge):
                 self._declared[key] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
 
     def drain(self) -> int:
-        """On the loop: hand every sample the watched keys' rings hold to its handler, oldest first; how many there were.
-
-        A handler that raises is reported through ``on_error`` (the robot's
-        errors key) and the next sample goes on."""
+        """On the loop: every sample the watched keys' rings hold to its handler, oldest first; how many there were.
+        A handler that raises is reported through ``on_error`` and the next sample goes on."""
         taken = 0
         for key, subscriber in list(self._declared.items()):
             handler = self._handlers[key]
@@ -208,7 +202,7 @@ class FoxgloveZenoh(ZenohEdge):
 
     def ask_params(self) -> None:
         """A get on ``<prefix>/gateway/params``: the gateway's table, to :meth:`Answers.on_params`."""
-        self._get(self.keys.params, self._params_reply)
+        self._get(self.keys.params, self._params)
 
     def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes) -> None:
         """A get whose replies (``(call, ok, None)`` / ``(call, None, err)``) and end (``(call, None, None)``) go to ``put`` in order."""

@@ -26,9 +26,6 @@ NOT_EXEMPT = {"bench/__init__", "tools/up/__init__"}
 
 #: Product modules without tests/unit/<package>/test_<module>.py yet (issue #38 item 5).
 NO_TEST_FILE_YET = {
-    "foxglove/channels", "foxglove/diagnostics", "foxglove/fleet_view", "foxglove/front", "foxglove/host",
-    "foxglove/live", "foxglove/main", "foxglove/model", "foxglove/naming", "foxglove/ports", "foxglove/sdk",
-    "foxglove/settings", "foxglove/zenoh_edge",
     "gateway/commands", "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health", "gateway/host",
     "gateway/links", "gateway/log_port", "gateway/main", "gateway/prepare", "gateway/safety_states",
     "gateway/settings", "gateway/zenoh_edge",

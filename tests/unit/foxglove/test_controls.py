@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import json
-import random
 import struct
 import threading
 import time
@@ -28,17 +27,7 @@ from websockets.sync.client import ClientConnection, connect
 from blackmetal.foxglove.controls import ASK_PERIOD_S, Controls
 from blackmetal.foxglove.front import (
     LEGACY_SUBPROTOCOL,
-    OP_BINARY,
-    OP_CLOSE,
-    OP_CONTINUATION,
-    OP_TEXT,
     SDK_SUBPROTOCOL,
-    FrameTap,
-    offered_subprotocols,
-    rewrite_request,
-    rewrite_response,
-    switches_protocols,
-    ws_frame,
 )
 from blackmetal.foxglove.naming import COMMAND_SOURCE, ServerRefusal, StatusLevel
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
@@ -48,71 +37,9 @@ TWIST_FORWARD = json.dumps({"linear": {"x": 0.3, "y": 0.0, "z": 0.0}, "angular":
 
 
 # --------------------------------------------------------------------------- the handshake
-def request(*protocol_headers: str) -> bytes:
-    lines = [
-        "GET / HTTP/1.1",
-        "Host: 127.0.0.1:8765",
-        "Upgrade: websocket",
-        "Connection: Upgrade",
-        "Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==",
-    ]
-    lines += [f"Sec-WebSocket-Protocol: {value}" for value in protocol_headers]
-    return ("\r\n".join([*lines, "Sec-WebSocket-Version: 13", "", ""])).encode()
-
-
-def test_a_client_offering_only_the_older_subprotocol_is_offered_to_the_sdk_under_its_name() -> None:
-    head, shown = rewrite_request(request("foxglove.websocket.v1"))
-    assert offered_subprotocols(head) == [SDK_SUBPROTOCOL] and shown == LEGACY_SUBPROTOCOL
-    assert head.endswith(b"\r\n\r\n") and b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==" in head
-    answer = b"HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\nsec-websocket-protocol: foxglove.sdk.v1\r\n\r\n"
-    assert switches_protocols(answer)
-    assert b"Sec-WebSocket-Protocol: foxglove.websocket.v1\r\n" in rewrite_response(answer, LEGACY_SUBPROTOCOL)
-
-
-@pytest.mark.parametrize(
-    "headers",
-    [
-        ("foxglove.sdk.v1, foxglove.websocket.v1",),  # current Foxglove
-        ("foxglove.websocket.v1, foxglove.sdk.v1",),  # Lichtblick >= 1.22.1
-        ("foxglove.websocket.v1", "foxglove.sdk.v1"),  # two headers
-        ("other.v1",),  # for the SDK to refuse
-        (),
-    ],
-)
-def test_requests_the_sdk_can_answer_itself_pass_unchanged(headers: tuple[str, ...]) -> None:
-    assert rewrite_request(request(*headers)) == (request(*headers), None)
-    assert not switches_protocols(b"HTTP/1.1 400 Bad Request\r\n\r\n")
 
 
 # --------------------------------------------------------------------------- the frame tap
-def test_the_tap_finds_every_message_end_and_text_however_the_bytes_are_cut() -> None:
-    rng = random.Random(7)
-    status = json.dumps({"op": "status", "level": 2, "message": "x" * 300}).encode()
-    frames = [
-        (ws_frame(OP_TEXT, status), True),
-        (ws_frame(OP_BINARY, bytes(70_000)), True),  # 64-bit length
-        (ws_frame(OP_BINARY, bytes(200)), True),  # 16-bit length
-        (bytes([OP_TEXT]) + bytes([5]) + b'{"op"', False),  # a fragmented text message ...
-        (ws_frame(0x9, b"ping"), False),  # ... a ping between its frames is no boundary ...
-        (bytes([0x80 | OP_CONTINUATION]) + bytes([7]) + b':"x"}  ', True),  # ... its last frame is
-        (ws_frame(OP_TEXT, b""), True),
-        (ws_frame(OP_TEXT, b'{"a": 1}', mask=b"\x01\x02\x03\x04"), True),  # a client's frame, masked
-        (ws_frame(OP_CLOSE, b"\x03\xe8"), True),
-    ]
-    stream = b"".join(frame for frame, _ in frames)
-    ends = list(itertools.accumulate(len(frame) for frame, _ in frames))
-    expected = [end for end, (_, boundary) in zip(ends, frames, strict=True) if boundary]
-    for _ in range(50):
-        texts: list[bytes] = []
-        tap = FrameTap(texts.append)
-        cuts = sorted(rng.sample(range(1, len(stream)), rng.randint(0, 40)))
-        found: list[int] = []
-        for start, end in itertools.pairwise([0, *cuts, len(stream)]):
-            found += [start + offset for offset in tap.feed(stream[start:end])]
-            assert tap.at_boundary == (end in expected or end == 0)
-        assert found == expected
-        assert texts == [status, b'{"op":"x"}  ', b"", b'{"a": 1}']
-        assert tap.closed
 
 
 # --------------------------------------------------------------------------- Controls, on a fake clock
@@ -159,7 +86,7 @@ def health(estop: bool) -> bytes:
 @pytest.fixture
 def controls() -> tuple[Controls, Bench]:
     bench = Bench()
-    return Controls(KEYS, bench, call_timeout=2.0, wallclock=lambda: 1000.0), bench
+    return Controls(KEYS, bench, call_timeout=2.0, wallclock=lambda: 1000.0, robot=bench), bench
 
 
 def test_cmd_vel_drives_as_the_source_foxglove_and_stops_when_its_publisher_goes(controls: tuple[Controls, Bench]) -> None:

@@ -13,7 +13,6 @@ errors key only.
 from __future__ import annotations
 
 import json
-import math
 import struct
 import subprocess
 import sys
@@ -29,7 +28,6 @@ from helpers import Child, client_config, free_port, wait_for, zenoh_listen_args
 
 from blackmetal.foxglove.controls import Controls, FleetControls
 from blackmetal.foxglove.fleet import fleet_settings
-from blackmetal.foxglove.fleet_view import Change, FleetSummary
 from blackmetal.foxglove.naming import (
     COMMAND_SOURCE,
     Control,
@@ -38,26 +36,18 @@ from blackmetal.foxglove.naming import (
     control_topic,
     robot_frame,
     robot_namespace,
-    robot_of,
     service_name,
 )
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.runtime.fleet import parse_fleet
-from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, LinkHealth, Pose, Twist, decode, encode
+from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, Pose, Twist, decode, encode
 from unit.foxglove.test_controls import TWIST_FORWARD, Bench, FoxClient, health
-from unit.foxglove.test_core import EXPECTED, panels, protobuf_class
+from unit.foxglove.test_live import EXPECTED, panels, protobuf_class
 
 IDS = ("r1", "r2", "r3")
 
 
 # --------------------------------------------------------------------------- pure: names
-def test_a_fleets_robot_is_named_under_its_id_and_one_robots_view_as_before() -> None:
-    assert robot_namespace("r3") == "/r3" and robot_frame("r3", "odom") == "r3/odom" and robot_frame("r3", "base_link") == "r3/base_link"
-    assert control_topic("/r3", Control.CMD_VEL) == "/r3/cmd_vel" and control_topic("", Control.ESTOP) == "/estop"
-    assert service_name("/r3", Service.SET_ESTOP) == "/r3/set_estop" and service_name("", Service.RESET_ODOMETRY) == "reset_odometry"
-    assert robot_of("/r3/cmd_vel", IDS) == "r3" and robot_of("/r1/set_estop", IDS) == "r1"
-    for name in ("/r4/cmd_vel", "/r3", "/r3/", "r3/cmd_vel", "/cmd_vel", "set_estop", "//r3/cmd_vel"):
-        assert robot_of(name, IDS) is None, name
 
 
 def test_fleet_settings_take_each_robots_prefix_and_refuse_what_the_one_server_decides() -> None:
@@ -77,57 +67,6 @@ def test_fleet_settings_take_each_robots_prefix_and_refuse_what_the_one_server_d
 
 
 # --------------------------------------------------------------------------- pure: the summary
-def _health(stamp: float, estop: bool = False, source: str | None = None, state: str = "connected") -> GatewayHealth:
-    return GatewayHealth(
-        stamp=stamp, control=LinkHealth(state), log=LinkHealth("connected"), estop=estop, active_source=source, poll_hz=50.0
-    )
-
-
-def test_the_summary_shows_each_robots_link_poll_rate_estop_and_driver() -> None:
-    summary = FleetSummary([(rid, f"fleet/{rid}") for rid in IDS])
-    summary.on_health("r1", _health(10.0, estop=True), now=100.0)
-    summary.on_health("r2", _health(10.5, source="foxglove", state="connecting"), now=100.5)
-    summary.on_pose("r2", Pose(stamp=10.5, x=1.0, y=2.0, yaw=0.5))
-    message = summary.message(now=101.0)
-    rows = {row["id"]: row for row in message["robots"]}
-    assert [row["id"] for row in message["robots"]] == list(IDS)
-    assert rows["r1"]["link"] == "connected/connected" and rows["r1"]["estop"] is True and rows["r1"]["poll_hz"] == 50.0
-    assert rows["r1"]["health_age"] == 1.0
-    assert rows["r2"]["link"] == "connecting/connected" and (rows["r2"]["x"], rows["r2"]["y"]) == (1.0, 2.0)
-    assert rows["r3"]["link"] == "no health" and rows["r3"]["estop"] is None and rows["r3"]["poll_hz"] == 0.0
-    assert message["robots_up"] == 1 and message["estop"] == ["r1"] and message["driving"] == {"r2": "foxglove"} and message["lost"] == []
-    json.dumps(summary.message(now=101.0))  # what the channel carries
-
-
-def test_a_robot_is_lost_when_its_health_stops_or_its_token_goes_and_back_with_its_next_health() -> None:
-    summary = FleetSummary([(rid, f"fleet/{rid}") for rid in IDS])
-    for rid in IDS:
-        summary.on_token(rid, True, now=0.0)
-    now = 0.0
-    while now < 5.0:  # every robot's health once a second; r2's host drops off after 2.0 s
-        for rid in IDS:
-            if rid != "r2" or now <= 2.0:
-                assert summary.on_health(rid, _health(now), now=now) is None
-        now += 1.0
-        changes = []
-        while summary.next_deadline() <= now:
-            changes += summary.tick(summary.next_deadline())
-        if changes:
-            assert [(c.robot_id, c.change) for c in changes] == [("r2", Change.LOST)] and "no health for 2.5 s" in changes[0].reason
-            lost_at = summary.next_deadline()
-            break
-    assert summary.rows["r2"].lost and now == 5.0, "lost 2.5 s after its last health (at 2.0), seen by the tick due at 4.5"
-    message = summary.message(now)
-    assert message["lost"] == ["r2"] and message["robots_up"] == 2 and "lost" in {r["id"]: r for r in message["robots"]}["r2"]["link"]
-    assert lost_at > now, "r1 and r3 still on time"
-    back = summary.on_health("r2", _health(now), now=now)
-    assert back is not None and back.change is Change.BACK and summary.message(now)["lost"] == []
-    gone = summary.on_token("r3", False, now=5.1)
-    assert gone is not None and gone.change is Change.LOST and "liveliness token gone" in gone.reason
-    assert summary.on_token("r3", False, now=5.2) is None, "lost once"
-    summary.suspend()  # nobody follows health any more: no robot is lost for that silence
-    assert summary.next_deadline() == math.inf and summary.tick(100.0) == []
-    assert summary.message(100.0)["lost"] == ["r3"], "a gone token stays lost"
 
 
 # --------------------------------------------------------------------------- pure: FleetControls, on a fake clock
@@ -140,7 +79,8 @@ class FleetBench:
         self.answers: dict[int, tuple[bytes | None, str | None]] = {}
         self.fleet_errors: list[ErrorReport] = []
         robots = {
-            rid: Controls(Keys(f"fleet/{rid}"), self.benches[rid], wallclock=lambda: 1000.0, namespace=robot_namespace(rid)) for rid in IDS
+            rid: Controls(Keys(f"fleet/{rid}"), b, wallclock=lambda: 1000.0, namespace=robot_namespace(rid), robot=b)
+            for rid, b in self.benches.items()
         }
         self.core = FleetControls(robots, self, self.fleet_errors.append, wallclock=lambda: 1000.0)
 

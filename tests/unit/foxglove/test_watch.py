@@ -25,8 +25,8 @@ from blackmetal.foxglove.channels import Kind
 from blackmetal.foxglove.fleet_view import FleetView
 from blackmetal.foxglove.watch import Watch
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, LinkHealth, Pose, RobotStatus, WheelImpulses, encode
-from unit.foxglove.test_core import protobuf_class
 from unit.foxglove.test_fleet import FleetClient
+from unit.foxglove.test_live import protobuf_class
 
 ROBOTS = [f"r{i}" for i in range(1, 21)]
 

@@ -161,18 +161,26 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
     assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
 
 
-def test_diagnostics_show_the_gateways_health_as_ros_diagnostics() -> None:
-    from blackmetal.foxglove.diagnostics import diagnostics
-    from blackmetal.runtime.diagnostics import Level
-    from blackmetal.schemas import GatewayHealth, LinkHealth
+def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipped() -> None:
+    from blackmetal.foxglove.live import LiveView
+    from blackmetal.schemas import Keys, encode
+    from unit.foxglove.test_fleet_view import Logged
 
-    health = GatewayHealth(stamp=12.5, control=LinkHealth("connected"), log=LinkHealth("down"), estop=True, active_source="foxglove")
-    array = diagnostics(health, "robot")
-    levels = {status["name"]: status["level"] for status in array["status"]}
-    assert array["header"]["stamp"] == {"sec": 12, "nsec": 500_000_000}
-    assert levels["gateway: e-stop"] == levels["gateway: log link"] == Level.ERROR
-    assert levels["gateway: control link"] == Level.OK
-    assert all(
-        status["hardware_id"] == "robot" and all(isinstance(v["value"], str) for v in status["values"]) for status in array["status"]
-    )
-    assert "driven by foxglove" in {status["message"] for status in array["status"]}
+    logs: dict[str, list[Any]] = {}
+    keys = Keys("robot")
+    view = LiveView(keys, namespace="/r1", channel=lambda topic, kind, schema: Logged(topic, kind, schema, logs))
+    assert {topic.removeprefix("/r1") for topic in logs} == set(EXPECTED) | {"/tf"}
+    assert view.feeds() == {
+        keys.pose: {"/r1/pose", "/r1/tf", "/r1/path", "/r1/odometry"},
+        keys.sim_truth: {"/r1/truth/pose", "/r1/truth/path"},
+        keys.impulses: {"/r1/wheels", "/r1/joint_states", "/r1/tf"},
+        keys.status: {"/r1/status"},
+        keys.health: {"/r1/health", "/r1/diagnostics"},
+        keys.errors: {"/r1/errors", "/r1/log"},
+    }
+    assert set(view.handlers()) == set(view.feeds())
+    pose = encode(Pose(stamp=1.0, x=1.0, y=2.0, yaw=0.0))
+    view.handlers()[keys.pose](pose)
+    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/tf"]) == len(logs["/r1/path"]) == 1
+    view.handlers()[keys.pose](b"not a pose")
+    assert len(logs["/r1/odometry"]) == 1, "skipped, never raised"
