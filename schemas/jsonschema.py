@@ -11,8 +11,9 @@ from .messages import MESSAGE_TYPES
 
 
 def _where(message_type: type[msgspec.Struct]) -> str:
-    suffixes = [spec.suffix for spec in KEY_SPECS if spec.message is message_type]
-    return ", ".join(f"<prefix>/{suffix}" for suffix in suffixes)
+    carried = [f"<prefix>/{spec.suffix}" for spec in KEY_SPECS if spec.message is message_type]
+    answered = [f"<prefix>/{spec.suffix} (the reply to a get)" for spec in KEY_SPECS if spec.reply is message_type]
+    return ", ".join(carried + answered)
 
 
 def json_schemas() -> dict[str, dict[str, Any]]:

@@ -7,7 +7,6 @@ from :class:`Keys` and nowhere else, so a key is renamed in one place.
 
 from __future__ import annotations
 
-import re
 from enum import StrEnum
 from typing import NamedTuple
 
@@ -22,6 +21,7 @@ from .messages import (
     GatewayParams,
     Lock,
     ParamsSet,
+    ParamsSetReply,
     Pose,
     PoseReset,
     RobotStatus,
@@ -58,6 +58,7 @@ class KeySpec(NamedTuple):
     kind: str  # "publication", "query" or "liveliness"
     who: str
     delivery: Delivery | None = None  # publications only
+    reply: type[msgspec.Struct] | None = None  # queries only: what the answer carries
 
 
 #: Every key, in the order the README's table lists them.
@@ -95,7 +96,14 @@ KEY_SPECS: tuple[KeySpec, ...] = (
         "gateway ->, and get: its parameters (limits, timeout, priorities)",
         Delivery.TELEMETRY,
     ),
-    KeySpec("params_set", "gateway/params/set", ParamsSet, "query", "get -> gateway (an operator's right), answers a ParamsSetReply"),
+    KeySpec(
+        "params_set",
+        "gateway/params/set",
+        ParamsSet,
+        "query",
+        "get -> gateway (an operator's right), answers a ParamsSetReply",
+        reply=ParamsSetReply,
+    ),
     KeySpec(
         "errors",
         "errors",
@@ -105,7 +113,7 @@ KEY_SPECS: tuple[KeySpec, ...] = (
         Delivery.TELEMETRY,
     ),
     KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get", Delivery.TELEMETRY),
-    KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose"),
+    KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose", reply=Pose),
     KeySpec("alive_gateway", "alive/gateway", None, "liveliness", "gateway"),
     KeySpec("alive_odometry", "alive/odometry", None, "liveliness", "odometry"),
     KeySpec("alive_sim", "alive/sim", None, "liveliness", "simulator"),
@@ -114,23 +122,26 @@ KEY_SPECS: tuple[KeySpec, ...] = (
 )
 
 
-def _pattern(suffix: str) -> re.Pattern[str]:
-    """The suffix as the end of a key: ``cmd_vel/<source>`` matches ``fleet/a/cmd_vel/nav``."""
-    chunks = ("[^/]+" if chunk.startswith("<") else re.escape(chunk) for chunk in suffix.split("/"))
-    return re.compile("(^|/)" + "/".join(chunks) + "$")
+def _spec_of(key: str, prefix: str) -> KeySpec | None:
+    """The row of ``key``, matched on its chunks after ``prefix`` (a prefix may itself end in ``cmd_vel``)."""
+    if not key.startswith(prefix + "/"):
+        return None
+    chunks = key[len(prefix) + 1 :].split("/")
+    for spec in KEY_SPECS:
+        pattern = spec.suffix.split("/")
+        if len(pattern) == len(chunks) and all(p == c or p.startswith("<") for p, c in zip(pattern, chunks, strict=True)):
+            return spec
+    return None
 
 
-_DELIVERY = [(_pattern(spec.suffix), spec.delivery) for spec in KEY_SPECS if spec.delivery is not None]
-
-
-def delivery_of(key: str) -> Delivery:
-    """How the publication on ``key`` (any prefix) travels: the key space decides, no publisher chooses.
+def delivery_of(key: str, prefix: str) -> Delivery:
+    """How the publication on ``key`` under ``prefix`` travels: the key space decides, no publisher chooses.
 
     ValueError for a key that is not one of blackmetal's publications."""
-    for pattern, delivery in _DELIVERY:
-        if pattern.search(key):
-            return delivery
-    raise ValueError(f"{key!r} is not a blackmetal publication key (see schemas/keys.py KEY_SPECS)")
+    spec = _spec_of(key, prefix)
+    if spec is None or spec.delivery is None:
+        raise ValueError(f"{key!r} is not a blackmetal publication key (see schemas/keys.py KEY_SPECS)")
+    return spec.delivery
 
 
 class Sources:
@@ -226,14 +237,8 @@ class Keys:
 
     def message_for(self, key: str) -> type[msgspec.Struct] | None:
         """The message type carried on ``key`` (None for liveliness keys and keys not ours)."""
-        if not key.startswith(self.prefix + "/"):
-            return None
-        chunks = key[len(self.prefix) + 1 :].split("/")
-        for spec in KEY_SPECS:
-            pattern = spec.suffix.split("/")
-            if len(pattern) == len(chunks) and all(p == c or p.startswith("<") for p, c in zip(pattern, chunks, strict=True)):
-                return spec.message
-        return None
+        spec = _spec_of(key, self.prefix)
+        return None if spec is None else spec.message
 
     @staticmethod
     def prefix_of_gateway_token(key: str) -> str:

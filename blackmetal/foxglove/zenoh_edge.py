@@ -77,11 +77,11 @@ class FoxgloveZenoh(ZenohEdge):
         self.query_timeout = query_timeout
         self._publishers = {
             # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
-            keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys.cmd_vel_of(COMMAND_SOURCE), express=True),
-            keys.estop: self.publisher(keys.estop, express=True),
-            keys.estop_release: self.publisher(keys.estop_release, express=True),
+            keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys, keys.cmd_vel_of(COMMAND_SOURCE), express=True),
+            keys.estop: self.publisher(keys, keys.estop, express=True),
+            keys.estop_release: self.publisher(keys, keys.estop_release, express=True),
         }
-        self._errors = self.publisher(keys.errors)  # telemetry: never held behind a dead link
+        self._errors = self.publisher(keys, keys.errors)  # telemetry: never held behind a dead link
         self._handlers: dict[str, Callable[[bytes], None]] = {}
         self._on_error: Callable[[BaseException], None] | None = None
         self._declared: dict[str, Any] = {}

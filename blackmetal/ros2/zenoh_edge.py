@@ -203,7 +203,7 @@ class Ros2Zenoh(ZenohEdge):
         )
         self._entities.append(self._cmd_vel)
         # blocking congestion control: a stop is never dropped; a release goes to the key a safety role may put on
-        self._estop = {key: self.publisher(key) for key in (keys.estop, keys.estop_release)}
+        self._estop = {key: self.publisher(keys, key) for key in (keys.estop, keys.estop_release)}
         self.routes(keys, [keys.errors])
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0

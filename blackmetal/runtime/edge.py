@@ -75,12 +75,12 @@ class ZenohEdge:
         self._intakes.append(intake)
         return intake
 
-    def publisher(self, key: str, *, express: bool = False) -> "zenoh.Publisher":
+    def publisher(self, keys: Keys, key: str, *, express: bool = False) -> "zenoh.Publisher":
         """A publisher on one of blackmetal's keys, its congestion control as the key space says (:func:`delivery_of`):
         telemetry dropped for a congested link alone, commands never dropped."""
         import zenoh
 
-        telemetry = delivery_of(key) is Delivery.TELEMETRY
+        telemetry = delivery_of(key, keys.prefix) is Delivery.TELEMETRY
         publisher = self.session.declare_publisher(
             key,
             encoding=zenoh.Encoding.APPLICATION_JSON,
@@ -100,7 +100,7 @@ class ZenohEdge:
         for key in published:
             message = keys.message_for(key)
             assert message is not None, key
-            self._routes[message] = (self.publisher(key, express=key == fast and burst is None), burst if key == fast else None)
+            self._routes[message] = (self.publisher(keys, key, express=key == fast and burst is None), burst if key == fast else None)
 
     def publish(self, message: msgspec.Struct) -> None:
         """``message`` put on its key (see :meth:`routes`)."""

@@ -57,7 +57,7 @@ class SimZenoh(ZenohEdge):
         self.keys = keys
         self.robot = robot
         self.clock = clock
-        self._truth = self.publisher(keys.sim_truth)
+        self._truth = self.publisher(keys, keys.sim_truth)
         #: Someone subscribes to the truth: set by Zenoh's matching listener (on its thread: one bool, nothing else).
         self.watched = True
         self.watch_matching(self._truth, self._on_matching)

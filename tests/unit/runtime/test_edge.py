@@ -141,12 +141,12 @@ def test_telemetry_is_dropped_for_a_congested_link_and_commands_never_are(sessio
     edge = ZenohEdge(session)
     try:
         for key in (keys.pose, keys.impulses, keys.health, keys.status, keys.errors, keys.driver, keys.params, keys.sim_truth):
-            assert delivery_of(key) is Delivery.TELEMETRY
-            assert edge.publisher(key).congestion_control == zenoh.CongestionControl.DROP, key
+            assert delivery_of(key, keys.prefix) is Delivery.TELEMETRY
+            assert edge.publisher(keys, key).congestion_control == zenoh.CongestionControl.DROP, key
         for key in (keys.cmd_vel, keys.cmd_vel_of("nav"), keys.lock_of("dock"), keys.estop, keys.estop_release, keys.sim_faults):
-            assert delivery_of(key) is Delivery.COMMAND
-            assert edge.publisher(key).congestion_control == zenoh.CongestionControl.BLOCK, key
+            assert delivery_of(key, keys.prefix) is Delivery.COMMAND
+            assert edge.publisher(keys, key).congestion_control == zenoh.CongestionControl.BLOCK, key
         with pytest.raises(ValueError, match="not a blackmetal publication key"):
-            edge.publisher(keys.params_set)  # a query key: nothing is published on it
+            edge.publisher(keys, keys.params_set)  # a query key: nothing is published on it
     finally:
         edge.close()
