@@ -10,7 +10,6 @@ import pytest
 
 from blackmetal.runtime import service
 from blackmetal.runtime.burst import PutBurst
-from blackmetal.runtime.entry import Fleet, ServiceCommand
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.service import Member, Role, drain, supervise
 from blackmetal.schemas import ErrorReport, Keys
@@ -126,20 +125,3 @@ def test_the_fleet_drain_looks_seldom_while_nobody_follows() -> None:
     assert builds[0].drained == 0 and builds[0].looked <= 4  # every 0.1 s, not every 5 ms
     asyncio.run(scenario([busy]))
     assert builds[1].drained >= 10  # every 5 ms while it follows
-
-
-def test_a_fleet_option_naming_one_robot_is_refused_in_one_sentence(tmp_path: Any, capsys: pytest.CaptureFixture[str]) -> None:
-    @dataclass
-    class Settings:
-        prefix: str = "robot"
-
-    async def serve(settings: Settings, stop: asyncio.Event) -> None:
-        raise AssertionError("not started")
-
-    fleet = Fleet("every robot of FILE", lambda base, robots: [base], serve, {"prefix": "each robot has its own"})
-    command = ServiceCommand("test", Settings, "a test service", serve, fleet)
-    assert "every robot of FILE" in command.build_parser().format_help()
-    assert command.main(["--fleet", str(tmp_path / "fleet.toml"), "--prefix", "a"]) == 2
-    assert capsys.readouterr().err.strip() == (
-        "blackmetal test: --prefix is for one robot and cannot be used with --fleet: each robot has its own"
-    )
