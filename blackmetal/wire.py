@@ -1,28 +1,17 @@
 """The Black Metal robot's wire protocol, sans I/O: both roles, for the gateway and the simulator.
 
-Pure code, no sockets: encode commands to the exact bytes the robot expects,
-and decoders you ``feed(bytes)`` that return every complete message and keep
-the rest. The gateway uses the client role (:func:`encode_request`,
-:class:`ReplyDecoder`); the simulator uses the server role
-(:class:`RequestDecoder`, the ``encode_*`` reply functions).
+The gateway uses the client role (:func:`encode_request`, :class:`ReplyDecoder`); the simulator the server role
+(:class:`RequestDecoder`, the ``encode_*`` replies). What the robot speaks (control port 665, log port 664):
 
-What the robot speaks (control port 665, log port 664):
-
-* requests are one JSON object each, no terminator:
+* a request is one JSON object, no terminator:
   ``{"UserID":1,"Command":3,"RightWheelSpeed":0.250000,"LeftWheelSpeed":0.250000}``;
-* every command gets a status reply ``{"status":"RECIEVE_OK"}`` (the robot's
-  spelling) or ``{"status":"FULL_BUFFER"}`` (command dropped);
-* commands 6 and 8 get a second, JSON-like data reply that a JSON parser
-  rejects: ``{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}``, with a space or a
-  comma between the pairs; values are integer impulses (per second for
-  speeds), the right encoder mirrored;
+* every command gets ``{"status":"RECIEVE_OK"}`` (sic) or ``{"status":"FULL_BUFFER"}`` (command dropped);
+* commands 6 and 8 then get a JSON-like data reply a JSON parser rejects, ``{"LeftWheelSpeed"=150 "RightWheelSpeed"=-148}``
+  (a space or a comma between the pairs): integer impulses (per second for speeds), the right encoder mirrored;
 * the log port pushes ``{"state":S,"direction":D}`` about once a second.
 
-TCP is a byte stream, so one read may hold half a message or several glued
-together, with garbage in between. Framing is by braces (no message nests
-one); garbage is skipped, counted and reported as :class:`Malformed`, and a
-run of bytes without a closing brace is dropped once it exceeds
-``max_frame`` so the buffer stays bounded. ``feed`` never raises.
+Framing is by braces (no message nests one): garbage is skipped and reported as :class:`Malformed`, a run without a
+closing brace is dropped past ``max_frame`` so the buffer stays bounded; ``feed`` never raises.
 """
 
 from __future__ import annotations
@@ -77,9 +66,6 @@ DATA_COMMANDS = frozenset({CommandCode.GET_LR_WHEEL_VELOCITY, CommandCode.GET_LR
 def replies_expected(command: CommandCode) -> int:
     """How many replies the robot sends for ``command`` when it accepts it."""
     return 2 if command in DATA_COMMANDS else 1
-
-
-# --------------------------------------------------------------------------- requests
 
 
 @dataclass(frozen=True, slots=True)
@@ -147,9 +133,6 @@ def encode_request(request: Request) -> bytes:
     else:
         body = ""
     return (head + body + "}").encode("ascii")
-
-
-# --------------------------------------------------------------------------- replies
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,9 +207,6 @@ def _encode_pair(left_name: str, left: int, right_name: str, right: int, separat
 
 def encode_log_report(state: int, direction: int) -> bytes:
     return f'{{"state":{_wire_int("state", state)},"direction":{_wire_int("direction", direction)}}}'.encode("ascii")
-
-
-# --------------------------------------------------------------------------- framing
 
 
 class _BraceFramer:

@@ -1,11 +1,7 @@
 """Tolerant decoding and canonical encoding of wire messages.
 
-Real clients send JSON with or without a trailing newline, with or without a
-Zenoh encoding header (``zenoh put`` from the command line sends none), so
-the decoder looks only at the bytes. Everything that is not a valid message
-(too large, not UTF-8, not JSON, not an object, wrong types, non-finite or
-out-of-range numbers, unknown fields) raises :class:`PayloadError` with a
-reason a person can act on.
+The decoder looks only at the bytes (``zenoh put`` sends no encoding header, a newline may trail); anything that is
+not a valid message raises :class:`PayloadError` with a reason a person can act on.
 """
 
 from __future__ import annotations

@@ -1,16 +1,8 @@
 """A fleet process's telemetry puts, held to the end of the loop's turn (1 ms at most) and then made back to back.
 
-Why: a put on an idle Zenoh link wakes Zenoh's sending thread, which writes
-that one message. A fleet process handles its robots one after another, with
-tens of microseconds of Python between two robots' puts, so each sample paid
-a wake-up and a write of its own, and the router a read of its own. The same
-puts made back to back leave in a few batches. Measured on a 2-core VM with
-100 publishers of 300-byte samples, 25 at a time: 15-16 us of process CPU per
-put with 40 us of Python between puts, 6 us when made back to back.
-
-Only telemetry goes through a burst (impulses, poses, a ROS node's volatile
-topics: drop congestion control, not express), and only on the loop. A
-command, an e-stop, a health message or an error report is never held.
+Puts made back to back leave Zenoh in a few batches instead of a wake-up and a write each (measured in
+docs/performance.md, "Telemetry puts made back to back"). Only telemetry goes through a burst, and only on the
+loop: a command, an e-stop, a health message or an error report is never held.
 """
 
 from __future__ import annotations

@@ -1,12 +1,7 @@
 """The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words.
 
-Why it exists: the ROS 2 adapter's ``/diagnostics`` and the Foxglove view's
-``/diagnostics`` each decided their levels on their own and disagreed (an
-engaged e-stop was ERROR in one, WARN in the other). Both now read their
-levels and texts here. Pure: plain levels and strings, no Zenoh, no ROS
-types; each adapter turns a :class:`Status` into its own message.
-
-An engaged e-stop is ERROR: the robot cannot move until a person acts.
+The ROS 2 adapter's and the Foxglove view's ``/diagnostics`` once disagreed (an engaged e-stop was ERROR in one,
+WARN in the other); both read their levels here. Pure: each adapter turns a :class:`Status` into its own message.
 """
 
 from __future__ import annotations

@@ -1,11 +1,7 @@
 """The one way a service meets Zenoh: declare at the edge, hand every sample to the service's intake.
 
-:class:`ZenohEdge` declares a service's publishers, subscribers, queryables
-and liveliness token on an open session and undeclares them, newest first.
-Every subscriber and queryable hands its samples to a channel of the
-service's :class:`~blackmetal.runtime.intake.Intake`; inputs a client may
-flood are declared through :meth:`ZenohEdge.guarded`
-(:class:`~blackmetal.runtime.flood.GuardedInput`).
+:class:`ZenohEdge` undeclares what it declared newest first; inputs a client may flood go through
+:meth:`ZenohEdge.guarded` (:class:`~blackmetal.runtime.flood.GuardedInput`).
 """
 
 from __future__ import annotations

@@ -1,27 +1,7 @@
 """A fleet file: the robots one host serves, each with its link, its prefix and its own constants.
 
-TOML, one ``[[robot]]`` table per robot::
-
-    [[robot]]
-    id = "r1"                  # one key chunk; the default prefix is fleet/<id>
-    host = "10.0.0.21"         # the robot's address (default 127.0.0.1)
-    control_port = 665
-    log_port = 664
-    # prefix = "fleet/r1"
-    wheel_separation = 0.512   # calibration, taken by the gateway and the odometry alike
-    impulses_left = 1015.2
-    impulses_right = 1053.7
-    [robot.gateway]            # any gateway setting for this robot alone
-    poll_hz = 50
-    [robot.odometry]           # any odometry setting
-    max_gap = 0.5
-    [robot.sim]                # the simulated robot, for ``blackmetal sim --fleet``
-    left_wheel_scale = 1.01
-
-Every process of a fleet (``gateway``, ``odometry``, ``sim``, ``ros2``,
-``foxglove`` with ``--fleet FILE``) reads the same file and takes what is
-its own. Mistakes end in one sentence that names the robot: a duplicate id,
-prefix or port, an unknown key, a value of the wrong type.
+The format is in docs/fleets.md ("The fleet file"). Every process of a fleet reads the same file and takes what is
+its own; a mistake ends in one sentence that names the robot.
 """
 
 from __future__ import annotations

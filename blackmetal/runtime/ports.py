@@ -1,12 +1,8 @@
 """Free loopback ports for processes we start ourselves (the bench, the tests), that nobody can take first.
 
-Asking the kernel for port 0 returns a port from its ephemeral range; between
-closing that probe and the child binding the port, any process's next
-``connect()`` may take it as its local port, and the child fails with "port in
-use" (CI saw exactly this). The kernel never hands out ports below its
-ephemeral range, so this allocator walks a slice of those instead, checking
-each by binding it. Parallel pytest-xdist workers get disjoint slices, and a
-random starting point keeps two runs on one machine apart.
+A port-0 probe hands out an ephemeral port that any ``connect()`` may take before the child binds it (CI saw it);
+the kernel never hands out ports below its ephemeral range, so this walks a slice of those, binding each to check.
+pytest-xdist workers get disjoint slices; a random start keeps two runs apart.
 """
 
 from __future__ import annotations

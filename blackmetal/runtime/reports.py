@@ -1,10 +1,6 @@
 """Error reports on ``<prefix>/errors``, rate-limited, so a flood of bad input cannot flood the key.
 
-Every service reports what it rejects through one :class:`ErrorReporter`:
-a reason a person can act on, a short excerpt of the input, and how many
-reports of the same family were suppressed since the last one published.
-The limits are per key family with one overall budget, and the tables are
-bounded, whatever key names a client invents.
+Limits per key family with one overall budget; the tables stay bounded whatever key names a client invents.
 """
 
 from __future__ import annotations

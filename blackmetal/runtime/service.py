@@ -1,12 +1,7 @@
 """One robot's service in a fleet process, supervised, and the one ``serve_fleet`` that runs them all.
 
-A service with ``--fleet FILE`` (gateway, odometry, ROS 2) declares a
-:class:`Role`: how to build one robot's edge and host on the fleet's session,
-and how its failure reads. The rest is the same for each and lives here: a
-:class:`Member` per robot, supervised (a bug in one robot's handling is
-reported on its own errors key and that robot alone is built again), the
-fleet's one put burst, the drain of the robots' Zenoh rings, and one task
-group that ends when ``stop`` is set.
+A service with ``--fleet FILE`` declares a :class:`Role` (how to build one robot's edge and host, how its failure
+reads); the rest is shared: a :class:`Member` per robot, rebuilt alone when a bug in its handling fails it.
 """
 
 from __future__ import annotations

@@ -1,14 +1,7 @@
-"""Typed settings with one precedence: command line > environment > file > defaults.
+"""Typed settings with one precedence: command line > environment (``BLACKMETAL_<NAME>``) > file > defaults.
 
-Each process has one settings dataclass whose fields are declared with
-:func:`setting`; its command-line options, their help and the names a file
-or the environment may use all come from those fields. A settings file is
-TOML (``.toml``, read by the standard library) or JSON5 (``.json5``/``.json``,
-read by the ``json5`` package) holding the option names (``poll_hz`` or
-``poll-hz``); the environment uses ``BLACKMETAL_<NAME>``
-(``BLACKMETAL_POLL_HZ=100``). The Zenoh flags are one
-:class:`~blackmetal.runtime.zenoh_setup.ZenohSettings` composed into every
-process's settings as the ``zenoh`` field, under the same rules.
+One settings dataclass per process, fields declared with :func:`setting`: its options, their help and the names a
+TOML or JSON5 file may use come from them. The Zenoh flags are its ``zenoh`` field, under the same rules.
 """
 
 from __future__ import annotations

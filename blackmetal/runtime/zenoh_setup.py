@@ -1,34 +1,10 @@
-"""The Zenoh flags every blackmetal process shares, as zenoh-python's examples spell them.
+"""The Zenoh flags every blackmetal process shares (``-m -e -l -c --multicast-scouting``) and opening its session.
 
-``-m/--mode``, ``-e/--connect``, ``-l/--listen``, ``-c/--config``,
-``--multicast-scouting`` / ``--no-multicast-scouting``. Importing zenoh is
-deferred so that a process that does not use Zenoh (the plain simulator)
-never loads it.
-
-Isolated by default, like ROS 2's own Zenoh middleware: a blackmetal
-process finds only the endpoints it is given. Multicast scouting and gossip
-(peers telling each other about third peers, which links two robots'
-sessions for good once any peer has met both) are off unless
-``--multicast-scouting`` asks for discovery on the LAN; a Zenoh config file
-given with ``-c`` decides for itself. Without gossip, a session that listens
-is a hub that routes for the sessions connected to it as clients, so a
-process given ``-e`` and no ``-l`` (and no ``-m``) connects as a client of
-exactly that endpoint.
-
-One default for every process: given no endpoint, no config file and no
-discovery, a process is a client of :data:`DEFAULT_ENDPOINT`
-(``tcp/127.0.0.1:7447``), where ``blackmetal up`` and ``blackmetal router``
-listen; a process that listens (``-l``) is itself a hub and connects to
-nothing it was not given.
-
-Start order: a service (:func:`open_service_session`, :func:`open_when_reachable`)
-whose endpoint does not answer yet says once that it waits for it and joins
-when it comes up; once joined it rides out the router restarting. Zenoh's own
-settings do both (``connect/timeout_ms: -1``, ``connect/exit_on_failure:
-false``, a short ``connect/retry``); ``zenoh.open`` then blocks (client) or
-returns unconnected (peer), so it runs on a daemon thread that Ctrl-C need
-not interrupt. The user tools use :func:`open_session`, which fails at once
-with one sentence.
+Isolated by default (docs/concepts.md, "Isolated by default"): no multicast scouting, no gossip; a process that
+listens is a hub, any other a client of its ``-e`` or of :data:`DEFAULT_ENDPOINT`. A service waits for its
+router and rides out its restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a
+daemon thread. The user tools use :func:`open_session`, which fails at once with one sentence. zenoh is imported
+late: the plain simulator never loads it.
 """
 
 from __future__ import annotations
@@ -60,10 +36,6 @@ SERVICE_RETRY = "{period_init_ms: 100, period_max_ms: 500, period_increase_facto
 WAIT_NOTICE_S = 0.5
 
 
-def _env(name: str) -> str | None:
-    return os.environ.get(name) or None
-
-
 @dataclass(slots=True)
 class ZenohSettings:
     """What the shared flags say; turned into a ``zenoh.Config`` by :meth:`to_config`."""
@@ -78,8 +50,8 @@ class ZenohSettings:
     no_multicast_scouting: bool = False
     #: Zenoh user/password authentication, from the environment only
     #: (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD) so no secret sits on a command line or in a file.
-    user: str | None = field(default_factory=lambda: _env("BLACKMETAL_ZENOH_USER"), metadata={"cli": False})
-    password: str | None = field(default_factory=lambda: _env("BLACKMETAL_ZENOH_PASSWORD"), metadata={"cli": False})
+    user: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_USER") or None, metadata={"cli": False})
+    password: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_PASSWORD") or None, metadata={"cli": False})
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode not in MODES:
@@ -89,7 +61,6 @@ class ZenohSettings:
 
     @property
     def given(self) -> bool:
-        """True when any Zenoh flag was set."""
         return bool(self.mode or self.connect or self.listen or self.config or self.no_multicast_scouting or self.multicast_scouting)
 
     @property
@@ -123,11 +94,8 @@ class ZenohSettings:
         return self.multicast_scouting and not self.no_multicast_scouting
 
     def to_config(self, wait: bool = False) -> "zenoh.Config":
-        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services).
-
-        A config file that sets ``connect/timeout_ms`` itself keeps its own
-        connect behaviour.
-        """
+        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services),
+        unless a config file sets ``connect/timeout_ms`` itself."""
         import zenoh
 
         if self.config is not None:
@@ -273,11 +241,8 @@ def open_session(settings: ZenohSettings) -> "zenoh.Session":
 class PendingSession:
     """``zenoh.open`` of a service's config on a daemon thread, and whether the session has joined its endpoints.
 
-    With the service settings (:meth:`ZenohSettings.to_config` ``wait=True``)
-    a client's ``zenoh.open`` blocks until its router answers, and a peer's
-    returns at once and connects in the background; neither can be
-    interrupted, so the opening runs here while the caller watches its stop
-    request. A session opened after the caller gave up is closed.
+    A client's ``zenoh.open`` blocks until its router answers and cannot be interrupted, so it runs here while the
+    caller watches its stop request; a session opened after the caller gave up is closed.
     """
 
     def __init__(self, settings: ZenohSettings) -> None:
@@ -381,13 +346,10 @@ class _Waiter:
 
 
 async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, name: str, poll: float = 0.02) -> "zenoh.Session":
-    """A service's session, once it has joined its router or hub (a hub: at once).
+    """A service's session, once it has joined its router or hub (a hub: at once); says once what it waits for.
 
-    Says once which endpoint it waits for when that does not answer within
-    :data:`WAIT_NOTICE_S`, then "connected to ..." when it joins. When
-    ``stop`` is set first the service is cancelled (asyncio.CancelledError:
-    ``run_service`` exits 0); ZenohUnavailable when the session cannot open
-    at all (a port in use, a bad config).
+    ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot
+    open at all (a port in use, a bad config).
     """
     waiter = _Waiter(settings, name)
     try:
