@@ -19,7 +19,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import ConfigError, require_extra
 
-from .client import add_client_arguments, connect_waiting, tool
+from .client import add_client_arguments, connect, tool
 
 
 def default_name() -> str:
@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     if args.split_size is not None and not args.split_size > 0:
         raise ConfigError(f"--split-size must be positive (MB), got {args.split_size}")
     stop = stop_on_signals()
-    keys, settings, session = connect_waiting(args, stop, "record")
+    keys, settings, session = connect(args, (stop, "record"))
     if session is None:
         return 0  # stopped while it waited for its router or hub
     path = Path(args.output or default_name())
