@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
             print()
         if recorder.error is not None:
             raise ConfigError(f"the recording stopped early: {recorder.error}")
-        counts = ", ".join(f"{k} {s.messages}" for k, s in sorted(recording.stats.items())) or "no messages"
+        counts = ", ".join(f"{k} {n}" for k, n in sorted(recording.stats.items())) or "no messages"
         files = ", ".join(str(f) for f in recording.files)
         print(f"blackmetal record: wrote {files} ({time.monotonic() - started:.1f} s; {counts})", flush=True)
     return 0
