@@ -168,7 +168,7 @@ class RobotProcess:
         self.control_port, self.log_port = ports["control"], ports["log"]
 
     def dump(self) -> dict[str, Any]:
-        return json.loads(self.child.request("dump"))  # type: ignore[no-any-return]
+        return json.loads(self.child.request("dump"))
 
     def close(self) -> None:
         try:
