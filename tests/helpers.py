@@ -10,6 +10,9 @@ from typing import Any
 
 import zenoh
 
+from blackmetal import robot_model as model
+from blackmetal.bench.synth import Leg
+from blackmetal.robot_model import arc_step
 from blackmetal.runtime import ports
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess
 
@@ -155,3 +158,11 @@ with zenoh.open(conf) as session:
         publisher.put(b'{"linear":{"x":%.4f}}' % (0.1 + 0.0001 * (i % 500)))
         i += 1
 """
+
+
+def exact_pose(legs: list[Leg], separation: float = model.WHEEL_SEPARATION) -> tuple[float, float, float]:
+    """Where ``legs`` end, integrated in closed form: the answer synthetic logs are checked against."""
+    x = y = yaw = 0.0
+    for leg in legs:
+        x, y, yaw = arc_step(x, y, yaw, leg.left * leg.duration, leg.right * leg.duration, separation)
+    return x, y, yaw

@@ -28,13 +28,8 @@ def _json_twist(speed: float) -> bytes:
 def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros2_in_line: bool = False) -> dict[str, float]:
     """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time).
 
-    With ``via_ros2`` the put is a CDR Twist on rmw_zenoh's ``/cmd_vel`` key,
-    through ``blackmetal ros2`` (a CDR decode and more Zenoh hops). The
-    publisher is a client of the gateway, which forwards the ROS key to the
-    adapter (publisher -> gateway -> adapter -> gateway: a router's place in
-    the path, two more transits than the direct put); ``ros2_in_line`` makes
-    it a client of the adapter instead (publisher -> adapter -> gateway, as a
-    ROS node beside the adapter: one more hop than the direct put).
+    ``via_ros2``: a CDR Twist on rmw_zenoh's ``/cmd_vel`` through ``blackmetal ros2``, its publisher a client of the
+    gateway (-> adapter -> gateway), or with ``ros2_in_line`` of the adapter (-> gateway: one more hop).
     """
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, poll_hz)
@@ -87,7 +82,6 @@ def command_latencies(
 
 
 def _engage_and_release(stack: ExitStack, poll_hz: float) -> tuple[RobotProcess, int, "zenoh.Publisher", "zenoh.Publisher"]:
-    """A robot and its gateway, polled, and publishers on the e-stop's engage and release keys."""
     robot, zport, _ = robot_and_gateway(stack, poll_hz)
     client = session(stack, zport)
     pub = client.declare_publisher(KEYS.estop, express=EXPRESS)
@@ -111,16 +105,15 @@ RELEASE_SETTLE_S = 0.03
 def estop_latencies(
     pub: "zenoh.Publisher", release: "zenoh.Publisher", robot: RobotProcess, samples: int, settle: float = 0.0
 ) -> dict[str, float]:
-    """Engage on ``pub`` (then release on ``release``), 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
+    """Engage then release, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
 
-    ``settle``: extra pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without an
-    EMG_STOP before the next engage (merged with a release still waiting, or slower than the pause).
+    ``settle``: a pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without their own EMG_STOP.
     """
     time.sleep(0.3)
     first = len(robot.dump()["emg_stops"])
     starts = []
     for _ in range(samples + 10):
-        time.sleep(random.uniform(*COMMAND_GAP_S))  # paced like cmd_vel's figure
+        time.sleep(random.uniform(*COMMAND_GAP_S))
         starts.append(time.time())
         pub.put(b'{"engaged": true}')
         time.sleep(random.uniform(*COMMAND_GAP_S))
@@ -128,8 +121,7 @@ def estop_latencies(
         time.sleep(settle)
     time.sleep(0.3)
     stops = sorted(robot.dump()["emg_stops"][first:])
-    # each engage's EMG_STOP is the first to arrive before the next engage was put; an engage without one merged
-    # with a release still waiting (or took longer than the pause): counted, never paired with another's stop
+    # an engage's EMG_STOP arrives before the next engage; one without is counted, never paired with another's stop
     ends = [*starts[1:], float("inf")]
     latencies, missing = [], 0
     for index, (start, end) in enumerate(zip(starts, ends, strict=True)):

@@ -157,12 +157,8 @@ def replay_throughput(samples: int, stream_samples: int, mcap: bool = True) -> d
 
 
 def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
-    """The arbiter's own cost per command (µs), against the gateway core's whole handling of one cmd_vel, alternating.
-
-    Pure and on a fake clock: the arbiter choosing among the five default sources (and with three locks
-    configured), and ``GatewayCore.on_cmd_vel`` (decode, arbiter, limits, encoding the robot's
-    command) for the same commands from ``teleop``.
-    """
+    """The arbiter's own cost per command (µs; five sources, then three locks too) against ``GatewayCore.on_cmd_vel``'s
+    whole handling of the same teleop commands, alternating, on a fake clock."""
     from blackmetal.gateway.arbiter import Arbiter, LockSpec
     from blackmetal.gateway.core import GatewayCore
     from blackmetal.gateway.settings import GatewaySettings

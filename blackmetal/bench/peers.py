@@ -147,17 +147,9 @@ def robot_main() -> None:
     for line in sys.stdin:
         if line.strip() == "dump":
             with robot.arrived:
-                print(
-                    json.dumps(
-                        {
-                            "arrivals": list(robot.arrivals.items()),
-                            "polls": robot.poll_times,
-                            "commands": robot.velocity_commands,
-                            "emg_stops": robot.emg_stops,
-                        }
-                    ),
-                    flush=True,
-                )
+                arrivals = list(robot.arrivals.items())
+                state = {"arrivals": arrivals, "polls": robot.poll_times, "commands": robot.velocity_commands, "emg_stops": robot.emg_stops}
+                print(json.dumps(state), flush=True)
         elif line.strip() == "quit":
             break
     robot.stop()
@@ -175,15 +167,8 @@ class RobotProcess:
             raise
         self.control_port, self.log_port = ports["control"], ports["log"]
 
-    def __enter__(self) -> "RobotProcess":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
-
     def dump(self) -> dict[str, Any]:
-        result: dict[str, Any] = json.loads(self.child.request("dump"))
-        return result
+        return json.loads(self.child.request("dump"))
 
     def close(self) -> None:
         try:

@@ -69,7 +69,9 @@ def latch_args(stack: ExitStack) -> list[str]:
 
 
 def mini_robot(stack: ExitStack) -> RobotProcess:
-    return stack.enter_context(RobotProcess())
+    robot = RobotProcess()
+    stack.callback(robot.close)
+    return robot
 
 
 def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float) -> ServiceProcess:

@@ -52,8 +52,7 @@ class Plan:
 
     @property
     def warmups(self) -> dict[str, float]:
-        # --quick proves every figure still runs end to end (the smoke test); its windows are as short as
-        # that allows, and its figures mean nothing. Warm-ups: before a window, once the gateway polls.
+        """--quick only proves every figure runs end to end: its warm-ups (before a window) are short, its figures mean nothing."""
         return {"warmup": 0.3} if self.quick else {}
 
     def seconds(self, quick: float, full: float) -> float:
@@ -101,7 +100,6 @@ def rounds(plan: Plan, **latencies: Callable[[], dict[str, float]]) -> dict[str,
 
 
 def spreads(measured: dict[str, list[float]]) -> dict[str, Any]:
-    """A latency's p50 and p99 over the rounds: median, min and max of each."""
     return {"p50": spread(measured["p50"]), "p99": spread(measured["p99"])}
 
 
@@ -111,7 +109,6 @@ def over(figure: dict[str, list[float]], baseline: dict[str, list[float]], which
 
 
 def with_baselines(figures: tuple[Figure, ...], names: set[str]) -> set[str]:
-    """``names`` and every figure they need as a baseline."""
     chosen = set(names)
     for figure in reversed(figures):  # a figure only needs figures measured before it
         if figure.name in chosen:
@@ -138,11 +135,8 @@ def one_sentence(exc: Exception) -> str:
 
 
 def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], object], only: set[str] | None) -> Result:
-    """Every figure (or those in ``only`` and their baselines), each next to its baseline.
-
-    A figure skipped for a missing extra, or failed, is one line and ``{"skipped": why}`` or ``{"failed": why}``
-    in the result; the others still run.
-    """
+    """Every figure (or those in ``only`` and their baselines); one skipped or failed is a line and
+    ``{"skipped": why}`` or ``{"failed": why}`` in the result, and the others still run."""
     plan = Plan(quick, progress)
     chosen = with_baselines(figures, only) if only is not None else {figure.name for figure in figures}
     out: Result = {"quick": quick, "rounds": plan.rounds, "measured": [], "skipped": {}, "failed": {}}

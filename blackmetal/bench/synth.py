@@ -1,7 +1,7 @@
-"""Synthetic impulse logs with a known exact answer, for tests, benchmarks and demos.
+"""Synthetic impulse logs of known legs, for tests, benchmarks and demos.
 
 Readings are whole impulses per second with the remainder carried (counts are never lost), at
-jittered instants, with single-sample dropouts and spikes; the exact pose integrates the legs in closed form.
+jittered instants, with single-sample dropouts and spikes.
 """
 
 from __future__ import annotations
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from blackmetal import robot_model as model
-from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
+from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders
 from blackmetal.schemas import WheelImpulses
 
 
@@ -34,13 +34,6 @@ def square_legs(side: float = 2.0, speed: float = 0.3, turn_rate: float = 0.8, p
         legs += [Leg(side / speed, speed, speed), Leg(pause, 0.0, 0.0)]
         legs += [Leg(turn, -sign * rim, sign * rim), Leg(pause, 0.0, 0.0)]
     return legs
-
-
-def exact_pose(legs: list[Leg], separation: float = model.WHEEL_SEPARATION) -> tuple[float, float, float]:
-    x = y = yaw = 0.0
-    for leg in legs:
-        x, y, yaw = arc_step(x, y, yaw, leg.left * leg.duration, leg.right * leg.duration, separation)
-    return x, y, yaw
 
 
 @dataclass
@@ -105,34 +98,3 @@ def synth_log(
         wheel[bad] = (np.sign(wheel[bad]) + (wheel[bad] == 0)) * (limit * rng.uniform(2, 6, bad.sum())).astype(np.int64)
     stamps = start + t[1:]
     return SynthLog(np.arange(len(stamps), dtype=np.int64), stamps, left, right)
-
-
-def original_algorithm(
-    log: SynthLog,
-    period: float,
-    alpha: float = 0.3,
-    encoders: Encoders = NOMINAL_ENCODERS,
-    separation: float = model.WHEEL_SEPARATION,
-    max_wheel_speed: float = model.MAX_WHEEL_SPEED,
-) -> tuple[float, float, float]:
-    """The original driver's odometry, for comparison: its filter rules, Euler steps of an assumed period."""
-    x = y = yaw = 0.0
-    outputs = [0.0, 0.0]
-    zeros = [2, 2]
-    for left, right in zip(log.left.tolist(), log.right.tolist(), strict=False):
-        speeds = encoders.to_speeds(float(left), float(right))
-        for i, value in enumerate(speeds):
-            if abs(value) > max_wheel_speed:
-                value = outputs[i]  # the original dropped impossible spikes
-            if value == 0.0:
-                zeros[i] += 1
-                if zeros[i] >= 2:
-                    outputs[i] = 0.0
-            else:
-                outputs[i] = value if zeros[i] >= 2 else alpha * outputs[i] + (1 - alpha) * value
-                zeros[i] = 0
-        v, w = wheels_to_twist(outputs[0], outputs[1], separation)
-        x += v * math.cos(yaw) * period
-        y += v * math.sin(yaw) * period
-        yaw += w * period
-    return x, y, yaw

@@ -18,10 +18,7 @@ from .runner import Figure, Plan, Result, Row, latency_rows, met, noisy, rounds,
 
 
 def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
-    """Poses on ``<prefix>/pose`` and ``/odom`` samples from ``blackmetal ros2`` counted over the same window.
-
-    ``warmup`` is waited before the window, and is also the window of the adapter's CPU share.
-    """
+    """Poses and ``blackmetal ros2``'s ``/odom`` samples counted over one window; the adapter's CPU over ``warmup``."""
     counts = {"pose": 0, "odom": 0}
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, poll_hz)

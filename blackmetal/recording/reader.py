@@ -39,7 +39,6 @@ def is_mcap(path: str | Path) -> bool:
 
 
 def _open(path: Path) -> BinaryIO:
-    """The recording opened for reading (the caller closes it), or ConfigError saying why not."""
     try:
         return open(path, "rb")
     except OSError as exc:
@@ -63,8 +62,7 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
     known: dict[int, Channel | None] = {}
     whole = 0  # where the last whole record ends
     with stream:
-        try:
-            # in file order: a cut-off end spoils nothing before it
+        try:  # in file order: a cut-off end spoils nothing before it
             for record in StreamReader(stream, validate_crcs=False).records:
                 whole = stream.tell()
                 if isinstance(record, Message):
@@ -119,22 +117,13 @@ def _payload_spans(data: bytes, wanted: Callable[[str], bool], ids: set[int]) ->
     return starts, ends
 
 
-def _as_lines(data: bytes, starts: list[int], ends: list[int]) -> bytes:
-    """The payloads, one per line."""
-    return b"\n".join([data[start:end] for start, end in zip(starts, ends, strict=True)])
-
-
 #: Chunks still being walked below this many, the rest go record by record in Python.
 _LOCKSTEP_MIN = 16
 
 
 def _record_table(data: bytes, bounds: list[int]) -> Any:
-    """(starts, lengths) of the records of the chunks laid end to end in ``data`` (chunk ``i`` spans
-    ``bounds[i]`` to ``bounds[i + 1]``), unsorted; None if a chunk's records do not end exactly at its end.
-
-    The chunks are walked in lock step, one numpy step per record depth, not
-    one Python step per record; the last few long chunks finish in Python.
-    """
+    """(starts, lengths) of the records of the chunks ``bounds[i]:bounds[i + 1]`` of ``data``, unsorted; None if a
+    chunk's records do not end at its end. One numpy step per record depth across the chunks, the last few in Python."""
     import numpy as np
 
     length_at = np.ndarray((max(len(data) - 8, 0),), "<u8", data, 1, (1,))  # the u64 after each byte
@@ -183,7 +172,8 @@ def _chunks_as_lines(chunks: list[bytes], wanted: Callable[[str], bool], ids: se
         bounds.append(bounds[-1] + len(chunk))
     table = _record_table(data, bounds)
     if table is None:  # a damaged chunk: record by record, skipping what cannot be read
-        return b"\n".join(_as_lines(chunk, *_payload_spans(chunk, wanted, ids)) for chunk in chunks)
+        spans = [(chunk, *_payload_spans(chunk, wanted, ids)) for chunk in chunks]
+        return b"\n".join(b"\n".join([c[a:b] for a, b in zip(starts, ends, strict=True)]) for c, starts, ends in spans)
     starts, lengths = table
     raw = np.frombuffer(data, np.uint8)
     opcodes = raw[starts]
@@ -228,10 +218,8 @@ def _chunk_bytes(chunk: Any) -> bytes:
 
 
 def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes, str | None]:
-    """The payloads of the wanted topics as JSON lines, for the numpy replay: >= 1 M messages/s.
-
-    No Python object per message; also returns what a file cut short was missing at its end.
-    """
+    """The payloads of the wanted topics as JSON lines for the numpy replay (no Python object per message: >= 1 M/s),
+    and what a file cut short was missing at its end."""
     require_extra("reading MCAP", "record", "mcap")
     from mcap.records import Channel as ChannelRecord
     from mcap.records import Chunk, Message
@@ -273,7 +261,7 @@ def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes,
 
 
 def cut_at(path: Path, whole: int, exc: BaseException) -> str:
-    """Where a recording was cut, in words: after which byte the records stop being whole, and what was wrong there."""
+    """Where a recording was cut, and what was wrong there, in words."""
     try:
         size = path.stat().st_size
     except OSError:

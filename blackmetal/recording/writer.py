@@ -48,11 +48,6 @@ def message_name_for(keys: Keys, key: str) -> str | None:
 
 
 @dataclass
-class ChannelStats:
-    messages: int = 0
-
-
-@dataclass
 class McapRecording:
     """Writes samples of the robot's keys to one MCAP file, or a numbered series when split."""
 
@@ -61,7 +56,7 @@ class McapRecording:
     split_bytes: int | None = None
     clock_ns: Callable[[], int] = time.time_ns
     files: list[Path] = field(default_factory=list)
-    stats: dict[str, ChannelStats] = field(default_factory=dict)
+    stats: dict[str, int] = field(default_factory=dict)  # messages per key
     total_bytes: int = 0
 
     def __post_init__(self) -> None:
@@ -108,15 +103,14 @@ class McapRecording:
         """One sample as received; never raises for what the payload holds."""
         log_time = self.clock_ns() if log_time_ns is None else log_time_ns
         channel = self._channel(key)
-        stats = self.stats.setdefault(key, ChannelStats())
-        stats.messages += 1
+        self.stats[key] = sequence = self.stats.get(key, 0) + 1
         self.total_bytes += len(payload)
         self._writer.add_message(
             channel_id=channel,
             log_time=log_time,
             data=payload,
             publish_time=publish_time_ns(payload, log_time),
-            sequence=stats.messages,
+            sequence=sequence,
         )
         if self.split_bytes and self._stream is not None and self._stream.tell() >= self.split_bytes:
             self._close()
@@ -143,5 +137,5 @@ class McapRecording:
         self._close()
 
     def progress(self, elapsed: float) -> str:
-        per_key = ", ".join(f"{key.removeprefix(self.keys.prefix + '/')} {s.messages}" for key, s in sorted(self.stats.items()))
+        per_key = ", ".join(f"{key.removeprefix(self.keys.prefix + '/')} {n}" for key, n in sorted(self.stats.items()))
         return f"recording {self.files[-1].name}: {elapsed:.0f} s, {self.total_bytes / 1e6:.2f} MB | {per_key or 'waiting for messages'}"

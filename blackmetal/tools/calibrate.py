@@ -112,7 +112,13 @@ def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np
     channel = read_mcap(path, [key]).channels.get(key)
     if channel is None or not channel.payloads:
         return None
-    poses = [p for p in _decode_poses(channel.payloads) if p is not None]
+    decoder = msgspec.json.Decoder(Pose)
+    poses = []
+    for payload in channel.payloads:
+        try:
+            poses.append(decoder.decode(payload))
+        except (msgspec.DecodeError, msgspec.ValidationError):
+            continue  # a recording is evidence: bad payloads are in it, and skipped here
     if len(poses) < 2:
         return None
     t = np.array([p.stamp for p in poses])
@@ -123,17 +129,6 @@ def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np
     inside = (result.stamp >= t[0]) & (result.stamp <= t[-1])
     out = [np.where(inside, np.interp(result.stamp, t, v), np.nan) for v in (x, y, yaw)]
     return out[0], out[1], out[2]
-
-
-def _decode_poses(payloads: list[bytes]) -> list[Pose | None]:
-    decoder = msgspec.json.Decoder(Pose)
-    out: list[Pose | None] = []
-    for payload in payloads:
-        try:
-            out.append(decoder.decode(payload))
-        except (msgspec.DecodeError, msgspec.ValidationError):
-            out.append(None)  # a recording is evidence: bad payloads are in it, and skipped here
-    return out
 
 
 def load(path: str, settings: PipelineSettings, prefix: str | None, reference: str | None) -> Recording:
@@ -158,16 +153,10 @@ def _segment(rec: Recording, start: int, end: int) -> Segment | None:
     first = int(np.argmax(ok))
     last = len(ok) - int(np.argmax(ok[::-1]))
     sl = slice(first, last)
-    ax, ay, ayaw = align(x[sl], y[sl], yaw[sl])
     d_left, d_right = rec.result.d_left[start:end][sl].copy(), rec.result.d_right[start:end][sl].copy()
     d_left[0] = d_right[0] = 0.0  # the odometry starts at the reference's first pose
-    stamps = rec.result.stamp[start:end][sl]
-    dt = np.concatenate([[0.0], np.diff(stamps)])
-    return Segment(d_left, d_right, ax, ay, ayaw, dt)
-
-
-def _used(settings: PipelineSettings) -> Constants:
-    return Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
+    dt = np.concatenate([[0.0], np.diff(rec.result.stamp[start:end][sl])])
+    return Segment(d_left, d_right, *align(x[sl], y[sl], yaw[sl]), dt)
 
 
 def write_toml(path: str, constants: Constants, note: str, residuals: Residuals | None = None) -> None:
@@ -179,13 +168,8 @@ def write_toml(path: str, constants: Constants, note: str, residuals: Residuals 
             "# every service takes this file as its settings.\n" + "".join(line + "\n" for line in residuals.lines())
         )
     text = (
-        f"# {note}\n"
-        "# For blackmetal gateway, blackmetal odometry and blackmetal up: --settings "
-        + Path(path).name
-        + "\n"
-        + measured
-        + f"wheel_separation = {constants.wheel_separation:.6f}\n"
-        f"impulses_left = {constants.impulses_left:.4f}\n"
+        f"# {note}\n# For blackmetal gateway, blackmetal odometry and blackmetal up: --settings {Path(path).name}\n{measured}"
+        f"wheel_separation = {constants.wheel_separation:.6f}\nimpulses_left = {constants.impulses_left:.4f}\n"
         f"impulses_right = {constants.impulses_right:.4f}\n"
     )
     try:
@@ -304,7 +288,7 @@ def umbmark_mode(
 def run(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(PipelineSettings, args)
-        used = _used(settings)
+        used = Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
         cw = [parse_point(p) for p in args.cw_end or []]
         ccw = [parse_point(p) for p in args.ccw_end or []]
         if bool(cw) != bool(ccw):

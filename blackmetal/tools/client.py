@@ -39,7 +39,7 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 class Latest:
-    """Keeps the newest value of a key, decoded; the callback only stores it."""
+    """The newest decoded value of a key; the callback only stores it."""
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[T]) -> None:
         self.key = key
@@ -81,7 +81,6 @@ def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
 
 
 def first_reply(replies: Any, message_type: type[T]) -> T | None:
-    """The first answer among ``replies`` that decodes as ``message_type``, or None."""
     return next(decoded_replies(replies, message_type), None)
 
 
@@ -118,18 +117,15 @@ def add_drive_arguments(parser: argparse.ArgumentParser, turn_rate: float) -> No
     parser.add_argument("--turn-rate", type=float, default=turn_rate, help=f"turn rate, rad/s (default {turn_rate:g})")
 
 
-def connect(args: argparse.Namespace) -> tuple[Keys, ZenohSettings, zenoh.Session]:
-    """The key space, the Zenoh settings and an open session for a tool; BlackmetalError says what is wrong."""
+def connect(args: argparse.Namespace, waiting: tuple[threading.Event, str] | None = None) -> tuple[Keys, ZenohSettings, Any]:
+    """The key space, the Zenoh settings and an open session; BlackmetalError says what is wrong.
+
+    ``waiting`` (stop event, name) is for a tool that runs as a service (the recorder): it waits for its
+    endpoint, and the session is None if stopped first.
+    """
     keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
     settings = zenoh_settings(args)
-    return keys, settings, open_session(settings)
-
-
-def connect_waiting(args: argparse.Namespace, stop: threading.Event, name: str) -> tuple[Keys, ZenohSettings, zenoh.Session | None]:
-    """As :func:`connect`, for a tool that runs as a service (the recorder): waits for its endpoint; None if stopped first."""
-    keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
-    settings = zenoh_settings(args)
-    return keys, settings, open_when_reachable(settings, stop, name)
+    return keys, settings, open_session(settings) if waiting is None else open_when_reachable(settings, *waiting)
 
 
 def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:

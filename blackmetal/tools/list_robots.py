@@ -36,14 +36,8 @@ QUERY_S = 2.0
 
 
 def alive_robots(session: zenoh.Session, timeout: float = 5.0, expect: int = 0) -> list[str]:
-    """Prefixes (``robot``, ``fleet/a``, ...) that have a live gateway.
-
-    A liveliness subscriber with history collects the tokens (a single early
-    ``get`` can miss tokens the router has not yet told a freshly connected
-    session about): until ``timeout`` while fewer than ``expect`` (or none)
-    have come, and then until QUIET_S passes without a new one, so a present
-    fleet is listed at once and only a missing one waits the whole ``timeout``.
-    """
+    """Prefixes with a live gateway, from a liveliness subscriber with history (an early ``get`` can miss tokens the
+    router has not yet told a new session): until ``expect`` (or one) came and QUIET_S passed without a new one."""
     prefixes: set[str] = set()
     subscriber = session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, history=True)
     try:
@@ -96,12 +90,10 @@ def robot_rows(session: zenoh.Session, prefixes: list[str], timeout: float = QUE
 
 
 HEADER = ("prefix", "link (control/log)", "poll", "x (m)", "y (m)", "yaw (°)", "e-stop", "drives")
-#: Columns aligned right (numbers).
-RIGHT = {2, 3, 4, 5}
+RIGHT = {2, 3, 4, 5}  # numbers
 
 
 def _cells(row: RobotRow) -> tuple[str, ...]:
-    """One table line, in HEADER's order; '-' where the gateway or the odometry did not answer."""
     h, p = row.health, row.pose
     link, poll, estop, drives = ("no health", "-", "-", "-")
     if h is not None:
@@ -112,7 +104,6 @@ def _cells(row: RobotRow) -> tuple[str, ...]:
 
 
 def table(rows: list[RobotRow]) -> str:
-    """The rows as an aligned text table with a header line."""
     lines = [HEADER, *(_cells(row) for row in rows)]
     widths = [max(len(line[k]) for line in lines) for k in range(len(HEADER))]
     return "\n".join(

@@ -19,7 +19,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import ConfigError, require_extra
 
-from .client import add_client_arguments, connect_waiting, tool
+from .client import add_client_arguments, connect, tool
 
 
 def default_name() -> str:
@@ -34,7 +34,7 @@ def run(args: argparse.Namespace) -> int:
     if args.split_size is not None and not args.split_size > 0:
         raise ConfigError(f"--split-size must be positive (MB), got {args.split_size}")
     stop = stop_on_signals()
-    keys, settings, session = connect_waiting(args, stop, "record")
+    keys, settings, session = connect(args, (stop, "record"))
     if session is None:
         return 0  # stopped while it waited for its router or hub
     path = Path(args.output or default_name())
@@ -61,7 +61,7 @@ def run(args: argparse.Namespace) -> int:
             print()
         if recorder.error is not None:
             raise ConfigError(f"the recording stopped early: {recorder.error}")
-        counts = ", ".join(f"{k} {s.messages}" for k, s in sorted(recording.stats.items())) or "no messages"
+        counts = ", ".join(f"{k} {n}" for k, n in sorted(recording.stats.items())) or "no messages"
         files = ", ".join(str(f) for f in recording.files)
         print(f"blackmetal record: wrote {files} ({time.monotonic() - started:.1f} s; {counts})", flush=True)
     return 0

@@ -97,7 +97,7 @@ def approach_gain(cmd_timeout: float) -> float:
 
 
 class Cancelled(ToolError):
-    pass
+    """Ctrl-C while driving: the robot was stopped."""
 
 
 @dataclass
@@ -126,7 +126,7 @@ class Driver:
         self.publisher.put(encode(Twist(linear=Vector3(x=v), angular=Vector3(z=w))))
 
     def _check_effect(self, pose: Pose) -> None:
-        """Motion is being commanded: if the pose has not changed for NO_EFFECT_S, the commands do nothing."""
+        """While motion is commanded: a pose unchanged for NO_EFFECT_S means the commands do nothing."""
         now = time.monotonic()
         here = (pose.x, pose.y, pose.yaw)
         if here != self._last_pose:
@@ -210,7 +210,7 @@ def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | N
     end = driver.settle()
     truth_end: Pose | None = truth.value if truth is not None else None
     return Run(
-        "clockwise" if clockwise else "counter-clockwise",
+        direction,
         closure(start, end),
         closure(truth_start, truth_end) if truth_start is not None and truth_end is not None else None,
         _in_frame_of(start, driver.odometry_path),
@@ -237,13 +237,10 @@ def report(run: Run) -> str:
 
 
 def umbmark_figure(runs: list[Run]) -> str | None:
-    """UMBmark's E_max,syst (None without the simulator's truth), and the calibrate command that uses it.
+    """UMBmark's E_max,syst (None without the simulator's truth) and the calibrate command of the true ends.
 
-    Each return position error is the true end minus the end the odometry
-    computed, both in the robot's frame at the start, so the driver's own
-    stopping error (larger on a loaded machine) is not counted. The command
-    gives calibrate the true ends, what a tape would measure on a real robot;
-    calibrate takes the odometry's ends from the recording, as here.
+    A return error is the true end minus the odometry's, both in the start frame: the driver's own stopping error
+    (larger on a loaded machine) is not counted; calibrate takes the odometry's ends from the recording, as here.
     """
     errors: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}

@@ -41,14 +41,8 @@ def _setting_names(cls: type) -> set[str]:
 
 
 def split_settings(path: str) -> tuple[dict[str, dict[str, Any]], list[str]]:
-    """A settings file with any service's keys -> each service's own keys, and the keys up decides itself.
-
-    Keys at the top level go to every service (gateway, odometry, ROS 2
-    adapter, Foxglove view) that has the setting, or to the simulator if
-    only it has it; ``[gateway]``, ``[odometry]``, ``[sim]``, ``[ros2]`` and
-    ``[foxglove]`` sections go to that service alone. A key no service has
-    is a ConfigError naming it.
-    """
+    """Each service's own keys (top-level keys go to every SHARED service that has them, a ``[SERVICE]``
+    section to that one), and the keys up decides itself; a key no service has is a ConfigError."""
     data = read_settings_file(path)
     own: dict[str, dict[str, Any]] = {name: {} for name in SERVICES}
     unknown: list[str] = []
@@ -109,7 +103,7 @@ class ServiceFiles:
         return ["--settings", self.files[name]] if name in self.files else []
 
     def run_dir(self) -> str:
-        """This run's own folder (removed when up ends): the state of the simulated robots it starts."""
+        """This run's folder (removed when up ends): the state of its simulated robots."""
         if self._dir is None:
             self._dir = tempfile.TemporaryDirectory(prefix="blackmetal-up-")
         return self._dir.name
@@ -120,8 +114,7 @@ class ServiceFiles:
 
 
 def ros2_extra(args: argparse.Namespace) -> list[str]:
-    """What up passes the ROS 2 adapter besides its settings: ``--distro``, and ``--calibration FILE`` when the
-    ``--settings`` file is a calibration with residuals (they are comments, which the settings split does not carry)."""
+    """``--distro``, and ``--calibration FILE`` for a calibration with residuals (comments, which the split drops)."""
     extra = ["--distro", args.distro] if args.distro else []
     if args.settings and Path(args.settings).suffix == ".toml":
         try:
@@ -134,9 +127,8 @@ def ros2_extra(args: argparse.Namespace) -> list[str]:
 
 
 def latch_args(args: argparse.Namespace, files: ServiceFiles) -> list[str]:
-    """Where the gateway keeps its e-stop latch: for up's own simulated robots, in this run's folder, released at
-    first (they are new, as the latch is); for a real robot (``--robot``), the gateway's default (``--state-dir``), so
-    that a latch engaged before a crash, a restart of up or a reboot is still engaged."""
+    """Simulated robots latch in this run's folder, released at first (they are new); a real robot (``--robot``)
+    keeps the gateway's default, so a latch engaged before a crash, a restart or a reboot stays engaged."""
     if args.robot:
         return []
     return ["--state-dir", files.run_dir(), "--unsafe-start-released"]

@@ -114,11 +114,8 @@ def _named(ids: list[str]) -> str:
 
 
 class PoseSampler:
-    """Each robot's poses per second, measured over one status interval every :data:`POSE_SAMPLE_EVERY_S`.
-
-    Counting every pose cost more than the router's own work (0.1 cores at 100 robots), so one ``**/pose``
-    subscriber is declared for one interval, counted and undeclared.
-    """
+    """Each robot's poses per second over one status interval every POSE_SAMPLE_EVERY_S: counting every pose
+    cost more than the router's own work (0.1 cores at 100 robots)."""
 
     def __init__(self, session: zenoh.Session, prefixes: list[str], interval: float) -> None:
         self.session = session
@@ -130,7 +127,7 @@ class PoseSampler:
         self._next = time.monotonic()
 
     def tick(self, now: float) -> None:
-        """At each status line: end a window that is open (its rates), or open one when it is due."""
+        """At each status line: close an open window (its rates), or open one when due."""
         if self._subscriber is not None:
             counts = dict.fromkeys(self.prefixes, 0)
             while (sample := self._subscriber.try_recv()) is not None:
@@ -151,7 +148,7 @@ class FleetStatus:
     """Subscriptions for the fleet's one-line status; the callbacks only store, :meth:`render` does the arithmetic."""
 
     def __init__(self, session: zenoh.Session, robots: list[FleetRobot], interval: float = 2.0, poll_hz: float = 50.0) -> None:
-        """``interval``: the time between two :meth:`render` calls; ``poll_hz``: the rate the gateways were asked for."""
+        """``interval``: between two :meth:`render` calls (s); ``poll_hz``: the rate the gateways were asked for."""
         self.robots = robots
         self.poll_hz = poll_hz
         self.alive: set[str] = set()
@@ -198,7 +195,9 @@ class FleetStatus:
         polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
         count = len(self.robots)
         parts = [f"robots {len(self.alive)}/{count} up"]
-        linked = {r.prefix for r in self.robots if r.prefix in fresh and _links(fresh[r.prefix]) == "connected/connected"}
+        linked = {
+            r.prefix for r in self.robots if r.prefix in fresh and fresh[r.prefix].control.state == fresh[r.prefix].log.state == "connected"
+        }
         self._ever_linked |= linked
         # a robot not yet up since the start is connecting, no fault; one that was up and is not is missing or down
         connecting = [r.id for r in self.robots if r.prefix not in linked and r.prefix not in self._ever_linked]
@@ -229,10 +228,6 @@ class FleetStatus:
         if erring:
             parts.append(f"errors {sum(self.errors.values())}: {_named(erring)}")
         return " | ".join(parts)
-
-
-def _links(health: GatewayHealth) -> str:
-    return f"{health.control.state}/{health.log.state}"
 
 
 def fleet_drive_help(robots: list[FleetRobot], endpoint: str, cmd_timeout: float) -> str:

@@ -17,14 +17,9 @@ ROBOTS_PER_PROCESS = 150
 
 
 class Topology:
-    """Where up's session and its children meet.
+    """Where up's session and its children meet (docs/commands/up.md): a hub of up's own, or the router of ``-e``.
 
-    No flags or ``-l``: up listens (a hub) and the children are its clients.
-    ``-e ROUTER`` without ``-l``: no hub; up and every child are clients of
-    the router, which routes for clients (ROS 2's ``rmw_zenohd`` does not
-    route between peers, so a hub peer of it would never reach a ROS node).
-    ``-l`` and ``-e``: up's hub is a Zenoh router connected to those routers,
-    which route to it as to any router.
+    With ``-e`` only, every process is a client of the router: ``rmw_zenohd`` does not route between peers.
     """
 
     def __init__(self, args: argparse.Namespace) -> None:
@@ -67,7 +62,7 @@ def _hub_endpoint(listen: str) -> str:
 
 
 def check_fleet_options(args: argparse.Namespace) -> None:
-    """ConfigError, one sentence, for an option that makes no sense with ``--robots N``."""
+    """ConfigError for an option that makes no sense with ``--robots N``."""
     count = args.robots
     if count < 1:
         raise ConfigError(f"--robots needs at least 1 robot, got {count}")
@@ -81,8 +76,7 @@ def check_fleet_options(args: argparse.Namespace) -> None:
 
 
 def process_count(robots: int, asked: int | None, cores: int | None = None) -> int:
-    """How many gateway (and odometry) processes carry ``robots``: as asked, else one per ROBOTS_PER_PROCESS robots,
-    at most one per core."""
+    """Gateway (and odometry) processes for ``robots``: as asked, else one per ROBOTS_PER_PROCESS, one per core at most."""
     if asked is not None:
         return asked
     return max(1, min(cores or os.cpu_count() or 1, math.ceil(robots / ROBOTS_PER_PROCESS)))

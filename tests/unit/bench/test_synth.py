@@ -6,8 +6,9 @@ import json
 
 import numpy as np
 import pytest
+from helpers import exact_pose
 
-from blackmetal.bench.synth import exact_pose, square_legs, synth_log
+from blackmetal.bench.synth import square_legs, synth_log
 
 
 def test_a_square_ends_where_it_started() -> None:

@@ -14,9 +14,9 @@ import msgspec
 import numpy as np
 import pytest
 import zenoh
-from helpers import Child, client_config, free_port, start_robot, wait_for, zenoh_listen_args
+from helpers import Child, client_config, exact_pose, free_port, start_robot, wait_for, zenoh_listen_args
 
-from blackmetal.bench.synth import SynthLog, exact_pose, square_legs, synth_log
+from blackmetal.bench.synth import SynthLog, square_legs, synth_log
 from blackmetal.odometry_service.core import DROPPED_REPORT_PERIOD_S, OdometryCore, RecordingOdometryOutput
 from blackmetal.odometry_service.host import OdometryHost
 from blackmetal.odometry_service.integrator import Odometry

@@ -9,15 +9,16 @@ import math
 
 import numpy as np
 import pytest
+from helpers import exact_pose
 
 from blackmetal import robot_model as facts
-from blackmetal.bench.synth import Leg, exact_pose, original_algorithm, square_legs, synth_log
+from blackmetal.bench.synth import Leg, SynthLog, square_legs, synth_log
 from blackmetal.odometry_service.batch import run_batch
 from blackmetal.odometry_service.errors import SampleRejected
 from blackmetal.odometry_service.integrator import Odometry
 from blackmetal.odometry_service.params import OdometryParams
 from blackmetal.odometry_service.sample_order import EpochStart, EpochTally, SampleOrder, Verdict
-from blackmetal.robot_model import Encoders, arc_step
+from blackmetal.robot_model import NOMINAL_ENCODERS, Encoders, arc_step, wheels_to_twist
 from blackmetal.schemas import WheelImpulses
 
 IPM_L, IPM_R = facts.IMPULSES_PER_METER_LEFT, facts.IMPULSES_PER_METER_RIGHT
@@ -236,3 +237,34 @@ def test_stop_and_go_legs_are_exact() -> None:
     exact = exact_pose(legs)
     assert math.hypot(result.x[-1] - exact[0], result.y[-1] - exact[1]) < 2e-3
     assert abs(result.yaw[-1] - exact[2]) < 5e-3
+
+
+def original_algorithm(
+    log: SynthLog,
+    period: float,
+    alpha: float = 0.3,
+    encoders: Encoders = NOMINAL_ENCODERS,
+    separation: float = facts.WHEEL_SEPARATION,
+    max_wheel_speed: float = facts.MAX_WHEEL_SPEED,
+) -> tuple[float, float, float]:
+    """The original driver's odometry, for comparison: its filter rules, Euler steps of an assumed period."""
+    x = y = yaw = 0.0
+    outputs = [0.0, 0.0]
+    zeros = [2, 2]
+    for left, right in zip(log.left.tolist(), log.right.tolist(), strict=False):
+        speeds = encoders.to_speeds(float(left), float(right))
+        for i, value in enumerate(speeds):
+            if abs(value) > max_wheel_speed:
+                value = outputs[i]  # the original dropped impossible spikes
+            if value == 0.0:
+                zeros[i] += 1
+                if zeros[i] >= 2:
+                    outputs[i] = 0.0
+            else:
+                outputs[i] = value if zeros[i] >= 2 else alpha * outputs[i] + (1 - alpha) * value
+                zeros[i] = 0
+        v, w = wheels_to_twist(outputs[0], outputs[1], separation)
+        x += v * math.cos(yaw) * period
+        y += v * math.sin(yaw) * period
+        yaw += w * period
+    return x, y, yaw
