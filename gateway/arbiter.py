@@ -1,25 +1,8 @@
 """Which commander drives: named command sources with priorities, and locks, as twist_mux does it, sans I/O.
 
-A robot in use has several commanders at once (navigation, a joystick, a
-Foxglove panel, a fleet manager). Each publishes on its own key
-``<prefix>/cmd_vel/<name>`` (plain ``<prefix>/cmd_vel`` is the source
-``default``); the arbiter, a pure part of the gateway's core with its own
-deadline, says which one drives:
-
-* a source is **live** while its last command is younger than its timeout;
-* the **active** source is the live one of highest priority that no engaged
-  lock blocks; on a tie, the one already active keeps control until it times
-  out (no flapping between equals);
-* a **lock** ``<prefix>/lock/<name>`` engaged (``{"locked": true}``) blocks
-  every source of equal or lower priority (twist_mux masks only lower ones;
-  equal is blocked here so a lock always outranks the sources it names). A
-  lock with a timeout is also engaged while it has not been refreshed within
-  it, from the start: a supervisor's heartbeat, so the robot stops when the
-  supervisor dies and does not move before it is there;
-* commands of sources that do not drive are dropped quietly and counted.
-
-The gateway's governor still applies the limits, the command timeout and the
-e-stop, which stays above everything.
+The rules (live sources, ties, locks at equal or lower priority, heartbeat locks) are in docs/concepts.md
+"Several commanders". Commands of sources that do not drive are dropped quietly and counted; the governor
+still applies the limits, the command timeout and the e-stop, which stays above everything.
 """
 
 from __future__ import annotations
@@ -212,8 +195,6 @@ class Arbiter:
     def lock_names(self) -> list[str]:
         return list(self._locks)
 
-    # ------------------------------------------------------------------ inputs
-
     def offer(self, name: str, twist: Twist, now: float) -> Admission:
         """A valid command from source ``name`` at ``now``: whether it drives."""
         source = self._sources.get(name)
@@ -301,8 +282,6 @@ class Arbiter:
 
     def _timed(self) -> list[_Source | _Lock]:
         return [*self._sources.values(), *self._locks.values()]
-
-    # ------------------------------------------------------------------ state
 
     def lock_priority(self, now: float) -> int:
         """The highest priority an engaged lock blocks (-1: none engaged)."""

@@ -1,10 +1,7 @@
-"""Two gateways on one prefix, sans I/O: noticed from each other's health reports, held while they last.
+"""Two gateways on one prefix, sans I/O: noticed from each other's health reports (their run ids).
 
-Every gateway publishes its health with its run id (``source``) and listens
-on its own health key. A report from another run means two gateways would
-drive one robot: both brake and refuse ``cmd_vel`` until the other has been
-silent for CONFLICT_HOLD_S. A pure part of the robot connection with its own
-deadline (the hold's end, and the next reminder on ``<prefix>/errors``).
+Both brake and refuse ``cmd_vel`` until the other has been silent for CONFLICT_HOLD_S, reminding on
+``<prefix>/errors`` every REMIND_S meanwhile.
 """
 
 from __future__ import annotations

@@ -1,21 +1,9 @@
 """The e-stop latch kept where the deployment keeps state, so a crash, a restart or a reboot is not a release.
 
-The latch is one small JSON file per robot prefix (``<state_dir>/estop/<prefix>.json``)
-saying whether the stop is engaged, since when (Unix time) and by which key.
-The gateway reads it at start and saves every change:
-
-* an engage is saved right after the EMG_STOP bytes were written, before
-  health shows it (a disk write never comes before the robot's bytes);
-* a release takes effect only once it is saved: the file never says
-  released while the robot is held, so a restart can only come up engaged.
-
-A file that is missing, unreadable, corrupt or for another prefix, or a
-state folder that cannot be written, starts the gateway engaged with one
-sentence saying why and what to check. Writes are atomic (a new file,
-fsync, rename, fsync of the folder): a kill mid-write leaves the old state.
-
-:class:`FileLatchStore` is the real store; :class:`MemoryLatchStore` is the
-one tests select, as python-can's virtual bus (it can be told to fail).
+One JSON file per prefix (``<state_dir>/estop/<prefix>.json``). An engage is saved right after its EMG_STOP
+bytes were written; a release takes effect only once saved, so a restart can only come up engaged. A file that
+is missing, unreadable, corrupt or for another prefix, or a folder that cannot be written, starts the gateway
+engaged with one sentence why. Writes are atomic (new file, fsync, rename, fsync of the folder).
 """
 
 from __future__ import annotations

@@ -1,12 +1,4 @@
-"""The robot's two TCP links as the gateway's core sees them: state, silence timers and reconnect pacing, sans I/O.
-
-:class:`Links` is a pure part of the robot connection, like
-:class:`~blackmetal.gateway.safety.Governor` and :class:`~blackmetal.gateway.exchange.Exchange`:
-fed ``now`` on every event, it says which link must be dropped because the
-robot went silent (:meth:`Links.due`) and when that may next happen
-(:meth:`Links.next_deadline`). The host reconnects with
-:class:`ReconnectBackoff`.
-"""
+"""The robot's two TCP links as the core sees them: state, silence timers (a pure part) and the host's reconnect pacing."""
 
 from __future__ import annotations
 

@@ -1,14 +1,7 @@
 """When the gateway polls the wheel speeds, and how fast it really did, sans I/O.
 
-A pure part of the robot connection with its own deadline: the first poll
-goes out when the control link comes up, the next ones on a fixed grid of
-``1 / poll_hz`` counted from the clock's zero, so every robot polled at the
-same rate in a process (and on the host: the monotonic clock is the
-machine's) polls at the same instants. A fleet gateway then wakes once per
-period for all its robots, and the simulator or the robots' links get their
-requests in one burst, instead of a wake-up per robot. A loaded machine that
-falls behind takes the next grid instant, without a burst. The rate reported
-in health is measured from the readings that came back.
+Polls follow a grid of ``1 / poll_hz`` from the clock's zero, so every robot of a process polls at the same
+instants and a fleet wakes once per period; behind, the next grid instant is taken, without a burst.
 """
 
 from __future__ import annotations

@@ -1,9 +1,4 @@
-"""PREPARE_WHEEL_CONTROLLER after every connect, re-sent when the robot does not take it, sans I/O.
-
-A pure part of the robot connection with its own deadline: a PREPARE the
-robot dropped (FULL_BUFFER, or no reply) is sent again after the same
-growing pause as any command (:func:`blackmetal.gateway.safety.retry_delay`).
-"""
+"""PREPARE_WHEEL_CONTROLLER after every connect, re-sent as any command the robot did not take (a pure part)."""
 
 from __future__ import annotations
 
