@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import urllib.parse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -52,8 +52,10 @@ _decoder = msgspec.json.Decoder(_LatchFile)
 class LatchStore(Protocol):
     """Where one robot's latch is kept."""
 
-    #: Where, in words (a path), for the sentences that name it.
-    where: str
+    @property
+    def where(self) -> str:
+        """Where, in words (a path), for the sentences that name it."""
+        ...
 
     def load(self) -> Latch | Untrusted:
         """The saved latch, or why there is none to trust (missing, unreadable, corrupt)."""
@@ -78,13 +80,16 @@ def latch_path(state_dir: str, prefix: str) -> Path:
     return Path(os.path.expanduser(state_dir)) / "estop" / f"{urllib.parse.quote(prefix, safe='')}.json"
 
 
+@dataclass
 class FileLatchStore:
     """The latch of ``prefix`` in a JSON file, written atomically and synced."""
 
-    def __init__(self, path: Path, prefix: str) -> None:
-        self.path = path
-        self.prefix = prefix
-        self.where = str(path)
+    path: Path
+    prefix: str
+
+    @property
+    def where(self) -> str:
+        return str(self.path)
 
     def load(self) -> Latch | Untrusted:
         try:
@@ -128,14 +133,14 @@ class FileLatchStore:
         return None
 
 
+@dataclass
 class MemoryLatchStore:
     """A latch kept in memory, for tests: ``latch`` as saved; ``failing``: why saving fails (None: it works)."""
 
-    def __init__(self, latch: Latch | Untrusted | None = None, failing: str | None = None) -> None:
-        self.latch: Latch | Untrusted = Latch(False, 0.0, AT_START) if latch is None else latch
-        self.failing = failing
-        self.saves: list[Latch] = []
-        self.where = "memory"
+    latch: Latch | Untrusted = Latch(False, 0.0, AT_START)
+    failing: str | None = None
+    saves: list[Latch] = field(default_factory=list)
+    where: str = "memory"
 
     def load(self) -> Latch | Untrusted:
         return self.latch
@@ -151,11 +156,7 @@ class MemoryLatchStore:
 def start_latch(store: LatchStore, wallclock: float, missing_released: bool = False) -> tuple[Latch, str | None]:
     """The latch a gateway starts with, and the sentence to say if it starts engaged for want of a trusted state.
 
-    A saved state is taken as it is. With none to trust the gateway starts
-    engaged, unless ``missing_released`` and the file is merely absent (a
-    robot known to be new, such as ``blackmetal up``'s own simulator). A
-    state folder that cannot be written starts it engaged too: a release
-    could not be kept.
+    ``missing_released``: a merely absent file starts released (a robot known to be new, as ``blackmetal up``'s).
     """
     loaded = store.load()
     if isinstance(loaded, Latch):

@@ -13,6 +13,7 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 from blackmetal import robot_model as model
 from blackmetal.schemas import Param, ParamValue
@@ -167,7 +168,8 @@ def _limit_of(governor: Governor, name: str) -> float:
 
 
 def _set_limit(governor: Governor, name: str, zero_is_off: bool, value: float) -> None:
-    governor.settings = replace(governor.settings, **{name: (value or None) if zero_is_off else value})
+    limit: Any = (value or None) if zero_is_off else value
+    governor.settings = replace(governor.settings, **{name: limit})
 
 
 def _refuse_cmd_timeout(value: float) -> str | None:

@@ -3,16 +3,17 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from .safety import retry_delay
 
 
+@dataclass
 class PrepareRetry:
     """When PREPARE_WHEEL_CONTROLLER is to be sent again."""
 
-    def __init__(self) -> None:
-        self.attempts = 0
-        self._at: float | None = None
+    attempts: int = 0
+    _at: float | None = None
 
     def reset(self) -> None:
         """A new connection: a fresh PREPARE goes out, with no retries behind it."""

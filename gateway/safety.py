@@ -39,7 +39,6 @@ from .safety_states import (
 )
 
 
-
 class _Planned(NamedTuple):
     """The decision made for one state object at one look (:meth:`Governor.plan`): a command costs one, not three."""
 
