@@ -47,12 +47,6 @@ DEFAULT_SOURCES: tuple[SourceSpec, ...] = (
 )
 
 
-def check_name(kind: str, name: str) -> str:
-    if not name or _NAME_FORBIDDEN & set(name) or name.startswith("@"):
-        raise ConfigError(f"{kind} name {name!r} must be one key chunk: no '/', spaces, wildcards or leading '@'")
-    return name
-
-
 def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) -> None:
     """ConfigError naming the first source or lock that cannot work."""
     if not sources:
@@ -60,7 +54,8 @@ def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) ->
     for kind, specs in (("source", sources), ("lock", locks)):
         names = [spec.name for spec in specs]
         for spec in specs:
-            check_name(kind, spec.name)
+            if not spec.name or _NAME_FORBIDDEN & set(spec.name) or spec.name.startswith("@"):
+                raise ConfigError(f"{kind} name {spec.name!r} must be one key chunk: no '/', spaces, wildcards or leading '@'")
             if names.count(spec.name) > 1:
                 raise ConfigError(f"{kind} {spec.name!r} is configured twice")
             if isinstance(spec.priority, bool) or not isinstance(spec.priority, int) or not 0 <= spec.priority <= 255:
@@ -151,9 +146,7 @@ class Why(Enum):
 class NewDriver:
     """The active source changed: who drives now (None: nobody), who drove before, why, and the command to take over with.
 
-    ``blocked``: nobody drives because a lock blocks every live source, so the
-    robot must brake now; when the sources merely fell silent, the gateway's
-    command timeout brakes as it always did.
+    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's).
     """
 
     source: str | None
@@ -166,8 +159,6 @@ class NewDriver:
 
 @dataclass(slots=True)
 class Arbiter:
-    """See the module docstring."""
-
     sources: tuple[SourceSpec, ...] = DEFAULT_SOURCES
     locks: tuple[LockSpec, ...] = ()
     _sources: dict[str, _Source] = field(init=False)
@@ -229,12 +220,9 @@ class Arbiter:
         if not self._reweigh and now < self.next_deadline():
             return None  # no source fell silent, no lock changed, no input since the last weighing: the same winner
         self._earliest, self._reweigh = None, False
-        for source in self._sources.values():
-            if now >= source.due:
-                source.due = math.inf  # seen: its deadline is spent
-        for lock in self._locks.values():
-            if now >= lock.due:
-                lock.due = math.inf
+        for item in self._timed():
+            if now >= item.due:
+                item.due = math.inf  # seen: its deadline is spent
         winner = self._winner(now)
         previous = self.active
         if winner == previous:
@@ -288,10 +276,8 @@ class Arbiter:
         return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
 
     def _winner(self, now: float) -> str | None:
-        """The live source of the highest priority above every engaged lock; among equals the driver, else the latest.
-
-        One pass and no lists: it runs twice for every command.
-        """
+        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest;
+        one pass and no lists: it runs twice for every command."""
         blocked_up_to = self.lock_priority(now) if self._locks else -1
         best: _Source | None = None
         active_tied = False

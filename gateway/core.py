@@ -306,13 +306,8 @@ class GatewayCore(ClientInputs):
         return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        """A poll is due: sent now; or, while the one before it is unanswered, as soon as its reading comes.
-
-        One poll is in flight at most, so polls never queue up at the robot. A reading that comes a little after the
-        next grid instant (a round trip near the period, or a loop that was busy and read it late: its timers run
-        before its sockets are read) delays that poll instead of losing it. A poll is skipped, and counted, when one
-        already waits a whole period, or when the robot is behind (a reply in doubt): then nothing waits.
-        """
+        """A poll is due: sent now, or as soon as the reading of the one in flight comes (one at most: polls never queue
+        at the robot); skipped and counted when one already waits a whole period, or a reply is in doubt."""
         if self._congested():
             self.counters.polls_skipped += 1
             self._poll_waiting = False

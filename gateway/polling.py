@@ -14,7 +14,7 @@ RATE_WINDOW_S = 2.0
 
 
 class PollSchedule:
-    """The poll grid and the measured rate; see the module docstring."""
+    """The poll grid and the measured rate."""
 
     def __init__(self, poll_hz: float) -> None:
         self.period = 1.0 / poll_hz
@@ -36,13 +36,11 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
-        # after the link-up's own poll, the grid's first instant half a period away at least (one a hair later would
-        # only wait for that poll's reading)
+        # after the link-up's own poll, half a period at least (one a hair later would only wait for that reading)
         after = now + 0.5 * period if self._starting else now
         self._starting = False
-        # the grid's next instant; behind, no burst to catch up. A time on the grid, as computed, may divide to a hair
-        # under its index (4.1 / 0.02 = 204.99999999999997): within a millionth of a period counts as on it, or the
-        # same instant would come due again an ulp later
+        # within a millionth of a period counts as on the grid (4.1 / 0.02 = 204.99999999999997), or the same
+        # instant would come due again an ulp later
         following = (math.floor(after / period + 1e-6) + 1.0) * period
         self._next = following if following > now else following + period
         return True
@@ -55,11 +53,7 @@ class PollSchedule:
         self._readings.append(now)
 
     def rate(self, now: float) -> float:
-        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two).
-
-        Readings older than the window are forgotten here (``now`` only moves on), so a health report
-        looks at a window's worth of readings, not at the 4096 last ones.
-        """
+        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two); older ones are forgotten here."""
         readings = self._readings
         while readings and now - readings[0] > RATE_WINDOW_S:
             readings.popleft()
