@@ -1,25 +1,8 @@
 """Which commander drives: named command sources with priorities, and locks, as twist_mux does it, sans I/O.
 
-A robot in use has several commanders at once (navigation, a joystick, a
-Foxglove panel, a fleet manager). Each publishes on its own key
-``<prefix>/cmd_vel/<name>`` (plain ``<prefix>/cmd_vel`` is the source
-``default``); the arbiter, a pure part of the gateway's core with its own
-deadline, says which one drives:
-
-* a source is **live** while its last command is younger than its timeout;
-* the **active** source is the live one of highest priority that no engaged
-  lock blocks; on a tie, the one already active keeps control until it times
-  out (no flapping between equals);
-* a **lock** ``<prefix>/lock/<name>`` engaged (``{"locked": true}``) blocks
-  every source of equal or lower priority (twist_mux masks only lower ones;
-  equal is blocked here so a lock always outranks the sources it names). A
-  lock with a timeout is also engaged while it has not been refreshed within
-  it, from the start: a supervisor's heartbeat, so the robot stops when the
-  supervisor dies and does not move before it is there;
-* commands of sources that do not drive are dropped quietly and counted.
-
-The gateway's governor still applies the limits, the command timeout and the
-e-stop, which stays above everything.
+The rules (live sources, ties, locks at equal or lower priority, heartbeat locks) are in docs/concepts.md
+"Several commanders". Commands of sources that do not drive are dropped quietly and counted; the governor
+still applies the limits, the command timeout and the e-stop, which stays above everything.
 """
 
 from __future__ import annotations
@@ -64,12 +47,6 @@ DEFAULT_SOURCES: tuple[SourceSpec, ...] = (
 )
 
 
-def check_name(kind: str, name: str) -> str:
-    if not name or _NAME_FORBIDDEN & set(name) or name.startswith("@"):
-        raise ConfigError(f"{kind} name {name!r} must be one key chunk: no '/', spaces, wildcards or leading '@'")
-    return name
-
-
 def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) -> None:
     """ConfigError naming the first source or lock that cannot work."""
     if not sources:
@@ -77,7 +54,8 @@ def check_specs(sources: tuple[SourceSpec, ...], locks: tuple[LockSpec, ...]) ->
     for kind, specs in (("source", sources), ("lock", locks)):
         names = [spec.name for spec in specs]
         for spec in specs:
-            check_name(kind, spec.name)
+            if not spec.name or _NAME_FORBIDDEN & set(spec.name) or spec.name.startswith("@"):
+                raise ConfigError(f"{kind} name {spec.name!r} must be one key chunk: no '/', spaces, wildcards or leading '@'")
             if names.count(spec.name) > 1:
                 raise ConfigError(f"{kind} {spec.name!r} is configured twice")
             if isinstance(spec.priority, bool) or not isinstance(spec.priority, int) or not 0 <= spec.priority <= 255:
@@ -168,9 +146,7 @@ class Why(Enum):
 class NewDriver:
     """The active source changed: who drives now (None: nobody), who drove before, why, and the command to take over with.
 
-    ``blocked``: nobody drives because a lock blocks every live source, so the
-    robot must brake now; when the sources merely fell silent, the gateway's
-    command timeout brakes as it always did.
+    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's).
     """
 
     source: str | None
@@ -183,8 +159,6 @@ class NewDriver:
 
 @dataclass(slots=True)
 class Arbiter:
-    """See the module docstring."""
-
     sources: tuple[SourceSpec, ...] = DEFAULT_SOURCES
     locks: tuple[LockSpec, ...] = ()
     _sources: dict[str, _Source] = field(init=False)
@@ -211,8 +185,6 @@ class Arbiter:
     @property
     def lock_names(self) -> list[str]:
         return list(self._locks)
-
-    # ------------------------------------------------------------------ inputs
 
     def offer(self, name: str, twist: Twist, now: float) -> Admission:
         """A valid command from source ``name`` at ``now``: whether it drives."""
@@ -248,12 +220,9 @@ class Arbiter:
         if not self._reweigh and now < self.next_deadline():
             return None  # no source fell silent, no lock changed, no input since the last weighing: the same winner
         self._earliest, self._reweigh = None, False
-        for source in self._sources.values():
-            if now >= source.due:
-                source.due = math.inf  # seen: its deadline is spent
-        for lock in self._locks.values():
-            if now >= lock.due:
-                lock.due = math.inf
+        for item in self._timed():
+            if now >= item.due:
+                item.due = math.inf  # seen: its deadline is spent
         winner = self._winner(now)
         previous = self.active
         if winner == previous:
@@ -302,17 +271,13 @@ class Arbiter:
     def _timed(self) -> list[_Source | _Lock]:
         return [*self._sources.values(), *self._locks.values()]
 
-    # ------------------------------------------------------------------ state
-
     def lock_priority(self, now: float) -> int:
         """The highest priority an engaged lock blocks (-1: none engaged)."""
         return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
 
     def _winner(self, now: float) -> str | None:
-        """The live source of the highest priority above every engaged lock; among equals the driver, else the latest.
-
-        One pass and no lists: it runs twice for every command.
-        """
+        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest;
+        one pass and no lists: it runs twice for every command."""
         blocked_up_to = self.lock_priority(now) if self._locks else -1
         best: _Source | None = None
         active_tied = False

@@ -1,14 +1,8 @@
-"""What the gateway's clients ask of it, sans I/O: commands by source, locks, the e-stop, parameters.
+"""What the gateway's clients ask of it through Zenoh, sans I/O: commands by source, locks, the e-stop, parameters.
 
-These are the inputs that come through Zenoh (each taken by
-:class:`~blackmetal.runtime.driver.Driver` with ``now``, as the gateway's
-input table in :mod:`blackmetal.gateway.zenoh_edge` declares): a command is
-checked, weighed by the :class:`~blackmetal.gateway.arbiter.Arbiter` and
-handed to the safety :class:`~blackmetal.gateway.safety.Governor`; an e-stop
-changes the governor and the latch kept on disk; a parameter set changes
-limits and priorities. What goes to the robot because of them, and
-everything the robot says, is the core's (:mod:`blackmetal.gateway.core`),
-whose :class:`~blackmetal.gateway.core.GatewayCore` takes this class in.
+A command is checked, weighed by the :class:`~blackmetal.gateway.arbiter.Arbiter` and handed to the
+:class:`~blackmetal.gateway.safety.Governor`; what goes to the robot because of it is the core's
+(:class:`~blackmetal.gateway.core.GatewayCore` takes this class in).
 """
 
 from __future__ import annotations
@@ -51,7 +45,7 @@ Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange
 
 
 class ClientInputs:
-    """The client side of :class:`~blackmetal.gateway.core.GatewayCore` (see the module docstring)."""
+    """The client side of :class:`~blackmetal.gateway.core.GatewayCore`."""
 
     settings: GatewaySettings
     keys: Keys
@@ -138,11 +132,9 @@ class ClientInputs:
             self.governor.brake(now)  # a lock stops the robot now; silence is the command timeout's to brake
 
     def _drive(self, source: str, twist: Twist, heard_at: float, now: float, handed_over: bool = False) -> None:
-        """The driving source's command (heard at ``heard_at``) goes to the governor, or its refusal is reported like any refused cmd_vel.
+        """The driving source's command goes to the governor, or its refusal is reported like any refused cmd_vel.
 
-        A command that just passed :meth:`on_cmd_vel`'s checks is taken; one handed over from a source's past (its
-        last command, when the source before it fell silent or a lock changed) meets an e-stop, a dead link or a
-        second gateway that came since, and is refused like a new one.
+        One handed over from a source's past meets an e-stop, a dead link or a second gateway that came since.
         """
         refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at, now)
         if refusal is not None:
@@ -167,13 +159,11 @@ class ClientInputs:
         self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
 
     def on_estop(self, estop: EStopInput, now: float) -> None:
-        """A payload put on ``<prefix>/estop`` (or ``estop/release``), read once (:func:`~blackmetal.gateway.estop.read_estop`):
-        anything but a valid release engages.
+        """A payload put on ``<prefix>/estop`` (or ``estop/release``): anything but a valid release engages.
 
-        A release counts only on the release key unless ``unsafe_release_on_estop``: on ``estop`` it is refused (and the
-        stop stays as it is: a refused release must not engage a robot that someone released properly meanwhile). An
-        engage is in force at once and saved after its EMG_STOP is written; a release waits for its save
-        (:meth:`take_latch`, :meth:`latch_saved`).
+        A release on ``estop`` is refused unless ``unsafe_release_on_estop``, and the stop stays as it is (a refused
+        release must not engage a robot someone released properly meanwhile). An engage is in force at once and
+        saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`).
         """
         engaged, release_key = estop.engaged, estop.release_key
         key = self.keys.estop_release if release_key else self.keys.estop
@@ -237,12 +227,9 @@ class ClientInputs:
             self._send_due(now)
 
     def on_params_set(self, payload: bytes, now: float) -> ParamsSetReply | str:
-        """A :class:`ParamsSet` on ``<prefix>/gateway/params/set``: each value set on its own or refused with the reason.
+        """A :class:`ParamsSet`: each value set at once or refused and reported; the new table is published.
 
-        What was set takes effect at once (the arbiter weighs new priorities,
-        the next command obeys new limits) and the new table is published;
-        each refusal is reported. A payload that is not a ParamsSet is
-        reported, and why is returned for the edge to answer with.
+        A payload that is not a ParamsSet is reported, and why is returned for the edge to answer with.
         """
         key = self.keys.params_set
         try:

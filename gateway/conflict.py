@@ -1,15 +1,13 @@
-"""Two gateways on one prefix, sans I/O: noticed from each other's health reports, held while they last.
+"""Two gateways on one prefix, sans I/O: noticed from each other's health reports (their run ids).
 
-Every gateway publishes its health with its run id (``source``) and listens
-on its own health key. A report from another run means two gateways would
-drive one robot: both brake and refuse ``cmd_vel`` until the other has been
-silent for CONFLICT_HOLD_S. A pure part of the robot connection with its own
-deadline (the hold's end, and the next reminder on ``<prefix>/errors``).
+Both brake and refuse ``cmd_vel`` until the other has been silent for CONFLICT_HOLD_S, reminding on
+``<prefix>/errors`` every REMIND_S meanwhile.
 """
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from enum import Enum, auto
 
 #: A conflict holds this long after the other gateway's last health report (s).
@@ -29,16 +27,16 @@ class ConflictNews(Enum):
 UNNAMED_RUN = "<no run id>"
 
 
+@dataclass
 class GatewayConflict:
     """Another gateway seen on this prefix: who, until when, and when to say so again."""
 
-    def __init__(self, own_source: str, prefix: str) -> None:
-        self.own_source = own_source
-        self.prefix = prefix
-        #: The other gateway's run id while a conflict holds or is yet to be declared over.
-        self.other: str | None = None
-        self._until = -math.inf
-        self._reminded = -math.inf
+    own_source: str
+    prefix: str
+    #: The other gateway's run id while a conflict holds or is yet to be declared over.
+    other: str | None = None
+    _until: float = -math.inf
+    _reminded: float = -math.inf
 
     def seen(self, source: str | None, now: float) -> bool:
         """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once).

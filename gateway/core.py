@@ -1,18 +1,8 @@
 """The gateway's core, sans I/O (as h11 is for HTTP): bytes, commands and ``now`` in; bytes, messages and a deadline out.
 
-Everything the gateway decides lives here, with no sockets, no Zenoh and no
-clock of its own. It composes small pure parts, each with its own timer:
-the safety :class:`~blackmetal.gateway.safety.Governor`, the request/reply
-:class:`~blackmetal.gateway.exchange.Exchange`, the :class:`~blackmetal.gateway.polling.PollSchedule`,
-the :class:`~blackmetal.gateway.links.Links` and their silence rules, the
-:class:`~blackmetal.gateway.prepare.PrepareRetry`, the :class:`~blackmetal.gateway.conflict.GatewayConflict`
-with a second gateway, the :class:`~blackmetal.gateway.log_port.LogPort`, and the
-rate-limited :class:`~blackmetal.runtime.reports.ErrorReporter`.
-
-The host (:mod:`blackmetal.gateway.host`) feeds it :meth:`link_up`, :meth:`link_down`,
-:meth:`receive`, :meth:`on_cmd_vel`, :meth:`on_estop`, :meth:`on_health_seen`
-and :meth:`tick`, each with ``now``; writes :meth:`take_outgoing` to each
-link, publishes :meth:`take_events`, and sleeps until :meth:`next_deadline`.
+It composes the gateway's pure parts, each with its own deadline (docs/contributing.md "One shape for every
+service"); the host feeds it each input with ``now``, writes :meth:`take_outgoing`, publishes
+:meth:`take_events` and sleeps until :meth:`next_deadline`.
 """
 
 from __future__ import annotations
@@ -74,11 +64,9 @@ def _wheels(request: wire.Request) -> WheelSpeeds:
 
 
 class GatewayCore(ClientInputs):
-    """See the module docstring. ``robot`` names the robot's control and log ends in reports.
+    """The robot's side (links, requests and replies, polls) and the health; clients' inputs are in :class:`ClientInputs`.
 
-    What clients ask (commands, locks, the e-stop, parameters) is handled by
-    :class:`~blackmetal.gateway.commands.ClientInputs`; this class is the
-    robot's side (links, requests and replies, polls) and the health.
+    ``robot`` names the robot's control and log ends in reports.
     """
 
     def __init__(
@@ -97,10 +85,8 @@ class GatewayCore(ClientInputs):
         #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
         self.run_token = run_token or secrets.token_hex(6)
         self.governor = Governor(settings.safety())
-        #: The e-stop's state as kept on disk (see :mod:`blackmetal.gateway.latch`); the governor starts from it.
         self.latch = latch or Latch(False, wallclock(), AT_START)
         self.governor.on_estop(self.latch.engaged, now)
-        #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
         self._latch_to_save: Latch | None = None
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
@@ -110,10 +96,8 @@ class GatewayCore(ClientInputs):
         self.prepare = PrepareRetry()
         self.conflict = GatewayConflict(self.run_token, self.keys.prefix)
         self.arbiter = settings.arbiter()
-        #: What an operator may change while the gateway runs (limits, the command timeout, priorities).
         self.params = ParamTable(settings, self.governor, self.arbiter)
         self._events: list[Event] = []
-        #: An e-stop's health report, built only once the EMG_STOP bytes are taken (see on_estop).
         self._health_due: float | None = None
         self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
         self.last_rtt: float | None = None
@@ -126,8 +110,6 @@ class GatewayCore(ClientInputs):
         self._next_health = now
         #: The last motion command written (not a poll), and when (Unix time): health says what the robot was sent.
         self._last_sent: tuple[wire.Request, float] | None = None
-
-    # ------------------------------------------------------------------ outputs
 
     def take_outgoing(self, link: LinkName) -> bytes:
         """Bytes to write to ``link`` now (each request complete, in order)."""
@@ -163,8 +145,6 @@ class GatewayCore(ClientInputs):
         if self.links.control.connected:
             deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
         return deadline
-
-    # ------------------------------------------------------------------ link events
 
     def link_connecting(self, link: LinkName) -> None:
         self.links.connecting(link)
@@ -211,8 +191,6 @@ class GatewayCore(ClientInputs):
         else:
             self._receive_log(data, now)
 
-    # ------------------------------------------------------------------ time
-
     def tick(self, now: float) -> None:
         """Run every part's timer that is due at ``now``."""
         for lost in self.exchange.expire(now):
@@ -244,14 +222,8 @@ class GatewayCore(ClientInputs):
         """No request is waiting for its reply."""
         return not self.exchange.outstanding
 
-    # ------------------------------------------------------------------ health and reports
-
     def health(self, now: float) -> GatewayHealth:
-        """The state at ``now``, as one health message (every ``health_period`` s, at once after an e-stop, and to a ``get``).
-
-        Wheel speeds are (left, right) like every wheel pair.
-        """
-        c = self.counters
+        """The state at ``now``, as one health message (every ``health_period`` s, at once after an e-stop, and to a ``get``)."""
         governor = self.governor
         accepted = governor.accepted
         rtt = self.last_rtt
@@ -260,17 +232,8 @@ class GatewayCore(ClientInputs):
             stamp=self.wallclock(),
             control=self.links.control.health(),
             log=self.links.log.health(),
-            commands_sent=c.commands_sent,
-            polls=c.polls,
-            replies=c.replies,
-            full_buffer=c.full_buffer,
-            full_buffer_retries=c.full_buffer_retries,
-            malformed_replies=c.malformed_replies,
+            **vars(self.counters),
             garbage_bytes=self.garbage_bytes,
-            rejected_inputs=c.rejected_inputs,
-            keepalives=c.keepalives,
-            lost_replies=c.lost_replies,
-            polls_skipped=c.polls_skipped,
             estop=governor.estop,
             estop_since=self.latch.since,
             estop_by=self.latch.by,
@@ -304,8 +267,6 @@ class GatewayCore(ClientInputs):
             self.reporter.report(self.keys.health, self.conflict.reason(), by="gateway", now=now)
         elif news is ConflictNews.RESOLVED:
             self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
-
-    # ------------------------------------------------------------------ sending
 
     def _send(self, request: wire.Request, now: float) -> bool:
         if not self.links.control.connected:
@@ -345,13 +306,8 @@ class GatewayCore(ClientInputs):
         return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        """A poll is due: sent now; or, while the one before it is unanswered, as soon as its reading comes.
-
-        One poll is in flight at most, so polls never queue up at the robot. A reading that comes a little after the
-        next grid instant (a round trip near the period, or a loop that was busy and read it late: its timers run
-        before its sockets are read) delays that poll instead of losing it. A poll is skipped, and counted, when one
-        already waits a whole period, or when the robot is behind (a reply in doubt): then nothing waits.
-        """
+        """A poll is due: sent now, or as soon as the reading of the one in flight comes (one at most: polls never queue
+        at the robot); skipped and counted when one already waits a whole period, or a reply is in doubt."""
         if self._congested():
             self.counters.polls_skipped += 1
             self._poll_waiting = False
@@ -364,8 +320,6 @@ class GatewayCore(ClientInputs):
         self._poll_waiting = False
         if self._send(_POLL, now):
             self.counters.polls += 1
-
-    # ------------------------------------------------------------------ receiving
 
     def _receive_control(self, data: bytes, now: float) -> None:
         for item in self._replies.feed(data):

@@ -1,12 +1,8 @@
-"""What a payload on ``<prefix>/estop`` means, failing safe: only a valid release releases.
+"""What a payload on ``<prefix>/estop`` means, failing safe: only ``{"engaged": false}`` releases.
 
-``{"engaged": false}`` (whitespace around it allowed) is the one release.
-Any payload whose meaning is "true" engages without complaint, whatever its
-shape: ``{"engaged": true, "reason": ".."}``, ``{"engaged": 1}``,
-``{"engaged": "true"}``, ``true``, ``{"data": true}`` (a ROS bridge's
-``std_msgs/Bool``), ``{"Engaged": true}``, a trailing NUL from a C client.
-Everything else engages too, and is reported, because a person who meant
-to stop the robot must never be ignored on a technicality.
+Anything that plainly means "true" (``{"data": true}``, ``"engage"``, a trailing NUL) engages quietly;
+everything else engages too, and is reported: a person who meant to stop the robot is never ignored on a
+technicality.
 """
 
 from __future__ import annotations

@@ -1,17 +1,10 @@
 """Pairing the robot's replies with our requests, sans I/O.
 
-The robot answers requests in order: a status reply for each, then a data
-reply for the GET commands (unless the status is FULL_BUFFER). Requests
-may be pipelined, so a velocity command never waits for a poll's reply.
-Replies are matched by kind, so a garbled or lost reply costs one request,
-not the alignment of all that follow.
-
-A request unanswered for ``reply_timeout`` is reported lost, but it keeps
-its place for ``late_horizon``: a slow robot's late reply is taken by the
-request it answers (with the true round trip). While such a request is in
-doubt (its reply may be late, or lost), the core sends nothing new but
-stops: the queue drains, by late replies or at the horizon, and pairing is
-exact again; a reply is never attributed to a request sent after it.
+The robot answers in order: a status for each request, then data for the GET commands (unless FULL_BUFFER).
+Replies are matched by kind, so a garbled or lost reply costs one request, not the alignment of all that follow.
+A request unanswered for ``reply_timeout`` is reported lost but keeps its place for ``late_horizon`` to take a
+late reply; while one is in doubt the core sends nothing but stops, so a reply is never attributed to a
+request sent after it.
 """
 
 from __future__ import annotations

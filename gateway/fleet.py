@@ -1,12 +1,6 @@
-"""``blackmetal gateway --fleet FILE``: one process, one Zenoh session, one supervised robot connection per fleet entry.
+"""``blackmetal gateway --fleet FILE``: one process and Zenoh session, one supervised robot per entry (docs/fleets.md).
 
-Each robot keeps everything a single gateway has: its own sans-I/O core
-(safety, command sources, e-stop), its own robot links, its own Zenoh edge,
-liveliness token, health and errors under its prefix. What they share is the
-process, the asyncio loop and the Zenoh session. A robot's failure stays its
-own: a link that drops reconnects alone, a flood is bounded by its own
-channels, and a bug in its handling fails only its host, which is stopped
-(the robot left standing), reported on its errors key and started again.
+A robot's failure stays its own: its host is stopped (the robot left standing), reported and started again.
 """
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The gateway's counters, reported in its health (:meth:`blackmetal.gateway.core.GatewayCore.health`)."""
+"""The gateway's counters, reported in its health."""
 
 from __future__ import annotations
 

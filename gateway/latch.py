@@ -1,28 +1,16 @@
 """The e-stop latch kept where the deployment keeps state, so a crash, a restart or a reboot is not a release.
 
-The latch is one small JSON file per robot prefix (``<state_dir>/estop/<prefix>.json``)
-saying whether the stop is engaged, since when (Unix time) and by which key.
-The gateway reads it at start and saves every change:
-
-* an engage is saved right after the EMG_STOP bytes were written, before
-  health shows it (a disk write never comes before the robot's bytes);
-* a release takes effect only once it is saved: the file never says
-  released while the robot is held, so a restart can only come up engaged.
-
-A file that is missing, unreadable, corrupt or for another prefix, or a
-state folder that cannot be written, starts the gateway engaged with one
-sentence saying why and what to check. Writes are atomic (a new file,
-fsync, rename, fsync of the folder): a kill mid-write leaves the old state.
-
-:class:`FileLatchStore` is the real store; :class:`MemoryLatchStore` is the
-one tests select, as python-can's virtual bus (it can be told to fail).
+One JSON file per prefix (``<state_dir>/estop/<prefix>.json``). An engage is saved right after its EMG_STOP
+bytes were written; a release takes effect only once saved, so a restart can only come up engaged. A file that
+is missing, unreadable, corrupt or for another prefix, or a folder that cannot be written, starts the gateway
+engaged with one sentence why. Writes are atomic (new file, fsync, rename, fsync of the folder).
 """
 
 from __future__ import annotations
 
 import os
 import urllib.parse
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Protocol
 
@@ -64,8 +52,10 @@ _decoder = msgspec.json.Decoder(_LatchFile)
 class LatchStore(Protocol):
     """Where one robot's latch is kept."""
 
-    #: Where, in words (a path), for the sentences that name it.
-    where: str
+    @property
+    def where(self) -> str:
+        """Where, in words (a path), for the sentences that name it."""
+        ...
 
     def load(self) -> Latch | Untrusted:
         """The saved latch, or why there is none to trust (missing, unreadable, corrupt)."""
@@ -90,13 +80,16 @@ def latch_path(state_dir: str, prefix: str) -> Path:
     return Path(os.path.expanduser(state_dir)) / "estop" / f"{urllib.parse.quote(prefix, safe='')}.json"
 
 
+@dataclass
 class FileLatchStore:
     """The latch of ``prefix`` in a JSON file, written atomically and synced."""
 
-    def __init__(self, path: Path, prefix: str) -> None:
-        self.path = path
-        self.prefix = prefix
-        self.where = str(path)
+    path: Path
+    prefix: str
+
+    @property
+    def where(self) -> str:
+        return str(self.path)
 
     def load(self) -> Latch | Untrusted:
         try:
@@ -140,14 +133,14 @@ class FileLatchStore:
         return None
 
 
+@dataclass
 class MemoryLatchStore:
     """A latch kept in memory, for tests: ``latch`` as saved; ``failing``: why saving fails (None: it works)."""
 
-    def __init__(self, latch: Latch | Untrusted | None = None, failing: str | None = None) -> None:
-        self.latch: Latch | Untrusted = Latch(False, 0.0, AT_START) if latch is None else latch
-        self.failing = failing
-        self.saves: list[Latch] = []
-        self.where = "memory"
+    latch: Latch | Untrusted = Latch(False, 0.0, AT_START)
+    failing: str | None = None
+    saves: list[Latch] = field(default_factory=list)
+    where: str = "memory"
 
     def load(self) -> Latch | Untrusted:
         return self.latch
@@ -163,11 +156,7 @@ class MemoryLatchStore:
 def start_latch(store: LatchStore, wallclock: float, missing_released: bool = False) -> tuple[Latch, str | None]:
     """The latch a gateway starts with, and the sentence to say if it starts engaged for want of a trusted state.
 
-    A saved state is taken as it is. With none to trust the gateway starts
-    engaged, unless ``missing_released`` and the file is merely absent (a
-    robot known to be new, such as ``blackmetal up``'s own simulator). A
-    state folder that cannot be written starts it engaged too: a release
-    could not be kept.
+    ``missing_released``: a merely absent file starts released (a robot known to be new, as ``blackmetal up``'s).
     """
     loaded = store.load()
     if isinstance(loaded, Latch):

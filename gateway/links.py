@@ -1,17 +1,9 @@
-"""The robot's two TCP links as the gateway's core sees them: state, silence timers and reconnect pacing, sans I/O.
-
-:class:`Links` is a pure part of the robot connection, like
-:class:`~blackmetal.gateway.safety.Governor` and :class:`~blackmetal.gateway.exchange.Exchange`:
-fed ``now`` on every event, it says which link must be dropped because the
-robot went silent (:meth:`Links.due`) and when that may next happen
-(:meth:`Links.next_deadline`). The host reconnects with
-:class:`ReconnectBackoff`.
-"""
+"""The robot's two TCP links as the core sees them: state, silence timers (a pure part) and the host's reconnect pacing."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from enum import StrEnum
 from typing import Literal
 
@@ -62,16 +54,14 @@ class LinkState:
         return LinkHealth(self.status.value, self.connected_since, self.reconnects, None if self.connected else self.reason)
 
 
+@dataclass
 class Links:
-    """Both links' states and the silence rules that drop them."""
+    """Both links' states and the silence rules that drop them (requests unanswered, or no state report, this long)."""
 
-    def __init__(self, silence_timeout: float, log_silence_timeout: float) -> None:
-        #: Requests unanswered this long: the control link is dropped.
-        self.silence_timeout = silence_timeout
-        #: No state report this long: the log link is dropped.
-        self.log_silence_timeout = log_silence_timeout
-        self.control = LinkState()
-        self.log = LinkState()
+    silence_timeout: float
+    log_silence_timeout: float
+    control: LinkState = field(default_factory=LinkState)
+    log: LinkState = field(default_factory=LinkState)
 
     def __getitem__(self, name: LinkName) -> LinkState:
         return self.control if name == "control" else self.log
@@ -138,20 +128,22 @@ class Links:
         return deadline
 
 
+@dataclass
 class ReconnectBackoff:
     """How long to wait before the next connection attempt: doubling, capped, reset only by a stable connection.
 
-    A connection that the robot closes within ``stable`` seconds of opening
-    counts as a failure, so a robot that accepts and at once closes or resets
-    gets attempts at the capped pace, not a storm.
+    A connection the robot closes within ``stable`` seconds counts as a failure: a robot that accepts and at once
+    closes gets attempts at the capped pace, not a storm.
     """
 
-    def __init__(self, first: float = 0.05, cap: float = 2.0, stable: float = 5.0) -> None:
-        self.first = first
-        self.cap = cap
-        self.stable = stable
-        self.delay = first
-        self._opened_at: float | None = None
+    first: float = 0.05
+    cap: float = 2.0
+    stable: float = 5.0
+    delay: float = field(init=False)
+    _opened_at: float | None = None
+
+    def __post_init__(self) -> None:
+        self.delay = self.first
 
     def opened(self, now: float) -> None:
         self._opened_at = now

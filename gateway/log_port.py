@@ -1,9 +1,5 @@
-"""The robot's log port, sans I/O: state reports in, the ones worth publishing out.
-
-The robot pushes ``{"state":S,"direction":D}`` about once a second. A
-report that changes the state is published at once; a repeat at most every
-STATUS_REPEAT_S, so a robot that chatters cannot flood ``<prefix>/status``.
-Anything else on this port is handed back as :class:`~blackmetal.wire.Malformed`.
+"""The robot's log port, sans I/O: a report that changes the state is published at once, a repeat at most
+every STATUS_REPEAT_S, so a chattering robot cannot flood ``<prefix>/status``.
 """
 
 from __future__ import annotations

@@ -1,21 +1,10 @@
 """The gateway's parameters: what an operator may change on a running gateway, and what is shown but fixed.
 
-ROS 2's parameter services (``ros2 param set /blackmetal max_wheel_speed
-0.3``) and Foxglove's parameters panel both come through one key the gateway
-owns, ``<prefix>/gateway/params/set`` (a query: an operator's right in the
-shipped router, as locks are), so no view keeps a copy that could disagree.
-Each value is checked and set on its own, as rclcpp's ``set_parameters``
-does; a refusal says why. Pure: it reads and changes the governor's limits
-and the arbiter's sources, nothing else.
-
-What changes live, and why the rest does not:
-
-* ``max_wheel_speed``, ``linear_accel``, ``angular_accel``: the next command
-  sent already obeys them (a lower limit slows a robot that is driving);
-* ``cmd_timeout``: changed, never switched off (0) on a running robot;
-* ``sources.<name>.priority`` / ``.timeout``: the arbiter weighs them at once;
-* the wheel constants, poll rate, keep-alive and wiring are read-only: the
-  odometry and the calibration were made with them.
+One key the gateway owns, ``<prefix>/gateway/params/set``, serves ROS 2's parameter services and Foxglove's
+panel, so no view keeps a copy that could disagree. Each value is checked and set on its own (as rclcpp's
+``set_parameters``). Limits and source priorities change live; ``cmd_timeout`` is never switched off on a running
+robot; the wheel constants, poll rate, keep-alive and wiring are read-only: the odometry and the calibration
+were made with them.
 """
 
 from __future__ import annotations
@@ -24,12 +13,13 @@ import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Any
 
 from blackmetal import robot_model as model
 from blackmetal.schemas import Param, ParamValue
 
 from .arbiter import Arbiter
-from .safety import Governor, SafetySettings
+from .safety import Governor
 from .settings import TIME_LIMITS, GatewaySettings
 
 #: The longest command timeout a parameter may set (the settings' own bound, for the same reason).
@@ -39,8 +29,19 @@ MIN_CMD_TIMEOUT_S = 0.05
 #: Acceleration limits beyond these are typos (the robot reaches 0.8 m/s in well under a second).
 MAX_LINEAR_ACCEL = 50.0
 MAX_ANGULAR_ACCEL = 200.0
+#: The safety limits that change live; the accelerations' 0 is no limit.
+_LIMIT_HELP = {
+    "max_wheel_speed": "per-wheel speed limit, m/s; faster commands are scaled down keeping their curvature",
+    "cmd_timeout": "brake after this many seconds without a command (the deadman); it cannot be switched off while running",
+    "linear_accel": "acceleration limit of the forward speed, m/s^2; 0 is no limit",
+    "angular_accel": "acceleration limit of the turn rate, rad/s^2; 0 is no limit",
+}
 #: A source's priority, as the settings take it.
 PRIORITY_RANGE = (0, 255)
+
+
+def _fine(value: float) -> None:
+    return None
 
 
 @dataclass(frozen=True, slots=True)
@@ -54,19 +55,17 @@ class _Live:
     get: Callable[[], float]
     set: Callable[[float], None]
     #: An extra check after the type and range (None: the value is fine).
-    refuse: Callable[[float], str | None] = lambda value: None
+    refuse: Callable[[float], str | None] = _fine
 
 
 class ParamTable:
-    """The parameter table of one gateway core: :meth:`table` to show, :meth:`set` to change one."""
+    """The parameter table of one gateway core."""
 
     def __init__(self, settings: GatewaySettings, governor: Governor, arbiter: Arbiter) -> None:
         self.settings = settings
         self.governor = governor
         self.arbiter = arbiter
         self._live = self._live_params()
-
-    # ------------------------------------------------------------------ the table
 
     def table(self) -> list[Param]:
         """Every parameter, live ones first, each with its value now."""
@@ -95,61 +94,26 @@ class ParamTable:
         spec.set(checked)
         return None
 
-    # ------------------------------------------------------------------ what they are
-
     def _live_params(self) -> dict[str, _Live]:
-        governor = self.governor
-
-        def safety() -> SafetySettings:  # read at call time: a set replaces it
-            return governor.settings
-
-        def set_safety(settings: SafetySettings) -> None:
-            governor.settings = settings
-
+        governor, arbiter = self.governor, self.arbiter
         top_speed = max(model.MAX_WHEEL_SPEED, self.settings.max_wheel_speed)
-        params: dict[str, _Live] = {
-            "max_wheel_speed": _Live(
+        params = {
+            name: _Live(
                 "double",
-                "per-wheel speed limit, m/s; faster commands are scaled down keeping their curvature",
-                0.01,
-                top_speed,
-                lambda: safety().max_wheel_speed,
-                lambda v: set_safety(replace(safety(), max_wheel_speed=v)),
-            ),
-            "cmd_timeout": _Live(
-                "double",
-                "brake after this many seconds without a command (the deadman); it cannot be switched off while running",
-                0.0,
-                MAX_CMD_TIMEOUT_S,
-                lambda: safety().cmd_timeout,
-                lambda v: set_safety(replace(safety(), cmd_timeout=v)),
-                lambda v: (
-                    "cmd_timeout 0 (no deadman) is refused on a running gateway: set cmd_timeout = 0 in its settings and "
-                    "restart it if you mean it"
-                    if float(v) == 0
-                    else f"cmd_timeout must be at least {MIN_CMD_TIMEOUT_S:g} s (a commander at 10 Hz would brake between commands)"
-                    if float(v) < MIN_CMD_TIMEOUT_S
-                    else None
-                ),
-            ),
-            "linear_accel": _Live(
-                "double",
-                "acceleration limit of the forward speed, m/s^2; 0 is no limit",
-                0.0,
-                MAX_LINEAR_ACCEL,
-                lambda: safety().linear_accel or 0.0,
-                lambda v: set_safety(replace(safety(), linear_accel=v or None)),
-            ),
-            "angular_accel": _Live(
-                "double",
-                "acceleration limit of the turn rate, rad/s^2; 0 is no limit",
-                0.0,
-                MAX_ANGULAR_ACCEL,
-                lambda: safety().angular_accel or 0.0,
-                lambda v: set_safety(replace(safety(), angular_accel=v or None)),
-            ),
+                _LIMIT_HELP[name],
+                low,
+                high,
+                functools.partial(_limit_of, governor, name),
+                functools.partial(_set_limit, governor, name, zero_is_off),
+                refuse,
+            )
+            for name, low, high, zero_is_off, refuse in (
+                ("max_wheel_speed", 0.01, top_speed, False, _fine),
+                ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, False, _refuse_cmd_timeout),
+                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, True, _fine),
+                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, True, _fine),
+            )
         }
-        arbiter = self.arbiter
         for name in arbiter.names:
             params[f"sources.{name}.priority"] = _Live(
                 "integer",
@@ -195,3 +159,24 @@ def _retune_priority(arbiter: Arbiter, name: str, value: float) -> None:
 
 def _retune_timeout(arbiter: Arbiter, name: str, value: float) -> None:
     arbiter.retune(name, timeout=float(value))
+
+
+def _limit_of(governor: Governor, name: str) -> float:
+    """A safety limit as the table shows it: read at call time (a set replaces the settings), None (off) as 0."""
+    value = getattr(governor.settings, name)
+    return 0.0 if value is None else value
+
+
+def _set_limit(governor: Governor, name: str, zero_is_off: bool, value: float) -> None:
+    limit: Any = (value or None) if zero_is_off else value
+    governor.settings = replace(governor.settings, **{name: limit})
+
+
+def _refuse_cmd_timeout(value: float) -> str | None:
+    if float(value) == 0:
+        return (
+            "cmd_timeout 0 (no deadman) is refused on a running gateway: set cmd_timeout = 0 in its settings and restart it if you mean it"
+        )
+    if float(value) < MIN_CMD_TIMEOUT_S:
+        return f"cmd_timeout must be at least {MIN_CMD_TIMEOUT_S:g} s (a commander at 10 Hz would brake between commands)"
+    return None

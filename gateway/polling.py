@@ -1,14 +1,7 @@
 """When the gateway polls the wheel speeds, and how fast it really did, sans I/O.
 
-A pure part of the robot connection with its own deadline: the first poll
-goes out when the control link comes up, the next ones on a fixed grid of
-``1 / poll_hz`` counted from the clock's zero, so every robot polled at the
-same rate in a process (and on the host: the monotonic clock is the
-machine's) polls at the same instants. A fleet gateway then wakes once per
-period for all its robots, and the simulator or the robots' links get their
-requests in one burst, instead of a wake-up per robot. A loaded machine that
-falls behind takes the next grid instant, without a burst. The rate reported
-in health is measured from the readings that came back.
+Polls follow a grid of ``1 / poll_hz`` from the clock's zero, so every robot of a process polls at the same
+instants and a fleet wakes once per period; behind, the next grid instant is taken, without a burst.
 """
 
 from __future__ import annotations
@@ -21,7 +14,7 @@ RATE_WINDOW_S = 2.0
 
 
 class PollSchedule:
-    """The poll grid and the measured rate; see the module docstring."""
+    """The poll grid and the measured rate."""
 
     def __init__(self, poll_hz: float) -> None:
         self.period = 1.0 / poll_hz
@@ -43,13 +36,11 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
-        # after the link-up's own poll, the grid's first instant half a period away at least (one a hair later would
-        # only wait for that poll's reading)
+        # after the link-up's own poll, half a period at least (one a hair later would only wait for that reading)
         after = now + 0.5 * period if self._starting else now
         self._starting = False
-        # the grid's next instant; behind, no burst to catch up. A time on the grid, as computed, may divide to a hair
-        # under its index (4.1 / 0.02 = 204.99999999999997): within a millionth of a period counts as on it, or the
-        # same instant would come due again an ulp later
+        # within a millionth of a period counts as on the grid (4.1 / 0.02 = 204.99999999999997), or the same
+        # instant would come due again an ulp later
         following = (math.floor(after / period + 1e-6) + 1.0) * period
         self._next = following if following > now else following + period
         return True
@@ -62,11 +53,7 @@ class PollSchedule:
         self._readings.append(now)
 
     def rate(self, now: float) -> float:
-        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two).
-
-        Readings older than the window are forgotten here (``now`` only moves on), so a health report
-        looks at a window's worth of readings, not at the 4096 last ones.
-        """
+        """Readings per second over the last RATE_WINDOW_S (0 with fewer than two); older ones are forgotten here."""
         readings = self._readings
         while readings and now - readings[0] > RATE_WINDOW_S:
             readings.popleft()

@@ -1,23 +1,19 @@
-"""PREPARE_WHEEL_CONTROLLER after every connect, re-sent when the robot does not take it, sans I/O.
-
-A pure part of the robot connection with its own deadline: a PREPARE the
-robot dropped (FULL_BUFFER, or no reply) is sent again after the same
-growing pause as any command (:func:`blackmetal.gateway.safety.retry_delay`).
-"""
+"""PREPARE_WHEEL_CONTROLLER after every connect, re-sent as any command the robot did not take (a pure part)."""
 
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 from .safety import retry_delay
 
 
+@dataclass
 class PrepareRetry:
     """When PREPARE_WHEEL_CONTROLLER is to be sent again."""
 
-    def __init__(self) -> None:
-        self.attempts = 0
-        self._at: float | None = None
+    attempts: int = 0
+    _at: float | None = None
 
     def reset(self) -> None:
         """A new connection: a fresh PREPARE goes out, with no retries behind it."""

@@ -1,37 +1,11 @@
-"""What velocity the robot should get, and when: limits, timeout, e-stop, dedup, keep-alive, confirmed stops.
+"""What velocity the robot gets, and when: limits, timeout, e-stop, dedup, keep-alive, confirmed stops.
 
-Pure and clock-injected: the gateway's core calls
-:meth:`Governor.next_command` and :meth:`Governor.emg_stop_due` on every
-event and at every deadline (:meth:`Governor.next_deadline`) and sends what
-they return; it reports the robot's answers back (:meth:`~Governor.on_accepted`,
-:meth:`~Governor.on_dropped`, :meth:`~Governor.on_emg_stop_dropped`) and the
-wheel motion it polls (:meth:`~Governor.observe_motion`). Nothing here knows
-about sockets or Zenoh.
-
-The governor is in one of three states, frozen values that every input
-replaces: :class:`Offline` (no control link), :class:`EStopped` (the e-stop
-is latched: EMG_STOP, never motion) or :class:`Driving`. What a state does
-next, and from when, is one decision (:meth:`Governor.plan`):
-``next_command`` sends it once its time has come and ``next_deadline``
-reports that time, so the two cannot disagree. With no new input nothing is
-due before the deadline, and after ``next_command(now)`` the deadline lies
-after ``now`` (the host's timer never spins); while an acceleration ramp
-runs, its deadline is the next step at the latest.
-
-A state that is not ramping does not change with time before its deadline,
-so a look then is answered from the decision kept for that state object
-(the gateway looks twice per poll, 100 times a second per robot). For that
-the ramp's clock (``current_at``) moves only while the twist changes: an
-input that changes the target first brings the ramp up to its own ``now``,
-and the command timeout's brake ramps from when it struck, so a ramp never
-steps further than its limit allows for the time it ran.
-
-Stopping is confirmed, not assumed: a command the robot did not accept
-(FULL_BUFFER, or no reply) is re-sent after a growing pause (5 ms, 10 ms,
-... at most 250 ms, so never more than a few dozen a second); a motion
-command is given up after ``full_buffer_retries``, a stop never is. While
-the robot's wheels turn although it accepted a stop, the stop is asked for
-again, spaced the same way.
+Pure and clock-injected (the rules: docs/safety.md). One :data:`State`, replaced by every input; what it does
+next, and from when, is one decision (:meth:`Governor.plan`) that ``next_command`` and ``next_deadline`` both
+read, so they cannot disagree, and after ``next_command(now)`` the deadline lies after ``now``. A state not
+ramping does not change before its deadline, so a look then is answered from the decision kept for that state
+object; the ramp's clock (``current_at``) moves only while the twist changes, so a ramp never steps further
+than its limit allows for the time it ran.
 """
 
 from __future__ import annotations
@@ -54,7 +28,6 @@ from .safety_states import (
     Driving,
     Due,
     EStopped,
-    Mode,
     Offline,
     Robot,
     SafetySettings,
@@ -65,23 +38,9 @@ from .safety_states import (
     retry_delay,
 )
 
-__all__ = [
-    "CommandReason",
-    "Driving",
-    "EStopped",
-    "Governor",
-    "Mode",
-    "Offline",
-    "Robot",
-    "SafetySettings",
-    "Sent",
-    "State",
-    "VelocityCommand",
-]
-
 
 class _Planned(NamedTuple):
-    """The decision made for one state object at one look (:meth:`Governor.plan`)."""
+    """The decision made for one state object at one look (:meth:`Governor.plan`): a command costs one, not three."""
 
     of: State
     now: float
@@ -92,8 +51,8 @@ class _Planned(NamedTuple):
 
 
 class _Deadline(NamedTuple):
-    """The decision taken at -inf for one state object (:meth:`Governor.next_deadline`), and whether time changes
-    nothing before it (not ramping): then it holds at any look before it."""
+    """The decision taken at -inf for one state object (:meth:`Governor.next_deadline`); ``settled`` (not ramping):
+    it holds at any look before its deadline."""
 
     of: State
     congested: bool
@@ -111,29 +70,15 @@ class _WheelsOf(NamedTuple):
     scaled: bool
 
 
-# ---------------------------------------------------------------------- the governor
-
-
 class Governor:
     """The gateway's safety state machine: one :data:`State`, replaced by every input; see the module docstring."""
 
     def __init__(self, settings: SafetySettings) -> None:
         self.settings = settings
         self.state: State = Offline()
-        # The decision is asked three times per input (emg_stop_due, next_command, next_deadline) of one state at one
-        # time: each answer is kept for the state object it was made of (states are immutable), and the wheel speeds
-        # for the twist and settings they were made of. A command costs one decision, not three.
         self._planned: _Planned | None = None
-        # The last one also tells whether time changes nothing before the deadline (not ramping): then that decision
-        # holds at any look before it.
         self._deadline: _Deadline | None = None
         self._wheels_of: _WheelsOf | None = None
-
-    @property
-    def mode(self) -> Mode:
-        if isinstance(self.state, Offline):
-            return Mode.OFFLINE
-        return Mode.ESTOP if isinstance(self.state, EStopped) else Mode.DRIVING
 
     @property
     def estop(self) -> bool:
@@ -165,8 +110,6 @@ class Governor:
         """The current command is scaled down to the wheel limit (keeping its curvature)."""
         return isinstance(self.state, Driving) and self._wheels(self.state.current).scaled
 
-    # ------------------------------------------------------------------ inputs
-
     def refusal(self, twist: Twist) -> str | None:
         """Why a velocity command would be refused now, if it would (:meth:`on_twist` refuses it then)."""
         if self.estop:
@@ -182,10 +125,10 @@ class Governor:
         return None
 
     def on_twist(self, twist: Twist, heard_at: float, now: float | None = None) -> str | None:
-        """Take a velocity command heard at ``heard_at``, or return why it is refused (the robot's command stays as it was).
+        """Take a velocity command heard at ``heard_at``, or return why it is refused.
 
-        ``now`` (default ``heard_at``): the present, later for a command handed over from a source's past; the ramp
-        runs toward the new twist from then, and the command timeout counts from ``heard_at``.
+        ``now`` (default ``heard_at``) is later for a command handed over from a source's past: the ramp runs from
+        then, the command timeout from ``heard_at``.
         """
         reason = self.refusal(twist)
         if reason is None and isinstance(self.state, Driving):
@@ -226,8 +169,6 @@ class Governor:
     def on_link_down(self) -> None:
         """The link closed: nothing is sent until the next one; a latched e-stop stays latched."""
         self.state = Offline(estop=self.estop)
-
-    # ------------------------------------------------------------------ the robot's answers
 
     def on_accepted(self, wheels: WheelSpeeds, now: float) -> None:
         """The robot answered RECIEVE_OK to a velocity command."""
@@ -271,16 +212,10 @@ class Governor:
             if moving != robot.moving:  # most polls change nothing: the state, and what was decided of it, stay
                 self.state = _with_robot(self.state, Robot(robot.sent, robot.accepted, robot.accepted_at, moving))
 
-    # ------------------------------------------------------------------ output: one decision
-
     def plan(self, now: float, congested: bool = False) -> tuple[State, Due]:
-        """The one decision: the state brought up to ``now``, and what it does next, from when.
+        """The one decision: the state brought up to ``now``, and what it does next, from when; nothing is committed.
 
-        Time alone brakes on the command timeout, steps the acceleration ramp
-        and asks for EMG_STOP again while the wheels still turn; then the next
-        output is read off the state. ``congested``: the robot is behind on its
-        replies; motion waits (the next reply calls again), a stop never does.
-        Pure: nothing is committed (:meth:`next_command` does).
+        ``congested``: the robot is behind on its replies; motion waits (the next reply calls again), a stop never does.
         """
         state = self.state
         kept = self._deadline
@@ -327,9 +262,7 @@ class Governor:
     def next_deadline(self, congested: bool = False) -> float:
         """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to do without a new input.
 
-        The time of what the state does next, as it stands: the decision taken at -inf, when nothing is due yet
-        (a time not after the last input's means at once). ``congested`` as for :meth:`next_command`: then only
-        what a stop needs counts.
+        The decision taken at -inf: a time not after the last input's means at once.
         """
         state = self.state
         kept = self._deadline
@@ -341,8 +274,6 @@ class Governor:
         settled = not isinstance(state, Driving) or state.current == state.target
         self._deadline = _Deadline(state, congested, self.settings, due, settled)
         return due.at
-
-    # ------------------------------------------------------------------ the decision's parts
 
     def _advance(self, state: State, now: float) -> State:
         """What time alone changes by ``now``: the brake on the command timeout, the ramp, EMG_STOP asked again."""

@@ -1,10 +1,6 @@
 """The safety governor's vocabulary: its settings, its three states and what a state does next, as frozen values.
 
-The governor (:mod:`blackmetal.gateway.safety`) replaces its one state with
-every input and reads off it what is due; these values are what it reasons
-about, kept here so that the state machine reads on its own. Each state is
-immutable: a decision made for a state object holds as long as that object
-is the state.
+Each state is immutable: a decision made for a state object holds as long as that object is the state.
 """
 
 from __future__ import annotations
@@ -59,14 +55,6 @@ class SafetySettings:
     wheel_gain: WheelGain = UNITY_GAIN
 
 
-class Mode(Enum):
-    """What the governor is doing, named; every decision starts from it (the :data:`State`'s kind)."""
-
-    OFFLINE = "offline"  # no control link: nothing is sent and nothing is due
-    ESTOP = "estop"  # the e-stop is latched: EMG_STOP (again while the wheels still turn), never motion
-    DRIVING = "driving"  # limits, command timeout, coalescing, retries, keep-alive, confirmed stops
-
-
 class CommandReason(Enum):
     """Why a velocity command goes out; the core counts and reports by it."""
 
@@ -82,9 +70,6 @@ class VelocityCommand:
 
     wheels: WheelSpeeds
     reason: CommandReason
-
-
-# ---------------------------------------------------------------------- the state
 
 
 @dataclass(frozen=True, slots=True)
@@ -142,11 +127,9 @@ class EStopped:
 
 @dataclass(frozen=True, slots=True)
 class Driving:
-    """A live link, no e-stop: the commanded twist goes out through the limits, the timeout, the ramp and the rate cap.
+    """A live link, no e-stop: the twist goes out through the limits, the timeout, the ramp and the rate cap.
 
-    What it sends next (a new command or one held for the rate cap, a re-send,
-    a stop asked for again, a keep-alive) is not stored but read off it by
-    :meth:`Governor.plan`.
+    What it sends next is not stored but read off it by :meth:`Governor.plan`.
     """
 
     robot: Robot
