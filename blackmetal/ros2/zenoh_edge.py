@@ -285,7 +285,7 @@ class Ros2Zenoh(ZenohEdge):
             name: (key, intake.channel(name, on(method), **options), on(method), ring)
             for name, (key, method, options, ring) in streams.items()
         }
-        self.subscriber(self.keys.params, intake.channel("params", on(core.on_params), latest=True, priority=8))
+        self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
         matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
@@ -381,13 +381,13 @@ class Ros2Zenoh(ZenohEdge):
         self._calls[self._next_call] = (query, self.service_keys[service])
         payload = b"" if query.payload is None else bytes(query.payload.to_bytes())
         extra = None if query.attachment is None else bytes(query.attachment.to_bytes())
-        self._host.driver.run_locked(self._host.core.on_service_request, service, self._next_call, payload, extra)
+        self._host.driver.run_locked(self._host.core.calls.on_service_request, service, self._next_call, payload, extra)
 
     def _on_query_event(self, event: tuple[int, bool | None, bytes]) -> None:
         assert self._host is not None
         tag, ok, payload = event
         if ok is None:
-            self._host.driver.run_locked(self._host.core.on_query_done, tag)
+            self._host.driver.run_locked(self._host.core.calls.on_query_done, tag)
         else:
             self._host.driver.run_locked(self._host.core.on_query_reply, tag, ok, payload)
 
