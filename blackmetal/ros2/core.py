@@ -13,13 +13,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from blackmetal.robot_model import WheelAngles
 from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
-from .joints import WheelJoints
 from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
@@ -47,7 +47,7 @@ class Ros2Core:
     def __post_init__(self) -> None:
         o = self.options
         self.reporter = ErrorReporter("ros2", self.output.error, self.wallclock)
-        self.joints = WheelJoints(o.encoders, o.wheel_radius)
+        self.joints = WheelAngles()
         self.cmd_vel_target = self.keys.cmd_vel_of(o.source)
         self.diagnostics = Diagnostics(self.keys, o.node, o.expected_poll_hz)
         self.stats = AdapterStats()
@@ -87,7 +87,7 @@ class Ros2Core:
         sample = decoded(self.reporter, WheelImpulses, payload, self.keys.impulses, now)
         if sample is None:
             return
-        self.joints.feed(sample)
+        self.joints.feed(sample, self.options.encoders, self.options.wheel_radius)
         if self._wants("joint_states"):
             cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
             self.output.ros("joint_states", cdr)
