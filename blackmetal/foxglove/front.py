@@ -41,7 +41,6 @@ def url(host: str, port: int) -> str:
     return f"ws://{shown}:{port}"
 
 
-# --------------------------------------------------------------------------- the handshake, sans I/O
 def _header_lines(head: bytes) -> list[str]:
     return head.decode("latin-1").split("\r\n")
 
@@ -70,7 +69,6 @@ def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
 
 
 def switches_protocols(response_head: bytes) -> bool:
-    """The server's answer accepts the upgrade (HTTP 101)."""
     status = _header_lines(response_head)[0].split()
     return len(status) >= 2 and status[1] == "101"
 
@@ -84,7 +82,6 @@ def rewrite_response(head: bytes, subprotocol: str) -> bytes:
     return "\r\n".join(lines).encode("latin-1")
 
 
-# --------------------------------------------------------------------------- frames, sans I/O
 def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
     """One final WebSocket frame; ``mask`` (4 bytes) for frames a client sends."""
     head = bytearray([0x80 | opcode])
@@ -136,7 +133,6 @@ class FrameTap:
 
     @property
     def at_boundary(self) -> bool:
-        """No frame and no fragmented message is half through."""
         return not self._in_frame and not self._head and not self._fragmented
 
     def feed(self, data: bytes) -> list[int]:
@@ -212,8 +208,6 @@ class FrameTap:
 
 
 class _ServerOp(msgspec.Struct):
-    """The fields of a server's JSON message that tell a refusal."""
-
     op: str
     level: int = 0
     message: str = ""
@@ -248,7 +242,7 @@ class Connection:
         self.busy = False
 
     def send(self, frame: bytes) -> None:
-        """Send ``frame`` to the client at the next message boundary of the server's stream."""
+        """At the next message boundary of the server's stream."""
         if self.tap.closed or self.writer.is_closing():
             return
         self.outbox.append(frame)

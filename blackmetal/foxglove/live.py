@@ -122,7 +122,6 @@ class LiveView:
         return {getattr(self.keys, key): {self._topic(t) for t in topics} for key, (_, topics) in FEEDS.items()}
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
-        """Key -> handler of its payloads."""
         return {getattr(self.keys, key): getattr(self, handler) for key, (handler, _) in FEEDS.items()}
 
     def _decode(self, message_type: type[Any], payload: bytes) -> Any:

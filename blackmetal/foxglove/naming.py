@@ -40,7 +40,6 @@ class Service(Enum):
     RESET_ODOMETRY = "reset_odometry"
 
 
-# --------------------------------------------------------------------------- names: one robot, or a robot of a fleet
 def robot_namespace(robot_id: str) -> str:
     """The topics of a fleet's robot go under ``/<id>`` (``/r3/odometry``); one robot's view has none (``""``)."""
     return f"/{robot_id}"

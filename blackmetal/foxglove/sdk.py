@@ -20,7 +20,6 @@ from .settings import FoxgloveSettings
 CALL_MARGIN_S = 1.0
 
 
-# --------------------------------------------------------------------------- what the SDK's threads hand over
 #: A client's doing, carried from the SDK's thread to the loop: the host's method with its arguments bound.
 Handover = Callable[[], None]
 

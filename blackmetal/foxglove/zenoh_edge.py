@@ -125,7 +125,6 @@ class FoxgloveZenoh(ZenohEdge):
         self._set_reply = handover.channel("params set?", host.on_params_reply, capacity=64)
         return handover
 
-    # ------------------------------------------------------------------ what is watched
     def want(self, keys: set[str]) -> None:
         """Subscribe to exactly these of the view's keys (each into its ring): declare the new ones, undeclare the rest."""
         import zenoh
@@ -181,7 +180,6 @@ class FoxgloveZenoh(ZenohEdge):
         self.peek(False)
         super().close()
 
-    # ------------------------------------------------------------------ ZenohSide
     def command(self, key: str, payload: bytes) -> None:
         self._publishers[key].put(payload)
 

@@ -76,7 +76,6 @@ class Diagnostics:
     def label(self) -> str:
         return self.node.lstrip("/") or self.node
 
-    # inputs
     def on_health(self, health: GatewayHealth, now: float) -> None:
         if self.health is not None and health.source != self.health.source:
             self._lost.clear()  # another gateway run: its counters start over
@@ -99,7 +98,6 @@ class Diagnostics:
         elif who == "odometry":
             self.odometry_alive = alive
 
-    # statuses
     def lost_in_window(self, now: float) -> tuple[int, int]:
         """(replies lost, polls) over the health reports of the last window."""
         while len(self._lost) > 1 and self._lost[0][0] <= now - WINDOW_S:

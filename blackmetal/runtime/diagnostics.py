@@ -66,7 +66,6 @@ def worst(name: str, hardware_id: str, checks: Iterable[Check], ok: str, values:
     return Status(level, name, message, hardware_id, tuple(values))
 
 
-# ---------------------------------------------------------------- the table
 # The gateway, as both views show it.
 #: The e-stop is engaged: nothing moves until a person releases it.
 ESTOP_ENGAGED = Condition(Level.ERROR, "e-stop engaged{origin}")
