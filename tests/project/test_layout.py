@@ -31,7 +31,6 @@ NO_TEST_FILE_YET = {
     "gateway/settings", "gateway/zenoh_edge",
     "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",
     "odometry_service/zenoh_edge",
-    "ros2/main", "ros2/settings",
     "runtime/entry", "runtime/harness", "runtime/settings", "runtime/signals", "runtime/zenoh_entities",
     "runtime/zenoh_setup",
     "sim/main", "sim/memory", "sim/server", "sim/settings",
