@@ -1,10 +1,6 @@
-"""ROS 2 ``/diagnostics``: the three statuses (robot link, odometry, adapter) from the latest of what the node saw.
+"""ROS 2 ``/diagnostics``: three statuses (robot link, odometry, adapter) from the latest of what the node saw.
 
-The latest health, pose, odometry reports and liveliness it was fed,
-turned into three ``DiagnosticStatus`` every :data:`DIAGNOSTICS_PERIOD_S`.
-Their levels, words and thresholds are the shared severity table's
-(:mod:`blackmetal.runtime.diagnostics`, which the Foxglove view reads too;
-the README lists them). Pure, ``now`` passed in.
+Levels, words and thresholds are the shared table's (:mod:`blackmetal.runtime.diagnostics`). Pure, ``now`` passed in.
 """
 
 from __future__ import annotations

@@ -44,11 +44,11 @@ class Distro(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class DistroFormat:
-    """What differs between distros on the wire, and the release of rmw_zenoh it was read from."""
+    """What differs between distros on the wire; the rmw_zenoh release it was read from, the first it holds for."""
 
     type_hashes: bool  # RIHS01 hashes in keys and tokens; False: TypeHashNotSupported
-    release: str  # the rmw_zenoh_cpp release read (ros2-gbp/rmw_zenoh-release, tag upstream/<version>)
-    supported_from: str  # the first release whose formats these are
+    release: str
+    supported_from: str
 
 
 #: Only Humble's missing type hashes differ on the wire (docs/ros2.md "What each distro writes").
@@ -126,7 +126,6 @@ class Qos:
 
 
 def check_ros_name(kind: str, name: str) -> str:
-    """A ROS name segment (node name, namespace part): letters, digits, underscores, not starting with a digit."""
     if not _NAME.match(name):
         raise ConfigError(f"{kind} {name!r} is not a valid ROS name: letters, digits and '_', not starting with a digit")
     return name
@@ -141,7 +140,6 @@ def normalise_namespace(namespace: str | None) -> str:
 
 
 def full_topic(namespace: str, topic: str) -> str:
-    """The fully qualified topic name: ``/r1`` + ``odom`` -> ``/r1/odom``."""
     base = namespace.rstrip("/")
     return f"{base}/{topic.strip('/')}"
 
@@ -169,7 +167,6 @@ def rmw_zenoh_data_key(domain_id: int, topic: str, ros_type: str, type_hash: str
 
 
 def bridge_data_key(topic: str) -> str:
-    """zenoh-bridge-ros2dds: the fully qualified topic name without its leading slash."""
     return topic.strip("/")
 
 
@@ -239,8 +236,7 @@ class RosTopic:
 
 @dataclass(frozen=True, slots=True)
 class RosService:
-    """One ROS service the node serves: its name relative to the namespace (``private``: to the node, ``~/name``) and
-    its service type."""
+    """One ROS service the node serves; ``private``: under the node's name (``~/name``)."""
 
     name: str
     ros_type: str
@@ -297,8 +293,7 @@ PARAMETERS_QOS = Qos(depth=1000)
 
 
 def services() -> list[RosService]:
-    """The node's services, numbered after its topics: ``set_estop`` and ``reset_odometry`` in the namespace, then
-    rclcpp's six parameter services under the node's name (``/blackmetal/list_parameters``)."""
+    """The node's services, numbered after its topics; rclcpp's parameter services under the node's name."""
     return [
         RosService(SET_ESTOP, ros.SET_BOOL),
         RosService(RESET_ODOMETRY, ros.TRIGGER),
@@ -307,7 +302,6 @@ def services() -> list[RosService]:
 
 
 def check_source_name(name: str) -> str:
-    """A command source name: one key chunk, as the gateway's ``--source NAME:PRIO`` takes it."""
     if not re.match(r"^[A-Za-z0-9_-]+$", name):
         raise ConfigError(f"source {name!r} must be letters, digits, '_' or '-' (one key chunk, e.g. ros2)")
     return name

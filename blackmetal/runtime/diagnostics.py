@@ -1,12 +1,8 @@
 """The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words.
 
-Why it exists: the ROS 2 adapter's ``/diagnostics`` and the Foxglove view's
-``/diagnostics`` each decided their levels on their own and disagreed (an
-engaged e-stop was ERROR in one, WARN in the other). Both now read their
-levels and texts here. Pure: plain levels and strings, no Zenoh, no ROS
-types; each adapter turns a :class:`Status` into its own message.
-
-An engaged e-stop is ERROR: the robot cannot move until a person acts.
+The ROS 2 adapter's and the Foxglove view's ``/diagnostics`` once disagreed (an engaged e-stop ERROR in one, WARN in
+the other); both read their levels and texts here. Pure: no Zenoh, no ROS types. An engaged e-stop is ERROR: the
+robot cannot move until a person acts.
 """
 
 from __future__ import annotations
@@ -42,18 +38,14 @@ class Status:
 
 @dataclass(frozen=True, slots=True)
 class Condition:
-    """One row of the table: the level of a condition and its text (a ``str.format`` template).
-
-    A graded condition (a rate, a round trip, a count) has a ``severe`` level
-    it takes past its second threshold.
-    """
+    """One row of the table: a condition's level and its text (a ``str.format`` template); a graded one (a rate, a
+    round trip, a count) takes its ``severe`` level past its second threshold."""
 
     level: Level
     text: str
     severe: Level | None = None
 
     def check(self, severe: bool = False, **fields: object) -> Check:
-        """The condition as it holds now, its text filled in with ``fields``."""
         level = self.severe if severe and self.severe is not None else self.level
         return level, self.text.format(**fields)
 
