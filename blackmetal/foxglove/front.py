@@ -46,7 +46,6 @@ def _header_lines(head: bytes) -> list[str]:
 
 
 def offered_subprotocols(head: bytes) -> list[str]:
-    """The subprotocols an HTTP upgrade request offers, in its order (every Sec-WebSocket-Protocol header, comma lists split)."""
     offered: list[str] = []
     for line in _header_lines(head)[1:]:
         name, _, value = line.partition(":")
@@ -56,9 +55,8 @@ def offered_subprotocols(head: bytes) -> list[str]:
 
 
 def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
-    """The request for the SDK, and the subprotocol to name in the answer when it had to be renamed (None: unchanged).
-
-    Only a client offering ``foxglove.websocket.v1`` without ``foxglove.sdk.v1`` is renamed; any other passes as it is."""
+    """The request for the SDK, and the subprotocol to name in the answer when it was renamed (only a client offering
+    ``foxglove.websocket.v1`` without ``foxglove.sdk.v1`` is)."""
     offered = offered_subprotocols(head)
     if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
         return head, None
@@ -74,7 +72,6 @@ def switches_protocols(response_head: bytes) -> bool:
 
 
 def rewrite_response(head: bytes, subprotocol: str) -> bytes:
-    """The server's 101 answer with ``subprotocol`` as the chosen subprotocol (the one the client offered)."""
     lines = _header_lines(head)
     for index, line in enumerate(lines):
         if line.partition(":")[0].strip().lower() == "sec-websocket-protocol":
@@ -102,7 +99,6 @@ def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
 
 
 def _header_size(head: bytes | bytearray) -> int:
-    """Bytes in a frame header, as far as its first two bytes tell (2 until they are there)."""
     if len(head) < 2:
         return 2
     length = head[1] & 0x7F

@@ -52,7 +52,7 @@ from .watch import Watch
 
 
 class Viewer(Gateways, Protocol):
-    """What the host tells the view about its clients' subscriptions (followed in ``watch``), and the parameters' gateways."""
+    """What the host tells the view of its clients' subscriptions, and the parameters' gateways."""
 
     watch: Watch
 
@@ -264,7 +264,7 @@ class FoxgloveHost:
             await writer.drain()
 
     def _on_server_text(self, connection: Connection, text: bytes) -> None:
-        """A JSON message the SDK sent a client: its own refusals are reported (the view's own failures already are)."""
+        """The SDK's own refusals to a client are reported (the view's own failures already are)."""
         try:
             op = server_op.decode(text)
         except (msgspec.DecodeError, msgspec.ValidationError):
@@ -322,7 +322,7 @@ class FoxgloveHost:
         self.poke()
 
     def _get_params(self, names: list[str]) -> list[Any]:
-        """getParameters, on an SDK thread: from the snapshot the loop last made (a list replaced whole, never changed)."""
+        """getParameters, on an SDK thread: from the loop's last snapshot (a list replaced whole, never changed)."""
         snapshot = self._param_snapshot
         if not names:
             return snapshot
@@ -330,7 +330,7 @@ class FoxgloveHost:
         return [param for param in snapshot if param.name in wanted]
 
     def _set_params(self, client: int, parameters: list[Any]) -> list[Any]:
-        """setParameters, on an SDK thread: hand it to the loop, wait (bounded) for the gateways' answer, answer with the values then."""
+        """setParameters, on an SDK thread: handed to the loop; waits (bounded) for the gateways' answer."""
         future: concurrent.futures.Future[list[Param]] = concurrent.futures.Future()
         values = [(p.name, p.get_value()) for p in parameters]
         try:
@@ -355,7 +355,6 @@ class FoxgloveHost:
             future.set_result(values)
 
     def parameters_changed(self, values: list[Param]) -> None:
-        """A gateway's table changed: the snapshot is made anew and the changed values go to the clients that follow them."""
         if self.params is not None:
             self._param_snapshot = [foxglove_parameter(param) for param in self.params.values()]
         self.server.publish_parameter_values([foxglove_parameter(param) for param in values])
@@ -370,7 +369,7 @@ class FoxgloveHost:
             self.poke()
 
     def _handle_call(self, request: Any) -> bytes:
-        """The SDK's service handler, on its blocking thread: hand the call over and wait for the core's answer (bounded)."""
+        """The SDK's service handler, on its own thread: waits (bounded) for the core's answer."""
         future: concurrent.futures.Future[bytes] = concurrent.futures.Future()
         self._inflight.add(future)
         self._our_calls.add((request.client_id, request.call_id))
@@ -393,7 +392,7 @@ class FoxgloveHost:
         self.poke()
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None:
-        """A status message to that client; to every client when it is not known (a client that did not come through the front)."""
+        """To that client; to every client when it is not known (it did not come through the front)."""
         connection = self._by_client.get(client) if client is not None else None
         if connection is not None:
             connection.send(ws_frame(OP_TEXT, status_message(level, message)))

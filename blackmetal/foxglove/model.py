@@ -49,7 +49,6 @@ def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[floa
 
 
 def moving_joints(urdf_text: str) -> list[Joint]:
-    """The continuous and revolute joints of a URDF, in its order."""
     joints = []
     for element in ET.fromstring(urdf_text).iter("joint"):
         if element.get("type") not in ("continuous", "revolute"):
@@ -114,14 +113,12 @@ class RobotModel:
         return True
 
     def description(self) -> bytes:
-        """The ``/robot_description`` message (std_msgs/msg/String, JSON)."""
         import json
 
         return json.dumps({"data": self.urdf}).encode()
 
 
 def joint_state(robot: RobotModel, angles: WheelAngles, stamp: float) -> dict[str, Any]:
-    """sensor_msgs/msg/JointState of the two wheels (left, right)."""
     sec, nsec = stamp_parts(stamp)
     names = [joint.name for joint in (robot.left, robot.right) if joint is not None]
     return {

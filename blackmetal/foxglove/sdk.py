@@ -44,7 +44,7 @@ def sdk_listener(
     get_params: Callable[[list[str]], list[Any]],
     set_params: Callable[[int, list[Any]], list[Any]],
 ) -> Any:
-    """A ServerListener that hands every client event over to the view's loop (parameters: answered from the loop's snapshot, or waited for)."""
+    """A ServerListener that hands every client event over to the view's loop (parameters: from the loop's snapshot)."""
     from foxglove.websocket import ServerListener
 
     class Listener(ServerListener):
@@ -82,7 +82,6 @@ def foxglove_parameter(param: Param) -> Any:
 
 
 def start_server(settings: FoxgloveSettings, listener: Any = None, services: list[Any] | None = None) -> Any:
-    """The foxglove-sdk server on a free loopback port, with client publish, services (JSON) and parameters."""
     import foxglove
     from foxglove.websocket import Capability
 
