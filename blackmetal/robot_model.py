@@ -12,12 +12,12 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 from xml.sax.saxutils import quoteattr
 
-from blackmetal.schemas import ConfigError
+from blackmetal.schemas import ConfigError, WheelImpulses
 
 if TYPE_CHECKING:
     import numpy as np
@@ -111,6 +111,32 @@ class Encoders:
 
 
 NOMINAL_ENCODERS = Encoders()
+
+#: Wheel angles are not integrated across a gap longer than this (s): a lost link is not motion.
+MAX_JOINT_GAP_S = 0.5
+
+
+@dataclass(slots=True)
+class WheelAngles:
+    """Wheel angles (rad) from the impulses' wheel speeds, trapezoid rule, never across a gap (ROS 2's /joint_states
+    and Foxglove's turning wheels); ``wrap``: kept within -pi..pi."""
+
+    wrap: bool = False
+    positions: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    velocities: list[float] = field(default_factory=lambda: [0.0, 0.0])
+    _last: float | None = None
+
+    def feed(self, sample: WheelImpulses, encoders: Encoders, radius: float) -> None:
+        left, right = encoders.to_speeds(float(sample.left), float(sample.right))
+        velocities = [left / radius, right / radius]
+        now = sample.mono if sample.mono is not None else sample.stamp
+        if self._last is not None and 0.0 < now - self._last <= MAX_JOINT_GAP_S:
+            dt = now - self._last
+            for i in (0, 1):
+                angle = self.positions[i] + 0.5 * (self.velocities[i] + velocities[i]) * dt
+                self.positions[i] = math.remainder(angle, math.tau) if self.wrap else angle
+        self._last = now
+        self.velocities = velocities
 
 
 def twist_to_wheels(v: float, w: float, separation: float, max_wheel_speed: float) -> tuple[WheelSpeeds, bool]:

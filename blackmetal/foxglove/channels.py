@@ -1,8 +1,7 @@
 """The view's channel plumbing: what a channel carries (:class:`Kind`), how one is made, and Foxglove's message builders.
 
-Why apart: the live view and the fleet view log into the same kinds of
-channel, and tests count messages with a channel factory of their own
-(:data:`ChannelFactory`) instead of the SDK's.
+Apart so that the live and fleet views log into the same kinds of channel, and tests count messages with a
+channel factory of their own (:data:`ChannelFactory`) instead of the SDK's.
 """
 
 from __future__ import annotations
@@ -16,7 +15,6 @@ from blackmetal.schemas import ErrorReport, Pose, stamp_parts
 
 
 def typed(name: str | list[str], **more: Any) -> dict[str, Any]:
-    """A JSON Schema of one type: ``typed("number", description=...)``."""
     return {"type": name, **more}
 
 
@@ -54,7 +52,6 @@ def fox_pose(pose: Pose) -> Any:
 
 
 def json_channel(topic: str, schema: dict[str, Any]) -> Any:
-    """A JSON channel on the current Foxglove context, its schema the JSON Schema ``schema`` (named by its title)."""
     import foxglove
 
     full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
@@ -83,7 +80,6 @@ ChannelFactory = Callable[[str, Kind, "dict[str, Any] | None"], Out]
 
 
 def foxglove_channel(topic: str, kind: Kind, schema: dict[str, Any] | None = None) -> Out:
-    """A channel on the current Foxglove context (the SDK's typed channels for Foxglove's types)."""
     from foxglove.channels import FrameTransformChannel, LogChannel, PoseInFrameChannel, PosesInFrameChannel
 
     typed: dict[Kind, Callable[[str], Any]] = {

@@ -80,8 +80,6 @@ class EstopCall:
 
 @dataclass(slots=True)
 class ResetCall:
-    """A reset_odometry call waiting for the odometry's answer."""
-
     client: int
     deadline: float
 
@@ -91,8 +89,6 @@ def _state(engage: bool) -> str:
 
 
 class Clients(Protocol):
-    """Where the controls answer the clients: the host."""
-
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
 
@@ -106,7 +102,6 @@ class Refusals:
         self._last_status: dict[tuple[int | None, str], float] = {}
 
     def _refuse(self, client: int | None, topic: str, reason: str, text: str, now: float) -> None:
-        """A status message to that client (at most once per STATUS_PERIOD_S per topic) and a report (rate-limited)."""
         last = self._last_status.get((client, topic), -math.inf)
         if now - last >= STATUS_PERIOD_S:
             self._last_status[(client, topic)] = now
@@ -122,19 +117,15 @@ class Refusals:
             del self._last_status[status_key]
 
     def on_server_refusal(self, client: int | None, kind: ServerRefusal, message: str, now: float) -> None:
-        """The WebSocket server refused a client's message itself (bad JSON, unknown channel or service...): report it.
-
-        A service call failure also gets a status, so it shows where the client shows its problems."""
+        """The WebSocket server refused a client's message itself (bad JSON, unknown channel...): report it."""
         if kind is ServerRefusal.SERVICE_CALL_FAILURE:
             self.clients.status(client, StatusLevel.ERROR, f"blackmetal refused a service call: {message}")
         self.reporter.report("foxglove:client", f"client {client}: {message}", now=now)
 
 
 class Controls(Refusals):
-    """Client publications and service calls -> the robot's keys, with confirmations and refusals.
-
-    Clients are the WebSocket server's client ids; ``call`` numbers service calls (the host's, unique while the view runs).
-    """
+    """Client publications and service calls -> the robot's keys, with confirmations and refusals; ``call``: the host's
+    number of a service call."""
 
     def __init__(
         self,
@@ -161,9 +152,7 @@ class Controls(Refusals):
         #: The e-stop state in the gateway's last health (None: no health seen yet).
         self.estop_seen: bool | None = None
 
-    # --------------------------------------------------------------- client publish
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
-        """A client advertised a channel: note what it controls, or refuse it at once (status and report)."""
         control = self._controls.get(topic)
         refusal = None
         if control is None:
@@ -177,19 +166,17 @@ class Controls(Refusals):
             self._refuse(client, topic, f"{refusal}; its messages are refused", "", now)
 
     def on_unadvertise(self, client: int, channel: int, now: float) -> None:
-        """A client stopped publishing on a channel: a /cmd_vel that drove sends one zero command, so the robot stops now rather than at the timeout."""
+        """A /cmd_vel that drove sends one zero command, so the robot stops now rather than at the timeout."""
         topic = self._topics.pop((client, channel), None)
         if topic is not None and topic.control is Control.CMD_VEL and topic.drove:
             self.robot.command(self.cmd_vel_key, encode(Twist()))
 
     def on_client_gone(self, client: int, now: float) -> None:
-        """A client disconnected: its channels are unadvertised."""
         for key in [key for key in self._topics if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
         self._forget(client)
 
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
-        """One message a client published: a command, an e-stop, or a refusal (status to that client, report)."""
         topic = self._topics.get((client, channel))
         if topic is None:
             self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
@@ -223,9 +210,7 @@ class Controls(Refusals):
                     other, pending.client, Service.SET_ESTOP, f"superseded: the e-stop was {_state(engage)} since this call", "", now
                 )
 
-    # --------------------------------------------------------------- services
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
-        """A service call; it is answered later through ``clients.answer``: on confirmation, failure or at the time limit."""
         known = self._services.get(service)
         if known is Service.SET_ESTOP:
             try:
@@ -249,7 +234,6 @@ class Controls(Refusals):
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
 
     def on_health(self, payload: bytes, now: float) -> None:
-        """The gateway's health (published or asked for): it confirms the set_estop calls that wanted what it shows."""
         try:
             health = decode(GatewayHealth, payload)
         except PayloadError:
@@ -262,7 +246,7 @@ class Controls(Refusals):
                 self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
 
     def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
-        """The odometry's answer to a reset: its pose, or its reason for refusing (``None, None``: the query ended unanswered)."""
+        """``None, None``: the query ended unanswered."""
         pending = self._reset_calls.pop(call, None)
         if pending is None:
             return
@@ -291,9 +275,7 @@ class Controls(Refusals):
         self.clients.answer(call, None, reason)
         self.reporter.report(f"foxglove:{service_name(self.namespace, service)}", f"client {client}: {reason}", text, now=now)
 
-    # --------------------------------------------------------------- timers
     def tick(self, now: float) -> None:
-        """Time limits of the waiting calls, the set_estop engage re-sent and health asked again, report summaries."""
         for call, pending in list(self._estop_calls.items()):
             if now >= pending.deadline:
                 seen = (
@@ -323,7 +305,6 @@ class Controls(Refusals):
 
     @property
     def waiting(self) -> int:
-        """Service calls not answered yet."""
         return len(self._estop_calls) + len(self._reset_calls)
 
 

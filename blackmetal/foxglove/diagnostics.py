@@ -37,7 +37,6 @@ def _status(name: str, level: Level, message: str, hardware_id: str, **values: A
 
 
 def _fields(health: GatewayHealth, *names: str) -> dict[str, Any]:
-    """These fields of the health, by name, in this order: the values a status shows as they are."""
     return {name: getattr(health, name) for name in names}
 
 
@@ -46,7 +45,6 @@ def _link(name: str, link: LinkHealth, hardware_id: str) -> Status:
 
 
 def diagnostic_json(status: Status) -> dict[str, Any]:
-    """One status as diagnostic_msgs/msg/DiagnosticStatus in JSON."""
     values = [{"key": key, "value": value} for key, value in status.values]
     return {"level": int(status.level), "name": status.name, "message": status.message, "hardware_id": status.hardware_id, "values": values}
 

@@ -77,9 +77,8 @@ def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
 async def serve_views(
     base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[str], dict[str, Any]]
 ) -> None:
-    """What the view of one robot and of a fleet share once the server listens and the parts are wired: the Zenoh
-    session, each robot's edge on its port, the announcement (``announce(url)`` says what is the view's own and returns
-    its part of the harness's ready message), serving until ``stop``; then all of it undone."""
+    """What the view of one robot and of a fleet share once the parts are wired: the session, each robot's edge, the
+    announcement (``announce(url)`` returns its part of the ready message), serving until ``stop``, undone after."""
     from blackmetal.runtime.harness import announce_ready
     from blackmetal.runtime.zenoh_setup import open_service_session
 
@@ -113,8 +112,6 @@ async def serve_views(
 
 
 async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
-    """One server, one session: every robot's view and controls until ``stop``."""
-
     require_extra("blackmetal foxglove", "foxglove", "foxglove")
     settings = fleet_settings(base, robots)
     keys = {r.id: Keys(s.prefix) for r, s in zip(robots, settings, strict=True)}

@@ -77,11 +77,7 @@ class Presence:
 
 
 class FleetSummary:
-    """The fleet at a glance, one row per robot; pure, on the view's clock (``now``, passed in).
-
-    Lost and back as docs/foxglove.md says; :meth:`suspend` forgets the arrival times while nobody follows
-    health, so no robot is called lost for a silence nobody listened to.
-    """
+    """The fleet at a glance, one row per robot; pure, ``now`` passed in. Lost and back as docs/foxglove.md says."""
 
     def __init__(self, robots: list[tuple[str, str]]) -> None:
         """``robots``: (id, prefix) in the fleet file's order."""
@@ -129,7 +125,7 @@ class FleetSummary:
         return min((row.seen + LOST_AFTER_S for row in self.rows.values() if row.seen is not None), default=math.inf)
 
     def suspend(self) -> None:
-        """Nobody follows the robots' health any more: forget when it last came (losses by token stay)."""
+        """Nobody follows health: forget when it last came, so no robot is lost for a silence nobody listened to."""
         for row in self.rows.values():
             row.seen = None
 
@@ -224,7 +220,6 @@ class FleetView:
         return feeds
 
     def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:
-        """Key -> handler for one robot's keys: its own view, and the summary from its health."""
         view = self.views[robot_id]
         handlers = view.handlers()
         show_health = handlers[view.keys.health]
@@ -245,7 +240,6 @@ class FleetView:
         return handlers
 
     def on_token(self, robot_id: str, alive: bool) -> None:
-        """Its gateway's liveliness token appeared or went."""
         now = self.clock()
         change = self.summary.on_token(robot_id, alive, now)
         if change is not None:
@@ -260,7 +254,6 @@ class FleetView:
         return self.summary.next_deadline()
 
     def suspend(self) -> None:
-        """Nobody watches the summary or the fleet's log: the host stops following health."""
         self.summary.suspend()
 
     def _changed(self, changes: list[Presence], now: float) -> None:
@@ -281,5 +274,4 @@ class FleetView:
             self.summary_channel.log(json.dumps(self.summary.message(now)).encode())
 
     def on_fleet_error(self, report: ErrorReport) -> None:
-        """A refusal no robot owns: on ``/fleet/log``."""
         self.log.log(report_log(report))

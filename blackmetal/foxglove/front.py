@@ -41,13 +41,11 @@ def url(host: str, port: int) -> str:
     return f"ws://{shown}:{port}"
 
 
-# --------------------------------------------------------------------------- the handshake, sans I/O
 def _header_lines(head: bytes) -> list[str]:
     return head.decode("latin-1").split("\r\n")
 
 
 def offered_subprotocols(head: bytes) -> list[str]:
-    """The subprotocols an HTTP upgrade request offers, in its order (every Sec-WebSocket-Protocol header, comma lists split)."""
     offered: list[str] = []
     for line in _header_lines(head)[1:]:
         name, _, value = line.partition(":")
@@ -57,9 +55,8 @@ def offered_subprotocols(head: bytes) -> list[str]:
 
 
 def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
-    """The request for the SDK, and the subprotocol to name in the answer when it had to be renamed (None: unchanged).
-
-    Only a client offering ``foxglove.websocket.v1`` without ``foxglove.sdk.v1`` is renamed; any other passes as it is."""
+    """The request for the SDK, and the subprotocol to name in the answer when it was renamed (only a client offering
+    ``foxglove.websocket.v1`` without ``foxglove.sdk.v1`` is)."""
     offered = offered_subprotocols(head)
     if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
         return head, None
@@ -70,13 +67,11 @@ def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
 
 
 def switches_protocols(response_head: bytes) -> bool:
-    """The server's answer accepts the upgrade (HTTP 101)."""
     status = _header_lines(response_head)[0].split()
     return len(status) >= 2 and status[1] == "101"
 
 
 def rewrite_response(head: bytes, subprotocol: str) -> bytes:
-    """The server's 101 answer with ``subprotocol`` as the chosen subprotocol (the one the client offered)."""
     lines = _header_lines(head)
     for index, line in enumerate(lines):
         if line.partition(":")[0].strip().lower() == "sec-websocket-protocol":
@@ -84,7 +79,6 @@ def rewrite_response(head: bytes, subprotocol: str) -> bytes:
     return "\r\n".join(lines).encode("latin-1")
 
 
-# --------------------------------------------------------------------------- frames, sans I/O
 def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
     """One final WebSocket frame; ``mask`` (4 bytes) for frames a client sends."""
     head = bytearray([0x80 | opcode])
@@ -105,7 +99,6 @@ def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
 
 
 def _header_size(head: bytes | bytearray) -> int:
-    """Bytes in a frame header, as far as its first two bytes tell (2 until they are there)."""
     if len(head) < 2:
         return 2
     length = head[1] & 0x7F
@@ -136,7 +129,6 @@ class FrameTap:
 
     @property
     def at_boundary(self) -> bool:
-        """No frame and no fragmented message is half through."""
         return not self._in_frame and not self._head and not self._fragmented
 
     def feed(self, data: bytes) -> list[int]:
@@ -212,8 +204,6 @@ class FrameTap:
 
 
 class _ServerOp(msgspec.Struct):
-    """The fields of a server's JSON message that tell a refusal."""
-
     op: str
     level: int = 0
     message: str = ""
@@ -248,7 +238,7 @@ class Connection:
         self.busy = False
 
     def send(self, frame: bytes) -> None:
-        """Send ``frame`` to the client at the next message boundary of the server's stream."""
+        """At the next message boundary of the server's stream."""
         if self.tap.closed or self.writer.is_closing():
             return
         self.outbox.append(frame)

@@ -52,7 +52,7 @@ from .watch import Watch
 
 
 class Viewer(Gateways, Protocol):
-    """What the host tells the view about its clients' subscriptions (followed in ``watch``), and the parameters' gateways."""
+    """What the host tells the view of its clients' subscriptions, and the parameters' gateways."""
 
     watch: Watch
 
@@ -94,7 +94,7 @@ class FoxgloveHost:
     def __init__(
         self, settings: FoxgloveSettings, clock: Callable[[], float] = time.monotonic, services: dict[str, Service] | None = None
     ) -> None:
-        """``services``: the name each service is advertised under (default: ``set_estop``, ``reset_odometry``; a fleet's ``/r3/set_estop``, ...)."""
+        """``services``: the name each service is advertised under (a fleet's ``/r3/set_estop``, ...)."""
         import foxglove
 
         self.settings = settings
@@ -154,7 +154,6 @@ class FoxgloveHost:
         ]
 
     async def start(self) -> None:
-        """Listen where clients connect (``--host``/``--port``)."""
         host, port = self.settings.host, self.settings.port
         try:
             self._front = await asyncio.start_server(self._serve_client, host, port, limit=HEAD_LIMIT)
@@ -175,7 +174,6 @@ class FoxgloveHost:
         self.timer.start()
 
     async def run(self, stop: asyncio.Event) -> None:
-        """Serve until ``stop``: the view's handlers run on the loop as the edge hands payloads over, the core's timers on the loop's timer."""
         await stop.wait()
 
     def close(self) -> None:
@@ -196,11 +194,9 @@ class FoxgloveHost:
         self.server.stop()
 
     def poke(self) -> None:
-        """An input reached the core (from outside the host too): move its timer if its deadline came earlier."""
         if self.timer is not None:
             self.timer.poke()
 
-    # --------------------------------------------------------------- the front
     async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
         upstream: asyncio.StreamWriter | None = None
         connection: Connection | None = None
@@ -249,7 +245,7 @@ class FoxgloveHost:
             await writer.drain()
 
     async def _downstream(self, connection: Connection, reader: asyncio.StreamReader) -> None:
-        """Server -> client, unchanged; the view's status messages go in between two messages."""
+        """Server -> client, unchanged; the view's status messages go between two messages."""
         writer = connection.writer
         while data := await reader.read(READ_SIZE):
             connection.busy = True
@@ -268,7 +264,7 @@ class FoxgloveHost:
             await writer.drain()
 
     def _on_server_text(self, connection: Connection, text: bytes) -> None:
-        """A JSON message the SDK sent a client: its own refusals are reported (the view's own failures already are)."""
+        """The SDK's own refusals to a client are reported (the view's own failures already are)."""
         try:
             op = server_op.decode(text)
         except (msgspec.DecodeError, msgspec.ValidationError):
@@ -290,8 +286,6 @@ class FoxgloveHost:
         self.core.on_server_refusal(connection.client, kind, message, self.clock())
         self.poke()
 
-    # --------------------------------------------------------------- from the SDK's threads, on the loop
-    # ClientEvents
     def client_advertised(self, client: int, channel: int, topic: str, encoding: str, schema_name: str) -> None:
         if channel == MARKER_CHANNEL_ID:
             connection = self._connections.get(schema_name)
@@ -327,9 +321,8 @@ class FoxgloveHost:
             viewer.watch_changed()
         self.poke()
 
-    # --------------------------------------------------------------- parameters
     def _get_params(self, names: list[str]) -> list[Any]:
-        """getParameters, on an SDK thread: from the snapshot the loop last made (a list replaced whole, never changed)."""
+        """getParameters, on an SDK thread: from the loop's last snapshot (a list replaced whole, never changed)."""
         snapshot = self._param_snapshot
         if not names:
             return snapshot
@@ -337,7 +330,7 @@ class FoxgloveHost:
         return [param for param in snapshot if param.name in wanted]
 
     def _set_params(self, client: int, parameters: list[Any]) -> list[Any]:
-        """setParameters, on an SDK thread: hand it to the loop, wait (bounded) for the gateways' answer, answer with the values then."""
+        """setParameters, on an SDK thread: handed to the loop; waits (bounded) for the gateways' answer."""
         future: concurrent.futures.Future[list[Param]] = concurrent.futures.Future()
         values = [(p.name, p.get_value()) for p in parameters]
         try:
@@ -356,20 +349,17 @@ class FoxgloveHost:
         self.params.on_set(number, client, values, self.clock())
         self.poke()
 
-    # ParamsOutput
     def parameters_answer(self, call: int, values: list[Param]) -> None:
         future = self._sets.pop(call, None)
         if future is not None and not future.done():
             future.set_result(values)
 
     def parameters_changed(self, values: list[Param]) -> None:
-        """A gateway's table changed: the snapshot is made anew and the changed values go to the clients that follow them."""
         if self.params is not None:
             self._param_snapshot = [foxglove_parameter(param) for param in self.params.values()]
         self.server.publish_parameter_values([foxglove_parameter(param) for param in values])
 
     def on_params_table(self, robot_id: str, payload: bytes) -> GatewayParams | None:
-        """A gateway's parameter table arrived (published, or answered); the table, if it decoded."""
         return self.params.on_table(robot_id, payload, self.clock()) if self.params is not None else None
 
     def on_params_reply(self, robot_id: str, reply: tuple[int, bytes | None, bytes | None]) -> None:
@@ -379,7 +369,7 @@ class FoxgloveHost:
             self.poke()
 
     def _handle_call(self, request: Any) -> bytes:
-        """The SDK's service handler, on its blocking thread: hand the call over and wait for the core's answer (bounded)."""
+        """The SDK's service handler, on its own thread: waits (bounded) for the core's answer."""
         future: concurrent.futures.Future[bytes] = concurrent.futures.Future()
         self._inflight.add(future)
         self._our_calls.add((request.client_id, request.call_id))
@@ -401,9 +391,8 @@ class FoxgloveHost:
         core.on_service_call(number, client, service, payload, self.clock())
         self.poke()
 
-    # --------------------------------------------------------------- to the clients (ControlsOutput's other half: the robot's keys are its port's)
     def status(self, client: int | None, level: StatusLevel, message: str) -> None:
-        """A status message to that client; to every client when it is not known (a client that did not come through the front)."""
+        """To that client; to every client when it is not known (it did not come through the front)."""
         connection = self._by_client.get(client) if client is not None else None
         if connection is not None:
             connection.send(ws_frame(OP_TEXT, status_message(level, message)))

@@ -11,7 +11,7 @@ from collections import deque
 from collections.abc import Callable
 from typing import Any
 
-from blackmetal.robot_model import Encoders
+from blackmetal.robot_model import Encoders, WheelAngles
 from blackmetal.schemas import (
     ErrorReport,
     GatewayHealth,
@@ -27,7 +27,7 @@ from blackmetal.schemas import (
 
 from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
-from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, WheelAngles, joint_state, turned
+from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, joint_state, turned
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -88,7 +88,7 @@ class LiveView:
         self.namespace = namespace
         self.frame, self.base = frame, base
         self.model = RobotModel(frame_prefix, encoders)
-        self._angles = WheelAngles()
+        self._angles = WheelAngles(wrap=True)
         schemas = json_schemas()
         ns = namespace
 
@@ -122,7 +122,6 @@ class LiveView:
         return {getattr(self.keys, key): {self._topic(t) for t in topics} for key, (_, topics) in FEEDS.items()}
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
-        """Key -> handler of its payloads."""
         return {getattr(self.keys, key): getattr(self, handler) for key, (handler, _) in FEEDS.items()}
 
     def _decode(self, message_type: type[Any], payload: bytes) -> Any:

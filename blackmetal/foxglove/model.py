@@ -13,13 +13,10 @@ from dataclasses import dataclass
 from typing import Any
 
 from blackmetal import robot_model as model
-from blackmetal.robot_model import Encoders
-from blackmetal.schemas import ConfigError, GatewayParams, WheelImpulses, stamp_parts
+from blackmetal.robot_model import Encoders, WheelAngles
+from blackmetal.schemas import ConfigError, GatewayParams, stamp_parts
 
 from .channels import HEADER, array, message_schema, typed
-
-#: Integrate no wheel angle across a gap longer than this (s): the wheels were not seen turning then.
-MAX_JOINT_GAP_S = 0.5
 
 #: ROS's std_msgs/msg/String as JSON: what the 3D panel's URDF layer reads.
 STRING_SCHEMA = message_schema("std_msgs/msg/String", "the robot's URDF (blackmetal.robot_model.urdf)", {"data": typed("string")}, ["data"])
@@ -52,7 +49,6 @@ def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[floa
 
 
 def moving_joints(urdf_text: str) -> list[Joint]:
-    """The continuous and revolute joints of a URDF, in its order."""
     joints = []
     for element in ET.fromstring(urdf_text).iter("joint"):
         if element.get("type") not in ("continuous", "revolute"):
@@ -117,34 +113,12 @@ class RobotModel:
         return True
 
     def description(self) -> bytes:
-        """The ``/robot_description`` message (std_msgs/msg/String, JSON)."""
         import json
 
         return json.dumps({"data": self.urdf}).encode()
 
 
-class WheelAngles:
-    """Wheel angles (rad) integrated from the impulses' wheel speeds, trapezoid rule, never across a gap."""
-
-    def __init__(self) -> None:
-        self.positions = [0.0, 0.0]
-        self.velocities = [0.0, 0.0]
-        self._last: float | None = None
-
-    def feed(self, sample: WheelImpulses, encoders: Encoders, radius: float) -> None:
-        left, right = encoders.to_speeds(float(sample.left), float(sample.right))
-        velocities = [left / radius, right / radius]
-        now = sample.mono if sample.mono is not None else sample.stamp
-        if self._last is not None and 0.0 < now - self._last <= MAX_JOINT_GAP_S:
-            dt = now - self._last
-            for i in (0, 1):
-                self.positions[i] = math.remainder(self.positions[i] + 0.5 * (self.velocities[i] + velocities[i]) * dt, math.tau)
-        self._last = now
-        self.velocities = velocities
-
-
 def joint_state(robot: RobotModel, angles: WheelAngles, stamp: float) -> dict[str, Any]:
-    """sensor_msgs/msg/JointState of the two wheels (left, right)."""
     sec, nsec = stamp_parts(stamp)
     names = [joint.name for joint in (robot.left, robot.right) if joint is not None]
     return {

@@ -20,8 +20,6 @@ CLIENT_ENCODING = "json"
 
 
 class Control(Enum):
-    """The topics a client may publish on."""
-
     CMD_VEL = "/cmd_vel"
     ESTOP = "/estop"
 
@@ -34,15 +32,11 @@ CONTROL_SCHEMAS: dict[Control, tuple[str, ...]] = {
 
 
 class Service(Enum):
-    """The services the view offers."""
-
     SET_ESTOP = "set_estop"
     RESET_ODOMETRY = "reset_odometry"
 
 
-# --------------------------------------------------------------------------- names: one robot, or a robot of a fleet
 def robot_namespace(robot_id: str) -> str:
-    """The topics of a fleet's robot go under ``/<id>`` (``/r3/odometry``); one robot's view has none (``""``)."""
     return f"/{robot_id}"
 
 
@@ -52,17 +46,14 @@ def robot_frame(robot_id: str, frame: str) -> str:
 
 
 def control_topic(namespace: str, control: Control) -> str:
-    """The topic a client publishes ``control`` on: ``/cmd_vel``, or ``/r3/cmd_vel`` in the namespace ``/r3``."""
     return f"{namespace}{control.value}"
 
 
 def service_name(namespace: str, service: Service) -> str:
-    """The name ``service`` is advertised under: ``set_estop`` for one robot, ``/r3/set_estop`` for a fleet's (as ROS names it)."""
     return f"{namespace}/{service.value}" if namespace else service.value
 
 
 def takes(namespace: str = "") -> str:
-    """What clients may publish, for refusals and the startup lines."""
     return " and ".join(f"{control_topic(namespace, c)} ({CONTROL_SCHEMAS[c][0]})" for c in Control) + ", JSON-encoded"
 
 
@@ -111,8 +102,6 @@ SERVICE_SPECS: dict[Service, ServiceSpec] = {
 
 
 class StatusLevel(IntEnum):
-    """A status message's level in the Foxglove WebSocket protocol."""
-
     INFO = 0
     WARNING = 1
     ERROR = 2

@@ -74,9 +74,7 @@ class Parameters:
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())
 
-    # ------------------------------------------------------------------ names
     def _owner(self, shown: str) -> tuple[str, str] | None:
-        """(robot id, the gateway's name) of a shown name; None when it names no robot."""
         if not self._fleet:
             (only,) = self.robots
             return only, shown
@@ -96,11 +94,8 @@ class Parameters:
         wanted = set(names)
         return [param for param in shown if param.name in wanted]
 
-    # ------------------------------------------------------------------ the gateways' tables
     def on_table(self, robot_id: str, payload: bytes, now: float) -> GatewayParams | None:
-        """A :class:`GatewayParams` (published, or the answer to a get): what changed goes to the clients that follow it.
-
-        Returns the table (None, reported, when it does not decode)."""
+        """What changed goes to the clients that follow it; the table (None, reported, when it does not decode)."""
         try:
             table = decode(GatewayParams, payload)
         except PayloadError as exc:
@@ -119,9 +114,7 @@ class Parameters:
         if changed:
             self.output.parameters_changed(changed)
 
-    # ------------------------------------------------------------------ setting
     def on_set(self, call: int, client: int, values: list[tuple[str, object]], now: float) -> None:
-        """A client's setParameters: each value to its robot's gateway; answered through ``parameters_answer``."""
         per_robot: dict[str, dict[str, ParamValue]] = {}
         refusals: list[str] = []
         for shown, value in values:
@@ -146,7 +139,7 @@ class Parameters:
         self._finish_if_done(call)
 
     def on_set_reply(self, robot_id: str, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
-        """The gateway's :class:`ParamsSetReply` (or its error reply, or ``None, None``: the query ended unanswered)."""
+        """``None, None``: the query ended unanswered."""
         pending = self._calls.get(call)
         if pending is None or robot_id not in pending.waiting:
             return
@@ -184,7 +177,6 @@ class Parameters:
         self.output.parameters_answer(call, self.values(pending.names))
 
     def tick(self, now: float) -> None:
-        """Sets whose gateways did not answer within the time limit: answered with the values the view knows."""
         for call, pending in list(self._calls.items()):
             if now >= pending.deadline:
                 robots = ", ".join(sorted(pending.waiting))

@@ -36,10 +36,8 @@ class RobotPort:
     edge: FoxgloveZenoh | NoEdge = NO_EDGE
 
     def plug(self, edge: FoxgloveZenoh | NoEdge) -> None:
-        """The robot's keys are reached through ``edge`` from now on (:data:`NO_EDGE`: nowhere)."""
         self.edge = self.controls.robot = edge
 
-    # Answers: from the edge, on the loop
     def on_health(self, payload: bytes) -> None:
         self.controls.on_health(payload, self.host.clock())
         self.host.poke()
@@ -49,7 +47,6 @@ class RobotPort:
         self.host.poke()
 
     def on_params(self, payload: bytes) -> None:
-        """The gateway's parameter table: to the parameters (and the clients following them) and the URDF (its wheel geometry)."""
         table = self.host.on_params_table(self.robot_id, payload)
         if table is not None:
             self.view.on_params(table)
@@ -88,14 +85,12 @@ class Wiring:
     def __post_init__(self) -> None:
         self._descriptions = {port.view.description_topic: port for port in self.ports.values()}
 
-    # Viewer
     def subscribed(self, topic: str) -> None:
         port = self._descriptions.get(topic)
         if port is not None:
             port.view.describe()
 
     def watch_changed(self) -> None:
-        """Subscribe each robot's edge to the keys its watched topics need, and keep the summary's poses while it is watched."""
         needed = self.watch.needed()
         for port in self.ports.values():
             port.edge.want({key for key in port.view.handlers() if key in needed})
@@ -117,14 +112,12 @@ class Wiring:
             self.fleet.poses = self.latest_pose
 
     def _take(self) -> None:
-        """Every :data:`DRAIN_PERIOD_S` while a key is followed: what the watched keys brought, to the view."""
         self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
         for port in self.ports.values():
             port.edge.drain()
         next(iter(self.ports.values())).host.poke()
 
     def stop(self) -> None:
-        """No more draining (the edges are closing)."""
         if self._drain is not None:
             self._drain.cancel()
             self._drain = None
@@ -133,7 +126,6 @@ class Wiring:
         port = self.ports.get(robot_id)
         return port.edge.latest_pose() if port is not None else None
 
-    # Gateways
     def ask_params(self, robot_id: str) -> None:
         self.ports[robot_id].edge.ask_params()
 

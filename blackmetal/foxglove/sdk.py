@@ -20,7 +20,6 @@ from .settings import FoxgloveSettings
 CALL_MARGIN_S = 1.0
 
 
-# --------------------------------------------------------------------------- what the SDK's threads hand over
 #: A client's doing, carried from the SDK's thread to the loop: the host's method with its arguments bound.
 Handover = Callable[[], None]
 
@@ -45,7 +44,7 @@ def sdk_listener(
     get_params: Callable[[list[str]], list[Any]],
     set_params: Callable[[int, list[Any]], list[Any]],
 ) -> Any:
-    """A ServerListener that hands every client event over to the view's loop (parameters: answered from the loop's snapshot, or waited for)."""
+    """A ServerListener that hands every client event over to the view's loop (parameters: from the loop's snapshot)."""
     from foxglove.websocket import ServerListener
 
     class Listener(ServerListener):
@@ -83,7 +82,6 @@ def foxglove_parameter(param: Param) -> Any:
 
 
 def start_server(settings: FoxgloveSettings, listener: Any = None, services: list[Any] | None = None) -> Any:
-    """The foxglove-sdk server on a free loopback port, with client publish, services (JSON) and parameters."""
     import foxglove
     from foxglove.websocket import Capability
 

@@ -38,7 +38,7 @@ class Watch:
         return False
 
     def client_gone(self, client: int) -> list[str]:
-        """A client disconnected: its subscriptions end; the topics nobody watches any more."""
+        """The topics nobody watches any more once ``client`` left."""
         return [topic for topic in list(self._clients) if self.unsubscribe(client, topic)]
 
     def watched(self, topic: str) -> bool:

@@ -96,8 +96,8 @@ class FoxgloveZenoh(ZenohEdge):
         on_error: Callable[[BaseException], None] | None = None,
         presence: Callable[[bool], None] | None = None,
     ) -> Intake:
-        """Hand-over channels for ``handlers`` (declared by :meth:`want`), the gateway's parameters (declared now), and with
-        ``presence`` its liveliness token (present: True, gone: False). ``on_error`` takes what a handler raised."""
+        """Hand-over channels for ``handlers`` (declared by :meth:`want`), the gateway's parameters and, with
+        ``presence``, its liveliness token. ``on_error`` takes what a handler raised."""
         handover = self.intake(loop, on_error=on_error)
         handlers = dict(handlers)
         show_health = handlers[self.keys.health]
@@ -125,9 +125,8 @@ class FoxgloveZenoh(ZenohEdge):
         self._set_reply = handover.channel("params set?", host.on_params_reply, capacity=64)
         return handover
 
-    # ------------------------------------------------------------------ what is watched
     def want(self, keys: set[str]) -> None:
-        """Subscribe to exactly these of the view's keys (each into its ring): declare the new ones, undeclare the rest."""
+        """Subscribe to exactly these of the view's keys, each into its ring."""
         import zenoh
 
         for key in [key for key in self._declared if key not in keys]:
@@ -137,8 +136,8 @@ class FoxgloveZenoh(ZenohEdge):
                 self._declared[key] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
 
     def drain(self) -> int:
-        """On the loop: every sample the watched keys' rings hold to its handler, oldest first; how many there were.
-        A handler that raises is reported through ``on_error`` and the next sample goes on."""
+        """On the loop: the rings' samples to their handlers, oldest first; how many. A handler that raises goes to
+        ``on_error`` and the next sample goes on."""
         taken = 0
         for key, subscriber in list(self._declared.items()):
             handler = self._handlers[key]
@@ -154,7 +153,6 @@ class FoxgloveZenoh(ZenohEdge):
 
     @property
     def declared(self) -> set[str]:
-        """The view's keys subscribed now."""
         return set(self._declared)
 
     def peek(self, on: bool) -> None:
@@ -168,7 +166,6 @@ class FoxgloveZenoh(ZenohEdge):
             self._peek, self._peeked = None, None
 
     def latest_pose(self) -> bytes | None:
-        """The newest pose the ring holds (the last one taken when none came since)."""
         if self._peek is not None:
             sample = self._peek.try_recv()
             if sample is not None:
@@ -181,7 +178,6 @@ class FoxgloveZenoh(ZenohEdge):
         self.peek(False)
         super().close()
 
-    # ------------------------------------------------------------------ ZenohSide
     def command(self, key: str, payload: bytes) -> None:
         self._publishers[key].put(payload)
 
@@ -201,7 +197,6 @@ class FoxgloveZenoh(ZenohEdge):
         self._get(self.keys.health, self._health_reply)
 
     def ask_params(self) -> None:
-        """A get on ``<prefix>/gateway/params``: the gateway's table, to :meth:`Answers.on_params`."""
         self._get(self.keys.params, self._params)
 
     def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes) -> None:
@@ -220,5 +215,4 @@ class FoxgloveZenoh(ZenohEdge):
         self._ask(self.keys.odometry_reset, self._reset_reply, call, payload)
 
     def set_params(self, call: int, payload: bytes) -> None:
-        """A get on ``<prefix>/gateway/params/set`` with a ParamsSet: the gateway's ParamsSetReply, then the end."""
         self._ask(self.keys.params_set, self._set_reply, call, payload)

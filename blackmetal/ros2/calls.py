@@ -1,13 +1,8 @@
 """The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services.
 
-Each call waits as a :class:`PendingCall` for its confirmation: a
-``set_estop`` puts the e-stop and asks the gateway's health every
-:data:`ESTOP_REPEAT_S` until the health shows the asked state; a
-``reset_odometry`` asks the odometry to reset and waits for its answer; a
-parameter call is answered from the gateway's table
-(:mod:`.parameters`), or, a set, when the gateway has answered. Each call
-is answered once: ``success=true`` when confirmed, ``success=false`` with
-the reason when refused or at its deadline. Pure, ``now`` passed in.
+Each call waits as a :class:`PendingCall` for its confirmation (the gateway's health, the odometry's answer, the
+gateway's set reply) and is answered once: ``success=false`` with the reason when refused or at its deadline.
+What each answers: docs/ros2-adapter.md "Topics and services". Pure, ``now`` passed in.
 """
 
 from __future__ import annotations
@@ -106,7 +101,6 @@ class ServiceCalls:
         return any(pending.service == SET_ESTOP for pending in self.pending.values())
 
     def on_health(self, health: GatewayHealth, now: float) -> None:
-        """The gateway's health: it confirms a set_estop once it shows the asked state."""
         for pending in list(self.pending.values()):
             if pending.service == SET_ESTOP:
                 pending.health = health
@@ -115,7 +109,6 @@ class ServiceCalls:
                     self._finish(pending, True, f"e-stop {state} (confirmed by the gateway's health on {self.keys.health})", now)
 
     def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
-        """A call of ``service`` (``set_estop`` or ``reset_odometry``); answered now if refused, else when confirmed."""
         key = self.options.service_keys.get(service, service)
         if service not in SERVICE_TYPES:
             self.output.service_refuse(call, f"no service {service!r} here")
@@ -161,7 +154,6 @@ class ServiceCalls:
             self._ask(Query.RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
-        """Put the asked e-stop state and ask the gateway's health; again every ESTOP_REPEAT_S until confirmed."""
         self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))
         self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
         pending.repeat_at = now + ESTOP_REPEAT_S
@@ -175,7 +167,6 @@ class ServiceCalls:
         self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
 
     def on_params(self, payload: bytes, now: float) -> None:
-        """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
         table = decoded(self.reporter, GatewayParams, payload, self.keys.params, now)
         if table is not None:
             self._take_params(table, now)
@@ -191,7 +182,6 @@ class ServiceCalls:
             self._run_parameter_call(pending, request, now)
 
     def _run_parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
-        """:meth:`_parameter_call`; a request that cannot be read is reported and refused."""
         try:
             self._parameter_call(pending, cdr, now)
         except PayloadError as exc:
@@ -199,10 +189,8 @@ class ServiceCalls:
             self._refuse(pending.call, f"invalid request: {exc}", now)
 
     def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
-        """One of rclcpp's parameter services: answered from the table now, or (a set) when the gateway has answered.
-
-        Before the gateway's table has arrived (the node has just started, or the gateway not yet), the call waits
-        for it, at most the service timeout: ``ros2 param list`` at start-up lists the parameters, not nothing."""
+        """Answered from the table now, or (a set) when the gateway has answered; before the table has arrived the call
+        waits for it, so ``ros2 param list`` at start-up lists the parameters, not nothing."""
         service, p, codec = pending.service, self.parameters, self.codec
         if not p.known:
             pending.request = cdr
@@ -245,7 +233,6 @@ class ServiceCalls:
         self._answer(pending, ok, self.codec.set_parameters_response(PARAMETER_SERVICES[pending.service], answers), now)
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
-        """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
         what, call = self.queries.get(tag, ("", None))
         if what == Query.PARAMS:
             if ok:
@@ -288,19 +275,15 @@ class ServiceCalls:
             self._fail(pending, f"no {who} answered on {key} (is it running on prefix {self.keys.prefix}?){nothing}", now)
 
     def _fail(self, pending: PendingCall, reason: str, now: float) -> None:
-        """Answer ``pending`` as failed: a set call's every result (those refused here keep their reason), else the
-        std_srvs response."""
         if pending.service in SET_CALLS:
             self._answer_set(pending, None, now, reason)
         else:
             self._finish(pending, False, reason, now)
 
     def _finish(self, pending: PendingCall, success: bool, message: str, now: float) -> None:
-        """Answer ``pending`` once, with the std_srvs response."""
         self._answer(pending, success, self.codec.response(SERVICE_TYPES[pending.service], success=success, message=message), now)
 
     def _answer(self, pending: PendingCall, success: bool, cdr: bytes, now: float) -> None:
-        """Answer ``pending`` once, with ``cdr`` and (rmw_zenoh) the reply attachment."""
         self.pending.pop(pending.call, None)
         if pending.service == SET_ESTOP:
             self.follow()  # the health is followed no longer, unless /diagnostics needs it
@@ -338,7 +321,6 @@ class ServiceCalls:
         self._fail(pending, f"the gateway did not confirm the e-stop {state} within {limit} ({seen})", now)
 
     def tick(self, now: float) -> None:
-        """Answer the calls past their deadline; put the e-stop again for a set_estop due to repeat."""
         for pending in list(self.pending.values()):
             if now >= pending.deadline:
                 self._timed_out(pending, now)

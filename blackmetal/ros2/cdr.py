@@ -1,9 +1,7 @@
-"""The few messages written and read straight as little-endian CDR bytes, where rosbags is too slow for the hot path.
+"""The few messages written and read straight as little-endian CDR, where rosbags is too slow for the hot path.
 
-Every ``/odom`` of a fleet is written here (7 us against rosbags' 18), and
-every ROS command is read here on Zenoh's thread (2 us against rosbags' 8).
-Anything these do not recognise goes to rosbags, which reads it and says
-what is wrong; a test holds both paths equal.
+Every fleet ``/odom`` is written here (7 us against rosbags' 18), every ROS command read here on Zenoh's thread
+(2 us against 8). Anything else goes to rosbags, which says what is wrong; a test holds both paths equal.
 """
 
 from __future__ import annotations
@@ -34,13 +32,10 @@ def twist_le(payload: bytes) -> tuple[float, ...] | None:
 
 
 def twist_stamped_le(payload: bytes) -> tuple[int, int, tuple[float, ...]] | None:
-    """A little-endian geometry_msgs/TwistStamped read straight from its bytes: (sec, nanosec, the six doubles).
+    """(sec, nanosec, the six doubles) of a little-endian TwistStamped; None for anything else (rosbags says why).
 
-    None for anything else (big-endian, a frame_id that is not NUL-terminated
-    UTF-8, a length that does not add up): rosbags reads those and says
-    what is wrong. The layout, after the 4-byte encapsulation header: int32
-    sec, uint32 nanosec, uint32 length of frame_id with its NUL, its bytes,
-    padding to 8 (counted from after the header), six doubles.
+    After the 4-byte header: int32 sec, uint32 nanosec, uint32 length of frame_id with its NUL, its bytes, padding
+    to 8 (counted from after the header), six doubles.
     """
     if len(payload) < 68 or payload[:2] != b"\x00\x01":
         return None

@@ -1,22 +1,9 @@
 """The ROS 2 adapter's core: blackmetal payloads in, ROS messages out, and back. Pure and clock-injected.
 
-It is a plain client of the robot's keys: poses become ``/odom`` and
-``/tf``, impulses become ``/joint_states`` (:mod:`.joints`), and ROS
-``/cmd_vel`` and ``/estop`` become the JSON messages the gateway already
-takes (``/cmd_vel`` as the command source ``ros2``, or ``--source``), so
-the gateway's limits, timeout, arbitration and emergency stop apply to ROS
-exactly as to any other client. Whatever cannot be decoded is reported on
-``<prefix>/errors`` with the reason and is never forwarded.
-
-The services, and the gateway's parameters as the node's, are answered by
-:mod:`.calls`; ``/diagnostics`` is built by :mod:`.diagnostics`; this
-module ties them to the node's inputs and timers.
-
-Every input comes with ``now`` (the receiver's monotonic time); what is due
-later (diagnostics, e-stop repeats, call deadlines, summaries of
-rate-limited error reports) goes out in :meth:`Ros2Core.tick`, at
-:meth:`Ros2Core.next_deadline`. No I/O and no clock read here:
-:mod:`blackmetal.ros2.host` runs it on a loop, and tests call it directly.
+A plain client of the robot's keys: ROS ``/cmd_vel`` and ``/estop`` become the gateway's own messages, so its limits,
+timeout, arbitration and e-stop apply to ROS as to any client; what cannot be decoded is reported on
+``<prefix>/errors``, never forwarded. Services are answered by :mod:`.calls`. Every input comes with ``now``; what
+is due later goes out in :meth:`Ros2Core.tick`. docs/ros2-adapter.md says what each topic carries.
 """
 
 from __future__ import annotations
@@ -26,13 +13,13 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+from blackmetal.robot_model import WheelAngles
 from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
-from .joints import WheelJoints
 from .messages import RosCodec
 from .naming import ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
@@ -60,7 +47,7 @@ class Ros2Core:
     def __post_init__(self) -> None:
         o = self.options
         self.reporter = ErrorReporter("ros2", self.output.error, self.wallclock)
-        self.joints = WheelJoints(o.encoders, o.wheel_radius)
+        self.joints = WheelAngles()
         self.cmd_vel_target = self.keys.cmd_vel_of(o.source)
         self.diagnostics = Diagnostics(self.keys, o.node, o.expected_poll_hz)
         self.stats = AdapterStats()
@@ -82,11 +69,9 @@ class Ros2Core:
         self._model_published = True
 
     def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
-        """A bad ROS input: reported, counted, never forwarded."""
         self.stats.bad_inputs.add(now)
         self.reporter.report(key, reason, snippet, now=now)
 
-    # --------------------------------------------------------------- blackmetal -> ROS
     def on_pose(self, payload: bytes, now: float) -> None:
         pose = decoded(self.reporter, Pose, payload, self.keys.pose, now)
         if pose is None:
@@ -102,7 +87,7 @@ class Ros2Core:
         sample = decoded(self.reporter, WheelImpulses, payload, self.keys.impulses, now)
         if sample is None:
             return
-        self.joints.feed(sample)
+        self.joints.feed(sample, self.options.encoders, self.options.wheel_radius)
         if self._wants("joint_states"):
             cdr = self.codec.joint_state(sample.stamp, list(self.options.joint_names), self.joints.positions, self.joints.velocities)
             self.output.ros("joint_states", cdr)
@@ -133,24 +118,19 @@ class Ros2Core:
             self.calls.ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
         self.diagnostics.on_alive(who, alive)
 
-    # --------------------------------------------------------------- parameters
     def start(self) -> None:
-        """Once, when the node starts serving: ask the gateway for its parameter table, and follow only what is watched
-        (the edge reports each topic's matching status from now on)."""
+        """Once, when the node starts serving: ask for the gateway's parameters; from now on follow only what is watched."""
         self.calls.ask_params()
         if self.watched is None:
             self.watched = set()
         self._follow()
 
-    # --------------------------------------------------------------- who watches
     def _wants(self, topic: str) -> bool:
         """Someone watches ``topic`` (all of them until the edge reports); /tf only if the node publishes it."""
         return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
     def needs(self) -> frozenset[str]:
-        """The robot's streams the watched topics need: poses for /odom, /tf and /diagnostics; impulses for
-        /joint_states and the wheels on /tf; error reports and the gateway's health for /diagnostics; the health, too,
-        while a set_estop waits for it to confirm."""
+        """The robot's streams the watched topics need (the health also while a set_estop waits for it)."""
         robot = self.options.robot
         out = set()
         if any(map(self._wants, ("odom", "tf", "diagnostics"))):
@@ -172,8 +152,7 @@ class Ros2Core:
             self.output.follow(needs)
 
     def on_matched(self, topic: str, matched: bool, now: float) -> None:
-        """Someone subscribes to ``topic`` now (``matched``), or nobody does any more: publish it, and follow what it needs,
-        only while someone does."""
+        """Someone subscribes to ``topic`` now, or nobody does any more: publish it only while someone does."""
         if self.watched is None:
             self.watched = set()
         if matched:
@@ -184,28 +163,14 @@ class Ros2Core:
         if matched and topic == "diagnostics":
             self._next_diagnostics = min(self._next_diagnostics, now)  # a new watcher gets the statuses at once
 
-    def on_params(self, payload: bytes, now: float) -> None:
-        """The gateway's parameter table (published on a change, or the answer to our get): /parameter_events."""
-        self.calls.on_params(payload, now)
-
-    # --------------------------------------------------------------- ROS -> blackmetal
     def on_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False) -> None:
-        """A ``/cmd_vel`` sample, ``geometry_msgs/Twist`` or (``stamped``) ``TwistStamped``, forwarded as the source's command.
-
-        A stamped command older than the gateway's command timeout (its
-        header stamp against the wall clock; a zero stamp means now, as
-        diff_drive_controller reads it) is refused and reported: the robot
-        must not act on a command its publisher gave up on.
-        """
         self.take_cmd_vel(cdr, now, stamped, report=True)
 
     def take_cmd_vel(self, cdr: bytes, now: float, stamped: bool = False, report: bool = False) -> bool:
-        """Forward an acceptable ``/cmd_vel`` sample (see :meth:`on_cmd_vel`); whether it was forwarded.
+        """Forward a ``/cmd_vel`` sample unless stale: the robot must not act on a command its publisher gave up on.
 
-        Without ``report`` a refusal changes nothing and returns False, so
-        that the host's direct take (on Zenoh's thread, which must not
-        publish an error report) leaves the sample to :meth:`on_cmd_vel` on
-        the loop, which refuses it again and reports why.
+        Without ``report`` a refusal changes nothing, so the direct take on Zenoh's thread (which must not publish an
+        error report) leaves the sample to :meth:`on_cmd_vel` on the loop, which refuses it again and reports why.
         """
         key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
         try:
@@ -245,11 +210,6 @@ class Ros2Core:
         self.stats.estops += 1
         self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))
 
-    # --------------------------------------------------------------- services
-    def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
-        """A call of one of the node's services; answered now if refused, else when confirmed (:mod:`.calls`)."""
-        self.calls.on_service_request(service, call, cdr, request_attachment, now)
-
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
         if self.calls.queries.get(tag, ("", None))[0] != Query.HEALTH:
@@ -257,18 +217,12 @@ class Ros2Core:
         elif ok:
             self.on_health(payload, now)
 
-    def on_query_done(self, tag: int, now: float) -> None:
-        """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
-        self.calls.on_query_done(tag, now)
-
-    # --------------------------------------------------------------- timers
     def statuses(self, now: float) -> list[Status]:
         d = self.diagnostics
         return [d.robot_link(now), d.odometry(now), d.adapter(now, self.stats, self.options, len(self.calls.pending))]
 
     def tick(self, now: float) -> None:
-        """Run what is due at ``now``: the robot model (first tick), call deadlines and e-stop repeats, diagnostics,
-        error-report summaries."""
+        """Run what is due at ``now``: the robot model (first tick), calls, diagnostics, error-report summaries."""
         if not self._model_published:
             self.publish_robot_model()
         self.calls.tick(now)
@@ -280,7 +234,6 @@ class Ros2Core:
         self.reporter.tick(now)
 
     def next_deadline(self) -> float:
-        """When :meth:`tick` has something to do next."""
         diagnostics = self._next_diagnostics if self._wants("diagnostics") else math.inf  # nobody watches: no timer
         deadline = min(diagnostics, self.reporter.next_deadline())
         if self.calls.pending:  # asked after every pose: the common case, no call pending, builds nothing

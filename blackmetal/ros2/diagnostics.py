@@ -1,10 +1,6 @@
-"""ROS 2 ``/diagnostics``: the three statuses (robot link, odometry, adapter) from the latest of what the node saw.
+"""ROS 2 ``/diagnostics``: three statuses (robot link, odometry, adapter) from the latest of what the node saw.
 
-The latest health, pose, odometry reports and liveliness it was fed,
-turned into three ``DiagnosticStatus`` every :data:`DIAGNOSTICS_PERIOD_S`.
-Their levels, words and thresholds are the shared severity table's
-(:mod:`blackmetal.runtime.diagnostics`, which the Foxglove view reads too;
-the README lists them). Pure, ``now`` passed in.
+Levels, words and thresholds are the shared table's (:mod:`blackmetal.runtime.diagnostics`). Pure, ``now`` passed in.
 """
 
 from __future__ import annotations
@@ -76,7 +72,6 @@ class Diagnostics:
     def label(self) -> str:
         return self.node.lstrip("/") or self.node
 
-    # inputs
     def on_health(self, health: GatewayHealth, now: float) -> None:
         if self.health is not None and health.source != self.health.source:
             self._lost.clear()  # another gateway run: its counters start over
@@ -99,7 +94,6 @@ class Diagnostics:
         elif who == "odometry":
             self.odometry_alive = alive
 
-    # statuses
     def lost_in_window(self, now: float) -> tuple[int, int]:
         """(replies lost, polls) over the health reports of the last window."""
         while len(self._lost) > 1 and self._lost[0][0] <= now - WINDOW_S:

@@ -1,23 +1,8 @@
 """``blackmetal ros2 --fleet FILE``: one ROS node per robot of the fleet file, one process, one Zenoh session.
 
-Each robot's node is the single-robot adapter under the ROS namespace of
-its id (``/r3/cmd_vel``, ``/r3/odom``, ``/r3/joint_states``, services
-``/r3/set_estop`` and ``/r3/reset_odometry``; the node ``/r3/blackmetal``),
-reading and writing that robot's prefix (``fleet/r3/...``). Like
-diff_drive_controller in a namespace, its frames carry the namespace as a
-prefix (``r3/odom``, ``r3/base_footprint``: ``tf_frame_prefix`` left empty) and
-its transforms go to the absolute ``/tf`` (``DEFAULT_TRANSFORM_TOPIC``),
-one tree for the fleet; its robot model is ``/r3/robot_description`` with
-``r3/`` links, its fixed joints on the absolute ``/tf_static``; ``/diagnostics`` stays absolute, each status named
-after its node (``r3/blackmetal: robot link``). With rmw_zenoh every node
-holds its own tokens, its ids drawn from one counter for the session as
-rmw_zenoh numbers a context's nodes and entities; with several distros
-(``--distro humble,jazzy``) each robot has one node per distro.
-
-What the nodes share is the process, the loop, the codec and the session.
-A robot's bad input is its own (reported on its ``<prefix>/errors``); a bug
-in handling one robot fails only its host, which is reported on that
-robot's errors key and started again (as ``gateway --fleet`` does).
+Each robot's node is the single-robot adapter under the namespace of its id, its frames prefixed as
+diff_drive_controller prefixes them, its transforms on the absolute ``/tf`` (docs/ros2-adapter.md "A fleet").
+A bug in handling one robot fails only its node, which is reported on that robot's errors key and started again.
 """
 
 from __future__ import annotations
@@ -84,8 +69,8 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
 def declare_node(
     session: Any, s: Ros2Settings, codec: RosCodec, ids: Iterator[int], distro: Distro, burst: PutBurst | None = None
 ) -> tuple[Ros2Zenoh, Ros2Host]:
-    """One node of ``distro`` for the robot of ``s``, attached to the running loop. With the fleet's ``burst``, a fleet's
-    node: its transforms on the absolute /tf, its frames prefixed by its namespace, its robot streams in rings, supervised."""
+    """One node of ``distro`` for the robot of ``s``, attached to the running loop; with ``burst``, a fleet's node
+    (absolute /tf, frames prefixed by its namespace, streams in rings, supervised)."""
     fleet = burst is not None
     namespace = normalise_namespace(s.namespace)
     edge = Ros2Zenoh(
@@ -111,7 +96,6 @@ def declare_node(
 
 
 async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
-    """Open one Zenoh session and serve one ROS node per robot of the fleet on it until ``stop``."""
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
     failure = "ROS 2 node of {robot} failed ({exc!r}, its %s node); starting it again in {pause:g} s"

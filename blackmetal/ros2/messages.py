@@ -1,12 +1,7 @@
 """ROS 2 messages as CDR bytes, both ways, with the type store of :mod:`.ros_types`.
 
-The adapter's whole contact with ROS messages: blackmetal messages in, CDR
-bytes out (``/odom``, ``/tf``, ``/joint_states``, ``/diagnostics``, service
-responses), and CDR bytes in, blackmetal messages out (``/cmd_vel``;
-``/estop`` and service requests as rosbags reads them). Decoding is strict:
-a payload that is not exactly one valid message of the expected type, or
-that carries a non-finite number, is a :class:`PayloadError` saying why. The
-hot paths (``/odom`` out, commands in) are written by hand in :mod:`.cdr`.
+Decoding is strict: a payload that is not exactly one valid message of the expected type, or that carries a
+non-finite number, is a :class:`PayloadError` saying why. The hot paths (``/odom`` out, commands in) are in :mod:`.cdr`.
 """
 
 from __future__ import annotations
@@ -39,7 +34,6 @@ class RosCodec:
         return self.store.types[ros_type](**fields)
 
     def encode(self, ros_type: str, **fields: Any) -> bytes:
-        """A ``ros_type`` message of ``fields``, in CDR."""
         return bytes(self.store.serialize_cdr(self.message(ros_type, **fields), ros_type))
 
     def time(self, stamp: float) -> Any:
@@ -52,13 +46,8 @@ class RosCodec:
     def vector3(self, x: float, y: float, z: float) -> Any:
         return self.message("geometry_msgs/msg/Vector3", x=x, y=y, z=z)
 
-    # --------------------------------------------------------------- out
     def odometry(self, pose: Pose, frames: Frames, pose_covariance: Any, twist_covariance: Any) -> bytes:
-        """nav_msgs/Odometry: pose in ``odom``, twist in ``base_link``; covariances are 36-element arrays.
-
-        Written by :mod:`.cdr` (every /odom of a fleet goes through here); a test holds it equal to rosbags' writing
-        of the same message.
-        """
+        """nav_msgs/Odometry, written by :mod:`.cdr` (every /odom of a fleet goes through here); covariances: 36 values."""
         middle = self._odometry_frames.get(frames)
         if middle is None:
             middle = self._odometry_frames[frames] = cdr.odometry_frames(frames)
@@ -70,7 +59,6 @@ class RosCodec:
         return self.transforms(pose.stamp, [Transform(frames.odom, frames.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w))])
 
     def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
-        """tf2_msgs/TFMessage of ``transforms``, all stamped ``stamp`` (Unix s)."""
         return self.encode(
             ros.TF_MESSAGE,
             transforms=[
@@ -101,7 +89,6 @@ class RosCodec:
         )
 
     def diagnostics(self, stamp: float, statuses: Sequence[Status]) -> bytes:
-        """diagnostic_msgs/DiagnosticArray of ``statuses``, stamped ``stamp`` (Unix s)."""
         return self.encode(
             ros.DIAGNOSTIC_ARRAY,
             header=self.header(stamp, ""),
@@ -122,12 +109,8 @@ class RosCodec:
         """The ``<service>_Response`` of ``fields`` (SetBool's and Trigger's are both ``bool success, string message``)."""
         return self.encode(f"{service}_Response", **fields)
 
-    # --------------------------------------------------------------- parameters (rcl_interfaces)
     def _value(self, value: RosValue | None) -> Any:
-        """A ParameterValue of a bool, int, float or str (None: PARAMETER_NOT_SET).
-
-        Each kind's field is ``<kind>_value`` (``bool_value``, ``byte_array_value``, ...); every field is written,
-        the kind's with the value, the others empty."""
+        """A ParameterValue of a bool, int, float or str (None: PARAMETER_NOT_SET); every ``<kind>_value`` is written."""
         import numpy as np
 
         empty: dict[ParameterType, Any] = {
@@ -151,8 +134,7 @@ class RosCodec:
         return self.message("rcl_interfaces/msg/ParameterValue", type=int(kind), **fields)
 
     def parameter_response(self, service: str, payload: bytes, table: NodeParameters) -> bytes:
-        """The response of ``list_parameters``, ``get_parameters``, ``get_parameter_types`` or ``describe_parameters``
-        (``service``: its type) to the request ``payload``, answered from ``table``."""
+        """The response of a parameter read service (``service``: its type), answered from ``table``."""
         import numpy as np
 
         request = self.request(service, payload)
@@ -167,8 +149,6 @@ class RosCodec:
         return self.response(service, descriptors=[self._descriptor(p) for p in table.describe(asked)])
 
     def _descriptor(self, p: Param) -> Any:
-        """A ParameterDescriptor of a parameter of the gateway's table (a number's range from ``min``/``max``, step 0:
-        any value; a kind rcl_interfaces does not have: NOT_SET)."""
         kind, floats, integers = ParameterType.of(p.type), [], []
         if p.min is not None and p.max is not None and kind is ParameterType.DOUBLE:
             floats = [self.message("rcl_interfaces/msg/FloatingPointRange", from_value=p.min, to_value=p.max, step=0.0)]
@@ -187,8 +167,6 @@ class RosCodec:
         )
 
     def set_parameters_response(self, service: str, results: Sequence[tuple[bool, str]]) -> bytes:
-        """SetParameters' response, one result per parameter; SetParametersAtomically's, its one result (the only one
-        in ``results``)."""
         out = [self.message("rcl_interfaces/msg/SetParametersResult", successful=ok, reason=reason) for ok, reason in results]
         return self.response(service, results=out) if service == ros.SET_PARAMETERS else self.response(service, result=out[0])
 
@@ -206,12 +184,10 @@ class RosCodec:
         )
 
     def parameters(self, pairs: Sequence[tuple[str, RosValue]]) -> list[Any]:
-        """rcl_interfaces/msg/Parameter of each (name, value)."""
         return [self.message("rcl_interfaces/msg/Parameter", name=name, value=self._value(value)) for name, value in pairs]
 
     def set_parameters_request(self, service: str, payload: bytes) -> list[tuple[str, RosValue]]:
-        """The (name, value) pairs of a SetParameters(Atomically) request; a value that is not a bool, an integer, a
-        double or a string comes as its :class:`ParameterType` alone (the caller refuses it)."""
+        """The (name, value) pairs of a set request; a value not bool, int, float or str comes as its ParameterType."""
         out: list[tuple[str, RosValue]] = []
         for parameter in self.request(service, payload).parameters:
             v = parameter.value
@@ -230,7 +206,6 @@ class RosCodec:
             out.append((str(parameter.name), scalars.get(kind, kind)))
         return out
 
-    # --------------------------------------------------------------- in
     def decode(self, payload: bytes, ros_type: str) -> Any:
         """One message of ``ros_type``, as rosbags' dataclass; PayloadError if it is not exactly one."""
         short = ros_type.rsplit("/", 1)[-1]
@@ -248,22 +223,18 @@ class RosCodec:
             raise PayloadError(short, f"not a valid CDR {ros_type} ({len(payload)} bytes): {exc}", excerpt(payload)) from None
 
     def request(self, service: str, payload: bytes) -> Any:
-        """A ``<service>_Request``, as rosbags' dataclass; PayloadError if it is not exactly one."""
         return self.decode(payload, f"{service}_Request")
 
     def twist(self, payload: bytes) -> Twist:
-        """geometry_msgs/Twist CDR -> a blackmetal Twist; PayloadError if invalid or not finite.
-
-        rmw_zenoh's own (little-endian, six doubles) is read straight from the bytes by :mod:`.cdr` (a ROS command is
-        taken on Zenoh's thread); anything else, or a number not finite, by rosbags, which says what is wrong."""
+        """A Twist, read straight from the bytes by :mod:`.cdr` (taken on Zenoh's thread); anything odd by rosbags,
+        which says what is wrong. PayloadError if invalid or not finite."""
         fast = cdr.twist_le(payload)
         if fast is not None and all(map(math.isfinite, fast)):
             return _as_twist(fast)
         return self._twist(payload, self.decode(payload, ros.TWIST))
 
     def twist_stamped(self, payload: bytes) -> tuple[Twist, float]:
-        """geometry_msgs/TwistStamped CDR -> the blackmetal Twist and the header's stamp (Unix s; 0.0 for a zero stamp),
-        read as :meth:`twist` reads a Twist."""
+        """The Twist and the header's stamp (Unix s; 0.0 for a zero stamp), read as :meth:`twist` reads a Twist."""
         fast = cdr.twist_stamped_le(payload)
         if fast is not None and all(map(math.isfinite, fast[2])):
             return _as_twist(fast[2]), fast[0] + fast[1] * 1e-9
@@ -278,7 +249,6 @@ class RosCodec:
             raise PayloadError("Twist", f"{', '.join(bad)} must be finite numbers, got {[values[b] for b in bad]}", excerpt(payload))
         return _as_twist(tuple(values.values()))
 
-    # --------------------------------------------------------------- for tools playing the ROS side
     def encode_twist(self, linear_x: float, angular_z: float, stamp: float | None = None, frame_id: str = "") -> bytes:
         linear, angular = self.vector3(linear_x, 0.0, 0.0), self.vector3(0.0, 0.0, angular_z)
         if stamp is None:
@@ -289,6 +259,5 @@ class RosCodec:
 
 
 def _as_twist(values: tuple[float, ...]) -> Twist:
-    """linear x, y, z and angular x, y, z as a blackmetal Twist."""
     lx, ly, lz, ax, ay, az = values
     return Twist(linear=Vector3(x=lx, y=ly, z=lz), angular=Vector3(x=ax, y=ay, z=az))

@@ -1,52 +1,8 @@
-"""Where ROS 2 messages live on Zenoh: rmw_zenoh's keys, liveliness tokens and attachments per ROS 2 distro, and the bridge's keys.
+"""Where ROS 2 messages live on Zenoh: rmw_zenoh's keys, liveliness tokens, QoS and attachments per distro, and
+zenoh-bridge-ros2dds's keys (raw CDR on the topic name, a service a queryable on its name).
 
-Pure string and byte work, no Zenoh and no ROS. The rmw_zenoh formats
-follow rmw_zenoh_cpp's ``liveliness_utils.cpp``, ``qos.cpp``,
-``attachment_helpers.cpp``, ``rmw_publisher_data.cpp`` and
-``rmw_subscription_data.cpp``, read in each distro's release (the
-``upstream/<version>`` tags of ros2-gbp/rmw_zenoh-release, the sources
-the ROS packages are built from; :data:`DISTROS` names them):
-
-* data key: ``<domain>/<topic without outer slashes>/<DDS type>/<type hash>``;
-  the type hash is ``RIHS01_<sha256>`` from Jazzy on, and the constant
-  ``TypeHashNotSupported`` on Humble (its ``rmw_publisher_data.cpp`` and the
-  other ``*_data.cpp``: "Humble doesn't support type hash"), in keys and
-  tokens alike, so a Humble node and a Jazzy node never match each other's keys;
-* service key: the same, with the service type (``std_srvs::srv::dds_::SetBool_``,
-  ``rmw_service_data.cpp`` strips ``Response_`` from the response type) and
-  the service type hash; the server is a *complete* queryable on it (the
-  client's ``get`` targets ``ALL_COMPLETE``);
-* liveliness token: ``@ros2_lv/<domain>/<zid>/<node id>/<entity id>/<NN|MP|MS|SS|SC>/
-  <enclave>/<namespace>/<node>[/<topic or service>/<DDS type>/<type hash>/<qos>]``,
-  every ``/`` inside a name replaced by ``%`` (so ``/`` becomes ``%``); the same
-  on every distro (Rolling 0.12 and Lyrical 0.10 add a 14th ``backends:`` part
-  only for types with Buffer fields, which none of ours has);
-* QoS: ``reliability:durability:history,depth:deadline s,ns:lifespan s,ns:
-  liveliness,lease s,ns``, each value left empty when it equals rmw_zenoh's
-  default (reliable, volatile, keep-last 42, infinite durations, automatic);
-  the same defaults and encoding on every distro;
-* attachment: int64 LE sequence number, int64 LE source timestamp (ns),
-  one length byte (16), the 16-byte GID = XXH3-128 of the entity's token
-  (``zenoh::ext::Serializer`` of the three fields). The same 33 bytes on every
-  distro from Humble 0.1.2 and Jazzy 0.2.5 on (Humble 0.1.0-0.1.1 and Jazzy
-  0.2.0-0.2.3 wrote each field's name before it: not supported).
-  A service request carries the client's (its sequence number, its GID); the
-  reply carries the same sequence number and client GID with the server's
-  timestamp (``rmw_client_data.cpp``, ``rmw_service_data.cpp``);
-* TRANSIENT_LOCAL durability (``/robot_description``, ``/tf_static``): an
-  AdvancedPublisher with a cache of ``depth`` samples, publisher detection,
-  and, being reliable, sample-miss detection with a sporadic heartbeat every
-  500 ms (``rmw_publisher_data.cpp``, the same on every distro); a late
-  subscriber's AdvancedSubscriber (``detect_late_publishers``) queries that
-  cache (``rmw_subscription_data.cpp``).
-
-zenoh-bridge-ros2dds instead puts raw CDR on the topic name without its
-leading slash (``cmd_vel``, ``r1/cmd_vel``), with no attachment or token; a
-service is a queryable on its name (``r1/set_estop``) that takes the CDR
-request and answers the CDR response (``route_service_cli.rs``).
-
-:func:`topics` lists the node's topics: name, ROS type, direction and QoS;
-:func:`services` its services.
+Pure string and byte work, no Zenoh and no ROS. Each format, and the rmw_zenoh sources it was read from, is in
+docs/ros2.md "What each distro writes"; :func:`topics` and :func:`services` list the node's entities.
 """
 
 from __future__ import annotations
@@ -88,20 +44,14 @@ class Distro(StrEnum):
 
 @dataclass(frozen=True, slots=True)
 class DistroFormat:
-    """What differs between distros on the wire, and the release of rmw_zenoh it was read from."""
+    """What differs between distros on the wire; the rmw_zenoh release it was read from, the first it holds for."""
 
     type_hashes: bool  # RIHS01 hashes in keys and tokens; False: TypeHashNotSupported
-    release: str  # the rmw_zenoh_cpp release read (ros2-gbp/rmw_zenoh-release, tag upstream/<version>)
-    supported_from: str  # the first release whose formats these are
+    release: str
+    supported_from: str
 
 
-#: Read in each release's rmw_zenoh_cpp/src/detail/{liveliness_utils,qos,attachment_helpers,rmw_publisher_data,
-#: rmw_subscription_data,rmw_service_data,rmw_client_data}.cpp. Jazzy 0.2.10 and Kilted 0.6.7 hold the same
-#: liveliness_utils.cpp, qos.cpp and attachment_helpers.cpp byte for byte; Lyrical 0.10.5 and Rolling 0.12.0 too
-#: (their liveliness_utils.cpp differs from Jazzy's only by the Buffer-type ``backends`` part); Humble 0.1.9's differ
-#: from Jazzy's only by the 16 written for RMW_GID_STORAGE_SIZE and the QoS maps' BEST_AVAILABLE entries (which
-#: the adapter never writes). The message definitions of every type the node uses are the same on every distro
-#: (rosbags' Humble to Lyrical stores give the same RIHS01 hashes), so only Humble's missing hashes differ.
+#: Only Humble's missing type hashes differ on the wire (docs/ros2.md "What each distro writes").
 DISTROS: dict[Distro, DistroFormat] = {
     Distro.HUMBLE: DistroFormat(type_hashes=False, release="0.1.9", supported_from="0.1.2"),
     Distro.JAZZY: DistroFormat(type_hashes=True, release="0.2.10", supported_from="0.2.5"),
@@ -176,7 +126,6 @@ class Qos:
 
 
 def check_ros_name(kind: str, name: str) -> str:
-    """A ROS name segment (node name, namespace part): letters, digits, underscores, not starting with a digit."""
     if not _NAME.match(name):
         raise ConfigError(f"{kind} {name!r} is not a valid ROS name: letters, digits and '_', not starting with a digit")
     return name
@@ -191,18 +140,13 @@ def normalise_namespace(namespace: str | None) -> str:
 
 
 def full_topic(namespace: str, topic: str) -> str:
-    """The fully qualified topic name: ``/r1`` + ``odom`` -> ``/r1/odom``."""
     base = namespace.rstrip("/")
     return f"{base}/{topic.strip('/')}"
 
 
 def tf_frame_prefix(namespace: str) -> str:
-    """The frame prefix diff_drive_controller takes from its namespace (``tf_frame_prefix`` left empty,
-    ``tf_frame_prefix_enable`` true, the defaults): ``/r3`` -> ``r3/``, ``/`` -> none.
-
-    As ``diff_drive_controller.cpp`` (Jazzy) and ``controller_interface/tf_prefix.hpp``
-    (``resolve_tf_prefix``, Rolling) do it: a trailing ``/`` is ensured, the leading one removed.
-    """
+    """diff_drive_controller's frame prefix from its namespace (``resolve_tf_prefix`` with the defaults):
+    ``/r3`` -> ``r3/``, ``/`` -> none."""
     prefix = namespace if namespace.endswith("/") else namespace + "/"
     return prefix.removeprefix("/")
 
@@ -223,7 +167,6 @@ def rmw_zenoh_data_key(domain_id: int, topic: str, ros_type: str, type_hash: str
 
 
 def bridge_data_key(topic: str) -> str:
-    """zenoh-bridge-ros2dds: the fully qualified topic name without its leading slash."""
     return topic.strip("/")
 
 
@@ -293,8 +236,7 @@ class RosTopic:
 
 @dataclass(frozen=True, slots=True)
 class RosService:
-    """One ROS service the node serves: its name relative to the namespace (``private``: to the node, ``~/name``) and
-    its service type."""
+    """One ROS service the node serves; ``private``: under the node's name (``~/name``)."""
 
     name: str
     ros_type: str
@@ -312,23 +254,10 @@ TF_STATIC = "tf_static"
 
 
 def topics(publish_tf: bool, absolute_tf: bool = False, robot_model: bool = False) -> list[RosTopic]:
-    """The node's topics, in the order their entities are numbered.
+    """The node's topics, in the order their entities are numbered (docs/ros2-adapter.md "Topics and services").
 
-    ``/cmd_vel`` is subscribed twice, as ``geometry_msgs/Twist`` and as
-    ``TwistStamped``: rmw_zenoh puts the type in the key expression, so a
-    subscriber of one type never sees the other (Nav2 publishes TwistStamped
-    from Kilted on, teleop nodes and twist_mux either). The stamped one is
-    numbered last of those topics, so the others keep their entity ids.
-
-    ``/diagnostics`` is absolute, as diagnostic_updater publishes it: one
-    aggregator sees every robot, told apart by the statuses' names.
-    ``absolute_tf``: ``/tf`` (and ``/tf_static``) whatever the namespace, as
-    diff_drive_controller publishes it (``DEFAULT_TRANSFORM_TOPIC = "/tf"``),
-    one tree for every robot, told apart by the frames' prefixes (``--fleet``).
-    ``robot_model``: ``robot_description`` (std_msgs/String, relative, as
-    robot_state_publisher publishes it) and ``/tf_static``, both transient
-    local with depth 1, numbered after the others. ``/parameter_events``
-    last, absolute, with rclcpp's ``ParameterEventsQoS`` (keep-last 1000).
+    ``/cmd_vel`` is subscribed as Twist and as TwistStamped (the type is in the key); the stamped one comes after
+    the others so they keep their entity ids. ``absolute_tf``: one ``/tf`` tree for a fleet.
     """
     out = [
         RosTopic("cmd_vel", ros.TWIST, Direction.SUBSCRIBE),
@@ -364,8 +293,7 @@ PARAMETERS_QOS = Qos(depth=1000)
 
 
 def services() -> list[RosService]:
-    """The node's services, numbered after its topics: ``set_estop`` and ``reset_odometry`` in the namespace, then
-    rclcpp's six parameter services under the node's name (``/blackmetal/list_parameters``)."""
+    """The node's services, numbered after its topics; rclcpp's parameter services under the node's name."""
     return [
         RosService(SET_ESTOP, ros.SET_BOOL),
         RosService(RESET_ODOMETRY, ros.TRIGGER),
@@ -374,7 +302,6 @@ def services() -> list[RosService]:
 
 
 def check_source_name(name: str) -> str:
-    """A command source name: one key chunk, as the gateway's ``--source NAME:PRIO`` takes it."""
     if not re.match(r"^[A-Za-z0-9_-]+$", name):
         raise ConfigError(f"source {name!r} must be letters, digits, '_' or '-' (one key chunk, e.g. ros2)")
     return name

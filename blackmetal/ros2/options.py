@@ -1,7 +1,6 @@
 """What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options, and where its messages go.
 
-Apart from the core so that its parts (:mod:`.diagnostics`, :mod:`.calls`)
-read the same options without importing the core that ties them.
+Apart from the core so that its parts (:mod:`.diagnostics`, :mod:`.calls`) read them without importing the core.
 """
 
 from __future__ import annotations
@@ -23,9 +22,7 @@ class Ros2Output(Protocol):
     def ros(self, topic: str, cdr: bytes) -> None: ...
     def blackmetal(self, key: str, payload: bytes) -> None: ...
     def error(self, message: ErrorReport) -> None: ...
-    def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
-        """Answer the service call ``call`` (once) with the CDR response and, for rmw_zenoh, its attachment."""
-
+    def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None: ...
     def service_refuse(self, call: int, reason: str) -> None:
         """Answer ``call`` with a Zenoh error reply: it carries no usable request id to answer with a response."""
 

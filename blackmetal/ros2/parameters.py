@@ -1,26 +1,8 @@
 """The node's ROS 2 parameters: the gateway's table, as rclcpp's parameter services show it. Pure.
 
-The node keeps no parameter of its own. It mirrors the gateway's table
-(``<prefix>/gateway/params``: fetched at the start and whenever the gateway
-comes back, published by the gateway on every change) and answers
-``list_parameters``, ``get_parameters``, ``get_parameter_types`` and
-``describe_parameters`` from it at once. ``set_parameters`` and
-``set_parameters_atomically`` go to the gateway as one
-:class:`~blackmetal.schemas.ParamsSet` on ``<prefix>/gateway/params/set`` (the
-key the gateway owns, with an operator's rights in the shipped router, like
-Foxglove's parameters panel); each ``SetParametersResult`` is the gateway's
-answer for that name, its refusal reason word for word. Each table change is
-published on ``/parameter_events`` as rclcpp does (``new_parameters`` the first
-time, ``changed_parameters`` after).
-
-rclcpp's rules kept here: ``list_parameters`` selects by prefix and depth
-with ``.`` as the separator, in name order (``node_parameters.cpp``,
-``NodeParameters::list_parameters``, the same on Humble to Rolling);
-an integer given for a double parameter is taken as that double (``ros2 param
-set /blackmetal max_wheel_speed 1`` sends an integer); arrays, and unsetting a
-parameter, are refused with the reason. An atomic set is checked against the
-table first and sent only if every value passes: a value the table
-already refuses leaves the others unset.
+The node keeps no parameter of its own (docs/ros2.md "ros2 param"): reads are answered from the gateway's table,
+sets go to the gateway as one ParamsSet, each change goes out on ``/parameter_events``. rclcpp's rules kept here:
+``list_parameters`` by prefix and depth with ``.`` as the separator, in name order (``NodeParameters::list_parameters``).
 """
 
 from __future__ import annotations
@@ -79,7 +61,7 @@ class SetPlan:
 
 @dataclass(slots=True)
 class NodeParameters:
-    """The gateway's parameter table as the node shows it; see the module docstring."""
+    """The gateway's parameter table as the node shows it."""
 
     table: dict[str, Param] = field(default_factory=dict)
     known: bool = False  # a table has arrived: until then every name is unknown
@@ -98,12 +80,10 @@ class NodeParameters:
         self.known = True
         return new, changed
 
-    # ------------------------------------------------------------------ answered at once
     def names(self, prefixes: Sequence[str], depth: int) -> tuple[list[str], list[str]]:
         return list_names(list(self.table), prefixes, depth)
 
     def values(self, names: Sequence[str]) -> list[RosValue | None]:
-        """Each name's value, in order; None (PARAMETER_NOT_SET) for a name the gateway does not have."""
         return [ros_value(self.table[name]) if name in self.table else None for name in names]
 
     def types(self, names: Sequence[str]) -> list[ParameterType]:
@@ -113,9 +93,7 @@ class NodeParameters:
         """Each name's parameter, in order; an unknown name gets one of no kind, NOT_SET (the .srv asks for one per name)."""
         return [self.table.get(name) or Param(name=name, type="", value="") for name in names]
 
-    # ------------------------------------------------------------------ sets
     def _check(self, name: str, value: RosValue) -> tuple[ParamValue | None, str | None]:
-        """(the value to send, None) or (None, why it is refused here)."""
         if isinstance(value, ParameterType):
             if value is ParameterType.NOT_SET:
                 return None, f"{name} cannot be unset: the gateway's parameters are declared and always have a value"
@@ -130,9 +108,7 @@ class NodeParameters:
         return value, None
 
     def plan(self, parameters: Sequence[tuple[str, RosValue]], atomically: bool = False) -> SetPlan:
-        """``set_parameters``: each value on its own; what this side refuses never reaches the gateway.
-
-        ``atomically`` (``set_parameters_atomically``): every value checked against the table first as well; one
+        """What this side refuses never reaches the gateway; ``atomically``: checked against the table too, one
         refusal refuses them all."""
         values: dict[str, ParamValue] = {}
         refused: dict[int, str] = {}

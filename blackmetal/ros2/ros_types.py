@@ -1,14 +1,8 @@
 """The ROS types the node speaks: their names, rosbags' store of them, and the plain values the codec takes.
 
-Type hashes (``RIHS01_...``) are computed by rosbags from the type
-definitions, never copied by hand. rosbags' store has no ``std_srvs``: the
-services are registered here from their ``.srv`` text, with the
-service-level types rosidl hashes (``request_message``,
-``response_message``, ``event_message``), and the store's ``char`` fields
-are read as ``uint8``, as rosidl maps them (this is what makes
-``service_msgs/msg/ServiceEventInfo``, and so every service hash, match
-ROS 2's). :mod:`.messages` encodes and decodes with the store; this module
-holds no encoding.
+Type hashes (``RIHS01_...``) are computed by rosbags, never copied by hand. rosbags' store has no ``std_srvs``: the
+services are registered here from their ``.srv`` text with the service-level types rosidl hashes, and ``char``
+fields are read as ``uint8``, as rosidl maps them (so every service hash matches ROS 2's).
 """
 
 from __future__ import annotations

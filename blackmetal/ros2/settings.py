@@ -154,11 +154,6 @@ class Ros2Settings:
             return self.wheel_separation, self.impulses_left, self.impulses_right, None
         return calibration.wheel_separation, calibration.impulses_left, calibration.impulses_right, calibration
 
-    @property
-    def encoders(self) -> Encoders:
-        _, left, right, _ = self.constants()
-        return Encoders(left, right)
-
     def covariances(self, calibration: model.Calibration | None) -> tuple[list[float], list[float], str]:
         """/odom's pose and twist covariances and where they come from: a calibration's residuals (x, y, yaw; v, w)
         where it measured them, the configured diagonals for the rest."""

@@ -1,35 +1,9 @@
 """Zenoh edge of the ROS 2 adapter: the robot's keys on one side, ROS topics and services on the other; declarations only.
 
-For ``rmw_zenoh`` every ROS publication carries rmw_zenoh's attachment and
-every entity holds its liveliness token, keys and tokens in the formats of
-the node's distro (:mod:`blackmetal.ros2.naming`), so ``ros2 node list``, ``ros2 topic
-list`` and ``ros2 service list`` show the node; each service is a complete
-queryable on its rmw_zenoh key, answered with the reply attachment the
-core builds. For ``bridge`` the topics and services are plain keys, as
-zenoh-bridge-ros2dds maps them. Inputs (samples, service calls, replies to
-the adapter's own queries, liveliness changes) are handed over to the host
-on the adapter's asyncio loop (:mod:`blackmetal.runtime.edge`), but for
-``/cmd_vel``: it is decoded and forwarded on the Zenoh thread that delivers
-it when the core is free (:meth:`~blackmetal.ros2.host.Ros2Host.direct`),
-put with drop congestion control as rmw_zenoh put it, so that thread never
-waits on a link.
-
-A view nobody watches costs nothing: each ROS publisher of a stream
-(``odom``, ``tf``, ``joint_states``, ``diagnostics``) has a matching
-listener (Zenoh's matching status: is any subscriber on its key, anywhere),
-handed over to the core, and the robot's keys that feed only those topics
-(``pose``, ``impulses``, ``errors``, the gateway's ``health``) are
-subscribed only while the core says it needs them
-(:meth:`Ros2Zenoh.follow`). Inputs (``/cmd_vel``, ``/estop``, the
-services) and the gateway's parameters stay declared: they carry little and
-a command must always find its way.
-
-A transient-local topic (``robot_description``, ``/tf_static``) is published
-as rmw_zenoh publishes one on every distro (``rmw_publisher_data.cpp``): a
-Zenoh AdvancedPublisher that keeps the last ``depth`` samples in a cache
-that late subscribers query, announces itself for their
-``detect_late_publishers``, and, being reliable, sends a sporadic heartbeat
-every 500 ms for their sample-miss detection.
+``rmw_zenoh``: every publication carries rmw_zenoh's attachment and every entity holds its liveliness token, in the
+node's distro's formats (:mod:`.naming`), so ``ros2 node list`` and the like show the node; ``bridge``: plain keys, as
+zenoh-bridge-ros2dds maps them. A stream topic nobody subscribes to costs nothing (:meth:`Ros2Zenoh.follow`); the
+inputs always stay declared: a command must always find its way. Threads: docs/threads.md; formats: docs/ros2.md.
 """
 
 from __future__ import annotations
@@ -39,6 +13,7 @@ import functools
 import itertools
 import time
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 from blackmetal.runtime.burst import PutBurst
@@ -87,19 +62,16 @@ def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
     return on_sample
 
 
+@dataclass
 class _RosPublisher:
     """A Zenoh publisher on a ROS topic; with rmw_zenoh, each sample carries a rising sequence number.
 
-    ``burst`` (a fleet's volatile topics): held to the end of the loop's turn with the other nodes' samples; the
-    attachment is made at once, its source time that of the sample."""
+    ``burst`` (a fleet's volatile topics): put with the other nodes' samples at the end of the loop's turn."""
 
-    def __init__(
-        self, publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher", gid: bytes | None, burst: PutBurst | None = None
-    ) -> None:
-        self.publisher = publisher
-        self.gid = gid
-        self.sequence = 0
-        self.burst = burst
+    publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher"
+    gid: bytes | None
+    burst: PutBurst | None = None
+    sequence: int = 0
 
     def put(self, cdr: bytes) -> None:
         extra: bytes | None = None
@@ -134,11 +106,8 @@ class Ros2Zenoh(ZenohEdge):
         rings: bool = False,
         burst: PutBurst | None = None,
     ) -> None:
-        """``ids``: the session's entity ids, as rmw_zenoh numbers a context's nodes and entities from one counter
-        (``rmw_context_impl_s::get_next_entity_id``); several nodes on one session (``--fleet``, several distros) share it.
-        ``distro``: whose rmw_zenoh formats the keys and tokens follow. ``rings`` (a fleet node): the robot's streams
-        wait in Zenoh rings for :meth:`drain` rather than a callback each. ``burst`` (a fleet): the volatile topics' samples
-        are put back to back with the other nodes' at the end of the loop's turn (:mod:`blackmetal.runtime.burst`)."""
+        """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
+        of one session). ``rings`` (a fleet node): the robot's streams wait in Zenoh rings for :meth:`drain`."""
         import zenoh
         import zenoh.ext
 
@@ -192,9 +161,7 @@ class Ros2Zenoh(ZenohEdge):
             else:
                 key = bridge_data_key(name)
             self.service_keys[service.name] = key
-        # A ROS command is forwarded as it came: rmw_zenoh puts a KEEP_LAST topic (Nav2's, teleop's /cmd_vel) with drop
-        # congestion control (jazzy rmw_zenoh_cpp/src/detail/rmw_publisher_data.cpp, PublisherData::make). So does this
-        # hop, on the Zenoh thread that took it (Ros2Host.direct): a put that drops never waits on a link.
+        # drop congestion control, as rmw_zenoh put the command: the direct take's Zenoh thread never waits on a link
         self._cmd_vel = self.session.declare_publisher(
             keys.cmd_vel_of(source),
             encoding=zenoh.Encoding.APPLICATION_JSON,
@@ -214,7 +181,6 @@ class Ros2Zenoh(ZenohEdge):
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
-    # Ros2Output
     def ros(self, topic: str, cdr: bytes) -> None:
         self._publishers[topic].put(cdr)
 
@@ -255,9 +221,7 @@ class Ros2Zenoh(ZenohEdge):
 
         self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
 
-    # wiring
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        # supervised: a bug fails this node alone; /cmd_vel is taken directly on Zenoh's thread when the core is free
         driver, core = host.driver, host.core
         intake = self.intake(loop, on_error=driver.on_error(), lock=host.lock)
         self._host = host
@@ -266,15 +230,13 @@ class Ros2Zenoh(ZenohEdge):
             return driver.handler(method, unpack=False)
 
         self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
-        # the inputs: key, channel (name, the core method the driver calls with now, options)
         self.subscriber(self.data_keys["estop"], intake.channel("estop", on(core.on_estop), capacity=64, priority=10))
         twist = intake.channel("cmd_vel", on(core.on_cmd_vel), latest=True, priority=5, direct=host.direct())
         self.subscriber(self.data_keys["cmd_vel"], twist)
         on_stamped = on(functools.partial(core.on_cmd_vel, stamped=True))
         stamped = intake.channel(CMD_VEL_STAMPED, on_stamped, latest=True, priority=5, direct=host.direct(stamped=True))
         self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
-        # the robot streams it follows: ring drains and callbacks meet the same handler
-        #   stream      key                 core method             channel                              ring
+        # the robot streams it follows (ring drains and callbacks meet the same handler): key, method, channel, ring
         streams: dict[str, tuple[str, Callable[..., Any], dict[str, Any], int]] = {
             "pose": (self.keys.pose, core.on_pose, {"capacity": 256}, RING),
             "impulses": (self.keys.impulses, core.on_impulses, {"capacity": 256}, RING),
@@ -285,7 +247,7 @@ class Ros2Zenoh(ZenohEdge):
             name: (key, intake.channel(name, on(method), **options), on(method), ring)
             for name, (key, method, options, ring) in streams.items()
         }
-        self.subscriber(self.keys.params, intake.channel("params", on(core.on_params), latest=True, priority=8))
+        self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
         matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
@@ -302,7 +264,6 @@ class Ros2Zenoh(ZenohEdge):
         return intake
 
     def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
-        """Tell the core whether anyone subscribes to ``topic``: now, and at each change (on a Zenoh thread: handed over)."""
         self.watch_matching(publisher, lambda matched: put((topic, matched)))
 
     def _on_matched(self, event: tuple[str, bool]) -> None:
@@ -324,21 +285,18 @@ class Ros2Zenoh(ZenohEdge):
                     self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
 
     def following(self) -> bool:
-        """Whether any robot stream is followed now (someone watches a topic it feeds)."""
         return bool(self._followed)
 
     def drain(self) -> int:
-        """On the loop (a fleet node): hand the followed streams' samples waiting in their rings to the host, under its
-        lock, oldest first; how many. No Python runs per sample on Zenoh's threads, and the loop wakes once per drain
-        for the whole fleet. A handler's exception propagates: the fleet fails this node alone."""
+        """On the loop (a fleet node): hand the rings' waiting samples to the host under its lock, oldest first; how many.
+
+        No Python runs per sample on Zenoh's threads. A handler's exception propagates: the fleet fails this node alone."""
         host = self._host
         if not self._rings or host is None or not host.running or not self._followed:
             return 0
         taken = 0
         for name, subscriber in list(self._followed.items()):
-            # the first sample is taken before the lock (a Zenoh ring is thread-safe, and only the loop follows and
-            # unfollows): a fleet's robots pose together, once a period, so most drains find every ring empty and
-            # then cost no lock at all
+            # the first sample is taken before the lock (rings are thread-safe): most drains find every ring empty
             ring = subscriber  # (a name of its own: the identity tests below narrow ``subscriber`` for mypy)
             if self._followed.get(name) is not subscriber:
                 continue  # a handler earlier in this drain unfollowed it (none does today but the one it serves)
@@ -356,7 +314,6 @@ class Ros2Zenoh(ZenohEdge):
         return taken
 
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
-        """Whether a liveliness token on ``key`` is present, now (history) and at each change."""
         import zenoh
 
         def on_sample(sample: "zenoh.Sample") -> None:
@@ -369,10 +326,7 @@ class Ros2Zenoh(ZenohEdge):
         return lambda alive: host.driver.run_locked(host.core.on_alive, who, alive)
 
     def _on_call(self, service: str) -> Callable[["zenoh.Query"], None]:
-        def handler(query: "zenoh.Query") -> None:
-            self._take_call(service, query)
-
-        return handler
+        return functools.partial(self._take_call, service)
 
     def _take_call(self, service: str, query: "zenoh.Query") -> None:
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
@@ -381,13 +335,13 @@ class Ros2Zenoh(ZenohEdge):
         self._calls[self._next_call] = (query, self.service_keys[service])
         payload = b"" if query.payload is None else bytes(query.payload.to_bytes())
         extra = None if query.attachment is None else bytes(query.attachment.to_bytes())
-        self._host.driver.run_locked(self._host.core.on_service_request, service, self._next_call, payload, extra)
+        self._host.driver.run_locked(self._host.core.calls.on_service_request, service, self._next_call, payload, extra)
 
     def _on_query_event(self, event: tuple[int, bool | None, bytes]) -> None:
         assert self._host is not None
         tag, ok, payload = event
         if ok is None:
-            self._host.driver.run_locked(self._host.core.on_query_done, tag)
+            self._host.driver.run_locked(self._host.core.calls.on_query_done, tag)
         else:
             self._host.driver.run_locked(self._host.core.on_query_reply, tag, ok, payload)
 

@@ -1,7 +1,8 @@
 """The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words.
 
-The ROS 2 adapter's and the Foxglove view's ``/diagnostics`` once disagreed (an engaged e-stop was ERROR in one,
-WARN in the other); both read their levels here. Pure: each adapter turns a :class:`Status` into its own message.
+The ROS 2 adapter's and the Foxglove view's ``/diagnostics`` once disagreed (an engaged e-stop ERROR in one, WARN in
+the other); both read their levels and texts here. Pure: no Zenoh, no ROS types. An engaged e-stop is ERROR: the
+robot cannot move until a person acts.
 """
 
 from __future__ import annotations
@@ -37,18 +38,14 @@ class Status:
 
 @dataclass(frozen=True, slots=True)
 class Condition:
-    """One row of the table: the level of a condition and its text (a ``str.format`` template).
-
-    A graded condition (a rate, a round trip, a count) has a ``severe`` level
-    it takes past its second threshold.
-    """
+    """One row of the table: a condition's level and its text (a ``str.format`` template); a graded one (a rate, a
+    round trip, a count) takes its ``severe`` level past its second threshold."""
 
     level: Level
     text: str
     severe: Level | None = None
 
     def check(self, severe: bool = False, **fields: object) -> Check:
-        """The condition as it holds now, its text filled in with ``fields``."""
         level = self.severe if severe and self.severe is not None else self.level
         return level, self.text.format(**fields)
 
@@ -61,7 +58,6 @@ def worst(name: str, hardware_id: str, checks: Iterable[Check], ok: str, values:
     return Status(level, name, message, hardware_id, tuple(values))
 
 
-# ---------------------------------------------------------------- the table
 # The gateway, as both views show it.
 #: The e-stop is engaged: nothing moves until a person releases it.
 ESTOP_ENGAGED = Condition(Level.ERROR, "e-stop engaged{origin}")

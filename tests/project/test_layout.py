@@ -29,7 +29,6 @@ NO_TEST_FILE_YET = {
     "gateway/host", "gateway/zenoh_edge",
     "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",
     "odometry_service/zenoh_edge",
-    "ros2/main", "ros2/settings",
     "sim/main", "sim/memory", "sim/server", "sim/settings",
 }  # fmt: skip
 

@@ -6,8 +6,8 @@ import math
 
 import pytest
 
-from blackmetal.foxglove.model import RobotModel, WheelAngles, moving_joints, turned
-from blackmetal.robot_model import WHEEL_SEPARATION, urdf
+from blackmetal.foxglove.model import RobotModel, moving_joints, turned
+from blackmetal.robot_model import WHEEL_SEPARATION, WheelAngles, urdf
 from blackmetal.schemas import GatewayParams, WheelImpulses
 from unit.foxglove.test_params import table
 
@@ -24,7 +24,7 @@ def test_the_wheel_joints_come_from_the_urdf_and_turn_with_the_impulses() -> Non
     assert robot.left.origin == (0.0, 0.3, 0.0) and 'xyz="0 0.3 0"' in robot.urdf
     assert not robot.on_params(GatewayParams(stamp=2.0, params=table(separation=0.6)))
 
-    angles = WheelAngles()
+    angles = WheelAngles(wrap=True)
     per_metre = robot.encoders.impulses_per_meter_left
     for i in range(51):  # 1 s at 50 Hz, the left wheel at 0.1 m/s forward, the right standing
         angles.feed(WheelImpulses(seq=i, stamp=i * 0.02, left=round(0.1 * per_metre), right=0, mono=i * 0.02), robot.encoders, 0.1)

@@ -131,7 +131,7 @@ def test_a_waiting_set_estop_follows_the_health_until_it_is_answered(codec: RosC
 
     core, out = make_core(codec)
     core.start()
-    core.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=1.0)
+    core.calls.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=1.0)
     assert out.followed[-1] == frozenset({"health"})
     core.on_health(health(estop=True), now=1.05)
     assert 1 in out.replies and out.followed[-1] == frozenset()
@@ -141,7 +141,7 @@ def test_a_stamped_commands_age_limit_is_the_gateways_cmd_timeout_parameter(code
     from blackmetal.schemas import GatewayParams, Param
 
     core, out = make_core(codec)  # its wall clock: 1_700_000_000.0
-    core.on_params(encode(GatewayParams(stamp=1.0, params=[Param("cmd_timeout", "double", 0.2, min=0.0, max=10.0)])), now=1.0)
+    core.calls.on_params(encode(GatewayParams(stamp=1.0, params=[Param("cmd_timeout", "double", 0.2, min=0.0, max=10.0)])), now=1.0)
     core.on_cmd_vel(codec.encode_twist(0.1, 0.0, stamp=1_700_000_000.0 - 0.3), now=1.0, stamped=True)
     assert out.forwarded == [] and "command timeout 0.2 s" in out.errors[-1].reason
 

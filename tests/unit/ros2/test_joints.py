@@ -10,8 +10,8 @@ import math
 
 import pytest
 
-from blackmetal.robot_model import Encoders
-from blackmetal.ros2.joints import MAX_JOINT_GAP_S, Wheel, WheelJoints
+from blackmetal.robot_model import MAX_JOINT_GAP_S, Encoders, WheelAngles
+from blackmetal.ros2.joints import Wheel
 from blackmetal.schemas import WheelImpulses
 
 MIRRORED = Encoders(impulses_per_meter_left=100.0, impulses_per_meter_right=100.0, mirror_right=True)
@@ -21,37 +21,37 @@ def sample(stamp: float, left: int, right: int, mono: float | None = None) -> Wh
     return WheelImpulses(seq=0, stamp=stamp, left=left, right=right, mono=mono)
 
 
-def joints() -> WheelJoints:
-    return WheelJoints(MIRRORED, radius=0.1)
+def joints() -> WheelAngles:
+    return WheelAngles()
 
 
 def test_the_angles_are_the_trapezoid_of_the_wheel_speeds_forward_positive() -> None:
     wheels = joints()
-    wheels.feed(sample(10.0, 0, 0))  # the first sample: nothing to integrate yet
+    wheels.feed(sample(10.0, 0, 0), MIRRORED, 0.1)  # the first sample: nothing to integrate yet
     assert wheels.positions == [0.0, 0.0]
-    wheels.feed(sample(10.2, 10, -20))  # the right encoder counts backwards when the wheel turns forward
+    wheels.feed(sample(10.2, 10, -20), MIRRORED, 0.1)  # the right encoder counts backwards when the wheel turns forward
     assert wheels.velocities == [pytest.approx(1.0), pytest.approx(2.0)]
     assert wheels.positions == [pytest.approx(0.1), pytest.approx(0.2)]  # (0 + 1) / 2 * 0.2, (0 + 2) / 2 * 0.2
-    wheels.feed(sample(10.4, 10, 20))  # the right wheel reverses: its angle comes back through zero speed
+    wheels.feed(sample(10.4, 10, 20), MIRRORED, 0.1)  # the right wheel reverses: its angle comes back through zero speed
     assert wheels.positions == [pytest.approx(0.3), pytest.approx(0.2)]
     assert wheels.velocities == [pytest.approx(1.0), pytest.approx(-2.0)]
 
 
 def test_a_gap_a_repeat_or_a_step_back_in_time_turns_no_wheel_but_updates_the_speeds() -> None:
     wheels = joints()
-    wheels.feed(sample(0.0, 10, -10))
-    wheels.feed(sample(MAX_JOINT_GAP_S + 0.01, 10, -10))  # a lost link is not motion
-    wheels.feed(sample(MAX_JOINT_GAP_S + 0.01, 10, -10))  # the same time again
-    wheels.feed(sample(0.2, 30, -30))  # out of order
+    wheels.feed(sample(0.0, 10, -10), MIRRORED, 0.1)
+    wheels.feed(sample(MAX_JOINT_GAP_S + 0.01, 10, -10), MIRRORED, 0.1)  # a lost link is not motion
+    wheels.feed(sample(MAX_JOINT_GAP_S + 0.01, 10, -10), MIRRORED, 0.1)  # the same time again
+    wheels.feed(sample(0.2, 30, -30), MIRRORED, 0.1)  # out of order
     assert wheels.positions == [0.0, 0.0] and wheels.velocities == [pytest.approx(3.0), pytest.approx(3.0)]
-    wheels.feed(sample(0.2 + MAX_JOINT_GAP_S, 30, -30))  # exactly the longest gap still integrates
+    wheels.feed(sample(0.2 + MAX_JOINT_GAP_S, 30, -30), MIRRORED, 0.1)  # exactly the longest gap still integrates
     assert wheels.positions == [pytest.approx(3.0 * MAX_JOINT_GAP_S)] * 2
 
 
 def test_the_robots_monotonic_time_is_used_over_the_wall_clock_stamp() -> None:
     wheels = joints()
-    wheels.feed(sample(100.0, 10, -10, mono=5.0))
-    wheels.feed(sample(50.0, 10, -10, mono=5.1))  # the wall clock stepped back; the robot's time went on 0.1 s
+    wheels.feed(sample(100.0, 10, -10, mono=5.0), MIRRORED, 0.1)
+    wheels.feed(sample(50.0, 10, -10, mono=5.1), MIRRORED, 0.1)  # the wall clock stepped back; the robot's time went on 0.1 s
     assert wheels.positions == [pytest.approx(0.1), pytest.approx(0.1)]
 
 

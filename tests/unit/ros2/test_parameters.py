@@ -63,12 +63,12 @@ def test_list_selects_by_prefix_and_depth_as_rclcpp_does() -> None:
 
 
 def call(core: Any, service: str, cdr: bytes, number: int, now: float = 1.0) -> None:
-    core.on_service_request(service, number, cdr, attachment(number, 5, GID), now=now)
+    core.calls.on_service_request(service, number, cdr, attachment(number, 5, GID), now=now)
 
 
 def with_table(codec: RosCodec) -> tuple[Any, Any]:
     core, out = make_core(codec)
-    core.on_params(encode(TABLE), now=0.5)
+    core.calls.on_params(encode(TABLE), now=0.5)
     return core, out
 
 
@@ -91,10 +91,10 @@ def test_the_first_table_is_new_parameters_and_a_change_is_changed_parameters(co
     assert [p.name for p in event.new_parameters] == [p.name for p in TABLE.params]
     speed = event.new_parameters[0].value
     assert (speed.type, speed.double_value) == (ParameterType.DOUBLE, 0.8)
-    core.on_params(encode(TABLE), now=1.0)  # the same table again: nothing to say
+    core.calls.on_params(encode(TABLE), now=1.0)  # the same table again: nothing to say
     assert len(out.ros_out) == 1
     changed = GatewayParams(stamp=2.0, params=[Param("max_wheel_speed", "double", 0.3, min=0.01, max=0.8)], changed=["max_wheel_speed"])
-    core.on_params(encode(changed), now=2.0)
+    core.calls.on_params(encode(changed), now=2.0)
     event = codec.decode(out.ros_out[-1][1], PARAMETER_EVENT)
     assert [(p.name, p.value.double_value) for p in event.changed_parameters] == [("max_wheel_speed", 0.3)]
     assert not event.new_parameters
@@ -165,7 +165,7 @@ def test_a_set_goes_to_the_gateways_key_and_is_answered_with_its_results(codec: 
     assert parse_attachment(out.replies[7][1] or b"")[0] == 7
     event = codec.decode(out.ros_out[-1][1], PARAMETER_EVENT)  # the change is on /parameter_events at once
     assert [(p.name, p.value.integer_value) for p in event.changed_parameters] == [("sources.nav.priority", 50)]
-    core.on_query_done(tag, now=1.02)  # the query ends after its reply: nothing more
+    core.calls.on_query_done(tag, now=1.02)  # the query ends after its reply: nothing more
     assert len(out.replies) == 1 and core.calls.pending == {}
 
 
@@ -211,7 +211,7 @@ def test_an_atomic_set_with_one_bad_value_sets_none(codec: RosCodec) -> None:
 def test_a_set_nobody_answers_fails_with_what_to_check(codec: RosCodec) -> None:
     core, out = with_table(codec)
     call(core, "set_parameters", encode_request(codec, SET_PARAMETERS, parameters=[("max_wheel_speed", 0.5)]), 1)
-    core.on_query_done(out.queries[0][2], now=1.5)
+    core.calls.on_query_done(out.queries[0][2], now=1.5)
     ((ok, reason),) = results(codec, out.replies[1][0])
     assert not ok and "no gateway answered on robot/gateway/params/set" in reason and "nothing was set" in reason
 
@@ -235,5 +235,5 @@ def test_a_request_that_is_not_cdr_is_refused_and_reported(codec: RosCodec) -> N
 
 def test_gateway_param_payloads_that_do_not_decode_are_reported(codec: RosCodec) -> None:
     core, out = make_core(codec)
-    core.on_params(json.dumps({"stamp": 1.0}).encode(), now=1.0)
+    core.calls.on_params(json.dumps({"stamp": 1.0}).encode(), now=1.0)
     assert out.errors and out.errors[-1].key == "robot/gateway/params" and out.ros_out == []

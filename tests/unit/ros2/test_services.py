@@ -213,7 +213,7 @@ def health(estop: bool = False, poll_hz: float = 50.0, control: str = "connected
 
 def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> None:
     core, out = make_core(codec)
-    core.on_service_request("set_estop", 1, set_bool_request(True), attachment(41, 123, GID), now=10.0)
+    core.calls.on_service_request("set_estop", 1, set_bool_request(True), attachment(41, 123, GID), now=10.0)
     assert out.forwarded == [("robot/estop", encode(EStop(engaged=True)))]
     assert [q[0] for q in out.queries] == ["robot/gateway/health"]
     core.on_health(health(estop=False), now=10.05)  # not yet
@@ -232,7 +232,7 @@ def test_set_estop_is_answered_once_the_health_confirms_it(codec: RosCodec) -> N
 def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCodec) -> None:
     """A release goes on estop/release, the key a secure router gives to the safety role (a release on estop is refused)."""
     core, out = make_core(codec)
-    core.on_service_request("set_estop", 1, set_bool_request(False), attachment(1, 1, GID), now=10.0)
+    core.calls.on_service_request("set_estop", 1, set_bool_request(False), attachment(1, 1, GID), now=10.0)
     assert out.forwarded == [("robot/estop/release", encode(EStop(engaged=False)))]
     core.on_estop(codec.encode(BOOL, data=False), now=10.1)
     core.on_estop(codec.encode(BOOL, data=True), now=10.2)
@@ -241,7 +241,7 @@ def test_set_estop_false_and_estop_false_release_on_the_release_key(codec: RosCo
 
 def test_set_estop_unconfirmed_is_false_at_the_deadline_with_the_reason(codec: RosCodec) -> None:
     core, out = make_core(codec)
-    core.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=10.0)
+    core.calls.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=10.0)
     core.on_health(health(estop=False), now=10.05)
     for step in range(1, 20):  # 10.1 .. 11.9: put again every 100 ms, never confirmed
         core.tick(10.0 + 0.1 * step)
@@ -251,14 +251,14 @@ def test_set_estop_unconfirmed_is_false_at_the_deadline_with_the_reason(codec: R
     assert not success and "did not confirm the e-stop on within 2 s" in message and "estop=false" in message
     assert len(out.forwarded) == 20  # given up: no more puts
 
-    core.on_service_request("set_estop", 2, set_bool_request(True), attachment(2, 1, GID), now=20.0)
-    core.on_service_request("set_estop", 3, set_bool_request(False), None, now=20.0)  # no attachment: answered without one
+    core.calls.on_service_request("set_estop", 2, set_bool_request(True), attachment(2, 1, GID), now=20.0)
+    core.calls.on_service_request("set_estop", 3, set_bool_request(False), None, now=20.0)  # no attachment: answered without one
     assert out.answer(2) == (False, "superseded: set_estop off was called since")  # never puts "on" over the "off"
     core.on_health(health(estop=False), now=20.1)
     assert out.answer(3)[0] is True and out.replies[3][1] is None
 
     core2, out2 = make_core(codec)  # no gateway at all
-    core2.on_service_request("set_estop", 5, set_bool_request(True), attachment(5, 1, GID), now=0.0)
+    core2.calls.on_service_request("set_estop", 5, set_bool_request(True), attachment(5, 1, GID), now=0.0)
     core2.tick(2.0)
     success, message = out2.answer(5)
     assert not success and "no health on robot/gateway/health" in message and "is the gateway running" in message
@@ -266,33 +266,33 @@ def test_set_estop_unconfirmed_is_false_at_the_deadline_with_the_reason(codec: R
 
 def test_reset_odometry_is_answered_by_the_odometrys_reply(codec: RosCodec) -> None:
     core, out = make_core(codec)
-    core.on_service_request("reset_odometry", 1, TRIGGER_REQUEST, attachment(3, 1, GID), now=0.0)
+    core.calls.on_service_request("reset_odometry", 1, TRIGGER_REQUEST, attachment(3, 1, GID), now=0.0)
     key, payload, tag, timeout = out.queries[-1]
     assert key == "robot/odometry/reset" and payload is None and timeout == 2.0
     core.on_query_reply(tag, True, encode(make_pose(1.0, 0.0, 0.0, 0.0)), now=0.1)
-    core.on_query_done(tag, now=0.1)
+    core.calls.on_query_done(tag, now=0.1)
     assert out.answer(1) == (True, "odometry reset to x=0 y=0 yaw=0 (confirmed by the odometry on robot/odometry/reset)")
 
-    core.on_service_request("reset_odometry", 2, TRIGGER_REQUEST, None, now=1.0)
-    core.on_query_done(out.queries[-1][2], now=1.0)  # nobody answered
+    core.calls.on_service_request("reset_odometry", 2, TRIGGER_REQUEST, None, now=1.0)
+    core.calls.on_query_done(out.queries[-1][2], now=1.0)  # nobody answered
     success, message = out.answer(2)
     assert not success and "no odometry answered" in message
 
-    core.on_service_request("reset_odometry", 3, TRIGGER_REQUEST, None, now=2.0)
+    core.calls.on_service_request("reset_odometry", 3, TRIGGER_REQUEST, None, now=2.0)
     core.on_query_reply(out.queries[-1][2], False, b"PoseReset: reset refused", now=2.0)
     assert out.answer(3) == (False, "the odometry refused the reset: PoseReset: reset refused")
 
-    core.on_service_request("reset_odometry", 4, TRIGGER_REQUEST, None, now=3.0)
+    core.calls.on_service_request("reset_odometry", 4, TRIGGER_REQUEST, None, now=3.0)
     core.tick(5.0)  # the query never finished: the deadline answers
     assert out.answer(4)[0] is False and "did not answer the reset within 2 s" in out.answer(4)[1]
 
 
 def test_bad_requests_are_reported_and_answered(codec: RosCodec) -> None:
     core, out = make_core(codec)
-    core.on_service_request("set_estop", 1, b"\x00\x01\x00\x00", attachment(1, 1, GID), now=0.0)  # no data byte
+    core.calls.on_service_request("set_estop", 1, b"\x00\x01\x00\x00", attachment(1, 1, GID), now=0.0)  # no data byte
     success, message = out.answer(1)
     assert not success and "invalid request" in message and parse_attachment(out.replies[1][1] or b"")[0] == 1
-    core.on_service_request("set_estop", 2, set_bool_request(True), b"\x01\x02", now=0.0)  # not rmw_zenoh's attachment
+    core.calls.on_service_request("set_estop", 2, set_bool_request(True), b"\x01\x02", now=0.0)  # not rmw_zenoh's attachment
     assert "not rmw_zenoh's" in out.refused[2]
     assert [e.key for e in out.errors] == [SET_ESTOP_KEY, SET_ESTOP_KEY] and all(e.source == "ros2" for e in out.errors)
     assert ("robot/estop", encode(EStop(engaged=True))) not in out.forwarded  # nothing was put for a bad request
