@@ -1,9 +1,5 @@
-"""The odometry service: wheel impulses in, a filtered, integrated pose out.
+"""The odometry service: wheel impulses in, a filtered, integrated pose out (docs/commands/odometry.md).
 
-The pipeline, pure: :mod:`.params`, :mod:`.sample_order` (which samples are
-integrated, and why an epoch starts), :mod:`.glitches` (spikes, dropouts,
-low-pass), :mod:`.integrator` (the streaming odometry); :mod:`.batch`,
-:mod:`.replay` and :mod:`.calibration` (the same in numpy, for logs). The
-service: :mod:`.core` (pure, clock-injected), :mod:`.host` (asyncio),
-:mod:`.zenoh_edge` (declarations), :mod:`.main` (the command), :mod:`.settings`.
+Pure pipeline (params, sample_order, glitches, integrator; batch, replay and calibration in numpy for logs),
+then the service around it: core (pure, clock-injected), host (asyncio), zenoh_edge, main, settings.
 """

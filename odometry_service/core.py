@@ -1,10 +1,7 @@
 """The odometry service's core: impulse payloads in, poses and error reports out. Pure and clock-injected.
 
-Every input comes with ``now`` (the receiver's monotonic time); what is
-due later (summaries of rate-limited reports, the count of dropped input)
-goes out in :meth:`OdometryCore.tick`, at :meth:`OdometryCore.next_deadline`.
-No I/O and no clock read here: :mod:`blackmetal.odometry_service.host` runs it on a
-loop, and tests call it directly.
+Every input comes with ``now`` (the receiver's monotonic time); what is due later goes out in
+:meth:`OdometryCore.tick`. No I/O and no clock read: :mod:`.host` runs it on a loop, tests call it directly.
 """
 
 from __future__ import annotations
@@ -12,7 +9,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
@@ -29,23 +25,11 @@ DROPPED_REPORT_PERIOD_S = 1.0
 OdometryOutput = Callable[[Pose | ErrorReport], None]
 
 
-@dataclass
-class RecordingOdometryOutput:
-    """An :data:`OdometryOutput` that keeps everything, for tests."""
-
-    poses: list[Pose] = field(default_factory=list)
-    errors: list[ErrorReport] = field(default_factory=list)
-
-    def __call__(self, message: Pose | ErrorReport) -> None:
-        (self.poses if isinstance(message, Pose) else self.errors).append(message)  # type: ignore[arg-type]
-
-
 class OdometryCore:
     """Turns impulse payloads into published poses; reports everything it rejects.
 
-    Its input is live, so every sample must carry ``mono`` and ``source``
-    (:class:`~blackmetal.odometry_service.sample_order.SampleOrder` with ``live``); logs
-    without them are for :mod:`blackmetal.odometry_service.replay`.
+    Its input is live: samples without ``mono`` and ``source`` are rejected, where they would switch the
+    checks off (logs without them are for :mod:`.replay`).
     """
 
     def __init__(
@@ -55,7 +39,6 @@ class OdometryCore:
         output: OdometryOutput,
         wallclock: Callable[[], float] = time.time,
     ) -> None:
-        # live: samples without mono or source are rejected here, where they would switch the checks off
         self.odometry = Odometry(params, live=True)
         self.keys = keys
         self.output = output
@@ -93,11 +76,8 @@ class OdometryCore:
             raise
 
     def on_dropped(self, count: int, now: float) -> None:
-        """``count`` impulse samples were dropped before they could be handled (the input is bounded).
-
-        Reported in :meth:`tick`, summed over at most DROPPED_REPORT_PERIOD_S,
-        so an overload does not spend the impulse key's report budget.
-        """
+        """Input dropped (it is bounded): reported in :meth:`tick`, summed over DROPPED_REPORT_PERIOD_S, so an
+        overload does not spend the impulse key's report budget."""
         if count > 0:
             self._dropped += count
 

@@ -29,8 +29,6 @@ NO_TEST_FILE_YET = {
     "gateway/commands", "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health", "gateway/host",
     "gateway/links", "gateway/log_port", "gateway/main", "gateway/prepare", "gateway/safety_states",
     "gateway/settings", "gateway/zenoh_edge",
-    "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",
-    "odometry_service/zenoh_edge",
     "ros2/main", "ros2/settings",
     "runtime/entry", "runtime/harness", "runtime/settings", "runtime/signals", "runtime/zenoh_entities",
     "runtime/zenoh_setup",

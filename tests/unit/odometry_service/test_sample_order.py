@@ -15,13 +15,14 @@ from helpers import Child, client_config, free_port, start_robot, wait_for
 
 from blackmetal.bench.synth import square_legs, synth_log
 from blackmetal.odometry_service.batch import run_batch
-from blackmetal.odometry_service.core import OdometryCore, RecordingOdometryOutput
+from blackmetal.odometry_service.core import OdometryCore
 from blackmetal.odometry_service.errors import OdometryError, SampleRejected, UnstampedSample
 from blackmetal.odometry_service.integrator import Odometry
 from blackmetal.odometry_service.params import OdometryParams
 from blackmetal.odometry_service.replay import read_log, replay_file
 from blackmetal.odometry_service.sample_order import unstamped_reason
 from blackmetal.schemas import ErrorReport, Keys, Pose, WheelImpulses, decode, encode
+from unit.odometry_service.test_core import RecordingOdometryOutput
 
 WALL = 1_800_000_000.0
 FWD = (203, -211)  # about 0.2 m/s on both wheels
