@@ -1,10 +1,6 @@
-"""``blackmetal odometry --fleet FILE``: one process, one Zenoh session, one odometry per robot of the fleet.
+"""``blackmetal odometry --fleet FILE``: one process, one Zenoh session, one odometry per robot (docs/fleets.md).
 
-Each robot keeps its own pipeline (glitch filter, sample order, integrator),
-its own keys, liveliness token and error reports under its prefix; they
-share the process, its loop and the session. A robot whose handling fails
-of a bug is reported on its errors key and started again from zero; the
-others go on.
+A robot whose handling fails of a bug is reported on its errors key and started again from zero; the others go on.
 """
 
 from __future__ import annotations

@@ -1,13 +1,7 @@
 """Which impulse samples may be integrated, and over which interval: one rule set for live odometry and replay.
 
-Every decision about a sample is made on typed values (:class:`EpochStart`,
-the interval, the count of missed samples); the text of an accepted
-sample's event is for reports only, so rewording a message cannot change
-what is counted or integrated.
-
-Live input and logs differ in one typed flag, :attr:`SampleOrder.live`: the
-optional ``mono`` and ``source`` exist so that older logs replay, and live
-they are required, since each check leans on one of them.
+Every decision is made on typed values (:class:`EpochStart`, the interval, the count missed); an event's
+text is for reports only, so rewording a message cannot change what is counted or integrated.
 """
 
 from __future__ import annotations
@@ -99,31 +93,13 @@ class EpochTally:
 
 @dataclass(slots=True)
 class SampleOrder:
-    """Accepts or rejects impulse samples one by one; see the module docstring.
+    """Accepts or rejects impulse samples one by one (the rules: docs/commands/odometry.md, "Input with integrity").
 
-    The interval is the gateway's monotonic time (``mono``) when the sample
-    carries it, so a wall-clock step (NTP) or a stamp from the future cannot
-    freeze or stretch the pose; older logs without it use the wall stamps.
-    A sample is rejected (:class:`SampleRejected`, with the reason) when it
-    repeats or goes back in sequence from the same gateway, goes back in
-    time, claims more time than its arrival shows, or comes from another
-    gateway while the followed one is alive. A gateway that restarts (new
-    ``source``) or a gap longer than ``max_gap`` starts a new epoch.
-
-    The arrival check is cumulative, so delivery jitter on a loaded machine
-    cannot trip it: ``arrival - mono`` (``arrival`` on the receiver's
-    monotonic clock; replay has none) is the delivery delay plus a constant
-    and never falls below its smallest value, unless samples claim time that
-    did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
-    If the epoch's first sample came late, every punctual one after it looks
-    ahead by the same amount: after RESYNC_S of such rejections at one steady
-    offset, a new epoch starts there (:attr:`EpochStart.RESYNC`).
-
-    ``live`` (samples arriving now, with ``arrival``): a sample without
-    ``mono`` or ``source`` is rejected (:class:`UnstampedSample`), because
-    without them the wall stamps would set the interval, the arrival check
-    would be off and any publisher would pass the one-gateway rule. Logs
-    (``live`` False) keep the fallbacks, so older recordings replay.
+    The arrival check is cumulative, so delivery jitter cannot trip it: ``arrival - mono`` is the delivery
+    delay plus a constant and never falls below its smallest value unless samples claim time that did not
+    pass; one more than SPACING_TOLERANCE_S below is rejected. ``live``: a sample without ``mono`` or
+    ``source`` is rejected (:class:`UnstampedSample`): the wall stamps would set the interval, the arrival
+    check would be off and any publisher would pass the one-gateway rule. Logs keep the fallbacks.
     """
 
     max_gap: float
@@ -141,10 +117,8 @@ class SampleOrder:
     ahead_range: tuple[float, float] = (0.0, 0.0)
 
     def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
-        """Accept (and remember) the sample, or raise SampleRejected and remember only the run of rejections it extends.
-
-        ValueError if ``live`` and ``arrival`` is None: a caller's bug, not a bad sample.
-        """
+        """Accept (and remember) the sample, or raise SampleRejected and remember only the run of rejections it extends;
+        ValueError if ``live`` and ``arrival`` is None (a caller's bug)."""
         if self.live:
             if arrival is None:
                 raise ValueError("live impulse samples need their arrival time")
@@ -193,9 +167,8 @@ class SampleOrder:
     def _steadily_ahead(self, arrival: float, offset: float) -> bool:
         """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset.
 
-        Only a run without an accepted sample in it counts: while the followed
-        gateway's samples pass, a forger's run never grows. Samples that claim
-        ever more time (creep) move the offset and restart the run.
+        An accepted sample ends the run (a forger's never grows while the followed gateway's pass); creep moves
+        the offset and restarts it.
         """
         low, high = self.ahead_range
         if self.ahead_since is None or max(high, offset) - min(low, offset) > SPACING_TOLERANCE_S:

@@ -1,11 +1,8 @@
 """One control client of the simulated robot: requests in, replies out, with the link's faults.
 
-The session is driven by whatever carries the bytes: an asyncio protocol
-for TCP (a callback per read, no task and no stream per request: at 100
-simulated robots the stream machinery was a quarter of the simulator's
-CPU), or a coroutine reading a memory pipe. It writes to a :class:`ReplySink`,
-which both an asyncio transport and a ByteStream are. Replies leave in the
-order of their requests, whatever the faults hold back or delay.
+Driven by an asyncio protocol for TCP (a callback per read: streams were a quarter of a 100-robot
+simulator's CPU) or a coroutine reading a memory pipe. Replies leave in the order of their requests,
+whatever the faults hold back or delay.
 """
 
 from __future__ import annotations
@@ -34,8 +31,6 @@ TIMER_SLACK_S = 0.001
 
 
 class ReplySink(Protocol):
-    """Where replies go: an asyncio transport, or a ByteStream."""
-
     def write(self, data: bytes) -> None: ...
 
     def close(self) -> None: ...

@@ -93,15 +93,8 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
 
 
 async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio.Event, write_to: str | None = None) -> None:
-    """``--robots N`` / ``--fleet FILE``: every robot until ``stop``; ``base`` is the command line's SimSettings (each
-    robot's defaults).
-
-    Every robot is a full simulator: its own physics, faults, control and log
-    ports, and (with Zenoh) its truth and fault keys under its own prefix. With
-    ``--robots N`` the robots are ``r1`` ... ``rN`` under ``fleet/<id>`` on free
-    ports; ``write_to`` (``--write-fleet FILE``) gets the fleet file the gateway
-    and the odometry then read (``--fleet FILE``), with the ports actually bound.
-    """
+    """``--robots N`` / ``--fleet FILE``: every robot, each a full simulator, until ``stop``; ``base`` holds each
+    robot's defaults; ``write_to`` (``--write-fleet``) gets the fleet file with the ports actually bound."""
     started, bound = [], []
     for robot in robots:
         s = robot.settings("sim", base, {"host": robot.host, "control_port": robot.control_port, "log_port": robot.log_port})

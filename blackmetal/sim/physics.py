@@ -1,11 +1,7 @@
-"""Differential-drive physics and command handling of the simulated robot.
+"""Differential-drive physics and command handling of the simulated robot. Pure and clock-injected (``now``).
 
-Pure and clock-injected: every method takes ``now`` (monotonic seconds), so
-tests drive it with a fake clock and the TCP server with the real one. The
-true pose is integrated exactly: each wheel speed is constant between
-events, so one exact-arc step per interval is exact; while a wheel
-accelerates (optional motor limit) or runs a position move, steps are at
-most ``substep`` long.
+Wheel speeds are constant between events, so one exact-arc step per interval is exact; while a wheel
+accelerates or runs a position move, steps are at most ``substep`` long.
 """
 
 from __future__ import annotations
@@ -72,18 +68,8 @@ class SimRobot:
         self._read_at: float | None = None  # time of the previous speed reading
         self._read_travel = (0.0, 0.0)  # rim travel at the previous speed reading
         self._dropped = [False, False]  # the previous reading of each wheel was a dropout
-        self.counters: dict[str, int] = {
-            "requests": 0,
-            "velocity_commands": 0,
-            "prepare": 0,
-            "emergency_stops": 0,
-            "normal_stops": 0,
-            "watchdog_stops": 0,
-            "full_buffer": 0,
-            "polls": 0,
-        }
-
-    # ------------------------------------------------------------------ physics
+        names = "requests velocity_commands prepare emergency_stops normal_stops watchdog_stops full_buffer polls"
+        self.counters: dict[str, int] = dict.fromkeys(names.split(), 0)
 
     @property
     def moving(self) -> bool:
@@ -155,21 +141,14 @@ class SimRobot:
         if immediate or self.params.accel_limit is None:
             self.speed_left = self.speed_right = 0.0
 
-    # ------------------------------------------------------------------ readings
-
     def pose(self, stamp: float) -> Pose:
         """The true pose, stamped ``stamp`` (Unix time)."""
         v, w = wheels_to_twist(self.speed_left, self.speed_right, self.params.wheel_separation)
         return make_pose(stamp, self.x, self.y, self.yaw, v=v, w=w)
 
     def read_impulses(self, now: float | None = None) -> tuple[int, int]:
-        """Encoder impulses per second as the robot reports them (right mirrored), with faults.
-
-        Like an encoder counter read at intervals, a reading is the mean rate
-        since the previous reading (the current rate for the first one, or
-        after more than a second); whole impulses, the remainder carried to
-        the next reading so nothing is lost on average.
-        """
+        """Impulses per second as reported (right mirrored), with faults: the mean rate since the previous reading
+        (the current rate for the first, or after over a second), whole, the remainder carried to the next."""
         now = self.t if now is None else now
         self.advance(now)
         interval = now - self._read_at if self._read_at is not None else 0.0
@@ -211,8 +190,6 @@ class SimRobot:
         """Cumulative encoder impulses (right mirrored)."""
         left, right = self.params.encoders.to_impulses(self.travel_left, self.travel_right)
         return round(left), round(right)
-
-    # ------------------------------------------------------------------ commands
 
     def handle(self, request: Request, now: float) -> list[bytes]:
         """Apply one command at ``now`` and return the replies the robot sends."""

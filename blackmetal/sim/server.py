@@ -1,11 +1,7 @@
-"""TCP edge of the simulated robot: control port and log port, with link faults.
+"""TCP edge of the simulated robot: control port and log port.
 
-One control client at a time: a new connection takes over from the old one
-(the robot's side of a reconnect whose old socket is half dead). Any number
-of log-port clients each get a state report about once a second. Link
-faults (delay, garbage, glued and split writes, dropped connections,
-silence) are applied by each client's :class:`ControlSession`; sensor
-faults live in :class:`SimRobot`.
+One control client at a time: a new one takes over (the robot's side of a reconnect whose old socket is
+half dead); any number of log clients. Link faults are each client's :class:`ControlSession`'s.
 """
 
 from __future__ import annotations
@@ -39,7 +35,6 @@ class SimServer:
     clock: Callable[[], float] = time.monotonic
     state: int = field(default=1, init=False)  # READY: the real robot only ever reports READY ...
     direction: int = field(default=1, init=False)  # ... and NORTH
-    connections: int = field(default=0, init=False)
     malformed_requests: int = field(default=0, init=False)
     _servers: list[asyncio.Server] = field(default_factory=list, init=False)
     _control: ControlSession | None = field(default=None, init=False)
@@ -113,8 +108,6 @@ class SimServer:
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
 
-    # ------------------------------------------------------------------ control port
-
     async def serve_control(self, stream: ByteStream) -> None:
         """Serve one control client on ``stream`` (a memory pipe; TCP clients are served by :class:`_ControlProtocol`)."""
         self._track()
@@ -131,7 +124,6 @@ class SimServer:
         if self._control is not None:
             log.info("new control client takes over from the old one")
             self._control.close()
-        self.connections += 1
         self._control = ControlSession(self.robot, sink, self.clock, asyncio.get_running_loop(), self._count_malformed)
         return self._control
 
@@ -142,8 +134,6 @@ class SimServer:
 
     def _count_malformed(self) -> None:
         self.malformed_requests += 1
-
-    # ------------------------------------------------------------------ log port
 
     async def serve_log(self, writer: ByteStream) -> None:
         """Push a state report about once a second to one log client."""
