@@ -32,7 +32,6 @@ NO_TEST_FILE_YET = {
     "ros2/main", "ros2/settings",
     "runtime/entry", "runtime/harness", "runtime/settings", "runtime/signals", "runtime/zenoh_entities",
     "runtime/zenoh_setup",
-    "sim/main", "sim/memory", "sim/server", "sim/settings",
 }  # fmt: skip
 
 #: Folders of tests/unit that are no Python package of the product, and what they test.
