@@ -21,7 +21,7 @@ from .params import OdometryParams
 DROPPED_REPORT_PERIOD_S = 1.0
 
 
-#: Where the odometry's messages go (its edge routes each by its type to its key: :meth:`ZenohEdge.publish`).
+#: Where the odometry's messages go (its edge routes each by type: :meth:`ZenohEdge.publish`).
 OdometryOutput = Callable[[Pose | ErrorReport], None]
 
 
@@ -32,13 +32,7 @@ class OdometryCore:
     checks off (logs without them are for :mod:`.replay`).
     """
 
-    def __init__(
-        self,
-        params: OdometryParams,
-        keys: Keys,
-        output: OdometryOutput,
-        wallclock: Callable[[], float] = time.time,
-    ) -> None:
+    def __init__(self, params: OdometryParams, keys: Keys, output: OdometryOutput, wallclock: Callable[[], float] = time.time) -> None:
         self.odometry = Odometry(params, live=True)
         self.keys = keys
         self.output = output
@@ -78,8 +72,7 @@ class OdometryCore:
     def on_dropped(self, count: int, now: float) -> None:
         """Input dropped (it is bounded): reported in :meth:`tick`, summed over DROPPED_REPORT_PERIOD_S, so an
         overload does not spend the impulse key's report budget."""
-        if count > 0:
-            self._dropped += count
+        self._dropped += max(count, 0)
 
     def latest(self) -> Pose:
         return self.odometry.pose()

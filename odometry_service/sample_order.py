@@ -39,10 +39,8 @@ def unstamped_reason(mono: float | None, source: str | None) -> str:
 class EpochStart(enum.Enum):
     """Why a sample starts a new epoch: it is not integrated from the previous one."""
 
-    #: The first sample since the start or a reset.
-    FIRST = "first"
-    #: The previous sample is further back than ``max_gap``.
-    GAP = "gap"
+    FIRST = "first"  # since the start or a reset
+    GAP = "gap"  # longer than ``max_gap``
     #: Another gateway (a new ``source``) took over from a silent one.
     GATEWAY_RESTART = "gateway restart"
     #: A log without sources: the sequence went back while the stamps moved on.
@@ -52,7 +50,6 @@ class EpochStart(enum.Enum):
 
     @property
     def restart(self) -> bool:
-        """The gateway started over (a new sequence), as opposed to a first sample or a gap."""
         return self is EpochStart.GATEWAY_RESTART or self is EpochStart.SEQUENCE_RESTART
 
 
@@ -60,24 +57,19 @@ class EpochStart(enum.Enum):
 class Verdict:
     """What :class:`SampleOrder` decided about one accepted sample."""
 
-    #: Why the sample starts a new epoch; None: it continues the epoch and is integrated over ``dt``.
-    start: EpochStart | None
-    #: Seconds since the previous sample (0 for a new epoch).
-    dt: float
-    #: Samples the gateway numbered between the previous one and this one that never arrived.
-    missed: int = 0
-    #: Worth reporting, though accepted: the text of a report, never decided on.
-    event: str | None = None
+    start: EpochStart | None  # None: the epoch goes on, integrated over ``dt``
+    dt: float  # s since the previous sample (0 for a new epoch)
+    missed: int = 0  # samples numbered between the previous one and this one that never arrived
+    event: str | None = None  # the text of a report, never decided on
 
     @property
     def new_epoch(self) -> bool:
-        """Do not integrate from the previous sample."""
         return self.start is not None
 
 
 @dataclass(slots=True)
 class EpochTally:
-    """Gaps, restarts and missed samples counted from verdicts' kinds: the one count for live odometry and replay."""
+    """Gaps, restarts and missed samples from verdicts' kinds: the one count for live odometry and replay."""
 
     gaps: int = 0
     restarts: int = 0
@@ -103,7 +95,6 @@ class SampleOrder:
     """
 
     max_gap: float
-    #: Live input: ``mono``, ``source`` and ``arrival`` required; False for logs, which may lack them.
     live: bool
     seq: int | None = None
     time: float | None = None
@@ -183,10 +174,8 @@ class SampleOrder:
         if arrival is None:
             self.first_offset = self.least_offset = None
         elif self.first_offset is None or self.least_offset is None or (verdict.new_epoch and verdict.start is not EpochStart.GAP):
-            # a new gateway, or the first sample: a new pair of clocks. A gap keeps the same pair (same
-            # source), so it keeps what the epochs before it learnt of the delivery delay: a sample that
-            # arrives late after a stall (a backlog) must not become the measure every punctual sample
-            # after it fails, which would reject them all for good
+            # a new pair of clocks. A gap keeps the pair and what it learnt: a late sample after a stall (a backlog)
+            # must not become the measure every punctual sample after it fails
             self.first_offset = self.least_offset = arrival - time
         else:  # the smallest delivery delay seen, allowed to settle at most SETTLE_S below the first sample's
             self.least_offset = max(min(self.least_offset, arrival - time), self.first_offset - SETTLE_S)

@@ -20,14 +20,10 @@ from blackmetal.wire import CommandCode, Request
 
 @dataclass(frozen=True, slots=True)
 class RobotParams:
-    """Physical parameters of the simulated robot."""
-
     wheel_separation: float = model.WHEEL_SEPARATION
-    #: The robot's true encoders (which may differ from the nominal constants the gateway and odometry use).
-    encoders: Encoders = NOMINAL_ENCODERS
-    #: Real travel per impulse relative to the nominal constant, per wheel (left, right): the firmware
-    #: turns a commanded m/s into impulses with the nominal constants, so a wheel with scale 1.015 really
-    #: runs 1.5 % faster than commanded while reporting the commanded impulses. Use :meth:`with_wheel_scales`.
+    encoders: Encoders = NOMINAL_ENCODERS  # the true ones, which the gateway and odometry may not know
+    #: Real travel per impulse over the nominal constant (the firmware uses the nominal ones): a wheel with scale
+    #: 1.015 runs 1.5 % faster than commanded and reports the commanded impulses. Use :meth:`with_wheel_scales`.
     wheel_scale: WheelGain = UNITY_GAIN
 
     @classmethod
@@ -39,19 +35,13 @@ class RobotParams:
         return cls(encoders=encoders, wheel_scale=WheelGain(left=left, right=right), **others)
 
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
-    #: Motor acceleration limit per wheel (m/s^2); None = wheels follow at once.
-    accel_limit: float | None = None
-    #: Stop by itself after this long without a motion command (s).
-    watchdog: float = model.ROBOT_WATCHDOG_S
-    #: Rim speed used for SET_LR_WHEEL_POSITION moves (m/s).
-    position_speed: float = 0.3
-    #: Longest integration step while a wheel accelerates or runs a position move (s).
-    substep: float = 0.001
+    accel_limit: float | None = None  # per wheel, m/s^2; None = wheels follow at once
+    watchdog: float = model.ROBOT_WATCHDOG_S  # s without a motion command before it stops by itself
+    position_speed: float = 0.3  # rim speed of SET_LR_WHEEL_POSITION moves, m/s
+    substep: float = 0.001  # longest integration step while a wheel accelerates or runs a position move, s
 
 
 class SimRobot:
-    """The robot's control computer and chassis, without any I/O."""
-
     def __init__(self, params: RobotParams | None = None, now: float = 0.0, seed: int | None = None) -> None:
         self.params = params or RobotParams()
         self.faults = SimFaults()
@@ -84,7 +74,6 @@ class SimRobot:
         """Integrate the true pose up to ``now``; fire the watchdog on the way."""
         while True:
             if self._deadline is not None and self.t >= self._deadline:
-                self._deadline = None
                 self.counters["watchdog_stops"] += 1
                 self._halt(immediate=False)
             if self.t >= now:
@@ -136,6 +125,7 @@ class SimRobot:
         )
 
     def _halt(self, immediate: bool) -> None:
+        self._deadline = None
         self.target_left = self.target_right = 0.0
         self._position_left = self._position_right = None
         if immediate or self.params.accel_limit is None:
@@ -173,7 +163,7 @@ class SimRobot:
         return whole, value - whole
 
     def _sensor_fault(self, value: int, wheel: int) -> int:
-        """Single-sample dropouts (never two in a row on a wheel) and impossible spikes."""
+        """Single-sample dropouts (never two in a row) and impossible spikes."""
         faults = self.faults
         dropped = self._dropped[wheel]
         self._dropped[wheel] = False
@@ -203,11 +193,9 @@ class SimRobot:
         separator = " " if self.rng.random() < 0.5 else ","
         if command is CommandCode.EMG_STOP:
             self.counters["emergency_stops"] += 1
-            self._deadline = None
             self._halt(immediate=True)
         elif command is CommandCode.NORMAL_STOP:
             self.counters["normal_stops"] += 1
-            self._deadline = None
             self._halt(immediate=False)
         elif command is CommandCode.SET_LR_WHEEL_VELOCITY:
             self.counters["velocity_commands"] += 1
