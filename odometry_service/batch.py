@@ -23,8 +23,6 @@ B = NDArray[np.bool_]
 
 @dataclass
 class BatchResult:
-    """Every published pose of the replay, as arrays, plus what was rejected or noticed."""
-
     stamp: F
     x: F
     y: F
@@ -244,9 +242,7 @@ def run_batch(
     # what the live service published at a first zero later shown to be a stop: the held step
     if provisional.size:
         k = provisional
-        x_prev = np.where(k > 0, x[k - 1], 0.0)
-        y_prev = np.where(k > 0, y[k - 1], 0.0)
-        yaw_prev = np.where(k > 0, yaw[k - 1], 0.0)
+        x_prev, y_prev, yaw_prev = (np.where(k > 0, path[k - 1], 0.0) for path in (x, y, yaw))
         pdx, pdy, pdth = arc_deltas(yaw_prev, held_l, held_r, p.wheel_separation)
         x[k], y[k], yaw[k] = x_prev + pdx, y_prev + pdy, yaw_prev + pdth
 

@@ -41,8 +41,6 @@ ROLE = Role("odometry", build, "odometry of {robot} failed ({exc!r}): starting a
 
 
 async def serve(base: OdometrySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
-    """Open one Zenoh session and run every robot's odometry on it until ``stop``."""
-
     def announce(members: list[Member[OdometrySettings]]) -> None:
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])

@@ -107,9 +107,7 @@ def replay_file(path: str | Path, params: OdometryParams | None = None) -> Batch
 
 
 def final_pose(result: BatchResult) -> Pose:
-    if not len(result):
-        return make_pose(0.0, 0.0, 0.0, 0.0)
-    return pose_at(result, len(result) - 1)
+    return pose_at(result, -1) if len(result) else make_pose(0.0, 0.0, 0.0, 0.0)
 
 
 def pose_at(result: BatchResult, k: int) -> Pose:

@@ -55,8 +55,6 @@ class EpochStart(enum.Enum):
 
 @dataclass(frozen=True, slots=True)
 class Verdict:
-    """What :class:`SampleOrder` decided about one accepted sample."""
-
     start: EpochStart | None  # None: the epoch goes on, integrated over ``dt``
     dt: float  # s since the previous sample (0 for a new epoch)
     missed: int = 0  # samples numbered between the previous one and this one that never arrived

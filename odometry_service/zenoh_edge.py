@@ -22,8 +22,6 @@ RING = 1024
 
 
 class OdometryZenoh(ZenohEdge):
-    """Publishes poses and errors; feeds impulses, pose queries and resets to the host."""
-
     def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
         """One robot: poses go out express. A fleet (``burst``): batched and put back to back with the other robots'
         (:mod:`blackmetal.runtime.burst`); express per pose made them later (100 robots at 50 Hz: p50 1.6-3 ms

@@ -22,7 +22,6 @@ from .settings import SimSettings
 
 
 async def start_robot(s: SimSettings, seed: int | None) -> tuple[SimRobot, SimServer]:
-    """One simulated robot, listening on its ports."""
     params = RobotParams.with_wheel_scales(
         left=s.left_wheel_scale,
         right=s.right_wheel_scale,
@@ -77,7 +76,6 @@ async def serve_robots(
 
 
 async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
-    """Serve until ``stop`` is set; then close everything within a second or two."""
     robot, server = await start_robot(settings, settings.seed)
     keys = Keys(settings.prefix or DEFAULT_PREFIX)
 

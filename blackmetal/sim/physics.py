@@ -132,7 +132,6 @@ class SimRobot:
             self.speed_left = self.speed_right = 0.0
 
     def pose(self, stamp: float) -> Pose:
-        """The true pose, stamped ``stamp`` (Unix time)."""
         v, w = wheels_to_twist(self.speed_left, self.speed_right, self.params.wheel_separation)
         return make_pose(stamp, self.x, self.y, self.yaw, v=v, w=w)
 
@@ -177,12 +176,11 @@ class SimRobot:
         return value
 
     def read_positions(self) -> tuple[int, int]:
-        """Cumulative encoder impulses (right mirrored)."""
         left, right = self.params.encoders.to_impulses(self.travel_left, self.travel_right)
         return round(left), round(right)
 
     def handle(self, request: Request, now: float) -> list[bytes]:
-        """Apply one command at ``now`` and return the replies the robot sends."""
+        """The robot's replies to one command at ``now``."""
         self.advance(now)
         self.counters["requests"] += 1
         if self.faults.full_buffer and self.rng.random() < self.faults.full_buffer:

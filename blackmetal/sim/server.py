@@ -25,8 +25,6 @@ log = logging.getLogger("blackmetal.sim")
 
 @dataclass(eq=False)
 class SimServer:
-    """Serves one :class:`SimRobot` on a control port and a log port."""
-
     robot: SimRobot
     host: str = "127.0.0.1"
     control_port: int = model.CONTROL_PORT
@@ -137,7 +135,6 @@ class SimServer:
         self.malformed_requests += 1
 
     async def serve_log(self, writer: ByteStream) -> None:
-        """Push a state report about once a second to one log client."""
         self._track()
         self._log_streams.add(writer)
         try:

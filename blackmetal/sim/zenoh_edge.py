@@ -43,8 +43,6 @@ def apply_fault_update(current: SimFaults, payload: bytes) -> SimFaults:
 
 
 class SimZenoh(ZenohEdge):
-    """Declares the simulator's publishers, subscriber, queryables and token on an open session."""
-
     def __init__(self, session: "zenoh.Session", keys: Keys, robot: SimRobot, clock: Callable[[], float]) -> None:
         super().__init__(session)
         self.keys = keys
