@@ -38,9 +38,6 @@ class OdometryHost:
         finally:
             self.timer.poke()
 
-    def latest(self) -> Pose:
-        return self.core.latest()
-
     async def run(self, stop: asyncio.Event, dropped: Callable[[], int] = lambda: 0) -> None:
         """Run the core's timers until ``stop``; ``dropped``: how many impulse samples the input has dropped so far."""
         self._dropped = dropped

@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import Keys, PayloadError, encode, payload_bytes
+from blackmetal.schemas import Keys, PayloadError, Pose, encode, payload_bytes
 
 from .host import OdometryHost
 
@@ -43,8 +43,10 @@ class OdometryZenoh(ZenohEdge):
             self._host = host
         else:
             self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
-        self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer_pose(host, q)))
-        self.queryable(self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer_reset(host, q)))
+        self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer(q, self.keys.pose, lambda _: host.core.latest())))
+        self.queryable(
+            self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer(q, self.keys.odometry_reset, host.on_reset))
+        )
         self.queryable(
             self.keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, self.keys.errors, list(host.core.reporter.recent)))
         )
@@ -75,20 +77,15 @@ class OdometryZenoh(ZenohEdge):
         handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(lambda sample: put(payload_bytes(sample)), indirect=False)
         self._entities.append(self.session.declare_subscriber(key, handler))
 
-    def _answer_pose(self, host: OdometryHost, query: "zenoh.Query") -> None:
-        import zenoh
-
-        with query:
-            query.reply(self.keys.pose, encode(host.latest()), encoding=zenoh.Encoding.APPLICATION_JSON)
-
-    def _answer_reset(self, host: OdometryHost, query: "zenoh.Query") -> None:
+    def _answer(self, query: "zenoh.Query", key: str, pose: Callable[[bytes | None], Pose]) -> None:
+        """Reply the pose ``pose(payload)`` gives, or its PayloadError."""
         import zenoh
 
         with query:
             payload = None if query.payload is None else bytes(query.payload.to_bytes())
             try:
-                pose = host.on_reset(payload)
+                answer = pose(payload)
             except PayloadError as exc:
                 query.reply_err(str(exc).encode())
                 return
-            query.reply(self.keys.odometry_reset, encode(pose), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(key, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)

@@ -55,10 +55,6 @@ class ControlSession:
     _held: bytearray = field(default_factory=bytearray, init=False)
     _held_timer: asyncio.TimerHandle | None = field(default=None, init=False)
 
-    @property
-    def closed(self) -> bool:
-        return self.sink.is_closing()
-
     def feed(self, data: bytes) -> None:
         """Bytes from the client: every whole request handled, its replies written or scheduled."""
         robot = self.robot

@@ -7,7 +7,7 @@ import asyncio
 import dataclasses
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from pathlib import Path
 
 from blackmetal.runtime.entry import run_service, service_parser
@@ -66,10 +66,8 @@ async def serve_robots(
                 if delay < -period:  # fell behind (loaded machine): do not burst to catch up
                     next_tick = time.monotonic()
                     delay = 0.0
-                try:
+                with suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), timeout=max(delay, 0.0))
-                except TimeoutError:
-                    pass
         finally:
             for _, _, server in robots:
                 await server.close()

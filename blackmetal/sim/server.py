@@ -11,6 +11,7 @@ import errno
 import logging
 import time
 from collections.abc import Awaitable, Callable
+from contextlib import suppress
 from dataclasses import dataclass, field
 
 from blackmetal import robot_model as model
@@ -87,10 +88,8 @@ class SimServer:
         for task in list(self._tasks):
             task.cancel()  # last resort
         for server in self._servers:
-            try:
+            with suppress(TimeoutError):
                 await asyncio.wait_for(server.wait_closed(), timeout=1.0)
-            except TimeoutError:
-                pass
 
     def drop_clients(self) -> None:
         """Close every client connection, as a robot that lost its network would."""
@@ -142,10 +141,8 @@ class SimServer:
                 if not self.robot.faults.silent:
                     writer.write(wire.encode_log_report(self.state, self.direction))
                     await writer.drain()
-                try:
+                with suppress(TimeoutError):
                     await asyncio.wait_for(self._closing.wait(), self.log_interval)
-                except TimeoutError:
-                    pass
         except ConnectionError:
             pass
         finally:
