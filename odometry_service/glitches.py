@@ -21,11 +21,6 @@ class WheelState:
     anchor_other: float = 0.0  # the other wheel's raw reading at that sample
     anchor_other_ok: bool = False  # ... and whether it was trustworthy (not a spike)
 
-    def reset(self) -> None:
-        self.y = self.prev = self.prev2 = self.raw_prev = self.anchor = self.anchor_other = 0.0
-        self.zero_run = 2
-        self.anchor_other_ok = False
-
 
 @dataclass(frozen=True, slots=True)
 class Update:
@@ -51,17 +46,14 @@ class Glitches:
     def __init__(self, alpha: float, spike_limit: float) -> None:
         self.alpha = alpha
         self.limit = spike_limit
-        self.left = WheelState()
-        self.right = WheelState()
         self.spikes = 0
         self.dropouts = 0
-        self.started = False  # a previous sample exists in this epoch
-        self.started2 = False  # two previous samples exist in this epoch
+        self.reset()
 
     def reset(self) -> None:
-        self.left.reset()
-        self.right.reset()
-        self.started = self.started2 = False
+        self.left, self.right = WheelState(), WheelState()
+        self.started = False  # a previous sample exists in this epoch
+        self.started2 = False  # two previous samples exist in this epoch
 
     def _clip(self, value: float) -> float:
         return max(-self.limit, min(self.limit, value))

@@ -29,9 +29,7 @@ class RobotParams:
     @classmethod
     def with_wheel_scales(cls, *, left: float, right: float, **others: Any) -> "RobotParams":
         """A robot whose wheels are not their drawing: true encoders follow from the scales."""
-        encoders = Encoders(
-            impulses_per_meter_left=model.IMPULSES_PER_METER_LEFT / left, impulses_per_meter_right=model.IMPULSES_PER_METER_RIGHT / right
-        )
+        encoders = Encoders(model.IMPULSES_PER_METER_LEFT / left, model.IMPULSES_PER_METER_RIGHT / right)
         return cls(encoders=encoders, wheel_scale=WheelGain(left=left, right=right), **others)
 
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
@@ -118,11 +116,8 @@ class SimRobot:
         step = self.params.position_speed * dt
         if abs(remaining) <= step:
             return remaining, 0.0, 0.0
-        return (
-            math.copysign(step, remaining),
-            remaining - math.copysign(step, remaining),
-            math.copysign(self.params.position_speed, remaining),
-        )
+        sign = math.copysign(1.0, remaining)
+        return sign * step, remaining - sign * step, sign * self.params.position_speed
 
     def _halt(self, immediate: bool) -> None:
         self._deadline = None
