@@ -59,11 +59,7 @@ class Glitches:
         return max(-self.limit, min(self.limit, value))
 
     def update(self, raw_left: float, raw_right: float) -> Update:
-        """Speeds to integrate, filtered speeds and revisions after one reading of both wheels.
-
-        The two cases a fleet meets nearly always (both turning, or both standing with nothing to settle)
-        are written out; a property test holds them equal to :meth:`_update`.
-        """
+        """:meth:`_update` with its two common cases written out (docs/performance.md); a property test holds them equal."""
         left, right, limit = self.left, self.right, self.limit
         if raw_left == 0.0 and raw_right == 0.0 and left.zero_run == 2 and right.zero_run == 2:
             for state, raw, raw_other in ((left, raw_left, raw_right), (right, raw_right, raw_left)):

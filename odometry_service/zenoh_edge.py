@@ -23,9 +23,7 @@ RING = 1024
 
 class OdometryZenoh(ZenohEdge):
     def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
-        """One robot: poses go out express. A fleet (``burst``): batched and put back to back with the other robots'
-        (:mod:`blackmetal.runtime.burst`); express per pose made them later (100 robots at 50 Hz: p50 1.6-3 ms
-        express, 0.8-1 ms batched) and cost the router a third more per message."""
+        """One robot: poses go out express; a fleet (``burst``): batched, back to back with the other robots' (docs/performance.md)."""
         super().__init__(session)
         self.keys = keys
         self.routes(keys, (keys.pose, keys.errors), fast=keys.pose, burst=burst)
@@ -54,8 +52,7 @@ class OdometryZenoh(ZenohEdge):
         return intake
 
     def drain(self) -> int:
-        """On the loop: the ring's impulse samples to the host, oldest first; how many. A handler's exception propagates
-        (the fleet fails this robot alone). Per-sample callbacks were a third of a 100-robot fleet's CPU."""
+        """On the loop: the ring's impulse samples to the host, oldest first; how many. A handler's exception propagates."""
         ring, host = self._ring, self._host
         if ring is None or host is None:
             return 0
@@ -70,8 +67,7 @@ class OdometryZenoh(ZenohEdge):
         super().close()
 
     def _direct_subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
-        """:meth:`subscriber` with its callback on Zenoh's receiving thread: it only copies the payload into the
-        hand-over (never blocks nor calls Zenoh); a thread of its own cost a sixth of a 100-robot fleet's CPU."""
+        """:meth:`subscriber` with its callback on Zenoh's receiving thread: it only copies the payload into the hand-over."""
         import zenoh
 
         handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(lambda sample: put(payload_bytes(sample)), indirect=False)

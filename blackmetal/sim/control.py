@@ -1,8 +1,7 @@
 """One control client of the simulated robot: requests in, replies out, with the link's faults.
 
-Driven by an asyncio protocol for TCP (a callback per read: streams were a quarter of a 100-robot
-simulator's CPU) or a coroutine reading a memory pipe. Replies leave in the order of their requests,
-whatever the faults hold back or delay.
+Driven by an asyncio protocol for TCP (docs/performance.md) or a coroutine reading a memory pipe.
+Replies leave in the order of their requests, whatever the faults hold back or delay.
 """
 
 from __future__ import annotations

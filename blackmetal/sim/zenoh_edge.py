@@ -1,8 +1,7 @@
 """Zenoh edge of the simulator: ground truth out, faults in (docs/commands/sim.md).
 
-The truth is published on each tick only while anyone subscribes (a fleet of 100 nobody watched spent a
-third of the simulator on it); inputs go through :mod:`blackmetal.runtime.edge`'s hand-over, so no work
-runs inside a Zenoh callback.
+The truth is published on each tick only while anyone subscribes (docs/performance.md); inputs go
+through :mod:`blackmetal.runtime.edge`'s hand-over, so no work runs inside a Zenoh callback.
 """
 
 from __future__ import annotations
