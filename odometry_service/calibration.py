@@ -1,9 +1,7 @@
 """Calibration of the odometry's constants, pure numpy (docs/commands/calibrate.md).
 
-Odometry is wrong mostly for unequal wheel sizes and the effective wheel separation. :func:`umbmark` is
-Borenstein and Feng's UMBmark (1996) in closed form, in the start frame (x along the first side, y to
-the left); :func:`fit_trajectory` fits both impulses per metre and the separation by Levenberg-Marquardt
-against a reference path, each evaluation one :func:`.batch.integrate` pass over one replay's travels.
+UMBmark in closed form in the start frame (x along the first side, y to the left), and a Levenberg-Marquardt
+fit against a reference path, each evaluation one :func:`.batch.integrate` pass over one replay's travels.
 """
 
 from __future__ import annotations

@@ -1,10 +1,7 @@
 """The streaming odometry: raw wheel impulses to a pose, one sample at a time. Pure and clock-free.
 
-The pipeline (convert, glitches, low-pass, integrate) is docs/commands/odometry.md; glitches and the
-low-pass are :mod:`.glitches`, which samples are integrated over which interval :mod:`.sample_order`, and
-:mod:`.batch` is the same in numpy (they agree to 1e-9). The cleaned speeds are integrated, not the
-low-passed ones: a unit-gain filter reset at every start integrates ``a/(1-a)*dt*(first - last)`` too
-much or too little per run (18 mrad over four turns of a square).
+The pipeline is docs/commands/odometry.md; glitches and the low-pass are :mod:`.glitches`, which samples
+are integrated over which interval :mod:`.sample_order`; :mod:`.batch` is the same in numpy.
 """
 
 from __future__ import annotations
@@ -86,10 +83,8 @@ class Odometry:
             # the previous step used a provisional value that the next sample proved wrong: redo it
             self.retractions += 1
             last_left, last_right, last_dt = self._last_step
-            if fix_left is not None:
-                last_left = fix_left
-            if fix_right is not None:
-                last_right = fix_right
+            last_left = last_left if fix_left is None else fix_left
+            last_right = last_right if fix_right is None else fix_right
             bx, by, byaw = self._before_last
             self.x, self.y, self.yaw = arc_step(bx, by, byaw, last_left * last_dt, last_right * last_dt, p.wheel_separation)
         if not new_epoch:
