@@ -104,12 +104,10 @@ def align(ref_x: F, ref_y: F, ref_yaw: F) -> tuple[F, F, F]:
 
 def _residuals(theta: F, segments: list[Segment]) -> F:
     scale_left, scale_right, separation = theta
-    out = []
+    out: list[F] = []
     for seg in segments:
         x, y, yaw = integrate(seg.d_left * scale_left, seg.d_right * scale_right, separation)
-        out.append(x - seg.ref_x)
-        out.append(y - seg.ref_y)
-        out.append(YAW_WEIGHT_M * (yaw - seg.ref_yaw))
+        out += [x - seg.ref_x, y - seg.ref_y, YAW_WEIGHT_M * (yaw - seg.ref_yaw)]
     return np.concatenate(out)
 
 

@@ -60,15 +60,12 @@ class SimServer:
         try:
             return await listen()
         except OSError as exc:
-            why = (
-                {
-                    errno.EADDRINUSE: "the port is in use by another process (another simulator or robot?)",
-                    errno.EADDRNOTAVAIL: f"{self.host} is not an address of this machine",
-                    errno.EACCES: "ports below 1024 need root (the real robot's 665/664); use others, or 0 for free ones",
-                }.get(exc.errno or 0)
-                or exc.strerror
-                or str(exc)
-            )
+            reasons = {
+                errno.EADDRINUSE: "the port is in use by another process (another simulator or robot?)",
+                errno.EADDRNOTAVAIL: f"{self.host} is not an address of this machine",
+                errno.EACCES: "ports below 1024 need root (the real robot's 665/664); use others, or 0 for free ones",
+            }
+            why = reasons.get(exc.errno or 0) or exc.strerror or str(exc)
             raise OSError(
                 f"cannot listen on {self.host}:{port} (the {port_name} port): {why}; choose another with --{port_name}-port PORT (0 picks a free one)"
             ) from None
