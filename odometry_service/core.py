@@ -1,7 +1,6 @@
 """The odometry service's core: impulse payloads in, poses and error reports out. Pure and clock-injected.
 
-Every input comes with ``now`` (the receiver's monotonic time); what is due later goes out in
-:meth:`OdometryCore.tick`. No I/O and no clock read: :mod:`.host` runs it on a loop, tests call it directly.
+Every input comes with ``now`` (the receiver's monotonic time); what is due later goes out in :meth:`OdometryCore.tick`.
 """
 
 from __future__ import annotations
@@ -26,11 +25,7 @@ OdometryOutput = Callable[[Pose | ErrorReport], None]
 
 
 class OdometryCore:
-    """Turns impulse payloads into published poses; reports everything it rejects.
-
-    Its input is live: samples without ``mono`` and ``source`` are rejected, where they would switch the
-    checks off (logs without them are for :mod:`.replay`).
-    """
+    """Turns live impulse payloads (``mono`` and ``source`` required) into published poses; reports what it rejects."""
 
     def __init__(self, params: OdometryParams, keys: Keys, output: OdometryOutput, wallclock: Callable[[], float] = time.time) -> None:
         self.odometry = Odometry(params, live=True)

@@ -63,10 +63,7 @@ class Odometry:
         return make_pose(self.stamp, self.x, self.y, self.yaw, self.v, self.w)
 
     def feed(self, sample: WheelImpulses, arrival: float | None = None) -> Pose:
-        """The pose after one sample; SampleRejected for unusable ones.
-
-        ``arrival``: the receiver's monotonic time (None in replays; required when ``live``).
-        """
+        """The pose after one sample; SampleRejected for unusable ones. ``arrival``: the receiver's monotonic time, if live."""
         verdict = self._order.check(sample.seq, sample.stamp, sample.mono, sample.source, arrival)
         new_epoch, dt = verdict.new_epoch, verdict.dt
         self.tally.count(verdict)

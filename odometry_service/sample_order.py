@@ -83,13 +83,10 @@ class EpochTally:
 
 @dataclass(slots=True)
 class SampleOrder:
-    """Accepts or rejects impulse samples one by one (the rules: docs/commands/odometry.md, "Input with integrity").
+    """Accepts or rejects impulse samples one by one (docs/commands/odometry.md, "Input with integrity").
 
-    The arrival check is cumulative, so delivery jitter cannot trip it: ``arrival - mono`` is the delivery
-    delay plus a constant and never falls below its smallest value unless samples claim time that did not
-    pass; one more than SPACING_TOLERANCE_S below is rejected. ``live``: a sample without ``mono`` or
-    ``source`` is rejected (:class:`UnstampedSample`): the wall stamps would set the interval, the arrival
-    check would be off and any publisher would pass the one-gateway rule. Logs keep the fallbacks.
+    ``arrival - mono`` is the delivery delay plus a constant: it falls more than SPACING_TOLERANCE_S below its
+    smallest value only when samples claim time that did not pass. ``live`` requires ``mono`` and ``source``.
     """
 
     max_gap: float
@@ -154,11 +151,8 @@ class SampleOrder:
         return self._accept(seq, time, source, arrival, Verdict(None, dt, missed))
 
     def _steadily_ahead(self, arrival: float, offset: float) -> bool:
-        """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset.
-
-        An accepted sample ends the run (a forger's never grows while the followed gateway's pass); creep moves
-        the offset and restarts it.
-        """
+        """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset;
+        an accepted sample ends the run (a forger's never grows while the followed gateway's pass)."""
         low, high = self.ahead_range
         if self.ahead_since is None or max(high, offset) - min(low, offset) > SPACING_TOLERANCE_S:
             self.ahead_since, self.ahead_range = arrival, (offset, offset)
