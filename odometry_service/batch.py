@@ -50,15 +50,13 @@ def _acceptance(
 ) -> tuple[B, B, list[str], list[str], EpochTally]:
     """Which samples are accepted and which start a new epoch, by :class:`SampleOrder`; ``time``: mono or stamps."""
     n = len(seq)
-    if n == 0:
-        return np.zeros(0, bool), np.zeros(0, bool), [], [], EpochTally()
     dseq = np.diff(seq)
     dtime = np.diff(time)
     one_source = sources is None or len(set(sources)) == 1
     if one_source and bool(np.all(dseq > 0)) and bool(np.all(dtime >= 0)):  # a well-formed log: one vectorised pass
         accepted = np.ones(n, bool)
         new_epoch = np.empty(n, bool)
-        new_epoch[0] = True
+        new_epoch[:1] = True
         new_epoch[1:] = dtime > max_gap
         gap_idx = np.flatnonzero(new_epoch[1:]) + 1
         events = [gap_event(float(time[k] - time[k - 1]), int(seq[k]), max_gap) for k in gap_idx]
@@ -226,8 +224,7 @@ def run_batch(
     )
 
     dt = np.zeros(n)
-    if n > 1:
-        dt[1:] = np.diff(time)
+    dt[1:] = np.diff(time)
     dt[new_epoch] = 0.0  # no step into an epoch's first sample
     # sample k revises step k - 1; the live service first published the step as held
     provisional = np.union1d(fix_l, fix_r) - 1

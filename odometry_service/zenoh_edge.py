@@ -32,23 +32,21 @@ class OdometryZenoh(ZenohEdge):
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop, *, ring: bool = False) -> Intake:
         """Declare the inputs that feed ``host``; ``ring`` (a fleet): impulse samples wait for :meth:`drain`, no callback each."""
-        intake = self.intake(loop)
+        intake, keys = self.intake(loop), self.keys
         if ring:
             import zenoh
 
-            self._ring = self.session.declare_subscriber(self.keys.impulses, zenoh.handlers.RingChannel(RING))
+            self._ring = self.session.declare_subscriber(keys.impulses, zenoh.handlers.RingChannel(RING))
             self._entities.append(self._ring)
             self._host = host
         else:
-            self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
-        self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer(q, self.keys.pose, lambda _: host.core.latest())))
+            self._direct_subscriber(keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
+        self.queryable(keys.pose, intake.channel("pose?", lambda q: self._answer(q, keys.pose, lambda _: host.core.latest())))
+        self.queryable(keys.odometry_reset, intake.channel("reset?", lambda q: self._answer(q, keys.odometry_reset, host.on_reset)))
         self.queryable(
-            self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer(q, self.keys.odometry_reset, host.on_reset))
+            keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, list(host.core.reporter.recent)))
         )
-        self.queryable(
-            self.keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, self.keys.errors, list(host.core.reporter.recent)))
-        )
-        self.token(self.keys.alive_odometry)
+        self.token(keys.alive_odometry)
         return intake
 
     def drain(self) -> int:
