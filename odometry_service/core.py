@@ -79,11 +79,8 @@ class OdometryCore:
     def tick(self, now: float) -> None:
         """Publish what is due at ``now``: the count of dropped samples, summaries of rate-limited reports."""
         if self._dropped and now >= self._dropped_due:
-            self.reporter.report(
-                self.keys.impulses,
-                f"{self._dropped} impulse samples dropped: the odometry fell behind its input (oldest dropped first)",
-                now=now,
-            )
+            reason = f"{self._dropped} impulse samples dropped: the odometry fell behind its input (oldest dropped first)"
+            self.reporter.report(self.keys.impulses, reason, now=now)
             self._dropped = 0
             self._dropped_due = now + DROPPED_REPORT_PERIOD_S
         self.reporter.tick(now)

@@ -70,9 +70,8 @@ class ControlSession:
                 self.close()
                 return
             replies = robot.handle(item, self.clock())
-            if faults.silent:
-                continue
-            self._reply(b"".join(replies))
+            if not faults.silent:
+                self._reply(b"".join(replies))
 
     def close(self) -> None:
         """Close the connection; replies still held or delayed are dropped with it, as a reset link drops them."""

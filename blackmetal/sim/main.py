@@ -78,11 +78,9 @@ async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
     keys = Keys(settings.prefix or DEFAULT_PREFIX)
 
     def announce(on_zenoh: bool) -> None:
-        print(
-            f"blackmetal sim ready: control {settings.host}:{server.control_port}, log {settings.host}:{server.log_port}"
-            + (f", truth on {keys.sim_truth}" if on_zenoh else ""),
-            flush=True,
-        )
+        ports = f"control {settings.host}:{server.control_port}, log {settings.host}:{server.log_port}"
+        truth = f", truth on {keys.sim_truth}" if on_zenoh else ""
+        print(f"blackmetal sim ready: {ports}{truth}", flush=True)
         announce_ready("sim", host=settings.host, control_port=server.control_port, log_port=server.log_port)
 
     await serve_robots(settings, [(keys.prefix, robot, server)], stop, announce)
@@ -101,12 +99,9 @@ async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio
         Path(write_to).write_text(write_fleet(bound))
 
     def announce(on_zenoh: bool) -> None:
-        print(
-            f"blackmetal sim ready: a fleet of {len(bound)} robots on ports "
-            f"{bound[0].control_port}/{bound[0].log_port} ... {bound[-1].control_port}/{bound[-1].log_port}"
-            + (f"; fleet file {write_to}" if write_to else ""),
-            flush=True,
-        )
+        ports = f"{bound[0].control_port}/{bound[0].log_port} ... {bound[-1].control_port}/{bound[-1].log_port}"
+        fleet_file = f"; fleet file {write_to}" if write_to else ""
+        print(f"blackmetal sim ready: a fleet of {len(bound)} robots on ports {ports}{fleet_file}", flush=True)
         announce_ready("sim", robots=[[r.id, r.prefix, r.control_port, r.log_port] for r in bound], fleet=write_to)
 
     await serve_robots(base, started, stop, announce)
