@@ -1,11 +1,7 @@
-"""The odometry pipeline of :mod:`blackmetal.odometry_service.integrator`, vectorised with numpy for replays.
+"""The streaming pipeline (:mod:`.integrator`) vectorised with numpy for replays; the poses agree to 1e-9.
 
-Same rules, same arithmetic order where it matters, so the poses agree with
-the streaming path to 1e-9 (the filter recursion runs as a parallel prefix
-scan; everything else is the same sums in the same order). For a well-formed
-log (sequence increasing, stamps not going back) everything is one pass of
-array operations; an irregular log is first cleaned by a short Python loop
-that applies the streaming path's acceptance rules.
+Same rules and the same sums in the same order; the filter recursion is a parallel prefix scan. An
+irregular log (sequence or stamps going back) is first cleaned by the live acceptance rules in a loop.
 """
 
 from __future__ import annotations
@@ -27,8 +23,6 @@ B = NDArray[np.bool_]
 
 @dataclass
 class BatchResult:
-    """Every published pose of the replay, as arrays, plus what was rejected or noticed."""
-
     stamp: F
     x: F
     y: F
@@ -54,25 +48,19 @@ class BatchResult:
 def _acceptance(
     seq: NDArray[np.int64], stamp: F, time: F, sources: list[str | None] | None, max_gap: float
 ) -> tuple[B, B, list[str], list[str], EpochTally]:
-    """Which samples are accepted and which start a new epoch, by the live rules (:class:`SampleOrder`).
-
-    ``time`` is what intervals are measured on (``mono`` when the log has it, else the stamps).
-    """
+    """Which samples are accepted and which start a new epoch, by :class:`SampleOrder`; ``time``: mono or stamps."""
     n = len(seq)
-    if n == 0:
-        return np.zeros(0, bool), np.zeros(0, bool), [], [], EpochTally()
     dseq = np.diff(seq)
     dtime = np.diff(time)
     one_source = sources is None or len(set(sources)) == 1
     if one_source and bool(np.all(dseq > 0)) and bool(np.all(dtime >= 0)):  # a well-formed log: one vectorised pass
         accepted = np.ones(n, bool)
         new_epoch = np.empty(n, bool)
-        new_epoch[0] = True
+        new_epoch[:1] = True
         new_epoch[1:] = dtime > max_gap
         gap_idx = np.flatnonzero(new_epoch[1:]) + 1
         events = [gap_event(float(time[k] - time[k - 1]), int(seq[k]), max_gap) for k in gap_idx]
         return accepted, new_epoch, [], events, EpochTally(gaps=len(gap_idx), missed=int(np.sum(dseq - 1)))
-    # an irregular log: the live rules, sample by sample
     order = SampleOrder(max_gap, live=False)  # a log: older ones lack mono and source
     accepted = np.zeros(n, bool)
     new_epoch = np.zeros(n, bool)
@@ -102,11 +90,8 @@ UNIT_ROUNDOFF = 2.0**-53
 def linear_scan(a: F, b: F, tol: float = UNIT_ROUNDOFF) -> F:
     """``y[k] = a[k] * y[k-1] + b[k]`` with ``y[-1] = 0``, as a parallel prefix scan.
 
-    Stops once every remaining carried factor is below ``tol`` (what it would
-    still add is below the floating-point resolution of the values it
-    multiplies): the factors carried after a round are products of
-    ``2 * shift`` of the ``a``, so ``max|a| ** (2 * shift)`` bounds them
-    without looking.
+    Stops once every carried factor is below ``tol``: after a round they are products of ``2 * shift``
+    of the ``a``, so ``max|a| ** (2 * shift)`` bounds them without looking.
     """
     a = a.copy()
     y = b.copy()
@@ -135,12 +120,9 @@ def _prev(values: np.ndarray, fill: object) -> np.ndarray:
 
 def _clean(x: F, x_other: F, new_epoch: B, limit: float) -> tuple[F, int]:
     """Spikes replaced by the last trustworthy reading (not a spike, not a first zero; 0 at an
-    epoch start), scaled by how the other wheel changed since when it can tell.
-
-    Spikes are rare: the masks cover the whole log, the repair only the spikes.
-    """
+    epoch start), scaled by how the other wheel changed since when it can tell; the repair touches only the spikes."""
     valid = np.abs(x) <= limit
-    if valid.all():  # no spike on this wheel: nothing to replace
+    if valid.all():
         return x, 0
     raw_prev = _prev(x, 0.0)
     raw_prev[new_epoch] = 0.0
@@ -174,13 +156,8 @@ def _zero_runs_before(zero: B, new_epoch: B) -> tuple[B, B, B]:
 
 
 def _glitches(c: F, c_other: F, new_epoch: B, alpha: float, limit: float) -> tuple[F, F, NDArray[np.intp], F, int]:
-    """One wheel's speeds to integrate, filtered speeds, the revisions of earlier steps (sample
-    ``k`` revises step ``k - 1``: indices ``k`` and values), and its dropout count; the rules of
-    :class:`~blackmetal.odometry_service.glitches.Glitches`.
-
-    The rules act at a few samples (first zeros, stops, starts), so they are
-    worked out at those indices only; whole-array work is kept to the masks.
-    """
+    """One wheel's speeds to integrate, filtered speeds, revisions (sample ``k`` revises step ``k - 1``:
+    indices ``k`` and values) and dropout count, by :class:`.glitches.Glitches`' rules, worked out only where they act."""
     zero = c == 0.0
     zero_o = c_other == 0.0
     run0, run1, reset = _zero_runs_before(zero, new_epoch)
@@ -225,10 +202,7 @@ def run_batch(
     mono: F | None = None,
     sources: list[str | None] | None = None,
 ) -> BatchResult:
-    """Replay a whole impulse log; the pose after every accepted sample, as the live service publishes it.
-
-    ``mono``/``sources``: the samples' monotonic times and gateway ids, when the log has them.
-    """
+    """The pose after every accepted sample of a log, as the live service publishes it; ``mono``/``sources`` if logged."""
     p = params or OdometryParams()
     seq = np.asarray(seq, np.int64)
     stamp = np.asarray(stamp, np.float64)
@@ -250,8 +224,7 @@ def run_batch(
     )
 
     dt = np.zeros(n)
-    if n > 1:
-        dt[1:] = np.diff(time)
+    dt[1:] = np.diff(time)
     dt[new_epoch] = 0.0  # no step into an epoch's first sample
     # sample k revises step k - 1; the live service first published the step as held
     provisional = np.union1d(fix_l, fix_r) - 1
@@ -266,9 +239,7 @@ def run_batch(
     # what the live service published at a first zero later shown to be a stop: the held step
     if provisional.size:
         k = provisional
-        x_prev = np.where(k > 0, x[k - 1], 0.0)
-        y_prev = np.where(k > 0, y[k - 1], 0.0)
-        yaw_prev = np.where(k > 0, yaw[k - 1], 0.0)
+        x_prev, y_prev, yaw_prev = (np.where(k > 0, path[k - 1], 0.0) for path in (x, y, yaw))
         pdx, pdy, pdth = arc_deltas(yaw_prev, held_l, held_r, p.wheel_separation)
         x[k], y[k], yaw[k] = x_prev + pdx, y_prev + pdy, yaw_prev + pdth
 
@@ -294,9 +265,5 @@ def run_batch(
 
 
 def integrate(d_left: F, d_right: F, separation: float) -> tuple[F, F, F]:
-    """Poses (x, y, unwrapped yaw) after each step from the wheels' travels: exact arcs, one numpy pass.
-
-    The whole of the odometry's geometry; a calibration calls it many times
-    with rescaled travels and another separation.
-    """
+    """Poses (x, y, unwrapped yaw) after each step from the wheels' travels: what a calibration re-runs."""
     return arc_path(d_left, d_right, separation)

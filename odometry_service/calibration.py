@@ -1,22 +1,7 @@
-"""Calibration of the odometry's constants, pure numpy: UMBmark in closed form, and a trajectory fit.
+"""Calibration of the odometry's constants, pure numpy (docs/commands/calibrate.md).
 
-Odometry is wrong mostly for two systematic reasons: the wheels are not
-exactly the size the constants say (unequal impulses per metre), and the
-effective wheel separation is not the one on the drawing.
-
-* :func:`umbmark` is Borenstein and Feng's UMBmark (1996): from the true end
-  points of a clockwise and a counter-clockwise square driven on odometry,
-  the wheel-diameter ratio ``E_d`` and the wheelbase factor ``E_b`` in closed
-  form. Written for the start frame with x along the first side and y to the
-  left: alpha = (y_cw - y_ccw) / (-4L), beta = (y_cw + y_ccw) / (-4L),
-  R = (L/2) / sin(beta/2), E_d = (R + b/2) / (R - b/2),
-  E_b = (pi/2) / (pi/2 - alpha). UMBmark keeps the mean wheel size: it
-  cannot see it.
-* :func:`fit_trajectory` fits the left and right impulses per metre and the
-  separation by least squares (Levenberg-Marquardt) of the odometry's path
-  against a reference path (the simulator's truth, motion capture), reusing
-  the wheels' travels of one replay: each evaluation is one
-  :func:`~blackmetal.odometry_service.batch.integrate` pass.
+UMBmark in closed form in the start frame (x along the first side, y to the left), and a Levenberg-Marquardt
+fit against a reference path, each evaluation one :func:`.batch.integrate` pass over one replay's travels.
 """
 
 from __future__ import annotations
@@ -53,9 +38,6 @@ class Constants:
             self.impulses_right / other.impulses_right - 1.0,
             self.wheel_separation / other.wheel_separation - 1.0,
         )
-
-
-# ---------------------------------------------------------------------------------------------- UMBmark
 
 
 @dataclass(frozen=True, slots=True)
@@ -100,16 +82,9 @@ def centre_of_gravity(points: list[tuple[float, float]]) -> tuple[float, float]:
     return (sum(p[0] for p in points) / len(points), sum(p[1] for p in points) / len(points))
 
 
-# ---------------------------------------------------------------------------------------------- trajectory fit
-
-
 @dataclass
 class Segment:
-    """One stretch of driving: the wheels' travels per step under ``used`` constants, and the reference at each step.
-
-    The reference is in the odometry's start frame (its pose at the first
-    step is the origin, heading along x).
-    """
+    """The wheels' travels per step under ``used`` constants, and the reference (odometry's start frame) at each step."""
 
     d_left: F
     d_right: F
@@ -129,12 +104,10 @@ def align(ref_x: F, ref_y: F, ref_yaw: F) -> tuple[F, F, F]:
 
 def _residuals(theta: F, segments: list[Segment]) -> F:
     scale_left, scale_right, separation = theta
-    out = []
+    out: list[F] = []
     for seg in segments:
         x, y, yaw = integrate(seg.d_left * scale_left, seg.d_right * scale_right, separation)
-        out.append(x - seg.ref_x)
-        out.append(y - seg.ref_y)
-        out.append(YAW_WEIGHT_M * (yaw - seg.ref_yaw))
+        out += [x - seg.ref_x, y - seg.ref_y, YAW_WEIGHT_M * (yaw - seg.ref_yaw)]
     return np.concatenate(out)
 
 

@@ -1,10 +1,6 @@
 """The odometry service's core: impulse payloads in, poses and error reports out. Pure and clock-injected.
 
-Every input comes with ``now`` (the receiver's monotonic time); what is
-due later (summaries of rate-limited reports, the count of dropped input)
-goes out in :meth:`OdometryCore.tick`, at :meth:`OdometryCore.next_deadline`.
-No I/O and no clock read here: :mod:`blackmetal.odometry_service.host` runs it on a
-loop, and tests call it directly.
+Every input comes with ``now`` (the receiver's monotonic time); what is due later goes out in :meth:`OdometryCore.tick`.
 """
 
 from __future__ import annotations
@@ -12,7 +8,6 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, Keys, PayloadError, Pose, PoseReset, WheelImpulses, decode, excerpt
@@ -25,37 +20,14 @@ from .params import OdometryParams
 DROPPED_REPORT_PERIOD_S = 1.0
 
 
-#: Where the odometry's messages go (its edge routes each by its type to its key: :meth:`ZenohEdge.publish`).
+#: Where the odometry's messages go (its edge routes each by type: :meth:`ZenohEdge.publish`).
 OdometryOutput = Callable[[Pose | ErrorReport], None]
 
 
-@dataclass
-class RecordingOdometryOutput:
-    """An :data:`OdometryOutput` that keeps everything, for tests."""
-
-    poses: list[Pose] = field(default_factory=list)
-    errors: list[ErrorReport] = field(default_factory=list)
-
-    def __call__(self, message: Pose | ErrorReport) -> None:
-        (self.poses if isinstance(message, Pose) else self.errors).append(message)  # type: ignore[arg-type]
-
-
 class OdometryCore:
-    """Turns impulse payloads into published poses; reports everything it rejects.
+    """Turns live impulse payloads (``mono`` and ``source`` required) into published poses; reports what it rejects."""
 
-    Its input is live, so every sample must carry ``mono`` and ``source``
-    (:class:`~blackmetal.odometry_service.sample_order.SampleOrder` with ``live``); logs
-    without them are for :mod:`blackmetal.odometry_service.replay`.
-    """
-
-    def __init__(
-        self,
-        params: OdometryParams,
-        keys: Keys,
-        output: OdometryOutput,
-        wallclock: Callable[[], float] = time.time,
-    ) -> None:
-        # live: samples without mono or source are rejected here, where they would switch the checks off
+    def __init__(self, params: OdometryParams, keys: Keys, output: OdometryOutput, wallclock: Callable[[], float] = time.time) -> None:
         self.odometry = Odometry(params, live=True)
         self.keys = keys
         self.output = output
@@ -93,13 +65,9 @@ class OdometryCore:
             raise
 
     def on_dropped(self, count: int, now: float) -> None:
-        """``count`` impulse samples were dropped before they could be handled (the input is bounded).
-
-        Reported in :meth:`tick`, summed over at most DROPPED_REPORT_PERIOD_S,
-        so an overload does not spend the impulse key's report budget.
-        """
-        if count > 0:
-            self._dropped += count
+        """Input dropped (it is bounded): reported in :meth:`tick`, summed over DROPPED_REPORT_PERIOD_S, so an
+        overload does not spend the impulse key's report budget."""
+        self._dropped += max(count, 0)
 
     def latest(self) -> Pose:
         return self.odometry.pose()
@@ -111,11 +79,8 @@ class OdometryCore:
     def tick(self, now: float) -> None:
         """Publish what is due at ``now``: the count of dropped samples, summaries of rate-limited reports."""
         if self._dropped and now >= self._dropped_due:
-            self.reporter.report(
-                self.keys.impulses,
-                f"{self._dropped} impulse samples dropped: the odometry fell behind its input (oldest dropped first)",
-                now=now,
-            )
+            reason = f"{self._dropped} impulse samples dropped: the odometry fell behind its input (oldest dropped first)"
+            self.reporter.report(self.keys.impulses, reason, now=now)
             self._dropped = 0
             self._dropped_due = now + DROPPED_REPORT_PERIOD_S
         self.reporter.tick(now)

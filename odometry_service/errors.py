@@ -6,7 +6,7 @@ from blackmetal.schemas import BlackmetalError
 
 
 class OdometryError(BlackmetalError):
-    """Base of the errors raised by :mod:`blackmetal.odometry_service`."""
+    """Base of the odometry service's errors."""
 
 
 class SampleRejected(OdometryError):

@@ -1,10 +1,6 @@
-"""``blackmetal odometry --fleet FILE``: one process, one Zenoh session, one odometry per robot of the fleet.
+"""``blackmetal odometry --fleet FILE``: one process, one Zenoh session, one odometry per robot (docs/fleets.md).
 
-Each robot keeps its own pipeline (glitch filter, sample order, integrator),
-its own keys, liveliness token and error reports under its prefix; they
-share the process, its loop and the session. A robot whose handling fails
-of a bug is reported on its errors key and started again from zero; the
-others go on.
+A robot whose handling fails of a bug is reported on its errors key and started again from zero; the others go on.
 """
 
 from __future__ import annotations
@@ -45,8 +41,6 @@ ROLE = Role("odometry", build, "odometry of {robot} failed ({exc!r}): starting a
 
 
 async def serve(base: OdometrySettings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
-    """Open one Zenoh session and run every robot's odometry on it until ``stop``."""
-
     def announce(members: list[Member[OdometrySettings]]) -> None:
         print(f"blackmetal odometry ready: a fleet of {len(robots)} robots, {Keys(robots[0].prefix).impulses} -> pose, ...", flush=True)
         announce_ready("odometry", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])

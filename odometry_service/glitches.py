@@ -1,7 +1,6 @@
-"""Spike, dropout and stop rules for both wheels, with the low-pass: step 2 and 3 of the pipeline, sample by sample.
+"""Spike, dropout and stop rules for both wheels, with the low-pass: steps 2 and 3 of the pipeline.
 
-Kept apart from the integration so the rules can be tested on readings
-alone; :mod:`blackmetal.odometry_service.batch` implements the same rules with numpy.
+Apart from the integration so the rules can be tested on readings alone; :mod:`.batch` has them in numpy.
 """
 
 from __future__ import annotations
@@ -22,11 +21,6 @@ class WheelState:
     anchor_other: float = 0.0  # the other wheel's raw reading at that sample
     anchor_other_ok: bool = False  # ... and whether it was trustworthy (not a spike)
 
-    def reset(self) -> None:
-        self.y = self.prev = self.prev2 = self.raw_prev = self.anchor = self.anchor_other = 0.0
-        self.zero_run = 2
-        self.anchor_other_ok = False
-
 
 @dataclass(frozen=True, slots=True)
 class Update:
@@ -46,46 +40,26 @@ _STANDING = Update(0.0, 0.0, 0.0, 0.0, None, None)
 
 
 class Glitches:
-    """Spike, dropout and stop rules for both wheels, with the low-pass; sample by sample.
-
-    A single zero while both wheels move is a dropout: it is estimated from
-    the wheel's previous reading scaled by how the other wheel changed (the
-    curvature is kept), or held when the other wheel cannot tell. The next
-    sample settles it, and the previous step is revised when it was wrong:
-
-    * a second zero means the wheel really stopped, unless the other wheel
-      was still moving at the first zero and stops only now (a dropout at a
-      joint stop): the step is redone with the wheel at 0;
-    * a wheel that reads 0 on the first sample of a joint start (the other
-      wheel starts on it) and moves on the next had its start dropped: the
-      step is redone with an estimate from the next reading.
-    """
+    """The rules sample by sample (docs/commands/odometry.md, "Glitches"): a dropout is estimated, and the next
+    sample revises the previous step when it was a real stop or a joint start's dropped first reading."""
 
     def __init__(self, alpha: float, spike_limit: float) -> None:
         self.alpha = alpha
         self.limit = spike_limit
-        self.left = WheelState()
-        self.right = WheelState()
         self.spikes = 0
         self.dropouts = 0
-        self.started = False  # a previous sample exists in this epoch
-        self.started2 = False  # two previous samples exist in this epoch
+        self.reset()
 
     def reset(self) -> None:
-        self.left.reset()
-        self.right.reset()
-        self.started = self.started2 = False
+        self.left, self.right = WheelState(), WheelState()
+        self.started = False  # a previous sample exists in this epoch
+        self.started2 = False  # two previous samples exist in this epoch
 
     def _clip(self, value: float) -> float:
         return max(-self.limit, min(self.limit, value))
 
     def update(self, raw_left: float, raw_right: float) -> Update:
-        """One reading of both wheels in; speeds to integrate, filtered speeds, revisions out.
-
-        The two cases a fleet's odometry meets nearly always, both wheels turning or both standing with
-        nothing to settle, are written out; they do what :meth:`_update` does (a property test holds them
-        equal), with no rule left to apply.
-        """
+        """:meth:`_update` with its two common cases written out (docs/performance.md); a property test holds them equal."""
         left, right, limit = self.left, self.right, self.limit
         if raw_left == 0.0 and raw_right == 0.0 and left.zero_run == 2 and right.zero_run == 2:
             for state, raw, raw_other in ((left, raw_left, raw_right), (right, raw_right, raw_left)):

@@ -1,10 +1,5 @@
-"""The odometry's asyncio host: stamps each input with the clock, runs the core's timers, counts dropped input.
-
-All decisions are in :class:`~blackmetal.odometry_service.core.OdometryCore`; the Zenoh
-edge hands payloads and queries over to this host on the loop
-(:mod:`blackmetal.runtime.edge`), the host passes them on with ``now`` and
-pokes the shared :class:`~blackmetal.runtime.driver.CoreTimer`, which runs
-``core.tick`` at the core's next deadline. No timer of its own.
+"""The odometry's asyncio host: stamps each input with the clock, counts dropped input, and pokes the shared
+:class:`~blackmetal.runtime.driver.CoreTimer` that runs the core's tick; every decision is the core's.
 """
 
 from __future__ import annotations
@@ -20,8 +15,6 @@ from .core import OdometryCore
 
 
 class OdometryHost:
-    """Runs one :class:`OdometryCore` on the running asyncio loop; see the module docstring."""
-
     def __init__(self, core: OdometryCore, clock: Callable[[], float] = time.monotonic) -> None:
         self.core = core
         self.clock = clock
@@ -44,9 +37,6 @@ class OdometryHost:
             return self.core.on_reset(payload, self.clock())
         finally:
             self.timer.poke()
-
-    def latest(self) -> Pose:
-        return self.core.latest()
 
     async def run(self, stop: asyncio.Event, dropped: Callable[[], int] = lambda: 0) -> None:
         """Run the core's timers until ``stop``; ``dropped``: how many impulse samples the input has dropped so far."""

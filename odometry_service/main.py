@@ -18,7 +18,6 @@ from .zenoh_edge import OdometryZenoh
 
 
 async def serve(settings: OdometrySettings, stop: asyncio.Event) -> None:
-    """Open the Zenoh session, run the service until ``stop``, close everything."""
     keys = Keys(settings.prefix)
     with await open_service_session(settings.zenoh, stop, "odometry") as session:
         refuse_taken(session, "odometry", [keys.prefix], what="odometry service")

@@ -12,18 +12,13 @@ from .errors import OdometryError
 
 @dataclass(frozen=True, slots=True)
 class OdometryParams:
-    """The pipeline's constants, shared by live odometry, replay and calibration; :meth:`check` names a bad one."""
-
     wheel_separation: float = model.WHEEL_SEPARATION
-    #: Impulses per metre of each wheel and the right encoder's mirroring.
     encoders: Encoders = NOMINAL_ENCODERS
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
     #: A reading above ``max_wheel_speed * spike_factor`` is a glitch (margin for quantisation).
     spike_factor: float = 1.05
-    #: Low-pass strength a in [0, 1): 0 = off.
-    filter_alpha: float = 0.3
-    #: Samples further apart than this (s) are not integrated across.
-    max_gap: float = 0.5
+    filter_alpha: float = 0.3  # low-pass strength a in [0, 1): 0 = off
+    max_gap: float = 0.5  # s; samples further apart are not integrated across
 
     def check(self) -> None:
         if not 0.0 <= self.filter_alpha < 1.0:

@@ -1,13 +1,7 @@
 """Which impulse samples may be integrated, and over which interval: one rule set for live odometry and replay.
 
-Every decision about a sample is made on typed values (:class:`EpochStart`,
-the interval, the count of missed samples); the text of an accepted
-sample's event is for reports only, so rewording a message cannot change
-what is counted or integrated.
-
-Live input and logs differ in one typed flag, :attr:`SampleOrder.live`: the
-optional ``mono`` and ``source`` exist so that older logs replay, and live
-they are required, since each check leans on one of them.
+Every decision is made on typed values (:class:`EpochStart`, the interval, the count missed); an event's
+text is for reports only, so rewording a message cannot change what is counted or integrated.
 """
 
 from __future__ import annotations
@@ -45,10 +39,8 @@ def unstamped_reason(mono: float | None, source: str | None) -> str:
 class EpochStart(enum.Enum):
     """Why a sample starts a new epoch: it is not integrated from the previous one."""
 
-    #: The first sample since the start or a reset.
-    FIRST = "first"
-    #: The previous sample is further back than ``max_gap``.
-    GAP = "gap"
+    FIRST = "first"  # since the start or a reset
+    GAP = "gap"  # longer than ``max_gap``
     #: Another gateway (a new ``source``) took over from a silent one.
     GATEWAY_RESTART = "gateway restart"
     #: A log without sources: the sequence went back while the stamps moved on.
@@ -58,32 +50,24 @@ class EpochStart(enum.Enum):
 
     @property
     def restart(self) -> bool:
-        """The gateway started over (a new sequence), as opposed to a first sample or a gap."""
         return self is EpochStart.GATEWAY_RESTART or self is EpochStart.SEQUENCE_RESTART
 
 
 @dataclass(frozen=True, slots=True)
 class Verdict:
-    """What :class:`SampleOrder` decided about one accepted sample."""
-
-    #: Why the sample starts a new epoch; None: it continues the epoch and is integrated over ``dt``.
-    start: EpochStart | None
-    #: Seconds since the previous sample (0 for a new epoch).
-    dt: float
-    #: Samples the gateway numbered between the previous one and this one that never arrived.
-    missed: int = 0
-    #: Worth reporting, though accepted: the text of a report, never decided on.
-    event: str | None = None
+    start: EpochStart | None  # None: the epoch goes on, integrated over ``dt``
+    dt: float  # s since the previous sample (0 for a new epoch)
+    missed: int = 0  # samples numbered between the previous one and this one that never arrived
+    event: str | None = None  # the text of a report, never decided on
 
     @property
     def new_epoch(self) -> bool:
-        """Do not integrate from the previous sample."""
         return self.start is not None
 
 
 @dataclass(slots=True)
 class EpochTally:
-    """Gaps, restarts and missed samples counted from verdicts' kinds: the one count for live odometry and replay."""
+    """Gaps, restarts and missed samples from verdicts' kinds: the one count for live odometry and replay."""
 
     gaps: int = 0
     restarts: int = 0
@@ -99,35 +83,13 @@ class EpochTally:
 
 @dataclass(slots=True)
 class SampleOrder:
-    """Accepts or rejects impulse samples one by one; see the module docstring.
+    """Accepts or rejects impulse samples one by one (docs/commands/odometry.md, "Input with integrity").
 
-    The interval is the gateway's monotonic time (``mono``) when the sample
-    carries it, so a wall-clock step (NTP) or a stamp from the future cannot
-    freeze or stretch the pose; older logs without it use the wall stamps.
-    A sample is rejected (:class:`SampleRejected`, with the reason) when it
-    repeats or goes back in sequence from the same gateway, goes back in
-    time, claims more time than its arrival shows, or comes from another
-    gateway while the followed one is alive. A gateway that restarts (new
-    ``source``) or a gap longer than ``max_gap`` starts a new epoch.
-
-    The arrival check is cumulative, so delivery jitter on a loaded machine
-    cannot trip it: ``arrival - mono`` (``arrival`` on the receiver's
-    monotonic clock; replay has none) is the delivery delay plus a constant
-    and never falls below its smallest value, unless samples claim time that
-    did not pass; one that falls more than SPACING_TOLERANCE_S below is rejected.
-    If the epoch's first sample came late, every punctual one after it looks
-    ahead by the same amount: after RESYNC_S of such rejections at one steady
-    offset, a new epoch starts there (:attr:`EpochStart.RESYNC`).
-
-    ``live`` (samples arriving now, with ``arrival``): a sample without
-    ``mono`` or ``source`` is rejected (:class:`UnstampedSample`), because
-    without them the wall stamps would set the interval, the arrival check
-    would be off and any publisher would pass the one-gateway rule. Logs
-    (``live`` False) keep the fallbacks, so older recordings replay.
+    ``arrival - mono`` is the delivery delay plus a constant: it falls more than SPACING_TOLERANCE_S below its
+    smallest value only when samples claim time that did not pass. ``live`` requires ``mono`` and ``source``.
     """
 
     max_gap: float
-    #: Live input: ``mono``, ``source`` and ``arrival`` required; False for logs, which may lack them.
     live: bool
     seq: int | None = None
     time: float | None = None
@@ -141,10 +103,8 @@ class SampleOrder:
     ahead_range: tuple[float, float] = (0.0, 0.0)
 
     def check(self, seq: int, stamp: float, mono: float | None, source: str | None, arrival: float | None) -> Verdict:
-        """Accept (and remember) the sample, or raise SampleRejected and remember only the run of rejections it extends.
-
-        ValueError if ``live`` and ``arrival`` is None: a caller's bug, not a bad sample.
-        """
+        """Accept (and remember) the sample, or raise SampleRejected and remember only the run of rejections it extends;
+        ValueError if ``live`` and ``arrival`` is None (a caller's bug)."""
         if self.live:
             if arrival is None:
                 raise ValueError("live impulse samples need their arrival time")
@@ -191,12 +151,8 @@ class SampleOrder:
         return self._accept(seq, time, source, arrival, Verdict(None, dt, missed))
 
     def _steadily_ahead(self, arrival: float, offset: float) -> bool:
-        """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset.
-
-        Only a run without an accepted sample in it counts: while the followed
-        gateway's samples pass, a forger's run never grows. Samples that claim
-        ever more time (creep) move the offset and restart the run.
-        """
+        """Whether the run of arrival-check rejections this one extends has lasted RESYNC_S at one steady offset;
+        an accepted sample ends the run (a forger's never grows while the followed gateway's pass)."""
         low, high = self.ahead_range
         if self.ahead_since is None or max(high, offset) - min(low, offset) > SPACING_TOLERANCE_S:
             self.ahead_since, self.ahead_range = arrival, (offset, offset)
@@ -210,10 +166,8 @@ class SampleOrder:
         if arrival is None:
             self.first_offset = self.least_offset = None
         elif self.first_offset is None or self.least_offset is None or (verdict.new_epoch and verdict.start is not EpochStart.GAP):
-            # a new gateway, or the first sample: a new pair of clocks. A gap keeps the same pair (same
-            # source), so it keeps what the epochs before it learnt of the delivery delay: a sample that
-            # arrives late after a stall (a backlog) must not become the measure every punctual sample
-            # after it fails, which would reject them all for good
+            # a new pair of clocks. A gap keeps the pair and what it learnt: a late sample after a stall (a backlog)
+            # must not become the measure every punctual sample after it fails
             self.first_offset = self.least_offset = arrival - time
         else:  # the smallest delivery delay seen, allowed to settle at most SETTLE_S below the first sample's
             self.least_offset = max(min(self.least_offset, arrival - time), self.first_offset - SETTLE_S)

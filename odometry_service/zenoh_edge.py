@@ -9,65 +9,48 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import Keys, PayloadError, encode, payload_bytes
+from blackmetal.schemas import Keys, PayloadError, Pose, encode, payload_bytes
 
 from .host import OdometryHost
 
 if TYPE_CHECKING:
     import zenoh
 
-#: A fleet robot's impulse samples wait in a Zenoh ring of this many until the loop takes them (:meth:`OdometryZenoh.drain`):
-#: at 50 Hz and a drain every 5 ms one waits; the ring overflows only after the loop stalled for 20 s at 50 Hz (1 s at
-#: the gateway's highest poll rate, 1000 Hz). What it drops, the oldest, Zenoh does not count: the odometry sees a gap
-#: in the sequence numbers (a long one is reported as a gap of the gateway's, and not integrated across).
+#: A fleet robot's impulse samples wait in a Zenoh ring of this many for :meth:`OdometryZenoh.drain`: it overflows
+#: after a 20 s stall at 50 Hz (1 s at 1000 Hz), dropping the oldest uncounted: the odometry sees a gap in the sequence.
 RING = 1024
 
 
 class OdometryZenoh(ZenohEdge):
-    """Publishes poses and errors; feeds impulses, pose queries and resets to the host."""
-
     def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
-        """``burst`` (a fleet host; see :mod:`blackmetal.odometry_service.fleet`): poses go out batched, not express, held
-        to the end of the loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`)."""
+        """One robot: poses go out express; a fleet (``burst``): batched, back to back with the other robots' (docs/performance.md)."""
         super().__init__(session)
         self.keys = keys
-        # one robot: express, no batching, the lowest latency. A fleet: batched; Zenoh still sends at once
-        # while the link is idle and batches under back-pressure, where an express put per pose (a write and
-        # a wake of Zenoh's tx thread each) made poses later, not sooner (100 robots at 50 Hz: impulse -> pose
-        # p50 1.6-3 ms express, 0.8-1 ms batched) and cost the router a third more per message
         self.routes(keys, (keys.pose, keys.errors), fast=keys.pose, burst=burst)
         self._ring: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]] | None = None
         self._host: OdometryHost | None = None
 
     def attach(self, host: OdometryHost, loop: asyncio.AbstractEventLoop, *, ring: bool = False) -> Intake:
-        """Declare the inputs that feed ``host``. ``ring`` (a fleet): impulse samples wait in a Zenoh ring for :meth:`drain`
-        instead of a callback each; queries and resets still come through the intake."""
-        intake = self.intake(loop)
+        """Declare the inputs that feed ``host``; ``ring`` (a fleet): impulse samples wait for :meth:`drain`, no callback each."""
+        intake, keys = self.intake(loop), self.keys
         if ring:
             import zenoh
 
-            self._ring = self.session.declare_subscriber(self.keys.impulses, zenoh.handlers.RingChannel(RING))
+            self._ring = self.session.declare_subscriber(keys.impulses, zenoh.handlers.RingChannel(RING))
             self._entities.append(self._ring)
             self._host = host
         else:
-            self._direct_subscriber(self.keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
-        self.queryable(self.keys.pose, intake.channel("pose?", lambda q: self._answer_pose(host, q)))
-        self.queryable(self.keys.odometry_reset, intake.channel("reset?", lambda q: self._answer_reset(host, q)))
+            self._direct_subscriber(keys.impulses, intake.channel("impulses", host.on_impulses, capacity=4096))
+        self.queryable(keys.pose, intake.channel("pose?", lambda q: self._answer(q, keys.pose, lambda _: host.core.latest())))
+        self.queryable(keys.odometry_reset, intake.channel("reset?", lambda q: self._answer(q, keys.odometry_reset, host.on_reset)))
         self.queryable(
-            self.keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, self.keys.errors, list(host.core.reporter.recent)))
+            keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, list(host.core.reporter.recent)))
         )
-        self.token(self.keys.alive_odometry)
+        self.token(keys.alive_odometry)
         return intake
 
     def drain(self) -> int:
-        """On the loop (a fleet, ``attach(ring=True)``): hand the impulse samples in the ring to the host, oldest first; how many.
-
-        No Python runs on Zenoh's threads per sample and the loop wakes once
-        per drain for the whole fleet, not once per sample per robot: at 100
-        robots x 50 Hz the callbacks and their hand-overs were a third of the
-        fleet odometry's CPU. A handler's exception propagates: the fleet
-        fails this robot alone.
-        """
+        """On the loop: the ring's impulse samples to the host, oldest first; how many. A handler's exception propagates."""
         ring, host = self._ring, self._host
         if ring is None or host is None:
             return 0
@@ -82,31 +65,21 @@ class OdometryZenoh(ZenohEdge):
         super().close()
 
     def _direct_subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
-        """:meth:`subscriber`, its callback run on Zenoh's receiving thread rather than on a Python thread of its own.
-
-        The callback only copies the payload into the hand-over (it never blocks nor calls Zenoh), so the
-        extra thread bought nothing but a second wake-up per sample: at 100 robots x 50 Hz it cost about a
-        sixth of the odometry's CPU, and one idle thread per robot.
-        """
+        """:meth:`subscriber` with its callback on Zenoh's receiving thread: it only copies the payload into the hand-over."""
         import zenoh
 
         handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(lambda sample: put(payload_bytes(sample)), indirect=False)
         self._entities.append(self.session.declare_subscriber(key, handler))
 
-    def _answer_pose(self, host: OdometryHost, query: "zenoh.Query") -> None:
-        import zenoh
-
-        with query:
-            query.reply(self.keys.pose, encode(host.latest()), encoding=zenoh.Encoding.APPLICATION_JSON)
-
-    def _answer_reset(self, host: OdometryHost, query: "zenoh.Query") -> None:
+    def _answer(self, query: "zenoh.Query", key: str, pose: Callable[[bytes | None], Pose]) -> None:
+        """Reply the pose ``pose(payload)`` gives, or its PayloadError."""
         import zenoh
 
         with query:
             payload = None if query.payload is None else bytes(query.payload.to_bytes())
             try:
-                pose = host.on_reset(payload)
+                answer = pose(payload)
             except PayloadError as exc:
                 query.reply_err(str(exc).encode())
                 return
-            query.reply(self.keys.odometry_reset, encode(pose), encoding=zenoh.Encoding.APPLICATION_JSON)
+            query.reply(key, encode(answer), encoding=zenoh.Encoding.APPLICATION_JSON)

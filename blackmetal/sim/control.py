@@ -1,11 +1,7 @@
 """One control client of the simulated robot: requests in, replies out, with the link's faults.
 
-The session is driven by whatever carries the bytes: an asyncio protocol
-for TCP (a callback per read, no task and no stream per request: at 100
-simulated robots the stream machinery was a quarter of the simulator's
-CPU), or a coroutine reading a memory pipe. It writes to a :class:`ReplySink`,
-which both an asyncio transport and a ByteStream are. Replies leave in the
-order of their requests, whatever the faults hold back or delay.
+Driven by an asyncio protocol for TCP (docs/performance.md) or a coroutine reading a memory pipe.
+Replies leave in the order of their requests, whatever the faults hold back or delay.
 """
 
 from __future__ import annotations
@@ -34,8 +30,6 @@ TIMER_SLACK_S = 0.001
 
 
 class ReplySink(Protocol):
-    """Where replies go: an asyncio transport, or a ByteStream."""
-
     def write(self, data: bytes) -> None: ...
 
     def close(self) -> None: ...
@@ -60,10 +54,6 @@ class ControlSession:
     _held: bytearray = field(default_factory=bytearray, init=False)
     _held_timer: asyncio.TimerHandle | None = field(default=None, init=False)
 
-    @property
-    def closed(self) -> bool:
-        return self.sink.is_closing()
-
     def feed(self, data: bytes) -> None:
         """Bytes from the client: every whole request handled, its replies written or scheduled."""
         robot = self.robot
@@ -80,9 +70,8 @@ class ControlSession:
                 self.close()
                 return
             replies = robot.handle(item, self.clock())
-            if faults.silent:
-                continue
-            self._reply(b"".join(replies))
+            if not faults.silent:
+                self._reply(b"".join(replies))
 
     def close(self) -> None:
         """Close the connection; replies still held or delayed are dropped with it, as a reset link drops them."""

@@ -7,7 +7,7 @@ import asyncio
 import dataclasses
 import time
 from collections.abc import Callable
-from contextlib import ExitStack
+from contextlib import ExitStack, suppress
 from pathlib import Path
 
 from blackmetal.runtime.entry import run_service, service_parser
@@ -22,7 +22,6 @@ from .settings import SimSettings
 
 
 async def start_robot(s: SimSettings, seed: int | None) -> tuple[SimRobot, SimServer]:
-    """One simulated robot, listening on its ports."""
     params = RobotParams.with_wheel_scales(
         left=s.left_wheel_scale,
         right=s.right_wheel_scale,
@@ -67,41 +66,29 @@ async def serve_robots(
                 if delay < -period:  # fell behind (loaded machine): do not burst to catch up
                     next_tick = time.monotonic()
                     delay = 0.0
-                try:
+                with suppress(TimeoutError):
                     await asyncio.wait_for(stop.wait(), timeout=max(delay, 0.0))
-                except TimeoutError:
-                    pass
         finally:
             for _, _, server in robots:
                 await server.close()
 
 
 async def serve(settings: SimSettings, stop: asyncio.Event) -> None:
-    """Serve until ``stop`` is set; then close everything within a second or two."""
     robot, server = await start_robot(settings, settings.seed)
     keys = Keys(settings.prefix or DEFAULT_PREFIX)
 
     def announce(on_zenoh: bool) -> None:
-        print(
-            f"blackmetal sim ready: control {settings.host}:{server.control_port}, log {settings.host}:{server.log_port}"
-            + (f", truth on {keys.sim_truth}" if on_zenoh else ""),
-            flush=True,
-        )
+        ports = f"control {settings.host}:{server.control_port}, log {settings.host}:{server.log_port}"
+        truth = f", truth on {keys.sim_truth}" if on_zenoh else ""
+        print(f"blackmetal sim ready: {ports}{truth}", flush=True)
         announce_ready("sim", host=settings.host, control_port=server.control_port, log_port=server.log_port)
 
     await serve_robots(settings, [(keys.prefix, robot, server)], stop, announce)
 
 
 async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio.Event, write_to: str | None = None) -> None:
-    """``--robots N`` / ``--fleet FILE``: every robot until ``stop``; ``base`` is the command line's SimSettings (each
-    robot's defaults).
-
-    Every robot is a full simulator: its own physics, faults, control and log
-    ports, and (with Zenoh) its truth and fault keys under its own prefix. With
-    ``--robots N`` the robots are ``r1`` ... ``rN`` under ``fleet/<id>`` on free
-    ports; ``write_to`` (``--write-fleet FILE``) gets the fleet file the gateway
-    and the odometry then read (``--fleet FILE``), with the ports actually bound.
-    """
+    """``--robots N`` / ``--fleet FILE``: every robot, each a full simulator, until ``stop``; ``base`` holds each
+    robot's defaults; ``write_to`` (``--write-fleet``) gets the fleet file with the ports actually bound."""
     started, bound = [], []
     for robot in robots:
         s = robot.settings("sim", base, {"host": robot.host, "control_port": robot.control_port, "log_port": robot.log_port})
@@ -112,12 +99,9 @@ async def serve_fleet(base: SimSettings, robots: list[FleetRobot], stop: asyncio
         Path(write_to).write_text(write_fleet(bound))
 
     def announce(on_zenoh: bool) -> None:
-        print(
-            f"blackmetal sim ready: a fleet of {len(bound)} robots on ports "
-            f"{bound[0].control_port}/{bound[0].log_port} ... {bound[-1].control_port}/{bound[-1].log_port}"
-            + (f"; fleet file {write_to}" if write_to else ""),
-            flush=True,
-        )
+        ports = f"{bound[0].control_port}/{bound[0].log_port} ... {bound[-1].control_port}/{bound[-1].log_port}"
+        fleet_file = f"; fleet file {write_to}" if write_to else ""
+        print(f"blackmetal sim ready: a fleet of {len(bound)} robots on ports {ports}{fleet_file}", flush=True)
         announce_ready("sim", robots=[[r.id, r.prefix, r.control_port, r.log_port] for r in bound], fleet=write_to)
 
     await serve_robots(base, started, stop, announce)

@@ -1,9 +1,5 @@
-"""An in-memory robot: a Connector that wires the gateway straight to a SimServer, no sockets.
-
-Like python-can's virtual bus or httpx's MockTransport: the gateway runs
-unchanged, selecting this connector instead of TCP, and the simulator's own
-connection handlers serve it, so the contract tests run the same suite
-over memory and over TCP.
+"""An in-memory robot: a Connector that wires the gateway straight to a SimServer's own handlers, no sockets,
+so the contract tests run the same suite over memory and over TCP.
 """
 
 from __future__ import annotations
@@ -16,8 +12,6 @@ from .server import SimServer
 
 
 class MemoryConnector:
-    """Connects to ``server`` through memory pipes."""
-
     def __init__(self, server: SimServer) -> None:
         self.server = server
         self._tasks: set[asyncio.Task[None]] = set()

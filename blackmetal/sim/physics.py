@@ -1,11 +1,7 @@
-"""Differential-drive physics and command handling of the simulated robot.
+"""Differential-drive physics and command handling of the simulated robot. Pure and clock-injected (``now``).
 
-Pure and clock-injected: every method takes ``now`` (monotonic seconds), so
-tests drive it with a fake clock and the TCP server with the real one. The
-true pose is integrated exactly: each wheel speed is constant between
-events, so one exact-arc step per interval is exact; while a wheel
-accelerates (optional motor limit) or runs a position move, steps are at
-most ``substep`` long.
+Wheel speeds are constant between events, so one exact-arc step per interval is exact; while a wheel
+accelerates or runs a position move, steps are at most ``substep`` long.
 """
 
 from __future__ import annotations
@@ -24,38 +20,26 @@ from blackmetal.wire import CommandCode, Request
 
 @dataclass(frozen=True, slots=True)
 class RobotParams:
-    """Physical parameters of the simulated robot."""
-
     wheel_separation: float = model.WHEEL_SEPARATION
-    #: The robot's true encoders (which may differ from the nominal constants the gateway and odometry use).
-    encoders: Encoders = NOMINAL_ENCODERS
-    #: Real travel per impulse relative to the nominal constant, per wheel (left, right): the firmware
-    #: turns a commanded m/s into impulses with the nominal constants, so a wheel with scale 1.015 really
-    #: runs 1.5 % faster than commanded while reporting the commanded impulses. Use :meth:`with_wheel_scales`.
+    encoders: Encoders = NOMINAL_ENCODERS  # the true ones, which the gateway and odometry may not know
+    #: Real travel per impulse over the nominal constant (the firmware uses the nominal ones): a wheel with scale
+    #: 1.015 runs 1.5 % faster than commanded and reports the commanded impulses. Use :meth:`with_wheel_scales`.
     wheel_scale: WheelGain = UNITY_GAIN
 
     @classmethod
     def with_wheel_scales(cls, *, left: float, right: float, **others: Any) -> "RobotParams":
         """A robot whose wheels are not their drawing: true encoders follow from the scales."""
-        encoders = Encoders(
-            impulses_per_meter_left=model.IMPULSES_PER_METER_LEFT / left, impulses_per_meter_right=model.IMPULSES_PER_METER_RIGHT / right
-        )
+        encoders = Encoders(model.IMPULSES_PER_METER_LEFT / left, model.IMPULSES_PER_METER_RIGHT / right)
         return cls(encoders=encoders, wheel_scale=WheelGain(left=left, right=right), **others)
 
     max_wheel_speed: float = model.MAX_WHEEL_SPEED
-    #: Motor acceleration limit per wheel (m/s^2); None = wheels follow at once.
-    accel_limit: float | None = None
-    #: Stop by itself after this long without a motion command (s).
-    watchdog: float = model.ROBOT_WATCHDOG_S
-    #: Rim speed used for SET_LR_WHEEL_POSITION moves (m/s).
-    position_speed: float = 0.3
-    #: Longest integration step while a wheel accelerates or runs a position move (s).
-    substep: float = 0.001
+    accel_limit: float | None = None  # per wheel, m/s^2; None = wheels follow at once
+    watchdog: float = model.ROBOT_WATCHDOG_S  # s without a motion command before it stops by itself
+    position_speed: float = 0.3  # rim speed of SET_LR_WHEEL_POSITION moves, m/s
+    substep: float = 0.001  # longest integration step while a wheel accelerates or runs a position move, s
 
 
 class SimRobot:
-    """The robot's control computer and chassis, without any I/O."""
-
     def __init__(self, params: RobotParams | None = None, now: float = 0.0, seed: int | None = None) -> None:
         self.params = params or RobotParams()
         self.faults = SimFaults()
@@ -72,18 +56,8 @@ class SimRobot:
         self._read_at: float | None = None  # time of the previous speed reading
         self._read_travel = (0.0, 0.0)  # rim travel at the previous speed reading
         self._dropped = [False, False]  # the previous reading of each wheel was a dropout
-        self.counters: dict[str, int] = {
-            "requests": 0,
-            "velocity_commands": 0,
-            "prepare": 0,
-            "emergency_stops": 0,
-            "normal_stops": 0,
-            "watchdog_stops": 0,
-            "full_buffer": 0,
-            "polls": 0,
-        }
-
-    # ------------------------------------------------------------------ physics
+        names = "requests velocity_commands prepare emergency_stops normal_stops watchdog_stops full_buffer polls"
+        self.counters: dict[str, int] = dict.fromkeys(names.split(), 0)
 
     @property
     def moving(self) -> bool:
@@ -98,7 +72,6 @@ class SimRobot:
         """Integrate the true pose up to ``now``; fire the watchdog on the way."""
         while True:
             if self._deadline is not None and self.t >= self._deadline:
-                self._deadline = None
                 self.counters["watchdog_stops"] += 1
                 self._halt(immediate=False)
             if self.t >= now:
@@ -143,33 +116,23 @@ class SimRobot:
         step = self.params.position_speed * dt
         if abs(remaining) <= step:
             return remaining, 0.0, 0.0
-        return (
-            math.copysign(step, remaining),
-            remaining - math.copysign(step, remaining),
-            math.copysign(self.params.position_speed, remaining),
-        )
+        sign = math.copysign(1.0, remaining)
+        return sign * step, remaining - sign * step, sign * self.params.position_speed
 
     def _halt(self, immediate: bool) -> None:
+        self._deadline = None
         self.target_left = self.target_right = 0.0
         self._position_left = self._position_right = None
         if immediate or self.params.accel_limit is None:
             self.speed_left = self.speed_right = 0.0
 
-    # ------------------------------------------------------------------ readings
-
     def pose(self, stamp: float) -> Pose:
-        """The true pose, stamped ``stamp`` (Unix time)."""
         v, w = wheels_to_twist(self.speed_left, self.speed_right, self.params.wheel_separation)
         return make_pose(stamp, self.x, self.y, self.yaw, v=v, w=w)
 
     def read_impulses(self, now: float | None = None) -> tuple[int, int]:
-        """Encoder impulses per second as the robot reports them (right mirrored), with faults.
-
-        Like an encoder counter read at intervals, a reading is the mean rate
-        since the previous reading (the current rate for the first one, or
-        after more than a second); whole impulses, the remainder carried to
-        the next reading so nothing is lost on average.
-        """
+        """Impulses per second as reported (right mirrored), with faults: the mean rate since the previous reading
+        (the current rate for the first, or after over a second), whole, the remainder carried to the next."""
         now = self.t if now is None else now
         self.advance(now)
         interval = now - self._read_at if self._read_at is not None else 0.0
@@ -194,7 +157,7 @@ class SimRobot:
         return whole, value - whole
 
     def _sensor_fault(self, value: int, wheel: int) -> int:
-        """Single-sample dropouts (never two in a row on a wheel) and impossible spikes."""
+        """Single-sample dropouts (never two in a row) and impossible spikes."""
         faults = self.faults
         dropped = self._dropped[wheel]
         self._dropped[wheel] = False
@@ -208,14 +171,11 @@ class SimRobot:
         return value
 
     def read_positions(self) -> tuple[int, int]:
-        """Cumulative encoder impulses (right mirrored)."""
         left, right = self.params.encoders.to_impulses(self.travel_left, self.travel_right)
         return round(left), round(right)
 
-    # ------------------------------------------------------------------ commands
-
     def handle(self, request: Request, now: float) -> list[bytes]:
-        """Apply one command at ``now`` and return the replies the robot sends."""
+        """The robot's replies to one command at ``now``."""
         self.advance(now)
         self.counters["requests"] += 1
         if self.faults.full_buffer and self.rng.random() < self.faults.full_buffer:
@@ -226,11 +186,9 @@ class SimRobot:
         separator = " " if self.rng.random() < 0.5 else ","
         if command is CommandCode.EMG_STOP:
             self.counters["emergency_stops"] += 1
-            self._deadline = None
             self._halt(immediate=True)
         elif command is CommandCode.NORMAL_STOP:
             self.counters["normal_stops"] += 1
-            self._deadline = None
             self._halt(immediate=False)
         elif command is CommandCode.SET_LR_WHEEL_VELOCITY:
             self.counters["velocity_commands"] += 1

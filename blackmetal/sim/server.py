@@ -1,11 +1,7 @@
-"""TCP edge of the simulated robot: control port and log port, with link faults.
+"""TCP edge of the simulated robot: control port and log port.
 
-One control client at a time: a new connection takes over from the old one
-(the robot's side of a reconnect whose old socket is half dead). Any number
-of log-port clients each get a state report about once a second. Link
-faults (delay, garbage, glued and split writes, dropped connections,
-silence) are applied by each client's :class:`ControlSession`; sensor
-faults live in :class:`SimRobot`.
+One control client at a time: a new one takes over (the robot's side of a reconnect whose old socket is
+half dead); any number of log clients. Link faults are each client's :class:`ControlSession`'s.
 """
 
 from __future__ import annotations
@@ -15,6 +11,7 @@ import errno
 import logging
 import time
 from collections.abc import Awaitable, Callable
+from contextlib import suppress
 from dataclasses import dataclass, field
 
 from blackmetal import robot_model as model
@@ -29,8 +26,6 @@ log = logging.getLogger("blackmetal.sim")
 
 @dataclass(eq=False)
 class SimServer:
-    """Serves one :class:`SimRobot` on a control port and a log port."""
-
     robot: SimRobot
     host: str = "127.0.0.1"
     control_port: int = model.CONTROL_PORT
@@ -39,7 +34,6 @@ class SimServer:
     clock: Callable[[], float] = time.monotonic
     state: int = field(default=1, init=False)  # READY: the real robot only ever reports READY ...
     direction: int = field(default=1, init=False)  # ... and NORTH
-    connections: int = field(default=0, init=False)
     malformed_requests: int = field(default=0, init=False)
     _servers: list[asyncio.Server] = field(default_factory=list, init=False)
     _control: ControlSession | None = field(default=None, init=False)
@@ -66,14 +60,12 @@ class SimServer:
         try:
             return await listen()
         except OSError as exc:
-            if exc.errno == errno.EADDRINUSE:
-                why = "the port is in use by another process (another simulator or robot?)"
-            elif exc.errno == errno.EADDRNOTAVAIL:
-                why = f"{self.host} is not an address of this machine"
-            elif exc.errno == errno.EACCES:
-                why = "ports below 1024 need root (the real robot's 665/664); use others, or 0 for free ones"
-            else:
-                why = exc.strerror or str(exc)
+            reasons = {
+                errno.EADDRINUSE: "the port is in use by another process (another simulator or robot?)",
+                errno.EADDRNOTAVAIL: f"{self.host} is not an address of this machine",
+                errno.EACCES: "ports below 1024 need root (the real robot's 665/664); use others, or 0 for free ones",
+            }
+            why = reasons.get(exc.errno or 0) or exc.strerror or str(exc)
             raise OSError(
                 f"cannot listen on {self.host}:{port} (the {port_name} port): {why}; choose another with --{port_name}-port PORT (0 picks a free one)"
             ) from None
@@ -93,10 +85,8 @@ class SimServer:
         for task in list(self._tasks):
             task.cancel()  # last resort
         for server in self._servers:
-            try:
+            with suppress(TimeoutError):
                 await asyncio.wait_for(server.wait_closed(), timeout=1.0)
-            except TimeoutError:
-                pass
 
     def drop_clients(self) -> None:
         """Close every client connection, as a robot that lost its network would."""
@@ -112,8 +102,6 @@ class SimServer:
         if task is not None:
             self._tasks.add(task)
             task.add_done_callback(self._tasks.discard)
-
-    # ------------------------------------------------------------------ control port
 
     async def serve_control(self, stream: ByteStream) -> None:
         """Serve one control client on ``stream`` (a memory pipe; TCP clients are served by :class:`_ControlProtocol`)."""
@@ -131,7 +119,6 @@ class SimServer:
         if self._control is not None:
             log.info("new control client takes over from the old one")
             self._control.close()
-        self.connections += 1
         self._control = ControlSession(self.robot, sink, self.clock, asyncio.get_running_loop(), self._count_malformed)
         return self._control
 
@@ -143,10 +130,7 @@ class SimServer:
     def _count_malformed(self) -> None:
         self.malformed_requests += 1
 
-    # ------------------------------------------------------------------ log port
-
     async def serve_log(self, writer: ByteStream) -> None:
-        """Push a state report about once a second to one log client."""
         self._track()
         self._log_streams.add(writer)
         try:
@@ -154,10 +138,8 @@ class SimServer:
                 if not self.robot.faults.silent:
                     writer.write(wire.encode_log_report(self.state, self.direction))
                     await writer.drain()
-                try:
+                with suppress(TimeoutError):
                     await asyncio.wait_for(self._closing.wait(), self.log_interval)
-                except TimeoutError:
-                    pass
         except ConnectionError:
             pass
         finally:

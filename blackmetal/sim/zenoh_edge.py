@@ -1,15 +1,7 @@
-"""Zenoh edge of the simulator: ground truth out, faults in.
+"""Zenoh edge of the simulator: ground truth out, faults in (docs/commands/sim.md).
 
-Publishes the true pose on ``<prefix>/sim/truth`` when the simulator's loop
-ticks it (at a fixed rate) while anyone subscribes to it (Zenoh's matching
-status: a fleet of 100 nobody watches spent a third of the simulator on
-truth), answers ``get`` on ``<prefix>/sim/truth`` and
-``<prefix>/sim/faults``, and takes partial fault settings put on
-``<prefix>/sim/faults``; inputs go through the one hand-over of
-:mod:`blackmetal.runtime.edge`, so no work runs inside a Zenoh callback.
-A fault setting that cannot be used is reported on ``<prefix>/errors``;
-summaries of rate-limited reports go out on the same tick, every report and
-tick stamped with the simulator's monotonic clock.
+The truth is published on each tick only while anyone subscribes (docs/performance.md); inputs go
+through :mod:`blackmetal.runtime.edge`'s hand-over, so no work runs inside a Zenoh callback.
 """
 
 from __future__ import annotations
@@ -50,8 +42,6 @@ def apply_fault_update(current: SimFaults, payload: bytes) -> SimFaults:
 
 
 class SimZenoh(ZenohEdge):
-    """Declares the simulator's publishers, subscriber, queryables and token on an open session."""
-
     def __init__(self, session: "zenoh.Session", keys: Keys, robot: SimRobot, clock: Callable[[], float]) -> None:
         super().__init__(session)
         self.keys = keys
@@ -80,7 +70,6 @@ class SimZenoh(ZenohEdge):
         now = self.clock()
         if self.watched:
             self._truth.put(self._truth_payload(now))
-        # else the physics waits: every request and every look at the truth first brings it up to its own time
         self.reporter.tick(now)
 
     def _truth_payload(self, now: float) -> bytes:

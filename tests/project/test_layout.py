@@ -27,9 +27,6 @@ NOT_EXEMPT = {"bench/__init__", "tools/up/__init__"}
 #: Product modules without tests/unit/<package>/test_<module>.py yet (issue #38 item 5).
 NO_TEST_FILE_YET = {
     "gateway/host", "gateway/zenoh_edge",
-    "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",
-    "odometry_service/zenoh_edge",
-    "sim/main", "sim/memory", "sim/server", "sim/settings",
 }  # fmt: skip
 
 #: Folders of tests/unit that are no Python package of the product, and what they test.

@@ -45,7 +45,7 @@ def test_batch_equals_streaming_on_a_faulty_square(alpha: float) -> None:
     got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
     assert got.shape == expected.shape
     np.testing.assert_allclose(got, expected, rtol=0, atol=1e-9)
-    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
+    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.glitches.spikes, odo.glitches.dropouts, odo.retractions)
 
 
 def test_batch_equals_streaming_on_a_log_long_enough_for_two_threads() -> None:
@@ -58,7 +58,7 @@ def test_batch_equals_streaming_on_a_log_long_enough_for_two_threads() -> None:
     batch = run_batch(log.seq, log.stamp, log.left, log.right, params)
     got = np.column_stack([batch.stamp, batch.x, batch.y, batch.yaw, batch.v, batch.w])
     np.testing.assert_allclose(got, np.array(poses), rtol=0, atol=1e-9)
-    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.spikes, odo.dropouts, odo.retractions)
+    assert (batch.spikes, batch.dropouts, batch.retractions) == (odo.glitches.spikes, odo.glitches.dropouts, odo.retractions)
 
 
 def test_batch_equals_streaming_on_an_irregular_log() -> None:
@@ -74,7 +74,7 @@ def test_batch_equals_streaming_on_an_irregular_log() -> None:
     arr = np.array([(m.seq, m.stamp, m.left, m.right) for m in msgs])
     batch = run_batch(arr[:, 0].astype(np.int64), arr[:, 1], arr[:, 2], arr[:, 3], params)
     np.testing.assert_allclose(np.column_stack([batch.x, batch.y, batch.yaw]), np.array(poses)[:, 1:4], atol=1e-9)
-    assert len(batch.rejected) == 3 and batch.restarts == odo.restarts == 1
+    assert len(batch.rejected) == 3 and batch.restarts == odo.tally.restarts == 1
 
 
 @settings(max_examples=60, deadline=None)

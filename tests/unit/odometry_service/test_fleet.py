@@ -6,6 +6,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections.abc import Coroutine
 from typing import Any
 
 import pytest
@@ -39,6 +40,14 @@ def two_robots_posing(session: zenoh.Session) -> tuple[list[Member[OdometrySetti
         for name in poses
     ]
     return members, poses, subscribers
+
+
+def run_then_undeclare(scenario: Coroutine[Any, Any, None], subscribers: list[Any]) -> None:
+    try:
+        asyncio.run(scenario)
+    finally:
+        for subscriber in subscribers:
+            subscriber.undeclare()
 
 
 def impulses(seq: int, left: int) -> bytes:
@@ -89,11 +98,7 @@ def test_samples_wait_in_the_ring_until_the_drain_and_a_failing_robot_fails_alon
         for member in members:
             member.close()
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        for subscriber in subscribers:
-            subscriber.undeclare()
+    run_then_undeclare(scenario(), subscribers)
 
 
 def test_a_robot_whose_timers_fail_is_handed_to_the_supervisor(session: zenoh.Session) -> None:
@@ -152,8 +157,4 @@ def test_the_fleet_drain_takes_every_robots_samples_and_outlives_a_failing_robot
         for member in members:
             member.close()
 
-    try:
-        asyncio.run(scenario())
-    finally:
-        for subscriber in subscribers:
-            subscriber.undeclare()
+    run_then_undeclare(scenario(), subscribers)

@@ -98,7 +98,7 @@ def test_dropout_in_motion_costs_nothing() -> None:
         clean.feed(sample)
         faulty.feed(WheelImpulses(seq=k, stamp=sample.stamp, left=0, right=sample.right) if k == 50 else sample)
     assert faulty.x == pytest.approx(clean.x, abs=1e-12)
-    assert faulty.dropouts == 1
+    assert faulty.glitches.dropouts == 1
 
 
 def test_a_real_stop_is_exact_not_one_sample_too_long() -> None:
@@ -110,7 +110,7 @@ def test_a_real_stop_is_exact_not_one_sample_too_long() -> None:
     assert provisional.x > at_last_motion
     final = odo.feed(imp(101, 1.01, 0.0, 0.0))  # second zero: it was a stop, the held step is taken back
     assert final.x == pytest.approx(at_last_motion, abs=1e-12)
-    assert odo.retractions == 1 and odo.dropouts == 0 and final.v == 0.0
+    assert odo.retractions == 1 and odo.glitches.dropouts == 0 and final.v == 0.0
 
 
 def test_spikes_are_rejected() -> None:
@@ -120,7 +120,7 @@ def test_spikes_are_rejected() -> None:
         clean.feed(sample)
         faulty.feed(WheelImpulses(seq=k, stamp=sample.stamp, left=5000, right=-9000) if k % 25 == 3 else sample)
     assert faulty.x == pytest.approx(clean.x, abs=1e-12)
-    assert faulty.spikes == 8
+    assert faulty.glitches.spikes == 8
 
 
 def test_out_of_order_duplicate_and_backwards_samples_are_rejected() -> None:
@@ -134,7 +134,7 @@ def test_out_of_order_duplicate_and_backwards_samples_are_rejected() -> None:
     with pytest.raises(SampleRejected, match="stamp went backwards"):
         odo.feed(imp(7, 10.0, 0.1, 0.1))
     odo.feed(imp(9, 10.03, 0.1, 0.1))  # two missed polls: integrated honestly
-    assert odo.missed == 2
+    assert odo.tally.missed == 2
 
 
 def test_a_restarted_gateway_is_a_new_epoch_not_a_fault() -> None:
@@ -143,7 +143,7 @@ def test_a_restarted_gateway_is_a_new_epoch_not_a_fault() -> None:
         odo.feed(imp(1000 + k, 0.01 * k, 0.2, 0.2))
     x = odo.x
     odo.feed(imp(0, 3.0, 0.2, 0.2))  # sequence starts over, stamp moves on
-    assert odo.x == x and odo.restarts == 1 and odo.events
+    assert odo.x == x and odo.tally.restarts == 1 and odo.events
     odo.feed(imp(1, 3.01, 0.2, 0.2))
     assert odo.x > x
 
@@ -154,7 +154,7 @@ def test_a_long_gap_is_reported_not_guessed() -> None:
     odo.feed(imp(1, 0.01, 0.2, 0.2))
     x = odo.x
     odo.feed(imp(2, 2.0, 0.2, 0.2))
-    assert odo.x == x and odo.gaps == 1 and "gap" in odo.events[-1]
+    assert odo.x == x and odo.tally.gaps == 1 and "gap" in odo.events[-1]
     odo.feed(imp(3, 2.2, 0.2, 0.2))  # 0.2 s: within the bound, integrated
     assert odo.x == pytest.approx(x + 0.04, abs=1e-3)
 
@@ -194,7 +194,7 @@ def test_gaps_and_restarts_are_counted_by_kind_never_by_text() -> None:
         mono=np.array([m.mono for m in samples]),
         sources=[m.source for m in samples],
     )
-    assert (odo.restarts, odo.gaps, odo.missed) == (batch.restarts, batch.gaps, batch.missed) == (1, 0, 0)
+    assert (odo.tally.restarts, odo.tally.gaps, odo.tally.missed) == (batch.restarts, batch.gaps, batch.missed) == (1, 0, 0)
     assert "gap-b" in odo.events[-1] and batch.events == odo.events
 
 

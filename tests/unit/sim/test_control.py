@@ -136,7 +136,7 @@ def test_a_dropped_connection_closes_the_sink_and_answers_nothing_more(run_loop:
     async def main() -> None:
         session, sink, _ = session_for(SimFaults(disconnect=1.0), asyncio.get_running_loop())
         session.feed(requests(2))
-        assert sink.closed and sink.writes == [] and session.closed
+        assert sink.closed and sink.writes == [] and session.sink.is_closing()
 
     run_loop(main())
 
