@@ -70,6 +70,8 @@ class Channel(Generic[T]):
     direct_taken: int = 0
     window_start: float = -math.inf
     window_direct: int = 0
+    #: The channels of this priority or higher, itself included: a direct take waits behind what they hold.
+    ahead: list[Channel[Any]] = field(default_factory=list)
 
     def __post_init__(self, capacity: int) -> None:
         self.items = deque(maxlen=capacity)
@@ -159,6 +161,8 @@ class Intake:
         channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority, latch, on_dropped)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)
+        for each in self._channels:
+            each.ahead = [other for other in self._channels if other.priority >= each.priority]
         guard = self.guard
 
         def put(item: T) -> None:
@@ -193,10 +197,8 @@ class Intake:
                     channel.window_start, channel.window_direct = now, 0
                 if channel.window_direct >= DIRECT_BURST:
                     return False
-                for other in self._channels:  # highest priority first
-                    if other.priority < channel.priority:
-                        break
-                    if other.waiting():
+                for other in channel.ahead:
+                    if other.latched is not None or other.items:
                         return False  # older items of this priority, or higher (an e-stop), wait: behind them, in order
                 channel.received += 1
                 channel.direct_taken += 1
