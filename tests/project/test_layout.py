@@ -26,9 +26,9 @@ NOT_EXEMPT = {"bench/__init__", "tools/up/__init__"}
 
 #: Product modules without tests/unit/<package>/test_<module>.py yet (issue #38 item 5).
 NO_TEST_FILE_YET = {
-    "gateway/commands", "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health", "gateway/host",
+    "gateway/commands", "gateway/conflict", "gateway/estop", "gateway/fleet", "gateway/health",
     "gateway/links", "gateway/log_port", "gateway/main", "gateway/prepare", "gateway/safety_states",
-    "gateway/settings", "gateway/zenoh_edge",
+    "gateway/settings",
     "odometry_service/host", "odometry_service/main", "odometry_service/replay", "odometry_service/settings",
     "odometry_service/zenoh_edge",
     "ros2/main", "ros2/settings",
