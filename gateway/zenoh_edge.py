@@ -60,6 +60,7 @@ class GatewayZenoh(ZenohEdge):
         """
         super().__init__(session)
         self.keys = keys
+        self.fleet = burst is not None
         self.routes(keys, (keys.impulses, keys.status, keys.health, keys.errors, keys.driver, keys.params), fast=keys.impulses, burst=burst)
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
@@ -108,7 +109,7 @@ class GatewayZenoh(ZenohEdge):
         ]
         flood = functools.partial(driver.take, core.note_input)
         for key, put, options in guarded:
-            self.guarded(key, put, intake, flood, **options)
+            self.guarded(key, put, intake, flood, indirect=self.fleet, **options)
         now = driver.clock
         #   channel        key              answered on the loop, under the core lock, with
         queries = [

@@ -79,6 +79,9 @@ class GuardedInput:
     decode: Callable[[bytes], Any] | None = None
     #: Samples whose last chunk is one of these (names another input takes) are not handed over.
     skip: frozenset[str] = frozenset()
+    #: The callback on a Python thread of its own (zenoh's default); False: on the thread that reads the link, one
+    #: thread wake fewer per sample (a single robot's gateway: docs/performance.md).
+    indirect: bool = True
     _subscriber: Any = field(default=None, init=False)
     _pump: threading.Thread | None = field(default=None, init=False)
     #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
@@ -112,7 +115,9 @@ class GuardedInput:
         import zenoh
 
         gone = self._callback_gone = threading.Event()
-        self._subscriber = self.session.declare_subscriber(self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set))
+        self._subscriber = self.session.declare_subscriber(
+            self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set, indirect=self.indirect)
+        )
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""
