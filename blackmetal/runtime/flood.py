@@ -79,8 +79,7 @@ class GuardedInput:
     decode: Callable[[bytes], Any] | None = None
     #: Samples whose last chunk is one of these (names another input takes) are not handed over.
     skip: frozenset[str] = frozenset()
-    #: The callback on a Python thread of its own (zenoh's default); False: on the thread that reads the link, one
-    #: thread wake fewer per sample (a single robot's gateway: docs/performance.md).
+    #: False: the callback runs on the thread that reads the link, one thread wake fewer (docs/performance.md).
     indirect: bool = True
     _subscriber: Any = field(default=None, init=False)
     _pump: threading.Thread | None = field(default=None, init=False)
