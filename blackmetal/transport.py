@@ -25,10 +25,8 @@ class ByteStream(Protocol):
     async def pump(self, deliver: Callable[[bytes], None]) -> None:
         """Hand each chunk read to ``deliver``, on the loop, as it comes; return once the peer has closed.
 
-        Raises ConnectionError if the stream broke, and whatever ``deliver``
-        raised (the stream is closed then). Pushed rather than read: a TCP
-        stream calls ``deliver`` from the loop's own read callback, with no task
-        to wake per chunk (a fleet gateway reads 5 000 replies a second).
+        Raises ConnectionError if the stream broke, and what ``deliver`` raised (the stream is closed then). Pushed,
+        not read: no task wakes per chunk (a fleet gateway reads 5 000 replies a second).
         """
         ...
 
@@ -37,13 +35,8 @@ class ByteStream(Protocol):
         ...
 
     def write_now(self, data: bytes) -> int:
-        """Any thread: send ``data`` at once if nothing is queued before it; how many bytes went (0: none).
-
-        The caller sends the rest with :meth:`write`, on the loop. It must hold
-        whatever keeps :meth:`write` and :meth:`close` from running meanwhile
-        (the gateway's core lock). A stream that cannot send from another
-        thread returns 0, always.
-        """
+        """Any thread, holding what keeps :meth:`write` and :meth:`close` out (the core lock): send ``data`` at once
+        if nothing is queued before it; how many bytes went (0: none, always for a stream that cannot)."""
         ...
 
     async def drain(self) -> None:
@@ -207,13 +200,8 @@ class TcpStream:
     """A ByteStream over an asyncio TCP connection (Nagle off: commands leave at once)."""
 
     def __init__(self, transport: asyncio.Transport, protocol: _TcpProtocol, *, write_now: bool = False) -> None:
-        """``write_now``: keep a duplicate of the socket so :meth:`write_now` can send from another thread.
-
-        It is made here, on the loop, while the descriptor is surely this
-        stream's: the loop may close its own at any time (the robot reset the
-        link), and a number it freed could name another socket by the time
-        another thread looked. Only :meth:`close` closes the duplicate.
-        """
+        """``write_now``: keep a duplicate of the socket for :meth:`write_now`, made here on the loop while the
+        descriptor is surely this stream's (a number the loop freed could name another socket later)."""
         self._transport = transport
         self._protocol = protocol
         sock = transport.get_extra_info("socket")

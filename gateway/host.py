@@ -1,19 +1,9 @@
-"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O core, and sleeps.
+"""The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O core.
 
-All decisions are in :class:`~blackmetal.gateway.core.GatewayCore`; this
-module opens the robot's streams through an injected
-:class:`~blackmetal.transport.Connector` (TCP, or the simulator's memory
-pipe in tests), reconnects with backoff, feeds what it reads and writes what
-the core wants written. The rest is the runtime's
-:class:`~blackmetal.runtime.driver.Driver`: the core lock, the core timer,
-publishing once the lock is released (each message to ``output``, which
-routes it by its type to its key) and failure.
-
-Commands and e-stops may also be taken on the Zenoh thread that delivers
-them (:meth:`GatewayHost.direct`, under the driver's direct-take rule): the
-bytes go to the robot at once, on the stream's own duplicate of the socket
-and only while the loop has nothing queued on it (what cannot go now goes
-first in the loop's next write). The threads and locks are drawn in
+All decisions are the :class:`~blackmetal.gateway.core.GatewayCore`'s; the
+runtime's :class:`~blackmetal.runtime.driver.Driver` holds the core lock,
+timer, publishing and failure. A command or e-stop taken on Zenoh's thread
+(:meth:`GatewayHost.direct`) leaves at once; threads and locks:
 ``docs/threads.md``.
 """
 
@@ -75,8 +65,7 @@ class GatewayHost:
         self.output = output
         self.clock = clock
         robot = {name: f"robot:{connector.describe(name)}" for name in LINKS}
-        #: Where the e-stop latch is kept; read now, before the first command to the robot, and saved on every change.
-        self.latch = latch
+        self.latch = latch  # read now, before the first command to the robot; saved on every change
         start, self.start_sentence = start_latch(latch, wallclock(), settings.unsafe_start_released)
         self.core = GatewayCore(settings, clock(), wallclock, robot, latch=start)
         if self.start_sentence is not None:
@@ -109,15 +98,10 @@ class GatewayHost:
             log.warning("error on %s: %s", message.key, message.reason)
         self.output(message)
 
-    # ------------------------------------------------------------------ taken on the Zenoh thread that delivers it
-
     def direct(self, method: Callable[..., object], *, unpack: bool = True) -> Callable[[Any], bool]:
-        """An intake channel's direct take (the intake holds the lock): ``method(*item, now)`` (``unpack`` False:
-        ``method(item, now)``), its bytes sent at once.
+        """An intake channel's direct take (the intake holds the lock): ``method(*item, now)``, its bytes sent at once.
 
-        False (the loop takes it, as any input) unless the driver's rule
-        allows it. What the input produced besides the control link's bytes
-        (reports, the next deadline) waits for the loop's flush, scheduled here.
+        False unless the driver's rule allows it; the rest (reports, the next deadline) waits for the loop's flush.
         """
         driver, clock = self.driver, self.clock
 
@@ -157,20 +141,14 @@ class GatewayHost:
         except Exception as exc:
             self.driver.fail(exc)
 
-    # ------------------------------------------------------------------ moving bytes
-
     def _pending_locked(self) -> bytes:
-        """What the control link is to be sent, oldest first (a direct take's unsent rest, then the core's new bytes).
-        Only the control link is ever written to: the log link is read-only."""
+        """What the control link is due, oldest first (a direct take's unsent rest, then the core's new bytes)."""
         data = self.core.take_outgoing("control")
         rest, self._unsent = self._unsent, b""
         return rest + data if rest else data
 
     def _flush_locked(self) -> None:
-        """Write what the core wants written; act on drops; keep its messages for the driver to publish.
-
-        This runs twice per poll per robot.
-        """
+        """Write what the core wants written; act on drops; keep its messages for the driver to publish."""
         self._write_locked(self._pending_locked())
         if self._save_latch_locked():  # after the EMG_STOP left; a release takes effect once saved
             self._write_locked(self._pending_locked())

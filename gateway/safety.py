@@ -144,12 +144,13 @@ class Governor:
         elif engaged:
             # EMG_STOP stops the wheels: as far as velocity goes, standstill was sent and nothing is to be re-sent
             sent = state.robot.sent
-            standstill = Sent(STANDSTILL, -math.inf) if sent is None else replace(sent, wheels=STANDSTILL, resend_at=None)
-            robot = replace(state.robot, sent=standstill)
+            standstill = Sent(STANDSTILL, -math.inf) if sent is None else Sent(STANDSTILL, sent.at, sent.resends)
+            robot = state.robot
+            robot = Robot(standstill, robot.accepted, robot.accepted_at, robot.moving)  # constructors: the EMG_STOP's path
             if isinstance(state, Driving):
                 self.state = EStopped(robot, emg_at=now, heard_at=state.heard_at)
             else:
-                self.state = replace(state, robot=robot)
+                self.state = _with_robot(state, robot)
         elif isinstance(state, EStopped):
             self.state = Driving(state.robot, current_at=now)
         else:
@@ -202,7 +203,8 @@ class Governor:
 
     def on_emg_stop_sent(self) -> None:
         if isinstance(self.state, EStopped):
-            self.state = replace(self.state, emg_pending=False)
+            state = self.state
+            self.state = EStopped(state.robot, state.emg_at, False, state.emg_resends, state.heard_at)
 
     def observe_motion(self, left: float, right: float, now: float) -> None:
         """The wheels' rim speeds as polled (m/s)."""

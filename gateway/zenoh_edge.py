@@ -1,31 +1,10 @@
 """Zenoh edge of the gateway: declarations only, no logic.
 
-Its inputs are one table (:meth:`GatewayZenoh.attach`): each key, the intake
-channel it feeds, the core method the runtime's driver calls with ``now``,
-and how a sample is named or decoded where it enters (the e-stop is read
-once, here, into an :class:`~blackmetal.gateway.estop.EStopInput`). Its
-outputs go to the key the key space gives their type (:meth:`ZenohEdge.routes`).
-
-Inputs go through the one intake of :mod:`blackmetal.runtime.intake`: the
-callbacks copy the payload and the service's loop runs the handlers. Each
-input has its own bounded intake, so a flood of one can neither delay,
-mask nor expire another:
-
-* the e-stop (``estop`` and ``estop/release``): one latest-state slot, ahead
-  of everything; an ON is kept until handled even if newer samples follow;
-  a storm changes over to Zenoh's ring buffer like any flooded input;
-* each configured command source and each configured lock: its own
-  subscriber (a flooded one changes over to Zenoh's ring buffer alone) and
-  its own latest slot; what a newer command supersedes is counted against
-  its source in health;
-* names nobody configured share one small queue and create no state per
-  name: they are refused and reported, rate-limited per key family.
-
-Health queries are answered from the loop. Commands and e-stops are taken
-directly on the Zenoh thread that delivers them when their robot's core is
-free (the intake's ``direct``, under the driver's rule: :mod:`blackmetal.runtime.driver`), in a fleet
-host too: each robot has its own core lock, so one robot's loop work never
-holds another's e-stop back.
+Its inputs are one table (:meth:`GatewayZenoh.attach`): each key, its intake
+channel (bounded, so a flood of one input can neither delay, mask nor expire
+another), the core method the driver calls, and how a sample is named or
+decoded where it enters; its outputs go to the key the key space gives their
+type. The channels, their priorities and the direct take: ``docs/threads.md``.
 """
 
 from __future__ import annotations
@@ -74,16 +53,14 @@ class GatewayZenoh(ZenohEdge):
     """Publishers are declared at once; :meth:`attach` wires the inputs to a service."""
 
     def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
-        """``burst`` (a fleet host, many robots on one session): impulses go out batched, not express, held to the end of
-        the loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`).
+        """``burst`` (a fleet host): impulses batched, not express, and put back to back with the other robots'.
 
-        One robot: express, the lowest latency. A fleet: an express put per impulse sample is a write of
-        its own and a wake of Zenoh's tx thread each, which at 100 robots x 50 Hz was a quarter of the
-        gateway's Python time and kept it from polling at 50 Hz (35 Hz; batched: 47 Hz, router CPU per
-        message halved). Zenoh still sends at once while the link is idle: hence the burst.
+        An express put per impulse wakes Zenoh's tx thread each: at 100 robots x 50 Hz a quarter of the gateway's
+        Python time, polling at 35 Hz instead of 47 (``docs/threads.md``, PutBurst).
         """
         super().__init__(session)
         self.keys = keys
+        self.fleet = burst is not None
         self.routes(keys, (keys.impulses, keys.status, keys.health, keys.errors, keys.driver, keys.params), fast=keys.impulses, burst=burst)
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
@@ -132,7 +109,7 @@ class GatewayZenoh(ZenohEdge):
         ]
         flood = functools.partial(driver.take, core.note_input)
         for key, put, options in guarded:
-            self.guarded(key, put, intake, flood, **options)
+            self.guarded(key, put, intake, flood, indirect=self.fleet, **options)
         now = driver.clock
         #   channel        key              answered on the loop, under the core lock, with
         queries = [

@@ -1,26 +1,11 @@
 """The service driver: what sits between Zenoh and a pure core, in one place, under one rule.
 
-A core (the gateway's, the odometry's, the ROS 2 adapter's) is
-pure and clock-injected: fed inputs with ``now``, it runs its due timers in
-``tick(now)`` and says in ``next_deadline()`` when next. :class:`Driver`
-runs one on the service's loop and owns everything around it:
-
-* the core lock (:class:`CoreLock`): held whenever a thread is in the core,
-  never re-entered (a drain holds it and calls handlers that do not take it);
-* the core timer (:class:`CoreTimer`): ``tick`` at the core's deadline;
-* the inputs: :meth:`Driver.handler` makes an intake channel's handler
-  (``method(*item, now)``, then the host's ``after_locked``), :meth:`Driver.take`
-  runs one input on the loop outside a drain;
-* publishing: what the core produced waits in :attr:`Driver.outbox` and is
-  published by the loop once it holds no lock (:meth:`Driver.publish`);
-* failure: :meth:`Driver.fail` ends :meth:`Driver.serve` with the exception;
-* the direct take, under one rule (:meth:`Driver.may_take_directly`): only
-  the thread that delivers a sample (Zenoh's callback thread) may take it
-  directly, never the loop, never a pump (:func:`queue_only`), and only
-  while the driver serves.
-
-So at most two kinds of thread ever run a core: the loop, and Zenoh's
-delivery thread for a direct take. The threads are drawn in ``docs/threads.md``.
+:class:`Driver` runs one pure, clock-injected core on the service's loop and
+owns the core lock (:class:`CoreLock`, never re-entered), the core timer
+(:class:`CoreTimer`), publishing once the lock is released, failure, and the
+direct take's rule (:meth:`Driver.may_take_directly`): only the thread that
+delivers a sample may take it directly, never the loop, never a pump
+(:func:`queue_only`). The threads and locks: ``docs/threads.md``.
 """
 
 from __future__ import annotations
@@ -60,12 +45,7 @@ def delivering() -> bool:
 
 
 class CoreLock:
-    """The lock of a core: not re-entrant, and it knows its holder.
-
-    Entering it again on the thread that holds it raises instead of
-    deadlocking: a handler called under the lock must not take it
-    (``_locked`` in a name says "the caller holds the lock").
-    """
+    """The lock of a core: not re-entrant (entered twice by one thread it raises instead of deadlocking)."""
 
     def __init__(self) -> None:
         self._lock = threading.Lock()
@@ -88,8 +68,7 @@ class CoreLock:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        self._owner = 0
-        self._lock.release()
+        self.release()
 
     def held(self) -> bool:
         """Whether the calling thread holds it."""
@@ -105,13 +84,9 @@ class Core(Protocol):
 
 @dataclass(eq=False)
 class CoreTimer:
-    """Runs ``core.tick`` at ``core.next_deadline()`` on the running loop.
+    """Runs ``core.tick`` at ``core.next_deadline()`` on the running loop, holding ``lock``, then ``after_tick``.
 
-    After each input the driver calls :meth:`poke`, so a deadline that came
-    earlier is honoured; the timer is moved only when a deadline comes
-    earlier, so a flood of inputs costs no timer churn. It holds ``lock``
-    while it ticks and runs ``after_tick`` (the host moves what the tick
-    produced), then ``after_unlock`` once the lock is released.
+    :meth:`poke` after each input moves the timer only when the deadline came earlier: a flood costs no timer churn.
     """
 
     core: Core
@@ -175,12 +150,9 @@ class CoreTimer:
 class Driver:
     """Runs one pure core on the running loop; see the module docstring.
 
-    ``after_locked`` (the lock held) runs after every input and tick: the
-    host moves what the core produced (bytes to a socket, messages to
-    :attr:`outbox`) and pokes the timer; by default it only pokes.
-    ``publish`` is handed each message of :attr:`outbox` once no lock is
-    held. ``supervised``: a failure ends :meth:`serve` (else it goes to the
-    loop's exception handler).
+    ``after_locked`` (lock held) runs after every input and tick: the host moves what the core produced and pokes
+    the timer. ``publish`` gets each message of :attr:`outbox` once no lock is held. ``supervised``: a failure ends
+    :meth:`serve` (else it goes to the loop's exception handler).
     """
 
     def __init__(
@@ -215,11 +187,8 @@ class Driver:
     def poke(self) -> None:
         self.timer.poke()
 
-    # ------------------------------------------------------------------ inputs
-
     def handler(self, method: Callable[..., Any], *, unpack: bool = True) -> Callable[[Any], Any]:
-        """An intake channel's handler (a drain holds the lock): ``method(*item, now)`` (``unpack`` False: ``method(item,
-        now)``), then ``after_locked``."""
+        """An intake channel's handler (a drain holds the lock): ``method(*item, now)``, then ``after_locked``."""
         clock, after = self.clock, self.after_locked
 
         def handle(item: Any) -> Any:
@@ -250,10 +219,7 @@ class Driver:
         return self._loop_thread != 0
 
     def may_take_directly(self) -> bool:
-        """The direct-take rule, under the lock: the driver serves, and the caller is the thread that delivered the sample.
-
-        Not the loop (it drains), not a pump (:func:`delivering`: it only queues).
-        """
+        """The direct-take rule: the driver serves, and the caller delivered the sample (not the loop, not a pump)."""
         return self._loop_thread not in (0, threading.get_ident()) and delivering()
 
     def schedule(self, callback: Callable[[], None]) -> None:
@@ -262,8 +228,6 @@ class Driver:
         if loop is not None:
             with contextlib.suppress(RuntimeError):  # the loop is closed: the service is gone
                 loop.call_soon_threadsafe(callback)
-
-    # ------------------------------------------------------------------ outputs and failure
 
     def publish(self) -> None:
         """The loop, holding no lock: hand the core's messages to ``publish`` (a put may block; no e-stop waits on it)."""
@@ -288,8 +252,6 @@ class Driver:
     def on_error(self) -> Callable[[BaseException], None] | None:
         """What an intake calls with a handler's exception: :meth:`fail` when supervised, else the loop's handler."""
         return self.fail if self.supervised else None
-
-    # ------------------------------------------------------------------ running
 
     def open(self) -> None:
         """The loop, as it starts serving: direct takes are allowed from now on."""

@@ -16,7 +16,7 @@ from blackmetal.schemas import ConfigError, Delivery, ErrorReport, Keys, any_ali
 from .burst import PutBurst
 from .flood import GuardedInput
 from .intake import Intake
-from .zenoh_entities import chunk_and_payload, undeclare
+from .zenoh_entities import undeclare
 
 if TYPE_CHECKING:
     import asyncio
@@ -33,12 +33,8 @@ def refuse_taken(
     describe: Callable[[str], str] | None = None,
     timeout: float = 0.5,
 ) -> None:
-    """ConfigError naming the first prefix on which another ``role`` (``gateway``, ``odometry``) is alive.
-
-    One liveliness query for any number of prefixes (call before declaring
-    our own tokens). ``what`` names the service in the sentence (default
-    ``role``), ``describe(prefix)`` the robot of a fleet.
-    """
+    """ConfigError naming the first prefix on which another ``role`` is alive (one liveliness query; call before
+    declaring our own tokens). ``what`` names the service (default ``role``), ``describe(prefix)`` a fleet's robot."""
     alive = {
         Keys.prefix_of_token(str(reply.ok.key_expr), role)
         for reply in session.liveliness().get(any_alive(role), timeout=timeout)
@@ -87,11 +83,9 @@ class ZenohEdge:
         return publisher
 
     def routes(self, keys: Keys, published: Iterable[str], *, fast: str | None = None, burst: PutBurst | None = None) -> None:
-        """A publisher for each key of ``published``; :meth:`publish` routes a message to it by its type (:meth:`Keys.message_for`).
+        """A publisher for each key of ``published``; :meth:`publish` routes a message to it by its type.
 
-        ``fast`` (the service's high-rate telemetry): express for one robot, the
-        lowest latency; in a fleet (``burst``) batched, held to the end of the
-        loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`).
+        ``fast`` (high-rate telemetry): express for one robot; in a fleet batched through ``burst``.
         """
         for key in published:
             message = keys.message_for(key)
@@ -121,11 +115,6 @@ class ZenohEdge:
     def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
         """Payload bytes of every sample on ``key`` go to ``put`` (an Intake channel)."""
         self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))
-
-    def named_subscriber(self, key: str, put: Callable[[tuple[str, bytes]], None]) -> None:
-        """``(last key chunk, payload)`` of every sample on ``key`` (e.g. ``robot/cmd_vel/*``) go to ``put``."""
-
-        self._entities.append(self.session.declare_subscriber(key, lambda sample: put(chunk_and_payload(sample))))
 
     def guarded(
         self,

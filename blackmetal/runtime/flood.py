@@ -51,26 +51,16 @@ def newest(batch: list[Any]) -> list[Any]:
 class GuardedInput:
     """An input that a client may flood: Python callbacks at sane rates, Zenoh's ring buffer while it floods.
 
-    A Python callback per sample is the quickest way in (no thread between
-    Zenoh and the loop), but Zenoh runs callbacks on the thread that reads
-    the link: a publisher flooding one key at full speed keeps that thread
-    in Python, and every other sample on the link (another robot's e-stop)
-    waits behind the flood. So a key that delivers more than FLOOD_SAMPLES
-    within FLOOD_WINDOW_S changes over to a subscriber with Zenoh's own ring
-    buffer (the ``capacity`` newest samples kept, the oldest dropped without
-    touching Python) and one pump thread that moves what is there to
-    ``put`` at the loop's pace (it waits for the loop's next drain before it
-    takes more). After QUIET_S without a sample it changes back: an idle
-    pump is not free (zenoh-python wakes a blocked ``recv`` ten times a
-    second to look for signals, and each wake takes the GIL from the loop),
-    which a fleet of 100 robots with two pumps each paid in command latency.
-
-    The changes are made on the loop, never in a callback, and
-    ``on_flood(key, reason)`` is told of each there. The new subscriber is
-    declared before the old one goes, so no sample is lost in between (one
-    may arrive twice, and samples still queued for an indirect callback's
-    thread may come after the first ones through the ring: within a flood,
-    whose next sample supersedes them).
+    Zenoh runs callbacks on the thread that reads the link, so a key flooded
+    at full speed would hold every other sample of the link (another robot's
+    e-stop) behind it. Beyond FLOOD_SAMPLES within FLOOD_WINDOW_S the key
+    changes over to a ring-buffered subscriber (the ``capacity`` newest kept,
+    without Python) and one pump thread that hands them to ``put`` at the
+    loop's pace; after QUIET_S without a sample it changes back (an idle pump
+    is not free: zenoh-python wakes a blocked ``recv`` ten times a second,
+    GIL and all). The loop makes the changes and tells ``on_flood(key,
+    reason)``; the new subscriber is declared before the old one goes, so no
+    sample is lost (one may arrive twice).
     """
 
     session: "zenoh.Session"
@@ -89,6 +79,8 @@ class GuardedInput:
     decode: Callable[[bytes], Any] | None = None
     #: Samples whose last chunk is one of these (names another input takes) are not handed over.
     skip: frozenset[str] = frozenset()
+    #: False: the callback runs on the thread that reads the link, one thread wake fewer (docs/performance.md).
+    indirect: bool = True
     _subscriber: Any = field(default=None, init=False)
     _pump: threading.Thread | None = field(default=None, init=False)
     #: Guards the flood count and ``_changing``: Zenoh may call one subscriber's callback on several threads (one per link).
@@ -122,7 +114,9 @@ class GuardedInput:
         import zenoh
 
         gone = self._callback_gone = threading.Event()
-        self._subscriber = self.session.declare_subscriber(self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set))
+        self._subscriber = self.session.declare_subscriber(
+            self.key, zenoh.handlers.Callback(self._on_sample, drop=gone.set, indirect=self.indirect)
+        )
 
     def _on_sample(self, sample: "zenoh.Sample") -> None:
         """Zenoh's thread: hand the sample over, and count it against the flood limit."""

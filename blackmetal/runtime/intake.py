@@ -1,24 +1,10 @@
 """A service's one intake: every input reaches its core through here, bounded, and one owner drains it.
 
-Zenoh calls back on its own threads. A callback only copies the payload and
-puts it in the input's channel (one short hold of :attr:`Intake.guard`),
-then wakes the service's asyncio loop once per batch; the loop, the core's
-one owner, drains the intake and runs the handlers, never inside a Zenoh
-callback. Channels are bounded: a ``latest`` channel keeps only the newest
-item (a newer command supersedes an older one; ``latch`` keeps an e-stop ON
-until it is handled), a queue keeps at most ``capacity`` items and drops the
-oldest, counting what it dropped. Channels with a higher ``priority`` are
-drained first and looked at again after every item, and a drain takes no
-more than was waiting when it began, so an emergency stop is handled before
-a backlog (or a flood) of anything else.
-
-One exception to "the loop drains": a channel given ``direct`` is taken in
-the thread that delivers it (never a pump: :func:`~blackmetal.runtime.driver.delivering`),
-under the core's lock, when the core is free and nothing of its priority or
-higher waits (:meth:`Intake.channel`); the gateway sends a command to the
-robot that way without waiting for its loop to wake
-(:mod:`blackmetal.runtime.driver`). The threads and locks are drawn in
-``docs/threads.md``.
+A Zenoh callback only puts its item in the input's bounded channel and wakes
+the loop once per batch; the loop, the core's one owner, drains it by
+priority. One exception: a ``direct`` channel's item may be taken in the
+thread that delivers it, under the core's lock (:meth:`Intake.channel`,
+the rule in :mod:`blackmetal.runtime.driver`). The threads and locks: ``docs/threads.md``.
 """
 
 from __future__ import annotations
@@ -70,6 +56,8 @@ class Channel(Generic[T]):
     direct_taken: int = 0
     window_start: float = -math.inf
     window_direct: int = 0
+    #: The channels of this priority or higher, itself included: a direct take waits behind what they hold.
+    ahead: list[Channel[Any]] = field(default_factory=list)
 
     def __post_init__(self, capacity: int) -> None:
         self.items = deque(maxlen=capacity)
@@ -101,14 +89,10 @@ class Channel(Generic[T]):
 
 @dataclass(eq=False)
 class Intake:
-    """Thread-safe hand-over from Zenoh's threads to one asyncio loop: the service's one intake.
+    """Thread-safe hand-over from Zenoh's threads to one asyncio loop; nothing here relies on the GIL.
 
-    Every channel's items, its counters and the "drain scheduled" flag are
-    guarded by :attr:`guard`, a plain lock held only to add or pop one item
-    (never while a handler runs), so nothing here relies on the GIL. The
-    second lock, when given, is the core's (:attr:`lock`): drains hold it
-    while they handle items, and a ``direct`` channel's put takes it (never
-    waiting for it) to handle an item at once.
+    :attr:`guard` is held only to add or pop one item; :attr:`lock` (the core's) is held by drains, and tried,
+    never waited for, by a direct take.
     """
 
     loop: asyncio.AbstractEventLoop
@@ -140,25 +124,20 @@ class Intake:
         direct: Callable[[T], bool] | None = None,
         on_dropped: Callable[[int], None] | None = None,
     ) -> Callable[[T], None]:
-        """A thread-safe ``put`` for ``handler``; ``latest`` keeps only the newest item, ``latch`` see :class:`Channel`.
+        """A thread-safe ``put`` for ``handler``; ``latest``, ``latch``: see :class:`Channel`.
 
-        ``on_dropped(n)`` is called on the loop, before the next item is
-        handled, with how many items were dropped since it was last called.
-        ``direct(item)`` takes an item in the thread that puts it, under
-        :attr:`lock`, and says whether it did (False: it waits for the loop as
-        any other). It is tried only while the lock is free (the loop is not
-        in the core), nothing of this priority or higher waits (order is
-        kept: a drain pops and handles under the lock), and the channel is
-        within its direct budget (DIRECT_BURST per DIRECT_WINDOW_S). It must
-        not block or touch the loop except by ``call_soon_threadsafe``; the
-        only Zenoh call it may make is a put with drop congestion control,
-        which never waits on a link (the ROS 2 adapter forwards a command so).
+        ``on_dropped(n)``: on the loop, before the next item, how many were dropped since. ``direct(item)`` takes an
+        item in the putting thread under :attr:`lock` (False: it waits for the loop): only while the lock is free,
+        nothing of this priority or higher waits, and within DIRECT_BURST per DIRECT_WINDOW_S. It must not block;
+        its only Zenoh call may be a put with drop congestion control.
         """
         if direct is not None and self.lock is None:
             raise ValueError(f"channel {name!r}: a direct channel needs the intake's core lock")
         channel: Channel[T] = Channel(name, handler, 1 if latest else capacity, priority, latch, on_dropped)
         self._channels.append(channel)
         self._channels.sort(key=lambda c: -c.priority)
+        for each in self._channels:
+            each.ahead = [other for other in self._channels if other.priority >= each.priority]
         guard = self.guard
 
         def put(item: T) -> None:
@@ -193,10 +172,8 @@ class Intake:
                     channel.window_start, channel.window_direct = now, 0
                 if channel.window_direct >= DIRECT_BURST:
                     return False
-                for other in self._channels:  # highest priority first
-                    if other.priority < channel.priority:
-                        break
-                    if other.waiting():
+                for other in channel.ahead:
+                    if other.latched is not None or other.items:
                         return False  # older items of this priority, or higher (an e-stop), wait: behind them, in order
                 channel.received += 1
                 channel.direct_taken += 1
@@ -227,14 +204,10 @@ class Intake:
             pass
 
     def _drain(self) -> None:
-        """The loop: handle the items waiting now, one at a time, the highest-priority channel first after every item.
+        """The loop: handle what waits now, the highest-priority channel first after every item.
 
-        Each lower channel is served at most as many items as it held when the
-        drain began: a flood that refills it while the drain runs waits for
-        the next drain (which its ``put`` schedules), so it can neither keep
-        the loop from its timers and sockets nor hold a newer e-stop behind
-        it. The top channel is always served at once. Every item is popped and
-        handled under the core lock, so a direct take never comes between the two.
+        A lower channel gets at most what it held when the drain began (a flood refilling it waits for the next
+        drain); the top one is served at once. Items are popped and handled under the core lock.
         """
         with self.guard:
             self._scheduled = False

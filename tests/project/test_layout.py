@@ -3,10 +3,7 @@
 ``tests/unit/blackmetal/``; a subpackage's module ``<package>/<sub>/<module>.py`` in ``tests/unit/<package>/test_<sub>_<module>.py``,
 and a package's ``__init__`` that holds code in ``test_<package name>.py``; docs/contributing.md ("Tests") draws it.
 
-Modules with no test file of their name yet are listed in :data:`NO_TEST_FILE_YET`, and the list is held
-exact both ways: a new module must come with its test file (or be listed, saying so in review), and a
-listed module that got its file, or was renamed or removed, must leave the list. Most of them are run
-end to end by tests/integration; a test file of their name is what is missing.
+Every product module has its test file: a new module comes with one.
 """
 
 from __future__ import annotations
@@ -23,11 +20,6 @@ EXEMPT = {
 }
 #: These ``__init__`` modules are the command itself, not re-exports: tested in test_bench.py and test_up.py.
 NOT_EXEMPT = {"bench/__init__", "tools/up/__init__"}
-
-#: Product modules without tests/unit/<package>/test_<module>.py yet (issue #38 item 5).
-NO_TEST_FILE_YET = {
-    "gateway/host", "gateway/zenoh_edge",
-}  # fmt: skip
 
 #: Folders of tests/unit that are no Python package of the product, and what they test.
 OTHER_UNIT_FOLDERS = {"blackmetal": "the top-level modules blackmetal/*.py", "deploy": "the configurations in deploy/"}
@@ -50,15 +42,10 @@ def has_test_file(module: str) -> bool:
     return (folder / f"test_{name}.py").is_file() or any(folder.glob(f"test_{name}_*.py"))
 
 
-def test_every_product_module_has_its_test_file_or_is_listed_as_not_yet() -> None:
+def test_every_product_module_has_its_test_file() -> None:
     wanted = [m for m in product_modules() if m.split("/")[-1] not in EXEMPT or m in NOT_EXEMPT]
-    missing = {m for m in wanted if not has_test_file(m)}
-    unlisted = sorted(missing - NO_TEST_FILE_YET)
-    assert not unlisted, (
-        f"no tests/unit/<package>/test_<module>.py for {unlisted}: write it (or add the module to NO_TEST_FILE_YET, and say why in review)"
-    )
-    stale = sorted(NO_TEST_FILE_YET - missing)
-    assert not stale, f"{stale} have a test file now, or no longer exist: take them out of NO_TEST_FILE_YET"
+    missing = sorted(m for m in wanted if not has_test_file(m))
+    assert not missing, f"no tests/unit/<package>/test_<module>.py for {missing}: write it"
 
 
 def test_every_unit_folder_is_named_after_what_it_tests() -> None:

@@ -142,3 +142,35 @@ def test_the_core_lock_is_never_reentered() -> None:
             pass
         assert not lock.acquire(blocking=False)  # tried (as a direct take does): refused, never a second hold
     assert not lock.held()
+
+
+def on_another_thread(call: Any) -> Any:
+    """``call``'s result, made on a thread of its own, as a Zenoh thread would make it."""
+    result: list[Any] = []
+    on_thread("zenoh", lambda: result.append(call()))
+    return result[0]
+
+
+def test_only_another_thread_may_take_directly_and_only_while_the_driver_serves() -> None:
+    driver = Driver(Core())
+    assert not driver.may_take_directly() and not on_another_thread(driver.may_take_directly), "not serving yet"
+
+    async def serving() -> None:
+        driver.open()  # on this thread: it is the loop's
+        assert not driver.may_take_directly(), "the loop's own thread never takes directly"
+        assert on_another_thread(driver.may_take_directly)
+        driver.shut()
+        assert not on_another_thread(driver.may_take_directly), "a stopped or failed driver leaves every input to its loop"
+
+    asyncio.run(serving())
+
+
+def test_scheduling_on_a_loop_that_closed_does_nothing_and_raises_nothing() -> None:
+    driver, ran = Driver(Core()), []
+
+    async def serving() -> None:
+        driver.open()
+
+    asyncio.run(serving())  # its loop is closed now
+    on_another_thread(lambda: driver.schedule(lambda: ran.append(1)))
+    assert ran == []
