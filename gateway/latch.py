@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import os
 import urllib.parse
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -130,26 +130,6 @@ class FileLatchStore:
             except OSError:
                 pass
             return f"the e-stop state cannot be saved to {self.path} ({exc.strerror}): check that the folder is writable (--state-dir)"
-        return None
-
-
-@dataclass
-class MemoryLatchStore:
-    """A latch kept in memory, for tests: ``latch`` as saved; ``failing``: why saving fails (None: it works)."""
-
-    latch: Latch | Untrusted = Latch(False, 0.0, AT_START)
-    failing: str | None = None
-    saves: list[Latch] = field(default_factory=list)
-    where: str = "memory"
-
-    def load(self) -> Latch | Untrusted:
-        return self.latch
-
-    def save(self, latch: Latch) -> str | None:
-        if self.failing is not None:
-            return self.failing
-        self.latch = latch
-        self.saves.append(latch)
         return None
 
 
