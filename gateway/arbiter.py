@@ -11,7 +11,7 @@ import math
 from dataclasses import dataclass, field, replace
 from enum import Enum
 
-from blackmetal.schemas import ConfigError, Sources, Twist
+from blackmetal.schemas import ConfigError, SourceHealth, Sources, Twist
 
 #: The source of plain ``<prefix>/cmd_vel``.
 DEFAULT_SOURCE = Sources.DEFAULT
@@ -78,22 +78,16 @@ def _parse(kind: str, text: str) -> tuple[str, int, float | None]:
     return parts[0], priority, timeout
 
 
-def parse_source(text: str) -> SourceSpec:
-    """``NAME:PRIORITY[:TIMEOUT]`` (timeout 0.5 s if left out), as the settings write a source."""
-    name, priority, timeout = _parse("source", text)
-    return SourceSpec(name, priority, 0.5 if timeout is None else timeout)
+def arbiter_of(sources: list[str], locks: list[str]) -> Arbiter:
+    """The arbiter of sources and locks as the settings write them, ``NAME:PRIORITY[:TIMEOUT]``.
 
-
-def parse_lock(text: str) -> LockSpec:
-    """``NAME:PRIORITY[:TIMEOUT]`` (no timeout if left out), as the settings write a lock."""
-    name, priority, timeout = _parse("lock", text)
-    return LockSpec(name, priority, timeout)
-
-
-def spec_text(spec: SourceSpec | LockSpec) -> str:
-    """The settings' way of writing a source or lock (the inverse of :func:`parse_source`/:func:`parse_lock`)."""
-    tail = "" if spec.timeout is None else f":{spec.timeout:g}"
-    return f"{spec.name}:{spec.priority}{tail}"
+    A source left without a timeout gets 0.5 s, a lock none.
+    """
+    source_specs = [
+        SourceSpec(name, priority, 0.5 if timeout is None else timeout)
+        for name, priority, timeout in (_parse("source", s) for s in sources)
+    ]
+    return Arbiter(tuple(source_specs), tuple(LockSpec(*_parse("lock", text)) for text in locks))
 
 
 class Admission(Enum):
@@ -298,10 +292,10 @@ class Arbiter:
             return self.active  # no flapping between equals: the driver keeps control until it times out
         return best.spec.name
 
-    def source_ages(self, now: float) -> dict[str, tuple[float | None, int, int]]:
-        """Per source: seconds since its last command (None: never heard), commands dropped and commands superseded."""
+    def source_health(self, now: float) -> dict[str, SourceHealth]:
+        """Per source: its priority, seconds since its last command (None: never heard), commands dropped and superseded."""
         return {
-            name: (None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped, s.superseded)
+            name: SourceHealth(s.spec.priority, None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped, s.superseded)
             for name, s in self._sources.items()
         }
 

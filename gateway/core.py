@@ -17,7 +17,6 @@ from blackmetal.schemas import (
     GatewayHealth,
     Keys,
     RobotStatus,
-    SourceHealth,
     WheelImpulses,
     excerpt,
 )
@@ -245,10 +244,7 @@ class GatewayCore(ClientInputs):
             source=self.run_token,
             conflict_with=self.conflict.with_whom(now),
             active_source=arbiter.active,
-            sources={
-                name: SourceHealth(priority=spec.priority, age=age, dropped=dropped, superseded=superseded)
-                for spec, (name, (age, dropped, superseded)) in zip(arbiter.sources, arbiter.source_ages(now).items(), strict=True)
-            },
+            sources=arbiter.source_health(now),
             locks=arbiter.lock_states(now),
             last_sent=None if self._last_sent is None else _describe(self._last_sent[0]),
             last_sent_stamp=None if self._last_sent is None else self._last_sent[1],
