@@ -13,13 +13,7 @@ from collections.abc import Callable
 from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import (
-    GatewayHealth,
-    Keys,
-    RobotStatus,
-    WheelImpulses,
-    excerpt,
-)
+from blackmetal.schemas import GatewayHealth, Keys, RobotStatus, WheelImpulses, excerpt
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
 from .commands import ClientInputs, Event
@@ -151,30 +145,29 @@ class GatewayCore(ClientInputs):
     def link_up(self, link: LinkName, now: float) -> None:
         """``link`` is connected (again): start clean."""
         down_for = self.links.up(link, now, self.wallclock())
-        (self._replies if link == "control" else self._log_port.decoder).reset()
-        if link == "control":
-            self._outgoing.clear()
         if down_for is not None:
             self._report_robot(link, f"{link} link up again after {down_for:.1f} s", now)
-        if link == "control":
-            self.exchange.clear("reconnected")
-            self.prepare.reset()
-            self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
-            self.governor.on_link_up(now)
-            self._poll_waiting = False
-            self.polls.start(now)
-            self._send_due(now)
+        if link == "log":
+            self._log_port.decoder.reset()
+            return
+        self._replies.reset()
+        self._outgoing.clear()
+        self.exchange.clear("reconnected")
+        self.prepare.reset()
+        self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
+        self.governor.on_link_up(now)
+        self._poll_waiting = False
+        self.polls.start(now)
+        self._send_due(now)
 
     def link_down(self, link: LinkName, reason: str, now: float) -> None:
-        """``link`` closed, or could not be opened."""
+        """``link`` closed, or could not be opened; a robot that cannot be reached is said once per reason, not per retry."""
         before = self.links[link].reason
         was_up = self.links.down(link, now, reason)
+        if not self.stopping and (was_up or reason != before):
+            self._report_robot(link, f"{link} link down: {reason}" if was_up else f"{link} link: {reason}", now)
         if link == "control":
             self._outgoing.clear()
-        if was_up and not self.stopping:
-            self._report_robot(link, f"{link} link down: {reason}", now)
-        elif reason != before and not self.stopping:  # a robot that cannot be reached is said once per reason, not per retry
-            self._report_robot(link, f"{link} link: {reason}", now)
         if link == "control" and was_up:
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))
@@ -232,7 +225,7 @@ class GatewayCore(ClientInputs):
             control=self.links.control.health(),
             log=self.links.log.health(),
             **vars(self.counters),
-            garbage_bytes=self.garbage_bytes,
+            garbage_bytes=self._replies.garbage_bytes + self._log_port.decoder.garbage_bytes,
             estop=governor.estop,
             estop_since=self.latch.since,
             estop_by=self.latch.by,
@@ -249,10 +242,6 @@ class GatewayCore(ClientInputs):
             last_sent=None if self._last_sent is None else _describe(self._last_sent[0]),
             last_sent_stamp=None if self._last_sent is None else self._last_sent[1],
         )
-
-    @property
-    def garbage_bytes(self) -> int:
-        return self._replies.garbage_bytes + self._log_port.decoder.garbage_bytes
 
     def _report_robot(self, link: LinkName, reason: str, now: float, snippet: str = "") -> None:
         """A fault of the robot's, reported under the robot's end of ``link``."""
