@@ -10,6 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from typing import Any
 
 from blackmetal.schemas import ConfigError, SourceHealth, Sources, Twist
 
@@ -109,8 +110,7 @@ class _Source:
     due: float = math.inf
 
     def live(self, now: float) -> bool:
-        # heard_at + timeout, as its due is written: both must agree to the last bit, or a tick at the due would see it
-        # live, spend the due and never weigh it again
+        # as its due is written, to the last bit: else a tick at the due would see it live and spend the due
         return now < self.heard_at + self.spec.timeout
 
 
@@ -138,10 +138,9 @@ class Why(Enum):
 
 @dataclass(frozen=True, slots=True)
 class NewDriver:
-    """The active source changed: who drives now (None: nobody), who drove before, why, and the command to take over with.
+    """Who drives now (None: nobody) and with what command, who drove before and why.
 
-    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's).
-    """
+    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's)."""
 
     source: str | None
     twist: Twist | None
@@ -173,12 +172,12 @@ class Arbiter:
     def names(self) -> list[str]:
         return list(self._sources)
 
-    def has_source(self, name: str) -> bool:
-        return name in self._sources
-
     @property
     def lock_names(self) -> list[str]:
         return list(self._locks)
+
+    def has_source(self, name: str) -> bool:
+        return name in self._sources
 
     def offer(self, name: str, twist: Twist, now: float) -> Admission:
         """A valid command from source ``name`` at ``now``: whether it drives."""
@@ -234,14 +233,10 @@ class Arbiter:
         source = self._sources[winner]
         return NewDriver(winner, source.twist, source.heard_at, previous, why)
 
-    def retune(self, name: str, *, priority: int | None = None, timeout: float | None = None) -> None:
-        """A new priority or timeout for source ``name`` (a parameter set live); :meth:`update` weighs it at once."""
+    def retune(self, name: str, **change: Any) -> None:
+        """A new ``priority`` or ``timeout`` for source ``name`` (a parameter set live); :meth:`update` weighs it at once."""
         source = self._sources[name]
-        spec = replace(
-            source.spec,
-            priority=source.spec.priority if priority is None else priority,
-            timeout=source.spec.timeout if timeout is None else timeout,
-        )
+        spec = replace(source.spec, **change)
         check_specs((spec,), ())
         source.spec = spec
         self.sources = tuple(spec if s.name == name else s for s in self.sources)

@@ -40,10 +40,6 @@ _LIMIT_HELP = {
 PRIORITY_RANGE = (0, 255)
 
 
-def _fine(value: float) -> None:
-    return None
-
-
 @dataclass(frozen=True, slots=True)
 class _Live:
     """A parameter that changes live: how to read it and how to set an already checked value."""
@@ -55,7 +51,7 @@ class _Live:
     get: Callable[[], float]
     set: Callable[[float], None]
     #: An extra check after the type and range (None: the value is fine).
-    refuse: Callable[[float], str | None] = _fine
+    refuse: Callable[[float], str | None] | None = None
 
 
 class ParamTable:
@@ -72,9 +68,6 @@ class ParamTable:
         live = [Param(name, spec.kind, spec.get(), spec.description, min=spec.low, max=spec.high) for name, spec in self._live.items()]
         return live + self._fixed()
 
-    def names(self) -> list[str]:
-        return [param.name for param in self.table()]
-
     def set(self, name: str, value: ParamValue) -> str | None:
         """Set ``name`` to ``value``; the reason it is refused, if it is (nothing changes then)."""
         spec = self._live.get(name)
@@ -82,13 +75,13 @@ class ParamTable:
             fixed = {param.name for param in self._fixed()}
             if name in fixed:
                 return f"{name} is read-only on a running gateway: set it in the gateway's settings and restart it"
-            return f"no parameter {name!r}: the gateway's parameters are {', '.join(self.names())}"
+            return f"no parameter {name!r}: the gateway's parameters are {', '.join(param.name for param in self.table())}"
         if isinstance(value, bool) or not isinstance(value, int if spec.kind == "integer" else (int, float)):
             return f"{name} takes {'an integer' if spec.kind == 'integer' else 'a number'}, got {value!r}"
         checked = value if spec.kind == "integer" else float(value)
         if not math.isfinite(checked) or not spec.low <= checked <= spec.high:
             return f"{name} must be within {spec.low:g}..{spec.high:g}, got {value!r}"
-        reason = spec.refuse(checked)
+        reason = None if spec.refuse is None else spec.refuse(checked)
         if reason is not None:
             return reason
         spec.set(checked)
@@ -108,10 +101,10 @@ class ParamTable:
                 refuse,
             )
             for name, low, high, zero_is_off, refuse in (
-                ("max_wheel_speed", 0.01, top_speed, False, _fine),
+                ("max_wheel_speed", 0.01, top_speed, False, None),
                 ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, False, _refuse_cmd_timeout),
-                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, True, _fine),
-                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, True, _fine),
+                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, True, None),
+                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, True, None),
             )
         }
         for name in arbiter.names:
@@ -120,7 +113,7 @@ class ParamTable:
                 f"priority of the command source {name!r} (the highest live source drives)",
                 *PRIORITY_RANGE,
                 functools.partial(arbiter.priority_of, name),
-                functools.partial(_retune_priority, arbiter, name),
+                functools.partial(_retune, arbiter, name, "priority"),
             )
             params[f"sources.{name}.timeout"] = _Live(
                 "double",
@@ -128,7 +121,7 @@ class ParamTable:
                 0.01,
                 MAX_CMD_TIMEOUT_S,
                 functools.partial(arbiter.timeout_of, name),
-                functools.partial(_retune_timeout, arbiter, name),
+                functools.partial(_retune, arbiter, name, "timeout"),
             )
         return params
 
@@ -153,12 +146,8 @@ class ParamTable:
         return [Param(name, kind, value, description, read_only=True) for name, kind, value, description in fixed]
 
 
-def _retune_priority(arbiter: Arbiter, name: str, value: float) -> None:
-    arbiter.retune(name, priority=int(value))
-
-
-def _retune_timeout(arbiter: Arbiter, name: str, value: float) -> None:
-    arbiter.retune(name, timeout=float(value))
+def _retune(arbiter: Arbiter, name: str, field: str, value: float) -> None:
+    arbiter.retune(name, **{field: value})
 
 
 def _limit_of(governor: Governor, name: str) -> float:
