@@ -128,12 +128,12 @@ class _Lock:
 
 
 class Why(Enum):
-    """Why the driver changed."""
+    """Why the driver changed; the value is how ``<prefix>/gateway/driver`` says it."""
 
-    OUTRANKS = "outranks"  # a live source of higher priority (or the first one) spoke
-    SILENT = "silent"  # the driver fell silent (its timeout ran out)
-    LOCKED = "locked"  # an engaged lock blocks the driver
-    UNLOCKED = "unlocked"  # a lock released, or its heartbeat came back: a blocked source drives again
+    OUTRANKS = "{source} outranks {previous}"  # a live source of higher priority (or the first one) spoke
+    SILENT = "{previous} fell silent for {timeout} s: {source} drives"  # its timeout ran out
+    LOCKED = "a lock blocks {previous}: {source} drives"
+    UNLOCKED = "a lock released: {source} drives"  # or its heartbeat came back: a blocked source drives again
 
 
 @dataclass(frozen=True, slots=True)

@@ -1,8 +1,7 @@
 """What the gateway's clients ask of it through Zenoh, sans I/O: commands by source, locks, the e-stop, parameters.
 
-A command is checked, weighed by the :class:`~blackmetal.gateway.arbiter.Arbiter` and handed to the
-:class:`~blackmetal.gateway.safety.Governor`; what goes to the robot because of it is the core's
-(:class:`~blackmetal.gateway.core.GatewayCore` takes this class in).
+A command is checked, weighed by the arbiter and handed to the governor; what goes to the robot because of it
+is :class:`~blackmetal.gateway.core.GatewayCore`'s, which takes this class in.
 """
 
 from __future__ import annotations
@@ -132,10 +131,8 @@ class ClientInputs:
             self.governor.brake(now)  # a lock stops the robot now; silence is the command timeout's to brake
 
     def _drive(self, source: str, twist: Twist, heard_at: float, now: float, handed_over: bool = False) -> None:
-        """The driving source's command goes to the governor, or its refusal is reported like any refused cmd_vel.
-
-        One handed over from a source's past meets an e-stop, a dead link or a second gateway that came since.
-        """
+        """The driving source's command goes to the governor, or its refusal is reported like any refused cmd_vel
+        (one handed over from a source's past meets an e-stop, a dead link or a second gateway that came since)."""
         refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at, now)
         if refusal is not None:
             reason = f"its last command, handed over to it, is refused: {refusal}" if handed_over else refusal
@@ -148,14 +145,9 @@ class ClientInputs:
         def named(name: str | None) -> str:
             return "nobody" if name is None else f"{name} (priority {arbiter.priority_of(name)})"
 
-        if why is Why.OUTRANKS:
-            reason = f"{named(source)} drives: nobody drove" if previous is None else f"{named(source)} outranks {named(previous)}"
-        elif why is Why.SILENT:
-            reason = f"{named(previous)} fell silent for {arbiter.timeout_of(previous or '')} s: {named(source)} drives"
-        elif why is Why.LOCKED:
-            reason = f"a lock blocks {named(previous)}: {named(source)} drives"
-        else:
-            reason = f"a lock released: {named(source)} drives"
+        template = "{source} drives: nobody drove" if why is Why.OUTRANKS and previous is None else why.value
+        timeout = None if previous is None else arbiter.timeout_of(previous)
+        reason = template.format(source=named(source), previous=named(previous), timeout=timeout)
         self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
 
     def on_estop(self, estop: EStopInput, now: float) -> None:
@@ -163,13 +155,12 @@ class ClientInputs:
 
         A release on ``estop`` is refused unless ``unsafe_release_on_estop``, and the stop stays as it is (a refused
         release must not engage a robot someone released properly meanwhile). An engage is in force at once and
-        saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`).
-        """
-        engaged, release_key = estop.engaged, estop.release_key
-        key = self.keys.estop_release if release_key else self.keys.estop
+        saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`)."""
+        engaged = estop.engaged
+        key = self.keys.estop_release if estop.release_key else self.keys.estop
         if estop.complaint is not None:
             self.reject(key, estop.complaint, now, estop.snippet)
-        elif not engaged and not release_key and not self.settings.unsafe_release_on_estop:
+        elif not engaged and not estop.release_key and not self.settings.unsafe_release_on_estop:
             reason = (
                 f'a release on {key} is refused: only {{"engaged": false}} put on {self.keys.estop_release} releases '
                 "(a right the router may give to a safety role alone; `blackmetal estop off` puts there)"
@@ -187,8 +178,7 @@ class ClientInputs:
             return  # released once saved: latch_saved
         else:
             self.governor.on_estop(False, now)  # released already: a fresh cmd_vel is needed to move, as after any release
-        # a health report follows: built when the host takes the events, after it has written the EMG_STOP and saved it
-        self._health_due = now
+        self._health_due = now  # built when the host takes the events, after it has written the EMG_STOP and saved it
 
     def take_latch(self) -> Latch | None:
         """A change of the e-stop latch to save now (after writing the outgoing bytes), or None."""
@@ -228,9 +218,7 @@ class ClientInputs:
 
     def on_params_set(self, payload: bytes, now: float) -> ParamsSetReply | str:
         """A :class:`ParamsSet`: each value set at once or refused and reported; the new table is published.
-
-        A payload that is not a ParamsSet is reported, and why is returned for the edge to answer with.
-        """
+        A payload that is not a ParamsSet is reported, and why is returned for the edge to answer with."""
         key = self.keys.params_set
         try:
             values = decode(ParamsSet, payload).values
