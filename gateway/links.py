@@ -34,7 +34,7 @@ class LinkState:
     """What the core knows of one link: up or not, since when, how often."""
 
     status: LinkStatus = LinkStatus.DOWN
-    #: ``status is CONNECTED``, kept with it (by :class:`Links`, which alone sets either): the core asks several times per poll.
+    #: ``status is CONNECTED``, kept with it by :class:`Links`: the core asks several times per poll.
     connected: bool = False
     connected_since: float | None = None  # Unix time, for health
     connections: int = 0
@@ -46,12 +46,9 @@ class LinkState:
     #: Why it is not up: the last failure to open it or the reason it closed (None while up).
     reason: str | None = None
 
-    @property
-    def reconnects(self) -> int:
-        return max(0, self.connections - 1)
-
     def health(self) -> LinkHealth:
-        return LinkHealth(self.status.value, self.connected_since, self.reconnects, None if self.connected else self.reason)
+        reconnects = max(0, self.connections - 1)
+        return LinkHealth(self.status.value, self.connected_since, reconnects, None if self.connected else self.reason)
 
 
 @dataclass
@@ -97,8 +94,7 @@ class Links:
 
     def received(self, name: LinkName, now: float) -> None:
         state = self[name]
-        state.last_rx = now
-        state.waiting_since = None
+        state.last_rx, state.waiting_since = now, None
 
     def request_sent(self, now: float) -> None:
         """A request went out on the control link: its silence clock runs from the first unanswered one."""
@@ -130,11 +126,8 @@ class Links:
 
 @dataclass
 class ReconnectBackoff:
-    """How long to wait before the next connection attempt: doubling, capped, reset only by a stable connection.
-
-    A connection the robot closes within ``stable`` seconds counts as a failure: a robot that accepts and at once
-    closes gets attempts at the capped pace, not a storm.
-    """
+    """How long to wait before the next connection attempt: doubling, capped, reset only by a connection that lasted
+    ``stable`` seconds (a robot that accepts and at once closes gets attempts at the capped pace, not a storm)."""
 
     first: float = 0.05
     cap: float = 2.0
@@ -151,7 +144,7 @@ class ReconnectBackoff:
     def failed(self, now: float) -> float:
         """A connection attempt failed, or a connection ended: the pause before the next attempt."""
         if self._opened_at is not None and now - self._opened_at >= self.stable:
-            self.delay = self.first  # that connection was a good one: start over
+            self.delay = self.first
         wait = self.delay
         self.delay = min(self.cap, self.delay * 2)
         self._opened_at = None
