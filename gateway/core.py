@@ -1,8 +1,6 @@
 """The gateway's core, sans I/O (as h11 is for HTTP): bytes, commands and ``now`` in; bytes, messages and a deadline out.
 
-It composes the gateway's pure parts, each with its own deadline (docs/contributing.md "One shape for every
-service"); the host feeds it each input with ``now``, writes :meth:`take_outgoing`, publishes
-:meth:`take_events` and sleeps until :meth:`next_deadline`.
+It composes the gateway's pure parts, each with its own deadline (docs/contributing.md "One shape for every service").
 """
 
 from __future__ import annotations
@@ -31,8 +29,6 @@ from .settings import GatewaySettings
 
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
-
-
 #: The poll, sent 50-100 times a second per robot: one request object, its bytes encoded once.
 _POLL = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
 _POLL_BYTES = wire.encode_request(_POLL)
@@ -57,10 +53,7 @@ def _wheels(request: wire.Request) -> WheelSpeeds:
 
 
 class GatewayCore(ClientInputs):
-    """The robot's side (links, requests and replies, polls) and the health; clients' inputs are in :class:`ClientInputs`.
-
-    ``robot`` names the robot's control and log ends in reports.
-    """
+    """The robot's side (links, requests and replies, polls) and the health; ``robot`` names its link ends in reports."""
 
     def __init__(
         self,
@@ -68,7 +61,6 @@ class GatewayCore(ClientInputs):
         now: float,
         wallclock: Callable[[], float],
         robot: dict[LinkName, str] | None = None,
-        run_token: str | None = None,
         latch: Latch | None = None,
     ) -> None:
         self.settings = settings
@@ -76,7 +68,7 @@ class GatewayCore(ClientInputs):
         self.keys = Keys(settings.prefix)
         self.counters = Counters()
         #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
-        self.run_token = run_token or secrets.token_hex(6)
+        self.run_token = secrets.token_hex(6)
         self.governor = Governor(settings.safety())
         self.latch = latch or Latch(False, wallclock(), AT_START)
         self.governor.on_estop(self.latch.engaged, now)
@@ -291,8 +283,8 @@ class GatewayCore(ClientInputs):
         return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        """A poll is due: sent now, or as soon as the reading of the one in flight comes (one at most: polls never queue
-        at the robot); skipped and counted when one already waits a whole period, or a reply is in doubt."""
+        """A poll is due: sent now, or once the one in flight is read (polls never queue at the robot); skipped and counted
+        when one already waits a whole period, or a reply is in doubt."""
         if self._congested():
             self.counters.polls_skipped += 1
             self._poll_waiting = False

@@ -14,8 +14,6 @@ RATE_WINDOW_S = 2.0
 
 
 class PollSchedule:
-    """The poll grid and the measured rate."""
-
     def __init__(self, poll_hz: float) -> None:
         self.period = 1.0 / poll_hz
         self._next = math.inf
@@ -36,7 +34,7 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
-        # after the link-up's own poll, half a period at least (one a hair later would only wait for that reading)
+        # after the link-up's poll, half a period at least (one a hair later would only wait for that reading)
         after = now + 0.5 * period if self._starting else now
         self._starting = False
         # within a millionth of a period counts as on the grid (4.1 / 0.02 = 204.99999999999997), or the same
@@ -49,7 +47,6 @@ class PollSchedule:
         return self._next
 
     def reading(self, now: float) -> None:
-        """A wheel-speed reading came back at ``now``."""
         self._readings.append(now)
 
     def rate(self, now: float) -> float:
