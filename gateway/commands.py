@@ -55,11 +55,10 @@ class ClientInputs:
     conflict: GatewayConflict
     params: ParamTable
     reporter: ErrorReporter
-    #: The e-stop's state as kept on disk (see :mod:`blackmetal.gateway.latch`); the governor starts from it.
     latch: Latch
     #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
     _latch_to_save: Latch | None
-    #: An e-stop's health report, built only once the EMG_STOP bytes are taken (see on_estop).
+    #: An e-stop's health report, built only once the EMG_STOP bytes are taken.
     _health_due: float | None
     _events: list[Event]
 
