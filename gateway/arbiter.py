@@ -1,8 +1,7 @@
 """Which commander drives: named command sources with priorities, and locks, as twist_mux does it, sans I/O.
 
-The rules (live sources, ties, locks at equal or lower priority, heartbeat locks) are in docs/concepts.md
-"Several commanders". Commands of sources that do not drive are dropped quietly and counted; the governor
-still applies the limits, the command timeout and the e-stop, which stays above everything.
+The rules are in docs/concepts.md "Several commanders". Commands of sources that do not drive are dropped quietly
+and counted; the governor still applies the limits, the command timeout and the e-stop, above everything.
 """
 
 from __future__ import annotations
@@ -138,9 +137,8 @@ class Why(Enum):
 
 @dataclass(frozen=True, slots=True)
 class NewDriver:
-    """Who drives now (None: nobody) and with what command, who drove before and why.
-
-    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's)."""
+    """Who drives now (None: nobody) and with what command, who drove before and why; ``blocked``: a lock blocks every
+    live source, so the robot must brake now (silence is the command timeout's)."""
 
     source: str | None
     twist: Twist | None
@@ -158,8 +156,8 @@ class Arbiter:
     _locks: dict[str, _Lock] = field(init=False)
     #: The source that drives (None: nobody has since the start or the last change of driver to nobody).
     active: str | None = field(init=False, default=None)
-    # Between the dues nothing but an input changes the winner: the gateway asks twice per poll, so the earliest due
-    # is kept (None: to be computed again) and ``update`` looks only once one is reached or an input changed the weighing.
+    # Between the dues only an input changes the winner: the earliest due is kept (None: to be computed again) and
+    # ``update`` looks only once one is reached or an input changed the weighing.
     _earliest: float | None = field(init=False, default=None)
     _reweigh: bool = field(init=False, default=True)
 
@@ -180,7 +178,6 @@ class Arbiter:
         return name in self._sources
 
     def offer(self, name: str, twist: Twist, now: float) -> Admission:
-        """A valid command from source ``name`` at ``now``: whether it drives."""
         source = self._sources.get(name)
         if source is None:
             return Admission.UNKNOWN
@@ -209,7 +206,7 @@ class Arbiter:
         return True
 
     def update(self, now: float) -> NewDriver | None:
-        """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
+        """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if any."""
         if not self._reweigh and now < self.next_deadline():
             return None  # no source fell silent, no lock changed, no input since the last weighing: the same winner
         self._earliest, self._reweigh = None, False
@@ -265,8 +262,8 @@ class Arbiter:
         return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
 
     def _winner(self, now: float) -> str | None:
-        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest;
-        one pass and no lists: it runs twice for every command."""
+        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest
+        (one pass and no lists: it runs twice for every command)."""
         blocked_up_to = self.lock_priority(now) if self._locks else -1
         best: _Source | None = None
         active_tied = False
@@ -295,5 +292,4 @@ class Arbiter:
         }
 
     def lock_states(self, now: float) -> dict[str, bool]:
-        """Per lock: engaged or not at ``now``."""
         return {name: lock.engaged(now) for name, lock in self._locks.items()}
