@@ -6,6 +6,7 @@ is :class:`~blackmetal.gateway.core.GatewayCore`'s, which takes this class in.
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -29,11 +30,11 @@ from blackmetal.schemas import (
     excerpt,
 )
 
-from .arbiter import Admission, Arbiter, NewDriver, Why
+from .arbiter import Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
 from .estop import EStopInput
 from .health import Counters
-from .latch import Latch
+from .latch import AT_START, Latch
 from .links import DropLink
 from .params import ParamTable
 from .safety import Governor
@@ -44,23 +45,27 @@ Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange
 
 
 class ClientInputs:
-    """The client side of :class:`~blackmetal.gateway.core.GatewayCore`."""
+    """The client side of :class:`~blackmetal.gateway.core.GatewayCore`, and the parts it shares with the robot's side."""
 
-    settings: GatewaySettings
-    keys: Keys
-    wallclock: Callable[[], float]
-    counters: Counters
-    governor: Governor
-    arbiter: Arbiter
-    conflict: GatewayConflict
-    params: ParamTable
-    reporter: ErrorReporter
-    latch: Latch
-    #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
-    _latch_to_save: Latch | None
-    #: An e-stop's health report, built only once the EMG_STOP bytes are taken.
-    _health_due: float | None
-    _events: list[Event]
+    def __init__(self, settings: GatewaySettings, now: float, wallclock: Callable[[], float], latch: Latch | None) -> None:
+        self.settings = settings
+        self.wallclock = wallclock
+        self.keys = Keys(settings.prefix)
+        self.counters = Counters()
+        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
+        self.run_token = secrets.token_hex(6)
+        self.governor = Governor(settings.safety())
+        self.latch = latch or Latch(False, wallclock(), AT_START)
+        self.governor.on_estop(self.latch.engaged, now)
+        #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
+        self._latch_to_save: Latch | None = None
+        self.conflict = GatewayConflict(self.run_token, self.keys.prefix)
+        self.arbiter = settings.arbiter()
+        self.params = ParamTable(settings, self.governor, self.arbiter)
+        self._events: list[Event] = []
+        #: An e-stop's health report, built only once the EMG_STOP bytes are taken.
+        self._health_due: float | None = None
+        self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
 
     if TYPE_CHECKING:  # the robot's side, in GatewayCore
 

@@ -5,26 +5,22 @@ It composes the gateway's pure parts, each with its own deadline (docs/contribut
 
 from __future__ import annotations
 
-import secrets
 from collections.abc import Callable
 
 from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
-from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import GatewayHealth, Keys, RobotStatus, WheelImpulses, excerpt
+from blackmetal.schemas import GatewayHealth, RobotStatus, WheelImpulses, excerpt
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
 from .commands import ClientInputs, Event
-from .conflict import ConflictNews, GatewayConflict
+from .conflict import ConflictNews
 from .exchange import Completed, Exchange, Lost
-from .health import Counters
-from .latch import AT_START, Latch
+from .latch import Latch
 from .links import LinkName, Links
 from .log_port import LogPort
-from .params import ParamTable
 from .polling import PollSchedule
 from .prepare import PrepareRetry
-from .safety import CommandReason, Governor
+from .safety import CommandReason
 from .settings import GatewaySettings
 
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
@@ -63,28 +59,13 @@ class GatewayCore(ClientInputs):
         robot: dict[LinkName, str] | None = None,
         latch: Latch | None = None,
     ) -> None:
-        self.settings = settings
-        self.wallclock = wallclock
-        self.keys = Keys(settings.prefix)
-        self.counters = Counters()
-        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
-        self.run_token = secrets.token_hex(6)
-        self.governor = Governor(settings.safety())
-        self.latch = latch or Latch(False, wallclock(), AT_START)
-        self.governor.on_estop(self.latch.engaged, now)
-        self._latch_to_save: Latch | None = None
+        super().__init__(settings, now, wallclock, latch)
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
         #: A poll came due while the one before it was unanswered: it goes out as soon as that one's reading comes.
         self._poll_waiting = False
         self.prepare = PrepareRetry()
-        self.conflict = GatewayConflict(self.run_token, self.keys.prefix)
-        self.arbiter = settings.arbiter()
-        self.params = ParamTable(settings, self.governor, self.arbiter)
-        self._events: list[Event] = []
-        self._health_due: float | None = None
-        self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
         self.last_rtt: float | None = None
         self.seq = 0
         self.stopping = False
