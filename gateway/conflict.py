@@ -53,7 +53,6 @@ class GatewayConflict:
         return now < self._until
 
     def with_whom(self, now: float) -> str | None:
-        """The other run's id while the conflict holds (for health)."""
         return self.other if self.active(now) else None
 
     def reason(self) -> str:

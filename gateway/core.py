@@ -149,7 +149,6 @@ class GatewayCore(ClientInputs):
             self.prepare.cancel()
 
     def receive(self, link: LinkName, data: bytes, now: float) -> None:
-        """Bytes read from ``link``."""
         self.links.received(link, now)
         if link == "control":
             self._receive_control(data, now)
@@ -157,7 +156,6 @@ class GatewayCore(ClientInputs):
             self._receive_log(data, now)
 
     def tick(self, now: float) -> None:
-        """Run every part's timer that is due at ``now``."""
         for lost in self.exchange.expire(now):
             self._on_result(lost, now)
         self._events.extend(self.links.due(now))

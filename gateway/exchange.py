@@ -36,8 +36,6 @@ class Pending:
 
 @dataclass(frozen=True, slots=True)
 class Completed:
-    """A request and everything the robot answered to it."""
-
     request: Request
     status: StatusReply
     data: SpeedReading | PositionReading | None

@@ -31,8 +31,6 @@ class DropLink:
 
 @dataclass
 class LinkState:
-    """What the core knows of one link: up or not, since when, how often."""
-
     status: LinkStatus = LinkStatus.DOWN
     #: ``status is CONNECTED``, kept with it by :class:`Links`: the core asks several times per poll.
     connected: bool = False

@@ -55,8 +55,6 @@ class _Live:
 
 
 class ParamTable:
-    """The parameter table of one gateway core."""
-
     def __init__(self, settings: GatewaySettings, governor: Governor, arbiter: Arbiter) -> None:
         self.settings = settings
         self.governor = governor

@@ -26,7 +26,6 @@ class PollSchedule:
         self._starting = True
 
     def stop(self) -> None:
-        """The control link is down: no polls until :meth:`start`."""
         self._next = math.inf
 
     def due(self, now: float) -> bool:

@@ -60,16 +60,12 @@ class _Deadline(NamedTuple):
 
 
 class _WheelsOf(NamedTuple):
-    """The wheel speeds asked for one twist under one settings."""
-
     twist: Velocity
     settings: SafetySettings
     wheels: WheelSpeeds
 
 
 class Governor:
-    """The gateway's safety state machine: one :data:`State`, replaced by every input; see the module docstring."""
-
     def __init__(self, settings: SafetySettings) -> None:
         self.settings = settings
         self.state: State = Offline()
@@ -98,7 +94,6 @@ class Governor:
         return -math.inf if isinstance(self.state, Offline) else self.state.heard_at
 
     def timed_out(self, now: float) -> bool:
-        """True while no valid cmd_vel arrived within the command timeout."""
         timeout = self.settings.cmd_timeout
         return timeout > 0 and now >= self.last_cmd_at + timeout
 

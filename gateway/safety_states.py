@@ -63,8 +63,6 @@ class CommandReason(Enum):
 
 @dataclass(frozen=True, slots=True)
 class VelocityCommand:
-    """A velocity to send now, and why."""
-
     wheels: WheelSpeeds
     reason: CommandReason
 

@@ -136,7 +136,6 @@ class GatewaySettings:
         return FileLatchStore(latch_path(self.state_dir or default_state_dir(), self.prefix), self.prefix)
 
     def arbiter(self) -> Arbiter:
-        """The command arbiter these settings describe."""
         return arbiter_of(self.source, self.lock)
 
     def safety(self) -> SafetySettings:
