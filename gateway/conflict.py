@@ -41,11 +41,10 @@ class GatewayConflict:
         a run id is another gateway too (an older version, or a forger): a missing field must not switch the check off."""
         if source == self.own_source:
             return False
-        source = UNNAMED_RUN if source is None else source
         new = now >= self._until
         if new:
             self._reminded = -math.inf
-        self.other = source
+        self.other = UNNAMED_RUN if source is None else source
         self._until = now + CONFLICT_HOLD_S
         return new
 

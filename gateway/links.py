@@ -68,12 +68,9 @@ class Links:
     def up(self, name: LinkName, now: float, wall: float) -> float | None:
         """``name`` connected at ``now``: how long it had been down, if it was up before (for the report)."""
         state = self[name]
-        state.status, state.connected = LinkStatus.CONNECTED, True
-        state.connected_since = wall
+        state.status, state.connected, state.connected_since = LinkStatus.CONNECTED, True, wall
         state.connections += 1
-        state.last_rx = now
-        state.waiting_since = None
-        state.reason = None
+        state.last_rx, state.waiting_since, state.reason = now, None, None
         down_for = None if state.down_since is None else now - state.down_since
         state.down_since = None
         return down_for
@@ -83,8 +80,7 @@ class Links:
         state = self[name]
         state.reason = reason
         was_up = state.connected
-        state.status, state.connected = LinkStatus.DOWN, False
-        state.connected_since = None
+        state.status, state.connected, state.connected_since = LinkStatus.DOWN, False, None
         state.waiting_since = None
         if was_up:
             state.down_since = now

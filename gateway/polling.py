@@ -22,8 +22,7 @@ class PollSchedule:
 
     def start(self, now: float) -> None:
         """The control link is up: the first poll is due at once, the next on the grid at least half a period later."""
-        self._next = now
-        self._starting = True
+        self._next, self._starting = now, True
 
     def stop(self) -> None:
         self._next = math.inf
