@@ -1,10 +1,8 @@
 """The gateway's parameters: what an operator may change on a running gateway, and what is shown but fixed.
 
-One key the gateway owns, ``<prefix>/gateway/params/set``, serves ROS 2's parameter services and Foxglove's
-panel, so no view keeps a copy that could disagree. Each value is checked and set on its own (as rclcpp's
-``set_parameters``). Limits and source priorities change live; ``cmd_timeout`` is never switched off on a running
-robot; the wheel constants, poll rate, keep-alive and wiring are read-only: the odometry and the calibration
-were made with them.
+Each value is checked and set on its own, as rclcpp's ``set_parameters`` (docs/ros2.md "ros2 param"); ``cmd_timeout``
+is never switched off on a running robot; the wheel constants, poll rate and keep-alive are read-only: the odometry
+and the calibration were made with them.
 """
 
 from __future__ import annotations
