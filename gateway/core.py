@@ -187,10 +187,8 @@ class GatewayCore(ClientInputs):
 
     def health(self, now: float) -> GatewayHealth:
         """The state at ``now``, as one health message (every ``health_period`` s, at once after an e-stop, and to a ``get``)."""
-        governor = self.governor
+        governor, arbiter, rtt = self.governor, self.arbiter, self.last_rtt
         accepted = governor.accepted
-        rtt = self.last_rtt
-        arbiter = self.arbiter
         return GatewayHealth(
             stamp=self.wallclock(),
             control=self.links.control.health(),

@@ -54,11 +54,9 @@ class LatchStore(Protocol):
 
     def load(self) -> Latch | Untrusted:
         """The saved latch, or why there is none to trust (missing, unreadable, corrupt)."""
-        ...
 
     def save(self, latch: Latch) -> str | None:
         """Keep ``latch`` so that a restart finds it; None, or why it could not be kept."""
-        ...
 
 
 def default_state_dir() -> str:
