@@ -79,10 +79,7 @@ def _parse(kind: str, text: str) -> tuple[str, int, float | None]:
 
 
 def arbiter_of(sources: list[str], locks: list[str]) -> Arbiter:
-    """The arbiter of sources and locks as the settings write them, ``NAME:PRIORITY[:TIMEOUT]``.
-
-    A source left without a timeout gets 0.5 s, a lock none.
-    """
+    """The arbiter of the settings' ``NAME:PRIORITY[:TIMEOUT]`` sources (0.5 s if left out) and locks (none then)."""
     source_specs = [
         SourceSpec(name, priority, 0.5 if timeout is None else timeout)
         for name, priority, timeout in (_parse("source", s) for s in sources)

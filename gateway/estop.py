@@ -66,9 +66,7 @@ def read_estop(payload: Any, release_key: bool = False) -> EStopInput:
         return EStopInput(release_key, True)
     snippet = excerpt(data)
     if meaning is False:
-        return EStopInput(
-            release_key, True, f"{snippet!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}", snippet
-        )
-    return EStopInput(
-        release_key, True, f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}", snippet
-    )
+        complaint = f"{snippet!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}"
+    else:
+        complaint = f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}"
+    return EStopInput(release_key, True, complaint, snippet)
