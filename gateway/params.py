@@ -7,10 +7,10 @@ and the calibration were made with them.
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 from blackmetal import robot_model as model
@@ -88,19 +88,13 @@ class ParamTable:
         top_speed = max(model.MAX_WHEEL_SPEED, self.settings.max_wheel_speed)
         params = {
             name: _Live(
-                "double",
-                _LIMIT_HELP[name],
-                low,
-                high,
-                functools.partial(_limit_of, governor, name),
-                functools.partial(_set_limit, governor, name, zero_is_off),
-                refuse,
+                "double", _LIMIT_HELP[name], low, high, partial(_limit_of, governor, name), partial(_set_limit, governor, name), refuse
             )
-            for name, low, high, zero_is_off, refuse in (
-                ("max_wheel_speed", 0.01, top_speed, False, None),
-                ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, False, _refuse_cmd_timeout),
-                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, True, None),
-                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, True, None),
+            for name, low, high, refuse in (
+                ("max_wheel_speed", 0.01, top_speed, None),
+                ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, _refuse_cmd_timeout),
+                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, None),
+                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, None),
             )
         }
         for name in arbiter.names:
@@ -108,16 +102,16 @@ class ParamTable:
                 "integer",
                 f"priority of the command source {name!r} (the highest live source drives)",
                 *PRIORITY_RANGE,
-                functools.partial(arbiter.priority_of, name),
-                functools.partial(_retune, arbiter, name, "priority"),
+                partial(arbiter.priority_of, name),
+                partial(_retune, arbiter, name, "priority"),
             )
             params[f"sources.{name}.timeout"] = _Live(
                 "double",
                 f"seconds after its last command that the source {name!r} stops counting as live",
                 0.01,
                 MAX_CMD_TIMEOUT_S,
-                functools.partial(arbiter.timeout_of, name),
-                functools.partial(_retune, arbiter, name, "timeout"),
+                partial(arbiter.timeout_of, name),
+                partial(_retune, arbiter, name, "timeout"),
             )
         return params
 
@@ -152,8 +146,9 @@ def _limit_of(governor: Governor, name: str) -> float:
     return 0.0 if value is None else value
 
 
-def _set_limit(governor: Governor, name: str, zero_is_off: bool, value: float) -> None:
-    limit: Any = (value or None) if zero_is_off else value
+def _set_limit(governor: Governor, name: str, value: float) -> None:
+    """0 is off (None): only the accelerations can be set to 0, the other limits refuse it."""
+    limit: Any = value or None
     governor.settings = replace(governor.settings, **{name: limit})
 
 
