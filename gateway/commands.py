@@ -160,18 +160,17 @@ class ClientInputs:
         A release on ``estop`` is refused unless ``unsafe_release_on_estop``, and the stop stays as it is (a refused
         release must not engage a robot someone released properly meanwhile). An engage is in force at once and
         saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`)."""
-        engaged = estop.engaged
         key = self.keys.estop_release if estop.release_key else self.keys.estop
         if estop.complaint is not None:
             self.reject(key, estop.complaint, now, estop.snippet)
-        elif not engaged and not estop.release_key and not self.settings.unsafe_release_on_estop:
+        elif not estop.engaged and not estop.release_key and not self.settings.unsafe_release_on_estop:
             reason = (
                 f'a release on {key} is refused: only {{"engaged": false}} put on {self.keys.estop_release} releases '
                 "(a right the router may give to a safety role alone; `blackmetal estop off` puts there)"
             )
             self.reject(key, reason, now, estop.snippet)
             return
-        if engaged:
+        if estop.engaged:
             self.governor.on_estop(True, now)
             if not self.latch.engaged:
                 self.latch = Latch(True, self.wallclock(), key)
