@@ -44,9 +44,12 @@ class LinkState:
     #: Why it is not up: the last failure to open it or the reason it closed (None while up).
     reason: str | None = None
 
+    @property
+    def reconnects(self) -> int:
+        return max(0, self.connections - 1)
+
     def health(self) -> LinkHealth:
-        reconnects = max(0, self.connections - 1)
-        return LinkHealth(self.status.value, self.connected_since, reconnects, None if self.connected else self.reason)
+        return LinkHealth(self.status.value, self.connected_since, self.reconnects, None if self.connected else self.reason)
 
 
 @dataclass
