@@ -70,7 +70,6 @@ class ClientInputs:
     if TYPE_CHECKING:  # the robot's side, in GatewayCore
 
         def _send_due(self, now: float) -> None: ...
-        def _conflict_news(self, news: ConflictNews | None, now: float) -> None: ...
         def health(self, now: float) -> GatewayHealth: ...
 
     def on_cmd_vel(self, source: str, payload: bytes, now: float) -> None:
@@ -218,6 +217,12 @@ class ClientInputs:
         if self.conflict.other is not None:
             self._conflict_news(self.conflict.tick(now), now)
             self._send_due(now)
+
+    def _conflict_news(self, news: ConflictNews | None, now: float) -> None:
+        if news is ConflictNews.REMIND:
+            self.reporter.report(self.keys.health, self.conflict.reason(), by="gateway", now=now)
+        elif news is ConflictNews.RESOLVED:
+            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
 
     def on_params_set(self, payload: bytes, now: float) -> ParamsSetReply | str:
         """A :class:`ParamsSet`: each value set at once or refused and reported; the new table is published.

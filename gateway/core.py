@@ -13,7 +13,6 @@ from blackmetal.schemas import GatewayHealth, RobotStatus, WheelImpulses, excerp
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
 from .commands import ClientInputs, Event
-from .conflict import ConflictNews
 from .exchange import Completed, Exchange, Lost
 from .latch import Latch
 from .links import LinkName, Links
@@ -215,12 +214,6 @@ class GatewayCore(ClientInputs):
     def _report_robot(self, link: LinkName, reason: str, now: float, snippet: str = "") -> None:
         """A fault of the robot's, reported under the robot's end of ``link``."""
         self.reporter.report(self._robot[link], reason, snippet, by="robot", now=now)
-
-    def _conflict_news(self, news: ConflictNews | None, now: float) -> None:
-        if news is ConflictNews.REMIND:
-            self.reporter.report(self.keys.health, self.conflict.reason(), by="gateway", now=now)
-        elif news is ConflictNews.RESOLVED:
-            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
 
     def _send(self, request: wire.Request, now: float) -> bool:
         if not self.links.control.connected:

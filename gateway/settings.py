@@ -110,10 +110,9 @@ class GatewaySettings:
             "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right",
         )
         for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
-            if not 0.5 * nominal <= getattr(self, name) <= 2.0 * nominal:
-                raise ConfigError(
-                    f"{name} {getattr(self, name)} is not within half to twice the nominal {nominal:g}: is the calibration right?"
-                )
+            value = getattr(self, name)
+            if not 0.5 * nominal <= value <= 2.0 * nominal:
+                raise ConfigError(f"{name} {value} is not within half to twice the nominal {nominal:g}: is the calibration right?")
         if self.poll_hz > 1000:
             raise ConfigError(f"poll_hz {self.poll_hz} is beyond 1000 Hz")
         if self.max_wheel_speed > 1.0:
