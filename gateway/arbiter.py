@@ -153,8 +153,7 @@ class Arbiter:
     _locks: dict[str, _Lock] = field(init=False)
     #: The source that drives (None: nobody has since the start or the last change of driver to nobody).
     active: str | None = field(init=False, default=None)
-    # Between the dues only an input changes the winner: the earliest due is kept (None: to be computed again) and
-    # ``update`` looks only once one is reached or an input changed the weighing.
+    # The earliest due (None: to compute again): between dues only an input changes the winner, so ``update`` waits for either.
     _earliest: float | None = field(init=False, default=None)
     _reweigh: bool = field(init=False, default=True)
 

@@ -35,8 +35,7 @@ class PollSchedule:
         # after the link-up's poll, half a period at least (one a hair later would only wait for that reading)
         after = now + 0.5 * period if self._starting else now
         self._starting = False
-        # within a millionth of a period counts as on the grid (4.1 / 0.02 = 204.99999999999997), or the same
-        # instant would come due again an ulp later
+        # within a millionth of a period is on the grid (4.1 / 0.02 = 204.99999999999997), or it comes due again an ulp later
         following = (math.floor(after / period + 1e-6) + 1.0) * period
         self._next = following if following > now else following + period
         return True
