@@ -11,16 +11,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from blackmetal.wire import (
-    DATA_COMMANDS,
-    CommandCode,
-    Malformed,
-    PositionReading,
-    Reply,
-    Request,
-    SpeedReading,
-    StatusReply,
-)
+from blackmetal.wire import DATA_COMMANDS, CommandCode, Malformed, PositionReading, Reply, Request, SpeedReading, StatusReply
 
 _DATA_KIND = {CommandCode.GET_LR_WHEEL_VELOCITY: SpeedReading, CommandCode.GET_LR_WHEEL_POSITION: PositionReading}
 
