@@ -40,7 +40,7 @@ PRIORITY_RANGE = (0, 255)
 
 @dataclass(frozen=True, slots=True)
 class _Live:
-    """A parameter that changes live: how to read it and how to set an already checked value."""
+    """A parameter that changes live: how to read it, how to set an already checked value, and any check beyond its range."""
 
     kind: str
     description: str
@@ -48,7 +48,6 @@ class _Live:
     high: float
     get: Callable[[], float]
     set: Callable[[float], None]
-    #: An extra check after the type and range (None: the value is fine).
     refuse: Callable[[float], str | None] | None = None
 
 
