@@ -1,8 +1,7 @@
 """Which commander drives: named command sources with priorities, and locks, as twist_mux does it, sans I/O.
 
-The rules (live sources, ties, locks at equal or lower priority, heartbeat locks) are in docs/concepts.md
-"Several commanders". Commands of sources that do not drive are dropped quietly and counted; the governor
-still applies the limits, the command timeout and the e-stop, which stays above everything.
+The rules are in docs/concepts.md "Several commanders". Commands of sources that do not drive are dropped quietly
+and counted; the governor still applies the limits, the command timeout and the e-stop, above everything.
 """
 
 from __future__ import annotations
@@ -10,8 +9,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field, replace
 from enum import Enum
+from typing import Any
 
-from blackmetal.schemas import ConfigError, Sources, Twist
+from blackmetal.schemas import ConfigError, SourceHealth, Sources, Twist
 
 #: The source of plain ``<prefix>/cmd_vel``.
 DEFAULT_SOURCE = Sources.DEFAULT
@@ -78,22 +78,13 @@ def _parse(kind: str, text: str) -> tuple[str, int, float | None]:
     return parts[0], priority, timeout
 
 
-def parse_source(text: str) -> SourceSpec:
-    """``NAME:PRIORITY[:TIMEOUT]`` (timeout 0.5 s if left out), as the settings write a source."""
-    name, priority, timeout = _parse("source", text)
-    return SourceSpec(name, priority, 0.5 if timeout is None else timeout)
-
-
-def parse_lock(text: str) -> LockSpec:
-    """``NAME:PRIORITY[:TIMEOUT]`` (no timeout if left out), as the settings write a lock."""
-    name, priority, timeout = _parse("lock", text)
-    return LockSpec(name, priority, timeout)
-
-
-def spec_text(spec: SourceSpec | LockSpec) -> str:
-    """The settings' way of writing a source or lock (the inverse of :func:`parse_source`/:func:`parse_lock`)."""
-    tail = "" if spec.timeout is None else f":{spec.timeout:g}"
-    return f"{spec.name}:{spec.priority}{tail}"
+def arbiter_of(sources: list[str], locks: list[str]) -> Arbiter:
+    """The arbiter of the settings' ``NAME:PRIORITY[:TIMEOUT]`` sources (0.5 s if left out) and locks (none then)."""
+    source_specs = [
+        SourceSpec(name, priority, 0.5 if timeout is None else timeout)
+        for name, priority, timeout in (_parse("source", s) for s in sources)
+    ]
+    return Arbiter(tuple(source_specs), tuple(LockSpec(*_parse("lock", text)) for text in locks))
 
 
 class Admission(Enum):
@@ -115,8 +106,7 @@ class _Source:
     due: float = math.inf
 
     def live(self, now: float) -> bool:
-        # heard_at + timeout, as its due is written: both must agree to the last bit, or a tick at the due would see it
-        # live, spend the due and never weigh it again
+        # as its due is written, to the last bit: else a tick at the due would see it live and spend the due
         return now < self.heard_at + self.spec.timeout
 
 
@@ -134,20 +124,18 @@ class _Lock:
 
 
 class Why(Enum):
-    """Why the driver changed."""
+    """Why the driver changed; the value is how ``<prefix>/gateway/driver`` says it."""
 
-    OUTRANKS = "outranks"  # a live source of higher priority (or the first one) spoke
-    SILENT = "silent"  # the driver fell silent (its timeout ran out)
-    LOCKED = "locked"  # an engaged lock blocks the driver
-    UNLOCKED = "unlocked"  # a lock released, or its heartbeat came back: a blocked source drives again
+    OUTRANKS = "{source} outranks {previous}"  # a live source of higher priority (or the first one) spoke
+    SILENT = "{previous} fell silent for {timeout} s: {source} drives"  # its timeout ran out
+    LOCKED = "a lock blocks {previous}: {source} drives"
+    UNLOCKED = "a lock released: {source} drives"  # or its heartbeat came back: a blocked source drives again
 
 
 @dataclass(frozen=True, slots=True)
 class NewDriver:
-    """The active source changed: who drives now (None: nobody), who drove before, why, and the command to take over with.
-
-    ``blocked``: a lock blocks every live source, so the robot must brake now (silence is the command timeout's).
-    """
+    """Who drives now (None: nobody) and with what command, who drove before and why; ``blocked``: a lock blocks every
+    live source, so the robot must brake now (silence is the command timeout's)."""
 
     source: str | None
     twist: Twist | None
@@ -165,8 +153,7 @@ class Arbiter:
     _locks: dict[str, _Lock] = field(init=False)
     #: The source that drives (None: nobody has since the start or the last change of driver to nobody).
     active: str | None = field(init=False, default=None)
-    # Between the dues nothing but an input changes the winner: the gateway asks twice per poll, so the earliest due
-    # is kept (None: to be computed again) and ``update`` looks only once one is reached or an input changed the weighing.
+    # The earliest due (None: to compute again): between dues only an input changes the winner, so ``update`` waits for either.
     _earliest: float | None = field(init=False, default=None)
     _reweigh: bool = field(init=False, default=True)
 
@@ -179,15 +166,14 @@ class Arbiter:
     def names(self) -> list[str]:
         return list(self._sources)
 
-    def has_source(self, name: str) -> bool:
-        return name in self._sources
-
     @property
     def lock_names(self) -> list[str]:
         return list(self._locks)
 
+    def has_source(self, name: str) -> bool:
+        return name in self._sources
+
     def offer(self, name: str, twist: Twist, now: float) -> Admission:
-        """A valid command from source ``name`` at ``now``: whether it drives."""
         source = self._sources.get(name)
         if source is None:
             return Admission.UNKNOWN
@@ -216,7 +202,7 @@ class Arbiter:
         return True
 
     def update(self, now: float) -> NewDriver | None:
-        """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if the active source changed."""
+        """The change of driver due at ``now`` (a source timed out, a lock engaged or released), if any."""
         if not self._reweigh and now < self.next_deadline():
             return None  # no source fell silent, no lock changed, no input since the last weighing: the same winner
         self._earliest, self._reweigh = None, False
@@ -240,14 +226,10 @@ class Arbiter:
         source = self._sources[winner]
         return NewDriver(winner, source.twist, source.heard_at, previous, why)
 
-    def retune(self, name: str, *, priority: int | None = None, timeout: float | None = None) -> None:
-        """A new priority or timeout for source ``name`` (a parameter set live); :meth:`update` weighs it at once."""
+    def retune(self, name: str, **change: Any) -> None:
+        """A new ``priority`` or ``timeout`` for source ``name`` (a parameter set live); :meth:`update` weighs it at once."""
         source = self._sources[name]
-        spec = replace(
-            source.spec,
-            priority=source.spec.priority if priority is None else priority,
-            timeout=source.spec.timeout if timeout is None else timeout,
-        )
+        spec = replace(source.spec, **change)
         check_specs((spec,), ())
         source.spec = spec
         self.sources = tuple(spec if s.name == name else s for s in self.sources)
@@ -276,8 +258,8 @@ class Arbiter:
         return max((lock.spec.priority for lock in self._locks.values() if lock.engaged(now)), default=-1)
 
     def _winner(self, now: float) -> str | None:
-        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest;
-        one pass and no lists: it runs twice for every command."""
+        """The live source of the highest priority above every engaged lock, among equals the driver, else the latest
+        (one pass and no lists: it runs twice for every command)."""
         blocked_up_to = self.lock_priority(now) if self._locks else -1
         best: _Source | None = None
         active_tied = False
@@ -298,13 +280,12 @@ class Arbiter:
             return self.active  # no flapping between equals: the driver keeps control until it times out
         return best.spec.name
 
-    def source_ages(self, now: float) -> dict[str, tuple[float | None, int, int]]:
-        """Per source: seconds since its last command (None: never heard), commands dropped and commands superseded."""
+    def source_health(self, now: float) -> dict[str, SourceHealth]:
+        """Per source: its priority, seconds since its last command (None: never heard), commands dropped and superseded."""
         return {
-            name: (None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped, s.superseded)
+            name: SourceHealth(s.spec.priority, None if s.heard_at == -math.inf else round(now - s.heard_at, 3), s.dropped, s.superseded)
             for name, s in self._sources.items()
         }
 
     def lock_states(self, now: float) -> dict[str, bool]:
-        """Per lock: engaged or not at ``now``."""
         return {name: lock.engaged(now) for name, lock in self._locks.items()}

@@ -1,12 +1,12 @@
 """What the gateway's clients ask of it through Zenoh, sans I/O: commands by source, locks, the e-stop, parameters.
 
-A command is checked, weighed by the :class:`~blackmetal.gateway.arbiter.Arbiter` and handed to the
-:class:`~blackmetal.gateway.safety.Governor`; what goes to the robot because of it is the core's
-(:class:`~blackmetal.gateway.core.GatewayCore` takes this class in).
+A command is checked, weighed by the arbiter and handed to the governor; what goes to the robot because of it
+is :class:`~blackmetal.gateway.core.GatewayCore`'s, which takes this class in.
 """
 
 from __future__ import annotations
 
+import secrets
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
@@ -30,11 +30,11 @@ from blackmetal.schemas import (
     excerpt,
 )
 
-from .arbiter import Admission, Arbiter, NewDriver, Why
+from .arbiter import Admission, NewDriver, Why
 from .conflict import ConflictNews, GatewayConflict
 from .estop import EStopInput
 from .health import Counters
-from .latch import Latch
+from .latch import AT_START, Latch
 from .links import DropLink
 from .params import ParamTable
 from .safety import Governor
@@ -45,29 +45,31 @@ Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange
 
 
 class ClientInputs:
-    """The client side of :class:`~blackmetal.gateway.core.GatewayCore`."""
+    """The client side of :class:`~blackmetal.gateway.core.GatewayCore`, and the parts it shares with the robot's side."""
 
-    settings: GatewaySettings
-    keys: Keys
-    wallclock: Callable[[], float]
-    counters: Counters
-    governor: Governor
-    arbiter: Arbiter
-    conflict: GatewayConflict
-    params: ParamTable
-    reporter: ErrorReporter
-    #: The e-stop's state as kept on disk (see :mod:`blackmetal.gateway.latch`); the governor starts from it.
-    latch: Latch
-    #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
-    _latch_to_save: Latch | None
-    #: An e-stop's health report, built only once the EMG_STOP bytes are taken (see on_estop).
-    _health_due: float | None
-    _events: list[Event]
+    def __init__(self, settings: GatewaySettings, now: float, wallclock: Callable[[], float], latch: Latch | None) -> None:
+        self.settings = settings
+        self.wallclock = wallclock
+        self.keys = Keys(settings.prefix)
+        self.counters = Counters()
+        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
+        self.run_token = secrets.token_hex(6)
+        self.governor = Governor(settings.safety())
+        self.latch = latch or Latch(False, wallclock(), AT_START)
+        self.governor.on_estop(self.latch.engaged, now)
+        #: A change of the latch for the host to save: an engage (already in force) or a release (in force once saved).
+        self._latch_to_save: Latch | None = None
+        self.conflict = GatewayConflict(self.run_token, self.keys.prefix)
+        self.arbiter = settings.arbiter()
+        self.params = ParamTable(settings, self.governor, self.arbiter)
+        self._events: list[Event] = []
+        #: An e-stop's health report, built only once the EMG_STOP bytes are taken.
+        self._health_due: float | None = None
+        self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
 
     if TYPE_CHECKING:  # the robot's side, in GatewayCore
 
         def _send_due(self, now: float) -> None: ...
-        def _conflict_news(self, news: ConflictNews | None, now: float) -> None: ...
         def health(self, now: float) -> GatewayHealth: ...
 
     def on_cmd_vel(self, source: str, payload: bytes, now: float) -> None:
@@ -132,10 +134,8 @@ class ClientInputs:
             self.governor.brake(now)  # a lock stops the robot now; silence is the command timeout's to brake
 
     def _drive(self, source: str, twist: Twist, heard_at: float, now: float, handed_over: bool = False) -> None:
-        """The driving source's command goes to the governor, or its refusal is reported like any refused cmd_vel.
-
-        One handed over from a source's past meets an e-stop, a dead link or a second gateway that came since.
-        """
+        """The driving source's command goes to the governor, or its refusal is reported like any refused cmd_vel
+        (one handed over from a source's past meets an e-stop, a dead link or a second gateway that came since)."""
         refusal = self.conflict.reason() if self.conflict.active(now) else self.governor.on_twist(twist, heard_at, now)
         if refusal is not None:
             reason = f"its last command, handed over to it, is refused: {refusal}" if handed_over else refusal
@@ -148,14 +148,9 @@ class ClientInputs:
         def named(name: str | None) -> str:
             return "nobody" if name is None else f"{name} (priority {arbiter.priority_of(name)})"
 
-        if why is Why.OUTRANKS:
-            reason = f"{named(source)} drives: nobody drove" if previous is None else f"{named(source)} outranks {named(previous)}"
-        elif why is Why.SILENT:
-            reason = f"{named(previous)} fell silent for {arbiter.timeout_of(previous or '')} s: {named(source)} drives"
-        elif why is Why.LOCKED:
-            reason = f"a lock blocks {named(previous)}: {named(source)} drives"
-        else:
-            reason = f"a lock released: {named(source)} drives"
+        template = "{source} drives: nobody drove" if why is Why.OUTRANKS and previous is None else why.value
+        timeout = None if previous is None else arbiter.timeout_of(previous)
+        reason = template.format(source=named(source), previous=named(previous), timeout=timeout)
         self._events.append(DriverChange(stamp=self.wallclock(), source=source, previous=previous, reason=reason))
 
     def on_estop(self, estop: EStopInput, now: float) -> None:
@@ -163,20 +158,18 @@ class ClientInputs:
 
         A release on ``estop`` is refused unless ``unsafe_release_on_estop``, and the stop stays as it is (a refused
         release must not engage a robot someone released properly meanwhile). An engage is in force at once and
-        saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`).
-        """
-        engaged, release_key = estop.engaged, estop.release_key
-        key = self.keys.estop_release if release_key else self.keys.estop
+        saved after its EMG_STOP is written; a release waits for its save (:meth:`latch_saved`)."""
+        key = self.keys.estop_release if estop.release_key else self.keys.estop
         if estop.complaint is not None:
             self.reject(key, estop.complaint, now, estop.snippet)
-        elif not engaged and not release_key and not self.settings.unsafe_release_on_estop:
+        elif not estop.engaged and not estop.release_key and not self.settings.unsafe_release_on_estop:
             reason = (
                 f'a release on {key} is refused: only {{"engaged": false}} put on {self.keys.estop_release} releases '
                 "(a right the router may give to a safety role alone; `blackmetal estop off` puts there)"
             )
             self.reject(key, reason, now, estop.snippet)
             return
-        if engaged:
+        if estop.engaged:
             self.governor.on_estop(True, now)
             if not self.latch.engaged:
                 self.latch = Latch(True, self.wallclock(), key)
@@ -187,8 +180,7 @@ class ClientInputs:
             return  # released once saved: latch_saved
         else:
             self.governor.on_estop(False, now)  # released already: a fresh cmd_vel is needed to move, as after any release
-        # a health report follows: built when the host takes the events, after it has written the EMG_STOP and saved it
-        self._health_due = now
+        self._health_due = now  # built when the host takes the events, after it has written the EMG_STOP and saved it
 
     def take_latch(self) -> Latch | None:
         """A change of the e-stop latch to save now (after writing the outgoing bytes), or None."""
@@ -226,11 +218,15 @@ class ClientInputs:
             self._conflict_news(self.conflict.tick(now), now)
             self._send_due(now)
 
+    def _conflict_news(self, news: ConflictNews | None, now: float) -> None:
+        if news is ConflictNews.REMIND:
+            self.reporter.report(self.keys.health, self.conflict.reason(), by="gateway", now=now)
+        elif news is ConflictNews.RESOLVED:
+            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
+
     def on_params_set(self, payload: bytes, now: float) -> ParamsSetReply | str:
         """A :class:`ParamsSet`: each value set at once or refused and reported; the new table is published.
-
-        A payload that is not a ParamsSet is reported, and why is returned for the edge to answer with.
-        """
+        A payload that is not a ParamsSet is reported, and why is returned for the edge to answer with."""
         key = self.keys.params_set
         try:
             values = decode(ParamsSet, payload).values

@@ -17,8 +17,6 @@ REMIND_S = 1.0
 
 
 class ConflictNews(Enum):
-    """What :meth:`GatewayConflict.tick` has to say."""
-
     REMIND = auto()  # the conflict holds: report it (again)
     RESOLVED = auto()  # the other gateway is gone
 
@@ -39,18 +37,14 @@ class GatewayConflict:
     _reminded: float = -math.inf
 
     def seen(self, source: str | None, now: float) -> bool:
-        """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once).
-
-        A report without a run id is another gateway too: this one always names its own, so only an
-        older version (or a forger) leaves it out, and a missing field must not switch the check off.
-        """
+        """A health report from run ``source`` at ``now``: True when it starts a conflict (brake at once). One without
+        a run id is another gateway too (an older version, or a forger): a missing field must not switch the check off."""
         if source == self.own_source:
             return False
-        source = UNNAMED_RUN if source is None else source
         new = now >= self._until
         if new:
             self._reminded = -math.inf
-        self.other = source
+        self.other = UNNAMED_RUN if source is None else source
         self._until = now + CONFLICT_HOLD_S
         return new
 
@@ -58,7 +52,6 @@ class GatewayConflict:
         return now < self._until
 
     def with_whom(self, now: float) -> str | None:
-        """The other run's id while the conflict holds (for health)."""
         return self.other if self.active(now) else None
 
     def reason(self) -> str:
@@ -73,7 +66,6 @@ class GatewayConflict:
         )
 
     def tick(self, now: float) -> ConflictNews | None:
-        """What to report at ``now``, if anything."""
         if self.active(now):
             if now >= self._reminded + REMIND_S:
                 self._reminded = now

@@ -1,45 +1,29 @@
 """The gateway's core, sans I/O (as h11 is for HTTP): bytes, commands and ``now`` in; bytes, messages and a deadline out.
 
-It composes the gateway's pure parts, each with its own deadline (docs/contributing.md "One shape for every
-service"); the host feeds it each input with ``now``, writes :meth:`take_outgoing`, publishes
-:meth:`take_events` and sleeps until :meth:`next_deadline`.
+It composes the gateway's pure parts, each with its own deadline (docs/contributing.md "One shape for every service").
 """
 
 from __future__ import annotations
 
-import secrets
 from collections.abc import Callable
 
 from blackmetal import wire
 from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
-from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import (
-    GatewayHealth,
-    Keys,
-    RobotStatus,
-    SourceHealth,
-    WheelImpulses,
-    excerpt,
-)
+from blackmetal.schemas import GatewayHealth, RobotStatus, WheelImpulses, excerpt
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
 from .commands import ClientInputs, Event
-from .conflict import ConflictNews, GatewayConflict
 from .exchange import Completed, Exchange, Lost
-from .health import Counters
-from .latch import AT_START, Latch
+from .latch import Latch
 from .links import LinkName, Links
 from .log_port import LogPort
-from .params import ParamTable
 from .polling import PollSchedule
 from .prepare import PrepareRetry
-from .safety import CommandReason, Governor
+from .safety import CommandReason
 from .settings import GatewaySettings
 
 #: Requests in flight (late ones included) beyond which only stops go out, and polls wait.
 MAX_IN_FLIGHT = 8
-
-
 #: The poll, sent 50-100 times a second per robot: one request object, its bytes encoded once.
 _POLL = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
 _POLL_BYTES = wire.encode_request(_POLL)
@@ -64,10 +48,7 @@ def _wheels(request: wire.Request) -> WheelSpeeds:
 
 
 class GatewayCore(ClientInputs):
-    """The robot's side (links, requests and replies, polls) and the health; clients' inputs are in :class:`ClientInputs`.
-
-    ``robot`` names the robot's control and log ends in reports.
-    """
+    """The robot's side (links, requests and replies, polls) and the health; ``robot`` names its link ends in reports."""
 
     def __init__(
         self,
@@ -75,31 +56,15 @@ class GatewayCore(ClientInputs):
         now: float,
         wallclock: Callable[[], float],
         robot: dict[LinkName, str] | None = None,
-        run_token: str | None = None,
         latch: Latch | None = None,
     ) -> None:
-        self.settings = settings
-        self.wallclock = wallclock
-        self.keys = Keys(settings.prefix)
-        self.counters = Counters()
-        #: Names this run of the gateway in every impulse sample, so the odometry can tell a restart from a replay.
-        self.run_token = run_token or secrets.token_hex(6)
-        self.governor = Governor(settings.safety())
-        self.latch = latch or Latch(False, wallclock(), AT_START)
-        self.governor.on_estop(self.latch.engaged, now)
-        self._latch_to_save: Latch | None = None
+        super().__init__(settings, now, wallclock, latch)
         self.exchange = Exchange(reply_timeout=settings.reply_timeout, late_horizon=3 * settings.reply_timeout)
         self.links = Links(settings.silence_timeout, settings.log_silence_timeout)
         self.polls = PollSchedule(settings.poll_hz)
         #: A poll came due while the one before it was unanswered: it goes out as soon as that one's reading comes.
         self._poll_waiting = False
         self.prepare = PrepareRetry()
-        self.conflict = GatewayConflict(self.run_token, self.keys.prefix)
-        self.arbiter = settings.arbiter()
-        self.params = ParamTable(settings, self.governor, self.arbiter)
-        self._events: list[Event] = []
-        self._health_due: float | None = None
-        self.reporter = ErrorReporter("gateway", self._events.append, wallclock=wallclock)
         self.last_rtt: float | None = None
         self.seq = 0
         self.stopping = False
@@ -152,30 +117,29 @@ class GatewayCore(ClientInputs):
     def link_up(self, link: LinkName, now: float) -> None:
         """``link`` is connected (again): start clean."""
         down_for = self.links.up(link, now, self.wallclock())
-        (self._replies if link == "control" else self._log_port.decoder).reset()
-        if link == "control":
-            self._outgoing.clear()
         if down_for is not None:
             self._report_robot(link, f"{link} link up again after {down_for:.1f} s", now)
-        if link == "control":
-            self.exchange.clear("reconnected")
-            self.prepare.reset()
-            self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
-            self.governor.on_link_up(now)
-            self._poll_waiting = False
-            self.polls.start(now)
-            self._send_due(now)
+        if link == "log":
+            self._log_port.decoder.reset()
+            return
+        self._replies.reset()
+        self._outgoing.clear()
+        self.exchange.clear("reconnected")
+        self.prepare.reset()
+        self._send(wire.simple(CommandCode.PREPARE_WHEEL_CONTROLLER), now)
+        self.governor.on_link_up(now)
+        self._poll_waiting = False
+        self.polls.start(now)
+        self._send_due(now)
 
     def link_down(self, link: LinkName, reason: str, now: float) -> None:
-        """``link`` closed, or could not be opened."""
+        """``link`` closed, or could not be opened; a robot that cannot be reached is said once per reason, not per retry."""
         before = self.links[link].reason
         was_up = self.links.down(link, now, reason)
+        if not self.stopping and (was_up or reason != before):
+            self._report_robot(link, f"{link} link down: {reason}" if was_up else f"{link} link: {reason}", now)
         if link == "control":
             self._outgoing.clear()
-        if was_up and not self.stopping:
-            self._report_robot(link, f"{link} link down: {reason}", now)
-        elif reason != before and not self.stopping:  # a robot that cannot be reached is said once per reason, not per retry
-            self._report_robot(link, f"{link} link: {reason}", now)
         if link == "control" and was_up:
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))
@@ -184,7 +148,6 @@ class GatewayCore(ClientInputs):
             self.prepare.cancel()
 
     def receive(self, link: LinkName, data: bytes, now: float) -> None:
-        """Bytes read from ``link``."""
         self.links.received(link, now)
         if link == "control":
             self._receive_control(data, now)
@@ -192,7 +155,6 @@ class GatewayCore(ClientInputs):
             self._receive_log(data, now)
 
     def tick(self, now: float) -> None:
-        """Run every part's timer that is due at ``now``."""
         for lost in self.exchange.expire(now):
             self._on_result(lost, now)
         self._events.extend(self.links.due(now))
@@ -224,16 +186,14 @@ class GatewayCore(ClientInputs):
 
     def health(self, now: float) -> GatewayHealth:
         """The state at ``now``, as one health message (every ``health_period`` s, at once after an e-stop, and to a ``get``)."""
-        governor = self.governor
+        governor, arbiter, rtt = self.governor, self.arbiter, self.last_rtt
         accepted = governor.accepted
-        rtt = self.last_rtt
-        arbiter = self.arbiter
         return GatewayHealth(
             stamp=self.wallclock(),
             control=self.links.control.health(),
             log=self.links.log.health(),
             **vars(self.counters),
-            garbage_bytes=self.garbage_bytes,
+            garbage_bytes=self._replies.garbage_bytes + self._log_port.decoder.garbage_bytes,
             estop=governor.estop,
             estop_since=self.latch.since,
             estop_by=self.latch.by,
@@ -245,28 +205,15 @@ class GatewayCore(ClientInputs):
             source=self.run_token,
             conflict_with=self.conflict.with_whom(now),
             active_source=arbiter.active,
-            sources={
-                name: SourceHealth(priority=spec.priority, age=age, dropped=dropped, superseded=superseded)
-                for spec, (name, (age, dropped, superseded)) in zip(arbiter.sources, arbiter.source_ages(now).items(), strict=True)
-            },
+            sources=arbiter.source_health(now),
             locks=arbiter.lock_states(now),
             last_sent=None if self._last_sent is None else _describe(self._last_sent[0]),
             last_sent_stamp=None if self._last_sent is None else self._last_sent[1],
         )
 
-    @property
-    def garbage_bytes(self) -> int:
-        return self._replies.garbage_bytes + self._log_port.decoder.garbage_bytes
-
     def _report_robot(self, link: LinkName, reason: str, now: float, snippet: str = "") -> None:
         """A fault of the robot's, reported under the robot's end of ``link``."""
         self.reporter.report(self._robot[link], reason, snippet, by="robot", now=now)
-
-    def _conflict_news(self, news: ConflictNews | None, now: float) -> None:
-        if news is ConflictNews.REMIND:
-            self.reporter.report(self.keys.health, self.conflict.reason(), by="gateway", now=now)
-        elif news is ConflictNews.RESOLVED:
-            self.reporter.report(self.keys.health, "the other gateway on this prefix is gone: commands accepted again", now=now)
 
     def _send(self, request: wire.Request, now: float) -> bool:
         if not self.links.control.connected:
@@ -306,8 +253,8 @@ class GatewayCore(ClientInputs):
         return self.exchange.in_doubt or len(self.exchange.outstanding) >= MAX_IN_FLIGHT
 
     def _poll(self, now: float) -> None:
-        """A poll is due: sent now, or as soon as the reading of the one in flight comes (one at most: polls never queue
-        at the robot); skipped and counted when one already waits a whole period, or a reply is in doubt."""
+        """A poll is due: sent now, or once the one in flight is read (polls never queue at the robot); skipped and counted
+        when one already waits a whole period, or a reply is in doubt."""
         if self._congested():
             self.counters.polls_skipped += 1
             self._poll_waiting = False

@@ -1,8 +1,7 @@
 """What a payload on ``<prefix>/estop`` means, failing safe: only ``{"engaged": false}`` releases.
 
-Anything that plainly means "true" (``{"data": true}``, ``"engage"``, a trailing NUL) engages quietly;
-everything else engages too, and is reported: a person who meant to stop the robot is never ignored on a
-technicality.
+Anything that plainly means "true" (``{"data": true}``, ``"engage"``, a trailing NUL) engages quietly; everything
+else engages too, and is reported: a person who meant to stop the robot is never ignored on a technicality.
 """
 
 from __future__ import annotations
@@ -40,20 +39,16 @@ def _meaning(value: Any) -> bool | None:
 
 @dataclass(frozen=True, slots=True)
 class EStopInput:
-    """A payload on an e-stop key, read once where it enters (the Zenoh callback) and carried so to the core."""
+    """A payload on ``<prefix>/estop`` (or ``estop/release``), read once where it enters (the Zenoh callback): whether
+    the stop is engaged after it, what to report (None: nothing) and the payload's excerpt if a report may need it."""
 
-    #: Put on ``<prefix>/estop/release`` (else ``<prefix>/estop``).
     release_key: bool
-    #: Whether the stop is engaged after this payload (anything but a valid release engages).
     engaged: bool
-    #: What to report (None = nothing).
     complaint: str | None = None
-    #: The payload's excerpt for a report; empty unless a report may need it.
     snippet: str = ""
 
 
 def read_estop(payload: Any, release_key: bool = False) -> EStopInput:
-    """The payload's meaning (see the module docstring), read once."""
     try:
         if decode(EStop, payload).engaged:
             return EStopInput(release_key, True)
@@ -71,9 +66,7 @@ def read_estop(payload: Any, release_key: bool = False) -> EStopInput:
         return EStopInput(release_key, True)
     snippet = excerpt(data)
     if meaning is False:
-        return EStopInput(
-            release_key, True, f"{snippet!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}", snippet
-        )
-    return EStopInput(
-        release_key, True, f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}", snippet
-    )
+        complaint = f"{snippet!r} is not a valid release, so the emergency stop is engaged: {RELEASE_HINT}"
+    else:
+        complaint = f"unreadable payload on estop engages the emergency stop ({strict_reason}); {RELEASE_HINT}"
+    return EStopInput(release_key, True, complaint, snippet)

@@ -3,8 +3,7 @@
 The robot answers in order: a status for each request, then data for the GET commands (unless FULL_BUFFER).
 Replies are matched by kind, so a garbled or lost reply costs one request, not the alignment of all that follow.
 A request unanswered for ``reply_timeout`` is reported lost but keeps its place for ``late_horizon`` to take a
-late reply; while one is in doubt the core sends nothing but stops, so a reply is never attributed to a
-request sent after it.
+late reply; while one is in doubt the core sends nothing but stops, so a reply is never paired with a later request.
 """
 
 from __future__ import annotations
@@ -12,16 +11,7 @@ from __future__ import annotations
 from collections import deque
 from dataclasses import dataclass, field
 
-from blackmetal.wire import (
-    DATA_COMMANDS,
-    CommandCode,
-    Malformed,
-    PositionReading,
-    Reply,
-    Request,
-    SpeedReading,
-    StatusReply,
-)
+from blackmetal.wire import DATA_COMMANDS, CommandCode, Malformed, PositionReading, Reply, Request, SpeedReading, StatusReply
 
 _DATA_KIND = {CommandCode.GET_LR_WHEEL_VELOCITY: SpeedReading, CommandCode.GET_LR_WHEEL_POSITION: PositionReading}
 
@@ -37,8 +27,6 @@ class Pending:
 
 @dataclass(frozen=True, slots=True)
 class Completed:
-    """A request and everything the robot answered to it."""
-
     request: Request
     status: StatusReply
     data: SpeedReading | PositionReading | None
@@ -66,10 +54,8 @@ class Exchange:
 
     @property
     def in_doubt(self) -> bool:
-        """A request past its reply timeout is still waiting: a reply now may be late, or the next one's.
-
-        The head alone tells: requests are marked expired in sending order (:meth:`expire`), so they lead the queue.
-        """
+        """A request past its reply timeout is still waiting: a reply now may be late, or the next one's (the head
+        alone tells: requests expire in sending order)."""
         outstanding = self.outstanding
         return bool(outstanding) and outstanding[0].expired
 

@@ -26,9 +26,7 @@ def fleet_settings(base: GatewaySettings, robots: list[FleetRobot]) -> list[Gate
     """Each robot's gateway settings: the command line's, its link and prefix, its constants and [robot.gateway]."""
     return [
         robot.settings(
-            "gateway",
-            base,
-            {"robot": robot.host, "control_port": robot.control_port, "log_port": robot.log_port, "prefix": robot.prefix},
+            "gateway", base, {"robot": robot.host, "control_port": robot.control_port, "log_port": robot.log_port, "prefix": robot.prefix}
         )
         for robot in robots
     ]

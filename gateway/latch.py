@@ -1,16 +1,15 @@
 """The e-stop latch kept where the deployment keeps state, so a crash, a restart or a reboot is not a release.
 
-One JSON file per prefix (``<state_dir>/estop/<prefix>.json``). An engage is saved right after its EMG_STOP
-bytes were written; a release takes effect only once saved, so a restart can only come up engaged. A file that
-is missing, unreadable, corrupt or for another prefix, or a folder that cannot be written, starts the gateway
-engaged with one sentence why. Writes are atomic (new file, fsync, rename, fsync of the folder).
+An engage is saved right after its EMG_STOP bytes were written; a release takes effect only once saved, so a
+restart can only come up engaged. A file that is missing, unreadable, corrupt or for another prefix, or a folder
+that cannot be written, starts the gateway engaged with one sentence why. Writes are atomic.
 """
 
 from __future__ import annotations
 
 import os
 import urllib.parse
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Protocol
 
@@ -38,8 +37,6 @@ class Untrusted:
 
 
 class _LatchFile(msgspec.Struct, forbid_unknown_fields=True):
-    """The file's content, one JSON object."""
-
     prefix: str
     engaged: bool
     since: float
@@ -53,17 +50,13 @@ class LatchStore(Protocol):
     """Where one robot's latch is kept."""
 
     @property
-    def where(self) -> str:
-        """Where, in words (a path), for the sentences that name it."""
-        ...
+    def where(self) -> str: ...
 
     def load(self) -> Latch | Untrusted:
         """The saved latch, or why there is none to trust (missing, unreadable, corrupt)."""
-        ...
 
     def save(self, latch: Latch) -> str | None:
         """Keep ``latch`` so that a restart finds it; None, or why it could not be kept."""
-        ...
 
 
 def default_state_dir() -> str:
@@ -133,31 +126,9 @@ class FileLatchStore:
         return None
 
 
-@dataclass
-class MemoryLatchStore:
-    """A latch kept in memory, for tests: ``latch`` as saved; ``failing``: why saving fails (None: it works)."""
-
-    latch: Latch | Untrusted = Latch(False, 0.0, AT_START)
-    failing: str | None = None
-    saves: list[Latch] = field(default_factory=list)
-    where: str = "memory"
-
-    def load(self) -> Latch | Untrusted:
-        return self.latch
-
-    def save(self, latch: Latch) -> str | None:
-        if self.failing is not None:
-            return self.failing
-        self.latch = latch
-        self.saves.append(latch)
-        return None
-
-
 def start_latch(store: LatchStore, wallclock: float, missing_released: bool = False) -> tuple[Latch, str | None]:
-    """The latch a gateway starts with, and the sentence to say if it starts engaged for want of a trusted state.
-
-    ``missing_released``: a merely absent file starts released (a robot known to be new, as ``blackmetal up``'s).
-    """
+    """The latch a gateway starts with, and the sentence to say if it starts engaged for want of a trusted state;
+    with ``missing_released`` a merely absent file starts released (a robot known to be new, as ``blackmetal up``'s)."""
     loaded = store.load()
     if isinstance(loaded, Latch):
         latch = loaded

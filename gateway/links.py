@@ -31,10 +31,8 @@ class DropLink:
 
 @dataclass
 class LinkState:
-    """What the core knows of one link: up or not, since when, how often."""
-
     status: LinkStatus = LinkStatus.DOWN
-    #: ``status is CONNECTED``, kept with it (by :class:`Links`, which alone sets either): the core asks several times per poll.
+    #: ``status is CONNECTED``, kept with it by :class:`Links`: the core asks several times per poll.
     connected: bool = False
     connected_since: float | None = None  # Unix time, for health
     connections: int = 0
@@ -73,12 +71,9 @@ class Links:
     def up(self, name: LinkName, now: float, wall: float) -> float | None:
         """``name`` connected at ``now``: how long it had been down, if it was up before (for the report)."""
         state = self[name]
-        state.status, state.connected = LinkStatus.CONNECTED, True
-        state.connected_since = wall
+        state.status, state.connected, state.connected_since = LinkStatus.CONNECTED, True, wall
         state.connections += 1
-        state.last_rx = now
-        state.waiting_since = None
-        state.reason = None
+        state.last_rx, state.waiting_since, state.reason = now, None, None
         down_for = None if state.down_since is None else now - state.down_since
         state.down_since = None
         return down_for
@@ -88,8 +83,7 @@ class Links:
         state = self[name]
         state.reason = reason
         was_up = state.connected
-        state.status, state.connected = LinkStatus.DOWN, False
-        state.connected_since = None
+        state.status, state.connected, state.connected_since = LinkStatus.DOWN, False, None
         state.waiting_since = None
         if was_up:
             state.down_since = now
@@ -97,8 +91,7 @@ class Links:
 
     def received(self, name: LinkName, now: float) -> None:
         state = self[name]
-        state.last_rx = now
-        state.waiting_since = None
+        state.last_rx, state.waiting_since = now, None
 
     def request_sent(self, now: float) -> None:
         """A request went out on the control link: its silence clock runs from the first unanswered one."""
@@ -130,11 +123,8 @@ class Links:
 
 @dataclass
 class ReconnectBackoff:
-    """How long to wait before the next connection attempt: doubling, capped, reset only by a stable connection.
-
-    A connection the robot closes within ``stable`` seconds counts as a failure: a robot that accepts and at once
-    closes gets attempts at the capped pace, not a storm.
-    """
+    """How long to wait before the next connection attempt: doubling, capped, reset only by a connection that lasted
+    ``stable`` seconds (a robot that accepts and at once closes gets attempts at the capped pace, not a storm)."""
 
     first: float = 0.05
     cap: float = 2.0
@@ -151,7 +141,7 @@ class ReconnectBackoff:
     def failed(self, now: float) -> float:
         """A connection attempt failed, or a connection ended: the pause before the next attempt."""
         if self._opened_at is not None and now - self._opened_at >= self.stable:
-            self.delay = self.first  # that connection was a good one: start over
+            self.delay = self.first
         wait = self.delay
         self.delay = min(self.cap, self.delay * 2)
         self._opened_at = None

@@ -12,8 +12,6 @@ STATUS_REPEAT_S = 0.9
 
 
 class LogPort:
-    """Decodes the log link and keeps the last published status."""
-
     def __init__(self) -> None:
         self.decoder = ReplyDecoder()
         self._last: RobotStatus | None = None

@@ -12,8 +12,7 @@ from blackmetal.runtime.zenoh_setup import open_service_session
 from .fleet import FLEET, build
 from .settings import GatewaySettings, when_killed
 
-#: Zenoh delivers samples on its own threads; a short GIL switch interval lets
-#: them hand a command over without waiting out the default 5 ms slice.
+#: A short GIL switch interval lets Zenoh's threads hand a command over without waiting out the default 5 ms slice.
 SWITCH_INTERVAL_S = 0.0005
 
 

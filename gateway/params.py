@@ -1,18 +1,16 @@
 """The gateway's parameters: what an operator may change on a running gateway, and what is shown but fixed.
 
-One key the gateway owns, ``<prefix>/gateway/params/set``, serves ROS 2's parameter services and Foxglove's
-panel, so no view keeps a copy that could disagree. Each value is checked and set on its own (as rclcpp's
-``set_parameters``). Limits and source priorities change live; ``cmd_timeout`` is never switched off on a running
-robot; the wheel constants, poll rate, keep-alive and wiring are read-only: the odometry and the calibration
-were made with them.
+Each value is checked and set on its own, as rclcpp's ``set_parameters`` (docs/ros2.md "ros2 param"); ``cmd_timeout``
+is never switched off on a running robot; the wheel constants, poll rate and keep-alive are read-only: the odometry
+and the calibration were made with them.
 """
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 from blackmetal import robot_model as model
@@ -40,13 +38,9 @@ _LIMIT_HELP = {
 PRIORITY_RANGE = (0, 255)
 
 
-def _fine(value: float) -> None:
-    return None
-
-
 @dataclass(frozen=True, slots=True)
 class _Live:
-    """A parameter that changes live: how to read it and how to set an already checked value."""
+    """A parameter that changes live: how to read it, how to set an already checked value, and any check beyond its range."""
 
     kind: str
     description: str
@@ -54,13 +48,10 @@ class _Live:
     high: float
     get: Callable[[], float]
     set: Callable[[float], None]
-    #: An extra check after the type and range (None: the value is fine).
-    refuse: Callable[[float], str | None] = _fine
+    refuse: Callable[[float], str | None] | None = None
 
 
 class ParamTable:
-    """The parameter table of one gateway core."""
-
     def __init__(self, settings: GatewaySettings, governor: Governor, arbiter: Arbiter) -> None:
         self.settings = settings
         self.governor = governor
@@ -72,9 +63,6 @@ class ParamTable:
         live = [Param(name, spec.kind, spec.get(), spec.description, min=spec.low, max=spec.high) for name, spec in self._live.items()]
         return live + self._fixed()
 
-    def names(self) -> list[str]:
-        return [param.name for param in self.table()]
-
     def set(self, name: str, value: ParamValue) -> str | None:
         """Set ``name`` to ``value``; the reason it is refused, if it is (nothing changes then)."""
         spec = self._live.get(name)
@@ -82,13 +70,13 @@ class ParamTable:
             fixed = {param.name for param in self._fixed()}
             if name in fixed:
                 return f"{name} is read-only on a running gateway: set it in the gateway's settings and restart it"
-            return f"no parameter {name!r}: the gateway's parameters are {', '.join(self.names())}"
+            return f"no parameter {name!r}: the gateway's parameters are {', '.join(param.name for param in self.table())}"
         if isinstance(value, bool) or not isinstance(value, int if spec.kind == "integer" else (int, float)):
             return f"{name} takes {'an integer' if spec.kind == 'integer' else 'a number'}, got {value!r}"
         checked = value if spec.kind == "integer" else float(value)
         if not math.isfinite(checked) or not spec.low <= checked <= spec.high:
             return f"{name} must be within {spec.low:g}..{spec.high:g}, got {value!r}"
-        reason = spec.refuse(checked)
+        reason = None if spec.refuse is None else spec.refuse(checked)
         if reason is not None:
             return reason
         spec.set(checked)
@@ -99,19 +87,13 @@ class ParamTable:
         top_speed = max(model.MAX_WHEEL_SPEED, self.settings.max_wheel_speed)
         params = {
             name: _Live(
-                "double",
-                _LIMIT_HELP[name],
-                low,
-                high,
-                functools.partial(_limit_of, governor, name),
-                functools.partial(_set_limit, governor, name, zero_is_off),
-                refuse,
+                "double", _LIMIT_HELP[name], low, high, partial(_limit_of, governor, name), partial(_set_limit, governor, name), refuse
             )
-            for name, low, high, zero_is_off, refuse in (
-                ("max_wheel_speed", 0.01, top_speed, False, _fine),
-                ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, False, _refuse_cmd_timeout),
-                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, True, _fine),
-                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, True, _fine),
+            for name, low, high, refuse in (
+                ("max_wheel_speed", 0.01, top_speed, None),
+                ("cmd_timeout", 0.0, MAX_CMD_TIMEOUT_S, _refuse_cmd_timeout),
+                ("linear_accel", 0.0, MAX_LINEAR_ACCEL, None),
+                ("angular_accel", 0.0, MAX_ANGULAR_ACCEL, None),
             )
         }
         for name in arbiter.names:
@@ -119,16 +101,16 @@ class ParamTable:
                 "integer",
                 f"priority of the command source {name!r} (the highest live source drives)",
                 *PRIORITY_RANGE,
-                functools.partial(arbiter.priority_of, name),
-                functools.partial(_retune_priority, arbiter, name),
+                partial(arbiter.priority_of, name),
+                partial(_retune, arbiter, name, "priority"),
             )
             params[f"sources.{name}.timeout"] = _Live(
                 "double",
                 f"seconds after its last command that the source {name!r} stops counting as live",
                 0.01,
                 MAX_CMD_TIMEOUT_S,
-                functools.partial(arbiter.timeout_of, name),
-                functools.partial(_retune_timeout, arbiter, name),
+                partial(arbiter.timeout_of, name),
+                partial(_retune, arbiter, name, "timeout"),
             )
         return params
 
@@ -153,12 +135,8 @@ class ParamTable:
         return [Param(name, kind, value, description, read_only=True) for name, kind, value, description in fixed]
 
 
-def _retune_priority(arbiter: Arbiter, name: str, value: float) -> None:
-    arbiter.retune(name, priority=int(value))
-
-
-def _retune_timeout(arbiter: Arbiter, name: str, value: float) -> None:
-    arbiter.retune(name, timeout=float(value))
+def _retune(arbiter: Arbiter, name: str, field: str, value: float) -> None:
+    arbiter.retune(name, **{field: value})
 
 
 def _limit_of(governor: Governor, name: str) -> float:
@@ -167,8 +145,9 @@ def _limit_of(governor: Governor, name: str) -> float:
     return 0.0 if value is None else value
 
 
-def _set_limit(governor: Governor, name: str, zero_is_off: bool, value: float) -> None:
-    limit: Any = (value or None) if zero_is_off else value
+def _set_limit(governor: Governor, name: str, value: float) -> None:
+    """0 is off (None): only the accelerations can be set to 0, the other limits refuse it."""
+    limit: Any = value or None
     governor.settings = replace(governor.settings, **{name: limit})
 
 

@@ -14,8 +14,6 @@ RATE_WINDOW_S = 2.0
 
 
 class PollSchedule:
-    """The poll grid and the measured rate."""
-
     def __init__(self, poll_hz: float) -> None:
         self.period = 1.0 / poll_hz
         self._next = math.inf
@@ -24,11 +22,9 @@ class PollSchedule:
 
     def start(self, now: float) -> None:
         """The control link is up: the first poll is due at once, the next on the grid at least half a period later."""
-        self._next = now
-        self._starting = True
+        self._next, self._starting = now, True
 
     def stop(self) -> None:
-        """The control link is down: no polls until :meth:`start`."""
         self._next = math.inf
 
     def due(self, now: float) -> bool:
@@ -36,11 +32,10 @@ class PollSchedule:
         if now < self._next:
             return False
         period = self.period
-        # after the link-up's own poll, half a period at least (one a hair later would only wait for that reading)
+        # after the link-up's poll, half a period at least (one a hair later would only wait for that reading)
         after = now + 0.5 * period if self._starting else now
         self._starting = False
-        # within a millionth of a period counts as on the grid (4.1 / 0.02 = 204.99999999999997), or the same
-        # instant would come due again an ulp later
+        # within a millionth of a period is on the grid (4.1 / 0.02 = 204.99999999999997), or it comes due again an ulp later
         following = (math.floor(after / period + 1e-6) + 1.0) * period
         self._next = following if following > now else following + period
         return True
@@ -49,7 +44,6 @@ class PollSchedule:
         return self._next
 
     def reading(self, now: float) -> None:
-        """A wheel-speed reading came back at ``now``."""
         self._readings.append(now)
 
     def rate(self, now: float) -> float:

@@ -10,18 +10,14 @@ from .safety import retry_delay
 
 @dataclass
 class PrepareRetry:
-    """When PREPARE_WHEEL_CONTROLLER is to be sent again."""
-
     attempts: int = 0
     _at: float | None = None
 
     def reset(self) -> None:
         """A new connection: a fresh PREPARE goes out, with no retries behind it."""
-        self.attempts = 0
-        self._at = None
+        self.attempts, self._at = 0, None
 
     def cancel(self) -> None:
-        """The link went down: nothing to re-send on it."""
         self._at = None
 
     def taken(self) -> None:

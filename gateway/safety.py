@@ -1,11 +1,10 @@
-"""What velocity the robot gets, and when: limits, timeout, e-stop, dedup, keep-alive, confirmed stops.
+"""What velocity the robot gets, and when: limits, timeout, e-stop, dedup, keep-alive, confirmed stops (docs/safety.md).
 
-Pure and clock-injected (the rules: docs/safety.md). One :data:`State`, replaced by every input; what it does
-next, and from when, is one decision (:meth:`Governor.plan`) that ``next_command`` and ``next_deadline`` both
-read, so they cannot disagree, and after ``next_command(now)`` the deadline lies after ``now``. A state not
-ramping does not change before its deadline, so a look then is answered from the decision kept for that state
-object; the ramp's clock (``current_at``) moves only while the twist changes, so a ramp never steps further
-than its limit allows for the time it ran.
+One :data:`State`, replaced by every input; what it does next, and from when, is one decision
+(:meth:`Governor.plan`) that ``next_command`` and ``next_deadline`` both read, so they cannot disagree. A state
+not ramping does not change before its deadline, so a look then is answered from the decision kept for it; the
+ramp's clock (``current_at``) moves only while the twist changes, so a ramp never steps further than its limit
+allows for the time it ran.
 """
 
 from __future__ import annotations
@@ -51,8 +50,7 @@ class _Planned(NamedTuple):
 
 
 class _Deadline(NamedTuple):
-    """The decision taken at -inf for one state object (:meth:`Governor.next_deadline`); ``settled`` (not ramping):
-    it holds at any look before its deadline."""
+    """The decision taken at -inf for one state object; ``settled`` (not ramping): it holds at any look before its deadline."""
 
     of: State
     congested: bool
@@ -62,17 +60,12 @@ class _Deadline(NamedTuple):
 
 
 class _WheelsOf(NamedTuple):
-    """The wheel speeds asked for one twist under one settings, and whether they were scaled down."""
-
     twist: Velocity
     settings: SafetySettings
     wheels: WheelSpeeds
-    scaled: bool
 
 
 class Governor:
-    """The gateway's safety state machine: one :data:`State`, replaced by every input; see the module docstring."""
-
     def __init__(self, settings: SafetySettings) -> None:
         self.settings = settings
         self.state: State = Offline()
@@ -101,14 +94,8 @@ class Governor:
         return -math.inf if isinstance(self.state, Offline) else self.state.heard_at
 
     def timed_out(self, now: float) -> bool:
-        """True while no valid cmd_vel arrived within the command timeout."""
         timeout = self.settings.cmd_timeout
         return timeout > 0 and now >= self.last_cmd_at + timeout
-
-    @property
-    def scaled(self) -> bool:
-        """The current command is scaled down to the wheel limit (keeping its curvature)."""
-        return isinstance(self.state, Driving) and self._wheels(self.state.current).scaled
 
     def refusal(self, twist: Twist) -> str | None:
         """Why a velocity command would be refused now, if it would (:meth:`on_twist` refuses it then)."""
@@ -125,11 +112,8 @@ class Governor:
         return None
 
     def on_twist(self, twist: Twist, heard_at: float, now: float | None = None) -> str | None:
-        """Take a velocity command heard at ``heard_at``, or return why it is refused.
-
-        ``now`` (default ``heard_at``) is later for a command handed over from a source's past: the ramp runs from
-        then, the command timeout from ``heard_at``.
-        """
+        """Take a velocity command heard at ``heard_at``, or return why it is refused; one handed over from a source's past
+        ramps from ``now``, its command timeout runs from ``heard_at``."""
         reason = self.refusal(twist)
         if reason is None and isinstance(self.state, Driving):
             state = self._ramp_now(self.state, heard_at if now is None else now)
@@ -216,9 +200,7 @@ class Governor:
 
     def plan(self, now: float, congested: bool = False) -> tuple[State, Due]:
         """The one decision: the state brought up to ``now``, and what it does next, from when; nothing is committed.
-
-        ``congested``: the robot is behind on its replies; motion waits (the next reply calls again), a stop never does.
-        """
+        ``congested``: the robot is behind on its replies; motion waits (the next reply calls again), a stop never does."""
         state = self.state
         kept = self._deadline
         if (
@@ -257,22 +239,19 @@ class Governor:
     def emg_stop_due(self, now: float) -> bool:
         """True when an EMG_STOP should go out now (before any velocity command); :meth:`on_emg_stop_sent` once it did."""
         if not isinstance(self.state, EStopped):
-            return False  # only a latched e-stop sends EMG_STOP
+            return False
         due = self.plan(now)[1]
         return due.emg_stop and due.at <= now
 
     def next_deadline(self, congested: bool = False) -> float:
-        """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to do without a new input.
-
-        The decision taken at -inf: a time not after the last input's means at once.
-        """
+        """When :meth:`next_command` or :meth:`emg_stop_due` may next have something to do without a new input
+        (the decision taken at -inf: a time not after the last input's means at once)."""
         state = self.state
         kept = self._deadline
         if kept is not None and kept.of is state and kept.congested == congested and kept.settings is self.settings:
             return kept.due.at
         due = self._due(state, -math.inf, congested)
-        # not ramping: before due.at time changes nothing (no brake, no step, no re-check) and the decision is the same
-        # at any look (it depends on the look's time only to rank re-sends already due)
+        # not ramping: before due.at time changes nothing, and a look's time only ranks re-sends already due
         settled = not isinstance(state, Driving) or state.current == state.target
         self._deadline = _Deadline(state, congested, self.settings, due, settled)
         return due.at
@@ -353,15 +332,15 @@ class Governor:
         return state.heard_at + timeout if timeout > 0 and state.target != STILL else math.inf
 
     def _wheels(self, twist: Velocity) -> _WheelsOf:
-        """The wheel speeds the robot is asked for to drive ``twist``, as the wire carries them, and whether they were scaled down."""
+        """The wheel speeds the robot is asked for to drive ``twist``, as the wire carries them."""
         s = self.settings
         kept = self._wheels_of
         if kept is not None and kept.twist == twist and kept.settings is s:
             return kept
-        wheels, scaled = twist_to_wheels(*twist, s.wheel_separation, s.max_wheel_speed)
+        wheels = twist_to_wheels(*twist, s.wheel_separation, s.max_wheel_speed)[0]
         if not s.wheel_gain.is_unity:
             wheels = wheels.scaled(s.wheel_gain)
-        kept = self._wheels_of = _WheelsOf(twist, s, wheels.rounded(), scaled)
+        kept = self._wheels_of = _WheelsOf(twist, s, wheels.rounded())
         return kept
 
 
@@ -373,8 +352,7 @@ def _sending(sent: Sent | None, command: VelocityCommand, now: float) -> Sent:
 
 
 def _with_robot(state: EStopped | Driving, robot: Robot) -> EStopped | Driving:
-    """``state`` with ``robot`` (what the link told the robot and heard back): a constructor call, several times cheaper
-    than ``dataclasses.replace``, on the path every command and every reply takes."""
+    """``state`` with ``robot``: a constructor call, several times cheaper than ``dataclasses.replace``, for every command."""
     if isinstance(state, Driving):
         return Driving(robot, state.target, state.heard_at, state.current, state.current_at)
     return EStopped(robot, state.emg_at, state.emg_pending, state.emg_resends, state.heard_at)

@@ -1,7 +1,5 @@
-"""The safety governor's vocabulary: its settings, its three states and what a state does next, as frozen values.
-
-Each state is immutable: a decision made for a state object holds as long as that object is the state.
-"""
+"""The safety governor's vocabulary: its settings, its three states and what a state does next, as frozen values
+(a decision made for a state object holds as long as that object is the state)."""
 
 from __future__ import annotations
 
@@ -50,8 +48,7 @@ class SafetySettings:
     full_buffer_retries: int = 5
     #: At most this many velocity commands per second reach the robot; a flood is coalesced to the latest.
     max_command_hz: float = 500.0
-    #: Per-wheel correction of the commanded m/s: calibrated impulses per metre over the
-    #: nominal ones the robot's firmware uses, so a wheel larger than its drawing is asked for less.
+    #: Per-wheel correction of the commanded m/s: calibrated impulses per metre over the firmware's nominal ones.
     wheel_gain: WheelGain = UNITY_GAIN
 
 
@@ -66,8 +63,6 @@ class CommandReason(Enum):
 
 @dataclass(frozen=True, slots=True)
 class VelocityCommand:
-    """A velocity to send now, and why."""
-
     wheels: WheelSpeeds
     reason: CommandReason
 
@@ -127,10 +122,7 @@ class EStopped:
 
 @dataclass(frozen=True, slots=True)
 class Driving:
-    """A live link, no e-stop: the twist goes out through the limits, the timeout, the ramp and the rate cap.
-
-    What it sends next is not stored but read off it by :meth:`Governor.plan`.
-    """
+    """A live link, no e-stop: the twist goes out through the limits, the timeout, the ramp and the rate cap."""
 
     robot: Robot
     target: Velocity = STILL
@@ -148,10 +140,9 @@ State = Offline | EStopped | Driving
 
 @dataclass(frozen=True, slots=True)
 class Due:
-    """What a state does next with no new input, and from when (``at <= now``: now)."""
+    """What a state does next with no new input, and from when (``at <= now``: now); no command: only a look again."""
 
     at: float
-    #: The velocity command then (None: only a look again: the command timeout, a ramp step, a check of the wheels).
     command: VelocityCommand | None = None
     #: EMG_STOP then, ahead of any velocity.
     emg_stop: bool = False

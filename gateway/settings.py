@@ -9,7 +9,7 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, validate_prefix
 
-from .arbiter import DEFAULT_SOURCES, Arbiter, check_specs, parse_lock, parse_source, spec_text
+from .arbiter import DEFAULT_SOURCES, Arbiter, arbiter_of
 from .latch import FileLatchStore, default_state_dir, latch_path
 from .safety import SafetySettings
 
@@ -70,7 +70,7 @@ class GatewaySettings:
     source: list[str] = setting(
         help="a command source NAME:PRIORITY[:TIMEOUT] on <prefix>/cmd_vel/NAME ('default' is plain cmd_vel); "
         "repeat for each; given at all, it replaces the defaults",
-        factory=lambda: [spec_text(spec) for spec in DEFAULT_SOURCES],
+        factory=lambda: [f"{spec.name}:{spec.priority}:{spec.timeout:g}" for spec in DEFAULT_SOURCES],
         metavar="NAME:PRIO[:S]",
     )
     lock: list[str] = setting(
@@ -110,10 +110,9 @@ class GatewaySettings:
             "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right",
         )
         for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
-            if not 0.5 * nominal <= getattr(self, name) <= 2.0 * nominal:
-                raise ConfigError(
-                    f"{name} {getattr(self, name)} is not within half to twice the nominal {nominal:g}: is the calibration right?"
-                )
+            value = getattr(self, name)
+            if not 0.5 * nominal <= value <= 2.0 * nominal:
+                raise ConfigError(f"{name} {value} is not within half to twice the nominal {nominal:g}: is the calibration right?")
         if self.poll_hz > 1000:
             raise ConfigError(f"poll_hz {self.poll_hz} is beyond 1000 Hz")
         if self.max_wheel_speed > 1.0:
@@ -129,15 +128,14 @@ class GatewaySettings:
             if not 1 <= getattr(self, name) <= 65535:
                 raise ConfigError(f"{name} must be a TCP port 1-65535")
         validate_prefix(self.prefix)
-        check_specs(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
+        self.arbiter()
 
     def latch_store(self) -> FileLatchStore:
         """Where this robot's e-stop latch is kept (``state_dir``, else the default)."""
         return FileLatchStore(latch_path(self.state_dir or default_state_dir(), self.prefix), self.prefix)
 
     def arbiter(self) -> Arbiter:
-        """The command arbiter these settings describe."""
-        return Arbiter(tuple(parse_source(s) for s in self.source), tuple(parse_lock(s) for s in self.lock))
+        return arbiter_of(self.source, self.lock)
 
     def safety(self) -> SafetySettings:
         """The governor's settings: the ones of the same name, and each wheel's gain from its calibration."""

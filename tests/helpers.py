@@ -6,12 +6,14 @@ import json
 import re
 import time
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from typing import Any
 
 import zenoh
 
 from blackmetal import robot_model as model
 from blackmetal.bench.synth import Leg
+from blackmetal.gateway.latch import AT_START, Latch, Untrusted
 from blackmetal.robot_model import arc_step
 from blackmetal.runtime import ports
 from blackmetal.runtime.harness import ChildFailed, ServiceProcess
@@ -166,3 +168,23 @@ def exact_pose(legs: list[Leg], separation: float = model.WHEEL_SEPARATION) -> t
     for leg in legs:
         x, y, yaw = arc_step(x, y, yaw, leg.left * leg.duration, leg.right * leg.duration, separation)
     return x, y, yaw
+
+
+@dataclass
+class MemoryLatchStore:
+    """A latch kept in memory, for tests: ``latch`` as saved; ``failing``: why saving fails (None: it works)."""
+
+    latch: Latch | Untrusted = field(default_factory=lambda: Latch(False, 0.0, AT_START))
+    failing: str | None = None
+    saves: list[Latch] = field(default_factory=list)
+    where: str = "memory"
+
+    def load(self) -> Latch | Untrusted:
+        return self.latch
+
+    def save(self, latch: Latch) -> str | None:
+        if self.failing is not None:
+            return self.failing
+        self.latch = latch
+        self.saves.append(latch)
+        return None

@@ -16,11 +16,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from helpers import free_port
+from helpers import MemoryLatchStore, free_port
 
 from blackmetal.gateway.estop import read_estop
 from blackmetal.gateway.host import GatewayHost, RecordingOutput
-from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 from blackmetal.sim.memory import MemoryConnector

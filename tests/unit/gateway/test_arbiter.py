@@ -10,7 +10,7 @@ from hypothesis import example, given
 from hypothesis import strategies as st
 
 from blackmetal.gateway.arbiter import DEFAULT_SOURCES, Admission, Arbiter, LockSpec, SourceSpec
-from blackmetal.schemas import ConfigError, Twist, Vector3
+from blackmetal.schemas import ConfigError, SourceHealth, Twist, Vector3
 
 
 def twist(v: float) -> Twist:
@@ -35,8 +35,9 @@ def test_the_highest_live_priority_drives_and_the_others_are_dropped_and_counted
     for k in range(1, 10):
         assert arb.offer("nav", twist(0.3), 0.05 + 0.05 * k) is Admission.DROPPED
         assert arb.offer("teleop", twist(0.0), 0.06 + 0.05 * k) is Admission.DRIVES
-    ages = arb.source_ages(0.6)
-    assert ages["nav"] == (pytest.approx(0.1), 9, 0) and ages["teleop"][1] == 0 and ages["foxglove"] == (None, 0, 0)
+    ages = arb.source_health(0.6)
+    assert (ages["nav"].age, ages["nav"].dropped, ages["nav"].superseded) == (pytest.approx(0.1), 9, 0)
+    assert ages["teleop"].dropped == 0 and ages["foxglove"] == SourceHealth(90, None, 0, 0)
     assert arb.active == "teleop"
 
 
@@ -71,7 +72,7 @@ def test_when_the_driver_falls_silent_the_next_live_source_takes_over_on_its_dea
 def test_an_unknown_source_is_refused() -> None:
     arb = Arbiter()
     assert arb.offer("joystick", twist(0.1), 0.0) is Admission.UNKNOWN
-    assert arb.active is None and "joystick" not in arb.source_ages(0.0)
+    assert arb.active is None and "joystick" not in arb.source_health(0.0)
 
 
 def test_an_engaged_lock_blocks_equal_and_lower_priorities_until_released() -> None:

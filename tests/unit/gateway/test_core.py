@@ -14,11 +14,11 @@ import math
 from typing import Any
 
 import pytest
+from helpers import MemoryLatchStore
 
 from blackmetal import wire
 from blackmetal.gateway.core import GatewayCore
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 from blackmetal.sim.physics import RobotParams, SimRobot
