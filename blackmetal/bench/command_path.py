@@ -12,6 +12,8 @@ from collections.abc import Callable
 from contextlib import ExitStack
 from typing import TYPE_CHECKING
 
+from blackmetal.schemas import Keys
+
 from . import peers
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, free_port, percentiles
 from .rig import KEYS, mini_robot, peer, robot_and_gateway, ros2_adapter, rss_mb, session, wait_polls
@@ -81,20 +83,35 @@ def command_latencies(
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
 
 
-def _engage_and_release(stack: ExitStack, poll_hz: float) -> tuple[RobotProcess, int, "zenoh.Publisher", "zenoh.Publisher"]:
-    robot, zport, _ = robot_and_gateway(stack, poll_hz)
-    client = session(stack, zport)
-    pub = client.declare_publisher(KEYS.estop, express=EXPRESS)
-    release = client.declare_publisher(KEYS.estop_release, express=EXPRESS)
-    wait_polls(robot)
-    return robot, zport, pub, release
+def estop_publishers(client: "zenoh.Session", keys: Keys = KEYS) -> tuple["zenoh.Publisher", "zenoh.Publisher"]:
+    """The engage and release publishers of ``keys``' e-stop."""
+    engage, release = (client.declare_publisher(key, express=EXPRESS) for key in (keys.estop, keys.estop_release))
+    return engage, release
+
+
+def _engage_release(
+    estop: tuple["zenoh.Publisher", "zenoh.Publisher"], count: int, gap: tuple[float, float], settle: float = 0.0
+) -> list[float]:
+    """``count`` engages, each released a random ``gap`` later, then ``settle``: when each engage was put (Unix time)."""
+    engage, release = estop
+    starts = []
+    for _ in range(count):
+        time.sleep(random.uniform(*gap))
+        starts.append(time.time())
+        engage.put(b'{"engaged": true}')
+        time.sleep(random.uniform(*gap))
+        release.put(b'{"engaged": false}')
+        time.sleep(settle)
+    return starts
 
 
 def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
     """``{"engaged": true}`` put on estop -> EMG_STOP bytes at the robot's socket (kernel receive stamp)."""
     with ExitStack() as stack:
-        robot, _, pub, release = _engage_and_release(stack, poll_hz)
-        return estop_latencies(pub, release, robot, samples)
+        robot, zport, _ = robot_and_gateway(stack, poll_hz)
+        estop = estop_publishers(session(stack, zport))
+        wait_polls(robot)
+        return estop_latencies(estop, robot, samples)
 
 
 #: After a release, before the next engage, where the gateway's loop is busy (a fleet): the gateway keeps only the
@@ -103,7 +120,7 @@ RELEASE_SETTLE_S = 0.03
 
 
 def estop_latencies(
-    pub: "zenoh.Publisher", release: "zenoh.Publisher", robot: RobotProcess, samples: int, settle: float = 0.0
+    estop: tuple["zenoh.Publisher", "zenoh.Publisher"], robot: RobotProcess, samples: int, settle: float = 0.0
 ) -> dict[str, float]:
     """Engage then release, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
 
@@ -111,23 +128,14 @@ def estop_latencies(
     """
     time.sleep(0.3)
     first = len(robot.dump()["emg_stops"])
-    starts = []
-    for _ in range(samples + 10):
-        time.sleep(random.uniform(*COMMAND_GAP_S))
-        starts.append(time.time())
-        pub.put(b'{"engaged": true}')
-        time.sleep(random.uniform(*COMMAND_GAP_S))
-        release.put(b'{"engaged": false}')
-        time.sleep(settle)
+    starts = _engage_release(estop, samples + 10, COMMAND_GAP_S, settle)
     time.sleep(0.3)
     stops = sorted(robot.dump()["emg_stops"][first:])
     # an engage's EMG_STOP arrives before the next engage; one without is counted, never paired with another's stop
     ends = [*starts[1:], float("inf")]
     latencies, missing = [], 0
-    for index, (start, end) in enumerate(zip(starts, ends, strict=True)):
+    for start, end in list(zip(starts, ends, strict=True))[10:]:  # after the warm-up
         arrival = next((stop for stop in stops if start <= stop < end), None)
-        if index < 10:
-            continue  # warm-up
         if arrival is None:
             missing += 1
         else:
@@ -138,18 +146,13 @@ def estop_latencies(
 def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:
     """The e-stop's latency while ``flooders`` processes flood ``cmd_vel/nav`` at full speed (an attacker, or a runaway planner)."""
     with ExitStack() as stack:
-        robot, zport, pub, release = _engage_and_release(stack, poll_hz)
-        seconds = 4.0 + samples * 0.05
+        robot, zport, _ = robot_and_gateway(stack, poll_hz)
+        estop = estop_publishers(session(stack, zport))
+        wait_polls(robot)
         for _ in range(flooders):
-            peer(stack, "flooder", [str(zport), KEYS.cmd_vel_of("nav"), str(seconds)])
+            peer(stack, "flooder", [str(zport), KEYS.cmd_vel_of("nav"), str(4.0 + samples * 0.05)])
         time.sleep(1.0)  # the flood is on: the gateway's nav input has changed over to its ring buffer
-        starts = []
-        for _ in range(samples):
-            time.sleep(random.uniform(0.02, 0.04))
-            starts.append(time.time())
-            pub.put(b'{"engaged": true}')
-            time.sleep(random.uniform(0.02, 0.04))
-            release.put(b'{"engaged": false}')
+        starts = _engage_release(estop, samples, (0.02, 0.04))
         time.sleep(0.5)
         stops = robot.dump()["emg_stops"]
     latencies = []
@@ -167,18 +170,16 @@ def flood(rate_hz: float, seconds: float) -> dict[str, float]:
         wait_polls(robot)
         time.sleep(0.3)
         rss_before = rss_mb(gw.proc.pid)
-        period = 1.0 / rate_hz
         count = int(rate_hz * seconds)
         start = time.monotonic()
         for i in range(count):
-            target = start + i * period
-            while time.monotonic() < target:
+            while time.monotonic() < start + i / rate_hz:
                 pass
-            pub.put(b'{"linear":{"x":%.6f}}' % (0.1 + 0.3 * (i % 1000) / 1000))
+            pub.put(_json_twist(0.1 + 0.3 * (i % 1000) / 1000))
         last_value = round(0.1 + 0.3 * ((count - 1) % 1000) / 1000, 6)
-        final = round(-0.123456, 6)
+        final = -0.123456
         t_final = time.time()
-        pub.put(b'{"linear":{"x":%.6f}}' % final)
+        pub.put(_json_twist(final))
         deadline = time.monotonic() + 5
         arrivals: dict[float, float] = {}
         while time.monotonic() < deadline:

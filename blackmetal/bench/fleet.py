@@ -17,7 +17,7 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
-from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
+from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies, estop_publishers
 from .peers import EXPRESS, free_port
 from .rig import cpu_seconds, cpu_window, latch_args, mini_robot, rss_mb, service, wait_polls
 from .rig import session as client_session
@@ -125,8 +125,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
             view_figures = _views(stack, session, processes, fleet_file, endpoint, robots, seconds)
         probe_keys = Keys(probe.prefix)
         cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
-        engage, release = (session.declare_publisher(key, express=EXPRESS) for key in (probe_keys.estop, probe_keys.estop_release))
-        estop = estop_latencies(engage, release, probe_robot, samples, RELEASE_SETTLE_S)
+        estop = estop_latencies(estop_publishers(session, probe_keys), probe_robot, samples, RELEASE_SETTLE_S)
         consumer.undeclare()
     services = ("router", "gateway", "odometry")
     return {
