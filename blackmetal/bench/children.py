@@ -11,7 +11,7 @@ import os
 import signal
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -104,13 +104,15 @@ def shutdown(grace: float = GRACE_S) -> None:
     stop_all(grace)
     strays = _own_children()
     for pid in strays:
-        _signal(pid, signal.SIGTERM)
+        with suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
     deadline = time.monotonic() + grace
     while strays and time.monotonic() < deadline:
         strays = [pid for pid in strays if not _reaped(pid)]
         time.sleep(0.02)
     for pid in strays:
-        _signal(pid, signal.SIGKILL)
+        with suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
         _reaped(pid, block=True)
 
 
@@ -127,13 +129,6 @@ def _own_children() -> list[int]:
         if int(fields[1]) == me and fields[0] != "Z":
             found.append(int(entry))
     return found
-
-
-def _signal(pid: int, sig: int) -> None:
-    try:
-        os.kill(pid, sig)
-    except ProcessLookupError:
-        pass
 
 
 def _reaped(pid: int, block: bool = False) -> bool:
