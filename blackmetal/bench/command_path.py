@@ -83,15 +83,24 @@ def command_latencies(
     return percentiles([arrivals[s] - t for s, t in sent.items() if s in arrivals])
 
 
-def estop_publishers(client: "zenoh.Session", keys: Keys = KEYS) -> tuple["zenoh.Publisher", "zenoh.Publisher"]:
-    """The engage and release publishers of ``keys``' e-stop."""
+#: The engage and release publishers of one robot's e-stop.
+EStop = tuple["zenoh.Publisher", "zenoh.Publisher"]
+
+
+def estop_publishers(client: "zenoh.Session", keys: Keys = KEYS) -> EStop:
     engage, release = (client.declare_publisher(key, express=EXPRESS) for key in (keys.estop, keys.estop_release))
     return engage, release
 
 
-def _engage_release(
-    estop: tuple["zenoh.Publisher", "zenoh.Publisher"], count: int, gap: tuple[float, float], settle: float = 0.0
-) -> list[float]:
+def _estop_rig(stack: ExitStack, poll_hz: float) -> tuple[RobotProcess, int, EStop]:
+    """A mini robot, its gateway on a free port, and the e-stop's publishers, once the gateway polls."""
+    robot, zport, _ = robot_and_gateway(stack, poll_hz)
+    estop = estop_publishers(session(stack, zport))
+    wait_polls(robot)
+    return robot, zport, estop
+
+
+def _engage_release(estop: EStop, count: int, gap: tuple[float, float], settle: float = 0.0) -> list[float]:
     """``count`` engages, each released a random ``gap`` later, then ``settle``: when each engage was put (Unix time)."""
     engage, release = estop
     starts = []
@@ -108,9 +117,7 @@ def _engage_release(
 def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
     """``{"engaged": true}`` put on estop -> EMG_STOP bytes at the robot's socket (kernel receive stamp)."""
     with ExitStack() as stack:
-        robot, zport, _ = robot_and_gateway(stack, poll_hz)
-        estop = estop_publishers(session(stack, zport))
-        wait_polls(robot)
+        robot, _, estop = _estop_rig(stack, poll_hz)
         return estop_latencies(estop, robot, samples)
 
 
@@ -119,9 +126,7 @@ def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
 RELEASE_SETTLE_S = 0.03
 
 
-def estop_latencies(
-    estop: tuple["zenoh.Publisher", "zenoh.Publisher"], robot: RobotProcess, samples: int, settle: float = 0.0
-) -> dict[str, float]:
+def estop_latencies(estop: EStop, robot: RobotProcess, samples: int, settle: float = 0.0) -> dict[str, float]:
     """Engage then release, 10 of warm-up, then ``samples``: put -> EMG_STOP at the robot's socket.
 
     ``settle``: a pause after each release (RELEASE_SETTLE_S for a fleet). ``missing``: engages without their own EMG_STOP.
@@ -146,9 +151,7 @@ def estop_latencies(
 def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:
     """The e-stop's latency while ``flooders`` processes flood ``cmd_vel/nav`` at full speed (an attacker, or a runaway planner)."""
     with ExitStack() as stack:
-        robot, zport, _ = robot_and_gateway(stack, poll_hz)
-        estop = estop_publishers(session(stack, zport))
-        wait_polls(robot)
+        robot, zport, estop = _estop_rig(stack, poll_hz)
         for _ in range(flooders):
             peer(stack, "flooder", [str(zport), KEYS.cmd_vel_of("nav"), str(4.0 + samples * 0.05)])
         time.sleep(1.0)  # the flood is on: the gateway's nav input has changed over to its ring buffer
