@@ -16,6 +16,7 @@ from typing import Any, TypeVar
 import msgspec
 import zenoh
 
+from blackmetal.runtime.harness import ChildFailed
 from blackmetal.runtime.zenoh_setup import (
     ZenohSettings,
     add_zenoh_arguments,
@@ -129,14 +130,14 @@ def connect(args: argparse.Namespace, waiting: tuple[threading.Event, str] | Non
 
 
 def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
-    """Decorate a tool's ``run``: a BlackmetalError ends it with one line on stderr (exit 1, or 2 for settings)."""
+    """Decorate a tool's ``run``: a BlackmetalError (up's failed child too) ends it with one line on stderr (exit 1, or 2 for settings)."""
 
     def wrap(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
         @functools.wraps(run)
         def wrapper(args: argparse.Namespace) -> int:
             try:
                 return run(args)
-            except (ToolError, ZenohUnavailable) as exc:
+            except (ToolError, ZenohUnavailable, ChildFailed) as exc:
                 print(f"blackmetal {name}: {exc}", file=sys.stderr)
                 return 1
             except BlackmetalError as exc:
