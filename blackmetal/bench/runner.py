@@ -177,6 +177,11 @@ def met(ok: bool) -> str:
     return ": met" if ok else ": MISSED"
 
 
+def at_most(ratio: float, target: float, noisy: bool = False) -> str:
+    """A ratio's verdict against its target: ``1.23x (<= 1.5x: met)``, NOISY when its rounds disagree."""
+    return f"{ratio:.2f}x (<= {target:g}x{met(ratio <= target)})" + (" NOISY" if noisy else "")
+
+
 def latency_rows(label: str, figure: Result, against: str, baseline: Result, p50_verdict: str, p99_verdict: str = "") -> list[Row]:
     """A latency's p50 and p99 rows, each beside its baseline's; ``{p}`` in ``label`` and ``against`` is p50 or p99."""
     return [

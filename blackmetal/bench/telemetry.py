@@ -14,7 +14,7 @@ from . import peers
 from .children import spawn
 from .peers import free_port, percentiles
 from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
-from .runner import Figure, Plan, Result, Row, latency_rows, met, noisy, rounds, spreads
+from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, rounds, spreads
 
 
 def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
@@ -157,9 +157,9 @@ def _pose(plan: Plan, out: Result) -> Result:
 
 def _pose_rows(f: Result) -> list[Row]:
     pose = f["impulse_to_pose_ms"]
-    ratio = pose["p50_over_two_hops"]
-    return latency_rows("impulse -> Pose at client {p}", pose, "2 Zenoh hops", f["two_hops_ms"],
-                        f"{ratio:.2f}x (<= 1.5x{met(ratio <= 1.5)})" + (" NOISY" if pose["noisy"] else ""))  # fmt: skip
+    return latency_rows(
+        "impulse -> Pose at client {p}", pose, "2 Zenoh hops", f["two_hops_ms"], at_most(pose["p50_over_two_hops"], 1.5, pose["noisy"])
+    )
 
 
 def _ros2_odom_rows(f: Result) -> list[Row]:
