@@ -94,11 +94,7 @@ class McapRecording:
         self.stats[key] = sequence = self.stats.get(key, 0) + 1
         self.total_bytes += len(payload)
         self._writer.add_message(
-            channel_id=channel,
-            log_time=log_time,
-            data=payload,
-            publish_time=publish_time_ns(payload, log_time),
-            sequence=sequence,
+            channel_id=channel, log_time=log_time, data=payload, publish_time=publish_time_ns(payload, log_time), sequence=sequence
         )
         if self.split_bytes and self._stream is not None and self._stream.tell() >= self.split_bytes:
             self.close()

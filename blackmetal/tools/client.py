@@ -17,13 +17,7 @@ import msgspec
 import zenoh
 
 from blackmetal.runtime.harness import ChildFailed
-from blackmetal.runtime.zenoh_setup import (
-    ZenohSettings,
-    add_zenoh_arguments,
-    open_session,
-    open_when_reachable,
-    zenoh_settings,
-)
+from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, open_when_reachable, zenoh_settings
 from blackmetal.schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
 
 T = TypeVar("T", bound=msgspec.Struct)

@@ -31,16 +31,7 @@ from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import Pose, Twist, Vector3, encode, require_extra
 
-from .client import (
-    Latest,
-    ToolError,
-    add_client_arguments,
-    add_drive_arguments,
-    connect,
-    require_gateway,
-    require_pose,
-    tool,
-)
+from .client import Latest, ToolError, add_client_arguments, add_drive_arguments, connect, require_gateway, require_pose, tool
 
 RATE_HZ = 20.0
 #: Commanding motion for this long without the pose changing means the commands have no effect (s).
