@@ -160,7 +160,14 @@ def run(args: argparse.Namespace) -> int:
             _say(f"blackmetal bench: stopped by {signal.Signals(stopped_by).name} before it finished; every process it started is stopped")
             return 128 + stopped_by
         result["duration_s"] = time.monotonic() - started
-        return _report(result, args.json)
+        print(table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, result))
+        print(f"(took {result['duration_s']:.0f} s)", flush=True)
+        if _write_json(result, args.json):
+            return 1
+        if result["failed"]:
+            _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
+            return 1
+        return 0
 
 
 def _fleet(args: argparse.Namespace, started: float) -> int:
@@ -178,17 +185,6 @@ def _fleet(args: argparse.Namespace, started: float) -> int:
     print(fleet_table(runs))
     print(f"(took {time.monotonic() - started:.0f} s)", flush=True)
     return _write_json({"fleet": runs}, args.json)
-
-
-def _report(result: dict[str, Any], json_path: str | None) -> int:
-    print(table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, result))
-    print(f"(took {result['duration_s']:.0f} s)", flush=True)
-    if _write_json(result, json_path):
-        return 1
-    if result["failed"]:
-        _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
-        return 1
-    return 0
 
 
 def _write_json(result: dict[str, Any], json_path: str | None) -> int:

@@ -74,16 +74,6 @@ def mini_robot(stack: ExitStack) -> RobotProcess:
     return robot
 
 
-def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float) -> ServiceProcess:
-    """A gateway listening on ``zport`` for ``robot``, polling at ``poll_hz``, without a command timeout."""
-    return service(
-        stack,
-        "gateway",
-        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
-         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}"],
-    )  # fmt: skip
-
-
 def _client_of(zport: int, listen: int | None) -> list[str]:
     return ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
 
@@ -106,10 +96,17 @@ def session(stack: ExitStack, zport: int) -> "zenoh.Session":
 
 
 def robot_and_gateway(stack: ExitStack, poll_hz: float = 50.0) -> tuple[RobotProcess, int, ServiceProcess]:
-    """A mini robot and its gateway, on a free Zenoh port: most figures start there."""
+    """A mini robot and its gateway listening on a free Zenoh port, polling at ``poll_hz``, without a command timeout:
+    most figures start there."""
     robot = mini_robot(stack)
     zport = free_port()
-    return robot, zport, gateway(stack, robot, zport, poll_hz)
+    gateway = service(
+        stack,
+        "gateway",
+        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}"],
+    )  # fmt: skip
+    return robot, zport, gateway
 
 
 def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:

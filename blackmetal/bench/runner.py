@@ -108,14 +108,6 @@ def over(figure: dict[str, list[float]], baseline: dict[str, list[float]], which
     return statistics.median(f / b for f, b in zip(figure[which], baseline[which], strict=True))
 
 
-def with_baselines(figures: tuple[Figure, ...], names: set[str]) -> set[str]:
-    chosen = set(names)
-    for figure in reversed(figures):  # a figure only needs figures measured before it
-        if figure.name in chosen:
-            chosen.update(figure.needs)
-    return chosen
-
-
 def one_sentence(exc: Exception) -> str:
     """What went wrong, on one line: a child's own last line, a command's last line on stderr, or the error's text."""
     if isinstance(exc, ChildFailed):
@@ -138,7 +130,10 @@ def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], 
     """Every figure (or those in ``only`` and their baselines); one skipped or failed is a line and
     ``{"skipped": why}`` or ``{"failed": why}`` in the result, and the others still run."""
     plan = Plan(quick, progress)
-    chosen = with_baselines(figures, only) if only is not None else {figure.name for figure in figures}
+    chosen = {figure.name for figure in figures} if only is None else set(only)
+    for figure in reversed(figures):  # with their baselines: a figure only needs figures measured before it
+        if figure.name in chosen:
+            chosen.update(figure.needs)
     out: Result = {"quick": quick, "rounds": plan.rounds, "measured": [], "skipped": {}, "failed": {}}
     for figure in figures:
         if figure.name not in chosen or figure.within in chosen:
