@@ -83,11 +83,6 @@ def spawn(name: str, args: list[str], **kwargs: Any) -> ServiceProcess:
     return child
 
 
-def spawn_blackmetal(name: str, command: list[str], **kwargs: Any) -> ServiceProcess:
-    """``python -m blackmetal COMMAND ...``, as :func:`spawn`."""
-    return spawn(name, ["-m", "blackmetal", *command], **kwargs)
-
-
 def stop_all(grace: float = GRACE_S) -> None:
     """Stop every child that :func:`spawn` started and that still runs: SIGINT, SIGKILL after ``grace`` seconds."""
     with _held():

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.harness import ServiceProcess
 from blackmetal.schemas import Keys
 
-from .children import spawn, spawn_blackmetal
+from .children import spawn
 from .peers import RobotProcess, _zenoh_conf, free_port
 
 if TYPE_CHECKING:
@@ -48,7 +48,7 @@ def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
 
 def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
     """``blackmetal COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
-    child = spawn_blackmetal(name, command)
+    child = spawn(name, ["-m", "blackmetal", *command])
     stack.callback(child.stop)
     child.wait_ready()
     return child

@@ -37,7 +37,6 @@ class Latest:
     """The newest decoded value of a key; the callback only stores it."""
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[T]) -> None:
-        self.key = key
         self.message_type = message_type
         self.value: Any = None
         self.count = 0
@@ -61,9 +60,6 @@ class Latest:
     def age(self) -> float:
         return time.monotonic() - self.received_at if self.count else float("inf")
 
-    def close(self) -> None:
-        self._sub.undeclare()
-
 
 def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
     """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
@@ -79,9 +75,9 @@ def first_reply(replies: Any, message_type: type[T]) -> T | None:
     return next(decoded_replies(replies, message_type), None)
 
 
-def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
+def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0) -> T | None:
     """The first valid answer to a ``get`` on ``key``, or None."""
-    return first_reply(session.get(key, payload=payload, timeout=timeout), message_type)
+    return first_reply(session.get(key, timeout=timeout), message_type)
 
 
 def _require(session: zenoh.Session, key: str, message_type: type[T], settings: ZenohSettings, timeout: float, who: str, hint: str) -> T:
