@@ -189,7 +189,8 @@ class Driver:
         self.settle()
 
 
-def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | None) -> Run:
+def drive_square(driver: Driver, size: float, clockwise: bool) -> Run:
+    truth = driver.truth
     start = driver.settle()
     truth_start: Pose | None = truth.value if truth is not None else None
     driver.odometry_path, driver.truth_path = [], []
@@ -307,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
             pose = Latest(session, keys.pose, Pose)
             pose.value = first
             truth = Latest(session, keys.sim_truth, Pose)
-            has_truth = truth.wait(2.0) is not None
+            has_truth = truth.wait(2.0) is not None  # the simulator's
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
             driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
@@ -315,7 +316,7 @@ def run(args: argparse.Namespace) -> int:
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
                 started = time.time_ns()
-                result = drive_square(driver, args.size, clockwise, truth if has_truth else None)
+                result = drive_square(driver, args.size, clockwise)
                 runs.append(result)
                 if recorder is not None:
                     span = {
