@@ -20,7 +20,7 @@ from blackmetal import robot_model as model
 from blackmetal import wire
 from blackmetal.runtime.settings import read_settings_file
 from blackmetal.schemas import BlackmetalError
-from blackmetal.wire import CommandCode, Malformed, StatusReply
+from blackmetal.wire import CommandCode, StatusReply
 
 #: Pause before re-sending a command the robot did not take: doubling from 5 ms, at most 250 ms.
 RETRY_FIRST_S = 0.005
@@ -67,8 +67,6 @@ def _status_reply(sock: socket.socket, decoder: wire.ReplyDecoder, until: float)
         for item in decoder.feed(data):
             if isinstance(item, StatusReply):
                 return item
-            if isinstance(item, Malformed):
-                continue
     return None
 
 

@@ -181,9 +181,8 @@ def live(
 ) -> int:
     """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines).
 
-    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again, as systemd's
-    ``Restart=on-failure`` does, at most :data:`MAX_RESTARTS` times in :data:`RESTART_WINDOW_S`: it comes back with
-    the e-stop latch it had. Any other child's death ends up.
+    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again with the e-stop
+    latch it had; any other child's death ends up.
     """
     tty = sys.stdout.isatty()
     say = functools.partial(print, file=sys.stderr, flush=True)
