@@ -121,14 +121,11 @@ def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np
             continue  # a recording is evidence: bad payloads are in it, and skipped here
     if len(poses) < 2:
         return None
-    t = np.array([p.stamp for p in poses])
-    order = np.argsort(t, kind="stable")
-    t = t[order]
-    x, y = np.array([p.x for p in poses])[order], np.array([p.y for p in poses])[order]
-    yaw = np.unwrap(np.array([p.yaw for p in poses])[order])
+    poses.sort(key=lambda pose: pose.stamp)  # stable: poses of one stamp keep their order
+    t, x, y, yaw = (np.array([getattr(pose, name) for pose in poses]) for name in ("stamp", "x", "y", "yaw"))
     inside = (result.stamp >= t[0]) & (result.stamp <= t[-1])
-    out = [np.where(inside, np.interp(result.stamp, t, v), np.nan) for v in (x, y, yaw)]
-    return out[0], out[1], out[2]
+    x, y, yaw = (np.where(inside, np.interp(result.stamp, t, v), np.nan) for v in (x, y, np.unwrap(yaw)))
+    return x, y, yaw
 
 
 def load(path: str, settings: PipelineSettings, prefix: str | None, reference: str | None) -> Recording:
