@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import itertools
 import signal
 import statistics
@@ -19,24 +20,21 @@ from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy
 
 def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
     """Poses and ``blackmetal ros2``'s ``/odom`` samples counted over one window; the adapter's CPU over ``warmup``."""
-    counts = {"pose": 0, "odom": 0}
+    counts: collections.Counter[str] = collections.Counter()
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, poll_hz)
         odometry(stack, zport)
         adapter = ros2_adapter(stack, zport)
         client = session(stack, zport)
-        client.declare_subscriber(KEYS.pose, lambda s: counts.__setitem__("pose", counts["pose"] + 1))
-        odom_key = adapter.wait_ready()["keys"]["odom"]
-        client.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
+        client.declare_subscriber(KEYS.pose, lambda s: counts.update(("pose",)))
+        client.declare_subscriber(adapter.wait_ready()["keys"]["odom"], lambda s: counts.update(("odom",)))
         wait_polls(robot)
         time.sleep(warmup)
-        start = dict(counts)
-        started = time.monotonic()
+        start, started = counts.copy(), time.monotonic()
         time.sleep(seconds)
-        end, elapsed = dict(counts), time.monotonic() - started
+        end, elapsed = counts.copy(), time.monotonic() - started
         cpu_pct = 100 * cpu_window({"adapter": adapter.proc.pid}, warmup)["adapter"]
-    pose_hz = (end["pose"] - start["pose"]) / elapsed
-    odom_hz = (end["odom"] - start["odom"]) / elapsed
+    pose_hz, odom_hz = ((end[key] - start[key]) / elapsed for key in ("pose", "odom"))
     return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
 
 
