@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,8 +50,9 @@ from blackmetal.odometry_service.settings import PipelineSettings
 from blackmetal.recording.reader import is_mcap, read_mcap
 from blackmetal.robot_model import Residuals
 from blackmetal.runtime.settings import add_setting_arguments, load_settings
-from blackmetal.schemas import BlackmetalError, ConfigError, Keys, Pose
+from blackmetal.schemas import ConfigError, Keys, Pose
 
+from .client import tool
 from .replay import load_impulses
 
 
@@ -282,35 +282,32 @@ def umbmark_mode(
     return result.constants, lines
 
 
+@tool("calibrate")
 def run(args: argparse.Namespace) -> int:
-    try:
-        settings = load_settings(PipelineSettings, args)
-        used = Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
-        cw = [parse_point(p) for p in args.cw_end or []]
-        ccw = [parse_point(p) for p in args.ccw_end or []]
-        if bool(cw) != bool(ccw):
-            raise ConfigError("UMBmark needs both --cw-end and --ccw-end (the measured end points of both squares)")
-        if args.size is not None and not args.size > 0:
-            raise ConfigError(f"--size must be positive, got {args.size}")
-        prefix = args.prefix
-        reference = args.reference or f"{Keys(prefix or 'robot').sim_truth}"
-        recordings = [load(path, settings, prefix, None if cw else reference) for path in args.recordings]
-        residuals = None  # UMBmark measures two end points, not the path: no residuals
-        if cw:
-            constants, lines = umbmark_mode(recordings, used, cw, ccw, args.size)
-            how = "UMBmark"
-        else:
-            constants, lines, residuals = trajectory(recordings, used, reference)
-            how = f"trajectory fit against {reference}"
-        for line in lines:
-            print(line, flush=True)
-        if args.output:
-            names = ", ".join(Path(p).name for p in args.recordings)
-            write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}", residuals)
-            print(f"wrote {args.output}: use it with --settings {args.output}", flush=True)
-    except BlackmetalError as exc:
-        print(f"blackmetal calibrate: {exc}", file=sys.stderr)
-        return 2
+    settings = load_settings(PipelineSettings, args)
+    used = Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
+    cw = [parse_point(p) for p in args.cw_end or []]
+    ccw = [parse_point(p) for p in args.ccw_end or []]
+    if bool(cw) != bool(ccw):
+        raise ConfigError("UMBmark needs both --cw-end and --ccw-end (the measured end points of both squares)")
+    if args.size is not None and not args.size > 0:
+        raise ConfigError(f"--size must be positive, got {args.size}")
+    prefix = args.prefix
+    reference = args.reference or f"{Keys(prefix or 'robot').sim_truth}"
+    recordings = [load(path, settings, prefix, None if cw else reference) for path in args.recordings]
+    residuals = None  # UMBmark measures two end points, not the path: no residuals
+    if cw:
+        constants, lines = umbmark_mode(recordings, used, cw, ccw, args.size)
+        how = "UMBmark"
+    else:
+        constants, lines, residuals = trajectory(recordings, used, reference)
+        how = f"trajectory fit against {reference}"
+    for line in lines:
+        print(line, flush=True)
+    if args.output:
+        names = ", ".join(Path(p).name for p in args.recordings)
+        write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}", residuals)
+        print(f"wrote {args.output}: use it with --settings {args.output}", flush=True)
     return 0
 
 

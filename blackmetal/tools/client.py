@@ -11,14 +11,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import msgspec
-import zenoh
 
 from blackmetal.runtime.harness import ChildFailed
 from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, open_when_reachable, zenoh_settings
 from blackmetal.schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
+
+if TYPE_CHECKING:
+    import zenoh  # not at run time: the offline tools (replay, calibrate, stop-robot) never load it
 
 T = TypeVar("T", bound=msgspec.Struct)
 
