@@ -16,7 +16,7 @@ from blackmetal.schemas import Keys
 
 from . import peers
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, free_port, percentiles
-from .rig import KEYS, mini_robot, peer, robot_and_gateway, ros2_adapter, rss_mb, session, wait_polls
+from .rig import KEYS, peer, robot_and_gateway, ros2_adapter, rss_mb, session, wait_polls
 from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, over, rounds, spreads
 
 if TYPE_CHECKING:
@@ -57,7 +57,7 @@ def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros
 def forwarder_latency(samples: int) -> dict[str, float]:
     """``cmd_vel`` put -> bytes at the robot's socket through the minimal forwarder instead of the gateway."""
     with ExitStack() as stack:
-        robot = mini_robot(stack)
+        robot = RobotProcess(stack)
         zport = free_port()
         peer(stack, "forwarder", [str(zport), str(robot.control_port)])
         pub = session(stack, zport).declare_publisher(KEYS.cmd_vel, express=EXPRESS)

@@ -18,8 +18,8 @@ from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
 from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies, estop_publishers
-from .peers import EXPRESS, free_port
-from .rig import cpu_window, latch_args, mini_robot, rss_mb, service, wait_polls
+from .peers import EXPRESS, RobotProcess, free_port
+from .rig import cpu_window, latch_args, rss_mb, service, wait_polls
 from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
@@ -75,7 +75,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         zport = free_port()
         endpoint = ["-e", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"]
         processes = {"router": service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
-        probe_robot = mini_robot(stack)
+        probe_robot = RobotProcess(stack)
         simulated: list[FleetRobot] = []
         if robots > 1:
             sim_file = Path(folder) / "simulated.toml"

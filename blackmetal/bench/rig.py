@@ -57,7 +57,7 @@ def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
 def peer(stack: ExitStack, name: str, args: list[str]) -> ServiceProcess:
     """``python -m blackmetal.bench NAME ARGS``, one of the bench's own peer processes, as :func:`service` starts one."""
     child = spawn(name, ["-m", "blackmetal.bench", name, *args])
-    stack.callback(child.stop, 3)
+    stack.callback(child.stop, timeout=3)
     child.wait_ready()
     return child
 
@@ -66,12 +66,6 @@ def latch_args(stack: ExitStack) -> list[str]:
     """A bench's gateway keeps its e-stop latch in a folder of its own, released at first: its robots are the bench's own."""
     folder = stack.enter_context(tempfile.TemporaryDirectory(prefix="blackmetal-bench-state-"))
     return ["--state-dir", folder, "--unsafe-start-released"]
-
-
-def mini_robot(stack: ExitStack) -> RobotProcess:
-    robot = RobotProcess()
-    stack.callback(robot.close)
-    return robot
 
 
 def _client_of(zport: int, listen: int | None) -> list[str]:
@@ -98,7 +92,7 @@ def session(stack: ExitStack, zport: int) -> "zenoh.Session":
 def robot_and_gateway(stack: ExitStack, poll_hz: float = 50.0) -> tuple[RobotProcess, int, ServiceProcess]:
     """A mini robot and its gateway listening on a free Zenoh port, polling at ``poll_hz``, without a command timeout:
     most figures start there."""
-    robot = mini_robot(stack)
+    robot = RobotProcess(stack)
     zport = free_port()
     gateway = service(
         stack,
