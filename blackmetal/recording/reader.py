@@ -13,13 +13,10 @@ from blackmetal.schemas import ConfigError, require_extra
 
 @dataclass
 class Channel:
-    """The messages of one key: payloads byte for byte, log and publish times in ns."""
+    """The messages of one key, byte for byte."""
 
     topic: str
-    schema: str | None
     payloads: list[bytes] = field(default_factory=list)
-    log_times: list[int] = field(default_factory=list)
-    publish_times: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -69,12 +66,11 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
     """Every message of the chosen topics (all by default), and the metadata records; a truncated end is noted, not fatal."""
     require_extra("reading MCAP", "record", "mcap")
     from mcap.records import Channel as ChannelRecord
-    from mcap.records import Message, Metadata, Schema
+    from mcap.records import Message, Metadata
 
     wanted = None if topics is None else set(topics)
     channels: dict[str, Channel] = {}
     metadata: list[tuple[str, dict[str, str]]] = []
-    schemas: dict[int, str] = {}
     known: dict[int, Channel | None] = {}
 
     def on_record(record: Any) -> None:
@@ -82,16 +78,12 @@ def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded
             out = known.get(record.channel_id)
             if out is not None:
                 out.payloads.append(record.data)
-                out.log_times.append(record.log_time)
-                out.publish_times.append(record.publish_time)
         elif isinstance(record, ChannelRecord):
             if wanted is None or record.topic in wanted:
-                out = channels.get(record.topic) or Channel(record.topic, schemas.get(record.schema_id))
+                out = channels.get(record.topic) or Channel(record.topic)
                 channels[record.topic] = known[record.id] = out
             else:
                 known[record.id] = None
-        elif isinstance(record, Schema):
-            schemas[record.id] = record.name
         elif isinstance(record, Metadata):
             metadata.append((record.name, dict(record.metadata)))
 
