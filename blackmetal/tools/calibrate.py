@@ -69,7 +69,6 @@ class Run:
 
 @dataclass
 class Recording:
-    path: str
     result: BatchResult
     runs: list[Run]
     reference: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # x, y, yaw at each replayed step (aligned later), NaN outside
@@ -137,7 +136,7 @@ def load(path: str, settings: PipelineSettings, prefix: str | None, reference: s
         raise CalibrationError(f"{path} holds only {len(result)} usable impulse samples")
     metadata = read_mcap(path, []).metadata if is_mcap(path) else []
     ref = _reference(path, reference, result) if reference and is_mcap(path) else None
-    return Recording(path, result, _runs(path, result, metadata), ref)
+    return Recording(result, _runs(path, result, metadata), ref)
 
 
 def _segment(rec: Recording, start: int, end: int) -> Segment | None:
