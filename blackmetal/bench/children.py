@@ -93,15 +93,15 @@ def stop_all(grace: float = GRACE_S) -> None:
         _children.clear()
 
 
-def shutdown(grace: float = GRACE_S) -> None:
+def shutdown() -> None:
     """The bench ends: from here signals are only noted; every child is stopped, and any other process whose parent we are."""
     _state.closing = True
-    stop_all(grace)
+    stop_all()
     strays = _own_children()
     for pid in strays:
         with suppress(ProcessLookupError):
             os.kill(pid, signal.SIGTERM)
-    deadline = time.monotonic() + grace
+    deadline = time.monotonic() + GRACE_S
     while strays and time.monotonic() < deadline:
         strays = [pid for pid in strays if not _reaped(pid)]
         time.sleep(0.02)

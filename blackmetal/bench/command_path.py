@@ -27,14 +27,14 @@ def _json_twist(speed: float) -> bytes:
     return b'{"linear":{"x":%.6f}}' % speed
 
 
-def cmd_latency(samples: int, poll_hz: float = 50.0, via_ros2: bool = False, ros2_in_line: bool = False) -> dict[str, float]:
+def cmd_latency(samples: int, via_ros2: bool = False, ros2_in_line: bool = False) -> dict[str, float]:
     """``cmd_vel`` put -> command bytes at the robot's socket (the kernel's receive stamp, Unix time).
 
     ``via_ros2``: a CDR Twist on rmw_zenoh's ``/cmd_vel`` through ``blackmetal ros2``, its publisher a client of the
     gateway (-> adapter -> gateway), or with ``ros2_in_line`` of the adapter (-> gateway: one more hop).
     """
     with ExitStack() as stack:
-        robot, zport, _ = robot_and_gateway(stack, poll_hz)
+        robot, zport, _ = robot_and_gateway(stack)
         adapter_port = free_port() if ros2_in_line else None
         adapter = ros2_adapter(stack, zport, adapter_port) if via_ros2 else None
         client = session(stack, adapter_port or zport)
@@ -92,9 +92,9 @@ def estop_publishers(client: "zenoh.Session", keys: Keys = KEYS) -> EStop:
     return engage, release
 
 
-def _estop_rig(stack: ExitStack, poll_hz: float) -> tuple[RobotProcess, int, EStop]:
+def _estop_rig(stack: ExitStack) -> tuple[RobotProcess, int, EStop]:
     """A mini robot, its gateway on a free port, and the e-stop's publishers, once the gateway polls."""
-    robot, zport, _ = robot_and_gateway(stack, poll_hz)
+    robot, zport, _ = robot_and_gateway(stack)
     estop = estop_publishers(session(stack, zport))
     wait_polls(robot)
     return robot, zport, estop
@@ -114,10 +114,10 @@ def _engage_release(estop: EStop, count: int, gap: tuple[float, float], settle: 
     return starts
 
 
-def estop_latency(samples: int, poll_hz: float = 50.0) -> dict[str, float]:
+def estop_latency(samples: int) -> dict[str, float]:
     """``{"engaged": true}`` put on estop -> EMG_STOP bytes at the robot's socket (kernel receive stamp)."""
     with ExitStack() as stack:
-        robot, _, estop = _estop_rig(stack, poll_hz)
+        robot, _, estop = _estop_rig(stack)
         return estop_latencies(estop, robot, samples)
 
 
@@ -148,10 +148,10 @@ def estop_latencies(estop: EStop, robot: RobotProcess, samples: int, settle: flo
     return {**percentiles(latencies), "missing": missing}
 
 
-def estop_under_flood(samples: int, flooders: int = 3, poll_hz: float = 50.0) -> dict[str, float]:
+def estop_under_flood(samples: int, flooders: int = 3) -> dict[str, float]:
     """The e-stop's latency while ``flooders`` processes flood ``cmd_vel/nav`` at full speed (an attacker, or a runaway planner)."""
     with ExitStack() as stack:
-        robot, zport, estop = _estop_rig(stack, poll_hz)
+        robot, zport, estop = _estop_rig(stack)
         for _ in range(flooders):
             peer(stack, "flooder", [str(zport), KEYS.cmd_vel_of("nav"), str(4.0 + samples * 0.05)])
         time.sleep(1.0)  # the flood is on: the gateway's nav input has changed over to its ring buffer

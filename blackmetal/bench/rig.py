@@ -103,9 +103,9 @@ def robot_and_gateway(stack: ExitStack, poll_hz: float = 50.0) -> tuple[RobotPro
     return robot, zport, gateway
 
 
-def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
+def wait_polls(robot: RobotProcess) -> None:
+    deadline = time.monotonic() + 20.0
     while not robot.dump()["polls"]:
         if time.monotonic() > deadline:
-            raise TimeoutError(f"the gateway did not poll the robot within {timeout:g} s")
+            raise TimeoutError("the gateway did not poll the robot within 20 s")
         time.sleep(0.1)

@@ -18,11 +18,11 @@ from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros
 from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, rounds, spreads
 
 
-def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
-    """Poses and ``blackmetal ros2``'s ``/odom`` samples counted over one window; the adapter's CPU over ``warmup``."""
+def ros2_odom_rate(seconds: float, warmup: float = 1.0) -> dict[str, float]:
+    """Poses and ``blackmetal ros2``'s ``/odom`` samples at 100 Hz polling counted over one window; the adapter's CPU over ``warmup``."""
     counts: collections.Counter[str] = collections.Counter()
     with ExitStack() as stack:
-        robot, zport, _ = robot_and_gateway(stack, poll_hz)
+        robot, zport, _ = robot_and_gateway(stack, 100.0)
         odometry(stack, zport)
         adapter = ros2_adapter(stack, zport)
         client = session(stack, zport)
@@ -38,13 +38,13 @@ def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
     return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
 
 
-def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
+def pose_latency(seconds: float) -> dict[str, float]:
     """Speed reply at the gateway (the impulse stamp) -> Pose received by a client: two Zenoh hops."""
     from blackmetal.schemas import Pose, decode
 
     latencies: list[float] = []
     with ExitStack() as stack:
-        _, zport, _ = robot_and_gateway(stack, poll_hz)
+        _, zport, _ = robot_and_gateway(stack)
         oport = free_port()
         odometry(stack, zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
         client = session(stack, oport)
@@ -105,8 +105,8 @@ _BARE_SNIPPET = (
 )
 
 
-def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
-    """Resident memory of gateway and odometry after ``seconds`` at ``poll_hz``; the gateway's CPU share."""
+def memory_and_cpu(seconds: float, warmup: float = 1.0) -> dict[str, float]:
+    """Resident memory of gateway and odometry after ``seconds`` at 100 Hz polling; the gateway's CPU share."""
     bare = spawn("bare-zenoh", ["-c", _BARE_SNIPPET, "30"])
     try:
         bare.wait_ready()
@@ -115,7 +115,7 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
     finally:
         bare.stop(signal.SIGKILL)
     with ExitStack() as stack:
-        robot, zport, gw = robot_and_gateway(stack, poll_hz)
+        robot, zport, gw = robot_and_gateway(stack, 100.0)
         odo = odometry(stack, zport)
         wait_polls(robot)
         time.sleep(warmup)

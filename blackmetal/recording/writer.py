@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -46,7 +45,6 @@ class McapRecording:
     path: Path
     keys: Keys
     split_bytes: int | None = None
-    clock_ns: Callable[[], int] = time.time_ns
     files: list[Path] = field(default_factory=list)
     stats: dict[str, int] = field(default_factory=dict)  # messages per key
     total_bytes: int = 0
@@ -89,7 +87,7 @@ class McapRecording:
 
     def write(self, key: str, payload: bytes, log_time_ns: int | None = None) -> None:
         """One sample as received; never raises for what the payload holds."""
-        log_time = self.clock_ns() if log_time_ns is None else log_time_ns
+        log_time = time.time_ns() if log_time_ns is None else log_time_ns
         channel = self._channel(key)
         self.stats[key] = sequence = self.stats.get(key, 0) + 1
         self.total_bytes += len(payload)
