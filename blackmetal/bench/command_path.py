@@ -206,9 +206,6 @@ def flood(rate_hz: float, seconds: float) -> dict[str, float]:
     }
 
 
-# ------------------------------------------------------------------ the figures
-
-
 def _cmd_vel_path(plan: Plan, gateway: bool) -> Result:
     """Round by round: one Zenoh hop, the minimal forwarder and (with ``gateway``) the gateway, each right after the other."""
     measured = rounds(

@@ -198,9 +198,6 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
     return out
 
 
-# ------------------------------------------------------------------ the figures
-
-
 def _replay(plan: Plan, out: Result) -> Result:
     without_mcap = missing_extra("record")
     if without_mcap is not None:

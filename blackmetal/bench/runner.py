@@ -77,9 +77,6 @@ class Figure:
     within: str | None = None  # a figure that measures this one too: when that one runs, this one is not run apart
 
 
-# ------------------------------------------------------------------ measuring
-
-
 def spread(values: list[float]) -> dict[str, float]:
     return {"median": statistics.median(values), "min": min(values), "max": max(values)}
 
@@ -159,9 +156,6 @@ def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], 
         finally:
             children.stop_all()  # the net under the figure's own cleanup
     return out
-
-
-# ------------------------------------------------------------------ printing
 
 
 def ms(value: dict[str, float]) -> str:

@@ -136,9 +136,6 @@ def memory_and_cpu(seconds: float, warmup: float = 1.0) -> dict[str, float]:
     }
 
 
-# ------------------------------------------------------------------ the figures
-
-
 def _pose(plan: Plan, out: Result) -> Result:
     def two_hops() -> dict[str, float]:  # the baseline paced like the polls (50 Hz): the same idle time between samples
         hop = peers.zenoh_hop(plan.samples // 2, gap=(0.019, 0.021))
