@@ -172,13 +172,17 @@ def run(args: argparse.Namespace) -> int:
 
 def _fleet(args: argparse.Namespace, started: float) -> int:
     """``--fleet``: one row per fleet size; a size that fails is one line, and the sizes after it are not measured."""
-    from .fleet import fleet_table, measure_fleet
+    from .fleet import fleet_figure, fleet_table
 
     if args.views:
         require_extra("blackmetal bench --fleet --views", "ros2", "rosbags")
         require_extra("blackmetal bench --fleet --views", "foxglove", "foxglove")
+    runs = []
+    what = " and the ROS 2 and Foxglove fleet views" if args.views else ""
     try:
-        runs = measure_fleet(args.fleet, args.quick, progress=_say, views=args.views)
+        for robots in args.fleet:
+            _say(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz{what} ...")
+            runs.append(fleet_figure(robots, 2.0 if args.quick else 10.0, 40 if args.quick else 400, views=args.views))
     except (ChildFailed, TimeoutError, OSError) as exc:
         _say(f"blackmetal bench: the fleet figure failed: {one_sentence(exc)}")
         return 1

@@ -180,15 +180,6 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     }
 
 
-def measure_fleet(sizes: list[int], quick: bool, progress: Any = print, views: bool = False) -> list[dict[str, Any]]:
-    out = []
-    for robots in sizes:
-        what = " and the ROS 2 and Foxglove fleet views" if views else ""
-        progress(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz{what} ...")
-        out.append(fleet_figure(robots, 2.0 if quick else 10.0, 40 if quick else 400, views=views))
-    return out
-
-
 def fleet_table(runs: list[dict[str, Any]]) -> str:
     """One row per fleet size; memory per added robot against the smallest fleet of the same run."""
     first = runs[0]
