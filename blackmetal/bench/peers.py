@@ -59,7 +59,7 @@ class MiniRobot:
     velocity_commands: int = 0
     emg_stops: list[float] = field(default_factory=list)  # arrival of every EMG_STOP (Unix time, kernel stamp)
     poll_times: list[float] = field(default_factory=list)
-    arrived: threading.Condition = field(default_factory=threading.Condition)
+    lock: threading.Lock = field(default_factory=threading.Lock)  # the robot's thread against a dump
 
     def start(self) -> "MiniRobot":
         self._stop = threading.Event()
@@ -118,12 +118,11 @@ class MiniRobot:
                         continue
                     out += wire.encode_status()
                     if request.command is CommandCode.SET_LR_WHEEL_VELOCITY:
-                        with self.arrived:
+                        with self.lock:
                             self.velocity_commands += 1
                             self.arrivals[float(request.right or 0.0)] = now
-                            self.arrived.notify_all()
                     elif request.command is CommandCode.EMG_STOP:
-                        with self.arrived:
+                        with self.lock:
                             self.emg_stops.append(now)
                     elif request.command is CommandCode.GET_LR_WHEEL_VELOCITY:
                         self.poll_times.append(now)
@@ -147,7 +146,7 @@ def robot_main() -> None:
     announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
     for line in sys.stdin:
         if line.strip() == "dump":
-            with robot.arrived:
+            with robot.lock:
                 arrivals = list(robot.arrivals.items())
                 state = {"arrivals": arrivals, "polls": robot.poll_times, "commands": robot.velocity_commands, "emg_stops": robot.emg_stops}
                 print(json.dumps(state), flush=True)
