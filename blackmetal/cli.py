@@ -63,18 +63,14 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             sub.add_parser(name, help=text)
             continue
         module = importlib.import_module(module_name)
-        command = sub.add_parser(name, help=text, description=_plain(module.__doc__), formatter_class=argparse.RawDescriptionHelpFormatter)
+        description = (module.__doc__ or "").replace("``", "")  # the module docstring as help text, without reST's double backticks
+        command = sub.add_parser(name, help=text, description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
         module.build_parser(command)
         command.set_defaults(func=module.run)
     schema = sub.add_parser("schema", help="print or write the JSON Schema of every message")
     schema.add_argument("-o", "--output", metavar="DIR", help="write one <Name>.schema.json per message into DIR")
     schema.set_defaults(func=_schema)
     return parser
-
-
-def _plain(doc: str | None) -> str | None:
-    """A module docstring as help text: without reST's double backticks."""
-    return None if doc is None else doc.replace("``", "")
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -160,35 +160,35 @@ def run(args: argparse.Namespace) -> int:
             _say(f"blackmetal bench: stopped by {signal.Signals(stopped_by).name} before it finished; every process it started is stopped")
             return 128 + stopped_by
         result["duration_s"] = time.monotonic() - started
-        return _report(result, args.json)
+        print(table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, result))
+        print(f"(took {result['duration_s']:.0f} s)", flush=True)
+        if _write_json(result, args.json):
+            return 1
+        if result["failed"]:
+            _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
+            return 1
+        return 0
 
 
 def _fleet(args: argparse.Namespace, started: float) -> int:
     """``--fleet``: one row per fleet size; a size that fails is one line, and the sizes after it are not measured."""
-    from .fleet import fleet_table, measure_fleet
+    from .fleet import fleet_figure, fleet_table
 
     if args.views:
         require_extra("blackmetal bench --fleet --views", "ros2", "rosbags")
         require_extra("blackmetal bench --fleet --views", "foxglove", "foxglove")
+    runs = []
+    what = " and the ROS 2 and Foxglove fleet views" if args.views else ""
     try:
-        runs = measure_fleet(args.fleet, args.quick, progress=_say, views=args.views)
+        for robots in args.fleet:
+            _say(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz{what} ...")
+            runs.append(fleet_figure(robots, 2.0 if args.quick else 10.0, 40 if args.quick else 400, views=args.views))
     except (ChildFailed, TimeoutError, OSError) as exc:
         _say(f"blackmetal bench: the fleet figure failed: {one_sentence(exc)}")
         return 1
     print(fleet_table(runs))
     print(f"(took {time.monotonic() - started:.0f} s)", flush=True)
     return _write_json({"fleet": runs}, args.json)
-
-
-def _report(result: dict[str, Any], json_path: str | None) -> int:
-    print(table({figure.name: figure for figure in FIGURES}, TABLE_ORDER, result))
-    print(f"(took {result['duration_s']:.0f} s)", flush=True)
-    if _write_json(result, json_path):
-        return 1
-    if result["failed"]:
-        _say(f"blackmetal bench: {len(result['failed'])} figure(s) failed ({', '.join(result['failed'])}); each says why above")
-        return 1
-    return 0
 
 
 def _write_json(result: dict[str, Any], json_path: str | None) -> int:

@@ -11,7 +11,7 @@ import os
 import signal
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from pathlib import Path
 from types import FrameType
 from typing import Any
@@ -83,11 +83,6 @@ def spawn(name: str, args: list[str], **kwargs: Any) -> ServiceProcess:
     return child
 
 
-def spawn_blackmetal(name: str, command: list[str], **kwargs: Any) -> ServiceProcess:
-    """``python -m blackmetal COMMAND ...``, as :func:`spawn`."""
-    return spawn(name, ["-m", "blackmetal", *command], **kwargs)
-
-
 def stop_all(grace: float = GRACE_S) -> None:
     """Stop every child that :func:`spawn` started and that still runs: SIGINT, SIGKILL after ``grace`` seconds."""
     with _held():
@@ -98,19 +93,21 @@ def stop_all(grace: float = GRACE_S) -> None:
         _children.clear()
 
 
-def shutdown(grace: float = GRACE_S) -> None:
+def shutdown() -> None:
     """The bench ends: from here signals are only noted; every child is stopped, and any other process whose parent we are."""
     _state.closing = True
-    stop_all(grace)
+    stop_all()
     strays = _own_children()
     for pid in strays:
-        _signal(pid, signal.SIGTERM)
-    deadline = time.monotonic() + grace
+        with suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGTERM)
+    deadline = time.monotonic() + GRACE_S
     while strays and time.monotonic() < deadline:
         strays = [pid for pid in strays if not _reaped(pid)]
         time.sleep(0.02)
     for pid in strays:
-        _signal(pid, signal.SIGKILL)
+        with suppress(ProcessLookupError):
+            os.kill(pid, signal.SIGKILL)
         _reaped(pid, block=True)
 
 
@@ -127,13 +124,6 @@ def _own_children() -> list[int]:
         if int(fields[1]) == me and fields[0] != "Z":
             found.append(int(entry))
     return found
-
-
-def _signal(pid: int, sig: int) -> None:
-    try:
-        os.kill(pid, sig)
-    except ProcessLookupError:
-        pass
 
 
 def _reaped(pid: int, block: bool = False) -> bool:

@@ -17,9 +17,9 @@ from typing import Any
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
 from blackmetal.schemas import GatewayHealth, Keys, decode
 
-from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies
-from .peers import EXPRESS, free_port
-from .rig import cpu_seconds, cpu_window, latch_args, mini_robot, rss_mb, service, wait_polls
+from .command_path import RELEASE_SETTLE_S, command_latencies, estop_latencies, estop_publishers
+from .peers import EXPRESS, RobotProcess, free_port
+from .rig import cpu_window, latch_args, rss_mb, service, wait_polls
 from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
@@ -30,45 +30,41 @@ SETTLED_CORES = 0.05
 SETTLE_MAX_S = 20.0
 
 
-class _FoxgloveWatcher:
-    """One Foxglove client (the app's protocol) subscribed to every robot's pose channel; counts the messages it gets."""
+def _watch_foxglove(stack: ExitStack, url: str, robots: int) -> list[int]:
+    """One Foxglove client (the app's protocol) subscribed to every robot's pose channel: ``[messages it got]``, counting."""
+    import json
+    import threading
 
-    def __init__(self, stack: ExitStack, url: str, robots: int) -> None:
-        import json
-        import threading
+    from websockets.sync.client import connect
+    from websockets.typing import Subprotocol
 
-        from websockets.sync.client import connect
-        from websockets.typing import Subprotocol
+    ws = stack.enter_context(connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")], open_timeout=30, max_size=None))
+    channels: dict[str, int] = {}
+    deadline = time.monotonic() + 30
+    while len([t for t in channels if t.endswith("/pose")]) < robots and time.monotonic() < deadline:
+        message = ws.recv(timeout=30)
+        if isinstance(message, str) and json.loads(message)["op"] == "advertise":
+            channels.update({c["topic"]: c["id"] for c in json.loads(message)["channels"]})
+    poses = [cid for topic, cid in channels.items() if topic.endswith("/pose") and "truth" not in topic]
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c} for i, c in enumerate(poses)]}))
+    received, stop = [0], threading.Event()
 
-        self.received = 0
-        self._stop = threading.Event()
-        self.ws = stack.enter_context(connect(url, subprotocols=[Subprotocol("foxglove.sdk.v1")], open_timeout=30, max_size=None))
-        channels: dict[str, int] = {}
-        deadline = time.monotonic() + 30
-        while len([t for t in channels if t.endswith("/pose")]) < robots and time.monotonic() < deadline:
-            message = self.ws.recv(timeout=30)
-            if isinstance(message, str) and json.loads(message)["op"] == "advertise":
-                channels.update({c["topic"]: c["id"] for c in json.loads(message)["channels"]})
-        poses = [cid for topic, cid in channels.items() if topic.endswith("/pose") and "truth" not in topic]
-        self.ws.send(json.dumps({"op": "subscribe", "subscriptions": [{"id": i, "channelId": c} for i, c in enumerate(poses)]}))
-        self._reader = threading.Thread(target=self._read, name="bench-foxglove-client", daemon=True)
-        self._reader.start()
-        stack.callback(self.close)
-
-    def _read(self) -> None:
-        while not self._stop.is_set():
+    def read() -> None:
+        while not stop.is_set():
             try:
-                message = self.ws.recv(timeout=0.5)
+                message = ws.recv(timeout=0.5)
             except TimeoutError:
                 continue
             except Exception:
                 return
             if isinstance(message, bytes) and message[:1] == b"\x01":  # a message data frame
-                self.received += 1
+                received[0] += 1
 
-    def close(self) -> None:
-        self._stop.set()
-        self._reader.join(2)
+    reader = threading.Thread(target=read, name="bench-foxglove-client", daemon=True)
+    reader.start()
+    stack.callback(reader.join, 2)
+    stack.callback(stop.set)  # first: the stack unwinds last in, first out
+    return received
 
 
 def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False) -> dict[str, Any]:
@@ -79,7 +75,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         zport = free_port()
         endpoint = ["-e", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"]
         processes = {"router": service(stack, "router", ["router", "-l", f"tcp/127.0.0.1:{zport}"])}
-        probe_robot = mini_robot(stack)
+        probe_robot = RobotProcess(stack)
         simulated: list[FleetRobot] = []
         if robots > 1:
             sim_file = Path(folder) / "simulated.toml"
@@ -106,13 +102,11 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
         time.sleep(1.0)
 
         pids = {name: child.proc.pid for name, child in processes.items()}
-        cpu0, counts0, t0 = {name: cpu_seconds(pid) for name, pid in pids.items()}, dict(poses), time.monotonic()
-        time.sleep(seconds)
-        cpu1, counts1, t1 = {name: cpu_seconds(pid) for name, pid in pids.items()}, dict(poses), time.monotonic()
-        elapsed = t1 - t0
+        counts0, t0 = dict(poses), time.monotonic()
+        cpu = cpu_window(pids, seconds)
+        counts1, elapsed = dict(poses), time.monotonic() - t0
         rates = sorted((counts1.get(key, 0) - counts0.get(key, 0)) / elapsed for key in {*counts0, *counts1})
         rates += [0.0] * (robots - len(rates))
-        cpu = {name: (cpu1[name] - cpu0[name]) / elapsed for name in pids}
         rss = {name: rss_mb(pid) for name, pid in pids.items()}
         polls = _poll_rates(session)
 
@@ -125,8 +119,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
             view_figures = _views(stack, session, processes, fleet_file, endpoint, robots, seconds)
         probe_keys = Keys(probe.prefix)
         cmd = command_latencies(session.declare_publisher(probe_keys.cmd_vel, express=EXPRESS), probe_robot, samples)
-        engage, release = (session.declare_publisher(key, express=EXPRESS) for key in (probe_keys.estop, probe_keys.estop_release))
-        estop = estop_latencies(engage, release, probe_robot, samples, RELEASE_SETTLE_S)
+        estop = estop_latencies(estop_publishers(session, probe_keys), probe_robot, samples, RELEASE_SETTLE_S)
         consumer.undeclare()
     services = ("router", "gateway", "odometry")
     return {
@@ -167,16 +160,12 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
     while sum(cpu_window(views, 1.0).values()) > SETTLED_CORES and time.monotonic() < settle_until:
         pass
     idle = cpu_window(pids, seconds)
-    watcher = _FoxgloveWatcher(stack, processes["foxglove"].ready_info["url"], robots)
+    foxglove = _watch_foxglove(stack, processes["foxglove"].ready_info["url"], robots)
     odoms = [0]
-
-    def on_odom(_sample: Any) -> None:
-        odoms[0] += 1
-
-    odom = session.declare_subscriber("0/*/odom/nav_msgs::msg::dds_::Odometry_/*", on_odom)
+    odom = session.declare_subscriber("0/*/odom/nav_msgs::msg::dds_::Odometry_/*", lambda _: odoms.__setitem__(0, odoms[0] + 1))
     stack.callback(odom.undeclare)
     time.sleep(3.0)
-    got0, odom0, t0 = watcher.received, odoms[0], time.monotonic()
+    got0, odom0, t0 = foxglove[0], odoms[0], time.monotonic()
     watched = cpu_window(pids, seconds)
     elapsed = time.monotonic() - t0
     polls = _poll_rates(session)
@@ -184,20 +173,11 @@ def _views(stack: ExitStack, session: Any, processes: dict[str, Any], fleet_file
         "idle": {name: idle[name] for name in ("ros2", "foxglove")},
         "watched": watched,
         "host_watched": sum(watched.values()),
-        "foxglove_poses_per_s": (watcher.received - got0) / elapsed,
+        "foxglove_poses_per_s": (foxglove[0] - got0) / elapsed,
         "odom_per_s": (odoms[0] - odom0) / elapsed,
         "poll_hz_min_watched": min(polls, default=0.0),
         "expected_per_s": robots * POLL_HZ,
     }
-
-
-def measure_fleet(sizes: list[int], quick: bool, progress: Any = print, views: bool = False) -> list[dict[str, Any]]:
-    out = []
-    for robots in sizes:
-        what = " and the ROS 2 and Foxglove fleet views" if views else ""
-        progress(f"fleet of {robots}: router, {robots - 1} simulated robots and a probe, fleet gateway and odometry at 50 Hz{what} ...")
-        out.append(fleet_figure(robots, 2.0 if quick else 10.0, 40 if quick else 400, views=views))
-    return out
 
 
 def fleet_table(runs: list[dict[str, Any]]) -> str:

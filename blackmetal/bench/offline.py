@@ -131,11 +131,7 @@ def replay_throughput(samples: int, stream_samples: int, mcap: bool = True) -> d
     log = synth_log(legs, dropout=0.01, spike=0.005, seed=1)
     with tempfile.TemporaryDirectory() as folder:
         path = Path(folder) / "impulses.jsonl"
-        path.write_bytes(log.jsonl())
-        n = min(samples, len(log))
-        if n < len(log):
-            lines = path.read_bytes().splitlines(keepends=True)[:n]
-            path.write_bytes(b"".join(lines))
+        path.write_bytes(b"".join(log.jsonl().splitlines(keepends=True)[:samples]))
         replay_runs = [_fresh(_REPLAY_SNIPPET, str(path)) for _ in range(3)]
         stream_count, stream_seconds = _fresh(_STREAM_SNIPPET, str(path), str(stream_samples))
         mcap_runs = mcap_replay(path) if mcap else []
@@ -175,7 +171,7 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
     conn.take_outgoing("control")
     payloads = [f'{{"linear":{{"x":{0.1 + (i % 7) * 0.01}}},"angular":{{"z":0.1}}}}'.encode() for i in range(commands)]
 
-    def per_command(run: Callable[[int], None]) -> float:
+    def per_command(run: Callable[[int], object]) -> float:
         started = time.perf_counter()
         for i in range(commands):
             run(i)
@@ -190,26 +186,16 @@ def arbiter_cost(commands: int, rounds: int = 5) -> dict[str, float]:
         conn.take_events()
 
     timings: dict[str, list[float]] = {"arbiter_us": [], "arbiter_locks_us": [], "core_us": []}
-
-    def offering(arbiter: Arbiter, base: float) -> Callable[[int], None]:
-        def offer(i: int) -> None:
-            arbiter.offer("teleop", twist, base + i * 0.01)
-
-        return offer
-
     for r in range(rounds):
         base = r * commands * 0.01
-        timings["arbiter_us"].append(per_command(offering(plain, base)))
-        timings["arbiter_locks_us"].append(per_command(offering(locked, base)))
+        for name, arbiter in (("arbiter_us", plain), ("arbiter_locks_us", locked)):
+            timings[name].append(per_command(lambda i: arbiter.offer("teleop", twist, base + i * 0.01)))  # noqa: B023 (run at once)
         timings["core_us"].append(per_command(core))
     out = {name: statistics.median(values) for name, values in timings.items()}
     out["arbiter_share"] = out["arbiter_us"] / out["core_us"]
     out["arbiter_locks_share"] = out["arbiter_locks_us"] / out["core_us"]
     out["commands"] = commands
     return out
-
-
-# ------------------------------------------------------------------ the figures
 
 
 def _replay(plan: Plan, out: Result) -> Result:

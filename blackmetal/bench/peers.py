@@ -15,6 +15,7 @@ import struct
 import sys
 import threading
 import time
+from contextlib import ExitStack
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
@@ -58,7 +59,7 @@ class MiniRobot:
     velocity_commands: int = 0
     emg_stops: list[float] = field(default_factory=list)  # arrival of every EMG_STOP (Unix time, kernel stamp)
     poll_times: list[float] = field(default_factory=list)
-    arrived: threading.Condition = field(default_factory=threading.Condition)
+    lock: threading.Lock = field(default_factory=threading.Lock)  # the robot's thread against a dump
 
     def start(self) -> "MiniRobot":
         self._stop = threading.Event()
@@ -117,12 +118,11 @@ class MiniRobot:
                         continue
                     out += wire.encode_status()
                     if request.command is CommandCode.SET_LR_WHEEL_VELOCITY:
-                        with self.arrived:
+                        with self.lock:
                             self.velocity_commands += 1
                             self.arrivals[float(request.right or 0.0)] = now
-                            self.arrived.notify_all()
                     elif request.command is CommandCode.EMG_STOP:
-                        with self.arrived:
+                        with self.lock:
                             self.emg_stops.append(now)
                     elif request.command is CommandCode.GET_LR_WHEEL_VELOCITY:
                         self.poll_times.append(now)
@@ -141,43 +141,29 @@ class MiniRobot:
 
 
 def robot_main() -> None:
-    """Child process: a MiniRobot; announces its ports, then dumps its arrivals as JSON on 'dump', ends on 'quit' or EOF."""
+    """Child process: a MiniRobot; announces its ports, then dumps its arrivals as JSON on 'dump', ends on SIGINT or EOF."""
     robot = MiniRobot().start()
     announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
     for line in sys.stdin:
         if line.strip() == "dump":
-            with robot.arrived:
+            with robot.lock:
                 arrivals = list(robot.arrivals.items())
                 state = {"arrivals": arrivals, "polls": robot.poll_times, "commands": robot.velocity_commands, "emg_stops": robot.emg_stops}
                 print(json.dumps(state), flush=True)
-        elif line.strip() == "quit":
-            break
     robot.stop()
 
 
 class RobotProcess:
-    """A MiniRobot in its own process, so its thread never competes with the client for the GIL."""
+    """A MiniRobot in its own process, so its thread never competes with the client for the GIL; stopped with ``stack``."""
 
-    def __init__(self) -> None:
+    def __init__(self, stack: ExitStack) -> None:
         self.child = spawn("mini-robot", ["-m", "blackmetal.bench", "robot"], interactive=True)
-        try:
-            ports = self.child.wait_ready()
-        except BaseException:
-            self.child.stop(timeout=3)
-            raise
+        stack.callback(self.child.stop, timeout=3)
+        ports = self.child.wait_ready()
         self.control_port, self.log_port = ports["control"], ports["log"]
 
     def dump(self) -> dict[str, Any]:
         return json.loads(self.child.request("dump"))
-
-    def close(self) -> None:
-        try:
-            assert self.child.proc.stdin is not None
-            self.child.proc.stdin.write("quit\n")
-            self.child.proc.stdin.flush()
-        except OSError:
-            pass
-        self.child.stop(timeout=3)
 
 
 def percentiles(samples: list[float]) -> dict[str, float]:

@@ -15,7 +15,7 @@ from typing import TYPE_CHECKING
 from blackmetal.runtime.harness import ServiceProcess
 from blackmetal.schemas import Keys
 
-from .children import spawn, spawn_blackmetal
+from .children import spawn
 from .peers import RobotProcess, _zenoh_conf, free_port
 
 if TYPE_CHECKING:
@@ -48,7 +48,7 @@ def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
 
 def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
     """``blackmetal COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
-    child = spawn_blackmetal(name, command)
+    child = spawn(name, ["-m", "blackmetal", *command])
     stack.callback(child.stop)
     child.wait_ready()
     return child
@@ -57,7 +57,7 @@ def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
 def peer(stack: ExitStack, name: str, args: list[str]) -> ServiceProcess:
     """``python -m blackmetal.bench NAME ARGS``, one of the bench's own peer processes, as :func:`service` starts one."""
     child = spawn(name, ["-m", "blackmetal.bench", name, *args])
-    stack.callback(child.stop, 3)
+    stack.callback(child.stop, timeout=3)
     child.wait_ready()
     return child
 
@@ -66,22 +66,6 @@ def latch_args(stack: ExitStack) -> list[str]:
     """A bench's gateway keeps its e-stop latch in a folder of its own, released at first: its robots are the bench's own."""
     folder = stack.enter_context(tempfile.TemporaryDirectory(prefix="blackmetal-bench-state-"))
     return ["--state-dir", folder, "--unsafe-start-released"]
-
-
-def mini_robot(stack: ExitStack) -> RobotProcess:
-    robot = RobotProcess()
-    stack.callback(robot.close)
-    return robot
-
-
-def gateway(stack: ExitStack, robot: RobotProcess, zport: int, poll_hz: float) -> ServiceProcess:
-    """A gateway listening on ``zport`` for ``robot``, polling at ``poll_hz``, without a command timeout."""
-    return service(
-        stack,
-        "gateway",
-        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
-         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}"],
-    )  # fmt: skip
 
 
 def _client_of(zport: int, listen: int | None) -> list[str]:
@@ -106,15 +90,22 @@ def session(stack: ExitStack, zport: int) -> "zenoh.Session":
 
 
 def robot_and_gateway(stack: ExitStack, poll_hz: float = 50.0) -> tuple[RobotProcess, int, ServiceProcess]:
-    """A mini robot and its gateway, on a free Zenoh port: most figures start there."""
-    robot = mini_robot(stack)
+    """A mini robot and its gateway listening on a free Zenoh port, polling at ``poll_hz``, without a command timeout:
+    most figures start there."""
+    robot = RobotProcess(stack)
     zport = free_port()
-    return robot, zport, gateway(stack, robot, zport, poll_hz)
+    gateway = service(
+        stack,
+        "gateway",
+        ["gateway", "--control-port", str(robot.control_port), "--log-port", str(robot.log_port),
+         "--poll-hz", str(poll_hz), "--cmd-timeout", "0", *latch_args(stack), "--no-multicast-scouting", "-l", f"tcp/127.0.0.1:{zport}"],
+    )  # fmt: skip
+    return robot, zport, gateway
 
 
-def wait_polls(robot: RobotProcess, timeout: float = 20.0) -> None:
-    deadline = time.monotonic() + timeout
+def wait_polls(robot: RobotProcess) -> None:
+    deadline = time.monotonic() + 20.0
     while not robot.dump()["polls"]:
         if time.monotonic() > deadline:
-            raise TimeoutError(f"the gateway did not poll the robot within {timeout:g} s")
+            raise TimeoutError("the gateway did not poll the robot within 20 s")
         time.sleep(0.1)

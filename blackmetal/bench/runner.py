@@ -77,9 +77,6 @@ class Figure:
     within: str | None = None  # a figure that measures this one too: when that one runs, this one is not run apart
 
 
-# ------------------------------------------------------------------ measuring
-
-
 def spread(values: list[float]) -> dict[str, float]:
     return {"median": statistics.median(values), "min": min(values), "max": max(values)}
 
@@ -108,14 +105,6 @@ def over(figure: dict[str, list[float]], baseline: dict[str, list[float]], which
     return statistics.median(f / b for f, b in zip(figure[which], baseline[which], strict=True))
 
 
-def with_baselines(figures: tuple[Figure, ...], names: set[str]) -> set[str]:
-    chosen = set(names)
-    for figure in reversed(figures):  # a figure only needs figures measured before it
-        if figure.name in chosen:
-            chosen.update(figure.needs)
-    return chosen
-
-
 def one_sentence(exc: Exception) -> str:
     """What went wrong, on one line: a child's own last line, a command's last line on stderr, or the error's text."""
     if isinstance(exc, ChildFailed):
@@ -138,7 +127,10 @@ def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], 
     """Every figure (or those in ``only`` and their baselines); one skipped or failed is a line and
     ``{"skipped": why}`` or ``{"failed": why}`` in the result, and the others still run."""
     plan = Plan(quick, progress)
-    chosen = with_baselines(figures, only) if only is not None else {figure.name for figure in figures}
+    chosen = {figure.name for figure in figures} if only is None else set(only)
+    for figure in reversed(figures):  # with their baselines: a figure only needs figures measured before it
+        if figure.name in chosen:
+            chosen.update(figure.needs)
     out: Result = {"quick": quick, "rounds": plan.rounds, "measured": [], "skipped": {}, "failed": {}}
     for figure in figures:
         if figure.name not in chosen or figure.within in chosen:
@@ -166,15 +158,17 @@ def measure(figures: tuple[Figure, ...], quick: bool, progress: Callable[[str], 
     return out
 
 
-# ------------------------------------------------------------------ printing
-
-
 def ms(value: dict[str, float]) -> str:
     return f"{value['median']:.3f} ms [{value['min']:.3f}-{value['max']:.3f}]"
 
 
 def met(ok: bool) -> str:
     return ": met" if ok else ": MISSED"
+
+
+def at_most(ratio: float, target: float, noisy: bool = False) -> str:
+    """A ratio's verdict against its target: ``1.23x (<= 1.5x: met)``, NOISY when its rounds disagree."""
+    return f"{ratio:.2f}x (<= {target:g}x{met(ratio <= target)})" + (" NOISY" if noisy else "")
 
 
 def latency_rows(label: str, figure: Result, against: str, baseline: Result, p50_verdict: str, p99_verdict: str = "") -> list[Row]:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import itertools
 import signal
 import statistics
@@ -14,39 +15,36 @@ from . import peers
 from .children import spawn
 from .peers import free_port, percentiles
 from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
-from .runner import Figure, Plan, Result, Row, latency_rows, met, noisy, rounds, spreads
+from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, rounds, spreads
 
 
-def ros2_odom_rate(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
-    """Poses and ``blackmetal ros2``'s ``/odom`` samples counted over one window; the adapter's CPU over ``warmup``."""
-    counts = {"pose": 0, "odom": 0}
+def ros2_odom_rate(seconds: float, warmup: float = 1.0) -> dict[str, float]:
+    """Poses and ``blackmetal ros2``'s ``/odom`` samples at 100 Hz polling counted over one window; the adapter's CPU over ``warmup``."""
+    counts: collections.Counter[str] = collections.Counter()
     with ExitStack() as stack:
-        robot, zport, _ = robot_and_gateway(stack, poll_hz)
+        robot, zport, _ = robot_and_gateway(stack, 100.0)
         odometry(stack, zport)
         adapter = ros2_adapter(stack, zport)
         client = session(stack, zport)
-        client.declare_subscriber(KEYS.pose, lambda s: counts.__setitem__("pose", counts["pose"] + 1))
-        odom_key = adapter.wait_ready()["keys"]["odom"]
-        client.declare_subscriber(odom_key, lambda s: counts.__setitem__("odom", counts["odom"] + 1))
+        client.declare_subscriber(KEYS.pose, lambda s: counts.update(("pose",)))
+        client.declare_subscriber(adapter.wait_ready()["keys"]["odom"], lambda s: counts.update(("odom",)))
         wait_polls(robot)
         time.sleep(warmup)
-        start = dict(counts)
-        started = time.monotonic()
+        start, started = counts.copy(), time.monotonic()
         time.sleep(seconds)
-        end, elapsed = dict(counts), time.monotonic() - started
+        end, elapsed = counts.copy(), time.monotonic() - started
         cpu_pct = 100 * cpu_window({"adapter": adapter.proc.pid}, warmup)["adapter"]
-    pose_hz = (end["pose"] - start["pose"]) / elapsed
-    odom_hz = (end["odom"] - start["odom"]) / elapsed
+    pose_hz, odom_hz = ((end[key] - start[key]) / elapsed for key in ("pose", "odom"))
     return {"pose_hz": pose_hz, "odom_hz": odom_hz, "ratio": odom_hz / pose_hz if pose_hz else float("nan"), "adapter_cpu_pct": cpu_pct}
 
 
-def pose_latency(seconds: float, poll_hz: float = 50.0) -> dict[str, float]:
+def pose_latency(seconds: float) -> dict[str, float]:
     """Speed reply at the gateway (the impulse stamp) -> Pose received by a client: two Zenoh hops."""
     from blackmetal.schemas import Pose, decode
 
     latencies: list[float] = []
     with ExitStack() as stack:
-        _, zport, _ = robot_and_gateway(stack, poll_hz)
+        _, zport, _ = robot_and_gateway(stack)
         oport = free_port()
         odometry(stack, zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
         client = session(stack, oport)
@@ -107,8 +105,8 @@ _BARE_SNIPPET = (
 )
 
 
-def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) -> dict[str, float]:
-    """Resident memory of gateway and odometry after ``seconds`` at ``poll_hz``; the gateway's CPU share."""
+def memory_and_cpu(seconds: float, warmup: float = 1.0) -> dict[str, float]:
+    """Resident memory of gateway and odometry after ``seconds`` at 100 Hz polling; the gateway's CPU share."""
     bare = spawn("bare-zenoh", ["-c", _BARE_SNIPPET, "30"])
     try:
         bare.wait_ready()
@@ -117,7 +115,7 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
     finally:
         bare.stop(signal.SIGKILL)
     with ExitStack() as stack:
-        robot, zport, gw = robot_and_gateway(stack, poll_hz)
+        robot, zport, gw = robot_and_gateway(stack, 100.0)
         odo = odometry(stack, zport)
         wait_polls(robot)
         time.sleep(warmup)
@@ -138,9 +136,6 @@ def memory_and_cpu(seconds: float, poll_hz: float = 100.0, warmup: float = 1.0) 
     }
 
 
-# ------------------------------------------------------------------ the figures
-
-
 def _pose(plan: Plan, out: Result) -> Result:
     def two_hops() -> dict[str, float]:  # the baseline paced like the polls (50 Hz): the same idle time between samples
         hop = peers.zenoh_hop(plan.samples // 2, gap=(0.019, 0.021))
@@ -157,9 +152,9 @@ def _pose(plan: Plan, out: Result) -> Result:
 
 def _pose_rows(f: Result) -> list[Row]:
     pose = f["impulse_to_pose_ms"]
-    ratio = pose["p50_over_two_hops"]
-    return latency_rows("impulse -> Pose at client {p}", pose, "2 Zenoh hops", f["two_hops_ms"],
-                        f"{ratio:.2f}x (<= 1.5x{met(ratio <= 1.5)})" + (" NOISY" if pose["noisy"] else ""))  # fmt: skip
+    return latency_rows(
+        "impulse -> Pose at client {p}", pose, "2 Zenoh hops", f["two_hops_ms"], at_most(pose["p50_over_two_hops"], 1.5, pose["noisy"])
+    )
 
 
 def _ros2_odom_rows(f: Result) -> list[Row]:

@@ -6,20 +6,17 @@ import struct
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, BinaryIO
+from typing import Any
 
 from blackmetal.schemas import ConfigError, require_extra
 
 
 @dataclass
 class Channel:
-    """The messages of one key: payloads byte for byte, log and publish times in ns."""
+    """The messages of one key, byte for byte."""
 
     topic: str
-    schema: str | None
     payloads: list[bytes] = field(default_factory=list)
-    log_times: list[int] = field(default_factory=list)
-    publish_times: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -38,54 +35,60 @@ def is_mcap(path: str | Path) -> bool:
         return False
 
 
-def _open(path: Path) -> BinaryIO:
+def _walk(path: Path, on_record: Callable[[Any], None], empty: Callable[[], bool], **options: Any) -> str | None:
+    """Every record of ``path`` to ``on_record``, in file order (a cut-off end spoils nothing before it); where a
+    cut-off or damaged end was cut, in words, or None. ConfigError if it fails while ``empty()``."""
+    from mcap.stream_reader import StreamReader
+
     try:
-        return open(path, "rb")
+        stream = open(path, "rb")  # noqa: SIM115 (closed by the with below)
     except OSError as exc:
         raise ConfigError(f"cannot read {path}: {exc.strerror}") from None
+    whole = 0  # where the last whole record ends
+    with stream:
+        try:
+            for record in StreamReader(stream, **options).records:
+                whole = stream.tell()
+                on_record(record)
+        except Exception as exc:  # the mcap package raises several types for a cut-off or damaged file
+            if empty():
+                raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
+            try:
+                size = path.stat().st_size
+            except OSError:
+                size = whole
+            what = str(exc) or type(exc).__name__
+            return f"cut at byte {whole} of {size}: the last {size - whole} bytes hold no whole record ({what})"
+    return None
 
 
 def read_mcap(path: str | Path, topics: Iterable[str] | None = None) -> Recorded:
     """Every message of the chosen topics (all by default), and the metadata records; a truncated end is noted, not fatal."""
     require_extra("reading MCAP", "record", "mcap")
     from mcap.records import Channel as ChannelRecord
-    from mcap.records import Message, Metadata, Schema
-    from mcap.stream_reader import StreamReader
+    from mcap.records import Message, Metadata
 
-    path = Path(path)
     wanted = None if topics is None else set(topics)
     channels: dict[str, Channel] = {}
-    truncated = None
-    stream = _open(path)
     metadata: list[tuple[str, dict[str, str]]] = []
-    schemas: dict[int, str] = {}
     known: dict[int, Channel | None] = {}
-    whole = 0  # where the last whole record ends
-    with stream:
-        try:  # in file order: a cut-off end spoils nothing before it
-            for record in StreamReader(stream, validate_crcs=False).records:
-                whole = stream.tell()
-                if isinstance(record, Message):
-                    out = known.get(record.channel_id)
-                    if out is not None:
-                        out.payloads.append(record.data)
-                        out.log_times.append(record.log_time)
-                        out.publish_times.append(record.publish_time)
-                elif isinstance(record, ChannelRecord):
-                    if wanted is None or record.topic in wanted:
-                        out = channels.get(record.topic) or Channel(record.topic, schemas.get(record.schema_id))
-                        channels[record.topic] = known[record.id] = out
-                    else:
-                        known[record.id] = None
-                elif isinstance(record, Schema):
-                    schemas[record.id] = record.name
-                elif isinstance(record, Metadata):
-                    metadata.append((record.name, dict(record.metadata)))
-        except Exception as exc:  # the mcap package raises several types for a cut-off or damaged file
-            if not channels:
-                raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
-            truncated = cut_at(path, whole, exc)
-    return Recorded(path, channels, truncated, metadata)
+
+    def on_record(record: Any) -> None:
+        if isinstance(record, Message):
+            out = known.get(record.channel_id)
+            if out is not None:
+                out.payloads.append(record.data)
+        elif isinstance(record, ChannelRecord):
+            if wanted is None or record.topic in wanted:
+                out = channels.get(record.topic) or Channel(record.topic)
+                channels[record.topic] = known[record.id] = out
+            else:
+                known[record.id] = None
+        elif isinstance(record, Metadata):
+            metadata.append((record.name, dict(record.metadata)))
+
+    truncated = _walk(Path(path), on_record, lambda: not channels, validate_crcs=False)
+    return Recorded(Path(path), channels, truncated, metadata)
 
 
 _MESSAGE, _CHANNEL = 0x05, 0x04
@@ -223,48 +226,34 @@ def topic_lines(path: str | Path, wanted: Callable[[str], bool]) -> tuple[bytes,
     require_extra("reading MCAP", "record", "mcap")
     from mcap.records import Channel as ChannelRecord
     from mcap.records import Chunk, Message
-    from mcap.stream_reader import StreamReader
 
-    path = Path(path)
     ids: set[int] = set()
     pieces: list[bytes] = []
     chunks: list[bytes] = []  # decompressed, not yet read: read together, up to _BATCH bytes
     pending = 0
-    truncated = None
-    stream = _open(path)
-    whole = 0  # where the last whole record ends: a cut-off file is cut after it
-    with stream:
-        try:
-            for record in StreamReader(stream, emit_chunks=True).records:
-                whole = stream.tell()
-                if isinstance(record, Chunk):
-                    chunks.append(_chunk_bytes(record))
-                    pending += len(chunks[-1])
-                    if pending >= _BATCH:
-                        pieces.append(_chunks_as_lines(chunks, wanted, ids))
-                        chunks, pending = [], 0
-                    continue
-                if chunks:  # keep file order with records outside chunks
-                    pieces.append(_chunks_as_lines(chunks, wanted, ids))
-                    chunks, pending = [], 0
-                if isinstance(record, ChannelRecord) and wanted(record.topic):
-                    ids.add(record.id)
-                elif isinstance(record, Message) and record.channel_id in ids:
-                    pieces.append(b"\n" + record.data)
-        except Exception as exc:  # a cut-off or damaged end
-            if not pieces and not chunks:
-                raise ConfigError(f"{path} is not a readable MCAP file: {exc}") from None
-            truncated = cut_at(path, whole, exc)
-        if chunks:  # once: the cut-off end above leaves them to this
-            pieces.append(_chunks_as_lines(chunks, wanted, ids))
+
+    def flush() -> None:
+        nonlocal pending
+        pieces.append(_chunks_as_lines(chunks, wanted, ids))
+        chunks.clear()
+        pending = 0
+
+    def on_record(record: Any) -> None:
+        nonlocal pending
+        if isinstance(record, Chunk):
+            chunks.append(_chunk_bytes(record))
+            pending += len(chunks[-1])
+            if pending >= _BATCH:
+                flush()
+            return
+        if chunks:  # keep file order with records outside chunks
+            flush()
+        if isinstance(record, ChannelRecord) and wanted(record.topic):
+            ids.add(record.id)
+        elif isinstance(record, Message) and record.channel_id in ids:
+            pieces.append(b"\n" + record.data)
+
+    truncated = _walk(Path(path), on_record, lambda: not pieces and not chunks, emit_chunks=True)
+    if chunks:  # once: a cut-off end leaves them to this
+        flush()
     return b"\n".join(pieces), truncated
-
-
-def cut_at(path: Path, whole: int, exc: BaseException) -> str:
-    """Where a recording was cut, and what was wrong there, in words."""
-    try:
-        size = path.stat().st_size
-    except OSError:
-        size = whole
-    what = str(exc) or type(exc).__name__
-    return f"cut at byte {whole} of {size}: the last {size - whole} bytes hold no whole record ({what})"

@@ -5,6 +5,7 @@ from __future__ import annotations
 import threading
 import time
 from collections import deque
+from contextlib import suppress
 from typing import TYPE_CHECKING, Any
 
 from blackmetal.schemas import payload_bytes
@@ -61,10 +62,8 @@ class SessionRecorder:
     def stop(self) -> None:
         """Undeclare, write what is queued, finish the file. Idempotent."""
         for subscriber in self._subscribers:
-            try:
+            with suppress(Exception):
                 subscriber.undeclare()
-            except Exception:
-                pass
         self._subscribers = []
         self._stop.set()
         self._thread.join()

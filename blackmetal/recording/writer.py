@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
@@ -19,8 +18,6 @@ from blackmetal.schemas import ConfigError, Keys, json_schemas, require_extra
 
 #: Zstandard-compressed chunks of at most this many bytes (closed earlier by flush()).
 CHUNK_BYTES = 1 << 20
-PROFILE = ""  # not a ROS profile: JSON channels
-LIBRARY = "blackmetal"
 
 
 class _Stamped(msgspec.Struct):
@@ -41,12 +38,6 @@ def publish_time_ns(payload: bytes, log_time_ns: int) -> int:
     return int(stamp * 1e9)
 
 
-def message_name_for(keys: Keys, key: str) -> str | None:
-    """The schema name of the message carried on ``key`` (``Pose``...), None for keys without one."""
-    message = keys.message_for(key)
-    return None if message is None else message.__name__
-
-
 @dataclass
 class McapRecording:
     """Writes samples of the robot's keys to one MCAP file, or a numbered series when split."""
@@ -54,7 +45,6 @@ class McapRecording:
     path: Path
     keys: Keys
     split_bytes: int | None = None
-    clock_ns: Callable[[], int] = time.time_ns
     files: list[Path] = field(default_factory=list)
     stats: dict[str, int] = field(default_factory=dict)  # messages per key
     total_bytes: int = 0
@@ -67,53 +57,45 @@ class McapRecording:
         self._channels: dict[str, int] = {}
         self._open()
 
-    def _next_path(self) -> Path:
-        if not self.files:
-            return self.path
-        return self.path.with_name(f"{self.path.stem}-{len(self.files):03d}{self.path.suffix}")
-
     def _open(self) -> None:
         from mcap.writer import CompressionType, IndexType, Writer
 
-        path = self._next_path()
+        path = self.path.with_name(f"{self.path.stem}-{len(self.files):03d}{self.path.suffix}") if self.files else self.path
         try:
             path.parent.mkdir(parents=True, exist_ok=True)
-            self._stream = open(path, "wb")  # noqa: SIM115 - closed in _close()
+            self._stream = open(path, "wb")  # noqa: SIM115 - closed in close()
         except OSError as exc:
             raise ConfigError(f"cannot write the recording {path}: {exc.strerror}") from None
         self.files.append(path)
         # Chunk indexes only: readers seek by chunk; per-message indexes would double the work of every streaming read.
         index = IndexType.ALL & ~IndexType.MESSAGE
         self._writer = Writer(self._stream, chunk_size=CHUNK_BYTES, compression=CompressionType.ZSTD, index_types=index)
-        self._writer.start(profile=PROFILE, library=LIBRARY)
+        self._writer.start(profile="", library="blackmetal")  # not a ROS profile: JSON channels
         self._writer.add_metadata("blackmetal", {"prefix": self.keys.prefix, "part": str(len(self.files))})
         self._channels = {}
 
     def _channel(self, key: str) -> int:
         channel = self._channels.get(key)
         if channel is None:
-            name = message_name_for(self.keys, key)
+            message = self.keys.message_for(key)  # keys without a message get no schema
             schema_id = 0
-            if name is not None:
+            if message is not None:
+                name = message.__name__
                 schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=self._schemas[name])
             channel = self._channels[key] = self._writer.register_channel(topic=key, message_encoding="json", schema_id=schema_id)
         return channel
 
     def write(self, key: str, payload: bytes, log_time_ns: int | None = None) -> None:
         """One sample as received; never raises for what the payload holds."""
-        log_time = self.clock_ns() if log_time_ns is None else log_time_ns
+        log_time = time.time_ns() if log_time_ns is None else log_time_ns
         channel = self._channel(key)
         self.stats[key] = sequence = self.stats.get(key, 0) + 1
         self.total_bytes += len(payload)
         self._writer.add_message(
-            channel_id=channel,
-            log_time=log_time,
-            data=payload,
-            publish_time=publish_time_ns(payload, log_time),
-            sequence=sequence,
+            channel_id=channel, log_time=log_time, data=payload, publish_time=publish_time_ns(payload, log_time), sequence=sequence
         )
         if self.split_bytes and self._stream is not None and self._stream.tell() >= self.split_bytes:
-            self._close()
+            self.close()
             self._open()
 
     def metadata(self, name: str, data: dict[str, str]) -> None:
@@ -124,17 +106,14 @@ class McapRecording:
         """Close the chunk in progress and write it out: what is written survives a kill from now on."""
         self._writer.flush()
 
-    def _close(self) -> None:
+    def close(self) -> None:
+        """Finish the file properly (summary, indexes): Ctrl-C and SIGTERM end here."""
         if self._writer is not None:
             self._writer.finish()
             self._writer = None
         if self._stream is not None:
             self._stream.close()
             self._stream = None
-
-    def close(self) -> None:
-        """Finish the file properly (summary, indexes): Ctrl-C and SIGTERM end here."""
-        self._close()
 
     def progress(self, elapsed: float) -> str:
         per_key = ", ".join(f"{key.removeprefix(self.keys.prefix + '/')} {n}" for key, n in sorted(self.stats.items()))

@@ -25,7 +25,6 @@ from __future__ import annotations
 
 import argparse
 import math
-import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -51,8 +50,9 @@ from blackmetal.odometry_service.settings import PipelineSettings
 from blackmetal.recording.reader import is_mcap, read_mcap
 from blackmetal.robot_model import Residuals
 from blackmetal.runtime.settings import add_setting_arguments, load_settings
-from blackmetal.schemas import BlackmetalError, ConfigError, Keys, Pose
+from blackmetal.schemas import ConfigError, Keys, Pose
 
+from .client import tool
 from .replay import load_impulses
 
 
@@ -69,7 +69,6 @@ class Run:
 
 @dataclass
 class Recording:
-    path: str
     result: BatchResult
     runs: list[Run]
     reference: tuple[np.ndarray, np.ndarray, np.ndarray] | None  # x, y, yaw at each replayed step (aligned later), NaN outside
@@ -121,14 +120,11 @@ def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np
             continue  # a recording is evidence: bad payloads are in it, and skipped here
     if len(poses) < 2:
         return None
-    t = np.array([p.stamp for p in poses])
-    order = np.argsort(t, kind="stable")
-    t = t[order]
-    x, y = np.array([p.x for p in poses])[order], np.array([p.y for p in poses])[order]
-    yaw = np.unwrap(np.array([p.yaw for p in poses])[order])
+    poses.sort(key=lambda pose: pose.stamp)  # stable: poses of one stamp keep their order
+    t, x, y, yaw = (np.array([getattr(pose, name) for pose in poses]) for name in ("stamp", "x", "y", "yaw"))
     inside = (result.stamp >= t[0]) & (result.stamp <= t[-1])
-    out = [np.where(inside, np.interp(result.stamp, t, v), np.nan) for v in (x, y, yaw)]
-    return out[0], out[1], out[2]
+    x, y, yaw = (np.where(inside, np.interp(result.stamp, t, v), np.nan) for v in (x, y, np.unwrap(yaw)))
+    return x, y, yaw
 
 
 def load(path: str, settings: PipelineSettings, prefix: str | None, reference: str | None) -> Recording:
@@ -140,7 +136,7 @@ def load(path: str, settings: PipelineSettings, prefix: str | None, reference: s
         raise CalibrationError(f"{path} holds only {len(result)} usable impulse samples")
     metadata = read_mcap(path, []).metadata if is_mcap(path) else []
     ref = _reference(path, reference, result) if reference and is_mcap(path) else None
-    return Recording(path, result, _runs(path, result, metadata), ref)
+    return Recording(result, _runs(path, result, metadata), ref)
 
 
 def _segment(rec: Recording, start: int, end: int) -> Segment | None:
@@ -285,35 +281,32 @@ def umbmark_mode(
     return result.constants, lines
 
 
+@tool("calibrate")
 def run(args: argparse.Namespace) -> int:
-    try:
-        settings = load_settings(PipelineSettings, args)
-        used = Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
-        cw = [parse_point(p) for p in args.cw_end or []]
-        ccw = [parse_point(p) for p in args.ccw_end or []]
-        if bool(cw) != bool(ccw):
-            raise ConfigError("UMBmark needs both --cw-end and --ccw-end (the measured end points of both squares)")
-        if args.size is not None and not args.size > 0:
-            raise ConfigError(f"--size must be positive, got {args.size}")
-        prefix = args.prefix
-        reference = args.reference or f"{Keys(prefix or 'robot').sim_truth}"
-        recordings = [load(path, settings, prefix, None if cw else reference) for path in args.recordings]
-        residuals = None  # UMBmark measures two end points, not the path: no residuals
-        if cw:
-            constants, lines = umbmark_mode(recordings, used, cw, ccw, args.size)
-            how = "UMBmark"
-        else:
-            constants, lines, residuals = trajectory(recordings, used, reference)
-            how = f"trajectory fit against {reference}"
-        for line in lines:
-            print(line, flush=True)
-        if args.output:
-            names = ", ".join(Path(p).name for p in args.recordings)
-            write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}", residuals)
-            print(f"wrote {args.output}: use it with --settings {args.output}", flush=True)
-    except BlackmetalError as exc:
-        print(f"blackmetal calibrate: {exc}", file=sys.stderr)
-        return 2
+    settings = load_settings(PipelineSettings, args)
+    used = Constants(settings.impulses_left, settings.impulses_right, settings.wheel_separation)
+    cw = [parse_point(p) for p in args.cw_end or []]
+    ccw = [parse_point(p) for p in args.ccw_end or []]
+    if bool(cw) != bool(ccw):
+        raise ConfigError("UMBmark needs both --cw-end and --ccw-end (the measured end points of both squares)")
+    if args.size is not None and not args.size > 0:
+        raise ConfigError(f"--size must be positive, got {args.size}")
+    prefix = args.prefix
+    reference = args.reference or f"{Keys(prefix or 'robot').sim_truth}"
+    recordings = [load(path, settings, prefix, None if cw else reference) for path in args.recordings]
+    residuals = None  # UMBmark measures two end points, not the path: no residuals
+    if cw:
+        constants, lines = umbmark_mode(recordings, used, cw, ccw, args.size)
+        how = "UMBmark"
+    else:
+        constants, lines, residuals = trajectory(recordings, used, reference)
+        how = f"trajectory fit against {reference}"
+    for line in lines:
+        print(line, flush=True)
+    if args.output:
+        names = ", ".join(Path(p).name for p in args.recordings)
+        write_toml(args.output, constants, f"blackmetal calibrate, {time.strftime('%Y-%m-%d %H:%M')}, {how}, from {names}", residuals)
+        print(f"wrote {args.output}: use it with --settings {args.output}", flush=True)
     return 0
 
 

@@ -11,19 +11,16 @@ import sys
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import msgspec
-import zenoh
 
-from blackmetal.runtime.zenoh_setup import (
-    ZenohSettings,
-    add_zenoh_arguments,
-    open_session,
-    open_when_reachable,
-    zenoh_settings,
-)
+from blackmetal.runtime.harness import ChildFailed
+from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments, open_session, open_when_reachable, zenoh_settings
 from blackmetal.schemas import DEFAULT_PREFIX, BlackmetalError, GatewayHealth, Keys, PayloadError, Pose, ZenohUnavailable, decode, to_bytes
+
+if TYPE_CHECKING:
+    import zenoh  # not at run time: the offline tools (replay, calibrate, stop-robot) never load it
 
 T = TypeVar("T", bound=msgspec.Struct)
 
@@ -42,7 +39,6 @@ class Latest:
     """The newest decoded value of a key; the callback only stores it."""
 
     def __init__(self, session: zenoh.Session, key: str, message_type: type[T]) -> None:
-        self.key = key
         self.message_type = message_type
         self.value: Any = None
         self.count = 0
@@ -66,9 +62,6 @@ class Latest:
     def age(self) -> float:
         return time.monotonic() - self.received_at if self.count else float("inf")
 
-    def close(self) -> None:
-        self._sub.undeclare()
-
 
 def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
     """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
@@ -84,9 +77,9 @@ def first_reply(replies: Any, message_type: type[T]) -> T | None:
     return next(decoded_replies(replies, message_type), None)
 
 
-def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0, payload: bytes | None = None) -> T | None:
+def query(session: zenoh.Session, key: str, message_type: type[T], timeout: float = 2.0) -> T | None:
     """The first valid answer to a ``get`` on ``key``, or None."""
-    return first_reply(session.get(key, payload=payload, timeout=timeout), message_type)
+    return first_reply(session.get(key, timeout=timeout), message_type)
 
 
 def _require(session: zenoh.Session, key: str, message_type: type[T], settings: ZenohSettings, timeout: float, who: str, hint: str) -> T:
@@ -129,14 +122,14 @@ def connect(args: argparse.Namespace, waiting: tuple[threading.Event, str] | Non
 
 
 def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[[argparse.Namespace], int]]:
-    """Decorate a tool's ``run``: a BlackmetalError ends it with one line on stderr (exit 1, or 2 for settings)."""
+    """Decorate a tool's ``run``: a BlackmetalError (up's failed child too) ends it with one line on stderr (exit 1, or 2 for settings)."""
 
     def wrap(run: Callable[[argparse.Namespace], int]) -> Callable[[argparse.Namespace], int]:
         @functools.wraps(run)
         def wrapper(args: argparse.Namespace) -> int:
             try:
                 return run(args)
-            except (ToolError, ZenohUnavailable) as exc:
+            except (ToolError, ZenohUnavailable, ChildFailed) as exc:
                 print(f"blackmetal {name}: {exc}", file=sys.stderr)
                 return 1
             except BlackmetalError as exc:

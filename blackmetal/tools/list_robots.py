@@ -20,7 +20,7 @@ from typing import Any
 import msgspec
 import zenoh
 
-from blackmetal.runtime.zenoh_setup import ZenohSettings, add_zenoh_arguments
+from blackmetal.runtime.zenoh_setup import add_zenoh_arguments
 from blackmetal.schemas import ANY_GATEWAY_ALIVE, GatewayHealth, Keys, Pose, ZenohUnreachable
 
 from .client import connect, first_reply, tool
@@ -112,22 +112,17 @@ def table(rows: list[RobotRow]) -> str:
     )
 
 
-def connect_within(args: argparse.Namespace, deadline: float) -> tuple[ZenohSettings, zenoh.Session]:
-    """The tool's session; a router that comes up before ``deadline`` is still met (scripts start it just before)."""
-    while True:
+@tool("robots")
+def run(args: argparse.Namespace) -> int:
+    deadline = time.monotonic() + args.wait
+    while True:  # a router that comes up before the deadline is still met (scripts start it just before)
         try:
             _, settings, session = connect(args)
-            return settings, session
+            break
         except ZenohUnreachable:
             if time.monotonic() + RETRY_S > deadline:
                 raise
         time.sleep(RETRY_S)
-
-
-@tool("robots")
-def run(args: argparse.Namespace) -> int:
-    deadline = time.monotonic() + args.wait
-    settings, session = connect_within(args, deadline)
     output = "json" if args.json else "table" if args.table or sys.stdout.isatty() else "prefixes"
     with session:
         robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S), args.expect)

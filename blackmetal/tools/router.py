@@ -18,7 +18,8 @@ import zenoh
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import ZenohSettings, unavailable_reason
-from blackmetal.schemas import ConfigError
+
+from .client import ToolError, tool
 
 #: How long the router waits for Zenoh to close before it exits without it (s).
 CLOSE_TIMEOUT_S = 5.0
@@ -26,24 +27,20 @@ CLOSE_TIMEOUT_S = 5.0
 SIGNAL_POLL_S = 0.2
 
 
+@tool("router")
 def run(args: argparse.Namespace) -> int:
     settings = ZenohSettings(mode="router", listen=list(args.listen or []), config=args.config,
                              connect=list(args.connect or []), no_multicast_scouting=bool(args.no_multicast_scouting),
                              multicast_scouting=bool(args.multicast_scouting))  # fmt: skip
     settings.user = settings.password = None  # a router authenticates others from its own config
-    try:
-        conf = settings.to_config()
-    except ConfigError as exc:
-        print(f"blackmetal router: {exc}", file=sys.stderr)
-        return 2
+    conf = settings.to_config()  # a ConfigError: exit 2
     listen: list[str] = json.loads(conf.get_json("listen/endpoints"))  # the file's, where -l gave none
     settings.listen = settings.listen or listen  # so that "in use" names the port
     stop = stop_on_signals()
     try:
         session = zenoh.open(conf)
     except Exception as exc:
-        print(f"blackmetal router: {unavailable_reason(settings, str(exc))}", file=sys.stderr)
-        return 1
+        raise ToolError(unavailable_reason(settings, str(exc))) from None
     try:
         print(f"blackmetal router ready: {session.zid()} listening on {', '.join(listen) or 'nothing'}", flush=True)
         announce_ready("router", zid=str(session.zid()), listen=listen)

@@ -31,16 +31,7 @@ from blackmetal.recording.writer import McapRecording
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import Pose, Twist, Vector3, encode, require_extra
 
-from .client import (
-    Latest,
-    ToolError,
-    add_client_arguments,
-    add_drive_arguments,
-    connect,
-    require_gateway,
-    require_pose,
-    tool,
-)
+from .client import Latest, ToolError, add_client_arguments, add_drive_arguments, connect, require_gateway, require_pose, tool
 
 RATE_HZ = 20.0
 #: Commanding motion for this long without the pose changing means the commands have no effect (s).
@@ -198,7 +189,8 @@ class Driver:
         self.settle()
 
 
-def drive_square(driver: Driver, size: float, clockwise: bool, truth: Latest | None) -> Run:
+def drive_square(driver: Driver, size: float, clockwise: bool) -> Run:
+    truth = driver.truth
     start = driver.settle()
     truth_start: Pose | None = truth.value if truth is not None else None
     driver.odometry_path, driver.truth_path = [], []
@@ -316,7 +308,7 @@ def run(args: argparse.Namespace) -> int:
             pose = Latest(session, keys.pose, Pose)
             pose.value = first
             truth = Latest(session, keys.sim_truth, Pose)
-            has_truth = truth.wait(2.0) is not None
+            has_truth = truth.wait(2.0) is not None  # the simulator's
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
             driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
@@ -324,7 +316,7 @@ def run(args: argparse.Namespace) -> int:
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
                 started = time.time_ns()
-                result = drive_square(driver, args.size, clockwise, truth if has_truth else None)
+                result = drive_square(driver, args.size, clockwise)
                 runs.append(result)
                 if recorder is not None:
                     span = {

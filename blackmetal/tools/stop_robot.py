@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import socket
-import sys
 import time
 
 from blackmetal import robot_model as model
 from blackmetal import wire
 from blackmetal.runtime.settings import read_settings_file
-from blackmetal.schemas import BlackmetalError
-from blackmetal.wire import CommandCode, Malformed, StatusReply
+from blackmetal.wire import CommandCode, StatusReply
+
+from .client import ToolError, tool
 
 #: Pause before re-sending a command the robot did not take: doubling from 5 ms, at most 250 ms.
 RETRY_FIRST_S = 0.005
@@ -67,8 +67,6 @@ def _status_reply(sock: socket.socket, decoder: wire.ReplyDecoder, until: float)
         for item in decoder.feed(data):
             if isinstance(item, StatusReply):
                 return item
-            if isinstance(item, Malformed):
-                continue
     return None
 
 
@@ -79,17 +77,13 @@ def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--timeout", type=float, default=3.0, metavar="S", help="give up after this long (default 3)")
 
 
+@tool("stop-robot")
 def run(args: argparse.Namespace) -> int:
-    try:
-        found = read_settings_file(args.settings) if args.settings else {}
-    except BlackmetalError as exc:
-        print(f"blackmetal stop-robot: {exc}", file=sys.stderr)
-        return 2
+    found = read_settings_file(args.settings) if args.settings else {}  # a ConfigError: exit 2
     args.robot = args.robot or str(found.get("robot", "127.0.0.1"))
     args.control_port = args.control_port or int(found.get("control_port", model.CONTROL_PORT))
     reason = stop_robot(args.robot, args.control_port, args.timeout)
     if reason is not None:
-        print(f"blackmetal stop-robot: {reason}", file=sys.stderr)
-        return 1
+        raise ToolError(reason)
     print(f"blackmetal stop-robot: the robot at {args.robot}:{args.control_port} accepted zero velocity and NORMAL_STOP")
     return 0

@@ -36,10 +36,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:
-    parser = parser or argparse.ArgumentParser(
-        prog="blackmetal urdf", description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
-    )
+def build_parser(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--wheel-separation", type=float, default=model.WHEEL_SEPARATION, metavar="M", help=f"m (default {model.WHEEL_SEPARATION:g})"
     )
@@ -51,4 +48,3 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     parser.add_argument("--right-joint", default="right_wheel_joint", metavar="NAME", help="(default right_wheel_joint)")
     parser.add_argument("--frame-prefix", default="", metavar="PREFIX", help="before every link, e.g. r2/ in a fleet (default none)")
     parser.add_argument("--name", default="blackmetal", help="the robot's name in the URDF (default blackmetal)")
-    return parser

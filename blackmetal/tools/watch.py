@@ -11,16 +11,7 @@ from collections import deque
 import zenoh
 
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.schemas import (
-    ErrorReport,
-    GatewayHealth,
-    LinkHealth,
-    PayloadError,
-    Pose,
-    RobotStatus,
-    decode,
-    to_bytes,
-)
+from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, PayloadError, Pose, RobotStatus, decode, to_bytes
 
 from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool
 

@@ -31,11 +31,9 @@ from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Keys, require_extra,
 
 from ..client import tool
 from .launch import STOP_BUDGET_S, Launch, run_fleet, run_one
-from .settings import ServiceFiles, ros2_extra
-from .status import FleetStatus
-from .topology import ROBOTS_PER_PROCESS, Topology, check_fleet_options, process_count, shards
-
-__all__ = ["FleetStatus", "build_parser", "process_count", "ros2_extra", "run", "shards"]
+from .settings import ServiceFiles
+from .settings import ros2_extra as ros2_extra  # the ROS 2 tests' way in
+from .topology import ROBOTS_PER_PROCESS, Topology, check_fleet_options
 
 
 def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.ArgumentParser:

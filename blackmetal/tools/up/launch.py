@@ -19,7 +19,7 @@ import zenoh
 
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.runtime.fleet import FleetRobot, load_fleet, write_fleet
-from blackmetal.runtime.harness import ChildFailed, ServiceProcess, announce_ready
+from blackmetal.runtime.harness import ServiceProcess, announce_ready
 from blackmetal.runtime.settings import default_of
 from blackmetal.schemas import Keys
 
@@ -73,27 +73,23 @@ class Launch:
 
 def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.Event) -> int:
     args, prefix, hub = launch.args, keys.prefix, launch.topology.endpoint
-    try:
-        if args.robot:
-            host, control_port, log_port = args.robot, args.control_port, args.log_port
-            where = f"robot {host}:{control_port}/{log_port}"
-        else:
-            ready = launch.ready("sim", ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *launch.sim_args])
-            host, control_port, log_port = ready["host"], ready["control_port"], ready["log_port"]
-            where = f"simulated robot on {host}:{control_port} (log {log_port})"
-        gateway = launch.start(
-            "gateway",
-            ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port), "--prefix", prefix, *launch.gateway_args],
-        )  # fmt: skip
-        odometry = launch.start("odometry", ["odometry", "--prefix", prefix])
-        ros2 = launch.start("ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *ros2_extra(args)]) if args.ros2 else None
-        cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
-        odometry.wait_ready(READY_TIMEOUT_S)
-        ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
-        view = launch.foxglove("--prefix", prefix)
-    except ChildFailed as exc:
-        print(f"blackmetal up: {exc}", file=sys.stderr)
-        return 1
+    if args.robot:
+        host, control_port, log_port = args.robot, args.control_port, args.log_port
+        where = f"robot {host}:{control_port}/{log_port}"
+    else:
+        ready = launch.ready("sim", ["sim", "--control-port", "0", "--log-port", "0", "--prefix", prefix, *launch.sim_args])
+        host, control_port, log_port = ready["host"], ready["control_port"], ready["log_port"]
+        where = f"simulated robot on {host}:{control_port} (log {log_port})"
+    gateway = launch.start(
+        "gateway",
+        ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port), "--prefix", prefix, *launch.gateway_args],
+    )  # fmt: skip
+    odometry = launch.start("odometry", ["odometry", "--prefix", prefix])
+    ros2 = launch.start("ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *ros2_extra(args)]) if args.ros2 else None
+    cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
+    odometry.wait_ready(READY_TIMEOUT_S)
+    ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
+    view = launch.foxglove("--prefix", prefix)
     print(f"blackmetal is up: {where}, {launch.topology.describe()}, prefix {prefix}", flush=True)
     if ros2_node:
         print(f"ROS 2: node {ros2_node} ({args.ros2}) publishes /odom, /tf, /joint_states and takes /cmd_vel, /estop", flush=True)
@@ -115,30 +111,26 @@ def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.
 def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fleet_file: Path) -> int:
     """``--robots N``: one simulator for all, then the fleet gateway and odometry on the file it writes."""
     args, hub = launch.args, launch.topology.endpoint
-    try:
-        launch.ready("sim", ["sim", "--robots", str(args.robots), "--write-fleet", str(fleet_file), *launch.sim_args])
-        robots = load_fleet(fleet_file)  # with the ports the simulator bound
-        groups = shards(robots, process_count(len(robots), args.processes))
-        gateways: dict[ServiceProcess, list[FleetRobot]] = {}
-        odometries: list[ServiceProcess] = []
-        for k, group in enumerate(groups, 1):
-            suffix = "" if len(groups) == 1 else f"-{k}"
-            shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
-            if len(groups) > 1:
-                shard_file.write_text(write_fleet(group))
-            gateways[launch.start(f"gateway{suffix}", ["gateway", "--fleet", str(shard_file), *launch.gateway_args])] = group
-            odometries.append(launch.start(f"odometry{suffix}", ["odometry", "--fleet", str(shard_file)]))
-        # one ROS node per robot, /<id>/..., in one adapter process
-        ros2 = launch.start("ros2", ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *ros2_extra(args)]) if args.ros2 else None
-        announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]
-        cmd_timeout = float(announced[0].get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
-        poll_hz = float(announced[0].get("poll_hz", default_of(GatewaySettings, "poll_hz")))
-        for child in [*odometries, *([ros2] if ros2 else [])]:
-            child.wait_ready(READY_TIMEOUT_S)
-        view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
-    except ChildFailed as exc:
-        print(f"blackmetal up: {exc}", file=sys.stderr)
-        return 1
+    launch.ready("sim", ["sim", "--robots", str(args.robots), "--write-fleet", str(fleet_file), *launch.sim_args])
+    robots = load_fleet(fleet_file)  # with the ports the simulator bound
+    groups = shards(robots, process_count(len(robots), args.processes))
+    gateways: dict[ServiceProcess, list[FleetRobot]] = {}
+    odometries: list[ServiceProcess] = []
+    for k, group in enumerate(groups, 1):
+        suffix = "" if len(groups) == 1 else f"-{k}"
+        shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
+        if len(groups) > 1:
+            shard_file.write_text(write_fleet(group))
+        gateways[launch.start(f"gateway{suffix}", ["gateway", "--fleet", str(shard_file), *launch.gateway_args])] = group
+        odometries.append(launch.start(f"odometry{suffix}", ["odometry", "--fleet", str(shard_file)]))
+    # one ROS node per robot, /<id>/..., in one adapter process
+    ros2 = launch.start("ros2", ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *ros2_extra(args)]) if args.ros2 else None
+    announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]
+    cmd_timeout = float(announced[0].get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
+    poll_hz = float(announced[0].get("poll_hz", default_of(GatewaySettings, "poll_hz")))
+    for child in [*odometries, *([ros2] if ros2 else [])]:
+        child.wait_ready(READY_TIMEOUT_S)
+    view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
     shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
     processes = (
         "one gateway, one odometry process" if len(gateways) == 1 else f"{len(gateways)} gateway and {len(gateways)} odometry processes"
@@ -189,11 +181,11 @@ def live(
 ) -> int:
     """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines).
 
-    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again, as systemd's
-    ``Restart=on-failure`` does, at most :data:`MAX_RESTARTS` times in :data:`RESTART_WINDOW_S`: it comes back with
-    the e-stop latch it had. Any other child's death ends up.
+    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again with the e-stop
+    latch it had; any other child's death ends up.
     """
     tty = sys.stdout.isatty()
+    say = functools.partial(print, file=sys.stderr, flush=True)
     interval = _status_interval(args)
     next_status = time.monotonic() + interval
     stoppers = dict(stoppers)
@@ -204,30 +196,23 @@ def live(
                 continue
             if tty:
                 print()
+            exited = f"blackmetal up: {child.name} exited with code {child.proc.returncode}"
             if child in stoppers:  # nobody is left to stop its robots: do it now
-                print(f"blackmetal up: {child.name} gone; {stoppers[child]()}", file=sys.stderr, flush=True)
+                say(f"blackmetal up: {child.name} gone; {stoppers[child]()}")
                 now = time.monotonic()
                 while restarts and restarts[0] < now - RESTART_WINDOW_S:
                     restarts.popleft()
                 if len(restarts) < MAX_RESTARTS and not stop.is_set():
                     restarts.append(now)
-                    print(
-                        f"blackmetal up: {child.name} exited with code {child.proc.returncode}; starting it again "
-                        f"({len(restarts)} of at most {MAX_RESTARTS} restarts in {RESTART_WINDOW_S:g} s); its last lines:\n{child.tail()}",
-                        file=sys.stderr,
-                        flush=True,
-                    )
+                    say(f"{exited}; starting it again ({len(restarts)} of at most {MAX_RESTARTS} restarts in {RESTART_WINDOW_S:g} s); "
+                        f"its last lines:\n{child.tail()}")  # fmt: skip
                     child.stop(timeout=1.0)  # reaped, its pipes closed
                     again = ServiceProcess(child.name, child.args, echo=child.echo, own_session=True)
                     children[children.index(child)] = again
                     stoppers[again] = stoppers.pop(child)
-                    print(f"blackmetal up: {child.name} started again (pid {again.proc.pid})", file=sys.stderr, flush=True)
+                    say(f"blackmetal up: {child.name} started again (pid {again.proc.pid})")
                     continue
-            print(
-                f"blackmetal up: {child.name} exited with code {child.proc.returncode}; its last lines:\n{child.tail()}",
-                file=sys.stderr,
-                flush=True,
-            )
+            say(f"{exited}; its last lines:\n{child.tail()}")
             return 1
         if time.monotonic() < next_status:
             continue

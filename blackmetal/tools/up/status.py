@@ -157,20 +157,16 @@ class FleetStatus:
         self.poses = PoseSampler(session, [r.prefix for r in robots], interval)
         #: Robots seen with both links connected since the start: before that, a robot is "connecting", not "down".
         self._ever_linked: set[str] = set()
-        prefixes = {r.prefix for r in robots}
-        self._subs: list[Any] = [
-            session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, lambda s: self._on_token(s, prefixes), history=True)
-        ]
-        for robot in robots:
-            keys = Keys(robot.prefix)
+        self._subs: list[Any] = [session.liveliness().declare_subscriber(ANY_GATEWAY_ALIVE, self._on_token, history=True)]
+        for prefix in self.errors:
             self._subs += [
-                session.declare_subscriber(keys.health, functools.partial(self._on_health, robot.prefix)),
-                session.declare_subscriber(keys.errors, functools.partial(self._count, self.errors, robot.prefix)),
+                session.declare_subscriber(Keys(prefix).health, functools.partial(self._on_health, prefix)),
+                session.declare_subscriber(Keys(prefix).errors, functools.partial(self._on_error, prefix)),
             ]
 
-    def _on_token(self, sample: zenoh.Sample, prefixes: set[str]) -> None:
+    def _on_token(self, sample: zenoh.Sample) -> None:
         prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
-        if prefix not in prefixes:
+        if prefix not in self.errors:  # not one of this fleet's
             return
         if sample.kind == zenoh.SampleKind.PUT:
             self.alive.add(prefix)
@@ -183,9 +179,8 @@ class FleetStatus:
         except PayloadError:  # a malformed report: the previous one stands until it goes stale
             pass
 
-    @staticmethod
-    def _count(counts: dict[str, int], prefix: str, _sample: zenoh.Sample) -> None:
-        counts[prefix] += 1
+    def _on_error(self, prefix: str, _sample: zenoh.Sample) -> None:
+        self.errors[prefix] += 1
 
     def render(self) -> str:
         now = time.monotonic()

@@ -10,7 +10,6 @@ from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.zenoh_setup import DEFAULT_ENDPOINT, zenoh_settings
 from blackmetal.schemas import ConfigError
 
-DEFAULT_LISTEN = DEFAULT_ENDPOINT
 #: Robots one gateway (or odometry) process carries at 50 Hz with room to spare: the fleet gateway took 0.66 cores for
 #: 100 robots on the reference machine; past this, --robots spreads them over more processes, one per core at most.
 ROBOTS_PER_PROCESS = 150
@@ -28,10 +27,13 @@ class Topology:
         self.hub = bool(self.settings.listen) or not self.routers
         if self.hub:
             if not self.settings.listen:
-                self.settings.listen = [DEFAULT_LISTEN]
+                self.settings.listen = [DEFAULT_ENDPOINT]
             if self.routers and self.settings.mode is None:
                 self.settings.mode = "router"
-            self.endpoint = _hub_endpoint(self.settings.listen[0])
+            # where a local child connects to reach the listener (0.0.0.0 / [::] become loopback)
+            proto, _, address = self.settings.listen[0].partition("/")
+            host, _, port = address.rpartition(":")
+            self.endpoint = f"{proto}/{'127.0.0.1' if host in ('0.0.0.0', '[::]', '') else host}:{port}"
             self.child_endpoints = [self.endpoint]
         else:
             self.endpoint = self.routers[0]
@@ -50,15 +52,6 @@ class Topology:
         if not self.hub:
             return f"Zenoh via the router at {self.endpoint} (every process its client)"
         return f"Zenoh on {self.endpoint}" + (f" (a router, connected to {', '.join(self.routers)})" if self.routers else "")
-
-
-def _hub_endpoint(listen: str) -> str:
-    """Where a local child connects to reach a listener (0.0.0.0 / [::] become loopback)."""
-    proto, _, address = listen.partition("/")
-    host, _, port = address.rpartition(":")
-    if host in ("0.0.0.0", "[::]", ""):
-        host = "127.0.0.1"
-    return f"{proto}/{host}:{port}"
 
 
 def check_fleet_options(args: argparse.Namespace) -> None:

@@ -6,8 +6,7 @@ import time
 
 from blackmetal.runtime.fleet import numbered_fleet
 from blackmetal.schemas import GatewayHealth, Keys, LinkHealth
-from blackmetal.tools.up import FleetStatus
-from blackmetal.tools.up.status import drive_help, fleet_drive_help
+from blackmetal.tools.up.status import FleetStatus, drive_help, fleet_drive_help
 
 
 class NoSession:

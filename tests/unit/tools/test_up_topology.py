@@ -9,8 +9,7 @@ import pytest
 from blackmetal.runtime.fleet import numbered_fleet
 from blackmetal.runtime.zenoh_setup import add_zenoh_arguments
 from blackmetal.schemas import ConfigError
-from blackmetal.tools.up import process_count, shards
-from blackmetal.tools.up.topology import Topology, check_fleet_options
+from blackmetal.tools.up.topology import Topology, check_fleet_options, process_count, shards
 
 
 def test_the_fleet_is_spread_over_processes_one_per_150_robots_at_most_one_per_core() -> None:
