@@ -1,7 +1,7 @@
 """The command path's floor: the least any Python gateway can do between Zenoh and the robot's socket.
 
-Decode, kinematics, one wire request, on Zenoh's thread; no safety, no arbiter, no replies read
-(docs/performance.md).
+Decode, kinematics, one wire request, on Zenoh's own thread (the link's, ``indirect=False``, as a single
+robot's gateway takes its commands); no safety, no arbiter, no replies read (docs/performance.md).
 """
 
 from __future__ import annotations
@@ -32,6 +32,6 @@ def forwarder_main(zport: int, control_port: int) -> None:
         robot.sendall(wire.encode_request(wire.set_velocity(left=wheels.left, right=wheels.right)))
 
     with robot, zenoh.open(_zenoh_conf(listen=zport)) as session:
-        session.declare_subscriber(Keys().cmd_vel, forward)
+        session.declare_subscriber(Keys().cmd_vel, zenoh.handlers.Callback(forward, indirect=False))
         announce_ready("forwarder")
         threading.Event().wait()
