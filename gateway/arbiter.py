@@ -246,8 +246,13 @@ class Arbiter:
     def next_deadline(self) -> float:
         """When :meth:`update` may next change the driver without a new input: a live source's or a lock's timeout."""
         earliest = self._earliest
-        if earliest is None:
-            earliest = self._earliest = min((item.due for item in self._timed()), default=math.inf)
+        if earliest is None:  # after every command: a plain loop, no list nor generator on the command path
+            earliest = math.inf
+            for items in (self._sources, self._locks):
+                for item in items.values():
+                    if item.due < earliest:
+                        earliest = item.due
+            self._earliest = earliest
         return earliest
 
     def _timed(self) -> list[_Source | _Lock]:

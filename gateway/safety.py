@@ -115,10 +115,15 @@ class Governor:
         """Take a velocity command heard at ``heard_at``, or return why it is refused; one handed over from a source's past
         ramps from ``now``, its command timeout runs from ``heard_at``."""
         reason = self.refusal(twist)
-        if reason is None and isinstance(self.state, Driving):
-            state = self._ramp_now(self.state, heard_at if now is None else now)
-            self.state = Driving(state.robot, (twist.linear.x, twist.angular.z), heard_at, state.current, state.current_at)
+        if reason is None:
+            self.steer(twist, heard_at, heard_at if now is None else now)
         return reason
+
+    def steer(self, twist: Twist, heard_at: float, now: float) -> None:
+        """:meth:`on_twist` for a command its caller found not refused by :meth:`refusal` in this same state."""
+        if isinstance(self.state, Driving):
+            state = self._ramp_now(self.state, now)
+            self.state = Driving(state.robot, (twist.linear.x, twist.angular.z), heard_at, state.current, state.current_at)
 
     def on_estop(self, engaged: bool, now: float) -> None:
         """Latch (EMG_STOP at once; again on every new link) or release (a fresh cmd_vel is then needed to move again)."""
