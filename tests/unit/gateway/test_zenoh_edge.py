@@ -15,11 +15,10 @@ from typing import Any
 
 import pytest
 import zenoh
-from helpers import wait_for
+from helpers import MemoryLatchStore, wait_for
 
 from blackmetal.gateway.estop import EStopInput
 from blackmetal.gateway.host import GatewayHost
-from blackmetal.gateway.latch import MemoryLatchStore
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.gateway.zenoh_edge import GatewayZenoh, _estop_batch
 from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, decode
