@@ -15,6 +15,11 @@ from blackmetal.bench import forwarder
 
 def test_a_twist_becomes_one_wire_request(monkeypatch: pytest.MonkeyPatch) -> None:
     subscribed: list[str] = []
+    kinds: list[bool] = []
+
+    def callback_handler(function: Any, *, indirect: bool = True) -> Any:
+        kinds.append(indirect)
+        return function
 
     class Session:
         def __enter__(self) -> Session:
@@ -27,7 +32,8 @@ def test_a_twist_becomes_one_wire_request(monkeypatch: pytest.MonkeyPatch) -> No
             subscribed.append(key)
             callback(SimpleNamespace(payload=SimpleNamespace(to_bytes=lambda: b'{"linear":{"x":0.2},"angular":{"z":0.5}}')))
 
-    monkeypatch.setitem(sys.modules, "zenoh", SimpleNamespace(open=lambda conf: Session(), Sample=object))
+    handlers = SimpleNamespace(Callback=callback_handler)
+    monkeypatch.setitem(sys.modules, "zenoh", SimpleNamespace(open=lambda conf: Session(), Sample=object, handlers=handlers))
     monkeypatch.setattr(forwarder, "_zenoh_conf", lambda listen: None)
     monkeypatch.setattr(forwarder, "announce_ready", lambda name: None)
     monkeypatch.setattr(forwarder, "threading", SimpleNamespace(Event=lambda: SimpleNamespace(wait=lambda: None)))
@@ -38,4 +44,5 @@ def test_a_twist_becomes_one_wire_request(monkeypatch: pytest.MonkeyPatch) -> No
             received = conn.recv(4096)
     wheels, _ = robot_model.twist_to_wheels(0.2, 0.5, robot_model.WHEEL_SEPARATION, robot_model.MAX_WHEEL_SPEED)
     assert subscribed == ["robot/cmd_vel"]
+    assert kinds == [False], "the forwarder runs on Zenoh's own thread, as the issue defines the floor"
     assert received == wire.encode_request(wire.set_velocity(left=wheels.left, right=wheels.right))
