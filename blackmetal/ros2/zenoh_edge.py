@@ -56,10 +56,7 @@ HEARTBEAT_S = 0.5
 
 
 def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
-    def on_sample(sample: Any) -> None:
-        put(payload_bytes(sample))
-
-    return on_sample
+    return lambda sample: put(payload_bytes(sample))
 
 
 @dataclass
@@ -248,15 +245,20 @@ class Ros2Zenoh(ZenohEdge):
             for name, (key, method, options, ring) in streams.items()
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
-        matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
+
+        def on_matched(event: tuple[str, bool]) -> None:
+            host.driver.run_locked(core.on_matched, *event)
+
+        matched = intake.channel("matching", on_matched, capacity=64, priority=7)
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
             if entry is not None:
                 self._watch(topic, entry.publisher, matched)
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
-            self._alive(key, intake.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
+            on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
+            self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in self.service_keys.items():
-            take = intake.channel(f"{service}?", self._on_call(service), capacity=16, priority=9)
+            take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
             self._entities.append(self.session.declare_queryable(key, take, complete=True))
         for token in self.tokens:  # last: the graph sees the node once it can serve
@@ -265,10 +267,6 @@ class Ros2Zenoh(ZenohEdge):
 
     def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
         self.watch_matching(publisher, lambda matched: put((topic, matched)))
-
-    def _on_matched(self, event: tuple[str, bool]) -> None:
-        assert self._host is not None
-        self._host.driver.run_locked(self._host.core.on_matched, *event)
 
     def follow(self, streams: frozenset[str]) -> None:
         """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
@@ -298,9 +296,7 @@ class Ros2Zenoh(ZenohEdge):
         for name, subscriber in list(self._followed.items()):
             # the first sample is taken before the lock (rings are thread-safe): most drains find every ring empty
             ring = subscriber  # (a name of its own: the identity tests below narrow ``subscriber`` for mypy)
-            if self._followed.get(name) is not subscriber:
-                continue  # a handler earlier in this drain unfollowed it (none does today but the one it serves)
-            sample = ring.try_recv()
+            sample = ring.try_recv() if self._followed.get(name) is subscriber else None
             if sample is None:
                 continue
             handler = self._streams[name][2]
@@ -320,13 +316,6 @@ class Ros2Zenoh(ZenohEdge):
             put(sample.kind == zenoh.SampleKind.PUT)
 
         self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
-
-    @staticmethod
-    def _on_alive(host: Ros2Host, who: str) -> Callable[[bool], None]:
-        return lambda alive: host.driver.run_locked(host.core.on_alive, who, alive)
-
-    def _on_call(self, service: str) -> Callable[["zenoh.Query"], None]:
-        return functools.partial(self._take_call, service)
 
     def _take_call(self, service: str, query: "zenoh.Query") -> None:
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
