@@ -1,9 +1,7 @@
-"""What the view's clients may do (:class:`Controls`, :class:`FleetControls`): publish and call, turned into the robot's keys.
+"""What the view's clients may publish and call, turned into the robot's keys (docs/foxglove.md, "Controls").
 
-The table of what clients may do is ``docs/foxglove.md`` (Controls); names and schemas are :mod:`.naming`'s.
-:class:`Controls` is pure and clock-injected like every core: each input comes with ``now``, what is due later
-runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refusal is a status to that client and a
-report on ``<prefix>/errors``. A fleet's :class:`FleetControls` feed each robot's :class:`Controls` only what names it.
+Pure and clock-injected like every core. A refusal is a status to that client and a report on ``<prefix>/errors``;
+a fleet's :class:`FleetControls` feed each robot's :class:`Controls` only what names it.
 """
 
 from __future__ import annotations
@@ -70,8 +68,6 @@ class ClientTopic:
 
 @dataclass(slots=True)
 class EstopCall:
-    """A set_estop call waiting for the gateway's health to show ``engage``."""
-
     client: int
     engage: bool
     deadline: float
@@ -239,11 +235,10 @@ class Controls(Refusals):
         except PayloadError:
             return  # the gateway's own key: the view shows what it can, the gateway reports its own
         self.estop_seen = health.estop
-        for call, pending in list(self._estop_calls.items()):
-            if pending.engage == health.estop:
-                del self._estop_calls[call]
-                message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
-                self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
+        message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
+        for call in [call for call, pending in self._estop_calls.items() if pending.engage == health.estop]:
+            del self._estop_calls[call]
+            self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
 
     def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
         """``None, None``: the query ended unanswered."""
@@ -302,10 +297,6 @@ class Controls(Refusals):
         deadlines += [min(p.deadline, p.next_ask) for p in self._estop_calls.values()]
         deadlines += [p.deadline for p in self._reset_calls.values()]
         return min(deadlines)
-
-    @property
-    def waiting(self) -> int:
-        return len(self._estop_calls) + len(self._reset_calls)
 
 
 class FleetControls(Refusals):
@@ -373,7 +364,3 @@ class FleetControls(Refusals):
 
     def next_deadline(self) -> float:
         return min([self.reporter.next_deadline(), *(c.next_deadline() for c in self.robots.values())])
-
-    @property
-    def waiting(self) -> int:
-        return sum(c.waiting for c in self.robots.values())

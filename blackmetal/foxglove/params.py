@@ -188,7 +188,3 @@ class Parameters:
 
     def next_deadline(self) -> float:
         return min((pending.deadline for pending in self._calls.values()), default=math.inf)
-
-    @property
-    def waiting(self) -> int:
-        return len(self._calls)
