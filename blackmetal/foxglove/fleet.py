@@ -104,7 +104,7 @@ async def serve_views(
                 f"  writing the same channels to {base.mcap}" if base.mcap else None,
             )
             announce_ready("foxglove", url=host.url, port=host.port, subprotocols=list(SUBPROTOCOLS), **info)
-            await host.run(stop)
+            await stop.wait()
         finally:
             wiring.stop()
             for robot_id in wiring.views:

@@ -1,7 +1,6 @@
 """The Foxglove view's host: the WebSocket server the app connects to (behind :mod:`.front`) and, with ``--mcap``, the MCAP file.
 
-It feeds the controls with what clients publish and call, stamped with the clock, runs their deadlines on the
-shared :class:`~blackmetal.runtime.driver.CoreTimer`, and closes what it opened in reverse order.
+It feeds the controls what clients publish and call, stamped with the clock, on the loop only; it closes what it opened in reverse order.
 """
 
 from __future__ import annotations
@@ -81,13 +80,6 @@ class _Together:
         return min(part.next_deadline() for part in self.parts)
 
 
-@dataclass(slots=True)
-class _Call:
-    client: int
-    call_id: int
-    future: concurrent.futures.Future[bytes]
-
-
 class FoxgloveHost:
     """The front, the SDK server (and the MCAP file) of one view; feeds :class:`Controls`; :meth:`close` stops them, the file first."""
 
@@ -115,7 +107,8 @@ class FoxgloveHost:
         self._sets: dict[int, concurrent.futures.Future[list[Param]]] = {}
         self._connections: dict[str, Connection] = {}
         self._by_client: dict[int, Connection] = {}
-        self._calls: dict[int, _Call] = {}
+        #: The host's number of a call -> (client, its call id, the SDK thread's future).
+        self._calls: dict[int, tuple[int, int, concurrent.futures.Future[bytes]]] = {}
         self._numbers = itertools.count(1)
         #: (client, call id) of the calls the view's handler took: their failures are the view's, reported by the core.
         self._our_calls: set[tuple[int, int]] = set()
@@ -172,9 +165,6 @@ class FoxgloveHost:
         params.gateways = viewer
         self.timer = CoreTimer(_Together([core, params, *timed]), self.clock)
         self.timer.start()
-
-    async def run(self, stop: asyncio.Event) -> None:
-        await stop.wait()
 
     def close(self) -> None:
         if self.timer is not None:
@@ -271,16 +261,13 @@ class FoxgloveHost:
             return
         if self.core is None:
             return
-        kind = next((k for k in ServerRefusal if k.value == op.op), None)
-        if kind is ServerRefusal.STATUS and op.level < StatusLevel.WARNING:
-            return
-        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+        if op.op == ServerRefusal.STATUS.value and op.level >= StatusLevel.WARNING:
+            kind, message = ServerRefusal.STATUS, op.message
+        elif op.op == ServerRefusal.SERVICE_CALL_FAILURE.value:
             if connection.client is not None and op.call_id is not None and (connection.client, op.call_id) in self._our_calls:
                 self._our_calls.discard((connection.client, op.call_id))
                 return
-            message = f"{op.message} (service id {op.service_id}, call {op.call_id})"
-        elif kind is ServerRefusal.STATUS:
-            message = op.message
+            kind, message = ServerRefusal.SERVICE_CALL_FAILURE, f"{op.message} (service id {op.service_id}, call {op.call_id})"
         else:
             return
         self.core.on_server_refusal(connection.client, kind, message, self.clock())
@@ -323,11 +310,8 @@ class FoxgloveHost:
 
     def _get_params(self, names: list[str]) -> list[Any]:
         """getParameters, on an SDK thread: from the loop's last snapshot (a list replaced whole, never changed)."""
-        snapshot = self._param_snapshot
-        if not names:
-            return snapshot
-        wanted = set(names)
-        return [param for param in snapshot if param.name in wanted]
+        snapshot, wanted = self._param_snapshot, set(names)
+        return [param for param in snapshot if param.name in wanted] if names else snapshot
 
     def _set_params(self, client: int, parameters: list[Any]) -> list[Any]:
         """setParameters, on an SDK thread: handed to the loop; waits (bounded) for the gateways' answer."""
@@ -387,7 +371,7 @@ class FoxgloveHost:
             future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
             return
         number = next(self._numbers)
-        self._calls[number] = _Call(client, call_id, future)
+        self._calls[number] = (client, call_id, future)
         core.on_service_call(number, client, service, payload, self.clock())
         self.poke()
 
@@ -402,11 +386,11 @@ class FoxgloveHost:
         self.server.publish_status(message, getattr(foxglove.StatusLevel, level.name.title()))  # INFO -> Info, ...
 
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
-        pending = self._calls.pop(call, None)
-        if pending is None or pending.future.done():
+        client, call_id, future = self._calls.pop(call, (0, 0, None))
+        if future is None or future.done():
             return
         if failure is None:
-            self._our_calls.discard((pending.client, pending.call_id))
-            pending.future.set_result(response or b"")
+            self._our_calls.discard((client, call_id))
+            future.set_result(response or b"")
         else:
-            pending.future.set_exception(ServiceFailure(failure))
+            future.set_exception(ServiceFailure(failure))

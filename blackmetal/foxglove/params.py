@@ -89,10 +89,8 @@ class Parameters:
     def values(self, names: Collection[str] = ()) -> list[Param]:
         """The parameters now, by their shown names (all of them when ``names`` is empty; unknown names are left out)."""
         shown = [self._shown(robot_id, param) for robot_id, robot in self.robots.items() for param in robot.table.values()]
-        if not names:
-            return shown
         wanted = set(names)
-        return [param for param in shown if param.name in wanted]
+        return [param for param in shown if param.name in wanted] if names else shown
 
     def on_table(self, robot_id: str, payload: bytes, now: float) -> GatewayParams | None:
         """What changed goes to the clients that follow it; the table (None, reported, when it does not decode)."""
