@@ -67,14 +67,6 @@ def encoders(robot: FleetRobot) -> Encoders | None:
     )
 
 
-def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
-    def report(message: ErrorReport) -> None:
-        log.warning("%s: %s", message.key, message.reason)
-        view.on_fleet_error(message)
-
-    return report
-
-
 async def serve_views(
     base: FoxgloveSettings, stop: asyncio.Event, host: FoxgloveHost, wiring: Wiring, announce: Callable[[str], dict[str, Any]]
 ) -> None:
@@ -123,7 +115,12 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         await host.start()  # the port is taken before Zenoh opens
         view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
         controls = {r.id: Controls(keys[r.id], host, call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots}
-        core = FleetControls(controls, host, _fleet_error(view))
+
+        def fleet_error(message: ErrorReport) -> None:
+            log.warning("%s: %s", message.key, message.reason)
+            view.on_fleet_error(message)
+
+        core = FleetControls(controls, host, fleet_error)
         params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
         wiring = Wiring(host, view.views, controls, Watch(view.feeds(), record_all=bool(base.mcap)), view, core.reporter)
         host.attach(core, params, wiring, view)

@@ -114,12 +114,10 @@ class LiveView:
     def description_topic(self) -> str:
         return f"{self.namespace}/robot_description"
 
-    def _topic(self, topic: str) -> str:
-        return self.tf_topic if topic == "/tf" else f"{self.namespace}{topic}"
-
     def feeds(self) -> dict[str, set[str]]:
         """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""
-        return {getattr(self.keys, key): {self._topic(t) for t in topics} for key, (_, topics) in FEEDS.items()}
+        topic = {t: self.tf_topic if t == "/tf" else f"{self.namespace}{t}" for _, topics in FEEDS.values() for t in topics}
+        return {getattr(self.keys, key): {topic[t] for t in topics} for key, (_, topics) in FEEDS.items()}
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
         return {getattr(self.keys, key): getattr(self, handler) for key, (handler, _) in FEEDS.items()}

@@ -63,13 +63,6 @@ class NoEdge:
 NO_EDGE = NoEdge()
 
 
-def _error_bytes(reply: "zenoh.Reply") -> bytes:
-    try:
-        return bytes(reply.err.payload.to_bytes()) if reply.err is not None else b""
-    except Exception:
-        return b""
-
-
 class FoxgloveZenoh(ZenohEdge):
     """One robot's Zenoh side of the view: subscriptions for what is watched, publishers and queries for what clients do."""
 
@@ -209,7 +202,13 @@ class FoxgloveZenoh(ZenohEdge):
         import zenoh
 
         def on_reply(reply: "zenoh.Reply") -> None:
-            put((call, payload_bytes(reply.ok), None) if reply.ok is not None else (call, None, _error_bytes(reply)))
+            if reply.ok is not None:
+                return put((call, payload_bytes(reply.ok), None))
+            try:
+                err = bytes(reply.err.payload.to_bytes()) if reply.err is not None else b""
+            except Exception:
+                err = b""
+            put((call, None, err))
 
         def on_end() -> None:
             put((call, None, None))
