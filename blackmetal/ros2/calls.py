@@ -1,8 +1,7 @@
-"""The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services.
+"""The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services. Pure.
 
-Each call waits as a :class:`PendingCall` for its confirmation (the gateway's health, the odometry's answer, the
-gateway's set reply) and is answered once: ``success=false`` with the reason when refused or at its deadline.
-What each answers: docs/ros2-adapter.md "Topics and services". Pure, ``now`` passed in.
+Each call waits as a :class:`PendingCall` for its confirmation and is answered once: ``success=false`` with the
+reason when refused or at its deadline (docs/ros2-adapter.md "Topics and services").
 """
 
 from __future__ import annotations
@@ -182,13 +181,6 @@ class ServiceCalls:
             self._run_parameter_call(pending, request, now)
 
     def _run_parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
-        try:
-            self._parameter_call(pending, cdr, now)
-        except PayloadError as exc:
-            self.reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
-            self._refuse(pending.call, f"invalid request: {exc}", now)
-
-    def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
         """Answered from the table now, or (a set) when the gateway has answered; before the table has arrived the call
         waits for it, so ``ros2 param list`` at start-up lists the parameters, not nothing."""
         service, p, codec = pending.service, self.parameters, self.codec
@@ -198,10 +190,13 @@ class ServiceCalls:
             self.ask_params()
             return
         ros_type = PARAMETER_SERVICES[service]
-        if service not in SET_CALLS:
-            self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
-            return
-        pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        try:
+            if service not in SET_CALLS:
+                return self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
+            pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        except PayloadError as exc:
+            self.reject(self.options.service_keys.get(service, service), str(exc), exc.excerpt, now)
+            return self._refuse(pending.call, f"invalid request: {exc}", now)
         plan = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
         pending.refused = plan.refused
         for reason in plan.refused.values():

@@ -2,8 +2,7 @@
 
 A plain client of the robot's keys: ROS ``/cmd_vel`` and ``/estop`` become the gateway's own messages, so its limits,
 timeout, arbitration and e-stop apply to ROS as to any client; what cannot be decoded is reported on
-``<prefix>/errors``, never forwarded. Services are answered by :mod:`.calls`. Every input comes with ``now``; what
-is due later goes out in :meth:`Ros2Core.tick`. docs/ros2-adapter.md says what each topic carries.
+``<prefix>/errors``, never forwarded (docs/ros2-adapter.md says what each topic carries).
 """
 
 from __future__ import annotations
@@ -57,16 +56,7 @@ class Ros2Core:
         self.parameters = self.calls.parameters
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
-        self._model_published = o.robot is None
-
-    def publish_robot_model(self) -> None:
-        """``/robot_description`` and ``/tf_static``, once: the edge's transient-local publishers keep them for late joiners."""
-        robot = self.options.robot
-        if robot is None:
-            return
-        self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
-        self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
-        self._model_published = True
+        self._model_published = False
 
     def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
         self.stats.bad_inputs.add(now)
@@ -179,7 +169,12 @@ class Ros2Core:
             if report:
                 self._reject(key, str(exc), exc.excerpt, now)
             return False
-        timeout = self._cmd_timeout()
+        # the gateway's command timeout: from its parameters (published on each change), else its last health
+        param, health = self.parameters.table.get("cmd_timeout"), self.diagnostics.health
+        if param is not None and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
+            timeout = float(param.value)
+        else:
+            timeout = DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
         age = self.wallclock() - stamp if stamp else 0.0
         if timeout > 0 and age > timeout:
             if report:
@@ -192,14 +187,6 @@ class Ros2Core:
         self.stats.commands += 1
         self.output.blackmetal(self.cmd_vel_target, encode(twist))
         return True
-
-    def _cmd_timeout(self) -> float:
-        """The gateway's command timeout: from its parameters (published on each change), else its last health."""
-        param = self.parameters.table.get("cmd_timeout")
-        if param is not None and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
-            return float(param.value)
-        health = self.diagnostics.health
-        return DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
 
     def on_estop(self, cdr: bytes, now: float) -> None:
         try:
@@ -223,8 +210,11 @@ class Ros2Core:
 
     def tick(self, now: float) -> None:
         """Run what is due at ``now``: the robot model (first tick), calls, diagnostics, error-report summaries."""
-        if not self._model_published:
-            self.publish_robot_model()
+        robot = self.options.robot
+        if robot is not None and not self._model_published:  # once: transient-local publishers keep it for late joiners
+            self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
+            self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
+            self._model_published = True
         self.calls.tick(now)
         if now >= self._next_diagnostics:
             if self._wants("diagnostics"):  # nobody subscribes: nothing encoded
