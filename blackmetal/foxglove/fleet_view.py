@@ -85,6 +85,7 @@ class FleetSummary:
         self._newest = -math.inf
 
     def _lose(self, row: RobotRow, reason: str) -> Presence | None:
+        row.seen = None
         if row.lost:
             return None
         row.lost = reason
@@ -101,11 +102,7 @@ class FleetSummary:
 
     def on_token(self, robot_id: str, alive: bool, now: float) -> Presence | None:
         """Its gateway's liveliness token appeared or went: gone is lost at once; present waits for a health."""
-        if alive:
-            return None
-        row = self.rows[robot_id]
-        row.seen = None
-        return self._lose(row, "its gateway left (liveliness token gone)")
+        return None if alive else self._lose(self.rows[robot_id], "its gateway left (liveliness token gone)")
 
     def on_pose(self, robot_id: str, pose: Pose) -> None:
         self.rows[robot_id].pose = pose
@@ -115,7 +112,6 @@ class FleetSummary:
         changes = []
         for row in self.rows.values():
             if row.seen is not None and now >= row.seen + LOST_AFTER_S:
-                row.seen = None
                 change = self._lose(row, f"no health for {LOST_AFTER_S:g} s")
                 if change is not None:
                     changes.append(change)
@@ -132,28 +128,23 @@ class FleetSummary:
     def message(self, now: float) -> dict[str, Any]:
         rows = []
         for row in self.rows.values():
-            h, p = row.health, row.pose
-            age = None if row.seen is None else max(now - row.seen, 0.0)
+            h = row.health
+            fresh = h if not row.lost and row.seen is not None else None
             if row.lost:
                 link = f"lost: {row.lost}"
-            elif h is None or row.seen is None:
-                link = "no health"
             else:
-                link = f"{h.control.state}/{h.log.state}"
-            fresh = h is not None and not row.lost and row.seen is not None
+                link = "no health" if fresh is None else f"{fresh.control.state}/{fresh.log.state}"
             rows.append(
                 {
                     "id": row.id,
                     "prefix": row.prefix,
                     "link": link,
-                    "health_age": age,
-                    "poll_hz": h.poll_hz if fresh and h is not None else 0.0,
+                    "health_age": None if row.seen is None else max(now - row.seen, 0.0),
+                    "poll_hz": 0.0 if fresh is None else fresh.poll_hz,
                     "estop": None if h is None else h.estop,
-                    "active_source": h.active_source if fresh and h is not None else None,
+                    "active_source": None if fresh is None else fresh.active_source,
                     "conflict_with": None if h is None else h.conflict_with,
-                    "x": None if p is None else p.x,
-                    "y": None if p is None else p.y,
-                    "yaw": None if p is None else p.yaw,
+                    **{axis: getattr(row.pose, axis, None) for axis in ("x", "y", "yaw")},
                 }
             )
         return {
