@@ -31,6 +31,7 @@ from .naming import (
     Distro,
     Flavor,
     NodeIdentity,
+    Qos,
     RosService,
     RosTopic,
     ServiceRole,
@@ -118,46 +119,40 @@ class Ros2Zenoh(ZenohEdge):
         self._publishers: dict[str, _RosPublisher] = {}
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
-        for topic in ros_topics:
+
+        def declare(kind: Direction | ServiceRole, name: str, ros_type: str, qos: Qos) -> tuple[str, bytes | None]:
+            """The entity's key and, with rmw_zenoh, its GID (its token goes to :attr:`tokens`)."""
             entity_id = next(ids)
-            name = topic.full_name(namespace)
-            if flavor is Flavor.RMW_ZENOH:
-                type_hash = type_hash_of(distro, codec.type_hash(topic.ros_type))
-                key = rmw_zenoh_data_key(domain_id, name, topic.ros_type, type_hash)
-                token = node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, topic.qos)
-                self.tokens.append(token)
-                gid: bytes | None = gid_of(token)
-            else:
-                key, gid = bridge_data_key(name), None
+            if flavor is not Flavor.RMW_ZENOH:
+                return bridge_data_key(name), None
+            type_hash = type_hash_of(distro, codec.type_hash(ros_type))
+            token = node.entity_token(entity_id, kind, name, ros_type, type_hash, qos)
+            self.tokens.append(token)
+            return rmw_zenoh_data_key(domain_id, name, ros_type, type_hash), gid_of(token)
+
+        for topic in ros_topics:
+            key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
             self.data_keys[topic.key_name] = key
-            if topic.direction is Direction.PUBLISH and topic.qos.is_transient_local:
+            if topic.direction is not Direction.PUBLISH:
+                continue
+            drop, reliable = zenoh.CongestionControl.DROP, zenoh.Reliability.RELIABLE
+            if topic.qos.is_transient_local:
                 publisher: zenoh.Publisher | zenoh.ext.AdvancedPublisher = zenoh.ext.declare_advanced_publisher(
                     self.session,
                     key,
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    reliability=zenoh.Reliability.RELIABLE,
+                    congestion_control=drop,
+                    reliability=reliable,
                     cache=zenoh.ext.CacheConfig(max_samples=topic.qos.depth),
                     publisher_detection=True,
                     sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
                 )
-                self._entities.append(publisher)
-                self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
-            elif topic.direction is Direction.PUBLISH:
-                publisher = self.session.declare_publisher(
-                    key, congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE
-                )
-                self._entities.append(publisher)
-                self._publishers[topic.key_name] = _RosPublisher(publisher, gid, burst)
-        for service in ros_services or []:
-            entity_id = next(ids)
-            name = service.full_name(namespace, node_name)
-            if flavor is Flavor.RMW_ZENOH:
-                type_hash = type_hash_of(distro, codec.type_hash(service.ros_type))
-                key = rmw_zenoh_data_key(domain_id, name, service.ros_type, type_hash)
-                self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, service.qos))
             else:
-                key = bridge_data_key(name)
-            self.service_keys[service.name] = key
+                publisher = self.session.declare_publisher(key, congestion_control=drop, reliability=reliable)
+            self._entities.append(publisher)
+            self._publishers[topic.key_name] = _RosPublisher(publisher, gid, None if topic.qos.is_transient_local else burst)
+        for service in ros_services or []:
+            name = service.full_name(namespace, node_name)
+            self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
         # drop congestion control, as rmw_zenoh put the command: the direct take's Zenoh thread never waits on a link
         self._cmd_vel = self.session.declare_publisher(
             keys.cmd_vel_of(source),
