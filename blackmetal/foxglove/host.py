@@ -115,7 +115,20 @@ class FoxgloveHost:
         self._inflight: set[concurrent.futures.Future[bytes]] = set()
         self._front: asyncio.Server | None = None
         listener = sdk_listener(self, self._put_event, self._put_subscription, self._get_params, self._set_params)
-        self.server = start_server(settings, listener, self._services())
+
+        def schema(spec: dict[str, Any]) -> Any:
+            data = foxglove.Schema(name=spec["title"], encoding="jsonschema", data=json.dumps(spec).encode())
+            return foxglove.MessageSchema(encoding=CLIENT_ENCODING, schema=data)
+
+        advertised = [
+            foxglove.Service(
+                name,
+                schema=foxglove.ServiceSchema(spec.type, request=schema(spec.request), response=schema(spec.response)),
+                handler=self._handle_call,
+            )
+            for name, spec in ((name, SERVICE_SPECS[service]) for name, service in self.service_names.items())
+        ]
+        self.server = start_server(settings, listener, advertised)
         self.port = settings.port
         self.url = url(settings.host, settings.port)
         self._writer: Any = None
@@ -125,26 +138,6 @@ class FoxgloveHost:
             except Exception as exc:
                 self.server.stop()
                 raise ConfigError(f"cannot write {settings.mcap}: {exc}") from None
-
-    def _services(self) -> list[Any]:
-        import foxglove
-
-        def schema(spec: dict[str, Any]) -> Any:
-            data = foxglove.Schema(name=spec["title"], encoding="jsonschema", data=json.dumps(spec).encode())
-            return foxglove.MessageSchema(encoding=CLIENT_ENCODING, schema=data)
-
-        return [
-            foxglove.Service(
-                name,
-                schema=foxglove.ServiceSchema(
-                    SERVICE_SPECS[service].type,
-                    request=schema(SERVICE_SPECS[service].request),
-                    response=schema(SERVICE_SPECS[service].response),
-                ),
-                handler=self._handle_call,
-            )
-            for name, service in self.service_names.items()
-        ]
 
     async def start(self) -> None:
         host, port = self.settings.host, self.settings.port
