@@ -67,17 +67,13 @@ class ClientTopic:
 
 
 @dataclass(slots=True)
-class EstopCall:
-    client: int
-    engage: bool
-    deadline: float
-    next_ask: float
+class PendingCall:
+    """A service call waiting for its confirmation; ``engage`` and ``next_ask``: a set_estop's."""
 
-
-@dataclass(slots=True)
-class ResetCall:
     client: int
     deadline: float
+    engage: bool = False
+    next_ask: float = math.inf
 
 
 def _state(engage: bool) -> str:
@@ -85,6 +81,8 @@ def _state(engage: bool) -> str:
 
 
 class Clients(Protocol):
+    """The host: statuses to a client, answers to a service call."""
+
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
 
@@ -143,8 +141,8 @@ class Controls(Refusals):
         self.call_timeout = call_timeout
         self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
         self._topics: dict[tuple[int, int], ClientTopic] = {}
-        self._estop_calls: dict[int, EstopCall] = {}
-        self._reset_calls: dict[int, ResetCall] = {}
+        self._estop_calls: dict[int, PendingCall] = {}
+        self._reset_calls: dict[int, PendingCall] = {}
         #: The e-stop state in the gateway's last health (None: no health seen yet).
         self.estop_seen: bool | None = None
 
@@ -175,17 +173,14 @@ class Controls(Refusals):
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
         topic = self._topics.get((client, channel))
         if topic is None:
-            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
-            return
+            return self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         if topic.refusal is not None:
-            self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
-            return
+            return self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
         if topic.control is Control.CMD_VEL:
             try:
                 twist = decode(Twist, data)
             except PayloadError as exc:
-                self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
-                return
+                return self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
             topic.drove = True
             self.robot.command(self.cmd_vel_key, encode(twist))
         elif topic.control is Control.ESTOP:
@@ -193,8 +188,7 @@ class Controls(Refusals):
                 wish = decode(RosBool, data)
             except PayloadError as exc:
                 self._estop(True, now)  # fails safe, as the gateway does: whoever published here meant the stop
-                self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
-                return
+                return self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
             self._estop(wish.data, now)
 
     def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
@@ -213,18 +207,16 @@ class Controls(Refusals):
                 wish = decode(RosBool, payload)
             except PayloadError as exc:
                 self._estop(True, now)
-                self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
-                return
-            self._estop_calls[call] = EstopCall(client, wish.data, now + self.call_timeout, now + ASK_PERIOD_S)
+                return self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+            self._estop_calls[call] = PendingCall(client, now + self.call_timeout, wish.data, now + ASK_PERIOD_S)
             self._estop(wish.data, now, call)
             self.robot.ask_health()  # asked after the put: the gateway takes its e-stop samples first
         elif known is Service.RESET_ODOMETRY:
             try:
                 target = PoseReset() if not payload.strip() else decode(PoseReset, payload)
             except PayloadError as exc:
-                self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
-                return
-            self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
+                return self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
+            self._reset_calls[call] = PendingCall(client, now + self.call_timeout)
             self.robot.ask_reset(call, encode(target))
         else:
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
@@ -245,22 +237,18 @@ class Controls(Refusals):
         pending = self._reset_calls.pop(call, None)
         if pending is None:
             return
-        if ok is None:
-            if err is None:
-                reason = (
-                    f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
-                )
-            else:
-                reason = f"the odometry refused the reset: {err.decode('utf-8', errors='replace') or 'no reason given'}"
-            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
-            return
-        try:
-            pose = decode(Pose, ok)
-        except PayloadError as exc:
-            self._fail(
-                call, pending.client, Service.RESET_ODOMETRY, f"the odometry answered something else than a pose: {exc}", exc.excerpt, now
-            )
-            return
+        reason, text = "", ""
+        if ok is None and err is None:
+            reason = f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
+        elif ok is None:
+            reason = f"the odometry refused the reset: {(err or b'').decode('utf-8', errors='replace') or 'no reason given'}"
+        else:
+            try:
+                pose = decode(Pose, ok)
+            except PayloadError as exc:
+                reason, text = f"the odometry answered something else than a pose: {exc}", exc.excerpt
+        if reason:
+            return self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, text, now)
         message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
         self.clients.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
 
@@ -293,10 +281,8 @@ class Controls(Refusals):
         self.reporter.tick(now)
 
     def next_deadline(self) -> float:
-        deadlines = [self.reporter.next_deadline()]
-        deadlines += [min(p.deadline, p.next_ask) for p in self._estop_calls.values()]
-        deadlines += [p.deadline for p in self._reset_calls.values()]
-        return min(deadlines)
+        pending = [*self._estop_calls.values(), *self._reset_calls.values()]
+        return min([self.reporter.next_deadline(), *(min(p.deadline, p.next_ask) for p in pending)])
 
 
 class FleetControls(Refusals):

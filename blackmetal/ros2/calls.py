@@ -121,26 +121,22 @@ class ServiceCalls:
             except ValueError as exc:
                 reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
                 self.reject(key, reason, excerpt(request_attachment), now)
-                self._refuse(call, reason, now)
-                return
+                return self._refuse(call, reason, now)
             reply_to = (sequence, gid)
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
         if service in PARAMETER_SERVICES:
             if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
-                self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
-                return
+                return self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
             self._run_parameter_call(pending, cdr, now)
             return
         try:
             request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
             self.reject(key, str(exc), exc.excerpt, now)
-            self._finish(pending, False, f"invalid request: {exc}", now)
-            return
+            return self._finish(pending, False, f"invalid request: {exc}", now)
         pending.engage = service == SET_ESTOP and bool(request.data)
         if len(self.pending) >= MAX_PENDING_CALLS:
-            self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
-            return
+            return self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
         self.pending[call] = pending
         if service == SET_ESTOP:
             self.follow()
@@ -202,8 +198,7 @@ class ServiceCalls:
         for reason in plan.refused.values():
             self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
         if not plan.values:
-            self._answer_set(pending, None, now)
-            return
+            return self._answer_set(pending, None, now)
         self.pending[pending.call] = pending
         self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
 
@@ -302,8 +297,7 @@ class ServiceCalls:
         if pending.request is not None:  # it waited for the gateway's table, which never came
             self.pending.pop(pending.call, None)
             where = f"({self.keys.params}): is it running on prefix {self.keys.prefix}?"
-            self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
-            return
+            return self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
         if pending.service in SET_CALLS:
             return self._fail(pending, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set", now)
         if pending.service == RESET_ODOMETRY:
