@@ -17,7 +17,7 @@ from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, Pose
 
 from .channels import ChannelFactory, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, typed
 from .live import LiveView
-from .naming import FLEET_NAMESPACE, robot_frame, robot_namespace
+from .naming import FLEET_NAMESPACE
 
 #: A robot whose gateway's health (published once a second) has not arrived for this long (s, the view's clock) is lost.
 LOST_AFTER_S = 2.5
@@ -160,8 +160,7 @@ class FleetSummary:
 class FleetView:
     """One :class:`LiveView` per robot under ``/<id>/`` (frames ``<id>/...`` on one ``/tf``), ``/fleet/summary`` and ``/fleet/log``.
 
-    The summary goes out at most every :data:`SUMMARY_PERIOD_S` on health, at once when a robot is lost or back;
-    its poses are the latest each robot published, read when it is made (``poses``), never a stream.
+    The summary's poses are each robot's latest, read when it is made (``poses``), never a stream.
     """
 
     def __init__(
@@ -177,17 +176,7 @@ class FleetView:
         self.poses = poses
         self.tf = channel("/tf", Kind.TRANSFORM, None)  # one tree for the fleet, as ros2 --fleet sends every robot's to the absolute /tf
         self.views = {
-            robot_id: LiveView(
-                keys,
-                frame=robot_frame(robot_id, "odom"),
-                base=robot_frame(robot_id, "base_link"),
-                path_length=path_length,
-                encoders=encoders,
-                namespace=robot_namespace(robot_id),
-                tf=self.tf,
-                frame_prefix=robot_frame(robot_id, ""),
-                channel=channel,
-            )
+            robot_id: LiveView(keys, robot_id, path_length, encoders, tf=self.tf, channel=channel)
             for robot_id, keys, encoders, path_length in robots
         }
         self.summary = FleetSummary([(robot_id, keys.prefix) for robot_id, keys, _, _ in robots])
@@ -243,9 +232,6 @@ class FleetView:
 
     def next_deadline(self) -> float:
         return self.summary.next_deadline()
-
-    def suspend(self) -> None:
-        self.summary.suspend()
 
     def _changed(self, changes: list[Presence], now: float) -> None:
         from foxglove.messages import Log, LogLevel

@@ -28,6 +28,7 @@ from blackmetal.schemas import (
 from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
 from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, joint_state, turned
+from .naming import robot_frame, robot_namespace
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -66,31 +67,27 @@ class Trail:
 class LiveView:
     """The view's channels of one robot, and what each of its keys' payloads shows on them.
 
-    Every handler first asks which of its channels anyone takes (``has_sinks``): a payload nobody watches is
-    not even decoded. :meth:`feeds` says which channels each key feeds, for :class:`~.watch.Watch`.
+    A payload nobody watches (no channel it feeds ``has_sinks``) is not even decoded.
     """
 
     def __init__(
         self,
         keys: Keys,
-        frame: str = "odom",
-        base: str = "base_link",
+        robot_id: str = "",
         path_length: int = 2000,
         encoders: Encoders | None = None,
-        namespace: str = "",
         tf: Out | None = None,
-        frame_prefix: str = "",
         channel: ChannelFactory = foxglove_channel,
     ) -> None:
-        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views
-        (else ``<namespace>/tf``); ``frame_prefix`` (``""`` or ``<id>/``) before every link of the robot's URDF."""
+        """``robot_id`` (a fleet's robot): its topics under ``/<id>``, its frames and URDF links under ``<id>/``;
+        ``tf``: a transform channel shared with other views (else ``<namespace>/tf``)."""
         self.keys = keys
-        self.namespace = namespace
-        self.frame, self.base = frame, base
+        self.namespace = ns = robot_namespace(robot_id) if robot_id else ""
+        frame_prefix = robot_frame(robot_id, "") if robot_id else ""
+        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_link"
         self.model = RobotModel(frame_prefix, encoders)
         self._angles = WheelAngles(wrap=True)
         schemas = json_schemas()
-        ns = namespace
 
         self.pose = channel(f"{ns}/pose", Kind.POSE, None)
         self.tf = tf if tf is not None else channel(f"{ns}/tf", Kind.TRANSFORM, None)

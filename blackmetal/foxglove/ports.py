@@ -92,7 +92,7 @@ class Wiring:
         if self.fleet is not None:
             follows = any(self.watch.watched(topic) for topic in self.fleet.fleet_topics)
             if not follows:
-                self.fleet.suspend()
+                self.fleet.summary.suspend()
             peek = self.watch.watched(f"{FLEET_NAMESPACE}/summary")
             if peek != self._peeking:
                 self._peeking = peek
