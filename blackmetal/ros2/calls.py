@@ -188,7 +188,7 @@ class ServiceCalls:
         ros_type = PARAMETER_SERVICES[service]
         try:
             if service not in SET_CALLS:
-                return self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
+                return self._answer(pending, True, codec.parameter_response(ros_type, cdr, p.table), now)
             pending.parameters = codec.set_parameters_request(ros_type, cdr)
         except PayloadError as exc:
             self.reject(self.options.service_keys.get(service, service), str(exc), exc.excerpt, now)
