@@ -60,16 +60,12 @@ class _Robot:
 class Parameters:
     """Every robot's gateway parameters under Foxglove's names; sets go to the robot's gateway, answers come from its reply."""
 
-    def __init__(
-        self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0, gateways: Gateways | None = None
-    ) -> None:
-        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet); ``gateways``: else given
-        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
+    def __init__(self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0) -> None:
+        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet). Its ``gateways`` are
+        given by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
         self.gateways: Gateways
-        if gateways is not None:
-            self.gateways = gateways
         self.call_timeout = call_timeout
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())
@@ -119,16 +115,13 @@ class Parameters:
             owner = self._owner(shown)
             if owner is None:
                 reason = f"no parameter {shown!r}: parameters are named /<id>/<name> for the robots {', '.join(self.robots)}"
-                refusals.append(reason)
-                self.gateways.report(None, "parameters", f"client {client}: {reason}", "", now)
-                continue
-            robot_id, name = owner
-            if (isinstance(value, float) and not math.isfinite(value)) or not isinstance(value, (bool, int, float, str)):
+            elif (isinstance(value, float) and not math.isfinite(value)) or not isinstance(value, (bool, int, float, str)):
                 reason = f"{shown} = {value!r} refused: a parameter takes a number, a bool or a string"
-                refusals.append(reason)
-                self.gateways.report(robot_id, "parameters", f"client {client}: {reason}", "", now)
+            else:
+                per_robot.setdefault(owner[0], {})[owner[1]] = value
                 continue
-            per_robot.setdefault(robot_id, {})[name] = value
+            refusals.append(reason)
+            self.gateways.report(None if owner is None else owner[0], "parameters", f"client {client}: {reason}", "", now)
         names = [shown for shown, _ in values]
         pending = SetCall(client, names, set(per_robot), now + self.call_timeout, refusals)
         self._calls[call] = pending
