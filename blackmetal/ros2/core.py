@@ -20,7 +20,7 @@ from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadE
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .messages import RosCodec
-from .naming import ROBOT_DESCRIPTION, TF_STATIC
+from .naming import CMD_VEL_STAMPED, ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
 from .ros_types import BOOL, STRING
 
@@ -162,7 +162,7 @@ class Ros2Core:
         Without ``report`` a refusal changes nothing, so the direct take on Zenoh's thread (which must not publish an
         error report) leaves the sample to :meth:`on_cmd_vel` on the loop, which refuses it again and reports why.
         """
-        key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
+        key = self.options.data_keys.get(CMD_VEL_STAMPED if stamped else "cmd_vel", "cmd_vel")
         try:
             twist, stamp = self.codec.twist_stamped(cdr) if stamped else (self.codec.twist(cdr), 0.0)
         except PayloadError as exc:
@@ -192,7 +192,7 @@ class Ros2Core:
         try:
             estop = EStop(engaged=bool(self.codec.decode(cdr, BOOL).data))
         except PayloadError as exc:
-            self._reject(self.options.estop_key, str(exc), exc.excerpt, now)
+            self._reject(self.options.data_keys.get("estop", "estop"), str(exc), exc.excerpt, now)
             return
         self.stats.estops += 1
         self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))

@@ -42,10 +42,9 @@ class Ros2Options:
     joint_names: tuple[str, str]
     wheel_radius: float
     encoders: Encoders
-    #: How error reports name the ROS inputs: the Zenoh key each arrives on.
-    cmd_vel_key: str = "cmd_vel"
-    cmd_vel_stamped_key: str = "cmd_vel"
-    estop_key: str = "estop"
+    #: How error reports name the ROS inputs and services: the Zenoh key of each (by topic or service name).
+    data_keys: Mapping[str, str] = field(default_factory=dict)
+    service_keys: Mapping[str, str] = field(default_factory=dict)
     #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
     source: str = Sources.ROS2
     #: A service call not confirmed within this (s) is answered success=false.
@@ -56,8 +55,6 @@ class Ros2Options:
     node: str = "/blackmetal"
     flavor: str = "rmw_zenoh"
     domain_id: int = 0
-    #: The Zenoh key of each service, which error reports name.
-    service_keys: Mapping[str, str] = field(default_factory=dict)
     #: The ROS 2 distro whose rmw_zenoh formats the node speaks (for the diagnostics).
     distro: str = "jazzy"
     #: /robot_description, /tf_static and the wheels on /tf; None: another node publishes the robot model.

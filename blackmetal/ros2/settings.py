@@ -14,7 +14,6 @@ from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_pr
 
 from .joints import RobotModel, Wheel
 from .naming import (
-    CMD_VEL_STAMPED,
     DEFAULT_DISTRO,
     Distro,
     Flavor,
@@ -210,9 +209,7 @@ class Ros2Settings:
             joint_names=(self.left_joint, self.right_joint),
             wheel_radius=self.wheel_radius,
             encoders=Encoders(left, right),
-            cmd_vel_key=data_keys["cmd_vel"],
-            cmd_vel_stamped_key=data_keys.get(CMD_VEL_STAMPED, "cmd_vel"),
-            estop_key=data_keys["estop"],
+            data_keys=dict(data_keys),
             source=self.source,
             service_timeout=self.service_timeout,
             expected_poll_hz=self.expected_poll_hz,

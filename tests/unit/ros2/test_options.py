@@ -19,7 +19,7 @@ from blackmetal.schemas import Keys
 
 MINIMAL = Ros2Options(Frames(), [0.0] * 36, [0.0] * 36, False, ("l", "r"), 0.1, Encoders())
 #: Options whose default is the node's own, not the command's: the keys the command names after its edge's.
-NAMED_BY_THE_EDGE = {"cmd_vel_key", "cmd_vel_stamped_key", "estop_key", "service_keys", "robot"}
+NAMED_BY_THE_EDGE = {"data_keys", "service_keys", "robot"}
 
 
 def test_the_defaults_are_the_commands_defaults() -> None:
