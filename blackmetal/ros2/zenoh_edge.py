@@ -20,7 +20,7 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ErrorReport, Keys, Sources, payload_bytes
+from blackmetal.schemas import ErrorReport, Keys, payload_bytes
 
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
@@ -32,15 +32,17 @@ from .naming import (
     Flavor,
     NodeIdentity,
     Qos,
-    RosService,
-    RosTopic,
     ServiceRole,
     attachment,
     bridge_data_key,
     gid_of,
+    normalise_namespace,
     rmw_zenoh_data_key,
+    services,
+    topics,
     type_hash_of,
 )
+from .settings import Ros2Settings
 
 if TYPE_CHECKING:
     import zenoh
@@ -90,27 +92,23 @@ class Ros2Zenoh(ZenohEdge):
     def __init__(
         self,
         session: "zenoh.Session",
-        keys: Keys,
+        settings: Ros2Settings,
         codec: "RosCodec",
-        flavor: Flavor,
-        domain_id: int,
-        namespace: str,
-        node_name: str,
-        ros_topics: list[RosTopic],
-        ros_services: list[RosService] | None = None,
-        source: str = Sources.ROS2,
         ids: Iterator[int] | None = None,
         distro: Distro = DEFAULT_DISTRO,
-        rings: bool = False,
+        fleet: bool = False,
         burst: PutBurst | None = None,
     ) -> None:
         """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
-        of one session). ``rings`` (a fleet node): the robot's streams wait in Zenoh rings for :meth:`drain`."""
+        of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`."""
         import zenoh
         import zenoh.ext
 
         super().__init__(session)
-        self.keys = keys
+        self.keys = keys = Keys(settings.prefix)
+        flavor, domain_id, node_name = Flavor(settings.flavor), settings.domain_id, settings.node_name
+        namespace = normalise_namespace(settings.namespace)
+        ros_topics = topics(settings.tf, absolute_tf=fleet, robot_model=settings.robot_model)
         ids = itertools.count() if ids is None else ids
         node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace, node_id=next(ids))
         self.data_keys: dict[str, str] = {}
@@ -150,12 +148,12 @@ class Ros2Zenoh(ZenohEdge):
                 publisher = self.session.declare_publisher(key, congestion_control=drop, reliability=reliable)
             self._entities.append(publisher)
             self._publishers[topic.key_name] = _RosPublisher(publisher, gid, None if topic.qos.is_transient_local else burst)
-        for service in ros_services or []:
+        for service in services():
             name = service.full_name(namespace, node_name)
             self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
         # drop congestion control, as rmw_zenoh put the command: the direct take's Zenoh thread never waits on a link
         self._cmd_vel = self.session.declare_publisher(
-            keys.cmd_vel_of(source),
+            keys.cmd_vel_of(settings.source),
             encoding=zenoh.Encoding.APPLICATION_JSON,
             express=True,
             congestion_control=zenoh.CongestionControl.DROP,
@@ -169,7 +167,7 @@ class Ros2Zenoh(ZenohEdge):
         # what follow() may subscribe: key, its intake channel, the host's handler (rings), ring size
         self._streams: dict[str, tuple[str, Callable[[bytes], None], Callable[[bytes], None], int]] = {}
         self._followed: dict[str, Any] = {}
-        self._rings = rings
+        self._rings = fleet
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
