@@ -22,7 +22,7 @@ import msgspec
 
 from blackmetal.runtime.driver import Core, CoreTimer
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import ConfigError, GatewayParams, Param
+from blackmetal.schemas import ConfigError, Param
 
 from .controls import Controls, FleetControls
 from .front import (
@@ -335,15 +335,6 @@ class FoxgloveHost:
         if self.params is not None:
             self._param_snapshot = [foxglove_parameter(param) for param in self.params.values()]
         self.server.publish_parameter_values([foxglove_parameter(param) for param in values])
-
-    def on_params_table(self, robot_id: str, payload: bytes) -> GatewayParams | None:
-        return self.params.on_table(robot_id, payload, self.clock()) if self.params is not None else None
-
-    def on_params_reply(self, robot_id: str, reply: tuple[int, bytes | None, bytes | None]) -> None:
-        if self.params is not None:
-            call, ok, err = reply
-            self.params.on_set_reply(robot_id, call, ok, err, self.clock())
-            self.poke()
 
     def _handle_call(self, request: Any) -> bytes:
         """The SDK's service handler, on its own thread: waits (bounded) for the core's answer."""

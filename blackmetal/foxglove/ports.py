@@ -52,12 +52,15 @@ class Wiring:
         self.host.poke()
 
     def on_params(self, robot_id: str, payload: bytes) -> None:
-        table = self.host.on_params_table(robot_id, payload)
+        params = self.host.params
+        table = params.on_table(robot_id, payload, self.host.clock()) if params is not None else None
         if table is not None:
             self.views[robot_id].on_params(table)
 
     def on_params_reply(self, robot_id: str, reply: Reply) -> None:
-        self.host.on_params_reply(robot_id, reply)
+        if self.host.params is not None:
+            self.host.params.on_set_reply(robot_id, *reply, self.host.clock())
+            self.host.poke()
 
     def on_token(self, robot_id: str, alive: bool) -> None:
         """The robot's gateway came (ask its parameters: it may have restarted with others) or went."""

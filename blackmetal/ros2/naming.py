@@ -105,7 +105,6 @@ class Qos:
 
     def keyexpr(self) -> str:
         """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
-
         fields = ("" if getattr(self, name) == default else str(getattr(self, name)) for name, default in RMW_ZENOH_DEFAULTS.items())
         reliability, durability, history, depth = fields
         return f"{reliability}:{durability}:{history},{depth}:,:,:,,"

@@ -35,6 +35,8 @@ class Ros2Output(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class Ros2Options:
+    """The core's settings, as :meth:`~.settings.Ros2Settings.options` makes them (what each means: its help there)."""
+
     frames: Frames
     pose_covariance: list[float]
     twist_covariance: list[float]
@@ -45,17 +47,13 @@ class Ros2Options:
     #: How error reports name the ROS inputs and services: the Zenoh key of each (by topic or service name).
     data_keys: Mapping[str, str] = field(default_factory=dict)
     service_keys: Mapping[str, str] = field(default_factory=dict)
-    #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
     source: str = Sources.ROS2
-    #: A service call not confirmed within this (s) is answered success=false.
     service_timeout: float = 2.0
-    #: The gateway's --poll-hz, which the robot link's measured poll rate is held against.
     expected_poll_hz: float = 50.0
-    #: For the diagnostics: the node's fully qualified name, the flavour, the domain.
+    #: For the diagnostics: the node's fully qualified name, the flavour, the domain, the distro.
     node: str = "/blackmetal"
     flavor: str = "rmw_zenoh"
     domain_id: int = 0
-    #: The ROS 2 distro whose rmw_zenoh formats the node speaks (for the diagnostics).
     distro: str = "jazzy"
     #: /robot_description, /tf_static and the wheels on /tf; None: another node publishes the robot model.
     robot: RobotModel | None = None

@@ -16,7 +16,7 @@ from unit.foxglove.test_fleet_view import Logged
 
 
 class FakeHost:
-    """The host's side a port uses: its clock, the timer's poke, the parameters' answers, the clients."""
+    """The host's side the wiring uses: its clock, the timer's poke, its parameters (itself), the clients."""
 
     def __init__(self) -> None:
         self.pokes = 0
@@ -30,10 +30,14 @@ class FakeHost:
     def poke(self) -> None:
         self.pokes += 1
 
-    def on_params_reply(self, robot_id: str, reply: tuple[int, bytes | None, bytes | None]) -> None:
-        self.replies.append((robot_id, reply))
+    @property
+    def params(self) -> FakeHost:
+        return self
 
-    def on_params_table(self, robot_id: str, payload: bytes) -> None:
+    def on_set_reply(self, robot_id: str, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        self.replies.append((robot_id, (call, ok, err)))
+
+    def on_table(self, robot_id: str, payload: bytes, now: float) -> None:
         self.tables.append((robot_id, payload))
 
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
