@@ -25,7 +25,6 @@ class Ros2Host:
     def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False) -> None:
         self.core = core
         self.clock = clock
-        self.supervised = supervised
         self.driver = Driver(core, clock, supervised=supervised, name=core.keys.prefix, logger=log)
         #: Held by the loop whenever it is in the core; a Zenoh thread taking ``/cmd_vel`` directly only tries it.
         self.lock = self.driver.lock
