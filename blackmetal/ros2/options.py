@@ -1,10 +1,11 @@
-"""What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options, and where its messages go.
+"""What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options (the robot model among them), and where its messages go.
 
 Apart from the core so that its parts (:mod:`.diagnostics`, :mod:`.calls`) read them without importing the core.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -12,8 +13,30 @@ from typing import Protocol
 from blackmetal.robot_model import Encoders
 from blackmetal.schemas import ErrorReport, Sources
 
-from .joints import RobotModel
-from .ros_types import Frames
+from .ros_types import Frames, Transform
+
+
+@dataclass(frozen=True, slots=True)
+class Wheel:
+    """A wheel's transform from ``/joint_states``: ``parent`` -> ``child`` at ``y`` (m), turned about +y by its angle."""
+
+    parent: str
+    child: str
+    y: float
+
+    def transform(self, angle: float) -> Transform:
+        return Transform(self.parent, self.child, (0.0, self.y, 0.0), (0.0, math.sin(angle / 2), 0.0, math.cos(angle / 2)))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotModel:
+    """What robot_state_publisher would publish for the URDF: the text, its fixed joints, its two wheels (left, right)."""
+
+    urdf: str
+    fixed: tuple[Transform, ...]
+    wheels: tuple[Wheel, Wheel]
+    #: Publish the wheels' transforms on /tf from the wheel angles (robot_state_publisher's job for moving joints).
+    wheel_tf: bool = True
 
 
 class Ros2Output(Protocol):

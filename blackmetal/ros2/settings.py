@@ -12,7 +12,6 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
-from .joints import RobotModel, Wheel
 from .naming import (
     DEFAULT_DISTRO,
     Distro,
@@ -23,7 +22,7 @@ from .naming import (
     normalise_namespace,
     parse_distros,
 )
-from .options import Ros2Options
+from .options import RobotModel, Ros2Options, Wheel
 from .ros_types import Frames, Transform
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.

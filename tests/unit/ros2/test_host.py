@@ -79,7 +79,7 @@ def test_nothing_is_followed_or_encoded_until_a_topic_is_watched(codec: RosCodec
 
 
 def test_the_wheels_on_tf_need_the_impulses_and_tf_needs_the_poses(codec: RosCodec) -> None:
-    from blackmetal.ros2.joints import RobotModel, Wheel
+    from blackmetal.ros2.options import RobotModel, Wheel
 
     core, out = make_core(codec)
     core.options = type(core.options)(**{**{f: getattr(core.options, f) for f in core.options.__dataclass_fields__},
