@@ -298,11 +298,9 @@ class FleetControls(Refusals):
     ) -> None:
         super().__init__(clients, fleet_error, wallclock)
         self.robots = robots
+        self._takes = f"{takes('/<id>')} for the robots {', '.join(robots)}"
         #: (client, channel) -> the robot it names, or None with the topic it refused.
         self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
-
-    def _takes(self) -> str:
-        return f"{takes('/<id>')} for the robots {', '.join(self.robots)}"
 
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
         robot_id = robot_of(topic, self.robots)
@@ -311,7 +309,7 @@ class FleetControls(Refusals):
             self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
         else:
             self._refuse(
-                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes()}; its messages are refused", "", now
+                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes}; its messages are refused", "", now
             )
 
     def on_unadvertise(self, client: int, channel: int, now: float) -> None:
@@ -331,7 +329,7 @@ class FleetControls(Refusals):
         if known is None:
             self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         elif known[0] is None:
-            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes()}", excerpt(data), now)
+            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes}", excerpt(data), now)
         else:
             self.robots[known[0]].on_message(client, channel, data, now)
 

@@ -138,8 +138,7 @@ class Ros2Settings:
         normalise_namespace(self.namespace)
         check_source_name(self.source)
         check_positive(self, "service_timeout expected_poll_hz")
-        diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
-        diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
+        self.covariances(None)  # both diagonals parse
         check_positive(self, "wheel_radius wheel_separation impulses_left impulses_right")
         for name in ("odom_frame", "base_frame", "left_joint", "right_joint"):
             if not getattr(self, name):

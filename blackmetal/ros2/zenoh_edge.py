@@ -164,7 +164,6 @@ class Ros2Zenoh(ZenohEdge):
         self.routes(keys, [keys.errors])
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
-        # what follow() may subscribe: key, its intake channel, the host's handler (rings), ring size
         self._streams: dict[str, tuple[str, Callable[[bytes], None], Callable[[bytes], None], int]] = {}
         self._followed: dict[str, Any] = {}
         self._rings = fleet
