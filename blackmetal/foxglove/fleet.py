@@ -63,7 +63,6 @@ def encoders(robot: FleetRobot) -> Encoders | None:
     return Encoders(
         impulses_per_meter_left=c.get("impulses_left", default.impulses_per_meter_left),
         impulses_per_meter_right=c.get("impulses_right", default.impulses_per_meter_right),
-        mirror_right=default.mirror_right,
     )
 
 
