@@ -119,8 +119,10 @@ class Ros2Core:
         """Someone watches ``topic`` (all of them until the edge reports); /tf only if the node publishes it."""
         return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
-    def needs(self) -> frozenset[str]:
-        """The robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+    def _follow(self) -> None:
+        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+        if self.watched is None:
+            return  # not started: the edge follows everything it declared
         robot = self.options.robot
         out = set()
         if any(map(self._wants, ("odom", "tf", "diagnostics"))):
@@ -131,13 +133,7 @@ class Ros2Core:
             out.update(("errors", "health"))
         if self.calls.waits_for_health:
             out.add("health")
-        return frozenset(out)
-
-    def _follow(self) -> None:
-        if self.watched is None:
-            return  # not started: the edge follows everything it declared
-        needs = self.needs()
-        if needs != self._following:
+        if (needs := frozenset(out)) != self._following:
             self._following = needs
             self.output.follow(needs)
 
