@@ -14,7 +14,7 @@ from typing import TypeVar
 import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSetReply, PayloadError, Pose, decode, encode
+from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSet, ParamsSetReply, PayloadError, Pose, decode, encode
 
 from .diagnostics import AdapterStats
 from .messages import RosCodec
@@ -200,7 +200,7 @@ class ServiceCalls:
         if not plan.values:
             return self._answer_set(pending, None, now)
         self.pending[pending.call] = pending
-        self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
+        self._ask(Query.PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=plan.values)), pending.call, self.options.service_timeout)
 
     def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
         """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""

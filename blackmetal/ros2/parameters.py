@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
+from blackmetal.schemas import GatewayParams, Param, ParamValue
 
 from .ros_types import ParameterType, RosValue
 
@@ -54,9 +54,6 @@ class SetPlan:
 
     values: dict[str, ParamValue]
     refused: dict[int, str]
-
-    def payload(self) -> bytes:
-        return encode(ParamsSet(values=self.values))
 
 
 @dataclass(slots=True)
