@@ -23,6 +23,8 @@ from .naming import FLEET_NAMESPACE
 LOST_AFTER_S = 2.5
 #: The fleet summary goes out at most this often on health alone (s); a robot lost or back sends it at once.
 SUMMARY_PERIOD_S = 1.0
+#: The topics that follow every robot's health (and so the robots lost and back).
+FLEET_TOPICS = frozenset({f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log"})
 
 _STRING, _NUMBER_OR_NULL = typed("string"), typed(["number", "null"])
 FLEET_SUMMARY_SCHEMA = message_schema(
@@ -185,18 +187,13 @@ class FleetView:
         self.log = channel(f"{FLEET_NAMESPACE}/log", Kind.LOG, None)
         self._last_summary = -math.inf
 
-    @property
-    def fleet_topics(self) -> set[str]:
-        """The topics that follow every robot's health (and so the robots lost and back)."""
-        return {f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log"}
-
     def feeds(self) -> dict[str, set[str]]:
         """Every robot's keys -> the topics they feed; each health also feeds the summary and the fleet's log."""
         feeds: dict[str, set[str]] = {}
         for view in self.views.values():
             for key, topics in view.feeds().items():
                 feeds.setdefault(key, set()).update(topics)
-            feeds[view.keys.health] |= self.fleet_topics
+            feeds[view.keys.health] |= FLEET_TOPICS
         return feeds
 
     def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field
 from blackmetal.runtime.reports import ErrorReporter
 
 from .controls import Controls
-from .fleet_view import FleetView
+from .fleet_view import FLEET_TOPICS, FleetView
 from .host import FoxgloveHost
 from .live import LiveView
 from .naming import FLEET_NAMESPACE
@@ -93,7 +93,7 @@ class Wiring:
             self._drain.cancel()
             self._drain = None
         if self.fleet is not None:
-            follows = any(self.watch.watched(topic) for topic in self.fleet.fleet_topics)
+            follows = any(self.watch.watched(topic) for topic in FLEET_TOPICS)
             if not follows:
                 self.fleet.summary.suspend()
             peek = self.watch.watched(f"{FLEET_NAMESPACE}/summary")
