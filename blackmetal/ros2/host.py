@@ -30,11 +30,6 @@ class Ros2Host:
         self.lock = self.driver.lock
         self.fail = self.driver.fail
 
-    @property
-    def running(self) -> bool:
-        """The core serves (from its start until run ends or a bug failed it); direct takes only then."""
-        return self.driver.serving
-
     def direct(self, stamped: bool = False) -> Callable[[bytes], bool]:
         """Zenoh's thread, under the lock: forward an acceptable command, else leave it to the loop (no deadline changes)."""
         driver, take, clock = self.driver, self.core.take_cmd_vel, self.clock

@@ -282,7 +282,7 @@ class Ros2Zenoh(ZenohEdge):
 
         No Python runs per sample on Zenoh's threads. A handler's exception propagates: the fleet fails this node alone."""
         host = self._host
-        if not self._rings or host is None or not host.running or not self._followed:
+        if not self._rings or host is None or not host.driver.serving or not self._followed:
             return 0
         taken = 0
         for name, subscriber in list(self._followed.items()):
