@@ -319,8 +319,7 @@ class FoxgloveHost:
 
     def _on_params_set(self, client: int, values: list[tuple[str, object]], future: concurrent.futures.Future[list[Param]]) -> None:
         if self.params is None:
-            future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
-            return
+            return future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
         number = next(self._numbers)
         self._sets[number] = future
         self.params.on_set(number, client, values, self.clock())
@@ -352,8 +351,7 @@ class FoxgloveHost:
     def _on_call(self, service: str, client: int, call_id: int, payload: bytes, future: concurrent.futures.Future[bytes]) -> None:
         core = self.core
         if core is None:
-            future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
-            return
+            return future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
         number = next(self._numbers)
         self._calls[number] = (client, call_id, future)
         core.on_service_call(number, client, service, payload, self.clock())

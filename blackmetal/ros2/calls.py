@@ -110,8 +110,7 @@ class ServiceCalls:
     def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
         key = self.options.service_keys.get(service, service)
         if service not in SERVICE_TYPES:
-            self.output.service_refuse(call, f"no service {service!r} here")
-            return
+            return self.output.service_refuse(call, f"no service {service!r} here")
         reply_to = None
         if request_attachment is not None:
             try:
