@@ -336,8 +336,7 @@ class FleetControls(Refusals):
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
         robot_id = robot_of(service, self.robots)
         if robot_id is not None:
-            self.robots[robot_id].on_service_call(call, client, service, payload, now)
-            return
+            return self.robots[robot_id].on_service_call(call, client, service, payload, now)
         offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
         self._unknown_service(call, client, service, f"{offered} for the robots {', '.join(self.robots)}", payload, now)
 

@@ -192,8 +192,7 @@ class FoxgloveHost:
             upgraded = switches_protocols(answer)
             writer.write(rewrite_response(answer, shown) if upgraded and shown else answer)
             if not upgraded:  # the server's refusal, as it sent it
-                await self._copy(up_reader, writer)
-                return
+                return await self._copy(up_reader, writer)
             connection = Connection(secrets.token_hex(8), writer, upstream, self._on_server_text)
             self._connections[connection.token] = connection
             upstream.write(ws_frame(OP_TEXT, marker_advertisement(connection.token), mask=os.urandom(4)))
@@ -361,8 +360,7 @@ class FoxgloveHost:
         """To that client; to every client when it is not known (it did not come through the front)."""
         connection = self._by_client.get(client) if client is not None else None
         if connection is not None:
-            connection.send(ws_frame(OP_TEXT, status_message(level, message)))
-            return
+            return connection.send(ws_frame(OP_TEXT, status_message(level, message)))
         import foxglove
 
         self.server.publish_status(message, getattr(foxglove.StatusLevel, level.name.title()))  # INFO -> Info, ...

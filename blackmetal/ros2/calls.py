@@ -126,8 +126,7 @@ class ServiceCalls:
         if service in PARAMETER_SERVICES:
             if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
                 return self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
-            self._run_parameter_call(pending, cdr, now)
-            return
+            return self._run_parameter_call(pending, cdr, now)
         try:
             request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
@@ -182,8 +181,7 @@ class ServiceCalls:
         if not p.known:
             pending.request = cdr
             self.pending[pending.call] = pending
-            self.ask_params()
-            return
+            return self.ask_params()
         ros_type = PARAMETER_SERVICES[service]
         try:
             if service not in SET_CALLS:

@@ -188,8 +188,7 @@ class Ros2Core:
         try:
             estop = EStop(engaged=bool(self.codec.decode(cdr, BOOL).data))
         except PayloadError as exc:
-            self._reject(self.options.data_keys.get("estop", "estop"), str(exc), exc.excerpt, now)
-            return
+            return self._reject(self.options.data_keys.get("estop", "estop"), str(exc), exc.excerpt, now)
         self.stats.estops += 1
         self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))
 
