@@ -8,6 +8,7 @@ token tells which SDK client a connection is (docs/foxglove.md, "Foxglove and Li
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 from collections.abc import Callable
 from dataclasses import InitVar, dataclass, field
@@ -245,7 +246,5 @@ class Connection:
 
     def close(self) -> None:
         for writer in (self.writer, self.upstream):
-            try:
+            with contextlib.suppress(Exception):
                 writer.close()
-            except Exception:
-                pass

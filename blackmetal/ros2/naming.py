@@ -118,9 +118,7 @@ def check_ros_name(kind: str, name: str) -> str:
 
 def normalise_namespace(namespace: str | None) -> str:
     """``r1``, ``/r1``, ``/r1/`` -> ``/r1``; none or empty -> ``/`` (ROS's root namespace)."""
-    parts = [p for p in (namespace or "").split("/") if p]
-    for part in parts:
-        check_ros_name("namespace part", part)
+    parts = [check_ros_name("namespace part", p) for p in (namespace or "").split("/") if p]
     return "/" + "/".join(parts)
 
 
