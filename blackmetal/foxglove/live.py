@@ -179,13 +179,7 @@ class LiveView:
         self._angles.feed(sample, model.encoders, model.body.wheel_radius)
         if speeds:
             left, right = model.encoders.to_speeds(float(sample.left), float(sample.right))
-            message = {
-                "stamp": sample.stamp,
-                "left_mps": left,
-                "right_mps": right,
-                "left_impulses": sample.left,
-                "right_impulses": sample.right,
-            }
+            message = dict(zip(_WHEELS, (sample.stamp, left, right, sample.left, sample.right), strict=True))  # the schema's order
             self.wheels.log(json.dumps(message).encode())
         if joints:
             self.joint_states.log(json.dumps(joint_state(model, self._angles, sample.stamp)).encode())
