@@ -80,8 +80,6 @@ class _RosPublisher:
             extra = attachment(self.sequence, time.time_ns(), self.gid)
         if self.burst is not None:
             self.burst.put(self.publisher, cdr, extra)  # type: ignore[arg-type]
-        elif extra is None:
-            self.publisher.put(cdr)
         else:
             self.publisher.put(cdr, attachment=extra)
 
