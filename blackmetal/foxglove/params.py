@@ -75,9 +75,7 @@ class Parameters:
             (only,) = self.robots
             return only, shown
         robot_id = robot_of(shown, self.robots)
-        if robot_id is None:
-            return None
-        return robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/")
+        return None if robot_id is None else (robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/"))
 
     def _shown(self, robot_id: str, param: Param) -> Param:
         return msgspec.structs.replace(param, name=param_name(self.robots[robot_id].namespace, param.name))
