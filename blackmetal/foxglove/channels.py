@@ -51,13 +51,6 @@ def fox_pose(pose: Pose) -> Any:
     return FoxPose(position=Vector3(x=pose.x, y=pose.y, z=0.0), orientation=Quaternion(x=q.x, y=q.y, z=q.z, w=q.w))
 
 
-def json_channel(topic: str, schema: dict[str, Any]) -> Any:
-    import foxglove
-
-    full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
-    return foxglove.Channel(topic, schema=full, message_encoding="json")
-
-
 class Kind(Enum):
     """What a view channel carries: one of Foxglove's own types (protobuf, built by the SDK), or JSON with a schema."""
 
@@ -89,8 +82,11 @@ def foxglove_channel(topic: str, kind: Kind, schema: dict[str, Any] | None = Non
         Kind.LOG: LogChannel,
     }
     if kind is Kind.JSON:
+        import foxglove
+
         assert schema is not None
-        return cast(Out, json_channel(topic, schema))
+        full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
+        return cast(Out, foxglove.Channel(topic, schema=full, message_encoding="json"))
     return cast(Out, typed[kind](topic))
 
 

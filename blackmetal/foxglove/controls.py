@@ -1,9 +1,7 @@
-"""What the view's clients may do (:class:`Controls`, :class:`FleetControls`): publish and call, turned into the robot's keys.
+"""What the view's clients may publish and call, turned into the robot's keys (docs/foxglove.md, "Controls").
 
-The table of what clients may do is ``docs/foxglove.md`` (Controls); names and schemas are :mod:`.naming`'s.
-:class:`Controls` is pure and clock-injected like every core: each input comes with ``now``, what is due later
-runs in :meth:`Controls.tick` at :meth:`Controls.next_deadline`. A refusal is a status to that client and a
-report on ``<prefix>/errors``. A fleet's :class:`FleetControls` feed each robot's :class:`Controls` only what names it.
+Pure and clock-injected like every core. A refusal is a status to that client and a report on ``<prefix>/errors``;
+a fleet's :class:`FleetControls` feed each robot's :class:`Controls` only what names it.
 """
 
 from __future__ import annotations
@@ -69,19 +67,13 @@ class ClientTopic:
 
 
 @dataclass(slots=True)
-class EstopCall:
-    """A set_estop call waiting for the gateway's health to show ``engage``."""
+class PendingCall:
+    """A service call waiting for its confirmation; ``engage`` and ``next_ask``: a set_estop's."""
 
     client: int
-    engage: bool
     deadline: float
-    next_ask: float
-
-
-@dataclass(slots=True)
-class ResetCall:
-    client: int
-    deadline: float
+    engage: bool = False
+    next_ask: float = math.inf
 
 
 def _state(engage: bool) -> str:
@@ -89,6 +81,8 @@ def _state(engage: bool) -> str:
 
 
 class Clients(Protocol):
+    """The host: statuses to a client, answers to a service call."""
+
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
 
@@ -147,8 +141,8 @@ class Controls(Refusals):
         self.call_timeout = call_timeout
         self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
         self._topics: dict[tuple[int, int], ClientTopic] = {}
-        self._estop_calls: dict[int, EstopCall] = {}
-        self._reset_calls: dict[int, ResetCall] = {}
+        self._estop_calls: dict[int, PendingCall] = {}
+        self._reset_calls: dict[int, PendingCall] = {}
         #: The e-stop state in the gateway's last health (None: no health seen yet).
         self.estop_seen: bool | None = None
 
@@ -179,17 +173,14 @@ class Controls(Refusals):
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
         topic = self._topics.get((client, channel))
         if topic is None:
-            self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
-            return
+            return self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         if topic.refusal is not None:
-            self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
-            return
+            return self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
         if topic.control is Control.CMD_VEL:
             try:
                 twist = decode(Twist, data)
             except PayloadError as exc:
-                self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
-                return
+                return self._refuse(client, topic.topic, f"{exc}; nothing was sent to the robot", exc.excerpt, now)
             topic.drove = True
             self.robot.command(self.cmd_vel_key, encode(twist))
         elif topic.control is Control.ESTOP:
@@ -197,8 +188,7 @@ class Controls(Refusals):
                 wish = decode(RosBool, data)
             except PayloadError as exc:
                 self._estop(True, now)  # fails safe, as the gateway does: whoever published here meant the stop
-                self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
-                return
+                return self._refuse(client, topic.topic, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
             self._estop(wish.data, now)
 
     def _estop(self, engage: bool, now: float, call: int | None = None) -> None:
@@ -217,18 +207,16 @@ class Controls(Refusals):
                 wish = decode(RosBool, payload)
             except PayloadError as exc:
                 self._estop(True, now)
-                self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
-                return
-            self._estop_calls[call] = EstopCall(client, wish.data, now + self.call_timeout, now + ASK_PERIOD_S)
+                return self._fail(call, client, known, f"{exc}: the e-stop is engaged; {RELEASE_HINT}", exc.excerpt, now)
+            self._estop_calls[call] = PendingCall(client, now + self.call_timeout, wish.data, now + ASK_PERIOD_S)
             self._estop(wish.data, now, call)
             self.robot.ask_health()  # asked after the put: the gateway takes its e-stop samples first
         elif known is Service.RESET_ODOMETRY:
             try:
                 target = PoseReset() if not payload.strip() else decode(PoseReset, payload)
             except PayloadError as exc:
-                self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
-                return
-            self._reset_calls[call] = ResetCall(client, now + self.call_timeout)
+                return self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
+            self._reset_calls[call] = PendingCall(client, now + self.call_timeout)
             self.robot.ask_reset(call, encode(target))
         else:
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
@@ -239,33 +227,28 @@ class Controls(Refusals):
         except PayloadError:
             return  # the gateway's own key: the view shows what it can, the gateway reports its own
         self.estop_seen = health.estop
-        for call, pending in list(self._estop_calls.items()):
-            if pending.engage == health.estop:
-                del self._estop_calls[call]
-                message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
-                self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
+        message = f"e-stop {_state(health.estop)} (confirmed by the gateway's health)"
+        for call in [call for call, pending in self._estop_calls.items() if pending.engage == health.estop]:
+            del self._estop_calls[call]
+            self.clients.answer(call, json.dumps({"success": True, "message": message}).encode(), None)
 
     def on_reset_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
         """``None, None``: the query ended unanswered."""
         pending = self._reset_calls.pop(call, None)
         if pending is None:
             return
-        if ok is None:
-            if err is None:
-                reason = (
-                    f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
-                )
-            else:
-                reason = f"the odometry refused the reset: {err.decode('utf-8', errors='replace') or 'no reason given'}"
-            self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, "", now)
-            return
-        try:
-            pose = decode(Pose, ok)
-        except PayloadError as exc:
-            self._fail(
-                call, pending.client, Service.RESET_ODOMETRY, f"the odometry answered something else than a pose: {exc}", exc.excerpt, now
-            )
-            return
+        reason, text = "", ""
+        if ok is None and err is None:
+            reason = f"no odometry answered on {self.keys.odometry_reset}: is blackmetal odometry running on prefix {self.keys.prefix!r}?"
+        elif ok is None:
+            reason = f"the odometry refused the reset: {(err or b'').decode('utf-8', errors='replace') or 'no reason given'}"
+        else:
+            try:
+                pose = decode(Pose, ok)
+            except PayloadError as exc:
+                reason, text = f"the odometry answered something else than a pose: {exc}", exc.excerpt
+        if reason:
+            return self._fail(call, pending.client, Service.RESET_ODOMETRY, reason, text, now)
         message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
         self.clients.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
 
@@ -298,14 +281,8 @@ class Controls(Refusals):
         self.reporter.tick(now)
 
     def next_deadline(self) -> float:
-        deadlines = [self.reporter.next_deadline()]
-        deadlines += [min(p.deadline, p.next_ask) for p in self._estop_calls.values()]
-        deadlines += [p.deadline for p in self._reset_calls.values()]
-        return min(deadlines)
-
-    @property
-    def waiting(self) -> int:
-        return len(self._estop_calls) + len(self._reset_calls)
+        pending = [*self._estop_calls.values(), *self._reset_calls.values()]
+        return min([self.reporter.next_deadline(), *(min(p.deadline, p.next_ask) for p in pending)])
 
 
 class FleetControls(Refusals):
@@ -321,11 +298,9 @@ class FleetControls(Refusals):
     ) -> None:
         super().__init__(clients, fleet_error, wallclock)
         self.robots = robots
+        self._takes = f"{takes('/<id>')} for the robots {', '.join(robots)}"
         #: (client, channel) -> the robot it names, or None with the topic it refused.
         self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
-
-    def _takes(self) -> str:
-        return f"{takes('/<id>')} for the robots {', '.join(self.robots)}"
 
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
         robot_id = robot_of(topic, self.robots)
@@ -334,7 +309,7 @@ class FleetControls(Refusals):
             self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
         else:
             self._refuse(
-                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes()}; its messages are refused", "", now
+                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes}; its messages are refused", "", now
             )
 
     def on_unadvertise(self, client: int, channel: int, now: float) -> None:
@@ -354,15 +329,14 @@ class FleetControls(Refusals):
         if known is None:
             self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         elif known[0] is None:
-            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes()}", excerpt(data), now)
+            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes}", excerpt(data), now)
         else:
             self.robots[known[0]].on_message(client, channel, data, now)
 
     def on_service_call(self, call: int, client: int, service: str, payload: bytes, now: float) -> None:
         robot_id = robot_of(service, self.robots)
         if robot_id is not None:
-            self.robots[robot_id].on_service_call(call, client, service, payload, now)
-            return
+            return self.robots[robot_id].on_service_call(call, client, service, payload, now)
         offered = ", ".join(service_name(robot_namespace("<id>"), s) for s in Service)
         self._unknown_service(call, client, service, f"{offered} for the robots {', '.join(self.robots)}", payload, now)
 
@@ -373,7 +347,3 @@ class FleetControls(Refusals):
 
     def next_deadline(self) -> float:
         return min([self.reporter.next_deadline(), *(c.next_deadline() for c in self.robots.values())])
-
-    @property
-    def waiting(self) -> int:
-        return sum(c.waiting for c in self.robots.values())

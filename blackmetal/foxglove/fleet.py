@@ -9,6 +9,7 @@ from __future__ import annotations
 import asyncio
 import logging
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 from blackmetal.robot_model import Encoders
@@ -22,7 +23,7 @@ from .front import INNER_HOST, SUBPROTOCOLS
 from .host import FoxgloveHost
 from .naming import COMMAND_SOURCE, FLEET_NAMESPACE, Service, robot_frame, robot_namespace, service_name, takes
 from .params import Parameters
-from .ports import RobotPort, Wiring
+from .ports import Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
 from .zenoh_edge import NO_EDGE, FoxgloveZenoh
@@ -62,16 +63,7 @@ def encoders(robot: FleetRobot) -> Encoders | None:
     return Encoders(
         impulses_per_meter_left=c.get("impulses_left", default.impulses_per_meter_left),
         impulses_per_meter_right=c.get("impulses_right", default.impulses_per_meter_right),
-        mirror_right=default.mirror_right,
     )
-
-
-def _fleet_error(view: FleetView) -> Callable[[ErrorReport], None]:
-    def report(message: ErrorReport) -> None:
-        log.warning("%s: %s", message.key, message.reason)
-        view.on_fleet_error(message)
-
-    return report
 
 
 async def serve_views(
@@ -87,26 +79,27 @@ async def serve_views(
         fleet = wiring.fleet
         edges: list[FoxgloveZenoh] = []
         try:
-            for robot_id, port in wiring.ports.items():
-                edge = FoxgloveZenoh(session, port.view.keys, query_timeout=base.call_timeout)
+            for robot_id, view in wiring.views.items():
+                edge = FoxgloveZenoh(session, view.keys, query_timeout=base.call_timeout)
                 edges.append(edge)
-                handlers, presence = (fleet.handlers(robot_id), port.on_token) if fleet is not None else (port.view.handlers(), None)
-                edge.attach(handlers, port, loop, on_error=port.on_bug, presence=presence)
-                port.plug(edge)
+                on_token = partial(wiring.on_token, robot_id)
+                handlers, presence = (fleet.handlers(robot_id), on_token) if fleet is not None else (view.handlers(), None)
+                edge.attach(robot_id, handlers, wiring, loop, presence=presence)
+                wiring.plug(robot_id, edge)
             wiring.watch_changed()  # an MCAP file follows every key from the start; clients, as they subscribe
-            for port in wiring.ports.values():
-                port.view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
+            for view in wiring.views.values():
+                view.describe()  # the URDF, into the MCAP file if there is one (a client gets it when it subscribes)
             info = announce(host.url)
             say(
                 f"  (foxglove-sdk serves behind it on {INNER_HOST}:{host.server.port}; connect to {host.url})",
                 f"  writing the same channels to {base.mcap}" if base.mcap else None,
             )
             announce_ready("foxglove", url=host.url, port=host.port, subprotocols=list(SUBPROTOCOLS), **info)
-            await host.run(stop)
+            await stop.wait()
         finally:
             wiring.stop()
-            for port in wiring.ports.values():
-                port.plug(NO_EDGE)
+            for robot_id in wiring.views:
+                wiring.plug(robot_id, NO_EDGE)
             for edge in reversed(edges):
                 edge.close()
 
@@ -121,10 +114,14 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         await host.start()  # the port is taken before Zenoh opens
         view = FleetView([(r.id, keys[r.id], encoders(r), s.path_length) for r, s in zip(robots, settings, strict=True)], clock=host.clock)
         controls = {r.id: Controls(keys[r.id], host, call_timeout=base.call_timeout, namespace=robot_namespace(r.id)) for r in robots}
-        ports = {r.id: RobotPort(r.id, host, view.views[r.id], controls[r.id], view) for r in robots}
-        core = FleetControls(controls, host, _fleet_error(view))
+
+        def fleet_error(message: ErrorReport) -> None:
+            log.warning("%s: %s", message.key, message.reason)
+            view.on_fleet_error(message)
+
+        core = FleetControls(controls, host, fleet_error)
         params = Parameters({r.id: (keys[r.id], robot_namespace(r.id)) for r in robots}, host, base.call_timeout)
-        wiring = Wiring(ports, Watch(view.feeds(), record_all=bool(base.mcap)), view, core.reporter)
+        wiring = Wiring(host, view.views, controls, Watch(view.feeds(), record_all=bool(base.mcap)), view, core.reporter)
         host.attach(core, params, wiring, view)
 
         def announce(address: str) -> dict[str, Any]:

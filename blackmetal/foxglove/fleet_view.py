@@ -17,12 +17,14 @@ from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, Pose
 
 from .channels import ChannelFactory, Kind, array, foxglove_channel, message_schema, obj, report_log, timestamp, typed
 from .live import LiveView
-from .naming import FLEET_NAMESPACE, robot_frame, robot_namespace
+from .naming import FLEET_NAMESPACE
 
 #: A robot whose gateway's health (published once a second) has not arrived for this long (s, the view's clock) is lost.
 LOST_AFTER_S = 2.5
 #: The fleet summary goes out at most this often on health alone (s); a robot lost or back sends it at once.
 SUMMARY_PERIOD_S = 1.0
+#: The topics that follow every robot's health (and so the robots lost and back).
+FLEET_TOPICS = frozenset({f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log"})
 
 _STRING, _NUMBER_OR_NULL = typed("string"), typed(["number", "null"])
 FLEET_SUMMARY_SCHEMA = message_schema(
@@ -85,6 +87,7 @@ class FleetSummary:
         self._newest = -math.inf
 
     def _lose(self, row: RobotRow, reason: str) -> Presence | None:
+        row.seen = None
         if row.lost:
             return None
         row.lost = reason
@@ -101,11 +104,7 @@ class FleetSummary:
 
     def on_token(self, robot_id: str, alive: bool, now: float) -> Presence | None:
         """Its gateway's liveliness token appeared or went: gone is lost at once; present waits for a health."""
-        if alive:
-            return None
-        row = self.rows[robot_id]
-        row.seen = None
-        return self._lose(row, "its gateway left (liveliness token gone)")
+        return None if alive else self._lose(self.rows[robot_id], "its gateway left (liveliness token gone)")
 
     def on_pose(self, robot_id: str, pose: Pose) -> None:
         self.rows[robot_id].pose = pose
@@ -115,7 +114,6 @@ class FleetSummary:
         changes = []
         for row in self.rows.values():
             if row.seen is not None and now >= row.seen + LOST_AFTER_S:
-                row.seen = None
                 change = self._lose(row, f"no health for {LOST_AFTER_S:g} s")
                 if change is not None:
                     changes.append(change)
@@ -132,28 +130,23 @@ class FleetSummary:
     def message(self, now: float) -> dict[str, Any]:
         rows = []
         for row in self.rows.values():
-            h, p = row.health, row.pose
-            age = None if row.seen is None else max(now - row.seen, 0.0)
+            h = row.health
+            fresh = h if not row.lost and row.seen is not None else None
             if row.lost:
                 link = f"lost: {row.lost}"
-            elif h is None or row.seen is None:
-                link = "no health"
             else:
-                link = f"{h.control.state}/{h.log.state}"
-            fresh = h is not None and not row.lost and row.seen is not None
+                link = "no health" if fresh is None else f"{fresh.control.state}/{fresh.log.state}"
             rows.append(
                 {
                     "id": row.id,
                     "prefix": row.prefix,
                     "link": link,
-                    "health_age": age,
-                    "poll_hz": h.poll_hz if fresh and h is not None else 0.0,
+                    "health_age": None if row.seen is None else max(now - row.seen, 0.0),
+                    "poll_hz": 0.0 if fresh is None else fresh.poll_hz,
                     "estop": None if h is None else h.estop,
-                    "active_source": h.active_source if fresh and h is not None else None,
+                    "active_source": None if fresh is None else fresh.active_source,
                     "conflict_with": None if h is None else h.conflict_with,
-                    "x": None if p is None else p.x,
-                    "y": None if p is None else p.y,
-                    "yaw": None if p is None else p.yaw,
+                    **{axis: getattr(row.pose, axis, None) for axis in ("x", "y", "yaw")},
                 }
             )
         return {
@@ -169,8 +162,7 @@ class FleetSummary:
 class FleetView:
     """One :class:`LiveView` per robot under ``/<id>/`` (frames ``<id>/...`` on one ``/tf``), ``/fleet/summary`` and ``/fleet/log``.
 
-    The summary goes out at most every :data:`SUMMARY_PERIOD_S` on health, at once when a robot is lost or back;
-    its poses are the latest each robot published, read when it is made (``poses``), never a stream.
+    The summary's poses are each robot's latest, read when it is made (``poses``), never a stream.
     """
 
     def __init__(
@@ -186,17 +178,7 @@ class FleetView:
         self.poses = poses
         self.tf = channel("/tf", Kind.TRANSFORM, None)  # one tree for the fleet, as ros2 --fleet sends every robot's to the absolute /tf
         self.views = {
-            robot_id: LiveView(
-                keys,
-                frame=robot_frame(robot_id, "odom"),
-                base=robot_frame(robot_id, "base_link"),
-                path_length=path_length,
-                encoders=encoders,
-                namespace=robot_namespace(robot_id),
-                tf=self.tf,
-                frame_prefix=robot_frame(robot_id, ""),
-                channel=channel,
-            )
+            robot_id: LiveView(keys, robot_id, path_length, encoders, tf=self.tf, channel=channel)
             for robot_id, keys, encoders, path_length in robots
         }
         self.summary = FleetSummary([(robot_id, keys.prefix) for robot_id, keys, _, _ in robots])
@@ -205,18 +187,13 @@ class FleetView:
         self.log = channel(f"{FLEET_NAMESPACE}/log", Kind.LOG, None)
         self._last_summary = -math.inf
 
-    @property
-    def fleet_topics(self) -> set[str]:
-        """The topics that follow every robot's health (and so the robots lost and back)."""
-        return {f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log"}
-
     def feeds(self) -> dict[str, set[str]]:
         """Every robot's keys -> the topics they feed; each health also feeds the summary and the fleet's log."""
         feeds: dict[str, set[str]] = {}
         for view in self.views.values():
             for key, topics in view.feeds().items():
                 feeds.setdefault(key, set()).update(topics)
-            feeds[view.keys.health] |= self.fleet_topics
+            feeds[view.keys.health] |= FLEET_TOPICS
         return feeds
 
     def handlers(self, robot_id: str) -> dict[str, Callable[[bytes], None]]:
@@ -252,9 +229,6 @@ class FleetView:
 
     def next_deadline(self) -> float:
         return self.summary.next_deadline()
-
-    def suspend(self) -> None:
-        self.summary.suspend()
 
     def _changed(self, changes: list[Presence], now: float) -> None:
         from foxglove.messages import Log, LogLevel

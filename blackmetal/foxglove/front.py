@@ -1,17 +1,17 @@
 """The front of the view's WebSocket server: a thin proxy before foxglove-sdk, its handshake and frames sans I/O.
 
-foxglove-sdk accepts only the subprotocol ``foxglove.sdk.v1``; older clients offer only ``foxglove.websocket.v1``,
-the same protocol (docs/foxglove.md, "Foxglove and Lichtblick"). The front renames it in the handshake, then copies
-bytes both ways unchanged. Following the server's frames (never changing them) it also lets the view send a status
-to one client (the SDK's ``publish_status`` goes to all) and see the refusals the SDK sends by itself. To know which
-SDK client a connection is, it advertises first a marker channel whose schema name is the connection's random token.
+It renames the older clients' subprotocol in the handshake, then copies bytes both ways unchanged; following the
+server's frames it sends one client a status and sees the SDK's own refusals; a marker channel named by a random
+token tells which SDK client a connection is (docs/foxglove.md, "Foxglove and Lichtblick").
 """
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 from collections.abc import Callable
+from dataclasses import InitVar, dataclass, field
 
 import msgspec
 
@@ -45,13 +45,13 @@ def _header_lines(head: bytes) -> list[str]:
     return head.decode("latin-1").split("\r\n")
 
 
+def _names_protocol(line: str) -> bool:
+    return line.partition(":")[0].strip().lower() == "sec-websocket-protocol"
+
+
 def offered_subprotocols(head: bytes) -> list[str]:
-    offered: list[str] = []
-    for line in _header_lines(head)[1:]:
-        name, _, value = line.partition(":")
-        if name.strip().lower() == "sec-websocket-protocol":
-            offered += [item.strip() for item in value.split(",") if item.strip()]
-    return offered
+    values = [line.partition(":")[2] for line in _header_lines(head)[1:] if _names_protocol(line)]
+    return [item.strip() for value in values for item in value.split(",") if item.strip()]
 
 
 def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
@@ -60,7 +60,7 @@ def rewrite_request(head: bytes) -> tuple[bytes, str | None]:
     offered = offered_subprotocols(head)
     if SDK_SUBPROTOCOL in offered or LEGACY_SUBPROTOCOL not in offered:
         return head, None
-    lines = [line for line in _header_lines(head) if line.partition(":")[0].strip().lower() != "sec-websocket-protocol"]
+    lines = [line for line in _header_lines(head) if not _names_protocol(line)]
     # the head ends with "\r\n\r\n": the last two lines are empty
     lines.insert(len(lines) - 2, f"Sec-WebSocket-Protocol: {SDK_SUBPROTOCOL}")
     return "\r\n".join(lines).encode("latin-1"), LEGACY_SUBPROTOCOL
@@ -72,10 +72,7 @@ def switches_protocols(response_head: bytes) -> bool:
 
 
 def rewrite_response(head: bytes, subprotocol: str) -> bytes:
-    lines = _header_lines(head)
-    for index, line in enumerate(lines):
-        if line.partition(":")[0].strip().lower() == "sec-websocket-protocol":
-            lines[index] = f"Sec-WebSocket-Protocol: {subprotocol}"
+    lines = [f"Sec-WebSocket-Protocol: {subprotocol}" if _names_protocol(line) else line for line in _header_lines(head)]
     return "\r\n".join(lines).encode("latin-1")
 
 
@@ -86,12 +83,10 @@ def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
     size = len(payload)
     if size < 126:
         head.append(masked | size)
-    elif size < 1 << 16:
-        head.append(masked | 126)
-        head += size.to_bytes(2, "big")
     else:
-        head.append(masked | 127)
-        head += size.to_bytes(8, "big")
+        wide = size >= 1 << 16
+        head.append(masked | (127 if wide else 126))
+        head += size.to_bytes(8 if wide else 2, "big")
     if mask:
         head += mask
         payload = bytes(byte ^ mask[i % 4] for i, byte in enumerate(payload))
@@ -162,11 +157,9 @@ class FrameTap:
         compressed = bool(head[0] & 0x40)
         self._opcode = head[0] & 0x0F
         length = head[1] & 0x7F
-        at = 2
-        if length == 126:
-            length, at = int.from_bytes(head[2:4], "big"), 4
-        elif length == 127:
-            length, at = int.from_bytes(head[2:10], "big"), 10
+        at = {126: 4, 127: 10}.get(length, 2)
+        if at > 2:
+            length = int.from_bytes(head[2:at], "big")
         self._mask = head[at : at + 4] if head[1] & 0x80 else b""
         self._offset = 0
         self._left = length
@@ -223,19 +216,20 @@ def status_message(level: StatusLevel, message: str) -> bytes:
     return json.dumps({"op": "status", "level": int(level), "message": message}).encode()
 
 
+@dataclass(eq=False)
 class Connection:
     """One client connection through the front: its writer, the tap on what the server sends it, statuses waiting for a message boundary."""
 
-    def __init__(
-        self, token: str, writer: asyncio.StreamWriter, upstream: asyncio.StreamWriter, on_text: Callable[[Connection, bytes], None]
-    ) -> None:
-        self.token = token
-        self.writer = writer
-        self.upstream = upstream
+    token: str
+    writer: asyncio.StreamWriter
+    upstream: asyncio.StreamWriter
+    on_text: InitVar[Callable[[Connection, bytes], None]]
+    client: int | None = None
+    outbox: list[bytes] = field(default_factory=list)
+    busy: bool = False
+
+    def __post_init__(self, on_text: Callable[[Connection, bytes], None]) -> None:
         self.tap = FrameTap(lambda text: on_text(self, text))
-        self.client: int | None = None
-        self.outbox: list[bytes] = []
-        self.busy = False
 
     def send(self, frame: bytes) -> None:
         """At the next message boundary of the server's stream."""
@@ -252,7 +246,5 @@ class Connection:
 
     def close(self) -> None:
         for writer in (self.writer, self.upstream):
-            try:
+            with contextlib.suppress(Exception):
                 writer.close()
-            except Exception:
-                pass

@@ -1,7 +1,6 @@
 """The Foxglove view's host: the WebSocket server the app connects to (behind :mod:`.front`) and, with ``--mcap``, the MCAP file.
 
-It feeds the controls with what clients publish and call, stamped with the clock, runs their deadlines on the
-shared :class:`~blackmetal.runtime.driver.CoreTimer`, and closes what it opened in reverse order.
+It feeds the controls what clients publish and call, stamped with the clock, on the loop only; it closes what it opened in reverse order.
 """
 
 from __future__ import annotations
@@ -23,7 +22,7 @@ import msgspec
 
 from blackmetal.runtime.driver import Core, CoreTimer
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import ConfigError, GatewayParams, Param
+from blackmetal.schemas import ConfigError, Param
 
 from .controls import Controls, FleetControls
 from .front import (
@@ -81,13 +80,6 @@ class _Together:
         return min(part.next_deadline() for part in self.parts)
 
 
-@dataclass(slots=True)
-class _Call:
-    client: int
-    call_id: int
-    future: concurrent.futures.Future[bytes]
-
-
 class FoxgloveHost:
     """The front, the SDK server (and the MCAP file) of one view; feeds :class:`Controls`; :meth:`close` stops them, the file first."""
 
@@ -115,14 +107,28 @@ class FoxgloveHost:
         self._sets: dict[int, concurrent.futures.Future[list[Param]]] = {}
         self._connections: dict[str, Connection] = {}
         self._by_client: dict[int, Connection] = {}
-        self._calls: dict[int, _Call] = {}
+        #: The host's number of a call -> (client, its call id, the SDK thread's future).
+        self._calls: dict[int, tuple[int, int, concurrent.futures.Future[bytes]]] = {}
         self._numbers = itertools.count(1)
         #: (client, call id) of the calls the view's handler took: their failures are the view's, reported by the core.
         self._our_calls: set[tuple[int, int]] = set()
         self._inflight: set[concurrent.futures.Future[bytes]] = set()
         self._front: asyncio.Server | None = None
         listener = sdk_listener(self, self._put_event, self._put_subscription, self._get_params, self._set_params)
-        self.server = start_server(settings, listener, self._services())
+
+        def schema(spec: dict[str, Any]) -> Any:
+            data = foxglove.Schema(name=spec["title"], encoding="jsonschema", data=json.dumps(spec).encode())
+            return foxglove.MessageSchema(encoding=CLIENT_ENCODING, schema=data)
+
+        advertised = [
+            foxglove.Service(
+                name,
+                schema=foxglove.ServiceSchema(spec.type, request=schema(spec.request), response=schema(spec.response)),
+                handler=self._handle_call,
+            )
+            for name, spec in ((name, SERVICE_SPECS[service]) for name, service in self.service_names.items())
+        ]
+        self.server = start_server(settings, listener, advertised)
         self.port = settings.port
         self.url = url(settings.host, settings.port)
         self._writer: Any = None
@@ -132,26 +138,6 @@ class FoxgloveHost:
             except Exception as exc:
                 self.server.stop()
                 raise ConfigError(f"cannot write {settings.mcap}: {exc}") from None
-
-    def _services(self) -> list[Any]:
-        import foxglove
-
-        def schema(spec: dict[str, Any]) -> Any:
-            data = foxglove.Schema(name=spec["title"], encoding="jsonschema", data=json.dumps(spec).encode())
-            return foxglove.MessageSchema(encoding=CLIENT_ENCODING, schema=data)
-
-        return [
-            foxglove.Service(
-                name,
-                schema=foxglove.ServiceSchema(
-                    SERVICE_SPECS[service].type,
-                    request=schema(SERVICE_SPECS[service].request),
-                    response=schema(SERVICE_SPECS[service].response),
-                ),
-                handler=self._handle_call,
-            )
-            for name, service in self.service_names.items()
-        ]
 
     async def start(self) -> None:
         host, port = self.settings.host, self.settings.port
@@ -172,9 +158,6 @@ class FoxgloveHost:
         params.gateways = viewer
         self.timer = CoreTimer(_Together([core, params, *timed]), self.clock)
         self.timer.start()
-
-    async def run(self, stop: asyncio.Event) -> None:
-        await stop.wait()
 
     def close(self) -> None:
         if self.timer is not None:
@@ -209,8 +192,7 @@ class FoxgloveHost:
             upgraded = switches_protocols(answer)
             writer.write(rewrite_response(answer, shown) if upgraded and shown else answer)
             if not upgraded:  # the server's refusal, as it sent it
-                await self._copy(up_reader, writer)
-                return
+                return await self._copy(up_reader, writer)
             connection = Connection(secrets.token_hex(8), writer, upstream, self._on_server_text)
             self._connections[connection.token] = connection
             upstream.write(ws_frame(OP_TEXT, marker_advertisement(connection.token), mask=os.urandom(4)))
@@ -271,16 +253,13 @@ class FoxgloveHost:
             return
         if self.core is None:
             return
-        kind = next((k for k in ServerRefusal if k.value == op.op), None)
-        if kind is ServerRefusal.STATUS and op.level < StatusLevel.WARNING:
-            return
-        if kind is ServerRefusal.SERVICE_CALL_FAILURE:
+        if op.op == ServerRefusal.STATUS.value and op.level >= StatusLevel.WARNING:
+            kind, message = ServerRefusal.STATUS, op.message
+        elif op.op == ServerRefusal.SERVICE_CALL_FAILURE.value:
             if connection.client is not None and op.call_id is not None and (connection.client, op.call_id) in self._our_calls:
                 self._our_calls.discard((connection.client, op.call_id))
                 return
-            message = f"{op.message} (service id {op.service_id}, call {op.call_id})"
-        elif kind is ServerRefusal.STATUS:
-            message = op.message
+            kind, message = ServerRefusal.SERVICE_CALL_FAILURE, f"{op.message} (service id {op.service_id}, call {op.call_id})"
         else:
             return
         self.core.on_server_refusal(connection.client, kind, message, self.clock())
@@ -323,11 +302,8 @@ class FoxgloveHost:
 
     def _get_params(self, names: list[str]) -> list[Any]:
         """getParameters, on an SDK thread: from the loop's last snapshot (a list replaced whole, never changed)."""
-        snapshot = self._param_snapshot
-        if not names:
-            return snapshot
-        wanted = set(names)
-        return [param for param in snapshot if param.name in wanted]
+        snapshot, wanted = self._param_snapshot, set(names)
+        return [param for param in snapshot if param.name in wanted] if names else snapshot
 
     def _set_params(self, client: int, parameters: list[Any]) -> list[Any]:
         """setParameters, on an SDK thread: handed to the loop; waits (bounded) for the gateways' answer."""
@@ -342,8 +318,7 @@ class FoxgloveHost:
 
     def _on_params_set(self, client: int, values: list[tuple[str, object]], future: concurrent.futures.Future[list[Param]]) -> None:
         if self.params is None:
-            future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
-            return
+            return future.set_exception(ServiceFailure("blackmetal foxglove serves no parameters yet"))
         number = next(self._numbers)
         self._sets[number] = future
         self.params.on_set(number, client, values, self.clock())
@@ -358,15 +333,6 @@ class FoxgloveHost:
         if self.params is not None:
             self._param_snapshot = [foxglove_parameter(param) for param in self.params.values()]
         self.server.publish_parameter_values([foxglove_parameter(param) for param in values])
-
-    def on_params_table(self, robot_id: str, payload: bytes) -> GatewayParams | None:
-        return self.params.on_table(robot_id, payload, self.clock()) if self.params is not None else None
-
-    def on_params_reply(self, robot_id: str, reply: tuple[int, bytes | None, bytes | None]) -> None:
-        if self.params is not None:
-            call, ok, err = reply
-            self.params.on_set_reply(robot_id, call, ok, err, self.clock())
-            self.poke()
 
     def _handle_call(self, request: Any) -> bytes:
         """The SDK's service handler, on its own thread: waits (bounded) for the core's answer."""
@@ -384,10 +350,9 @@ class FoxgloveHost:
     def _on_call(self, service: str, client: int, call_id: int, payload: bytes, future: concurrent.futures.Future[bytes]) -> None:
         core = self.core
         if core is None:
-            future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
-            return
+            return future.set_exception(ServiceFailure("blackmetal foxglove is not ready yet"))
         number = next(self._numbers)
-        self._calls[number] = _Call(client, call_id, future)
+        self._calls[number] = (client, call_id, future)
         core.on_service_call(number, client, service, payload, self.clock())
         self.poke()
 
@@ -395,18 +360,17 @@ class FoxgloveHost:
         """To that client; to every client when it is not known (it did not come through the front)."""
         connection = self._by_client.get(client) if client is not None else None
         if connection is not None:
-            connection.send(ws_frame(OP_TEXT, status_message(level, message)))
-            return
+            return connection.send(ws_frame(OP_TEXT, status_message(level, message)))
         import foxglove
 
         self.server.publish_status(message, getattr(foxglove.StatusLevel, level.name.title()))  # INFO -> Info, ...
 
     def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
-        pending = self._calls.pop(call, None)
-        if pending is None or pending.future.done():
+        client, call_id, future = self._calls.pop(call, (0, 0, None))
+        if future is None or future.done():
             return
         if failure is None:
-            self._our_calls.discard((pending.client, pending.call_id))
-            pending.future.set_result(response or b"")
+            self._our_calls.discard((client, call_id))
+            future.set_result(response or b"")
         else:
-            pending.future.set_exception(ServiceFailure(failure))
+            future.set_exception(ServiceFailure(failure))

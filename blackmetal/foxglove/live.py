@@ -28,6 +28,7 @@ from blackmetal.schemas import (
 from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
 from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, joint_state, turned
+from .naming import robot_frame, robot_namespace
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
@@ -66,31 +67,27 @@ class Trail:
 class LiveView:
     """The view's channels of one robot, and what each of its keys' payloads shows on them.
 
-    Every handler first asks which of its channels anyone takes (``has_sinks``): a payload nobody watches is
-    not even decoded. :meth:`feeds` says which channels each key feeds, for :class:`~.watch.Watch`.
+    A payload nobody watches (no channel it feeds ``has_sinks``) is not even decoded.
     """
 
     def __init__(
         self,
         keys: Keys,
-        frame: str = "odom",
-        base: str = "base_link",
+        robot_id: str = "",
         path_length: int = 2000,
         encoders: Encoders | None = None,
-        namespace: str = "",
         tf: Out | None = None,
-        frame_prefix: str = "",
         channel: ChannelFactory = foxglove_channel,
     ) -> None:
-        """``namespace`` (``""`` or ``/<id>``) goes before every topic; ``tf``: a transform channel shared with other views
-        (else ``<namespace>/tf``); ``frame_prefix`` (``""`` or ``<id>/``) before every link of the robot's URDF."""
+        """``robot_id`` (a fleet's robot): its topics under ``/<id>``, its frames and URDF links under ``<id>/``;
+        ``tf``: a transform channel shared with other views (else ``<namespace>/tf``)."""
         self.keys = keys
-        self.namespace = namespace
-        self.frame, self.base = frame, base
+        self.namespace = ns = robot_namespace(robot_id) if robot_id else ""
+        frame_prefix = robot_frame(robot_id, "") if robot_id else ""
+        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_link"
         self.model = RobotModel(frame_prefix, encoders)
         self._angles = WheelAngles(wrap=True)
         schemas = json_schemas()
-        ns = namespace
 
         self.pose = channel(f"{ns}/pose", Kind.POSE, None)
         self.tf = tf if tf is not None else channel(f"{ns}/tf", Kind.TRANSFORM, None)
@@ -114,12 +111,10 @@ class LiveView:
     def description_topic(self) -> str:
         return f"{self.namespace}/robot_description"
 
-    def _topic(self, topic: str) -> str:
-        return self.tf_topic if topic == "/tf" else f"{self.namespace}{topic}"
-
     def feeds(self) -> dict[str, set[str]]:
         """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""
-        return {getattr(self.keys, key): {self._topic(t) for t in topics} for key, (_, topics) in FEEDS.items()}
+        topic = {t: self.tf_topic if t == "/tf" else f"{self.namespace}{t}" for _, topics in FEEDS.values() for t in topics}
+        return {getattr(self.keys, key): {topic[t] for t in topics} for key, (_, topics) in FEEDS.items()}
 
     def handlers(self) -> dict[str, Callable[[bytes], None]]:
         return {getattr(self.keys, key): getattr(self, handler) for key, (handler, _) in FEEDS.items()}
@@ -184,13 +179,7 @@ class LiveView:
         self._angles.feed(sample, model.encoders, model.body.wheel_radius)
         if speeds:
             left, right = model.encoders.to_speeds(float(sample.left), float(sample.right))
-            message = {
-                "stamp": sample.stamp,
-                "left_mps": left,
-                "right_mps": right,
-                "left_impulses": sample.left,
-                "right_impulses": sample.right,
-            }
+            message = dict(zip(_WHEELS, (sample.stamp, left, right, sample.left, sample.right), strict=True))  # the schema's order
             self.wheels.log(json.dumps(message).encode())
         if joints:
             self.joint_states.log(json.dumps(joint_state(model, self._angles, sample.stamp)).encode())

@@ -26,7 +26,7 @@ from .host import FoxgloveHost
 from .live import LiveView
 from .naming import COMMAND_SOURCE, TAKES, Service
 from .params import Parameters
-from .ports import RobotPort, Wiring
+from .ports import Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
 
@@ -42,13 +42,13 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
     try:
         await host.start()  # the port is taken before Zenoh opens: a port in use is one sentence, at once
         view = LiveView(keys, path_length=settings.path_length)
-        port = RobotPort(ONE_ROBOT, host, view, Controls(keys, host, call_timeout=settings.call_timeout))
+        controls = Controls(keys, host, call_timeout=settings.call_timeout)
         params = Parameters({ONE_ROBOT: (keys, "")}, host, call_timeout=settings.call_timeout)
-        wiring = Wiring({ONE_ROBOT: port}, Watch(view.feeds(), record_all=bool(settings.mcap)))
-        host.attach(port.controls, params, wiring)
+        wiring = Wiring(host, {ONE_ROBOT: view}, {ONE_ROBOT: controls}, Watch(view.feeds(), record_all=bool(settings.mcap)))
+        host.attach(controls, params, wiring)
 
         def announce(address: str) -> dict[str, Any]:
-            port.edge.ask_params()
+            wiring.ask_params(ONE_ROBOT)
             say(
                 f"blackmetal foxglove: {keys.prefix} on {address}",
                 f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",

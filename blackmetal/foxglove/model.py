@@ -7,6 +7,7 @@ disagree with what the panel draws.
 
 from __future__ import annotations
 
+import json
 import math
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass
@@ -42,9 +43,7 @@ class Joint:
 
 
 def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[float, float, float]:
-    if not text:
-        return default
-    x, y, z = (float(part) for part in text.split())
+    x, y, z = (float(part) for part in text.split()) if text else default
     return x, y, z
 
 
@@ -83,10 +82,6 @@ class RobotModel:
         self.frame_prefix = frame_prefix
         self.encoders = encoders or Encoders()
         self.body = model.Body()
-        self.urdf = ""
-        self.joints: list[Joint] = []
-        self.left: Joint | None = None
-        self.right: Joint | None = None
         self._build()
 
     def _build(self) -> None:
@@ -113,8 +108,6 @@ class RobotModel:
         return True
 
     def description(self) -> bytes:
-        import json
-
         return json.dumps({"data": self.urdf}).encode()
 
 

@@ -84,19 +84,17 @@ class ServiceSpec:
     response: dict[str, Any]
 
 
+def _spec(ros_type: str, request: dict[str, Any], response: dict[str, Any], required: list[str] | None = None) -> ServiceSpec:
+    return ServiceSpec(
+        ros_type, {"title": f"{ros_type}_Request", **_object(request, required)}, {"title": f"{ros_type}_Response", **_object(response)}
+    )
+
+
+_RESULT = {"success": {"type": "boolean"}, "message": {"type": "string"}}
 SERVICE_SPECS: dict[Service, ServiceSpec] = {
-    Service.SET_ESTOP: ServiceSpec(
-        "std_srvs/srv/SetBool",
-        {"title": "std_srvs/srv/SetBool_Request", **_object({"data": {"type": "boolean"}}, ["data"])},
-        {"title": "std_srvs/srv/SetBool_Response", **_object({"success": {"type": "boolean"}, "message": {"type": "string"}})},
-    ),
-    Service.RESET_ODOMETRY: ServiceSpec(
-        "blackmetal/srv/ResetOdometry",
-        {"title": "blackmetal/srv/ResetOdometry_Request", **_object({"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER})},
-        {
-            "title": "blackmetal/srv/ResetOdometry_Response",
-            **_object({"success": {"type": "boolean"}, "message": {"type": "string"}, "pose": _POSE_SCHEMA}),
-        },
+    Service.SET_ESTOP: _spec("std_srvs/srv/SetBool", {"data": {"type": "boolean"}}, _RESULT, ["data"]),
+    Service.RESET_ODOMETRY: _spec(
+        "blackmetal/srv/ResetOdometry", {"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER}, {**_RESULT, "pose": _POSE_SCHEMA}
     ),
 }
 

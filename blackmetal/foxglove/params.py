@@ -60,16 +60,12 @@ class _Robot:
 class Parameters:
     """Every robot's gateway parameters under Foxglove's names; sets go to the robot's gateway, answers come from its reply."""
 
-    def __init__(
-        self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0, gateways: Gateways | None = None
-    ) -> None:
-        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet); ``gateways``: else given
-        by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
+    def __init__(self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0) -> None:
+        """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet). Its ``gateways`` are
+        given by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
         self.gateways: Gateways
-        if gateways is not None:
-            self.gateways = gateways
         self.call_timeout = call_timeout
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())
@@ -79,9 +75,7 @@ class Parameters:
             (only,) = self.robots
             return only, shown
         robot_id = robot_of(shown, self.robots)
-        if robot_id is None:
-            return None
-        return robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/")
+        return None if robot_id is None else (robot_id, shown.removeprefix(self.robots[robot_id].namespace + "/"))
 
     def _shown(self, robot_id: str, param: Param) -> Param:
         return msgspec.structs.replace(param, name=param_name(self.robots[robot_id].namespace, param.name))
@@ -89,10 +83,8 @@ class Parameters:
     def values(self, names: Collection[str] = ()) -> list[Param]:
         """The parameters now, by their shown names (all of them when ``names`` is empty; unknown names are left out)."""
         shown = [self._shown(robot_id, param) for robot_id, robot in self.robots.items() for param in robot.table.values()]
-        if not names:
-            return shown
         wanted = set(names)
-        return [param for param in shown if param.name in wanted]
+        return [param for param in shown if param.name in wanted] if names else shown
 
     def on_table(self, robot_id: str, payload: bytes, now: float) -> GatewayParams | None:
         """What changed goes to the clients that follow it; the table (None, reported, when it does not decode)."""
@@ -121,16 +113,13 @@ class Parameters:
             owner = self._owner(shown)
             if owner is None:
                 reason = f"no parameter {shown!r}: parameters are named /<id>/<name> for the robots {', '.join(self.robots)}"
-                refusals.append(reason)
-                self.gateways.report(None, "parameters", f"client {client}: {reason}", "", now)
-                continue
-            robot_id, name = owner
-            if (isinstance(value, float) and not math.isfinite(value)) or not isinstance(value, (bool, int, float, str)):
+            elif (isinstance(value, float) and not math.isfinite(value)) or not isinstance(value, (bool, int, float, str)):
                 reason = f"{shown} = {value!r} refused: a parameter takes a number, a bool or a string"
-                refusals.append(reason)
-                self.gateways.report(robot_id, "parameters", f"client {client}: {reason}", "", now)
+            else:
+                per_robot.setdefault(owner[0], {})[owner[1]] = value
                 continue
-            per_robot.setdefault(robot_id, {})[name] = value
+            refusals.append(reason)
+            self.gateways.report(None if owner is None else owner[0], "parameters", f"client {client}: {reason}", "", now)
         names = [shown for shown, _ in values]
         pending = SetCall(client, names, set(per_robot), now + self.call_timeout, refusals)
         self._calls[call] = pending
@@ -188,7 +177,3 @@ class Parameters:
 
     def next_deadline(self) -> float:
         return min((pending.deadline for pending in self._calls.values()), default=math.inf)
-
-    @property
-    def waiting(self) -> int:
-        return len(self._calls)

@@ -21,9 +21,8 @@ class Watch:
 
     def subscribe(self, client: int, topic: str) -> bool:
         """A client subscribed to ``topic``; True when that is the topic's first subscriber."""
-        watchers = self._clients[topic]
-        first = not watchers
-        watchers.add(client)
+        first = not self._clients[topic]
+        self._clients[topic].add(client)
         return first
 
     def unsubscribe(self, client: int, topic: str) -> bool:
@@ -34,8 +33,7 @@ class Watch:
         watchers.discard(client)
         if not watchers:
             del self._clients[topic]
-            return True
-        return False
+        return not watchers
 
     def client_gone(self, client: int) -> list[str]:
         """The topics nobody watches any more once ``client`` left."""

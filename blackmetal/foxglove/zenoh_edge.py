@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import asyncio
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING, Any, Protocol
 
 from blackmetal.runtime.edge import ZenohEdge
@@ -31,12 +32,13 @@ DRAIN_PERIOD_S = 0.02
 
 
 class Answers(Protocol):
-    """Who takes the gateway's health, parameters and the replies: the robot's port."""
+    """Who takes each robot's gateway health, parameters and replies, and its handlers' bugs: the view's wiring."""
 
-    def on_health(self, payload: bytes) -> None: ...
-    def on_reset_reply(self, reply: Reply) -> None: ...
-    def on_params(self, payload: bytes) -> None: ...
-    def on_params_reply(self, reply: Reply) -> None: ...
+    def on_health(self, robot_id: str, payload: bytes) -> None: ...
+    def on_reset_reply(self, robot_id: str, reply: Reply) -> None: ...
+    def on_params(self, robot_id: str, payload: bytes) -> None: ...
+    def on_params_reply(self, robot_id: str, reply: Reply) -> None: ...
+    def on_bug(self, robot_id: str, exc: BaseException) -> None: ...
 
 
 class NoEdge:
@@ -61,13 +63,6 @@ class NoEdge:
 NO_EDGE = NoEdge()
 
 
-def _error_bytes(reply: "zenoh.Reply") -> bytes:
-    try:
-        return bytes(reply.err.payload.to_bytes()) if reply.err is not None else b""
-    except Exception:
-        return b""
-
-
 class FoxgloveZenoh(ZenohEdge):
     """One robot's Zenoh side of the view: subscriptions for what is watched, publishers and queries for what clients do."""
 
@@ -90,25 +85,26 @@ class FoxgloveZenoh(ZenohEdge):
 
     def attach(
         self,
+        robot_id: str,
         handlers: dict[str, Callable[[bytes], None]],
         host: Answers,
         loop: asyncio.AbstractEventLoop,
-        on_error: Callable[[BaseException], None] | None = None,
         presence: Callable[[bool], None] | None = None,
     ) -> Intake:
         """Hand-over channels for ``handlers`` (declared by :meth:`want`), the gateway's parameters and, with
-        ``presence``, its liveliness token. ``on_error`` takes what a handler raised."""
+        ``presence``, its liveliness token; what a handler raises goes to ``host.on_bug``."""
+        on_error = partial(host.on_bug, robot_id)
         handover = self.intake(loop, on_error=on_error)
         handlers = dict(handlers)
         show_health = handlers[self.keys.health]
 
         def on_health(payload: bytes) -> None:
             show_health(payload)
-            host.on_health(payload)
+            host.on_health(robot_id, payload)
 
         handlers[self.keys.health] = on_health
         self._handlers, self._on_error = handlers, on_error
-        self._params = handover.channel("params", host.on_params, capacity=16)  # published and asked for alike
+        self._params = handover.channel("params", partial(host.on_params, robot_id), capacity=16)  # published and asked for alike
         self.subscriber(self.keys.params, self._params)
         if presence is not None:
             put = handover.channel("alive", presence, capacity=64)
@@ -120,9 +116,11 @@ class FoxgloveZenoh(ZenohEdge):
 
             token = self.session.liveliness().declare_subscriber(self.keys.alive_gateway, on_token, history=True)
             self._entities.append(token)
-        self._health_reply = handover.channel("health?", host.on_health, capacity=64)
-        self._reset_reply = handover.channel("reset?", host.on_reset_reply, capacity=64)  # replies, then the end, in order
-        self._set_reply = handover.channel("params set?", host.on_params_reply, capacity=64)
+        self._health_reply = handover.channel("health?", partial(host.on_health, robot_id), capacity=64)
+        self._reset_reply = handover.channel(
+            "reset?", partial(host.on_reset_reply, robot_id), capacity=64
+        )  # replies, then the end, in order
+        self._set_reply = handover.channel("params set?", partial(host.on_params_reply, robot_id), capacity=64)
         return handover
 
     def want(self, keys: set[str]) -> None:
@@ -204,7 +202,13 @@ class FoxgloveZenoh(ZenohEdge):
         import zenoh
 
         def on_reply(reply: "zenoh.Reply") -> None:
-            put((call, payload_bytes(reply.ok), None) if reply.ok is not None else (call, None, _error_bytes(reply)))
+            if reply.ok is not None:
+                return put((call, payload_bytes(reply.ok), None))
+            try:
+                err = bytes(reply.err.payload.to_bytes()) if reply.err is not None else b""
+            except Exception:
+                err = b""
+            put((call, None, err))
 
         def on_end() -> None:
             put((call, None, None))

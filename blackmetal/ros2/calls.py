@@ -1,8 +1,7 @@
-"""The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services.
+"""The node's services answered: ``set_estop``, ``reset_odometry`` and rclcpp's six parameter services. Pure.
 
-Each call waits as a :class:`PendingCall` for its confirmation (the gateway's health, the odometry's answer, the
-gateway's set reply) and is answered once: ``success=false`` with the reason when refused or at its deadline.
-What each answers: docs/ros2-adapter.md "Topics and services". Pure, ``now`` passed in.
+Each call waits as a :class:`PendingCall` for its confirmation and is answered once: ``success=false`` with the
+reason when refused or at its deadline (docs/ros2-adapter.md "Topics and services").
 """
 
 from __future__ import annotations
@@ -15,7 +14,7 @@ from typing import TypeVar
 import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSetReply, PayloadError, Pose, decode, encode
+from blackmetal.schemas import EStop, GatewayHealth, GatewayParams, Keys, ParamsSet, ParamsSetReply, PayloadError, Pose, decode, encode
 
 from .diagnostics import AdapterStats
 from .messages import RosCodec
@@ -111,8 +110,7 @@ class ServiceCalls:
     def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
         key = self.options.service_keys.get(service, service)
         if service not in SERVICE_TYPES:
-            self.output.service_refuse(call, f"no service {service!r} here")
-            return
+            return self.output.service_refuse(call, f"no service {service!r} here")
         reply_to = None
         if request_attachment is not None:
             try:
@@ -122,26 +120,21 @@ class ServiceCalls:
             except ValueError as exc:
                 reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
                 self.reject(key, reason, excerpt(request_attachment), now)
-                self._refuse(call, reason, now)
-                return
+                return self._refuse(call, reason, now)
             reply_to = (sequence, gid)
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
         if service in PARAMETER_SERVICES:
             if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
-                self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
-                return
-            self._run_parameter_call(pending, cdr, now)
-            return
+                return self._refuse(call, f"{MAX_PENDING_CALLS} calls are already waiting for their answer; call again", now)
+            return self._run_parameter_call(pending, cdr, now)
         try:
             request = self.codec.request(SERVICE_TYPES[service], cdr)  # SetBool or Trigger
         except PayloadError as exc:
             self.reject(key, str(exc), exc.excerpt, now)
-            self._finish(pending, False, f"invalid request: {exc}", now)
-            return
+            return self._finish(pending, False, f"invalid request: {exc}", now)
         pending.engage = service == SET_ESTOP and bool(request.data)
         if len(self.pending) >= MAX_PENDING_CALLS:
-            self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
-            return
+            return self._finish(pending, False, f"{MAX_PENDING_CALLS} calls are already waiting for their confirmation; call again", now)
         self.pending[call] = pending
         if service == SET_ESTOP:
             self.follow()
@@ -182,35 +175,29 @@ class ServiceCalls:
             self._run_parameter_call(pending, request, now)
 
     def _run_parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
-        try:
-            self._parameter_call(pending, cdr, now)
-        except PayloadError as exc:
-            self.reject(self.options.service_keys.get(pending.service, pending.service), str(exc), exc.excerpt, now)
-            self._refuse(pending.call, f"invalid request: {exc}", now)
-
-    def _parameter_call(self, pending: PendingCall, cdr: bytes, now: float) -> None:
         """Answered from the table now, or (a set) when the gateway has answered; before the table has arrived the call
         waits for it, so ``ros2 param list`` at start-up lists the parameters, not nothing."""
         service, p, codec = pending.service, self.parameters, self.codec
         if not p.known:
             pending.request = cdr
             self.pending[pending.call] = pending
-            self.ask_params()
-            return
+            return self.ask_params()
         ros_type = PARAMETER_SERVICES[service]
-        if service not in SET_CALLS:
-            self._answer(pending, True, codec.parameter_response(ros_type, cdr, p), now)
-            return
-        pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        try:
+            if service not in SET_CALLS:
+                return self._answer(pending, True, codec.parameter_response(ros_type, cdr, p.table), now)
+            pending.parameters = codec.set_parameters_request(ros_type, cdr)
+        except PayloadError as exc:
+            self.reject(self.options.service_keys.get(service, service), str(exc), exc.excerpt, now)
+            return self._refuse(pending.call, f"invalid request: {exc}", now)
         plan = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
         pending.refused = plan.refused
         for reason in plan.refused.values():
             self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
         if not plan.values:
-            self._answer_set(pending, None, now)
-            return
+            return self._answer_set(pending, None, now)
         self.pending[pending.call] = pending
-        self._ask(Query.PARAMS_SET, self.keys.params_set, plan.payload(), pending.call, self.options.service_timeout)
+        self._ask(Query.PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=plan.values)), pending.call, self.options.service_timeout)
 
     def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
         """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
@@ -307,8 +294,7 @@ class ServiceCalls:
         if pending.request is not None:  # it waited for the gateway's table, which never came
             self.pending.pop(pending.call, None)
             where = f"({self.keys.params}): is it running on prefix {self.keys.prefix}?"
-            self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
-            return
+            return self._refuse(pending.call, f"the gateway's parameters did not arrive within {limit} {where}", now)
         if pending.service in SET_CALLS:
             return self._fail(pending, f"the gateway did not answer within {limit} ({self.keys.params_set}); nothing known set", now)
         if pending.service == RESET_ODOMETRY:

@@ -2,8 +2,7 @@
 
 A plain client of the robot's keys: ROS ``/cmd_vel`` and ``/estop`` become the gateway's own messages, so its limits,
 timeout, arbitration and e-stop apply to ROS as to any client; what cannot be decoded is reported on
-``<prefix>/errors``, never forwarded. Services are answered by :mod:`.calls`. Every input comes with ``now``; what
-is due later goes out in :meth:`Ros2Core.tick`. docs/ros2-adapter.md says what each topic carries.
+``<prefix>/errors``, never forwarded (docs/ros2-adapter.md says what each topic carries).
 """
 
 from __future__ import annotations
@@ -21,7 +20,7 @@ from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadE
 from .calls import Query, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .messages import RosCodec
-from .naming import ROBOT_DESCRIPTION, TF_STATIC
+from .naming import CMD_VEL_STAMPED, ROBOT_DESCRIPTION, TF_STATIC
 from .options import Ros2Options, Ros2Output
 from .ros_types import BOOL, STRING
 
@@ -57,16 +56,7 @@ class Ros2Core:
         self.parameters = self.calls.parameters
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
-        self._model_published = o.robot is None
-
-    def publish_robot_model(self) -> None:
-        """``/robot_description`` and ``/tf_static``, once: the edge's transient-local publishers keep them for late joiners."""
-        robot = self.options.robot
-        if robot is None:
-            return
-        self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
-        self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
-        self._model_published = True
+        self._model_published = False
 
     def _reject(self, key: str, reason: str, snippet: str, now: float) -> None:
         self.stats.bad_inputs.add(now)
@@ -129,8 +119,10 @@ class Ros2Core:
         """Someone watches ``topic`` (all of them until the edge reports); /tf only if the node publishes it."""
         return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
-    def needs(self) -> frozenset[str]:
-        """The robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+    def _follow(self) -> None:
+        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+        if self.watched is None:
+            return  # not started: the edge follows everything it declared
         robot = self.options.robot
         out = set()
         if any(map(self._wants, ("odom", "tf", "diagnostics"))):
@@ -141,13 +133,7 @@ class Ros2Core:
             out.update(("errors", "health"))
         if self.calls.waits_for_health:
             out.add("health")
-        return frozenset(out)
-
-    def _follow(self) -> None:
-        if self.watched is None:
-            return  # not started: the edge follows everything it declared
-        needs = self.needs()
-        if needs != self._following:
+        if (needs := frozenset(out)) != self._following:
             self._following = needs
             self.output.follow(needs)
 
@@ -172,14 +158,19 @@ class Ros2Core:
         Without ``report`` a refusal changes nothing, so the direct take on Zenoh's thread (which must not publish an
         error report) leaves the sample to :meth:`on_cmd_vel` on the loop, which refuses it again and reports why.
         """
-        key = self.options.cmd_vel_stamped_key if stamped else self.options.cmd_vel_key
+        key = self.options.data_keys.get(CMD_VEL_STAMPED if stamped else "cmd_vel", "cmd_vel")
         try:
             twist, stamp = self.codec.twist_stamped(cdr) if stamped else (self.codec.twist(cdr), 0.0)
         except PayloadError as exc:
             if report:
                 self._reject(key, str(exc), exc.excerpt, now)
             return False
-        timeout = self._cmd_timeout()
+        # the gateway's command timeout: from its parameters (published on each change), else its last health
+        param, health = self.parameters.table.get("cmd_timeout"), self.diagnostics.health
+        if param is not None and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
+            timeout = float(param.value)
+        else:
+            timeout = DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
         age = self.wallclock() - stamp if stamp else 0.0
         if timeout > 0 and age > timeout:
             if report:
@@ -193,20 +184,11 @@ class Ros2Core:
         self.output.blackmetal(self.cmd_vel_target, encode(twist))
         return True
 
-    def _cmd_timeout(self) -> float:
-        """The gateway's command timeout: from its parameters (published on each change), else its last health."""
-        param = self.parameters.table.get("cmd_timeout")
-        if param is not None and isinstance(param.value, (int, float)) and not isinstance(param.value, bool):
-            return float(param.value)
-        health = self.diagnostics.health
-        return DEFAULT_CMD_TIMEOUT if health is None else health.cmd_timeout
-
     def on_estop(self, cdr: bytes, now: float) -> None:
         try:
             estop = EStop(engaged=bool(self.codec.decode(cdr, BOOL).data))
         except PayloadError as exc:
-            self._reject(self.options.estop_key, str(exc), exc.excerpt, now)
-            return
+            return self._reject(self.options.data_keys.get("estop", "estop"), str(exc), exc.excerpt, now)
         self.stats.estops += 1
         self.output.blackmetal(self.keys.estop_for(estop.engaged), encode(estop))
 
@@ -223,8 +205,11 @@ class Ros2Core:
 
     def tick(self, now: float) -> None:
         """Run what is due at ``now``: the robot model (first tick), calls, diagnostics, error-report summaries."""
-        if not self._model_published:
-            self.publish_robot_model()
+        robot = self.options.robot
+        if robot is not None and not self._model_published:  # once: transient-local publishers keep it for late joiners
+            self.output.ros(ROBOT_DESCRIPTION, self.codec.encode(STRING, data=robot.urdf))
+            self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
+            self._model_published = True
         self.calls.tick(now)
         if now >= self._next_diagnostics:
             if self._wants("diagnostics"):  # nobody subscribes: nothing encoded

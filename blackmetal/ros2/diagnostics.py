@@ -89,10 +89,8 @@ class Diagnostics:
             self.last_rejection = report.reason
 
     def on_alive(self, who: str, alive: bool) -> None:
-        if who == "gateway":
-            self.gateway_alive = alive
-        elif who == "odometry":
-            self.odometry_alive = alive
+        """``who``: ``gateway`` or ``odometry``."""
+        setattr(self, f"{who}_alive", alive)
 
     def lost_in_window(self, now: float) -> tuple[int, int]:
         """(replies lost, polls) over the health reports of the last window."""

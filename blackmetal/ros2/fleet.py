@@ -18,12 +18,12 @@ from blackmetal.runtime.entry import Fleet, say
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.service import Member, Role, serve_fleet
-from blackmetal.schemas import ConfigError, Keys
+from blackmetal.schemas import ConfigError
 
 from .core import Ros2Core
 from .host import Ros2Host
 from .messages import RosCodec
-from .naming import DEFAULT_DISTRO, Distro, Flavor, full_topic, normalise_namespace, services, tf_frame_prefix, topics
+from .naming import DEFAULT_DISTRO, Distro, Flavor, full_topic, normalise_namespace, tf_frame_prefix
 from .settings import Ros2Settings
 from .zenoh_edge import Ros2Zenoh
 
@@ -72,24 +72,9 @@ def declare_node(
     """One node of ``distro`` for the robot of ``s``, attached to the running loop; with ``burst``, a fleet's node
     (absolute /tf, frames prefixed by its namespace, streams in rings, supervised)."""
     fleet = burst is not None
-    namespace = normalise_namespace(s.namespace)
-    edge = Ros2Zenoh(
-        session,
-        Keys(s.prefix),
-        codec,
-        Flavor(s.flavor),
-        s.domain_id,
-        namespace,
-        s.node_name,
-        topics(s.tf, absolute_tf=fleet, robot_model=s.robot_model),
-        services(),
-        s.source,
-        ids,
-        distro,
-        rings=fleet,
-        burst=burst,
-    )
-    options = s.options(edge.data_keys, edge.service_keys, frame_prefix=tf_frame_prefix(namespace) if fleet else "", distro=distro)
+    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst)
+    frame_prefix = tf_frame_prefix(normalise_namespace(s.namespace)) if fleet else ""
+    options = s.options(edge.data_keys, edge.service_keys, frame_prefix=frame_prefix, distro=distro)
     host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=fleet)
     edge.attach(host, asyncio.get_running_loop())
     return edge, host

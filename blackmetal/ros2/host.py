@@ -25,16 +25,10 @@ class Ros2Host:
     def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False) -> None:
         self.core = core
         self.clock = clock
-        self.supervised = supervised
         self.driver = Driver(core, clock, supervised=supervised, name=core.keys.prefix, logger=log)
         #: Held by the loop whenever it is in the core; a Zenoh thread taking ``/cmd_vel`` directly only tries it.
         self.lock = self.driver.lock
         self.fail = self.driver.fail
-
-    @property
-    def running(self) -> bool:
-        """The core serves (from its start until run ends or a bug failed it); direct takes only then."""
-        return self.driver.serving
 
     def direct(self, stamped: bool = False) -> Callable[[bytes], bool]:
         """Zenoh's thread, under the lock: forward an acceptable command, else leave it to the loop (no deadline changes)."""

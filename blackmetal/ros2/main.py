@@ -64,18 +64,10 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
                     name, key = service.full_name(namespace, settings.node_name), edge.service_keys[service.name]
                     say(f"  {name:<{width}} {service.ros_type:<41} service       on {key}")
             say(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}")
-            first = nodes[0][1]
-            announce_ready(
-                "ros2",
-                prefix=keys.prefix,
-                node=node,
-                flavor=flavor.value,
-                distros=[d for d, _, _ in nodes],
-                keys=first.data_keys,
-                services=first.service_keys,
-                tokens=first.tokens,
-                by_distro={d: {"keys": e.data_keys, "services": e.service_keys, "tokens": e.tokens} for d, e, _ in nodes},
-            )
+            by_distro = {d: {"keys": e.data_keys, "services": e.service_keys, "tokens": e.tokens} for d, e, _ in nodes}
+            first = by_distro[nodes[0][0]]  # the first distro's at the top
+            ready = {"prefix": keys.prefix, "node": node, "flavor": flavor.value, "distros": list(by_distro), **first}
+            announce_ready("ros2", **ready, by_distro=by_distro)
             await asyncio.gather(*(host.run(stop) for _, _, host in nodes))
         finally:
             for _, edge, _ in nodes:

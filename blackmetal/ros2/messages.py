@@ -15,7 +15,7 @@ from blackmetal.schemas import Param, PayloadError, Pose, Twist, Vector3, stamp_
 
 from . import cdr
 from . import ros_types as ros
-from .parameters import NodeParameters
+from .parameters import list_names, ros_value
 from .ros_types import Frames, ParameterType, RosValue, Transform, excerpt, type_store
 
 
@@ -133,20 +133,22 @@ class RosCodec:
             fields[f"{kind.name.lower()}_value"] = value
         return self.message("rcl_interfaces/msg/ParameterValue", type=int(kind), **fields)
 
-    def parameter_response(self, service: str, payload: bytes, table: NodeParameters) -> bytes:
-        """The response of a parameter read service (``service``: its type), answered from ``table``."""
+    def parameter_response(self, service: str, payload: bytes, table: dict[str, Param]) -> bytes:
+        """The response of a parameter read service (``service``: its type), answered from the gateway's ``table``; an
+        unknown name gets no value, NOT_SET, a descriptor of no kind (the .srv asks for one per name)."""
         import numpy as np
 
         request = self.request(service, payload)
         if service == ros.LIST_PARAMETERS:
-            names, prefixes = table.names([str(p) for p in request.prefixes], int(request.depth))
+            names, prefixes = list_names(list(table), [str(p) for p in request.prefixes], int(request.depth))
             return self.response(service, result=self.message("rcl_interfaces/msg/ListParametersResult", names=names, prefixes=prefixes))
         asked = [str(name) for name in request.names]
         if service == ros.GET_PARAMETERS:
-            return self.response(service, values=[self._value(v) for v in table.values(asked)])
+            return self.response(service, values=[self._value(ros_value(table[n]) if n in table else None) for n in asked])
         if service == ros.GET_PARAMETER_TYPES:
-            return self.response(service, types=np.asarray([int(t) for t in table.types(asked)], dtype=np.uint8))
-        return self.response(service, descriptors=[self._descriptor(p) for p in table.describe(asked)])
+            types = [ParameterType.of(table[n].type) if n in table else ParameterType.NOT_SET for n in asked]
+            return self.response(service, types=np.asarray(types, dtype=np.uint8))
+        return self.response(service, descriptors=[self._descriptor(table.get(n) or Param(name=n, type="", value="")) for n in asked])
 
     def _descriptor(self, p: Param) -> Any:
         kind, floats, integers = ParameterType.of(p.type), [], []

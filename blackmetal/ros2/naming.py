@@ -42,23 +42,9 @@ class Distro(StrEnum):
     ROLLING = "rolling"
 
 
-@dataclass(frozen=True, slots=True)
-class DistroFormat:
-    """What differs between distros on the wire; the rmw_zenoh release it was read from, the first it holds for."""
-
-    type_hashes: bool  # RIHS01 hashes in keys and tokens; False: TypeHashNotSupported
-    release: str
-    supported_from: str
-
-
-#: Only Humble's missing type hashes differ on the wire (docs/ros2.md "What each distro writes").
-DISTROS: dict[Distro, DistroFormat] = {
-    Distro.HUMBLE: DistroFormat(type_hashes=False, release="0.1.9", supported_from="0.1.2"),
-    Distro.JAZZY: DistroFormat(type_hashes=True, release="0.2.10", supported_from="0.2.5"),
-    Distro.KILTED: DistroFormat(type_hashes=True, release="0.6.7", supported_from="0.6.0"),
-    Distro.LYRICAL: DistroFormat(type_hashes=True, release="0.10.5", supported_from="0.10.3"),
-    Distro.ROLLING: DistroFormat(type_hashes=True, release="0.12.0", supported_from="0.12.0"),
-}
+#: Only Humble's missing type hashes differ on the wire; the rmw_zenoh releases each distro's formats were read from:
+#: docs/ros2.md "What each distro writes".
+WITHOUT_TYPE_HASHES = frozenset({Distro.HUMBLE})
 #: What Humble's rmw_zenoh writes where later distros write the type hash.
 TYPE_HASH_NOT_SUPPORTED = "TypeHashNotSupported"
 #: Without ``--distro`` and without a sourced ROS (``ROS_DISTRO``): the current LTS.
@@ -81,7 +67,7 @@ def parse_distros(text: str, origin: str = "--distro") -> tuple[Distro, ...]:
 
 def type_hash_of(distro: Distro, computed: str) -> str:
     """The type hash ``distro``'s rmw_zenoh writes in keys and tokens: ``computed`` (RIHS01), or Humble's constant."""
-    return computed if DISTROS[distro].type_hashes else TYPE_HASH_NOT_SUPPORTED
+    return TYPE_HASH_NOT_SUPPORTED if distro in WITHOUT_TYPE_HASHES else computed
 
 
 class Flavor(StrEnum):
@@ -119,7 +105,6 @@ class Qos:
 
     def keyexpr(self) -> str:
         """rmw_zenoh's encoding (``qos_to_keyexpr``): ``::,10:,:,:,,`` for the default above."""
-
         fields = ("" if getattr(self, name) == default else str(getattr(self, name)) for name, default in RMW_ZENOH_DEFAULTS.items())
         reliability, durability, history, depth = fields
         return f"{reliability}:{durability}:{history},{depth}:,:,:,,"
@@ -133,9 +118,7 @@ def check_ros_name(kind: str, name: str) -> str:
 
 def normalise_namespace(namespace: str | None) -> str:
     """``r1``, ``/r1``, ``/r1/`` -> ``/r1``; none or empty -> ``/`` (ROS's root namespace)."""
-    parts = [p for p in (namespace or "").split("/") if p]
-    for part in parts:
-        check_ros_name("namespace part", part)
+    parts = [check_ros_name("namespace part", p) for p in (namespace or "").split("/") if p]
     return "/" + "/".join(parts)
 
 

@@ -1,10 +1,11 @@
-"""What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options, and where its messages go.
+"""What a :class:`~blackmetal.ros2.core.Ros2Core` is given: its options (the robot model among them), and where its messages go.
 
 Apart from the core so that its parts (:mod:`.diagnostics`, :mod:`.calls`) read them without importing the core.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Protocol
@@ -12,8 +13,30 @@ from typing import Protocol
 from blackmetal.robot_model import Encoders
 from blackmetal.schemas import ErrorReport, Sources
 
-from .joints import RobotModel
-from .ros_types import Frames
+from .ros_types import Frames, Transform
+
+
+@dataclass(frozen=True, slots=True)
+class Wheel:
+    """A wheel's transform from ``/joint_states``: ``parent`` -> ``child`` at ``y`` (m), turned about +y by its angle."""
+
+    parent: str
+    child: str
+    y: float
+
+    def transform(self, angle: float) -> Transform:
+        return Transform(self.parent, self.child, (0.0, self.y, 0.0), (0.0, math.sin(angle / 2), 0.0, math.cos(angle / 2)))
+
+
+@dataclass(frozen=True, slots=True)
+class RobotModel:
+    """What robot_state_publisher would publish for the URDF: the text, its fixed joints, its two wheels (left, right)."""
+
+    urdf: str
+    fixed: tuple[Transform, ...]
+    wheels: tuple[Wheel, Wheel]
+    #: Publish the wheels' transforms on /tf from the wheel angles (robot_state_publisher's job for moving joints).
+    wheel_tf: bool = True
 
 
 class Ros2Output(Protocol):
@@ -35,6 +58,8 @@ class Ros2Output(Protocol):
 
 @dataclass(frozen=True, slots=True)
 class Ros2Options:
+    """The core's settings, as :meth:`~.settings.Ros2Settings.options` makes them (what each means: its help there)."""
+
     frames: Frames
     pose_covariance: list[float]
     twist_covariance: list[float]
@@ -42,23 +67,16 @@ class Ros2Options:
     joint_names: tuple[str, str]
     wheel_radius: float
     encoders: Encoders
-    #: How error reports name the ROS inputs: the Zenoh key each arrives on.
-    cmd_vel_key: str = "cmd_vel"
-    cmd_vel_stamped_key: str = "cmd_vel"
-    estop_key: str = "estop"
-    #: The command source /cmd_vel drives as: ``<prefix>/cmd_vel/<source>``.
+    #: How error reports name the ROS inputs and services: the Zenoh key of each (by topic or service name).
+    data_keys: Mapping[str, str] = field(default_factory=dict)
+    service_keys: Mapping[str, str] = field(default_factory=dict)
     source: str = Sources.ROS2
-    #: A service call not confirmed within this (s) is answered success=false.
     service_timeout: float = 2.0
-    #: The gateway's --poll-hz, which the robot link's measured poll rate is held against.
     expected_poll_hz: float = 50.0
-    #: For the diagnostics: the node's fully qualified name, the flavour, the domain.
+    #: For the diagnostics: the node's fully qualified name, the flavour, the domain, the distro.
     node: str = "/blackmetal"
     flavor: str = "rmw_zenoh"
     domain_id: int = 0
-    #: The Zenoh key of each service, which error reports name.
-    service_keys: Mapping[str, str] = field(default_factory=dict)
-    #: The ROS 2 distro whose rmw_zenoh formats the node speaks (for the diagnostics).
     distro: str = "jazzy"
     #: /robot_description, /tf_static and the wheels on /tf; None: another node publishes the robot model.
     robot: RobotModel | None = None

@@ -11,7 +11,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
-from blackmetal.schemas import GatewayParams, Param, ParamsSet, ParamValue, encode
+from blackmetal.schemas import GatewayParams, Param, ParamValue
 
 from .ros_types import ParameterType, RosValue
 
@@ -55,9 +55,6 @@ class SetPlan:
     values: dict[str, ParamValue]
     refused: dict[int, str]
 
-    def payload(self) -> bytes:
-        return encode(ParamsSet(values=self.values))
-
 
 @dataclass(slots=True)
 class NodeParameters:
@@ -79,19 +76,6 @@ class NodeParameters:
             self.table[param.name] = param
         self.known = True
         return new, changed
-
-    def names(self, prefixes: Sequence[str], depth: int) -> tuple[list[str], list[str]]:
-        return list_names(list(self.table), prefixes, depth)
-
-    def values(self, names: Sequence[str]) -> list[RosValue | None]:
-        return [ros_value(self.table[name]) if name in self.table else None for name in names]
-
-    def types(self, names: Sequence[str]) -> list[ParameterType]:
-        return [ParameterType.of(self.table[name].type) if name in self.table else ParameterType.NOT_SET for name in names]
-
-    def describe(self, names: Sequence[str]) -> list[Param]:
-        """Each name's parameter, in order; an unknown name gets one of no kind, NOT_SET (the .srv asks for one per name)."""
-        return [self.table.get(name) or Param(name=name, type="", value="") for name in names]
 
     def _check(self, name: str, value: RosValue) -> tuple[ParamValue | None, str | None]:
         if isinstance(value, ParameterType):

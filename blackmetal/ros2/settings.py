@@ -12,9 +12,7 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
-from .joints import RobotModel, Wheel
 from .naming import (
-    CMD_VEL_STAMPED,
     DEFAULT_DISTRO,
     Distro,
     Flavor,
@@ -24,7 +22,7 @@ from .naming import (
     normalise_namespace,
     parse_distros,
 )
-from .options import Ros2Options
+from .options import RobotModel, Ros2Options, Wheel
 from .ros_types import Frames, Transform
 
 #: diff_drive_controller's example configuration: x, y, z, roll, pitch, yaw.
@@ -140,8 +138,7 @@ class Ros2Settings:
         normalise_namespace(self.namespace)
         check_source_name(self.source)
         check_positive(self, "service_timeout expected_poll_hz")
-        diagonal_matrix(self.pose_covariance_diagonal, "pose_covariance_diagonal")
-        diagonal_matrix(self.twist_covariance_diagonal, "twist_covariance_diagonal")
+        self.covariances(None)  # both diagonals parse
         check_positive(self, "wheel_radius wheel_separation impulses_left impulses_right")
         for name in ("odom_frame", "base_frame", "left_joint", "right_joint"):
             if not getattr(self, name):
@@ -210,9 +207,7 @@ class Ros2Settings:
             joint_names=(self.left_joint, self.right_joint),
             wheel_radius=self.wheel_radius,
             encoders=Encoders(left, right),
-            cmd_vel_key=data_keys["cmd_vel"],
-            cmd_vel_stamped_key=data_keys.get(CMD_VEL_STAMPED, "cmd_vel"),
-            estop_key=data_keys["estop"],
+            data_keys=dict(data_keys),
             source=self.source,
             service_timeout=self.service_timeout,
             expected_poll_hz=self.expected_poll_hz,

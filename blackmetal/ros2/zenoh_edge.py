@@ -20,7 +20,7 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ErrorReport, Keys, Sources, payload_bytes
+from blackmetal.schemas import ErrorReport, Keys, payload_bytes
 
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
@@ -31,15 +31,18 @@ from .naming import (
     Distro,
     Flavor,
     NodeIdentity,
-    RosService,
-    RosTopic,
+    Qos,
     ServiceRole,
     attachment,
     bridge_data_key,
     gid_of,
+    normalise_namespace,
     rmw_zenoh_data_key,
+    services,
+    topics,
     type_hash_of,
 )
+from .settings import Ros2Settings
 
 if TYPE_CHECKING:
     import zenoh
@@ -56,10 +59,7 @@ HEARTBEAT_S = 0.5
 
 
 def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
-    def on_sample(sample: Any) -> None:
-        put(payload_bytes(sample))
-
-    return on_sample
+    return lambda sample: put(payload_bytes(sample))
 
 
 @dataclass
@@ -80,8 +80,6 @@ class _RosPublisher:
             extra = attachment(self.sequence, time.time_ns(), self.gid)
         if self.burst is not None:
             self.burst.put(self.publisher, cdr, extra)  # type: ignore[arg-type]
-        elif extra is None:
-            self.publisher.put(cdr)
         else:
             self.publisher.put(cdr, attachment=extra)
 
@@ -92,27 +90,23 @@ class Ros2Zenoh(ZenohEdge):
     def __init__(
         self,
         session: "zenoh.Session",
-        keys: Keys,
+        settings: Ros2Settings,
         codec: "RosCodec",
-        flavor: Flavor,
-        domain_id: int,
-        namespace: str,
-        node_name: str,
-        ros_topics: list[RosTopic],
-        ros_services: list[RosService] | None = None,
-        source: str = Sources.ROS2,
         ids: Iterator[int] | None = None,
         distro: Distro = DEFAULT_DISTRO,
-        rings: bool = False,
+        fleet: bool = False,
         burst: PutBurst | None = None,
     ) -> None:
         """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
-        of one session). ``rings`` (a fleet node): the robot's streams wait in Zenoh rings for :meth:`drain`."""
+        of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`."""
         import zenoh
         import zenoh.ext
 
         super().__init__(session)
-        self.keys = keys
+        self.keys = keys = Keys(settings.prefix)
+        flavor, domain_id, node_name = Flavor(settings.flavor), settings.domain_id, settings.node_name
+        namespace = normalise_namespace(settings.namespace)
+        ros_topics = topics(settings.tf, absolute_tf=fleet, robot_model=settings.robot_model)
         ids = itertools.count() if ids is None else ids
         node = NodeIdentity(domain_id=domain_id, zid=str(session.zid()), name=node_name, namespace=namespace, node_id=next(ids))
         self.data_keys: dict[str, str] = {}
@@ -121,49 +115,43 @@ class Ros2Zenoh(ZenohEdge):
         self._publishers: dict[str, _RosPublisher] = {}
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
-        for topic in ros_topics:
+
+        def declare(kind: Direction | ServiceRole, name: str, ros_type: str, qos: Qos) -> tuple[str, bytes | None]:
+            """The entity's key and, with rmw_zenoh, its GID (its token goes to :attr:`tokens`)."""
             entity_id = next(ids)
-            name = topic.full_name(namespace)
-            if flavor is Flavor.RMW_ZENOH:
-                type_hash = type_hash_of(distro, codec.type_hash(topic.ros_type))
-                key = rmw_zenoh_data_key(domain_id, name, topic.ros_type, type_hash)
-                token = node.entity_token(entity_id, topic.direction, name, topic.ros_type, type_hash, topic.qos)
-                self.tokens.append(token)
-                gid: bytes | None = gid_of(token)
-            else:
-                key, gid = bridge_data_key(name), None
+            if flavor is not Flavor.RMW_ZENOH:
+                return bridge_data_key(name), None
+            type_hash = type_hash_of(distro, codec.type_hash(ros_type))
+            token = node.entity_token(entity_id, kind, name, ros_type, type_hash, qos)
+            self.tokens.append(token)
+            return rmw_zenoh_data_key(domain_id, name, ros_type, type_hash), gid_of(token)
+
+        for topic in ros_topics:
+            key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
             self.data_keys[topic.key_name] = key
-            if topic.direction is Direction.PUBLISH and topic.qos.is_transient_local:
+            if topic.direction is not Direction.PUBLISH:
+                continue
+            drop, reliable = zenoh.CongestionControl.DROP, zenoh.Reliability.RELIABLE
+            if topic.qos.is_transient_local:
                 publisher: zenoh.Publisher | zenoh.ext.AdvancedPublisher = zenoh.ext.declare_advanced_publisher(
                     self.session,
                     key,
-                    congestion_control=zenoh.CongestionControl.DROP,
-                    reliability=zenoh.Reliability.RELIABLE,
+                    congestion_control=drop,
+                    reliability=reliable,
                     cache=zenoh.ext.CacheConfig(max_samples=topic.qos.depth),
                     publisher_detection=True,
                     sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
                 )
-                self._entities.append(publisher)
-                self._publishers[topic.key_name] = _RosPublisher(publisher, gid)
-            elif topic.direction is Direction.PUBLISH:
-                publisher = self.session.declare_publisher(
-                    key, congestion_control=zenoh.CongestionControl.DROP, reliability=zenoh.Reliability.RELIABLE
-                )
-                self._entities.append(publisher)
-                self._publishers[topic.key_name] = _RosPublisher(publisher, gid, burst)
-        for service in ros_services or []:
-            entity_id = next(ids)
-            name = service.full_name(namespace, node_name)
-            if flavor is Flavor.RMW_ZENOH:
-                type_hash = type_hash_of(distro, codec.type_hash(service.ros_type))
-                key = rmw_zenoh_data_key(domain_id, name, service.ros_type, type_hash)
-                self.tokens.append(node.entity_token(entity_id, ServiceRole.SERVER, name, service.ros_type, type_hash, service.qos))
             else:
-                key = bridge_data_key(name)
-            self.service_keys[service.name] = key
+                publisher = self.session.declare_publisher(key, congestion_control=drop, reliability=reliable)
+            self._entities.append(publisher)
+            self._publishers[topic.key_name] = _RosPublisher(publisher, gid, None if topic.qos.is_transient_local else burst)
+        for service in services():
+            name = service.full_name(namespace, node_name)
+            self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
         # drop congestion control, as rmw_zenoh put the command: the direct take's Zenoh thread never waits on a link
         self._cmd_vel = self.session.declare_publisher(
-            keys.cmd_vel_of(source),
+            keys.cmd_vel_of(settings.source),
             encoding=zenoh.Encoding.APPLICATION_JSON,
             express=True,
             congestion_control=zenoh.CongestionControl.DROP,
@@ -174,10 +162,9 @@ class Ros2Zenoh(ZenohEdge):
         self.routes(keys, [keys.errors])
         self._calls: dict[int, tuple["zenoh.Query", str]] = {}
         self._next_call = 0
-        # what follow() may subscribe: key, its intake channel, the host's handler (rings), ring size
         self._streams: dict[str, tuple[str, Callable[[bytes], None], Callable[[bytes], None], int]] = {}
         self._followed: dict[str, Any] = {}
-        self._rings = rings
+        self._rings = fleet
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
 
@@ -248,15 +235,20 @@ class Ros2Zenoh(ZenohEdge):
             for name, (key, method, options, ring) in streams.items()
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
-        matched = intake.channel("matching", self._on_matched, capacity=64, priority=7)
+
+        def on_matched(event: tuple[str, bool]) -> None:
+            host.driver.run_locked(core.on_matched, *event)
+
+        matched = intake.channel("matching", on_matched, capacity=64, priority=7)
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
             if entry is not None:
                 self._watch(topic, entry.publisher, matched)
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
-            self._alive(key, intake.channel(f"alive {who}", self._on_alive(host, who), capacity=16, priority=9))
+            on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
+            self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in self.service_keys.items():
-            take = intake.channel(f"{service}?", self._on_call(service), capacity=16, priority=9)
+            take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
             self._entities.append(self.session.declare_queryable(key, take, complete=True))
         for token in self.tokens:  # last: the graph sees the node once it can serve
@@ -265,10 +257,6 @@ class Ros2Zenoh(ZenohEdge):
 
     def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
         self.watch_matching(publisher, lambda matched: put((topic, matched)))
-
-    def _on_matched(self, event: tuple[str, bool]) -> None:
-        assert self._host is not None
-        self._host.driver.run_locked(self._host.core.on_matched, *event)
 
     def follow(self, streams: frozenset[str]) -> None:
         """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
@@ -292,15 +280,13 @@ class Ros2Zenoh(ZenohEdge):
 
         No Python runs per sample on Zenoh's threads. A handler's exception propagates: the fleet fails this node alone."""
         host = self._host
-        if not self._rings or host is None or not host.running or not self._followed:
+        if not self._rings or host is None or not host.driver.serving or not self._followed:
             return 0
         taken = 0
         for name, subscriber in list(self._followed.items()):
             # the first sample is taken before the lock (rings are thread-safe): most drains find every ring empty
             ring = subscriber  # (a name of its own: the identity tests below narrow ``subscriber`` for mypy)
-            if self._followed.get(name) is not subscriber:
-                continue  # a handler earlier in this drain unfollowed it (none does today but the one it serves)
-            sample = ring.try_recv()
+            sample = ring.try_recv() if self._followed.get(name) is subscriber else None
             if sample is None:
                 continue
             handler = self._streams[name][2]
@@ -320,13 +306,6 @@ class Ros2Zenoh(ZenohEdge):
             put(sample.kind == zenoh.SampleKind.PUT)
 
         self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
-
-    @staticmethod
-    def _on_alive(host: Ros2Host, who: str) -> Callable[[bool], None]:
-        return lambda alive: host.driver.run_locked(host.core.on_alive, who, alive)
-
-    def _on_call(self, service: str) -> Callable[["zenoh.Query"], None]:
-        return functools.partial(self._take_call, service)
 
     def _take_call(self, service: str, query: "zenoh.Query") -> None:
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""

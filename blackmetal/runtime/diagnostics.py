@@ -1,8 +1,7 @@
-"""The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words.
+"""The one diagnostics severity table: which condition is OK, WARN, ERROR or STALE, with its words. Pure.
 
 The ROS 2 adapter's and the Foxglove view's ``/diagnostics`` once disagreed (an engaged e-stop ERROR in one, WARN in
-the other); both read their levels and texts here. Pure: no Zenoh, no ROS types. An engaged e-stop is ERROR: the
-robot cannot move until a person acts.
+the other); both read their levels and texts here.
 """
 
 from __future__ import annotations
@@ -27,8 +26,6 @@ Check = tuple[Level, str]
 
 @dataclass(frozen=True, slots=True)
 class Status:
-    """One diagnostic status: a level, a name, a message, the hardware, key/value pairs."""
-
     level: Level
     name: str
     message: str
@@ -63,11 +60,7 @@ def worst(name: str, hardware_id: str, checks: Iterable[Check], ok: str, values:
 ESTOP_ENGAGED = Condition(Level.ERROR, "e-stop engaged{origin}")
 #: Another gateway runs on the same prefix: this one refuses commands.
 CONFLICT = Condition(Level.ERROR, "another gateway ({other}) on {prefix}: commands refused")
-#: The same, as the Foxglove view's "gateway: commands" status words it.
 COMMANDS_REFUSED = Condition(Level.ERROR, "refused: another gateway ({other}) on this prefix")
-#: A link to the robot, by its state: connected is OK, connecting WARN, anything else ERROR.
-LINK_LEVELS = {"connected": Level.OK, "connecting": Level.WARN}
-LINK_DOWN = Level.ERROR
 #: The control link (commands, polls) is not connected: the robot cannot be driven.
 CONTROL_LINK_DOWN = Condition(Level.ERROR, "control link {state}")
 #: The log link is not connected: the robot still drives, its log is lost.
@@ -113,5 +106,5 @@ CALLS_FAILED = Condition(Level.WARN, "{count} service calls failed in {window:g}
 
 
 def link_level(state: str) -> Level:
-    """A link's level by its state, as the Foxglove view shows each link."""
-    return LINK_LEVELS.get(state, LINK_DOWN)
+    """A link to the robot, by its state: connected is OK, connecting WARN, anything else ERROR."""
+    return {"connected": Level.OK, "connecting": Level.WARN}.get(state, Level.ERROR)

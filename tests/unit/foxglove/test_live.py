@@ -168,7 +168,7 @@ def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipp
 
     logs: dict[str, list[Any]] = {}
     keys = Keys("robot")
-    view = LiveView(keys, namespace="/r1", channel=lambda topic, kind, schema: Logged(topic, kind, schema, logs))
+    view = LiveView(keys, "r1", channel=lambda topic, kind, schema: Logged(topic, kind, schema, logs))
     assert {topic.removeprefix("/r1") for topic in logs} == set(EXPECTED) | {"/tf"}
     assert view.feeds() == {
         keys.pose: {"/r1/pose", "/r1/tf", "/r1/path", "/r1/odometry"},

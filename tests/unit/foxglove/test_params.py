@@ -79,7 +79,8 @@ class Out:
 
 def test_one_robots_parameters_are_the_gateways_and_a_refusal_says_why_and_keeps_the_value() -> None:
     out = Out()
-    params = Parameters({"": (Keys("robot"), "")}, out, call_timeout=2.0, gateways=out)
+    params = Parameters({"": (Keys("robot"), "")}, out, call_timeout=2.0)
+    params.gateways = out
     params.on_table("", encode(GatewayParams(stamp=1.0, params=table())), now=0.0)
     assert [p.name for p in params.values()] == ["max_wheel_speed", "sources.nav.priority", "wheel_separation", "robot"]
     assert len(out.changed) == 1 and params.values(["max_wheel_speed"])[0].value == 0.8
@@ -99,13 +100,14 @@ def test_one_robots_parameters_are_the_gateways_and_a_refusal_says_why_and_keeps
     params.on_set_reply("", 1, None, None, now=1.02)  # the query's end: nothing more
     assert {p.name: p.value for p in out.answers[1]} == {"max_wheel_speed": 0.3, "wheel_separation": WHEEL_SEPARATION}
     assert out.statuses == [(7, StatusLevel.ERROR, f"blackmetal: wheel_separation refused by the gateway: {reason}")]
-    assert [p.name for p in out.changed[-1]] == ["max_wheel_speed"] and params.waiting == 0
+    assert [p.name for p in out.changed[-1]] == ["max_wheel_speed"] and not params._calls
 
 
 @pytest.mark.parametrize("value", [[1, 2], {"a": 1}, float("nan"), None, b"\x00"])
 def test_a_value_no_gateway_parameter_takes_is_refused_by_the_view_and_nothing_is_sent(value: object) -> None:
     out = Out()
-    params = Parameters({"": (Keys("robot"), "")}, out, gateways=out)
+    params = Parameters({"": (Keys("robot"), "")}, out)
+    params.gateways = out
     params.on_table("", encode(GatewayParams(stamp=1.0, params=table())), now=0.0)
     params.on_set(1, 7, [("max_wheel_speed", value)], now=1.0)
     assert not out.sets and out.answers[1][0].value == 0.8
@@ -115,7 +117,8 @@ def test_a_value_no_gateway_parameter_takes_is_refused_by_the_view_and_nothing_i
 def test_a_fleets_parameters_are_named_per_robot_and_each_set_goes_to_its_gateway_alone() -> None:
     out = Out()
     ids = ("r1", "r2", "r3")
-    params = Parameters({rid: (Keys(f"fleet/{rid}"), f"/{rid}") for rid in ids}, out, call_timeout=2.0, gateways=out)
+    params = Parameters({rid: (Keys(f"fleet/{rid}"), f"/{rid}") for rid in ids}, out, call_timeout=2.0)
+    params.gateways = out
     for rid in ids:
         params.on_table(rid, encode(GatewayParams(stamp=1.0, params=table())), now=0.0)
     assert param_name("/r2", "max_wheel_speed") == "/r2/max_wheel_speed"

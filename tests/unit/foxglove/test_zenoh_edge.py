@@ -19,18 +19,23 @@ class Answers:
     def __init__(self) -> None:
         self.health: list[bytes] = []
 
-    def on_health(self, payload: bytes) -> None:
+        self.bugs: list[BaseException] = []
+
+    def on_health(self, robot_id: str, payload: bytes) -> None:
         self.health.append(payload)
 
-    def on_reset_reply(self, reply: object) -> None: ...
-    def on_params(self, payload: bytes) -> None: ...
-    def on_params_reply(self, reply: object) -> None: ...
+    def on_bug(self, robot_id: str, exc: BaseException) -> None:
+        self.bugs.append(exc)
+
+    def on_reset_reply(self, robot_id: str, reply: object) -> None: ...
+    def on_params(self, robot_id: str, payload: bytes) -> None: ...
+    def on_params_reply(self, robot_id: str, reply: object) -> None: ...
 
 
 def test_a_key_is_followed_only_while_wanted_and_a_slow_drain_keeps_the_newest(session: zenoh.Session, loop: object) -> None:  # noqa: F811
     seen: list[bytes] = []
-    bugs: list[BaseException] = []
     answers = Answers()
+    bugs = answers.bugs
 
     def on_pose(payload: bytes) -> None:
         if payload == b"bad":
@@ -39,7 +44,7 @@ def test_a_key_is_followed_only_while_wanted_and_a_slow_drain_keeps_the_newest(s
 
     edge = FoxgloveZenoh(session, KEYS)
     try:
-        edge.attach({KEYS.pose: on_pose, KEYS.health: seen.append}, answers, loop, on_error=bugs.append)  # type: ignore[arg-type]
+        edge.attach("", {KEYS.pose: on_pose, KEYS.health: seen.append}, answers, loop)  # type: ignore[arg-type]
         session.put(KEYS.pose, b"unwatched")
         edge.want({KEYS.pose, KEYS.health, "edge/not/a/view/key"})
         assert edge.declared == {KEYS.pose, KEYS.health}, "only the view's keys"

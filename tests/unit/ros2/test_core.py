@@ -201,8 +201,7 @@ def make_adapter(codec: RosCodec) -> tuple[Ros2Core, Recorder]:
         joint_names=("left_wheel_joint", "right_wheel_joint"),
         wheel_radius=0.1,
         encoders=Encoders(),
-        cmd_vel_key=TWIST_KEY,
-        cmd_vel_stamped_key="0/cmd_vel/geometry_msgs::msg::dds_::TwistStamped_/RIHS01_stamped",
+        data_keys={"cmd_vel": TWIST_KEY, "cmd_vel_stamped": "0/cmd_vel/geometry_msgs::msg::dds_::TwistStamped_/RIHS01_stamped"},
     )
     return Ros2Core(options, Keys(), out, codec, wallclock=lambda: 1_700_000_000.0), out
 

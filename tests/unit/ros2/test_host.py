@@ -19,7 +19,6 @@ from helpers import wait_for
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.host import Ros2Host
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import Flavor, services, topics
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.ros2.zenoh_edge import Ros2Zenoh
 from blackmetal.schemas import Keys, Pose, WheelImpulses, encode
@@ -80,7 +79,7 @@ def test_nothing_is_followed_or_encoded_until_a_topic_is_watched(codec: RosCodec
 
 
 def test_the_wheels_on_tf_need_the_impulses_and_tf_needs_the_poses(codec: RosCodec) -> None:
-    from blackmetal.ros2.joints import RobotModel, Wheel
+    from blackmetal.ros2.options import RobotModel, Wheel
 
     core, out = make_core(codec)
     core.options = type(core.options)(**{**{f: getattr(core.options, f) for f in core.options.__dataclass_fields__},
@@ -94,7 +93,7 @@ def test_the_wheels_on_tf_need_the_impulses_and_tf_needs_the_poses(codec: RosCod
 def test_the_real_edge_follows_poses_only_while_odom_has_a_subscriber(session: zenoh.Session, codec: RosCodec) -> None:
     keys = Keys()
     settings = Ros2Settings(tf=False)
-    edge = Ros2Zenoh(session, keys, codec, Flavor.RMW_ZENOH, 0, "/", "blackmetal", topics(False, robot_model=True), services())
+    edge = Ros2Zenoh(session, settings, codec)
     core = Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec)
     poses: list[float] = []
     original = core.on_pose
@@ -148,10 +147,8 @@ def test_a_stamped_commands_age_limit_is_the_gateways_cmd_timeout_parameter(code
 
 def test_a_fleet_node_takes_the_followed_poses_from_a_ring_when_drained(session: zenoh.Session, codec: RosCodec) -> None:
     keys = Keys("fleet/r1")
-    settings = Ros2Settings(tf=False)
-    edge = Ros2Zenoh(
-        session, keys, codec, Flavor.RMW_ZENOH, 0, "/r1", "blackmetal", topics(False, robot_model=True), services(), rings=True
-    )
+    settings = Ros2Settings(tf=False, namespace="r1", prefix=keys.prefix)
+    edge = Ros2Zenoh(session, settings, codec, fleet=True)
     core = Ros2Core(settings.options(edge.data_keys, edge.service_keys), keys, edge, codec)
     publisher = session.declare_publisher(keys.pose)
     odoms: list[Any] = []

@@ -21,7 +21,7 @@ from blackmetal.robot_model import Encoders, read_calibration
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import (
-    DISTROS,
+    WITHOUT_TYPE_HASHES,
     Direction,
     Distro,
     NodeIdentity,
@@ -60,7 +60,7 @@ def test_each_distros_keys_and_tokens() -> None:
         expected = "TypeHashNotSupported" if distro is Distro.HUMBLE else ODOM_HASH
         assert key == f"0/odom/nav_msgs::msg::dds_::Odometry_/{expected}"
         assert token == f"@ros2_lv/0/abc/0/3/MP/%/%/blackmetal/%odom/nav_msgs::msg::dds_::Odometry_/{expected}/::,10:,:,:,,"
-        assert DISTROS[distro].type_hashes is (distro is not Distro.HUMBLE)
+        assert (distro in WITHOUT_TYPE_HASHES) is (distro is Distro.HUMBLE)
     # robot_state_publisher's QoS(1).transient_local(): durability 1, depth 1, the rest rmw_zenoh's defaults
     assert Qos.transient_local().keyexpr() == ":1:,1:,:,:,,"
     named = {t.key_name: t for t in topics(True, robot_model=True)}

@@ -20,7 +20,7 @@ from hypothesis import strategies as st
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.host import Ros2Host
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import CMD_VEL_STAMPED, Flavor, services, topics
+from blackmetal.ros2.naming import CMD_VEL_STAMPED
 from blackmetal.ros2.ros_types import ODOMETRY, TWIST, TWIST_STAMPED
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.ros2.zenoh_edge import Ros2Zenoh
@@ -37,10 +37,9 @@ class Node:
 
     def __init__(self, session: zenoh.Session, codec: RosCodec) -> None:
         self.keys = Keys()
-        self.edge = Ros2Zenoh(
-            session, self.keys, codec, Flavor.RMW_ZENOH, 0, "/", "blackmetal", topics(False, robot_model=True), services()
-        )
-        core = Ros2Core(Ros2Settings(tf=False).options(self.edge.data_keys, self.edge.service_keys), self.keys, self.edge, codec)
+        settings = Ros2Settings(tf=False)
+        self.edge = Ros2Zenoh(session, settings, codec)
+        core = Ros2Core(settings.options(self.edge.data_keys, self.edge.service_keys), self.keys, self.edge, codec)
         self.host = Ros2Host(core)
         self.direct: list[tuple[str, bool]] = []  # (thread name, taken)
         self.calls = 0  # direct takes begun: a take forwards its command before it is recorded
