@@ -2,11 +2,10 @@
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra
-from .jsonschema import json_schemas
+from .jsonschema import MESSAGE_TYPES, json_schemas
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix
 from .messages import (
     DIRECTION_NAMES,
-    MESSAGE_TYPES,
     STATE_NAMES,
     DriverChange,
     ErrorReport,

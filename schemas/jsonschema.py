@@ -7,7 +7,11 @@ from typing import Any
 import msgspec
 
 from .keys import KEY_SPECS
-from .messages import MESSAGE_TYPES
+
+#: Every message type on a key (carried, or the reply to a get), by the name of its JSON Schema file.
+MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
+    kind.__name__: kind for spec in KEY_SPECS for kind in (spec.message, spec.reply) if kind is not None
+}
 
 
 def _where(message_type: type[msgspec.Struct]) -> str:
