@@ -271,15 +271,9 @@ def _sin_ratio(half: "NDArray[np.float64]") -> "NDArray[np.float64]":
     return out
 
 
-# ---------------------------------------------------------------------------- the robot as a URDF
-#
-# What RViz's RobotModel display and Foxglove's 3D panel draw. The frames are those robot_state_publisher users
-# expect of a base driver: ``base_footprint`` on the floor, ``base_link`` above it at the axle height, two
-# continuous wheel joints named as in ``/joint_states`` (the wheels turn about +y, so a positive angle drives
-# forward), and the robot's third point of support. The Black Metal's documentation gives its wheel separation
-# and radius, not its body: the chassis box and the rear caster are drawn from those two numbers (:class:`Body`),
-# and the URDF's comment says so. A fleet prefixes every link (``r2/base_link``), as robot_state_publisher's
-# ``frame_prefix`` does.
+# The robot as a URDF (docs/ros2.md, docs/commands/tools.md "urdf"): the wheels turn about +y, so a positive angle
+# drives forward. The robot's documentation gives its wheel separation and radius, not its body: the chassis box and
+# the rear caster are drawn from those two numbers, and the URDF's comment says so.
 
 
 @dataclass(frozen=True, slots=True)
@@ -334,13 +328,11 @@ def joints(body: Body | None = None, *, left_joint: str = "left_wheel_joint", ri
     """
     body = (body or Body()).check()
     r, half = body.wheel_radius, body.wheel_separation / 2
-    length = body.box[0]
-    caster_r = r / 2
     return [
         Joint("base_joint", "fixed", "base_footprint", "base_link", (0.0, 0.0, r)),
         Joint(left_joint, "continuous", "base_link", "left_wheel", (0.0, half, 0.0)),
         Joint(right_joint, "continuous", "base_link", "right_wheel", (0.0, -half, 0.0)),
-        Joint("caster_joint", "fixed", "base_link", "caster", (-0.8 * length / 2, 0.0, caster_r - r)),
+        Joint("caster_joint", "fixed", "base_link", "caster", (-0.8 * body.box[0] / 2, 0.0, r / 2 - r)),
     ]
 
 
@@ -356,7 +348,6 @@ def urdf(
     body = (body or Body()).check()
     r = body.wheel_radius
     length, width, height = body.box
-    caster_r = r / 2
     p = frame_prefix
 
     def link(link_name: str, geometry: str, xyz: str = "0 0 0", rpy: str = "0 0 0") -> str:
@@ -393,19 +384,14 @@ def urdf(
         + joint(left)
         + link("right_wheel", wheel, rpy="1.5708 0 0")
         + joint(right)
-        + link("caster", f'<sphere radius="{_f(caster_r)}"/>')
+        + link("caster", f'<sphere radius="{_f(r / 2)}"/>')
         + joint(caster)
         + "</robot>\n"
     )
 
 
-# ---------------------------------------------------------------------------- the robot's calibration file
-#
-# ``blackmetal calibrate -o FILE`` writes the fitted constants as settings that the gateway, the odometry and
-# ``up`` take with ``--settings FILE``. Those services refuse settings they do not know, so what the fit measured
-# besides the constants (how far the calibrated odometry still was from the reference) is written as comments,
-# one ``# residuals.NAME = VALUE`` line each: every service still takes the file, and ``blackmetal ros2
-# --calibration FILE`` reads the residuals for ``/odom``'s covariance. The writer and the reader are here, together.
+# The calibration file ``blackmetal calibrate -o FILE`` writes (docs/ros2.md, "/odom's covariance"): settings every
+# service takes, and the residuals as comment lines, since a service refuses settings it does not know.
 
 #: How a residual line starts; the name and the value follow (``# residuals.x_m = 0.00123``).
 RESIDUAL_LINE = "# residuals."
@@ -426,11 +412,10 @@ class Residuals:
 
     def lines(self) -> list[str]:
         """The comment lines the calibration file carries them in."""
-        return [f"{RESIDUAL_LINE}{name} = {getattr(self, name):.6g}" for name in _residual_names()]
+        return [f"{RESIDUAL_LINE}{name} = {getattr(self, name):.6g}" for name in _RESIDUAL_NAMES]
 
 
-def _residual_names() -> list[str]:
-    return [f.name for f in fields(Residuals)]
+_RESIDUAL_NAMES = [f.name for f in fields(Residuals)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -470,7 +455,7 @@ def read_calibration(path: str) -> Calibration:
             found[match.group(1)] = match.group(2)
     residuals = None
     if found:
-        names = _residual_names()
+        names = _RESIDUAL_NAMES
         missing = [n for n in names if n not in found]
         if missing:
             raise ConfigError(f"calibration file {path} lacks the residual lines {missing} (write it again with blackmetal calibrate -o)")
