@@ -242,17 +242,21 @@ class PendingSession:
     """``zenoh.open`` of a service's config on a daemon thread, and whether the session has joined its endpoints.
 
     A client's ``zenoh.open`` blocks until its router answers and cannot be interrupted, so it runs here while the
-    caller watches its stop request; a session opened after the caller gave up is closed.
+    caller watches its stop request; a session opened after the caller gave up is closed. :meth:`step` says once what
+    it waits for, and where the session is once it is ready.
     """
 
-    def __init__(self, settings: ZenohSettings) -> None:
+    def __init__(self, settings: ZenohSettings, name: str) -> None:
         self.settings = settings
+        self.name = name
         self._conf = settings.to_config(wait=True)
         self._lock = threading.Lock()
         self._done = threading.Event()
         self._session: zenoh.Session | None = None
         self._error: str | None = None
         self._abandoned = False
+        self._started = time.monotonic()
+        self._waited = False
         threading.Thread(target=self._open, name="zenoh-open", daemon=True).start()
 
     def _open(self) -> None:
@@ -271,15 +275,18 @@ class PendingSession:
             self._session = session
         self._done.set()
 
+    def _conf_value(self, path: str) -> Any:
+        try:
+            return json.loads(self._conf.get_json(path))
+        except Exception:
+            return None
+
     @property
     def endpoints(self) -> list[str]:
         """What it connects to, for people: the flags' endpoints, or the config file's."""
         if self.settings.endpoints:
             return self.settings.endpoints
-        try:
-            found = json.loads(self._conf.get_json("connect/endpoints"))
-        except Exception:
-            return []
+        found = self._conf_value("connect/endpoints")
         return [str(e) for e in found] if isinstance(found, list) else []
 
     def ready(self) -> "zenoh.Session | None":
@@ -295,6 +302,21 @@ class PendingSession:
         info = session.info
         return session if list(info.routers_zid()) or list(info.peers_zid()) else None
 
+    def step(self) -> "zenoh.Session | None":
+        """:meth:`ready`, saying where the session is once it is, and once what it waits for."""
+        session = self.ready()
+        if session is not None:
+            self._say(self.status())
+        elif not self._waited and time.monotonic() - self._started >= WAIT_NOTICE_S:
+            self._waited = True
+            self._say(f"waiting for {', '.join(self.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
+            for host in unresolvable(self.endpoints):
+                self._say(f"the host name {host!r} does not resolve: check the name in -e (waiting on, in case it comes up)")
+        return session
+
+    def _say(self, line: str) -> None:
+        print(f"blackmetal {self.name}: {line}", flush=True)
+
     def abandon(self) -> None:
         """The caller stops waiting: close the session now or when it opens."""
         with self._lock:
@@ -306,11 +328,7 @@ class PendingSession:
     @property
     def is_hub(self) -> bool:
         """It listens (or routes): it serves at once and connects to its endpoints in the background."""
-        try:
-            mode = json.loads(self._conf.get_json("mode"))
-        except Exception:
-            mode = None
-        return self.settings.is_hub or mode == "router"
+        return self.settings.is_hub or self._conf_value("mode") == "router"
 
     def status(self) -> str:
         """One line for people: where the open session is."""
@@ -321,60 +339,36 @@ class PendingSession:
         return f"connected to {where}" if where else f"Zenoh {self.settings.where()}"
 
 
-class _Waiter:
-    """The wait both openers share: the pending session, the one "waiting for" line, the final status line."""
-
-    def __init__(self, settings: ZenohSettings, name: str) -> None:
-        self.name = name
-        self.pending = PendingSession(settings)
-        self.started = time.monotonic()
-        self.waited = False
-
-    def step(self) -> "zenoh.Session | None":
-        session = self.pending.ready()
-        if session is not None:
-            self._say(self.pending.status())
-        elif not self.waited and time.monotonic() - self.started >= WAIT_NOTICE_S:
-            self.waited = True
-            self._say(f"waiting for {', '.join(self.pending.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
-            for host in unresolvable(self.pending.endpoints):
-                self._say(f"the host name {host!r} does not resolve: check the name in -e (waiting on, in case it comes up)")
-        return session
-
-    def _say(self, line: str) -> None:
-        print(f"blackmetal {self.name}: {line}", flush=True)
-
-
 async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, name: str, poll: float = 0.02) -> "zenoh.Session":
     """A service's session, once it has joined its router or hub (a hub: at once); says once what it waits for.
 
     ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot
     open at all (a port in use, a bad config).
     """
-    waiter = _Waiter(settings, name)
+    pending = PendingSession(settings, name)
     try:
-        while (session := waiter.step()) is None:
+        while (session := pending.step()) is None:
             try:
                 await asyncio.wait_for(stop.wait(), timeout=poll)
             except TimeoutError:
                 continue
             raise asyncio.CancelledError(f"{name} stopped while it waited for its router or hub")
     except BaseException:
-        waiter.pending.abandon()
+        pending.abandon()
         raise
     return session
 
 
 def open_when_reachable(settings: ZenohSettings, stop: threading.Event, name: str, poll: float = 0.02) -> "zenoh.Session | None":
     """:func:`open_service_session` for a thread-based process (the recorder, ``up``); None when ``stop`` came first."""
-    waiter = _Waiter(settings, name)
+    pending = PendingSession(settings, name)
     try:
-        while (session := waiter.step()) is None:
+        while (session := pending.step()) is None:
             if stop.wait(poll):
-                waiter.pending.abandon()
+                pending.abandon()
                 return None
     except BaseException:
-        waiter.pending.abandon()
+        pending.abandon()
         raise
     return session
 
