@@ -1,10 +1,9 @@
 """The Black Metal robot as numbers and formulas: the one place they are computed.
 
-The gateway (twist to wheel commands), the odometry (impulses to motion,
-streaming and batch), the simulator (motion to impulses, true pose), the log
-synthesiser and the bench all take the robot's constants and formulas from
-here, so a calibration or a sign convention changes in one place. The
-formulas are plain arithmetic, so each works on floats and on numpy arrays.
+The gateway (twist to wheel commands), the odometry (impulses to motion, streaming and batch), the simulator (motion to
+impulses, true pose), the log synthesiser and the bench all take the robot's constants and formulas from here, so a
+calibration or a sign convention changes in one place. The formulas are plain arithmetic, so each works on floats and on
+numpy arrays.
 """
 
 from __future__ import annotations
@@ -48,9 +47,8 @@ Num = TypeVar("Num", float, "NDArray[np.float64]")
 class WheelSpeeds:
     """Wheel rim speeds in m/s, natural sign (forward positive on both wheels).
 
-    Left, then right, and keyword-only, like every wheel pair in blackmetal:
-    a positional slip cannot swap the wheels. The robot's right-then-left
-    wire order lives only in :mod:`blackmetal.wire`.
+    Left, then right, and keyword-only, like every wheel pair in blackmetal: a positional slip cannot swap the wheels.
+    The robot's right-then-left wire order lives only in :mod:`blackmetal.wire`.
     """
 
     left: float
@@ -118,8 +116,8 @@ MAX_JOINT_GAP_S = 0.5
 
 @dataclass(slots=True)
 class WheelAngles:
-    """Wheel angles (rad) from the impulses' wheel speeds, trapezoid rule, never across a gap (ROS 2's /joint_states
-    and Foxglove's turning wheels); ``wrap``: kept within -pi..pi."""
+    """Wheel angles (rad) from the impulses' wheel speeds, trapezoid rule, never across a gap (ROS 2's /joint_states and
+    Foxglove's turning wheels); ``wrap``: kept within -pi..pi."""
 
     wrap: bool = False
     positions: list[float] = field(default_factory=lambda: [0.0, 0.0])
@@ -142,10 +140,9 @@ class WheelAngles:
 def twist_to_wheels(v: float, w: float, separation: float, max_wheel_speed: float) -> tuple[WheelSpeeds, bool]:
     """Wheel speeds for forward speed ``v`` (m/s) and turn rate ``w`` (rad/s, + is left).
 
-    ``right = v + w*L/2``, ``left = v - w*L/2``. If either exceeds
-    ``max_wheel_speed``, both are scaled by the same factor so the robot
-    follows the same arc, only slower (clamping each wheel alone would bend
-    the path). Returns the speeds and whether they were scaled.
+    ``right = v + w*L/2``, ``left = v - w*L/2``. If either exceeds ``max_wheel_speed``, both are scaled by the same
+    factor so the robot follows the same arc, only slower (clamping each wheel alone would bend the path). Returns the
+    speeds and whether they were scaled.
     """
     half = 0.5 * w * separation
     right = v + half
@@ -165,9 +162,8 @@ def wheels_to_twist(left: Num, right: Num, separation: float) -> tuple[Num, Num]
 def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
     """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along the exact arc.
 
-    Chord form: length ``ds * sin(h)/h`` at heading ``yaw + h`` with ``h`` half
-    the turn; exact for any turn and well conditioned as the turn goes to zero,
-    where it becomes the straight line. The simulator's truth and the odometry
+    Chord form: length ``ds * sin(h)/h`` at heading ``yaw + h`` with ``h`` half the turn; exact for any turn and well
+    conditioned as the turn goes to zero, where it becomes the straight line. The simulator's truth and the odometry
     both move this way.
     """
     ds = 0.5 * (d_left + d_right)
@@ -197,9 +193,8 @@ def arc_path(
 ) -> tuple["NDArray[np.float64]", "NDArray[np.float64]", "NDArray[np.float64]"]:
     """x, y and unwrapped yaw after each of many :func:`arc_step` moves from (0, 0, 0) (numpy, one pass).
 
-    The whole of the odometry's geometry for a replay, and what a calibration
-    evaluates a thousand times: the fewest array operations that keep
-    :func:`arc_step`'s arithmetic.
+    The whole of the odometry's geometry for a replay, and what a calibration evaluates a thousand times: the fewest
+    array operations that keep :func:`arc_step`'s arithmetic.
     """
     import numpy as np
 
@@ -228,8 +223,8 @@ _Second = TypeVar("_Second")
 
 
 def both(first: Callable[[], _First], second: Callable[[], _Second], size: int) -> tuple[_First, _Second]:
-    """``(first(), second())``, the first on a second thread when ``size`` is large: two independent
-    numpy computations in the time of one on a two-core machine."""
+    """``(first(), second())``, the first on a second thread when ``size`` is large: two independent numpy computations in
+    the time of one on a two-core machine."""
     if size < PARALLEL_MIN:
         return first(), second()
     from concurrent.futures import ThreadPoolExecutor
@@ -272,8 +267,8 @@ def _sin_ratio(half: "NDArray[np.float64]") -> "NDArray[np.float64]":
 
 
 # The robot as a URDF (docs/ros2.md, docs/commands/tools.md "urdf"): the wheels turn about +y, so a positive angle
-# drives forward. The robot's documentation gives its wheel separation and radius, not its body: the chassis box and
-# the rear caster are drawn from those two numbers, and the URDF's comment says so.
+# drives forward. The robot's documentation gives its wheel separation and radius, not its body: the chassis box and the
+# rear caster are drawn from those two numbers, and the URDF's comment says so.
 
 
 @dataclass(frozen=True, slots=True)
@@ -323,8 +318,8 @@ class Joint:
 def joints(body: Body | None = None, *, left_joint: str = "left_wheel_joint", right_joint: str = "right_wheel_joint") -> list[Joint]:
     """The URDF's joints, unprefixed: what ``/tf_static`` (the fixed ones) and ``/tf`` (the wheels) carry, from one place.
 
-    ``base_footprint`` on the floor, ``base_link`` at the axle height above it, the wheels on the axle at
-    plus and minus half the separation (the left one at +y), the caster behind, touching the floor.
+    ``base_footprint`` on the floor, ``base_link`` at the axle height above it, the wheels on the axle at plus and minus
+    half the separation (the left one at +y), the caster behind, touching the floor.
     """
     body = (body or Body()).check()
     r, half = body.wheel_radius, body.wheel_separation / 2

@@ -65,11 +65,11 @@ DATA_COMMANDS = frozenset({CommandCode.GET_LR_WHEEL_VELOCITY, CommandCode.GET_LR
 
 @dataclass(frozen=True, slots=True)
 class Request:
-    """One command to the robot. ``left``/``right`` are wheel speeds (m/s) for
-    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None.
+    """One command to the robot. ``left``/``right`` are wheel speeds (m/s) for SET_LR_WHEEL_VELOCITY, impulse counts for
+    SET_LR_WHEEL_POSITION, else None.
 
-    The wheels are keyword-only, left then right, as everywhere in blackmetal;
-    only :func:`encode_request` writes them in the robot's right-then-left order.
+    The wheels are keyword-only, left then right, as everywhere in blackmetal; only :func:`encode_request` writes them
+    in the robot's right-then-left order.
     """
 
     command: CommandCode
@@ -122,8 +122,8 @@ _WHEEL_FIELDS: dict[CommandCode, tuple[str, str, Callable[[str, object], str], C
 def encode_request(request: Request) -> bytes:
     """The exact bytes the robot expects for ``request`` (one JSON object, no newline).
 
-    Raises ProtocolError for anything the robot must never see: non-finite or
-    out-of-range speeds, non-integer positions, unknown commands.
+    Raises ProtocolError for anything the robot must never see: non-finite or out-of-range speeds, non-integer
+    positions, unknown commands.
     """
     command = request.command if type(request.command) is CommandCode else CommandCode(request.command)
     text = f'{{"UserID":{_wire_int("UserID", request.user_id)},"Command":{int(command)}'
@@ -248,9 +248,9 @@ _PAIR_REPLIES: dict[frozenset[str], tuple[str, str, str, Callable[[int, int], Re
 
 
 #: The wheel-speed reply as the robot and the simulator write it, read in one match (a fleet gateway reads 5 000 a
-#: second): what it matches, :func:`_parse_pairs` reads the same way (a test holds them equal); the rest goes there.
-#: Its whitespace runs are possessive (``\s*+``): no run gives back what it took, so a frame it fails on is given up in
-#: one pass (a frame of 500 spaces took 500 us with two plain runs side by side, against 4 us in the field parser).
+#: second): what it matches, :func:`_parse_pairs` reads the same way (a test holds them equal); the rest goes there. Its
+#: whitespace runs are possessive (``\s*+``): no run gives back what it took, so a frame it fails on is given up in one
+#: pass (a frame of 500 spaces took 500 us with two plain runs side by side, against 4 us in the field parser).
 _SPEED_REPLY = re.compile(rb'\{\s*+"LeftWheelSpeed"\s*+[:=]\s*+(-?\d{1,10})\s*+(?:,\s*+)?"RightWheelSpeed"\s*+[:=]\s*+(-?\d{1,10})\s*+,?\}')
 #: The status replies the robot writes (every command is answered by one), by their exact bytes; others are parsed.
 _STATUS_FRAMES: dict[bytes, StatusReply] = {encode_status(word): StatusReply(word) for word in (STATUS_OK, STATUS_FULL_BUFFER)}
@@ -313,9 +313,8 @@ class _FramedDecoder(Generic[M]):
     def feed(self, data: bytes) -> list[M | Malformed]:
         """Every complete frame of ``data`` parsed and every run of garbage as a :class:`Malformed`, in stream order.
 
-        The work is per frame, not per byte: a frame is the last ``{`` before
-        the next ``}``, and all that lies before it is one run of garbage,
-        whatever its length (a flood of ``{`` costs one report per read).
+        The work is per frame, not per byte: a frame is the last ``{`` before the next ``}``, and all that lies before
+        it is one run of garbage, whatever its length (a flood of ``{`` costs one report per read).
         """
         out: list[M | Malformed] = []
         buf = self._buf
@@ -402,8 +401,8 @@ def _parse_request(frame: bytes) -> Request | Malformed:
     return Request(command, left=kind(left), right=kind(right), user_id=user_id)
 
 
-#: The requests without wheel values, by the exact bytes the gateway writes (the simulator reads a fleet's 5 000 polls
-#: a second): a Request is frozen, so one object serves every time; any other frame is parsed.
+#: The requests without wheel values, by the exact bytes the gateway writes (the simulator reads a fleet's 5 000 polls a
+#: second): a Request is frozen, so one object serves every time; any other frame is parsed.
 _SIMPLE_FRAMES: dict[bytes, Request] = {
     encode_request(simple(code)): simple(code)
     for code in CommandCode

@@ -1,8 +1,7 @@
 """The key space: every key expression blackmetal uses, with the message carried on it.
 
-One robot lives under one prefix (``robot`` by default, ``fleet/a`` in a
-fleet). Services, tools, tests and the JSON Schema export take their keys
-from :class:`Keys` and nowhere else, so a key is renamed in one place.
+One robot lives under one prefix (``robot`` by default, ``fleet/a`` in a fleet). Services, tools, tests and the JSON
+Schema export take their keys from :class:`Keys` and nowhere else, so a key is renamed in one place.
 """
 
 from __future__ import annotations
@@ -36,9 +35,9 @@ DEFAULT_PREFIX = "robot"
 class Delivery(StrEnum):
     """How a publication travels when a link or a consumer cannot keep up (Zenoh's congestion control).
 
-    ``telemetry`` is dropped for the congested link alone: a pose, a health report or a wheel sample is replaced by
-    the next one, and a router never holds one host's telemetry (or commands) behind another's dead link. A
-    ``command`` is never dropped: it waits for room, as a stop must reach the robot; commands are few and small.
+    ``telemetry`` is dropped for the congested link alone: a pose, a health report or a wheel sample is replaced by the
+    next one, and a router never holds one host's telemetry (or commands) behind another's dead link. A ``command`` is
+    never dropped: it waits for room, as a stop must reach the robot; commands are few and small.
     """
 
     TELEMETRY = "telemetry"
@@ -48,8 +47,8 @@ class Delivery(StrEnum):
 class KeySpec(NamedTuple):
     """One key below the prefix: the attribute that names it, what travels on it, who uses it, how it is delivered.
 
-    A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name:
-    :meth:`Keys.cmd_vel_of` and :meth:`Keys.lock_of` fill it in.
+    A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name: :meth:`Keys.cmd_vel_of` and
+    :meth:`Keys.lock_of` fill it in.
     """
 
     name: str

@@ -35,9 +35,8 @@ def refuse_taken(
 ) -> None:
     """ConfigError naming the first prefix on which another ``role`` (``gateway``, ``odometry``) is alive.
 
-    One liveliness query for any number of prefixes (call before declaring
-    our own tokens). ``what`` names the service in the sentence (default
-    ``role``), ``describe(prefix)`` the robot of a fleet.
+    One liveliness query for any number of prefixes (call before declaring our own tokens). ``what`` names the service
+    in the sentence (default ``role``), ``describe(prefix)`` the robot of a fleet.
     """
     alive = {
         Keys.prefix_of_token(str(reply.ok.key_expr), role)
@@ -89,9 +88,9 @@ class ZenohEdge:
     def routes(self, keys: Keys, published: Iterable[str], *, fast: str | None = None, burst: PutBurst | None = None) -> None:
         """A publisher for each key of ``published``; :meth:`publish` routes a message to it by its type (:meth:`Keys.message_for`).
 
-        ``fast`` (the service's high-rate telemetry): express for one robot, the
-        lowest latency; in a fleet (``burst``) batched, held to the end of the
-        loop's turn and put back to back with the other robots' (:mod:`blackmetal.runtime.burst`).
+        ``fast`` (the service's high-rate telemetry): express for one robot, the lowest latency; in a fleet (``burst``)
+        batched, held to the end of the loop's turn and put back to back with the other robots'
+        (:mod:`blackmetal.runtime.burst`).
         """
         for key in published:
             message = keys.message_for(key)
@@ -135,8 +134,8 @@ class ZenohEdge:
         on_flood: Callable[[str, str], None] | None = None,
         **options: Any,
     ) -> "GuardedInput":
-        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`
-        for ``options``)."""
+        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see
+        :class:`GuardedInput` for ``options``)."""
         guarded = GuardedInput(self.session, key, put, intake, on_flood, **options)
         guarded.start()
         self._guarded.append(guarded)

@@ -1,10 +1,9 @@
 """Child processes started one way everywhere: ``blackmetal up``, the bench and the tests.
 
-Readiness is machine-readable: the parent passes the write end of a pipe
-in ``BLACKMETAL_READY_FD``, and a service that is ready writes one JSON
-object on it (:func:`announce_ready`: its name and what a parent needs, such
-as the simulator's bound ports). Text meant for people (stdout, stderr) is
-kept, the last lines of it, to show when a child fails; it is never parsed.
+Readiness is machine-readable: the parent passes the write end of a pipe in ``BLACKMETAL_READY_FD``, and a service that
+is ready writes one JSON object on it (:func:`announce_ready`: its name and what a parent needs, such as the simulator's
+bound ports). Text meant for people (stdout, stderr) is kept, the last lines of it, to show when a child fails; it is
+never parsed.
 """
 
 from __future__ import annotations

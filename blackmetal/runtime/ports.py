@@ -1,7 +1,7 @@
 """Free loopback ports for processes we start ourselves (the bench, the tests), that nobody can take first.
 
-A port-0 probe hands out an ephemeral port that any ``connect()`` may take before the child binds it (CI saw it);
-the kernel never hands out ports below its ephemeral range, so this walks a slice of those, binding each to check.
+A port-0 probe hands out an ephemeral port that any ``connect()`` may take before the child binds it (CI saw it); the
+kernel never hands out ports below its ephemeral range, so this walks a slice of those, binding each to check.
 pytest-xdist workers get disjoint slices; a random start keeps two runs apart.
 """
 

@@ -114,9 +114,8 @@ class Member(Generic[S]):
 async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
     """Run ``member`` until ``stop``; one that fails is reported and started again.
 
-    A failure stays that robot's: the others share the loop and go on. The
-    pause doubles from RESTART_FIRST_S up to RESTART_CAP_S, so a robot that
-    fails at once costs the fleet little.
+    A failure stays that robot's: the others share the loop and go on. The pause doubles from RESTART_FIRST_S up to
+    RESTART_CAP_S, so a robot that fails at once costs the fleet little.
     """
     pause = RESTART_FIRST_S
     while not stop.is_set():
@@ -139,9 +138,8 @@ async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
 async def drain(members: Sequence[Member[Any]], stop: asyncio.Event, period: float, idle_period: float | None = None) -> None:
     """Every ``period`` until ``stop``: each member's waiting samples to its core (see :meth:`Member.drain`).
 
-    With ``idle_period``, while no member follows anything (nobody watches) it
-    looks only that often: an idle fleet costs nothing, and the first samples
-    after someone subscribes wait at most that long in their ring.
+    With ``idle_period``, while no member follows anything (nobody watches) it looks only that often: an idle fleet
+    costs nothing, and the first samples after someone subscribes wait at most that long in their ring.
     """
     while not stop.is_set():
         active = [member.drain() for member in members]
@@ -159,9 +157,8 @@ async def serve_fleet(
 ) -> None:
     """Open one Zenoh session and serve every robot of ``parts`` (role, robot, its settings) on it until ``stop``.
 
-    ``refuse``: first refuse a prefix on which another such service (named
-    so) is alive. Every robot is built before ``announce(members)`` says the
-    fleet serves; ``drain_every`` (period, idle period) drains their rings.
+    ``refuse``: first refuse a prefix on which another such service (named so) is alive. Every robot is built before
+    ``announce(members)`` says the fleet serves; ``drain_every`` (period, idle period) drains their rings.
     """
     service = parts[0][0].service
     with await open_service_session(zenoh, stop, service) as session:

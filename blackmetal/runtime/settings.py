@@ -1,7 +1,7 @@
 """Typed settings with one precedence: command line > environment (``BLACKMETAL_<NAME>``) > file > defaults.
 
-One settings dataclass per process, fields declared with :func:`setting`: its options, their help and the names a
-TOML or JSON5 file may use come from them. The Zenoh flags are its ``zenoh`` field, under the same rules.
+One settings dataclass per process, fields declared with :func:`setting`: its options, their help and the names a TOML
+or JSON5 file may use come from them. The Zenoh flags are its ``zenoh`` field, under the same rules.
 """
 
 from __future__ import annotations
@@ -34,9 +34,8 @@ NOT_SETTINGS = frozenset({"settings", "func", "command"})
 def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Any = None, **option: Any) -> Any:
     """A settings field with the help text and argparse details of its command-line option.
 
-    ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option
-    string, e.g. ``--no-mirror-right``) and ``const`` (for such a flag), or
-    ``cli=False`` for a field with no option.
+    ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option string, e.g. ``--no-mirror-right``) and
+    ``const`` (for such a flag), or ``cli=False`` for a field with no option.
     """
     metadata = {"help": help, **option}
     if factory is not None:
@@ -150,9 +149,8 @@ def load_settings(
 ) -> T:
     """Build ``cls`` from defaults < file < environment < ``given`` (options actually set; None = not set).
 
-    ``given`` may be the parsed arguments, whose ``settings`` names the file.
-    Unknown names in the file and values of the wrong type are errors that
-    name the setting; so are the checks of the class's ``check()``.
+    ``given`` may be the parsed arguments, whose ``settings`` names the file. Unknown names in the file and values of
+    the wrong type are errors that name the setting; so are the checks of the class's ``check()``.
     """
     options = dict(vars(given) if isinstance(given, argparse.Namespace) else given)
     settings_file = settings_file or options.get("settings")

@@ -1,10 +1,10 @@
 """The Zenoh flags every blackmetal process shares (``-m -e -l -c --multicast-scouting``) and opening its session.
 
-Isolated by default (docs/concepts.md, "Isolated by default"): no multicast scouting, no gossip; a process that
-listens is a hub, any other a client of its ``-e`` or of :data:`DEFAULT_ENDPOINT`. A service waits for its
-router and rides out its restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a
-daemon thread. The user tools use :func:`open_session`, which fails at once with one sentence. zenoh is imported
-late: the plain simulator never loads it.
+Isolated by default (docs/concepts.md, "Isolated by default"): no multicast scouting, no gossip; a process that listens
+is a hub, any other a client of its ``-e`` or of :data:`DEFAULT_ENDPOINT`. A service waits for its router and rides out
+its restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a daemon thread. The user
+tools use :func:`open_session`, which fails at once with one sentence. zenoh is imported late: the plain simulator never
+loads it.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ if TYPE_CHECKING:
 MODES = ("peer", "client", "router")
 #: Where every process connects when told nothing else: the hub of ``blackmetal up`` and ``blackmetal router``.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-#: Zenoh's connect retry for services (Zenoh's default, 1 s doubling to 4 s, is too slow to join a router
-#: within 2 s of it coming up). It also paces reconnecting after the router restarts.
+#: Zenoh's connect retry for services (Zenoh's default, 1 s doubling to 4 s, is too slow to join a router within 2 s of
+#: it coming up). It also paces reconnecting after the router restarts.
 SERVICE_RETRY = "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}"
 #: How long a service tries quietly before it says that it waits.
 WAIT_NOTICE_S = 0.5
@@ -48,8 +48,8 @@ class ZenohSettings:
     multicast_scouting: bool = False
     #: Accepted for scripts written before isolation became the default; off is the default anyway.
     no_multicast_scouting: bool = False
-    #: Zenoh user/password authentication, from the environment only
-    #: (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD) so no secret sits on a command line or in a file.
+    #: Zenoh user/password authentication, from the environment only (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD)
+    #: so no secret sits on a command line or in a file.
     user: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_USER") or None, metadata={"cli": False})
     password: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_PASSWORD") or None, metadata={"cli": False})
 
@@ -94,8 +94,8 @@ class ZenohSettings:
         return self.multicast_scouting and not self.no_multicast_scouting
 
     def to_config(self, wait: bool = False) -> "zenoh.Config":
-        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services),
-        unless a config file sets ``connect/timeout_ms`` itself."""
+        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services), unless a
+        config file sets ``connect/timeout_ms`` itself."""
         import zenoh
 
         if self.config is not None:
@@ -242,8 +242,8 @@ class PendingSession:
     """``zenoh.open`` of a service's config on a daemon thread, and whether the session has joined its endpoints.
 
     A client's ``zenoh.open`` blocks until its router answers and cannot be interrupted, so it runs here while the
-    caller watches its stop request; a session opened after the caller gave up is closed. :meth:`step` says once what
-    it waits for, and where the session is once it is ready.
+    caller watches its stop request; a session opened after the caller gave up is closed. :meth:`step` says once what it
+    waits for, and where the session is once it is ready.
     """
 
     def __init__(self, settings: ZenohSettings, name: str) -> None:
@@ -342,8 +342,8 @@ class PendingSession:
 async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, name: str, poll: float = 0.02) -> "zenoh.Session":
     """A service's session, once it has joined its router or hub (a hub: at once); says once what it waits for.
 
-    ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot
-    open at all (a port in use, a bad config).
+    ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot open
+    at all (a port in use, a bad config).
     """
     pending = PendingSession(settings, name)
     try:
