@@ -20,6 +20,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass
+from dataclasses import fields as fields_of
 from enum import IntEnum
 from typing import Any, Generic, TypeVar
 
@@ -230,20 +231,11 @@ def _parse_pairs(frame: bytes) -> dict[str, str | int] | None:
     return fields
 
 
-_PAIR_REPLIES: dict[frozenset[str], tuple[str, str, str, Callable[[int, int], Reply]]] = {
-    frozenset({"LeftWheelSpeed", "RightWheelSpeed"}): (
-        "SpeedReading",
-        "LeftWheelSpeed",
-        "RightWheelSpeed",
-        lambda left, right: SpeedReading(left=left, right=right),
-    ),
-    frozenset({"LeftWheelPosition", "RightWheelPosition"}): (
-        "PositionReading",
-        "LeftWheelPosition",
-        "RightWheelPosition",
-        lambda left, right: PositionReading(left=left, right=right),
-    ),
-    frozenset({"state", "direction"}): ("LogReport", "state", "direction", LogReport),
+#: The robot's key/value replies besides the status: their two keys, in the order of the reply's fields.
+_PAIR_REPLIES: dict[tuple[str, str], type[SpeedReading | PositionReading | LogReport]] = {
+    ("LeftWheelSpeed", "RightWheelSpeed"): SpeedReading,
+    ("LeftWheelPosition", "RightWheelPosition"): PositionReading,
+    ("state", "direction"): LogReport,
 }
 
 
@@ -279,16 +271,16 @@ def _parse_reply(frame: bytes) -> Reply | Malformed:
         if isinstance(status, str) and status:
             return StatusReply(status)
         return Malformed("status reply without a status word", frame)
-    shape = _PAIR_REPLIES.get(frozenset(fields))
-    if shape is None:
+    keys = next((keys for keys in _PAIR_REPLIES if set(keys) == set(fields)), None)
+    if keys is None:
         return Malformed(f"unknown reply fields {sorted(fields)}", frame)
-    name, first, second, build = shape
-    a, b = fields[first], fields[second]
-    if not isinstance(a, int) or not isinstance(b, int):
-        return Malformed(f"{name} values must be integers", frame)
-    if not (INT32_MIN <= a <= INT32_MAX and INT32_MIN <= b <= INT32_MAX):
-        return Malformed(f"{name} values beyond 32 bits", frame)
-    return build(a, b)
+    kind = _PAIR_REPLIES[keys]
+    values = [value for value in (fields[key] for key in keys) if isinstance(value, int)]
+    if len(values) != len(keys):
+        return Malformed(f"{kind.__name__} values must be integers", frame)
+    if not all(INT32_MIN <= value <= INT32_MAX for value in values):
+        return Malformed(f"{kind.__name__} values beyond 32 bits", frame)
+    return kind(**{f.name: value for f, value in zip(fields_of(kind), values, strict=True)})
 
 
 class _FramedDecoder(Generic[M]):

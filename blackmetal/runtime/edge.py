@@ -16,7 +16,7 @@ from blackmetal.schemas import ConfigError, Delivery, ErrorReport, Keys, any_ali
 from .burst import PutBurst
 from .flood import GuardedInput
 from .intake import Intake
-from .zenoh_entities import chunk_and_payload, undeclare
+from .zenoh_entities import undeclare
 
 if TYPE_CHECKING:
     import asyncio
@@ -120,11 +120,6 @@ class ZenohEdge:
     def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
         """Payload bytes of every sample on ``key`` go to ``put`` (an Intake channel)."""
         self._entities.append(self.session.declare_subscriber(key, lambda sample: put(payload_bytes(sample))))
-
-    def named_subscriber(self, key: str, put: Callable[[tuple[str, bytes]], None]) -> None:
-        """``(last key chunk, payload)`` of every sample on ``key`` (e.g. ``robot/cmd_vel/*``) go to ``put``."""
-
-        self._entities.append(self.session.declare_subscriber(key, lambda sample: put(chunk_and_payload(sample))))
 
     def guarded(
         self,

@@ -114,11 +114,6 @@ class ReportLimiter:
         families = self._families
         return bool(families) and any(bucket.suppressed for bucket in families.values())
 
-    @property
-    def tracked(self) -> int:
-        """How many families the limiter keeps state for (at most ``max_tracked``)."""
-        return len(self._families)
-
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
         """Families whose held-back count can be announced now (a token of their own and of the overall budget), with the count.
 
