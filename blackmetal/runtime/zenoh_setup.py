@@ -184,35 +184,18 @@ def unresolvable(endpoints: list[str]) -> list[str]:
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the shared Zenoh flags to ``parser`` (unset flags stay None, so settings files can fill them)."""
     group = parser.add_argument_group("Zenoh")
+    endpoints: dict[str, Any] = {"action": "append", "metavar": "ENDPOINT"}
+    switch: dict[str, Any] = {"action": "store_const", "const": True}
     group.add_argument(
         "-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: client with -e and no -l, else peer)"
     )
-    group.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT} unless -l, -c or --multicast-scouting)",
-    )
-    group.add_argument(
-        "-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on, as a hub (repeatable)"
-    )
+    connect_help = f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT} unless -l, -c or --multicast-scouting)"
+    group.add_argument("-e", "--connect", default=None, help=connect_help, **endpoints)
+    group.add_argument("-l", "--listen", default=None, help="endpoint to listen on, as a hub (repeatable)", **endpoints)
     group.add_argument("-c", "--config", default=None, metavar="FILE", help="Zenoh configuration file (JSON5)")
-    group.add_argument(
-        "--multicast-scouting",
-        action="store_const",
-        const=True,
-        default=None,
-        help="discover peers on the LAN by multicast and gossip (default: off, only the endpoints given)",
-    )
-    group.add_argument(
-        "--no-multicast-scouting",
-        action="store_const",
-        const=True,
-        default=None,
-        help="no discovery (the default; accepted for older scripts)",
-    )
+    scouting_help = "discover peers on the LAN by multicast and gossip (default: off, only the endpoints given)"
+    group.add_argument("--multicast-scouting", default=None, help=scouting_help, **switch)
+    group.add_argument("--no-multicast-scouting", default=None, help="no discovery (the default; accepted for older scripts)", **switch)
 
 
 def zenoh_settings(args: argparse.Namespace | Any) -> ZenohSettings:
