@@ -31,7 +31,6 @@ def refuse_taken(
     *,
     what: str | None = None,
     describe: Callable[[str], str] | None = None,
-    timeout: float = 0.5,
 ) -> None:
     """ConfigError naming the first prefix on which another ``role`` (``gateway``, ``odometry``) is alive.
 
@@ -40,7 +39,7 @@ def refuse_taken(
     """
     alive = {
         Keys.prefix_of_token(str(reply.ok.key_expr), role)
-        for reply in session.liveliness().get(any_alive(role), timeout=timeout)
+        for reply in session.liveliness().get(any_alive(role), timeout=0.5)
         if reply.ok is not None
     }
     for prefix in prefixes:

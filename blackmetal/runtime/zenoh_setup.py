@@ -328,7 +328,7 @@ async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, nam
     ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot open
     at all (a port in use, a bad config).
     """
-    pending = PendingSession(settings, name)
+    pending, session = PendingSession(settings, name), None
     try:
         while (session := pending.step()) is None:
             try:
@@ -336,23 +336,21 @@ async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, nam
             except TimeoutError:
                 continue
             raise asyncio.CancelledError(f"{name} stopped while it waited for its router or hub")
-    except BaseException:
-        pending.abandon()
-        raise
+    finally:
+        if session is None:
+            pending.abandon()
     return session
 
 
 def open_when_reachable(settings: ZenohSettings, stop: threading.Event, name: str, poll: float = 0.02) -> "zenoh.Session | None":
     """:func:`open_service_session` for a thread-based process (the recorder, ``up``); None when ``stop`` came first."""
-    pending = PendingSession(settings, name)
+    pending, session = PendingSession(settings, name), None
     try:
-        while (session := pending.step()) is None:
-            if stop.wait(poll):
-                pending.abandon()
-                return None
-    except BaseException:
-        pending.abandon()
-        raise
+        while (session := pending.step()) is None and not stop.wait(poll):
+            continue
+    finally:
+        if session is None:
+            pending.abandon()
     return session
 
 
