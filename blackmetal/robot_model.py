@@ -345,43 +345,37 @@ def urdf(
     length, width, height = body.box
     p = frame_prefix
 
-    def link(link_name: str, geometry: str, xyz: str = "0 0 0", rpy: str = "0 0 0") -> str:
-        return (
-            f"  <link name={quoteattr(p + link_name)}>\n"
-            f'    <visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></visual>\n'
-            f'    <collision><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></collision>\n'
-            f"  </link>\n"
-        )
-
-    def joint(j: Joint) -> str:
+    wheel = (f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>', "0 0 0", "1.5708 0 0")
+    #: Each joint's child link: its geometry, and its origin's xyz and rpy.
+    shapes = {
+        "base_link": (f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', f"0 0 {_f(height / 2)}", "0 0 0"),
+        "left_wheel": wheel,
+        "right_wheel": wheel,
+        "caster": (f'<sphere radius="{_f(r / 2)}"/>', "0 0 0", "0 0 0"),
+    }
+    parts = []
+    for j in joints(body, left_joint=left_joint, right_joint=right_joint):
+        geometry, xyz, rpy = shapes[j.child]
+        shape = f'<origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry>'
         axis_xml = '\n    <axis xyz="0 1 0"/>' if j.kind == "continuous" else ""
         joint_name = j.name if j.kind == "continuous" else p + j.name  # the wheels are named as in /joint_states
-        xyz = " ".join(_f(v) for v in j.xyz)
-        return (
+        parts.append(
+            f"  <link name={quoteattr(p + j.child)}>\n"
+            f"    <visual>{shape}</visual>\n"
+            f"    <collision>{shape}</collision>\n"
+            f"  </link>\n"
             f"  <joint name={quoteattr(joint_name)} type={quoteattr(j.kind)}>\n"
             f"    <parent link={quoteattr(p + j.parent)}/>\n    <child link={quoteattr(p + j.child)}/>\n"
-            f'    <origin xyz="{xyz}" rpy="0 0 0"/>{axis_xml}\n'
+            f'    <origin xyz="{" ".join(_f(v) for v in j.xyz)}" rpy="0 0 0"/>{axis_xml}\n'
             f"  </joint>\n"
         )
-
-    base, left, right, caster = joints(body, left_joint=left_joint, right_joint=right_joint)
-    wheel = f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>'
     return (
         '<?xml version="1.0"?>\n'
         f"<!-- {name}: made by blackmetal from its robot model: wheel separation {_f(body.wheel_separation)} m, "
         f"wheel radius {_f(r)} m. The body box and the rear caster are drawn from those two numbers, "
         "not measured. -->\n"
         f"<robot name={quoteattr(name)}>\n"
-        f"  <link name={quoteattr(p + 'base_footprint')}/>\n"
-        + link("base_link", f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', xyz=f"0 0 {_f(height / 2)}")
-        + joint(base)
-        + link("left_wheel", wheel, rpy="1.5708 0 0")
-        + joint(left)
-        + link("right_wheel", wheel, rpy="1.5708 0 0")
-        + joint(right)
-        + link("caster", f'<sphere radius="{_f(r / 2)}"/>')
-        + joint(caster)
-        + "</robot>\n"
+        f"  <link name={quoteattr(p + 'base_footprint')}/>\n" + "".join(parts) + "</robot>\n"
     )
 
 
