@@ -57,13 +57,12 @@ class ServiceProcess:
         launcher: list[str] | None = None,
         echo: bool = False,
         own_session: bool = False,
-        keep_lines: int = 2000,
         interactive: bool = False,
     ) -> None:
         self.name = name
         self.args = args
         self.echo = echo
-        self.lines: deque[str] = deque(maxlen=keep_lines)
+        self.lines: deque[str] = deque(maxlen=2000)
         #: With ``interactive``, the child's stdin is ours and its stdout lines also queue up for :meth:`request`.
         self._replies: queue.SimpleQueue[str] | None = queue.SimpleQueue() if interactive else None
         self.ready_info: dict[str, Any] | None = None

@@ -161,10 +161,9 @@ class ErrorReporter:
     def report(self, key: str, reason: str, excerpt: str = "", by: str | None = None, *, now: float, family: str | None = None) -> None:
         """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
 
-        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``.
-
-        ``family`` (e.g. ``robot/lock/*``) is what the limit counts against; give it wherever a client picks the key's
-        last chunk. Default: the key.
+        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``. ``family`` (e.g.
+        ``robot/lock/*``) is what the limit counts against; give it wherever a client picks the key's last chunk.
+        Default: the key.
         """
         admitted, suppressed = self.limiter.admit(family or key, now)
         if admitted:
