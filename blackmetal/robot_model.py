@@ -59,7 +59,6 @@ class WheelSpeeds:
         return WheelSpeeds(left=round(self.left, 6) + 0.0, right=round(self.right, 6) + 0.0)
 
     def scaled(self, gain: "WheelGain") -> "WheelSpeeds":
-        """Each wheel multiplied by its own gain."""
         return WheelSpeeds(left=self.left * gain.left, right=self.right * gain.right)
 
     @property

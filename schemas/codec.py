@@ -96,5 +96,4 @@ def _readable(text: str) -> str:
 
 
 def encode(message: msgspec.Struct) -> bytes:
-    """Encode a message as compact JSON bytes."""
     return _encoder.encode(message)

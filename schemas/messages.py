@@ -123,7 +123,6 @@ class Pose(msgspec.Struct):
 
 
 def wrap_angle(angle: float) -> float:
-    """Wrap an angle to [-pi, pi]."""
     return math.remainder(angle, math.tau)
 
 

@@ -151,7 +151,6 @@ def parse_fleet(data: dict[str, Any], source: str = "fleet file") -> list[FleetR
 
 
 def load_fleet(path: str | Path) -> list[FleetRobot]:
-    """The robots of the fleet file at ``path`` (TOML)."""
     data = read_config(Path(path), "fleet file", toml=True)
     return parse_fleet(data, f"fleet file {path}")
 

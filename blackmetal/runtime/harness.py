@@ -87,7 +87,6 @@ class ServiceProcess:
 
     @classmethod
     def blackmetal(cls, name: str, command: list[str], **kwargs: Any) -> "ServiceProcess":
-        """``python -m blackmetal COMMAND ...``."""
         return cls(name, ["-m", "blackmetal", *command], **kwargs)
 
     def _read(self) -> None:

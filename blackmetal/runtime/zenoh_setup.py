@@ -199,7 +199,6 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def zenoh_settings(args: argparse.Namespace | Any) -> ZenohSettings:
-    """ZenohSettings from parsed arguments that carry the shared flags."""
     return ZenohSettings(
         mode=getattr(args, "mode", None),
         connect=list(getattr(args, "connect", None) or []),
