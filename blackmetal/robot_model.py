@@ -436,11 +436,7 @@ def read_calibration(path: str) -> Calibration:
         if not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ConfigError(f"calibration file {path} has no positive {name} (is it the output of blackmetal calibrate -o?)")
         constants[name] = float(value)
-    found: dict[str, str] = {}
-    for line in text.splitlines():
-        match = _RESIDUAL.match(line)
-        if match:
-            found[match.group(1)] = match.group(2)
+    found = {match[1]: match[2] for line in text.splitlines() if (match := _RESIDUAL.match(line))}
     residuals = None
     if found:
         names = _RESIDUAL_NAMES

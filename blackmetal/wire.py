@@ -66,12 +66,9 @@ DATA_COMMANDS = frozenset({CommandCode.GET_LR_WHEEL_VELOCITY, CommandCode.GET_LR
 
 @dataclass(frozen=True, slots=True)
 class Request:
-    """One command to the robot. ``left``/``right`` are wheel speeds (m/s) for SET_LR_WHEEL_VELOCITY, impulse counts for
-    SET_LR_WHEEL_POSITION, else None.
-
-    The wheels are keyword-only, left then right, as everywhere in blackmetal; only :func:`encode_request` writes them
-    in the robot's right-then-left order.
-    """
+    """One command to the robot. ``left``/``right`` (keyword-only, as every wheel pair): wheel speeds (m/s) for
+    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None; :func:`encode_request` writes them
+    right then left, as the robot wants."""
 
     command: CommandCode
     _: KW_ONLY
