@@ -95,9 +95,8 @@ def _is_int32(value: object) -> bool:
 
 
 def _wire_speed(name: str, value: object) -> str:
-    if not _is_number(value):
+    if not isinstance(value, (int, float)) or not _is_number(value):
         raise ProtocolError(f"{name} must be a finite number, got {value!r}")
-    assert isinstance(value, (int, float))
     if abs(value) > WIRE_SPEED_LIMIT:
         raise ProtocolError(f"{name} {value!r} m/s is beyond the wire limit of {WIRE_SPEED_LIMIT} m/s")
     text = f"{value:.6f}"

@@ -1,9 +1,8 @@
 """The Zenoh flags every blackmetal process shares (``-m -e -l -c --multicast-scouting``) and opening its session.
 
-Isolated by default (docs/concepts.md, "Isolated by default"): no multicast scouting, no gossip; a process that listens
-is a hub, any other a client of its ``-e`` or of :data:`DEFAULT_ENDPOINT`. A service waits for its router and rides out
-its restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a daemon thread. The user
-tools use :func:`open_session`, which fails at once with one sentence. zenoh is imported late: the plain simulator never
+Isolated by default (docs/concepts.md, "Isolated by default"). A service waits for its router and rides out its
+restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a daemon thread. The user tools
+use :func:`open_session`, which fails at once with one sentence. zenoh is imported late: the plain simulator never
 loads it.
 """
 
