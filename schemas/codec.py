@@ -6,7 +6,6 @@ a valid message raises :class:`PayloadError` with a reason a person can act on.
 
 from __future__ import annotations
 
-import functools
 from typing import Any, TypeVar
 
 import msgspec
@@ -21,6 +20,7 @@ EXCERPT_CHARS = 80
 T = TypeVar("T", bound=msgspec.Struct)
 
 _encoder = msgspec.json.Encoder()
+_decoders: dict[type, msgspec.json.Decoder[Any]] = {}
 
 
 def excerpt(payload: bytes | bytearray | memoryview | str, limit: int = EXCERPT_CHARS) -> str:
@@ -34,9 +34,11 @@ def excerpt(payload: bytes | bytearray | memoryview | str, limit: int = EXCERPT_
     return text if len(text) <= limit else text[: limit - 3] + "..."
 
 
-@functools.cache
 def _decoder(message_type: type[T]) -> msgspec.json.Decoder[T]:
-    return msgspec.json.Decoder(message_type)
+    decoder = _decoders.get(message_type)
+    if decoder is None:
+        decoder = _decoders[message_type] = msgspec.json.Decoder(message_type)
+    return decoder
 
 
 def to_bytes(payload: Any) -> bytes:
