@@ -66,16 +66,14 @@ class ServiceProcess:
         #: With ``interactive``, the child's stdin is ours and its stdout lines also queue up for :meth:`request`.
         self._replies: queue.SimpleQueue[str] | None = queue.SimpleQueue() if interactive else None
         self.ready_info: dict[str, Any] | None = None
-        read_fd, write_fd = os.pipe()
-        self._ready_fd = read_fd
-        full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {}), READY_FD_ENV: str(write_fd)}
+        self._ready_fd, write_fd = os.pipe()
         try:
             self.proc = subprocess.Popen(
                 [*(launcher or []), sys.executable, *args],
                 stdin=subprocess.PIPE if interactive else subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
-                env=full_env,
+                env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {}), READY_FD_ENV: str(write_fd)},
                 text=True,
                 pass_fds=(write_fd,),
                 start_new_session=own_session,  # Ctrl-C reaches the parent only; it stops children in order
