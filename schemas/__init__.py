@@ -2,10 +2,11 @@
 
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes  # noqa: F401
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra  # noqa: F401
-from .jsonschema import MESSAGE_TYPES, json_schemas  # noqa: F401
+from .jsonschema import json_schemas  # noqa: F401
 from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix  # noqa: F401
 from .messages import (  # noqa: F401
     DIRECTION_NAMES,
+    MESSAGE_TYPES,
     STATE_NAMES,
     DriverChange,
     ErrorReport,

@@ -356,3 +356,22 @@ class ParamsSetReply(msgspec.Struct):
 
     results: list[ParamResult]
     params: GatewayParams
+
+
+#: Every message type, by the name used for its JSON Schema file.
+MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
+    "Twist": Twist,
+    "EStop": EStop,
+    "Lock": Lock,
+    "WheelImpulses": WheelImpulses,
+    "Pose": Pose,
+    "RobotStatus": RobotStatus,
+    "GatewayHealth": GatewayHealth,
+    "ErrorReport": ErrorReport,
+    "DriverChange": DriverChange,
+    "SimFaults": SimFaults,
+    "PoseReset": PoseReset,
+    "GatewayParams": GatewayParams,
+    "ParamsSet": ParamsSet,
+    "ParamsSetReply": ParamsSetReply,
+}
