@@ -97,13 +97,6 @@ class Member(Generic[S]):
             serving.cancel()
             failure.cancel()
 
-    def failed(self, exc: Exception, pause: float) -> None:
-        """Report the failure on the robot's errors key (its edge is still open); it starts again in ``pause`` s."""
-        reason = self.role.failure.format(robot=self.robot.describe(), exc=exc, pause=pause)
-        logging.getLogger(f"blackmetal.{self.role.service}").error("%s", reason)
-        key = getattr(self.edge.keys, self.role.error_key)
-        self.edge.publish(ErrorReport(stamp=time.time(), source=self.role.service, key=key, reason=reason))
-
     def close(self) -> None:
         """Undeclare what the robot's edge declared; the next :meth:`start` builds anew."""
         if self.edge is not None:
@@ -117,7 +110,7 @@ async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
     A failure stays that robot's: the others share the loop and go on. The pause doubles from RESTART_FIRST_S up to
     RESTART_CAP_S, so a robot that fails at once costs the fleet little.
     """
-    pause = RESTART_FIRST_S
+    pause, role = RESTART_FIRST_S, member.role
     while not stop.is_set():
         member.start()
         try:
@@ -125,7 +118,10 @@ async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
             return
         except Exception as exc:
             logging.getLogger("blackmetal.fleet").debug("a fleet member failed", exc_info=exc)
-            member.failed(exc, pause)
+            reason = role.failure.format(robot=member.robot.describe(), exc=exc, pause=pause)
+            logging.getLogger(f"blackmetal.{role.service}").error("%s", reason)
+            key = getattr(member.edge.keys, role.error_key)  # reported on the robot's errors key: its edge is still open
+            member.edge.publish(ErrorReport(stamp=time.time(), source=role.service, key=key, reason=reason))
         finally:
             member.close()
         try:
