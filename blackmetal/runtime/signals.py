@@ -19,9 +19,9 @@ def stop_on_signals() -> threading.Event:
     stop = threading.Event()
 
     def on_signal(*_: object) -> None:
-        # Not stop.set() here: the handler runs on the main thread, which may be inside stop.wait() holding the event's
-        # lock at that instant; set() would then wait for it forever. A thread sets it as soon as the main thread lets
-        # go.
+        # Not stop.set() here: the handler runs on the main thread, which may be inside
+        # stop.wait() holding the event's lock at that instant; set() would then wait for
+        # it forever. A thread sets it as soon as the main thread lets go.
         threading.Thread(target=stop.set, name="stop-signal", daemon=True).start()
 
     for sig in STOP_SIGNALS:
