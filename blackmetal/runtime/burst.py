@@ -71,3 +71,6 @@ class PutBurst:
             except Exception:  # a bug (a payload Zenoh cannot take): that one put is lost, not the others'
                 self.refused += 1
                 log.exception("a held put failed")
+
+    def __len__(self) -> int:
+        return len(self._held)

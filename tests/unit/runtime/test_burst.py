@@ -48,11 +48,11 @@ def test_puts_wait_for_the_end_of_the_turn_then_all_go_in_order(session: zenoh.S
         for i in range(3):
             burst.put(a, b"a%d" % i)
             burst.put(b, b"b%d" % i)
-        assert len(burst._held) == 6
+        assert len(burst) == 6
         with arrived:
             assert not arrived.wait_for(lambda: got, timeout=0.2)  # nothing put within the turn
         await asyncio.sleep(0)  # the turn ends
-        assert len(burst._held) == 0
+        assert len(burst) == 0
         burst.put(a, b"a3")  # a new burst, flushed at the end of the next turn
         await asyncio.sleep(0)
 
@@ -109,7 +109,7 @@ def test_a_put_off_the_loop_is_refused_at_once(session: zenoh.Session, run_loop:
         thread = threading.Thread(target=off_the_loop)
         thread.start()
         thread.join(10)
-        assert len(errors) == 1 and len(burst._held) == 1
+        assert len(errors) == 1 and len(burst) == 1
 
     run_loop(scenario())
 
@@ -122,9 +122,9 @@ def test_a_put_held_for_max_hold_goes_at_once_with_those_before_it(session: zeno
 
     async def scenario() -> None:
         burst.put(a, b"first")
-        assert len(burst._held) == 1
+        assert len(burst) == 1
         burst.put(a, b"second")  # the first has waited max_hold: both go now, within the turn
-        assert len(burst._held) == 0
+        assert len(burst) == 0
         with arrived:
             assert arrived.wait_for(lambda: len(got) == 2, timeout=10), got
 
@@ -158,7 +158,7 @@ def test_the_fleet_edges_hold_their_telemetry_and_never_an_error(session: zenoh.
         odometry.publish(make_pose(1.0, 0.5, 0.25, 0.1))
         node.put(b"cdr")
         gateway.publish(ErrorReport(stamp=1.0, source="gateway", key="t/gw/cmd_vel", reason="not held"))
-        assert len(burst._held) == 3
+        assert len(burst) == 3
         with arrived:
             assert arrived.wait_for(lambda: len(got) == 1, timeout=10), got  # the error alone, before the turn ends
         assert got[0][0] == "t/gw/errors"
@@ -194,9 +194,9 @@ def test_a_fleet_gateways_robots_share_the_fleets_burst(session: zenoh.Session, 
             edge = member.start().edge
             assert edge is not None
             edge.publish(impulses)
-        assert len(burst._held) == 2  # not yet put: the fleet's one burst holds both robots' samples
+        assert len(burst) == 2  # not yet put: the fleet's one burst holds both robots' samples
         await asyncio.sleep(0)
-        assert len(burst._held) == 0
+        assert len(burst) == 0
 
     try:
         run_loop(scenario())
