@@ -1,10 +1,9 @@
 """The Black Metal robot as numbers and formulas: the one place they are computed.
 
-The gateway (twist to wheel commands), the odometry (impulses to motion,
-streaming and batch), the simulator (motion to impulses, true pose), the log
-synthesiser and the bench all take the robot's constants and formulas from
-here, so a calibration or a sign convention changes in one place. The
-formulas are plain arithmetic, so each works on floats and on numpy arrays.
+The gateway (twist to wheel commands), the odometry (impulses to motion, streaming and batch), the simulator (motion to
+impulses, true pose), the log synthesiser and the bench all take the robot's constants and formulas from here, so a
+calibration or a sign convention changes in one place. The formulas are plain arithmetic, so each works on floats and on
+numpy arrays.
 """
 
 from __future__ import annotations
@@ -48,9 +47,8 @@ Num = TypeVar("Num", float, "NDArray[np.float64]")
 class WheelSpeeds:
     """Wheel rim speeds in m/s, natural sign (forward positive on both wheels).
 
-    Left, then right, and keyword-only, like every wheel pair in blackmetal:
-    a positional slip cannot swap the wheels. The robot's right-then-left
-    wire order lives only in :mod:`blackmetal.wire`.
+    Left, then right, and keyword-only, like every wheel pair in blackmetal: a positional slip cannot swap the wheels.
+    The robot's right-then-left wire order lives only in :mod:`blackmetal.wire`.
     """
 
     left: float
@@ -61,7 +59,6 @@ class WheelSpeeds:
         return WheelSpeeds(left=round(self.left, 6) + 0.0, right=round(self.right, 6) + 0.0)
 
     def scaled(self, gain: "WheelGain") -> "WheelSpeeds":
-        """Each wheel multiplied by its own gain."""
         return WheelSpeeds(left=self.left * gain.left, right=self.right * gain.right)
 
     @property
@@ -118,8 +115,8 @@ MAX_JOINT_GAP_S = 0.5
 
 @dataclass(slots=True)
 class WheelAngles:
-    """Wheel angles (rad) from the impulses' wheel speeds, trapezoid rule, never across a gap (ROS 2's /joint_states
-    and Foxglove's turning wheels); ``wrap``: kept within -pi..pi."""
+    """Wheel angles (rad) from the impulses' wheel speeds, trapezoid rule, never across a gap (ROS 2's /joint_states and
+    Foxglove's turning wheels); ``wrap``: kept within -pi..pi."""
 
     wrap: bool = False
     positions: list[float] = field(default_factory=lambda: [0.0, 0.0])
@@ -142,10 +139,9 @@ class WheelAngles:
 def twist_to_wheels(v: float, w: float, separation: float, max_wheel_speed: float) -> tuple[WheelSpeeds, bool]:
     """Wheel speeds for forward speed ``v`` (m/s) and turn rate ``w`` (rad/s, + is left).
 
-    ``right = v + w*L/2``, ``left = v - w*L/2``. If either exceeds
-    ``max_wheel_speed``, both are scaled by the same factor so the robot
-    follows the same arc, only slower (clamping each wheel alone would bend
-    the path). Returns the speeds and whether they were scaled.
+    ``right = v + w*L/2``, ``left = v - w*L/2``. If either exceeds ``max_wheel_speed``, both are scaled by the same
+    factor so the robot follows the same arc, only slower (clamping each wheel alone would bend the path). Returns the
+    speeds and whether they were scaled.
     """
     half = 0.5 * w * separation
     right = v + half
@@ -165,9 +161,8 @@ def wheels_to_twist(left: Num, right: Num, separation: float) -> tuple[Num, Num]
 def arc_step(x: float, y: float, yaw: float, d_left: float, d_right: float, separation: float) -> tuple[float, float, float]:
     """Move a differential-drive pose by wheel travels ``d_left``/``d_right`` along the exact arc.
 
-    Chord form: length ``ds * sin(h)/h`` at heading ``yaw + h`` with ``h`` half
-    the turn; exact for any turn and well conditioned as the turn goes to zero,
-    where it becomes the straight line. The simulator's truth and the odometry
+    Chord form: length ``ds * sin(h)/h`` at heading ``yaw + h`` with ``h`` half the turn; exact for any turn and well
+    conditioned as the turn goes to zero, where it becomes the straight line. The simulator's truth and the odometry
     both move this way.
     """
     ds = 0.5 * (d_left + d_right)
@@ -197,9 +192,8 @@ def arc_path(
 ) -> tuple["NDArray[np.float64]", "NDArray[np.float64]", "NDArray[np.float64]"]:
     """x, y and unwrapped yaw after each of many :func:`arc_step` moves from (0, 0, 0) (numpy, one pass).
 
-    The whole of the odometry's geometry for a replay, and what a calibration
-    evaluates a thousand times: the fewest array operations that keep
-    :func:`arc_step`'s arithmetic.
+    The whole of the odometry's geometry for a replay, and what a calibration evaluates a thousand times: the fewest
+    array operations that keep :func:`arc_step`'s arithmetic.
     """
     import numpy as np
 
@@ -228,8 +222,8 @@ _Second = TypeVar("_Second")
 
 
 def both(first: Callable[[], _First], second: Callable[[], _Second], size: int) -> tuple[_First, _Second]:
-    """``(first(), second())``, the first on a second thread when ``size`` is large: two independent
-    numpy computations in the time of one on a two-core machine."""
+    """``(first(), second())``, the first on a second thread when ``size`` is large: two independent numpy computations in
+    the time of one on a two-core machine."""
     if size < PARALLEL_MIN:
         return first(), second()
     from concurrent.futures import ThreadPoolExecutor
@@ -271,15 +265,9 @@ def _sin_ratio(half: "NDArray[np.float64]") -> "NDArray[np.float64]":
     return out
 
 
-# ---------------------------------------------------------------------------- the robot as a URDF
-#
-# What RViz's RobotModel display and Foxglove's 3D panel draw. The frames are those robot_state_publisher users
-# expect of a base driver: ``base_footprint`` on the floor, ``base_link`` above it at the axle height, two
-# continuous wheel joints named as in ``/joint_states`` (the wheels turn about +y, so a positive angle drives
-# forward), and the robot's third point of support. The Black Metal's documentation gives its wheel separation
-# and radius, not its body: the chassis box and the rear caster are drawn from those two numbers (:class:`Body`),
-# and the URDF's comment says so. A fleet prefixes every link (``r2/base_link``), as robot_state_publisher's
-# ``frame_prefix`` does.
+# The robot as a URDF (docs/ros2.md, docs/commands/tools.md "urdf"): the wheels turn about +y, so a positive angle
+# drives forward. The robot's documentation gives its wheel separation and radius, not its body: the chassis box and the
+# rear caster are drawn from those two numbers, and the URDF's comment says so.
 
 
 @dataclass(frozen=True, slots=True)
@@ -329,18 +317,16 @@ class Joint:
 def joints(body: Body | None = None, *, left_joint: str = "left_wheel_joint", right_joint: str = "right_wheel_joint") -> list[Joint]:
     """The URDF's joints, unprefixed: what ``/tf_static`` (the fixed ones) and ``/tf`` (the wheels) carry, from one place.
 
-    ``base_footprint`` on the floor, ``base_link`` at the axle height above it, the wheels on the axle at
-    plus and minus half the separation (the left one at +y), the caster behind, touching the floor.
+    ``base_footprint`` on the floor, ``base_link`` at the axle height above it, the wheels on the axle at plus and minus
+    half the separation (the left one at +y), the caster behind, touching the floor.
     """
     body = (body or Body()).check()
     r, half = body.wheel_radius, body.wheel_separation / 2
-    length = body.box[0]
-    caster_r = r / 2
     return [
         Joint("base_joint", "fixed", "base_footprint", "base_link", (0.0, 0.0, r)),
         Joint(left_joint, "continuous", "base_link", "left_wheel", (0.0, half, 0.0)),
         Joint(right_joint, "continuous", "base_link", "right_wheel", (0.0, -half, 0.0)),
-        Joint("caster_joint", "fixed", "base_link", "caster", (-0.8 * length / 2, 0.0, caster_r - r)),
+        Joint("caster_joint", "fixed", "base_link", "caster", (-0.8 * body.box[0] / 2, 0.0, r / 2 - r)),
     ]
 
 
@@ -356,56 +342,44 @@ def urdf(
     body = (body or Body()).check()
     r = body.wheel_radius
     length, width, height = body.box
-    caster_r = r / 2
     p = frame_prefix
 
-    def link(link_name: str, geometry: str, xyz: str = "0 0 0", rpy: str = "0 0 0") -> str:
-        return (
-            f"  <link name={quoteattr(p + link_name)}>\n"
-            f'    <visual><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></visual>\n'
-            f'    <collision><origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry></collision>\n'
-            f"  </link>\n"
-        )
-
-    def joint(j: Joint) -> str:
+    wheel = (f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>', "0 0 0", "1.5708 0 0")
+    #: Each joint's child link: its geometry, and its origin's xyz and rpy.
+    shapes = {
+        "base_link": (f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', f"0 0 {_f(height / 2)}", "0 0 0"),
+        "left_wheel": wheel,
+        "right_wheel": wheel,
+        "caster": (f'<sphere radius="{_f(r / 2)}"/>', "0 0 0", "0 0 0"),
+    }
+    parts = []
+    for j in joints(body, left_joint=left_joint, right_joint=right_joint):
+        geometry, xyz, rpy = shapes[j.child]
+        shape = f'<origin xyz="{xyz}" rpy="{rpy}"/><geometry>{geometry}</geometry>'
         axis_xml = '\n    <axis xyz="0 1 0"/>' if j.kind == "continuous" else ""
         joint_name = j.name if j.kind == "continuous" else p + j.name  # the wheels are named as in /joint_states
-        xyz = " ".join(_f(v) for v in j.xyz)
-        return (
+        parts.append(
+            f"  <link name={quoteattr(p + j.child)}>\n"
+            f"    <visual>{shape}</visual>\n"
+            f"    <collision>{shape}</collision>\n"
+            f"  </link>\n"
             f"  <joint name={quoteattr(joint_name)} type={quoteattr(j.kind)}>\n"
             f"    <parent link={quoteattr(p + j.parent)}/>\n    <child link={quoteattr(p + j.child)}/>\n"
-            f'    <origin xyz="{xyz}" rpy="0 0 0"/>{axis_xml}\n'
+            f'    <origin xyz="{" ".join(_f(v) for v in j.xyz)}" rpy="0 0 0"/>{axis_xml}\n'
             f"  </joint>\n"
         )
-
-    base, left, right, caster = joints(body, left_joint=left_joint, right_joint=right_joint)
-    wheel = f'<cylinder radius="{_f(r)}" length="{_f(body.wheel_width)}"/>'
     return (
         '<?xml version="1.0"?>\n'
         f"<!-- {name}: made by blackmetal from its robot model: wheel separation {_f(body.wheel_separation)} m, "
         f"wheel radius {_f(r)} m. The body box and the rear caster are drawn from those two numbers, "
         "not measured. -->\n"
         f"<robot name={quoteattr(name)}>\n"
-        f"  <link name={quoteattr(p + 'base_footprint')}/>\n"
-        + link("base_link", f'<box size="{_f(length)} {_f(width)} {_f(height)}"/>', xyz=f"0 0 {_f(height / 2)}")
-        + joint(base)
-        + link("left_wheel", wheel, rpy="1.5708 0 0")
-        + joint(left)
-        + link("right_wheel", wheel, rpy="1.5708 0 0")
-        + joint(right)
-        + link("caster", f'<sphere radius="{_f(caster_r)}"/>')
-        + joint(caster)
-        + "</robot>\n"
+        f"  <link name={quoteattr(p + 'base_footprint')}/>\n" + "".join(parts) + "</robot>\n"
     )
 
 
-# ---------------------------------------------------------------------------- the robot's calibration file
-#
-# ``blackmetal calibrate -o FILE`` writes the fitted constants as settings that the gateway, the odometry and
-# ``up`` take with ``--settings FILE``. Those services refuse settings they do not know, so what the fit measured
-# besides the constants (how far the calibrated odometry still was from the reference) is written as comments,
-# one ``# residuals.NAME = VALUE`` line each: every service still takes the file, and ``blackmetal ros2
-# --calibration FILE`` reads the residuals for ``/odom``'s covariance. The writer and the reader are here, together.
+# The calibration file ``blackmetal calibrate -o FILE`` writes (docs/ros2.md, "/odom's covariance"): settings every
+# service takes, and the residuals as comment lines, since a service refuses settings it does not know.
 
 #: How a residual line starts; the name and the value follow (``# residuals.x_m = 0.00123``).
 RESIDUAL_LINE = "# residuals."
@@ -426,11 +400,10 @@ class Residuals:
 
     def lines(self) -> list[str]:
         """The comment lines the calibration file carries them in."""
-        return [f"{RESIDUAL_LINE}{name} = {getattr(self, name):.6g}" for name in _residual_names()]
+        return [f"{RESIDUAL_LINE}{name} = {getattr(self, name):.6g}" for name in _RESIDUAL_NAMES]
 
 
-def _residual_names() -> list[str]:
-    return [f.name for f in fields(Residuals)]
+_RESIDUAL_NAMES = [f.name for f in fields(Residuals)]
 
 
 @dataclass(frozen=True, slots=True)
@@ -463,14 +436,10 @@ def read_calibration(path: str) -> Calibration:
         if not isinstance(value, (int, float)) or not (math.isfinite(value) and value > 0):
             raise ConfigError(f"calibration file {path} has no positive {name} (is it the output of blackmetal calibrate -o?)")
         constants[name] = float(value)
-    found: dict[str, str] = {}
-    for line in text.splitlines():
-        match = _RESIDUAL.match(line)
-        if match:
-            found[match.group(1)] = match.group(2)
+    found = {match[1]: match[2] for line in text.splitlines() if (match := _RESIDUAL.match(line))}
     residuals = None
     if found:
-        names = _residual_names()
+        names = _RESIDUAL_NAMES
         missing = [n for n in names if n not in found]
         if missing:
             raise ConfigError(f"calibration file {path} lacks the residual lines {missing} (write it again with blackmetal calibrate -o)")

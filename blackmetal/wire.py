@@ -20,6 +20,7 @@ import math
 import re
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass
+from dataclasses import fields as fields_of
 from enum import IntEnum
 from typing import Any, Generic, TypeVar
 
@@ -63,19 +64,11 @@ class CommandCode(IntEnum):
 DATA_COMMANDS = frozenset({CommandCode.GET_LR_WHEEL_VELOCITY, CommandCode.GET_LR_WHEEL_POSITION})
 
 
-def replies_expected(command: CommandCode) -> int:
-    """How many replies the robot sends for ``command`` when it accepts it."""
-    return 2 if command in DATA_COMMANDS else 1
-
-
 @dataclass(frozen=True, slots=True)
 class Request:
-    """One command to the robot. ``left``/``right`` are wheel speeds (m/s) for
-    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None.
-
-    The wheels are keyword-only, left then right, as everywhere in blackmetal;
-    only :func:`encode_request` writes them in the robot's right-then-left order.
-    """
+    """One command to the robot. ``left``/``right`` (keyword-only, as every wheel pair): wheel speeds (m/s) for
+    SET_LR_WHEEL_VELOCITY, impulse counts for SET_LR_WHEEL_POSITION, else None; :func:`encode_request` writes them
+    right then left, as the robot wants."""
 
     command: CommandCode
     _: KW_ONLY
@@ -88,17 +81,21 @@ def set_velocity(*, left: float, right: float) -> Request:
     return Request(CommandCode.SET_LR_WHEEL_VELOCITY, left=float(left), right=float(right))
 
 
-def set_position(*, left: int, right: int) -> Request:
-    return Request(CommandCode.SET_LR_WHEEL_POSITION, left=int(left), right=int(right))
-
-
 def simple(command: CommandCode) -> Request:
     """A command without payload fields (everything but 3 and 4)."""
     return Request(CommandCode(command))
 
 
+def _is_number(value: object) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+
+
+def _is_int32(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and INT32_MIN <= value <= INT32_MAX
+
+
 def _wire_speed(name: str, value: object) -> str:
-    if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
+    if not isinstance(value, (int, float)) or not _is_number(value):
         raise ProtocolError(f"{name} must be a finite number, got {value!r}")
     if abs(value) > WIRE_SPEED_LIMIT:
         raise ProtocolError(f"{name} {value!r} m/s is beyond the wire limit of {WIRE_SPEED_LIMIT} m/s")
@@ -107,32 +104,31 @@ def _wire_speed(name: str, value: object) -> str:
 
 
 def _wire_int(name: str, value: object) -> str:
-    if not isinstance(value, int) or isinstance(value, bool) or not INT32_MIN <= value <= INT32_MAX:
+    if not _is_int32(value):
         raise ProtocolError(f"{name} must be a 32-bit integer, got {value!r}")
     return str(value)
+
+
+#: The wheel fields of commands 3 and 4, in the robot's right-then-left order: how a value is checked, written and read.
+_WHEEL_FIELDS: dict[CommandCode, tuple[str, str, Callable[[str, object], str], Callable[[object], bool], type, str]] = {
+    CommandCode.SET_LR_WHEEL_VELOCITY: ("RightWheelSpeed", "LeftWheelSpeed", _wire_speed, _is_number, float, "finite"),
+    CommandCode.SET_LR_WHEEL_POSITION: ("RightWheelPosition", "LeftWheelPosition", _wire_int, _is_int32, int, "integer"),
+}
 
 
 def encode_request(request: Request) -> bytes:
     """The exact bytes the robot expects for ``request`` (one JSON object, no newline).
 
-    Raises ProtocolError for anything the robot must never see: non-finite or
-    out-of-range speeds, non-integer positions, unknown commands.
+    Raises ProtocolError for anything the robot must never see: non-finite or out-of-range speeds, non-integer
+    positions, unknown commands.
     """
     command = request.command if type(request.command) is CommandCode else CommandCode(request.command)
-    head = f'{{"UserID":{_wire_int("UserID", request.user_id)},"Command":{int(command)}'
-    if command is CommandCode.SET_LR_WHEEL_VELOCITY:
-        body = (
-            f',"RightWheelSpeed":{_wire_speed("RightWheelSpeed", request.right)}'
-            f',"LeftWheelSpeed":{_wire_speed("LeftWheelSpeed", request.left)}'
-        )
-    elif command is CommandCode.SET_LR_WHEEL_POSITION:
-        body = (
-            f',"RightWheelPosition":{_wire_int("RightWheelPosition", request.right)}'
-            f',"LeftWheelPosition":{_wire_int("LeftWheelPosition", request.left)}'
-        )
-    else:
-        body = ""
-    return (head + body + "}").encode("ascii")
+    text = f'{{"UserID":{_wire_int("UserID", request.user_id)},"Command":{int(command)}'
+    wheels = _WHEEL_FIELDS.get(command)
+    if wheels is not None:
+        right, left, write = wheels[:3]
+        text += f',"{right}":{write(right, request.right)},"{left}":{write(left, request.left)}'
+    return (text + "}").encode("ascii")
 
 
 @dataclass(frozen=True, slots=True)
@@ -209,66 +205,6 @@ def encode_log_report(state: int, direction: int) -> bytes:
     return f'{{"state":{_wire_int("state", state)},"direction":{_wire_int("direction", direction)}}}'.encode("ascii")
 
 
-class _BraceFramer:
-    """Cuts a byte stream into ``{...}`` frames; everything else is garbage."""
-
-    __slots__ = ("_buf", "garbage_bytes", "max_frame")
-
-    def __init__(self, max_frame: int) -> None:
-        self._buf = bytearray()
-        self.max_frame = max_frame
-        self.garbage_bytes = 0
-
-    @property
-    def pending(self) -> int:
-        """Bytes held while waiting for the rest of a frame."""
-        return len(self._buf)
-
-    def feed(self, data: bytes, out: list[bytes | Malformed]) -> None:
-        """Append ``data``; every complete frame and every run of garbage goes to ``out``.
-
-        The work is per frame, not per byte: a frame is the last ``{`` before
-        the next ``}``, and all that lies before it is one run of garbage,
-        whatever its length (a flood of ``{`` costs one report per read).
-        """
-        buf = self._buf
-        buf += data
-        pos = 0
-        size = len(buf)
-        while pos < size:
-            end = buf.find(b"}", pos)
-            start = buf.rfind(b"{", pos, end if end >= 0 else size)
-            if start < 0:  # no opening brace before the next closing one (or at all): garbage up to the next '{'
-                stop = buf.find(b"{", end + 1) if end >= 0 else -1
-                stop = size if stop < 0 else stop
-                self._garbage(buf, pos, stop, "bytes outside any {...} message", out)
-                pos = stop
-                continue
-            if start > pos:
-                cut = buf.find(b"{", pos, start) >= 0
-                self._garbage(buf, pos, start, "message cut off by a new '{'" if cut else "bytes outside any {...} message", out)
-            if end < 0:
-                if size - start > self.max_frame:
-                    self._garbage(buf, start, size, f"no closing '}}' within {self.max_frame} bytes", out)
-                    pos = size
-                else:
-                    pos = start
-                break
-            out.append(bytes(buf[start : end + 1]))
-            pos = end + 1
-        del buf[:pos]
-
-    def _garbage(self, buf: bytearray, start: int, end: int, reason: str, out: list[bytes | Malformed]) -> None:
-        chunk = bytes(buf[start:end])
-        if not chunk.strip():
-            return  # whitespace between messages is harmless
-        self.garbage_bytes += len(chunk)
-        out.append(Malformed(reason, chunk[:DEFAULT_MAX_FRAME]))
-
-    def reset(self) -> None:
-        self._buf.clear()
-
-
 _PAIR = re.compile(rb'\s*"([A-Za-z_]{1,32})"\s*[:=]\s*(?:"([A-Za-z_]{0,32})"|(-?\d{1,10}))\s*(,?)')
 
 
@@ -291,27 +227,18 @@ def _parse_pairs(frame: bytes) -> dict[str, str | int] | None:
     return fields
 
 
-_PAIR_REPLIES: dict[frozenset[str], tuple[str, str, str, Callable[[int, int], Reply]]] = {
-    frozenset({"LeftWheelSpeed", "RightWheelSpeed"}): (
-        "SpeedReading",
-        "LeftWheelSpeed",
-        "RightWheelSpeed",
-        lambda left, right: SpeedReading(left=left, right=right),
-    ),
-    frozenset({"LeftWheelPosition", "RightWheelPosition"}): (
-        "PositionReading",
-        "LeftWheelPosition",
-        "RightWheelPosition",
-        lambda left, right: PositionReading(left=left, right=right),
-    ),
-    frozenset({"state", "direction"}): ("LogReport", "state", "direction", LogReport),
+#: The robot's key/value replies besides the status: their two keys, in the order of the reply's fields.
+_PAIR_REPLIES: dict[tuple[str, str], type[SpeedReading | PositionReading | LogReport]] = {
+    ("LeftWheelSpeed", "RightWheelSpeed"): SpeedReading,
+    ("LeftWheelPosition", "RightWheelPosition"): PositionReading,
+    ("state", "direction"): LogReport,
 }
 
 
 #: The wheel-speed reply as the robot and the simulator write it, read in one match (a fleet gateway reads 5 000 a
-#: second): what it matches, :func:`_parse_pairs` reads the same way (a test holds them equal); the rest goes there.
-#: Its whitespace runs are possessive (``\s*+``): no run gives back what it took, so a frame it fails on is given up in
-#: one pass (a frame of 500 spaces took 500 us with two plain runs side by side, against 4 us in the field parser).
+#: second): what it matches, :func:`_parse_pairs` reads the same way (a test holds them equal); the rest goes there. Its
+#: whitespace runs are possessive (``\s*+``): no run gives back what it took, so a frame it fails on is given up in one
+#: pass (a frame of 500 spaces took 500 us with two plain runs side by side, against 4 us in the field parser).
 _SPEED_REPLY = re.compile(rb'\{\s*+"LeftWheelSpeed"\s*+[:=]\s*+(-?\d{1,10})\s*+(?:,\s*+)?"RightWheelSpeed"\s*+[:=]\s*+(-?\d{1,10})\s*+,?\}')
 #: The status replies the robot writes (every command is answered by one), by their exact bytes; others are parsed.
 _STATUS_FRAMES: dict[bytes, StatusReply] = {encode_status(word): StatusReply(word) for word in (STATUS_OK, STATUS_FULL_BUFFER)}
@@ -340,60 +267,92 @@ def _parse_reply(frame: bytes) -> Reply | Malformed:
         if isinstance(status, str) and status:
             return StatusReply(status)
         return Malformed("status reply without a status word", frame)
-    shape = _PAIR_REPLIES.get(frozenset(fields))
-    if shape is None:
+    keys = next((keys for keys in _PAIR_REPLIES if set(keys) == set(fields)), None)
+    if keys is None:
         return Malformed(f"unknown reply fields {sorted(fields)}", frame)
-    name, first, second, build = shape
-    a, b = fields[first], fields[second]
-    if not isinstance(a, int) or not isinstance(b, int):
-        return Malformed(f"{name} values must be integers", frame)
-    if not (INT32_MIN <= a <= INT32_MAX and INT32_MIN <= b <= INT32_MAX):
-        return Malformed(f"{name} values beyond 32 bits", frame)
-    return build(a, b)
+    kind = _PAIR_REPLIES[keys]
+    values = [value for value in (fields[key] for key in keys) if isinstance(value, int)]
+    if len(values) != len(keys):
+        return Malformed(f"{kind.__name__} values must be integers", frame)
+    if not all(INT32_MIN <= value <= INT32_MAX for value in values):
+        return Malformed(f"{kind.__name__} values beyond 32 bits", frame)
+    return kind(**{f.name: value for f, value in zip(fields_of(kind), values, strict=True)})
 
 
 class _FramedDecoder(Generic[M]):
-    """Frames a byte stream by braces and parses each frame; ``feed`` never raises."""
+    """Cuts a byte stream into ``{...}`` frames (everything else is garbage) and parses each; ``feed`` never raises.
 
-    def __init__(self, parse: Callable[[bytes], M | Malformed], max_frame: int) -> None:
-        self._framer = _BraceFramer(max_frame)
-        self._parse = parse
+    ``garbage_bytes`` and ``malformed`` count what was skipped.
+    """
+
+    _parse: Callable[[bytes], M | Malformed]
+
+    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
+        self._buf = bytearray()
+        self.max_frame = max_frame
+        self.garbage_bytes = 0
         self.malformed = 0
 
     @property
-    def garbage_bytes(self) -> int:
-        return self._framer.garbage_bytes
-
-    @property
     def pending(self) -> int:
-        return self._framer.pending
+        """Bytes held while waiting for the rest of a frame."""
+        return len(self._buf)
 
     def feed(self, data: bytes) -> list[M | Malformed]:
-        frames: list[bytes | Malformed] = []
-        self._framer.feed(data, frames)
+        """Every complete frame of ``data`` parsed and every run of garbage as a :class:`Malformed`, in stream order.
+
+        The work is per frame, not per byte: a frame is the last ``{`` before the next ``}``, and all that lies before
+        it is one run of garbage, whatever its length (a flood of ``{`` costs one report per read).
+        """
         out: list[M | Malformed] = []
-        for frame in frames:
-            item = frame if isinstance(frame, Malformed) else self._parse(frame)
+        buf = self._buf
+        buf += data
+        pos = 0
+        size = len(buf)
+        while pos < size:
+            end = buf.find(b"}", pos)
+            start = buf.rfind(b"{", pos, end if end >= 0 else size)
+            if start < 0:  # no opening brace before the next closing one (or at all): garbage up to the next '{'
+                stop = buf.find(b"{", end + 1) if end >= 0 else -1
+                stop = size if stop < 0 else stop
+                self._garbage(buf, pos, stop, "bytes outside any {...} message", out)
+                pos = stop
+                continue
+            if start > pos:
+                cut = buf.find(b"{", pos, start) >= 0
+                self._garbage(buf, pos, start, "message cut off by a new '{'" if cut else "bytes outside any {...} message", out)
+            if end < 0:
+                if size - start > self.max_frame:
+                    self._garbage(buf, start, size, f"no closing '}}' within {self.max_frame} bytes", out)
+                    pos = size
+                else:
+                    pos = start
+                break
+            item = self._parse(bytes(buf[start : end + 1]))
             if isinstance(item, Malformed):
                 self.malformed += 1
             out.append(item)
+            pos = end + 1
+        del buf[:pos]
         return out
+
+    def _garbage(self, buf: bytearray, start: int, end: int, reason: str, out: list[M | Malformed]) -> None:
+        chunk = bytes(buf[start:end])
+        if not chunk.strip():
+            return  # whitespace between messages is harmless
+        self.garbage_bytes += len(chunk)
+        self.malformed += 1
+        out.append(Malformed(reason, chunk[:DEFAULT_MAX_FRAME]))
 
     def reset(self) -> None:
         """Forget any partial message (after a reconnect)."""
-        self._framer.reset()
+        self._buf.clear()
 
 
 class ReplyDecoder(_FramedDecoder[Reply]):
-    """Client role: feed bytes from the control or log port, get replies.
+    """Client role: feed bytes from the control or log port, get replies (a :class:`Malformed` where garbage was skipped)."""
 
-    ``feed`` returns replies in stream order, with a :class:`Malformed` item
-    where garbage was skipped; it never raises. ``garbage_bytes`` and
-    ``malformed`` count what was skipped.
-    """
-
-    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
-        super().__init__(parse_reply, max_frame)
+    _parse = staticmethod(parse_reply)
 
 
 _request_decoder = msgspec.json.Decoder(dict[str, Any])
@@ -420,23 +379,18 @@ def _parse_request(frame: bytes) -> Request | Malformed:
     if not isinstance(code, int) or isinstance(code, bool) or not 0 <= code <= 8:
         return Malformed("request without a Command code 0-8", frame)
     command = CommandCode(code)
-    if command is CommandCode.SET_LR_WHEEL_VELOCITY:
-        right, left = fields.get("RightWheelSpeed"), fields.get("LeftWheelSpeed")
-        for value in (right, left):
-            if not isinstance(value, (int, float)) or isinstance(value, bool) or not math.isfinite(value):
-                return Malformed("SET_LR_WHEEL_VELOCITY needs finite RightWheelSpeed and LeftWheelSpeed", frame)
-        return Request(command, left=float(left), right=float(right), user_id=user_id)  # type: ignore[arg-type]
-    if command is CommandCode.SET_LR_WHEEL_POSITION:
-        right, left = fields.get("RightWheelPosition"), fields.get("LeftWheelPosition")
-        for value in (right, left):
-            if not isinstance(value, int) or isinstance(value, bool) or not INT32_MIN <= value <= INT32_MAX:
-                return Malformed("SET_LR_WHEEL_POSITION needs integer RightWheelPosition and LeftWheelPosition", frame)
-        return Request(command, left=left, right=right, user_id=user_id)
-    return Request(command, user_id=user_id)
+    wheels = _WHEEL_FIELDS.get(command)
+    if wheels is None:
+        return Request(command, user_id=user_id)
+    right_name, left_name, _, valid, kind, what = wheels
+    right, left = fields.get(right_name), fields.get(left_name)
+    if not (valid(right) and valid(left)):
+        return Malformed(f"{command.name} needs {what} {right_name} and {left_name}", frame)
+    return Request(command, left=kind(left), right=kind(right), user_id=user_id)
 
 
-#: The requests without wheel values, by the exact bytes the gateway writes (the simulator reads a fleet's 5 000 polls
-#: a second): a Request is frozen, so one object serves every time; any other frame is parsed.
+#: The requests without wheel values, by the exact bytes the gateway writes (the simulator reads a fleet's 5 000 polls a
+#: second): a Request is frozen, so one object serves every time; any other frame is parsed.
 _SIMPLE_FRAMES: dict[bytes, Request] = {
     encode_request(simple(code)): simple(code)
     for code in CommandCode
@@ -447,5 +401,4 @@ _SIMPLE_FRAMES: dict[bytes, Request] = {
 class RequestDecoder(_FramedDecoder[Request]):
     """Server role (the simulator): feed bytes from a client, get requests."""
 
-    def __init__(self, max_frame: int = DEFAULT_MAX_FRAME) -> None:
-        super().__init__(parse_request, max_frame)
+    _parse = staticmethod(parse_request)

@@ -1,10 +1,10 @@
 """Wire messages of the Black Metal gateway: msgspec Structs, JSON by default, no I/O."""
 
-from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes
-from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra
-from .jsonschema import json_schemas
-from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix
-from .messages import (
+from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes  # noqa: F401
+from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra  # noqa: F401
+from .jsonschema import json_schemas  # noqa: F401
+from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix  # noqa: F401
+from .messages import (  # noqa: F401
     DIRECTION_NAMES,
     MESSAGE_TYPES,
     STATE_NAMES,
@@ -34,58 +34,3 @@ from .messages import (
     wrap_angle,
     yaw_quaternion,
 )
-
-__all__ = [
-    "ANY_GATEWAY_ALIVE",
-    "DEFAULT_PREFIX",
-    "DIRECTION_NAMES",
-    "KEY_SPECS",
-    "MAX_PAYLOAD_BYTES",
-    "MESSAGE_TYPES",
-    "STATE_NAMES",
-    "BlackmetalError",
-    "ConfigError",
-    "Delivery",
-    "DriverChange",
-    "EStop",
-    "ErrorReport",
-    "GatewayHealth",
-    "GatewayParams",
-    "KeySpec",
-    "Keys",
-    "LinkHealth",
-    "Lock",
-    "MissingExtra",
-    "Param",
-    "ParamResult",
-    "ParamValue",
-    "ParamsSet",
-    "ParamsSetReply",
-    "PayloadError",
-    "Pose",
-    "PoseReset",
-    "Quaternion",
-    "RobotStatus",
-    "SimFaults",
-    "SourceHealth",
-    "Sources",
-    "Twist",
-    "Vector3",
-    "WheelImpulses",
-    "ZenohUnavailable",
-    "ZenohUnreachable",
-    "any_alive",
-    "decode",
-    "delivery_of",
-    "encode",
-    "excerpt",
-    "json_schemas",
-    "make_pose",
-    "payload_bytes",
-    "require_extra",
-    "stamp_parts",
-    "to_bytes",
-    "validate_prefix",
-    "wrap_angle",
-    "yaw_quaternion",
-]

@@ -1,7 +1,7 @@
 """Tolerant decoding and canonical encoding of wire messages.
 
-The decoder looks only at the bytes (``zenoh put`` sends no encoding header, a newline may trail); anything that is
-not a valid message raises :class:`PayloadError` with a reason a person can act on.
+The decoder looks only at the bytes (``zenoh put`` sends no encoding header, a newline may trail); anything that is not
+a valid message raises :class:`PayloadError` with a reason a person can act on.
 """
 
 from __future__ import annotations
@@ -58,8 +58,8 @@ def to_bytes(payload: Any) -> bytes:
 def payload_bytes(sample: Any) -> bytes:
     """A Zenoh sample's payload as bytes; empty if it cannot be read.
 
-    Duck-typed (``sample.payload.to_bytes()``), so this layer needs no Zenoh;
-    it never raises, because Zenoh callbacks call it on Zenoh's threads.
+    Duck-typed (``sample.payload.to_bytes()``), so this layer needs no Zenoh; it never raises, because Zenoh callbacks
+    call it on Zenoh's threads.
     """
     try:
         return bytes(sample.payload.to_bytes())
@@ -70,8 +70,8 @@ def payload_bytes(sample: Any) -> bytes:
 def decode(message_type: type[T], payload: Any, max_bytes: int = MAX_PAYLOAD_BYTES) -> T:
     """Decode one JSON message of ``message_type`` from ``payload``.
 
-    Accepts surrounding whitespace and a UTF-8 byte-order mark; ignores any
-    encoding header (callers pass only the payload). Raises PayloadError.
+    Accepts surrounding whitespace and a UTF-8 byte-order mark; ignores any encoding header (callers pass only the
+    payload). Raises PayloadError.
     """
     name = message_type.__name__
     data = to_bytes(payload)
@@ -98,5 +98,4 @@ def _readable(text: str) -> str:
 
 
 def encode(message: msgspec.Struct) -> bytes:
-    """Encode a message as compact JSON bytes."""
     return _encoder.encode(message)

@@ -62,11 +62,8 @@ class ZenohUnreachable(ZenohUnavailable):
 
 
 class PayloadError(BlackmetalError, ValueError):
-    """A payload is not a valid message: the text says what was wrong, for a person.
-
-    Carries the message type's name and a short, printable excerpt of the
-    payload so that an error report can say *what* was rejected.
-    """
+    """A payload is not a valid message: the text says what was wrong, for a person; the message type's name and a
+    short, printable excerpt of the payload let an error report say *what* was rejected."""
 
     def __init__(self, message_type: str, reason: str, excerpt: str = "") -> None:
         self.message_type = message_type

@@ -10,20 +10,16 @@ from .keys import KEY_SPECS
 from .messages import MESSAGE_TYPES
 
 
-def _where(message_type: type[msgspec.Struct]) -> str:
-    carried = [f"<prefix>/{spec.suffix}" for spec in KEY_SPECS if spec.message is message_type]
-    answered = [f"<prefix>/{spec.suffix} (the reply to a get)" for spec in KEY_SPECS if spec.reply is message_type]
-    return ", ".join(carried + answered)
-
-
 def json_schemas() -> dict[str, dict[str, Any]]:
     """One self-contained JSON Schema (draft 2020-12) per message type."""
     schemas: dict[str, dict[str, Any]] = {}
     for name, message_type in MESSAGE_TYPES.items():
+        carried = [f"<prefix>/{spec.suffix}" for spec in KEY_SPECS if spec.message is message_type]
+        answered = [f"<prefix>/{spec.suffix} (the reply to a get)" for spec in KEY_SPECS if spec.reply is message_type]
         schemas[name] = {
             "$schema": "https://json-schema.org/draft/2020-12/schema",
             "title": name,
-            "description": f"blackmetal message on {_where(message_type)}",
+            "description": f"blackmetal message on {', '.join(carried + answered)}",
             **msgspec.json.schema(message_type),
         }
     return schemas

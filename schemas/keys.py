@@ -1,8 +1,7 @@
 """The key space: every key expression blackmetal uses, with the message carried on it.
 
-One robot lives under one prefix (``robot`` by default, ``fleet/a`` in a
-fleet). Services, tools, tests and the JSON Schema export take their keys
-from :class:`Keys` and nowhere else, so a key is renamed in one place.
+One robot lives under one prefix (``robot`` by default, ``fleet/a`` in a fleet). Services, tools, tests and the JSON
+Schema export take their keys from :class:`Keys` and nowhere else, so a key is renamed in one place.
 """
 
 from __future__ import annotations
@@ -36,9 +35,9 @@ DEFAULT_PREFIX = "robot"
 class Delivery(StrEnum):
     """How a publication travels when a link or a consumer cannot keep up (Zenoh's congestion control).
 
-    ``telemetry`` is dropped for the congested link alone: a pose, a health report or a wheel sample is replaced by
-    the next one, and a router never holds one host's telemetry (or commands) behind another's dead link. A
-    ``command`` is never dropped: it waits for room, as a stop must reach the robot; commands are few and small.
+    ``telemetry`` is dropped for the congested link alone: a pose, a health report or a wheel sample is replaced by the
+    next one, and a router never holds one host's telemetry (or commands) behind another's dead link. A ``command`` is
+    never dropped: it waits for room, as a stop must reach the robot; commands are few and small.
     """
 
     TELEMETRY = "telemetry"
@@ -46,79 +45,42 @@ class Delivery(StrEnum):
 
 
 class KeySpec(NamedTuple):
-    """One key below the prefix: the attribute that names it, what travels on it, who uses it, how it is delivered.
+    """One key below the prefix: the attribute that names it, what travels on it, how it is delivered (who uses it: the
+    README's key table).
 
-    A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name:
-    :meth:`Keys.cmd_vel_of` and :meth:`Keys.lock_of` fill it in.
+    A chunk in angle brackets (``cmd_vel/<source>``) stands for any one name: :meth:`Keys.cmd_vel_of` and
+    :meth:`Keys.lock_of` fill it in.
     """
 
     name: str
     suffix: str
     message: type[msgspec.Struct] | None
     kind: str  # "publication", "query" or "liveliness"
-    who: str
     delivery: Delivery | None = None  # publications only
     reply: type[msgspec.Struct] | None = None  # queries only: what the answer carries
 
 
 #: Every key, in the order the README's table lists them.
 KEY_SPECS: tuple[KeySpec, ...] = (
-    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", "any client -> gateway (the command source 'default')", Delivery.COMMAND),
-    KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", "a named commander -> gateway", Delivery.COMMAND),
-    KeySpec("lock", "lock/<name>", Lock, "publication", "a supervisor -> gateway", Delivery.COMMAND),
-    KeySpec(
-        "estop",
-        "estop",
-        EStop,
-        "publication",
-        "any client -> gateway (engages; a release here is refused unless --unsafe-release-on-estop)",
-        Delivery.COMMAND,
-    ),
-    KeySpec(
-        "estop_release",
-        "estop/release",
-        EStop,
-        "publication",
-        "a safety role -> gateway: releases (anything else engages)",
-        Delivery.COMMAND,
-    ),
-    KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", "gateway ->", Delivery.TELEMETRY),
-    KeySpec("status", "status", RobotStatus, "publication", "gateway ->", Delivery.TELEMETRY),
-    KeySpec("health", "gateway/health", GatewayHealth, "publication", "gateway ->, and get", Delivery.TELEMETRY),
-    KeySpec(
-        "driver", "gateway/driver", DriverChange, "publication", "gateway ->: who drives now, who drove before, why", Delivery.TELEMETRY
-    ),
-    KeySpec(
-        "params",
-        "gateway/params",
-        GatewayParams,
-        "publication",
-        "gateway ->, and get: its parameters (limits, timeout, priorities)",
-        Delivery.TELEMETRY,
-    ),
-    KeySpec(
-        "params_set",
-        "gateway/params/set",
-        ParamsSet,
-        "query",
-        "get -> gateway (an operator's right), answers a ParamsSetReply",
-        reply=ParamsSetReply,
-    ),
-    KeySpec(
-        "errors",
-        "errors",
-        ErrorReport,
-        "publication",
-        "gateway, odometry, sim ->; a get answers each service's latest reports",
-        Delivery.TELEMETRY,
-    ),
-    KeySpec("pose", "pose", Pose, "publication", "odometry ->, and get", Delivery.TELEMETRY),
-    KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", "get -> odometry, answers a Pose", reply=Pose),
-    KeySpec("alive_gateway", "alive/gateway", None, "liveliness", "gateway"),
-    KeySpec("alive_odometry", "alive/odometry", None, "liveliness", "odometry"),
-    KeySpec("alive_sim", "alive/sim", None, "liveliness", "simulator"),
-    KeySpec("sim_truth", "sim/truth", Pose, "publication", "simulator ->, and get", Delivery.TELEMETRY),
-    KeySpec("sim_faults", "sim/faults", SimFaults, "publication", "any client -> simulator, and get", Delivery.COMMAND),
+    KeySpec("cmd_vel", "cmd_vel", Twist, "publication", Delivery.COMMAND),
+    KeySpec("cmd_vel_source", "cmd_vel/<source>", Twist, "publication", Delivery.COMMAND),
+    KeySpec("lock", "lock/<name>", Lock, "publication", Delivery.COMMAND),
+    KeySpec("estop", "estop", EStop, "publication", Delivery.COMMAND),
+    KeySpec("estop_release", "estop/release", EStop, "publication", Delivery.COMMAND),
+    KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", Delivery.TELEMETRY),
+    KeySpec("status", "status", RobotStatus, "publication", Delivery.TELEMETRY),
+    KeySpec("health", "gateway/health", GatewayHealth, "publication", Delivery.TELEMETRY),
+    KeySpec("driver", "gateway/driver", DriverChange, "publication", Delivery.TELEMETRY),
+    KeySpec("params", "gateway/params", GatewayParams, "publication", Delivery.TELEMETRY),
+    KeySpec("params_set", "gateway/params/set", ParamsSet, "query", reply=ParamsSetReply),
+    KeySpec("errors", "errors", ErrorReport, "publication", Delivery.TELEMETRY),
+    KeySpec("pose", "pose", Pose, "publication", Delivery.TELEMETRY),
+    KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", reply=Pose),
+    KeySpec("alive_gateway", "alive/gateway", None, "liveliness"),
+    KeySpec("alive_odometry", "alive/odometry", None, "liveliness"),
+    KeySpec("alive_sim", "alive/sim", None, "liveliness"),
+    KeySpec("sim_truth", "sim/truth", Pose, "publication", Delivery.TELEMETRY),
+    KeySpec("sim_faults", "sim/faults", SimFaults, "publication", Delivery.COMMAND),
 )
 
 

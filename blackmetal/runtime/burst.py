@@ -1,8 +1,8 @@
 """A fleet process's telemetry puts, held to the end of the loop's turn (1 ms at most) and then made back to back.
 
 Puts made back to back leave Zenoh in a few batches instead of a wake-up and a write each (measured in
-docs/performance.md, "Telemetry puts made back to back"). Only telemetry goes through a burst, and only on the
-loop: a command, an e-stop, a health message or an error report is never held.
+docs/performance.md, "Telemetry puts made back to back"). Only telemetry goes through a burst, and only on the loop: a
+command, an e-stop, a health message or an error report is never held.
 """
 
 from __future__ import annotations
@@ -28,9 +28,8 @@ class PutBurst:
     """Puts held until the loop's current turn ends (one ``call_soon`` per burst), or for ``max_hold`` seconds if that
     comes first, then made in the order they came.
 
-    A robot's samples keep their order, per key. The delay is the rest of the
-    loop's turn (the other robots whose input was ready at the same time), at
-    most ``max_hold`` plus the handling of the one put that found it past.
+    A robot's samples keep their order, per key. The delay is the rest of the loop's turn (the other robots whose input
+    was ready at the same time), at most ``max_hold`` plus the handling of the one put that found it past.
     """
 
     def __init__(self, max_hold: float = MAX_HOLD_S) -> None:

@@ -31,13 +31,12 @@ def refuse_taken(
     *,
     what: str | None = None,
     describe: Callable[[str], str] | None = None,
-    timeout: float = 0.5,
 ) -> None:
     """ConfigError naming the first prefix on which another ``role`` is alive (one liveliness query; call before
     declaring our own tokens). ``what`` names the service (default ``role``), ``describe(prefix)`` a fleet's robot."""
     alive = {
         Keys.prefix_of_token(str(reply.ok.key_expr), role)
-        for reply in session.liveliness().get(any_alive(role), timeout=timeout)
+        for reply in session.liveliness().get(any_alive(role), timeout=0.5)
         if reply.ok is not None
     }
     for prefix in prefixes:
@@ -124,8 +123,8 @@ class ZenohEdge:
         on_flood: Callable[[str, str], None] | None = None,
         **options: Any,
     ) -> "GuardedInput":
-        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see :class:`GuardedInput`
-        for ``options``)."""
+        """``(last key chunk, payload)`` of samples on ``key`` go to ``put``; for inputs a client may flood (see
+        :class:`GuardedInput` for ``options``)."""
         guarded = GuardedInput(self.session, key, put, intake, on_flood, **options)
         guarded.start()
         self._guarded.append(guarded)

@@ -26,8 +26,8 @@ S = TypeVar("S")  # a service's settings
 def run_service(name: str, load: Callable[[], T], serve: Callable[[T, asyncio.Event], Awaitable[None]]) -> int:
     """Load settings, then ``serve(settings, stop)`` until SIGINT/SIGTERM sets ``stop``.
 
-    Exits 0 after a requested stop, 2 for settings it cannot use, 1 when the operating system refuses (a port in
-    use); every failure is one line on stderr.
+    Exits 0 after a requested stop, 2 for settings it cannot use, 1 when the operating system refuses (a port in use);
+    every failure is one line on stderr.
     """
     logging.basicConfig(level=logging.INFO, format=f"%(asctime)s {name} %(levelname)s %(message)s")
 
@@ -78,8 +78,8 @@ class ServiceCommand(Generic[S]):
         return parser
 
     def run(self, args: argparse.Namespace) -> int:
-        """:func:`run_service` for one robot, or with ``--fleet FILE`` for every robot of the file: settings
-        naming one robot are refused, and every robot's checked before the service opens Zenoh or a port."""
+        """:func:`run_service` for one robot, or with ``--fleet FILE`` for every robot of the file: settings naming one
+        robot are refused, and every robot's checked before the service opens Zenoh or a port."""
         if self.switch_interval is not None:
             sys.setswitchinterval(self.switch_interval)
         fleet = self.fleet
@@ -108,8 +108,8 @@ def say(*lines: str | None) -> None:
 
 
 def freeze_start_up() -> None:
-    """Once a service has built what it keeps: frozen, a full collection walks only what the command path
-    allocates, not 100k objects of start-up."""
+    """Once a service has built what it keeps: frozen, a full collection walks only what the command path allocates, not
+    100k objects of start-up."""
     gc.freeze()
 
 

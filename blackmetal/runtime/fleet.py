@@ -1,7 +1,7 @@
 """A fleet file: the robots one host serves, each with its link, its prefix and its own constants.
 
-The format is in docs/fleets.md ("The fleet file"). Every process of a fleet reads the same file and takes what is
-its own; a mistake ends in one sentence that names the robot.
+The format is in docs/fleets.md ("The fleet file"). Every process of a fleet reads the same file and takes what is its
+own; a mistake ends in one sentence that names the robot.
 """
 
 from __future__ import annotations
@@ -29,8 +29,8 @@ CALIBRATION_KEYS = ("wheel_separation", "impulses_left", "impulses_right")
 SERVICES = ("gateway", "odometry", "sim", "ros2", "foxglove")
 #: Prefixes of a fleet's robots unless an entry names its own.
 FLEET_ROOT = "fleet"
-#: Robots one fleet file may hold, unless it says ``max_robots = N``: a fleet process carries about 140 robots a
-#: core at 50 Hz (the bench: 0.72 gateway cores at 100 robots), so a file beyond this is a mistake, not a fleet.
+#: Robots one fleet file may hold, unless it says ``max_robots = N``: a fleet process carries about 140 robots a core at
+#: 50 Hz (the bench: 0.72 gateway cores at 100 robots), so a file beyond this is a mistake, not a fleet.
 MAX_ROBOTS = 250
 #: A robot id: one key chunk a person can read and type, and a ROS namespace's part.
 ID_PATTERN = re.compile(r"[A-Za-z0-9_-]{1,64}")
@@ -151,7 +151,6 @@ def parse_fleet(data: dict[str, Any], source: str = "fleet file") -> list[FleetR
 
 
 def load_fleet(path: str | Path) -> list[FleetRobot]:
-    """The robots of the fleet file at ``path`` (TOML)."""
     data = read_config(Path(path), "fleet file", toml=True)
     return parse_fleet(data, f"fleet file {path}")
 
@@ -159,8 +158,8 @@ def load_fleet(path: str | Path) -> list[FleetRobot]:
 def refuse_single_robot_options(given: Mapping[str, object], loaded: object, options: Mapping[str, str]) -> None:
     """ConfigError, one sentence, for a setting in ``options`` (name -> why) that names one robot, given with --fleet.
 
-    ``given``: the command line's values (None: not given); ``loaded``: the
-    settings as loaded, so a settings file or the environment is caught too.
+    ``given``: the command line's values (None: not given); ``loaded``: the settings as loaded, so a settings file or
+    the environment is caught too.
     """
     defaults = type(loaded)()
     for name, why in options.items():

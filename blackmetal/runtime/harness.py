@@ -1,10 +1,9 @@
 """Child processes started one way everywhere: ``blackmetal up``, the bench and the tests.
 
-Readiness is machine-readable: the parent passes the write end of a pipe
-in ``BLACKMETAL_READY_FD``, and a service that is ready writes one JSON
-object on it (:func:`announce_ready`: its name and what a parent needs, such
-as the simulator's bound ports). Text meant for people (stdout, stderr) is
-kept, the last lines of it, to show when a child fails; it is never parsed.
+Readiness is machine-readable: the parent passes the write end of a pipe in ``BLACKMETAL_READY_FD``, and a service that
+is ready writes one JSON object on it (:func:`announce_ready`: its name and what a parent needs, such as the simulator's
+bound ports). Text meant for people (stdout, stderr) is kept, the last lines of it, to show when a child fails; it is
+never parsed.
 """
 
 from __future__ import annotations
@@ -58,26 +57,23 @@ class ServiceProcess:
         launcher: list[str] | None = None,
         echo: bool = False,
         own_session: bool = False,
-        keep_lines: int = 2000,
         interactive: bool = False,
     ) -> None:
         self.name = name
         self.args = args
         self.echo = echo
-        self.lines: deque[str] = deque(maxlen=keep_lines)
+        self.lines: deque[str] = deque(maxlen=2000)
         #: With ``interactive``, the child's stdin is ours and its stdout lines also queue up for :meth:`request`.
         self._replies: queue.SimpleQueue[str] | None = queue.SimpleQueue() if interactive else None
         self.ready_info: dict[str, Any] | None = None
-        read_fd, write_fd = os.pipe()
-        self._ready_fd = read_fd
-        full_env = {**os.environ, "PYTHONUNBUFFERED": "1", **(env or {}), READY_FD_ENV: str(write_fd)}
+        self._ready_fd, write_fd = os.pipe()
         try:
             self.proc = subprocess.Popen(
                 [*(launcher or []), sys.executable, *args],
                 stdin=subprocess.PIPE if interactive else subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
-                env=full_env,
+                env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {}), READY_FD_ENV: str(write_fd)},
                 text=True,
                 pass_fds=(write_fd,),
                 start_new_session=own_session,  # Ctrl-C reaches the parent only; it stops children in order
@@ -89,7 +85,6 @@ class ServiceProcess:
 
     @classmethod
     def blackmetal(cls, name: str, command: list[str], **kwargs: Any) -> "ServiceProcess":
-        """``python -m blackmetal COMMAND ...``."""
         return cls(name, ["-m", "blackmetal", *command], **kwargs)
 
     def _read(self) -> None:

@@ -1,7 +1,7 @@
 """Free loopback ports for processes we start ourselves (the bench, the tests), that nobody can take first.
 
-A port-0 probe hands out an ephemeral port that any ``connect()`` may take before the child binds it (CI saw it);
-the kernel never hands out ports below its ephemeral range, so this walks a slice of those, binding each to check.
+A port-0 probe hands out an ephemeral port that any ``connect()`` may take before the child binds it (CI saw it); the
+kernel never hands out ports below its ephemeral range, so this walks a slice of those, binding each to check.
 pytest-xdist workers get disjoint slices; a random start keeps two runs apart.
 """
 
@@ -45,20 +45,14 @@ class PortAllocator:
         self._next = ports.start if start is None else start
         self._lock = threading.Lock()
 
-    def _take(self, count: int) -> int | None:
-        """A base whose ``count`` ports follow it inside the slice, the cursor moved past them."""
-        base = self._next
-        if base + count > self.ports.stop:
-            base = self.ports.start
-        self._next = base + count if base + count < self.ports.stop else self.ports.start
-        return base if all(bindable(port) for port in range(base, base + count)) else None
-
     def free(self, count: int = 1) -> int:
         """A base port B with B ... B + count - 1 free now (recipes number their robots' ports from a base)."""
+        ports = self.ports
         with self._lock:
-            for _ in range(len(self.ports)):
-                base = self._take(count)
-                if base is not None:
+            for _ in range(len(ports)):
+                base = self._next if self._next + count <= ports.stop else ports.start
+                self._next = base + count if base + count < ports.stop else ports.start
+                if all(bindable(port) for port in range(base, base + count)):
                     return base
         raise OSError(f"no {count} free consecutive port(s) in {self.ports.start}-{self.ports.stop - 1}")
 

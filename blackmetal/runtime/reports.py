@@ -19,15 +19,13 @@ OTHER_KEYS = "(other keys)"
 MAX_TRACKED = 64
 
 
+@dataclass(slots=True)
 class _Bucket:
     """A token bucket and the reports it held back since the last one it let through."""
 
-    __slots__ = ("last", "suppressed", "tokens")
-
-    def __init__(self, tokens: float, now: float) -> None:
-        self.tokens = tokens
-        self.last = now
-        self.suppressed = 0
+    tokens: float
+    last: float
+    suppressed: int = 0
 
     def refill(self, now: float, rate: float, burst: float) -> None:
         self.tokens = min(burst, self.tokens + max(now - self.last, 0.0) * rate)
@@ -43,12 +41,10 @@ class _Bucket:
 class ReportLimiter:
     """Token buckets per key family (``rate`` a second after a burst of ``burst``) under one overall budget. Clock injected.
 
-    The family is what the caller says (``robot/lock/*`` for every lock
-    name), else the key itself. At most ``max_tracked`` families are kept:
-    a new one first evicts a family that is idle again (full bucket, nothing
-    held back), else it is counted under :data:`OTHER_KEYS` (whose slot is
-    kept free), so no client can grow the tables by inventing names. The overall bucket bounds what
-    all families publish together, summaries included.
+    The family is what the caller says (``robot/lock/*`` for every lock name), else the key itself. At most
+    ``max_tracked`` families are kept: a new one first evicts a family that is idle again (full bucket, nothing held
+    back), else it is counted under :data:`OTHER_KEYS` (whose slot is kept free), so no client can grow the tables by
+    inventing names. The overall bucket bounds what all families publish together, summaries included.
     """
 
     rate: float = 5.0
@@ -118,16 +114,11 @@ class ReportLimiter:
         families = self._families
         return bool(families) and any(bucket.suppressed for bucket in families.values())
 
-    @property
-    def tracked(self) -> int:
-        """How many families the limiter keeps state for (at most ``max_tracked``)."""
-        return len(self._families)
-
     def due_summaries(self, now: float) -> list[tuple[str, int]]:
         """Families whose held-back count can be announced now (a token of their own and of the overall budget), with the count.
 
-        An announced family moves to the back of the table, so when the
-        overall budget runs short the next round starts with the others.
+        An announced family moves to the back of the table, so when the overall budget runs short the next round starts
+        with the others.
         """
         due: list[tuple[str, int]] = []
         for family, bucket in list(self._families.items()):
@@ -152,10 +143,9 @@ RECENT_REPORTS = 20
 class ErrorReporter:
     """Builds ErrorReports and hands the admitted ones to ``publish``; the one owner of suppressed-report summaries.
 
-    Every core owns one reporter, passes its ``now`` to :meth:`report` and
-    :meth:`tick`, and counts :meth:`next_deadline` among its own deadlines:
-    so no host keeps a timer of its own for summaries, and no clock is read
-    behind the core's back.
+    Every core owns one reporter, passes its ``now`` to :meth:`report` and :meth:`tick`, and counts
+    :meth:`next_deadline` among its own deadlines: so no host keeps a timer of its own for summaries, and no clock is
+    read behind the core's back.
     """
 
     #: The service whose reports these are (``gateway``, ``odometry``...): each report's ``source`` unless another says it.
@@ -171,27 +161,18 @@ class ErrorReporter:
     def report(self, key: str, reason: str, excerpt: str = "", by: str | None = None, *, now: float, family: str | None = None) -> None:
         """Report one rejected input or fault on ``key`` at monotonic ``now`` (published unless rate-limited).
 
-        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``.
-
-        ``family`` (e.g. ``robot/lock/*``) is what the limit counts against;
-        give it wherever a client picks the key's last chunk. Default: the key.
+        ``by``: who the fault is of, when not the service (``robot``); the report's ``source``. ``family`` (e.g.
+        ``robot/lock/*``) is what the limit counts against; give it wherever a client picks the key's last chunk.
+        Default: the key.
         """
         admitted, suppressed = self.limiter.admit(family or key, now)
         if admitted:
-            self._publish(
-                ErrorReport(
-                    stamp=self.wallclock(),
-                    source=by or self.service,
-                    key=key,
-                    reason=reason,
-                    excerpt=excerpt,
-                    suppressed=suppressed,
-                )
-            )
+            self._publish(key, reason, suppressed, excerpt, by)
         elif self._next_summary == -math.inf:
             self._next_summary = now + self.summary_period
 
-    def _publish(self, report: ErrorReport) -> None:
+    def _publish(self, key: str, reason: str, suppressed: int, excerpt: str = "", by: str | None = None) -> None:
+        report = ErrorReport(self.wallclock(), by or self.service, key, reason, excerpt, suppressed)
         self.recent.append(report)
         self.publish(report)
 
@@ -205,16 +186,11 @@ class ErrorReporter:
             return
         self._next_summary = now + self.summary_period
         for key, suppressed in self.limiter.due_summaries(now):
-            self._publish(
-                ErrorReport(
-                    stamp=self.wallclock(),
-                    source=self.service,
-                    key=key,
-                    reason=f"{suppressed} more reports on {key} were rate-limited"
-                    if key != OTHER_KEYS
-                    else f"{suppressed} more reports on other keys were rate-limited (too many distinct keys to count each)",
-                    suppressed=suppressed,
+            if key != OTHER_KEYS:
+                self._publish(key, f"{suppressed} more reports on {key} were rate-limited", suppressed)
+            else:
+                self._publish(
+                    key, f"{suppressed} more reports on other keys were rate-limited (too many distinct keys to count each)", suppressed
                 )
-            )
         if not self.limiter.pending:
             self._next_summary = -math.inf

@@ -97,13 +97,6 @@ class Member(Generic[S]):
             serving.cancel()
             failure.cancel()
 
-    def failed(self, exc: Exception, pause: float) -> None:
-        """Report the failure on the robot's errors key (its edge is still open); it starts again in ``pause`` s."""
-        reason = self.role.failure.format(robot=self.robot.describe(), exc=exc, pause=pause)
-        logging.getLogger(f"blackmetal.{self.role.service}").error("%s", reason)
-        key = getattr(self.edge.keys, self.role.error_key)
-        self.edge.publish(ErrorReport(stamp=time.time(), source=self.role.service, key=key, reason=reason))
-
     def close(self) -> None:
         """Undeclare what the robot's edge declared; the next :meth:`start` builds anew."""
         if self.edge is not None:
@@ -114,11 +107,10 @@ class Member(Generic[S]):
 async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
     """Run ``member`` until ``stop``; one that fails is reported and started again.
 
-    A failure stays that robot's: the others share the loop and go on. The
-    pause doubles from RESTART_FIRST_S up to RESTART_CAP_S, so a robot that
-    fails at once costs the fleet little.
+    A failure stays that robot's: the others share the loop and go on. The pause doubles from RESTART_FIRST_S up to
+    RESTART_CAP_S, so a robot that fails at once costs the fleet little.
     """
-    pause = RESTART_FIRST_S
+    pause, role = RESTART_FIRST_S, member.role
     while not stop.is_set():
         member.start()
         try:
@@ -126,7 +118,10 @@ async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
             return
         except Exception as exc:
             logging.getLogger("blackmetal.fleet").debug("a fleet member failed", exc_info=exc)
-            member.failed(exc, pause)
+            reason = role.failure.format(robot=member.robot.describe(), exc=exc, pause=pause)
+            logging.getLogger(f"blackmetal.{role.service}").error("%s", reason)
+            key = getattr(member.edge.keys, role.error_key)  # reported on the robot's errors key: its edge is still open
+            member.edge.publish(ErrorReport(stamp=time.time(), source=role.service, key=key, reason=reason))
         finally:
             member.close()
         try:
@@ -139,9 +134,8 @@ async def supervise(member: Member[Any], stop: asyncio.Event) -> None:
 async def drain(members: Sequence[Member[Any]], stop: asyncio.Event, period: float, idle_period: float | None = None) -> None:
     """Every ``period`` until ``stop``: each member's waiting samples to its core (see :meth:`Member.drain`).
 
-    With ``idle_period``, while no member follows anything (nobody watches) it
-    looks only that often: an idle fleet costs nothing, and the first samples
-    after someone subscribes wait at most that long in their ring.
+    With ``idle_period``, while no member follows anything (nobody watches) it looks only that often: an idle fleet
+    costs nothing, and the first samples after someone subscribes wait at most that long in their ring.
     """
     while not stop.is_set():
         active = [member.drain() for member in members]
@@ -159,9 +153,8 @@ async def serve_fleet(
 ) -> None:
     """Open one Zenoh session and serve every robot of ``parts`` (role, robot, its settings) on it until ``stop``.
 
-    ``refuse``: first refuse a prefix on which another such service (named
-    so) is alive. Every robot is built before ``announce(members)`` says the
-    fleet serves; ``drain_every`` (period, idle period) drains their rings.
+    ``refuse``: first refuse a prefix on which another such service (named so) is alive. Every robot is built before
+    ``announce(members)`` says the fleet serves; ``drain_every`` (period, idle period) drains their rings.
     """
     service = parts[0][0].service
     with await open_service_session(zenoh, stop, service) as session:

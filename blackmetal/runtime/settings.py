@@ -1,7 +1,7 @@
 """Typed settings with one precedence: command line > environment (``BLACKMETAL_<NAME>``) > file > defaults.
 
-One settings dataclass per process, fields declared with :func:`setting`: its options, their help and the names a
-TOML or JSON5 file may use come from them. The Zenoh flags are its ``zenoh`` field, under the same rules.
+One settings dataclass per process, fields declared with :func:`setting`: its options, their help and the names a TOML
+or JSON5 file may use come from them. The Zenoh flags are its ``zenoh`` field, under the same rules.
 """
 
 from __future__ import annotations
@@ -34,9 +34,8 @@ NOT_SETTINGS = frozenset({"settings", "func", "command"})
 def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Any = None, **option: Any) -> Any:
     """A settings field with the help text and argparse details of its command-line option.
 
-    ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option
-    string, e.g. ``--no-mirror-right``) and ``const`` (for such a flag), or
-    ``cli=False`` for a field with no option.
+    ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option string, e.g. ``--no-mirror-right``) and
+    ``const`` (for such a flag), or ``cli=False`` for a field with no option.
     """
     metadata = {"help": help, **option}
     if factory is not None:
@@ -58,13 +57,12 @@ def _default(f: dataclasses.Field[Any]) -> Any:
 
 def default_of(cls: type, name: str) -> Any:
     """The default of setting ``name`` of the settings dataclass ``cls``: for a tool that starts the service and shows it."""
-    for f in dataclasses.fields(cls):
-        if f.name == name:
-            value = _default(f)
-            if value is dataclasses.MISSING:
-                raise ValueError(f"{cls.__name__}.{name} has no default")
-            return value
-    raise ValueError(f"{cls.__name__} has no setting {name!r}")
+    found = [_default(f) for f in dataclasses.fields(cls) if f.name == name]
+    if not found:
+        raise ValueError(f"{cls.__name__} has no setting {name!r}")
+    if found[0] is dataclasses.MISSING:
+        raise ValueError(f"{cls.__name__}.{name} has no default")
+    return found[0]
 
 
 def _default_text(f: dataclasses.Field[Any]) -> str:
@@ -122,21 +120,6 @@ def read_settings_file(path: str | Path) -> dict[str, Any]:
     return {str(key).replace("-", "_"): value for key, value in data.items()}
 
 
-def _from_env(names: list[str], list_names: set[str], environ: Mapping[str, str]) -> dict[str, Any]:
-    found: dict[str, Any] = {}
-    for name in names:
-        value = environ.get(ENV_PREFIX + name.upper())
-        if value is None:
-            continue
-        if name in list_names:
-            found[name] = [item.strip() for item in value.split(",") if item.strip()]
-        elif value.lower() in ("none", "off", ""):
-            found[name] = None
-        else:
-            found[name] = value
-    return found
-
-
 def _list_names(cls: type) -> set[str]:
     hints = typing.get_type_hints(cls)
     return {name for name, kind in hints.items() if typing.get_origin(kind) is list}
@@ -150,9 +133,8 @@ def load_settings(
 ) -> T:
     """Build ``cls`` from defaults < file < environment < ``given`` (options actually set; None = not set).
 
-    ``given`` may be the parsed arguments, whose ``settings`` names the file.
-    Unknown names in the file and values of the wrong type are errors that
-    name the setting; so are the checks of the class's ``check()``.
+    ``given`` may be the parsed arguments, whose ``settings`` names the file. Unknown names in the file and values of
+    the wrong type are errors that name the setting; so are the checks of the class's ``check()``.
     """
     options = dict(vars(given) if isinstance(given, argparse.Namespace) else given)
     settings_file = settings_file or options.get("settings")
@@ -170,7 +152,18 @@ def load_settings(
         merged.update(from_file)
         origin.update(dict.fromkeys(from_file, f"settings file {settings_file}"))
     lists = _list_names(cls) | (_list_names(ZenohSettings) if has_zenoh else set())
-    from_env = _from_env(names, lists, os.environ if environ is None else environ)
+    environ = os.environ if environ is None else environ
+    from_env: dict[str, Any] = {}
+    for name in names:
+        value = environ.get(ENV_PREFIX + name.upper())
+        if value is None:
+            continue
+        if name in lists:
+            from_env[name] = [item.strip() for item in value.split(",") if item.strip()]
+        elif value.lower() in ("none", "off", ""):
+            from_env[name] = None
+        else:
+            from_env[name] = value
     merged.update(from_env)
     origin.update({k: f"BLACKMETAL_{k.upper()}" for k in from_env})
     from_cli = {k: v for k, v in options.items() if k in names and k not in NOT_SETTINGS and v is not None}

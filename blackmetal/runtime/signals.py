@@ -12,10 +12,9 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 def stop_on_signals() -> threading.Event:
     """An event set by SIGINT or SIGTERM (call from the main thread; wait on it with a timeout).
 
-    Python runs a signal's handler on the main thread, and only while that
-    thread runs Python: a signal the kernel delivers to another thread (one
-    of Zenoh's) waits until the main thread wakes. ``stop.wait()`` without a
-    timeout may never wake; ``while not stop.wait(0.2)`` does.
+    Python runs a signal's handler on the main thread, and only while that thread runs Python: a signal the kernel
+    delivers to another thread (one of Zenoh's) waits until the main thread wakes. ``stop.wait()`` without a timeout may
+    never wake; ``while not stop.wait(0.2)`` does.
     """
     stop = threading.Event()
 

@@ -9,11 +9,9 @@ from blackmetal.schemas import payload_bytes
 if TYPE_CHECKING:
     import zenoh
 
-#: ``(last key chunk, payload)``: what a named input (``cmd_vel/<source>``, ``lock/<name>``) hands over.
-Item = tuple[str, bytes]
-
 
 def chunk_and_payload(sample: "zenoh.Sample") -> tuple[str, bytes]:
+    """``(last key chunk, payload)``: what a named input (``cmd_vel/<source>``, ``lock/<name>``) hands over."""
     return str(sample.key_expr).rpartition("/")[2], payload_bytes(sample)
 
 

@@ -1,10 +1,9 @@
 """The Zenoh flags every blackmetal process shares (``-m -e -l -c --multicast-scouting``) and opening its session.
 
-Isolated by default (docs/concepts.md, "Isolated by default"): no multicast scouting, no gossip; a process that
-listens is a hub, any other a client of its ``-e`` or of :data:`DEFAULT_ENDPOINT`. A service waits for its
-router and rides out its restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a
-daemon thread. The user tools use :func:`open_session`, which fails at once with one sentence. zenoh is imported
-late: the plain simulator never loads it.
+Isolated by default (docs/concepts.md, "Isolated by default"). A service waits for its router and rides out its
+restarts (docs/deploying.md, "Start order"); ``zenoh.open`` then blocks, so it runs on a daemon thread. The user tools
+use :func:`open_session`, which fails at once with one sentence. zenoh is imported late: the plain simulator never
+loads it.
 """
 
 from __future__ import annotations
@@ -29,8 +28,8 @@ if TYPE_CHECKING:
 MODES = ("peer", "client", "router")
 #: Where every process connects when told nothing else: the hub of ``blackmetal up`` and ``blackmetal router``.
 DEFAULT_ENDPOINT = "tcp/127.0.0.1:7447"
-#: Zenoh's connect retry for services (Zenoh's default, 1 s doubling to 4 s, is too slow to join a router
-#: within 2 s of it coming up). It also paces reconnecting after the router restarts.
+#: Zenoh's connect retry for services (Zenoh's default, 1 s doubling to 4 s, is too slow to join a router within 2 s of
+#: it coming up). It also paces reconnecting after the router restarts.
 SERVICE_RETRY = "{period_init_ms: 100, period_max_ms: 500, period_increase_factor: 2}"
 #: How long a service tries quietly before it says that it waits.
 WAIT_NOTICE_S = 0.5
@@ -48,8 +47,8 @@ class ZenohSettings:
     multicast_scouting: bool = False
     #: Accepted for scripts written before isolation became the default; off is the default anyway.
     no_multicast_scouting: bool = False
-    #: Zenoh user/password authentication, from the environment only
-    #: (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD) so no secret sits on a command line or in a file.
+    #: Zenoh user/password authentication, from the environment only (BLACKMETAL_ZENOH_USER / BLACKMETAL_ZENOH_PASSWORD)
+    #: so no secret sits on a command line or in a file.
     user: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_USER") or None, metadata={"cli": False})
     password: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_PASSWORD") or None, metadata={"cli": False})
 
@@ -94,8 +93,8 @@ class ZenohSettings:
         return self.multicast_scouting and not self.no_multicast_scouting
 
     def to_config(self, wait: bool = False) -> "zenoh.Config":
-        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services),
-        unless a config file sets ``connect/timeout_ms`` itself."""
+        """The Zenoh config; with ``wait``, a session that waits for its endpoints and rejoins them (services), unless a
+        config file sets ``connect/timeout_ms`` itself."""
         import zenoh
 
         if self.config is not None:
@@ -184,39 +183,21 @@ def unresolvable(endpoints: list[str]) -> list[str]:
 def add_zenoh_arguments(parser: argparse.ArgumentParser) -> None:
     """Add the shared Zenoh flags to ``parser`` (unset flags stay None, so settings files can fill them)."""
     group = parser.add_argument_group("Zenoh")
+    endpoints: dict[str, Any] = {"action": "append", "metavar": "ENDPOINT"}
+    switch: dict[str, Any] = {"action": "store_const", "const": True}
     group.add_argument(
         "-m", "--mode", choices=MODES, default=None, help="Zenoh session mode (default: client with -e and no -l, else peer)"
     )
-    group.add_argument(
-        "-e",
-        "--connect",
-        action="append",
-        default=None,
-        metavar="ENDPOINT",
-        help=f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT} unless -l, -c or --multicast-scouting)",
-    )
-    group.add_argument(
-        "-l", "--listen", action="append", default=None, metavar="ENDPOINT", help="endpoint to listen on, as a hub (repeatable)"
-    )
+    connect_help = f"endpoint to connect to (repeatable; default {DEFAULT_ENDPOINT} unless -l, -c or --multicast-scouting)"
+    group.add_argument("-e", "--connect", default=None, help=connect_help, **endpoints)
+    group.add_argument("-l", "--listen", default=None, help="endpoint to listen on, as a hub (repeatable)", **endpoints)
     group.add_argument("-c", "--config", default=None, metavar="FILE", help="Zenoh configuration file (JSON5)")
-    group.add_argument(
-        "--multicast-scouting",
-        action="store_const",
-        const=True,
-        default=None,
-        help="discover peers on the LAN by multicast and gossip (default: off, only the endpoints given)",
-    )
-    group.add_argument(
-        "--no-multicast-scouting",
-        action="store_const",
-        const=True,
-        default=None,
-        help="no discovery (the default; accepted for older scripts)",
-    )
+    scouting_help = "discover peers on the LAN by multicast and gossip (default: off, only the endpoints given)"
+    group.add_argument("--multicast-scouting", default=None, help=scouting_help, **switch)
+    group.add_argument("--no-multicast-scouting", default=None, help="no discovery (the default; accepted for older scripts)", **switch)
 
 
 def zenoh_settings(args: argparse.Namespace | Any) -> ZenohSettings:
-    """ZenohSettings from parsed arguments that carry the shared flags."""
     return ZenohSettings(
         mode=getattr(args, "mode", None),
         connect=list(getattr(args, "connect", None) or []),
@@ -242,17 +223,21 @@ class PendingSession:
     """``zenoh.open`` of a service's config on a daemon thread, and whether the session has joined its endpoints.
 
     A client's ``zenoh.open`` blocks until its router answers and cannot be interrupted, so it runs here while the
-    caller watches its stop request; a session opened after the caller gave up is closed.
+    caller watches its stop request; a session opened after the caller gave up is closed. :meth:`step` says once what it
+    waits for, and where the session is once it is ready.
     """
 
-    def __init__(self, settings: ZenohSettings) -> None:
+    def __init__(self, settings: ZenohSettings, name: str) -> None:
         self.settings = settings
+        self.name = name
         self._conf = settings.to_config(wait=True)
         self._lock = threading.Lock()
         self._done = threading.Event()
         self._session: zenoh.Session | None = None
         self._error: str | None = None
         self._abandoned = False
+        self._started = time.monotonic()
+        self._waited = False
         threading.Thread(target=self._open, name="zenoh-open", daemon=True).start()
 
     def _open(self) -> None:
@@ -271,15 +256,18 @@ class PendingSession:
             self._session = session
         self._done.set()
 
+    def _conf_value(self, path: str) -> Any:
+        try:
+            return json.loads(self._conf.get_json(path))
+        except Exception:
+            return None
+
     @property
     def endpoints(self) -> list[str]:
         """What it connects to, for people: the flags' endpoints, or the config file's."""
         if self.settings.endpoints:
             return self.settings.endpoints
-        try:
-            found = json.loads(self._conf.get_json("connect/endpoints"))
-        except Exception:
-            return []
+        found = self._conf_value("connect/endpoints")
         return [str(e) for e in found] if isinstance(found, list) else []
 
     def ready(self) -> "zenoh.Session | None":
@@ -295,6 +283,21 @@ class PendingSession:
         info = session.info
         return session if list(info.routers_zid()) or list(info.peers_zid()) else None
 
+    def step(self) -> "zenoh.Session | None":
+        """:meth:`ready`, saying where the session is once it is, and once what it waits for."""
+        session = self.ready()
+        if session is not None:
+            self._say(self.status())
+        elif not self._waited and time.monotonic() - self._started >= WAIT_NOTICE_S:
+            self._waited = True
+            self._say(f"waiting for {', '.join(self.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
+            for host in unresolvable(self.endpoints):
+                self._say(f"the host name {host!r} does not resolve: check the name in -e (waiting on, in case it comes up)")
+        return session
+
+    def _say(self, line: str) -> None:
+        print(f"blackmetal {self.name}: {line}", flush=True)
+
     def abandon(self) -> None:
         """The caller stops waiting: close the session now or when it opens."""
         with self._lock:
@@ -306,11 +309,7 @@ class PendingSession:
     @property
     def is_hub(self) -> bool:
         """It listens (or routes): it serves at once and connects to its endpoints in the background."""
-        try:
-            mode = json.loads(self._conf.get_json("mode"))
-        except Exception:
-            mode = None
-        return self.settings.is_hub or mode == "router"
+        return self.settings.is_hub or self._conf_value("mode") == "router"
 
     def status(self) -> str:
         """One line for people: where the open session is."""
@@ -321,61 +320,35 @@ class PendingSession:
         return f"connected to {where}" if where else f"Zenoh {self.settings.where()}"
 
 
-class _Waiter:
-    """The wait both openers share: the pending session, the one "waiting for" line, the final status line."""
-
-    def __init__(self, settings: ZenohSettings, name: str) -> None:
-        self.name = name
-        self.pending = PendingSession(settings)
-        self.started = time.monotonic()
-        self.waited = False
-
-    def step(self) -> "zenoh.Session | None":
-        session = self.pending.ready()
-        if session is not None:
-            self._say(self.pending.status())
-        elif not self.waited and time.monotonic() - self.started >= WAIT_NOTICE_S:
-            self.waited = True
-            self._say(f"waiting for {', '.join(self.pending.endpoints)} (router or hub); starting when it answers (Ctrl-C to stop)")
-            for host in unresolvable(self.pending.endpoints):
-                self._say(f"the host name {host!r} does not resolve: check the name in -e (waiting on, in case it comes up)")
-        return session
-
-    def _say(self, line: str) -> None:
-        print(f"blackmetal {self.name}: {line}", flush=True)
-
-
 async def open_service_session(settings: ZenohSettings, stop: asyncio.Event, name: str, poll: float = 0.02) -> "zenoh.Session":
     """A service's session, once it has joined its router or hub (a hub: at once); says once what it waits for.
 
-    ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot
-    open at all (a port in use, a bad config).
+    ``stop`` set first: asyncio.CancelledError (``run_service`` exits 0); ZenohUnavailable when the session cannot open
+    at all (a port in use, a bad config).
     """
-    waiter = _Waiter(settings, name)
+    pending, session = PendingSession(settings, name), None
     try:
-        while (session := waiter.step()) is None:
+        while (session := pending.step()) is None:
             try:
                 await asyncio.wait_for(stop.wait(), timeout=poll)
             except TimeoutError:
                 continue
             raise asyncio.CancelledError(f"{name} stopped while it waited for its router or hub")
-    except BaseException:
-        waiter.pending.abandon()
-        raise
+    finally:
+        if session is None:
+            pending.abandon()
     return session
 
 
 def open_when_reachable(settings: ZenohSettings, stop: threading.Event, name: str, poll: float = 0.02) -> "zenoh.Session | None":
     """:func:`open_service_session` for a thread-based process (the recorder, ``up``); None when ``stop`` came first."""
-    waiter = _Waiter(settings, name)
+    pending, session = PendingSession(settings, name), None
     try:
-        while (session := waiter.step()) is None:
-            if stop.wait(poll):
-                waiter.pending.abandon()
-                return None
-    except BaseException:
-        waiter.pending.abandon()
-        raise
+        while (session := pending.step()) is None and not stop.wait(poll):
+            continue
+    finally:
+        if session is None:
+            pending.abandon()
     return session
 
 

@@ -42,7 +42,7 @@ class RobotClient:
         self.sock.sendall(wire.encode_request(request))
         status = self.next_reply()
         assert isinstance(status, StatusReply)
-        if status.ok and wire.replies_expected(request.command) == 2:
+        if status.ok and request.command in wire.DATA_COMMANDS:
             return [status, self.next_reply()]
         return [status]
 

@@ -44,7 +44,7 @@ from blackmetal.wire import (
             b'{"UserID":1,"Command":3,"RightWheelSpeed":0.000000,"LeftWheelSpeed":0.000000}',
         ),
         (
-            wire.set_position(left=-1200, right=1200),
+            Request(CommandCode.SET_LR_WHEEL_POSITION, left=-1200, right=1200),
             b'{"UserID":1,"Command":4,"RightWheelPosition":1200,"LeftWheelPosition":-1200}',
         ),
         (wire.simple(CommandCode.NOT_IMPLEMENTED_5), b'{"UserID":1,"Command":5}'),
@@ -76,10 +76,10 @@ def test_positions_must_be_32_bit_integers(value: object) -> None:
         encode_request(Request(CommandCode.SET_LR_WHEEL_POSITION, left=0, right=value))  # type: ignore[arg-type]
 
 
-def test_replies_expected() -> None:
-    assert wire.replies_expected(CommandCode.GET_LR_WHEEL_VELOCITY) == 2
-    assert wire.replies_expected(CommandCode.GET_LR_WHEEL_POSITION) == 2
-    assert wire.replies_expected(CommandCode.SET_LR_WHEEL_VELOCITY) == 1
+def test_only_the_gets_expect_a_data_reply() -> None:
+    assert CommandCode.GET_LR_WHEEL_VELOCITY in wire.DATA_COMMANDS
+    assert CommandCode.GET_LR_WHEEL_POSITION in wire.DATA_COMMANDS
+    assert CommandCode.SET_LR_WHEEL_VELOCITY not in wire.DATA_COMMANDS
 
 
 @pytest.mark.parametrize(
@@ -301,7 +301,7 @@ def test_a_known_request_frame_reads_as_the_parser_reads_it(code: CommandCode) -
 
     request = wire.set_velocity(left=0.1, right=-0.2) if code is CommandCode.SET_LR_WHEEL_VELOCITY else wire.simple(code)
     if code is CommandCode.SET_LR_WHEEL_POSITION:
-        request = wire.set_position(left=5, right=-7)
+        request = Request(CommandCode.SET_LR_WHEEL_POSITION, left=5, right=-7)
     frame = encode_request(request)
     assert parse_request(frame) == _parse_request(frame) == request
     assert parse_request(frame[:-1] + b" }") == _parse_request(frame[:-1] + b" }") == request  # not the known bytes: parsed

@@ -29,13 +29,13 @@ def flood(reporter: ErrorReporter, published: list[ErrorReport], keys: list[str]
         reporter.report(key, "unknown", now=now, family=family)
         if now >= reporter.next_deadline():
             reporter.tick(now)
-        largest = max(largest, reporter.limiter.tracked)
+        largest = max(largest, len(reporter.limiter._families))
     within = len(published)
     end = seconds
     while reporter.next_deadline() < end + 60:
         end = max(end, reporter.next_deadline())
         reporter.tick(end)
-        largest = max(largest, reporter.limiter.tracked)
+        largest = max(largest, len(reporter.limiter._families))
     return largest, within
 
 
@@ -71,7 +71,7 @@ def test_two_flooded_families_both_get_reports_and_each_account_adds_up() -> Non
         mine = [r for r in published if r.key.startswith(prefix) or r.key == family]
         assert sum(r.suppressed + (not is_summary(r)) for r in mine) == 20_000
     assert all(r.key in families for r in published if is_summary(r))  # summaries name the family, reports the real key
-    assert reporter.limiter.tracked == 2
+    assert len(reporter.limiter._families) == 2
 
 
 def test_a_new_name_takes_an_idle_slot_else_falls_under_other_keys() -> None:
@@ -80,10 +80,10 @@ def test_a_new_name_takes_an_idle_slot_else_falls_under_other_keys() -> None:
         assert limiter.admit(family, 0.0) == (True, 0)  # three named slots, none idle before 0.4 s (two tokens short)
     for _ in range(20):
         limiter.admit("d", 0.0)  # no slot: counted under OTHER_KEYS, 10 held back
-    assert limiter.tracked == 4
+    assert len(limiter._families) == 4
     assert limiter.admit("e", 0.3) == (True, 10)  # still nothing idle: OTHER_KEYS again, with its held-back count
     assert limiter.admit("f", 1.0) == (True, 0)  # a, b, c are full again and evicted: f has a bucket of its own
-    assert limiter.tracked <= 4
+    assert len(limiter._families) <= 4
     assert limiter.due_summaries(1.0) == []  # OTHER_KEYS' count went out on e's report
 
 
