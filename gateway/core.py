@@ -111,9 +111,6 @@ class GatewayCore(ClientInputs):
             deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
         return deadline
 
-    def link_connecting(self, link: LinkName) -> None:
-        self.links.connecting(link)
-
     def link_up(self, link: LinkName, now: float) -> None:
         """``link`` is connected (again): start clean."""
         down_for = self.links.up(link, now, self.wallclock())

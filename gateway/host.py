@@ -14,8 +14,7 @@ import functools
 import logging
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any
 
 from blackmetal.runtime.driver import Driver
 from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, RobotStatus, WheelImpulses
@@ -31,21 +30,6 @@ log = logging.getLogger("blackmetal.gateway")
 
 
 Message = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams
-M = TypeVar("M", bound=Message)
-
-
-@dataclass
-class RecordingOutput:
-    """Where a test's gateway publishes: every message kept, by type (each type has its key: :meth:`Keys.message_for`)."""
-
-    messages: dict[type, list[Any]] = field(default_factory=dict)
-
-    def __call__(self, message: Message) -> None:
-        self.messages.setdefault(type(message), []).append(message)
-
-    def of(self, kind: type[M]) -> list[M]:
-        """The messages of one type so far, in order (the list grows as more come)."""
-        return self.messages.setdefault(kind, [])
 
 
 class GatewayHost:
@@ -191,7 +175,7 @@ class GatewayHost:
         first_failure = True
         while not stop.is_set():
             with lock:
-                core.link_connecting(name)
+                core.links.connecting(name)
             try:
                 stream = await self.connector.open(name)
             except (OSError, TimeoutError) as exc:

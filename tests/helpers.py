@@ -7,12 +7,13 @@ import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import zenoh
 
 from blackmetal import robot_model as model
 from blackmetal.bench.synth import Leg
+from blackmetal.gateway.host import Message
 from blackmetal.gateway.latch import AT_START, Latch, Untrusted
 from blackmetal.robot_model import arc_step
 from blackmetal.runtime import ports
@@ -188,3 +189,20 @@ class MemoryLatchStore:
         self.latch = latch
         self.saves.append(latch)
         return None
+
+
+M = TypeVar("M", bound=Message)
+
+
+@dataclass
+class RecordingOutput:
+    """Where a test's gateway publishes: every message kept, by type (each type has its key: :meth:`Keys.message_for`)."""
+
+    messages: dict[type, list[Any]] = field(default_factory=dict)
+
+    def __call__(self, message: Message) -> None:
+        self.messages.setdefault(type(message), []).append(message)
+
+    def of(self, kind: type[M]) -> list[M]:
+        """The messages of one type so far, in order (the list grows as more come)."""
+        return self.messages.setdefault(kind, [])

@@ -16,10 +16,10 @@ from dataclasses import dataclass
 from typing import Any
 
 import pytest
-from helpers import MemoryLatchStore, free_port
+from helpers import MemoryLatchStore, RecordingOutput, free_port
 
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.host import GatewayHost
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import ErrorReport, GatewayHealth, RobotStatus, SimFaults, WheelImpulses
 from blackmetal.sim.memory import MemoryConnector

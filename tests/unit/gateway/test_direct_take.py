@@ -19,10 +19,10 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 import pytest
-from helpers import MemoryLatchStore, wait_for
+from helpers import MemoryLatchStore, RecordingOutput, wait_for
 
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.host import GatewayHost
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.runtime.entry import loop_factory
 from blackmetal.runtime.intake import DIRECT_BURST, DIRECT_WINDOW_S, Intake

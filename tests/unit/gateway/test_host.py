@@ -13,11 +13,11 @@ import asyncio
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from helpers import MemoryLatchStore
+from helpers import MemoryLatchStore, RecordingOutput
 
 from blackmetal import wire
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.host import GatewayHost
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import ErrorReport
 from blackmetal.wire import CommandCode

@@ -14,11 +14,11 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from helpers import MemoryLatchStore
+from helpers import MemoryLatchStore, RecordingOutput
 
 from blackmetal import wire
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.host import GatewayHost, RecordingOutput
+from blackmetal.gateway.host import GatewayHost
 from blackmetal.gateway.latch import AT_START, FileLatchStore, Latch, Untrusted, latch_path, start_latch
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.schemas import ErrorReport, GatewayHealth

@@ -12,10 +12,9 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
-from helpers import wait_for
+from helpers import RecordingOutput, wait_for
 
 from blackmetal.gateway.estop import read_estop
-from blackmetal.gateway.host import RecordingOutput
 from blackmetal.gateway.zenoh_edge import _engages
 from blackmetal.runtime.driver import CoreLock
 from blackmetal.runtime.intake import Intake
