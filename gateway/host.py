@@ -1,10 +1,8 @@
 """The gateway's asyncio host: moves bytes between the robot's streams and the sans-I/O core.
 
-All decisions are the :class:`~blackmetal.gateway.core.GatewayCore`'s; the
-runtime's :class:`~blackmetal.runtime.driver.Driver` holds the core lock,
-timer, publishing and failure. A command or e-stop taken on Zenoh's thread
-(:meth:`GatewayHost.direct`) leaves at once; threads and locks:
-``docs/threads.md``.
+All decisions are the :class:`~blackmetal.gateway.core.GatewayCore`'s; the runtime's :class:`~blackmetal.runtime.driver.Driver`
+holds the core lock, timer, publishing and failure. A command or e-stop taken on Zenoh's thread (:meth:`GatewayHost.direct`)
+leaves at once; threads and locks: ``docs/threads.md``.
 """
 
 from __future__ import annotations
