@@ -125,32 +125,21 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
         host.attach(core, params, wiring, view)
 
         def announce(address: str) -> dict[str, Any]:
+            frames = {r.id: [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")] for r in robots}
             say(
                 f"blackmetal foxglove: a fleet of {len(robots)} robots on {address}",
-                *(
-                    f"  {robot_namespace(r.id) + '/':<8} <-> prefix {keys[r.id].prefix}, "
-                    f"frames {robot_frame(r.id, 'odom')} -> {robot_frame(r.id, 'base_link')}"
-                    for r in robots
-                ),
+                *(f"  {robot_namespace(r.id) + '/':<8} <-> prefix {keys[r.id].prefix}, frames {' -> '.join(frames[r.id])}" for r in robots),
                 f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
                 f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf",
                 "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>",
                 f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})",
                 f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
             )
-            robots_info = {
-                r.id: {
-                    "prefix": keys[r.id].prefix,
-                    "namespace": robot_namespace(r.id),
-                    "frames": [robot_frame(r.id, "odom"), robot_frame(r.id, "base_link")],
-                }
-                for r in robots
-            }
             return {
                 "prefix": robots[0].prefix,
                 "prefixes": [k.prefix for k in keys.values()],
                 "services": list(services),
-                "robots": robots_info,
+                "robots": {r.id: {"prefix": keys[r.id].prefix, "namespace": robot_namespace(r.id), "frames": frames[r.id]} for r in robots},
             }
 
         await serve_views(base, stop, host, wiring, announce)

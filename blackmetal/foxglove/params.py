@@ -16,14 +16,7 @@ import msgspec
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamsSet, ParamsSetReply, ParamValue, PayloadError, decode, encode
 
 from .naming import StatusLevel, robot_of
-
-
-class Gateways(Protocol):
-    """What :class:`Parameters` asks of the robots' gateways (through their Zenoh edges), and where it reports."""
-
-    def ask_params(self, robot_id: str) -> None: ...
-    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
-    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
+from .zenoh_edge import Wired
 
 
 class ParamsOutput(Protocol):
@@ -65,7 +58,7 @@ class Parameters:
         given by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
-        self.gateways: Gateways
+        self.gateways: Wired
         self.call_timeout = call_timeout
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())

@@ -22,7 +22,7 @@ log = logging.getLogger("blackmetal.foxglove")
 @dataclass
 class Wiring:
     """Every robot's view, controls and Zenoh edge (while the session is open): the edges' answers go to them, and
-    the host's :class:`~.host.Viewer` and the parameters' :class:`~.params.Gateways` reach them here."""
+    the host and the parameters reach them here (as :class:`~.zenoh_edge.Wired`)."""
 
     host: FoxgloveHost
     views: dict[str, LiveView]

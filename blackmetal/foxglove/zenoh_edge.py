@@ -19,6 +19,7 @@ from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .naming import COMMAND_SOURCE
+from .watch import Watch
 
 if TYPE_CHECKING:
     import zenoh
@@ -31,9 +32,20 @@ RING = 64
 DRAIN_PERIOD_S = 0.02
 
 
-class Answers(Protocol):
-    """Who takes each robot's gateway health, parameters and replies, and its handlers' bugs: the view's wiring."""
+class Wired(Protocol):
+    """What the host, the parameters and the Zenoh edges ask of :class:`~.ports.Wiring` (here, below all three)."""
 
+    watch: Watch
+
+    def subscribed(self, topic: str) -> None:
+        """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
+
+    def watch_changed(self) -> None:
+        """The watched topics changed: subscribe to the keys they need, and only those."""
+
+    def ask_params(self, robot_id: str) -> None: ...
+    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
     def on_health(self, robot_id: str, payload: bytes) -> None: ...
     def on_reset_reply(self, robot_id: str, reply: Reply) -> None: ...
     def on_params(self, robot_id: str, payload: bytes) -> None: ...
@@ -87,7 +99,7 @@ class FoxgloveZenoh(ZenohEdge):
         self,
         robot_id: str,
         handlers: dict[str, Callable[[bytes], None]],
-        host: Answers,
+        host: Wired,
         loop: asyncio.AbstractEventLoop,
         presence: Callable[[bool], None] | None = None,
     ) -> Intake:
