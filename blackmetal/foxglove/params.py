@@ -19,10 +19,11 @@ from .naming import StatusLevel, robot_of
 from .zenoh_edge import Wired
 
 
-class ParamsOutput(Protocol):
-    """Where :class:`Parameters` sends what it decides for the clients."""
+class Clients(Protocol):
+    """The host as :class:`Parameters` and the controls see it: statuses to a client, answers to calls and sets."""
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
     def parameters_answer(self, call: int, values: list[Param]) -> None: ...
     def parameters_changed(self, values: list[Param]) -> None: ...
 
@@ -53,7 +54,7 @@ class _Robot:
 class Parameters:
     """Every robot's gateway parameters under Foxglove's names; sets go to the robot's gateway, answers come from its reply."""
 
-    def __init__(self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0) -> None:
+    def __init__(self, robots: dict[str, tuple[Keys, str]], output: Clients, call_timeout: float = 2.0) -> None:
         """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet). Its ``gateways`` are
         given by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}

@@ -82,12 +82,9 @@ class FoxgloveZenoh(ZenohEdge):
         super().__init__(session)
         self.keys = keys
         self.query_timeout = query_timeout
-        self._publishers = {
-            # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
-            keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys, keys.cmd_vel_of(COMMAND_SOURCE), express=True),
-            keys.estop: self.publisher(keys, keys.estop, express=True),
-            keys.estop_release: self.publisher(keys, keys.estop_release, express=True),
-        }
+        # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
+        controls = (keys.cmd_vel_of(COMMAND_SOURCE), keys.estop, keys.estop_release)
+        self._publishers = {key: self.publisher(keys, key, express=True) for key in controls}
         self._errors = self.publisher(keys, keys.errors)  # telemetry: never held behind a dead link
         self._handlers: dict[str, Callable[[bytes], None]] = {}
         self._on_error: Callable[[BaseException], None] | None = None
@@ -129,9 +126,8 @@ class FoxgloveZenoh(ZenohEdge):
             token = self.session.liveliness().declare_subscriber(self.keys.alive_gateway, on_token, history=True)
             self._entities.append(token)
         self._health_reply = handover.channel("health?", partial(host.on_health, robot_id), capacity=64)
-        self._reset_reply = handover.channel(
-            "reset?", partial(host.on_reset_reply, robot_id), capacity=64
-        )  # replies, then the end, in order
+        # replies, then the end, in order
+        self._reset_reply = handover.channel("reset?", partial(host.on_reset_reply, robot_id), capacity=64)
         self._set_reply = handover.channel("params set?", partial(host.on_params_reply, robot_id), capacity=64)
         return handover
 
