@@ -20,13 +20,12 @@ from blackmetal.runtime.entry import ServiceCommand, say
 from blackmetal.schemas import Keys, require_extra
 
 from .controls import Controls
-from .fleet import FLEET, serve_views
+from .fleet import FLEET, Wiring, serve_views
 from .front import SUBPROTOCOLS
 from .host import FoxgloveHost
 from .live import LiveView
 from .naming import COMMAND_SOURCE, TAKES, Service
 from .params import Parameters
-from .ports import Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
 

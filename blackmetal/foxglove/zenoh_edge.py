@@ -33,7 +33,7 @@ DRAIN_PERIOD_S = 0.02
 
 
 class Wired(Protocol):
-    """What the host, the parameters and the Zenoh edges ask of :class:`~.ports.Wiring` (here, below all three)."""
+    """What the host, the parameters and the Zenoh edges ask of :class:`~.fleet.Wiring` (here, below all three)."""
 
     watch: Watch
 
