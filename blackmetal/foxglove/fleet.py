@@ -139,9 +139,8 @@ class Wiring:
         following = any(edge.declared for edge in self.edges.values())
         if following and self._drain is None:
             self._drain = asyncio.get_running_loop().call_later(DRAIN_PERIOD_S, self._take)
-        elif not following and self._drain is not None:
-            self._drain.cancel()
-            self._drain = None
+        elif not following:
+            self.stop()
         if self.fleet is not None:
             follows = any(self.watch.watched(topic) for topic in FLEET_TOPICS)
             if not follows:

@@ -277,12 +277,11 @@ class FoxgloveHost:
         viewer = self.viewer
         if viewer is None:
             return
-        watch = viewer.watch
         if subscribed:
-            changed = watch.subscribe(client, topic)
+            changed = viewer.watch.subscribe(client, topic)
             viewer.subscribed(topic)
         else:
-            changed = watch.unsubscribe(client, topic)
+            changed = viewer.watch.unsubscribe(client, topic)
         if changed:
             viewer.watch_changed()
         self.poke()

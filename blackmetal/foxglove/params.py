@@ -126,7 +126,7 @@ class Parameters:
         pending = self._calls.get(call)
         if pending is None or robot_id not in pending.waiting:
             return
-        namespace = self.robots[robot_id].namespace
+        robot = self.robots[robot_id]
         if ok is not None:
             try:
                 reply = decode(ParamsSetReply, ok)
@@ -134,18 +134,18 @@ class Parameters:
                 pending.refusals.append(f"{robot_id}: the gateway answered something else than a ParamsSetReply: {exc}")
             else:
                 pending.refusals += [
-                    f"{param_name(namespace, result.name)} refused by the gateway: {result.reason}"
+                    f"{param_name(robot.namespace, result.name)} refused by the gateway: {result.reason}"
                     for result in reply.results
                     if not result.successful
                 ]
                 self._take(robot_id, reply.params.params)
         elif err is not None:
             reason = err.decode("utf-8", errors="replace") or "no reason given"
-            pending.refusals.append(f"the gateway on {self.robots[robot_id].keys.prefix!r} refused the set: {reason}")
+            pending.refusals.append(f"the gateway on {robot.keys.prefix!r} refused the set: {reason}")
         else:
             pending.refusals.append(
-                f"no gateway answered on {self.robots[robot_id].keys.params_set}: is blackmetal gateway running on prefix "
-                f"{self.robots[robot_id].keys.prefix!r}? nothing was set"
+                f"no gateway answered on {robot.keys.params_set}: is blackmetal gateway running on prefix "
+                f"{robot.keys.prefix!r}? nothing was set"
             )
         pending.waiting.discard(robot_id)
         self._finish_if_done(call)
