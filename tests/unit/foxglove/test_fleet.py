@@ -13,7 +13,6 @@ errors key only.
 from __future__ import annotations
 
 import json
-import struct
 import subprocess
 import sys
 import threading
@@ -47,7 +46,7 @@ from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ConfigError, ErrorReport, EStop, GatewayHealth, Keys, Pose, Twist, decode, encode
 from unit.foxglove.test_controls import TWIST_FORWARD, Bench, FoxClient, health
 from unit.foxglove.test_fleet_view import Logged
-from unit.foxglove.test_live import EXPECTED, panels, protobuf_class
+from unit.foxglove.test_live import EXPECTED, panel_topics, panels, protobuf_class
 
 IDS = ("r1", "r2", "r3")
 
@@ -162,13 +161,9 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
                 "",
             )
             shown.add(urdf["topic"])
-        elif kind == "Plot":
-            shown.update(path["value"].split(".")[0] for path in config["paths"])
-        elif kind in ("Log", "DiagnosticsSummary"):
-            shown.add(config["topicToRender"])
-        elif kind == "RawMessages":
-            shown.add(config["topicPath"].split(".")[0])
-        elif kind in ("Teleop", "Publish"):
+        else:
+            shown.update(panel_topics(kind, config))
+        if kind in ("Teleop", "Publish"):
             published[config.get("topic") or config["topicName"]] = config
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
@@ -178,7 +173,6 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
     assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}
 
 
-@pytest.mark.slow
 # How the view's parts meet: the wiring takes each edge's answers and reaches every robot's edge (fakes, no I/O).
 
 
@@ -305,6 +299,7 @@ def test_the_watch_decides_which_keys_each_edge_follows() -> None:
     assert edge.wanted == {"robot/pose"}
 
 
+@pytest.mark.slow
 def test_prefix_with_fleet_ends_in_one_sentence(tmp_path: Path) -> None:
     path = tmp_path / "fleet.toml"
     path.write_text('[[robot]]\nid = "r1"\ncontrol_port = 1\nlog_port = 2\n')
@@ -316,28 +311,7 @@ def test_prefix_with_fleet_ends_in_one_sentence(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------------- on Zenoh: three robots, one view
 class FleetClient(FoxClient):
-    """A Foxglove client that also keeps the messages of its subscriptions and every channel advertised."""
-
-    def __init__(self, url: str) -> None:
-        self.messages: dict[int, list[bytes]] = defaultdict(list)
-        super().__init__(url)
-
-    def pump(self, timeout: float = 0.05) -> None:
-        try:
-            message = self.ws.recv(timeout=timeout)
-        except TimeoutError:
-            return
-        if isinstance(message, str):
-            op = json.loads(message)
-            self.ops.append(op)
-            if op["op"] == "advertiseServices":
-                self.services.update({service["name"]: service["id"] for service in op["services"]})
-        elif message[0] == 0x01:  # message data: subscription id, log time, payload
-            (subscription,) = struct.unpack_from("<I", message, 1)
-            self.messages[subscription].append(message[13:])
-        elif message[0] == 0x03:
-            _, call, size = struct.unpack_from("<III", message, 1)
-            self.responses[call] = message[13 + size :]
+    """A Foxglove client that also reads every channel advertised and subscribes."""
 
     def channels(self) -> dict[str, dict[str, Any]]:
         return {c["topic"]: c for op in self.ops if op["op"] == "advertise" for c in op["channels"]}
