@@ -11,7 +11,6 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Protocol
 
 import msgspec
 
@@ -32,7 +31,8 @@ from .naming import (
     service_name,
     takes,
 )
-from .zenoh_edge import NO_EDGE
+from .params import Clients
+from .zenoh_edge import NO_EDGE, FoxgloveZenoh, NoEdge
 
 #: A set_estop call re-sends its engage and asks the gateway's health this often (s) until confirmed.
 ASK_PERIOD_S = 0.2
@@ -45,15 +45,6 @@ class RosBool(msgspec.Struct, forbid_unknown_fields=True):
     """std_msgs/msg/Bool and the std_srvs/srv/SetBool request, as JSON: ``{"data": true}``."""
 
     data: bool
-
-
-class RobotSide(Protocol):
-    """Where :class:`Controls` sends to the robot: its Zenoh edge (:data:`~.zenoh_edge.NO_EDGE` while no session is open)."""
-
-    def command(self, key: str, payload: bytes) -> None: ...
-    def ask_health(self) -> None: ...
-    def ask_reset(self, call: int, payload: bytes) -> None: ...
-    def error(self, message: ErrorReport) -> None: ...
 
 
 @dataclass(slots=True)
@@ -78,13 +69,6 @@ class PendingCall:
 
 def _state(engage: bool) -> str:
     return "engaged" if engage else "released"
-
-
-class Clients(Protocol):
-    """The host: statuses to a client, answers to a service call."""
-
-    def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
-    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
 
 
 class Refusals:
@@ -128,7 +112,7 @@ class Controls(Refusals):
         call_timeout: float = 2.0,
         wallclock: Callable[[], float] = time.time,
         namespace: str = "",
-        robot: RobotSide = NO_EDGE,
+        robot: FoxgloveZenoh | NoEdge = NO_EDGE,
     ) -> None:
         super().__init__(clients, lambda message: self.robot.error(message), wallclock)
         #: The robot's edge while the session is open; it may change (the view plugs it in and out).
@@ -308,9 +292,10 @@ class FleetControls(Refusals):
         if robot_id is not None:
             self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
         else:
-            self._refuse(
-                client, topic, f"topic {topic!r} is not taken here: clients publish {self._takes}; its messages are refused", "", now
-            )
+            self._refuse(client, topic, f"{self._not_taken(topic)}; its messages are refused", "", now)
+
+    def _not_taken(self, topic: str) -> str:
+        return f"topic {topic!r} is not taken here: clients publish {self._takes}"
 
     def on_unadvertise(self, client: int, channel: int, now: float) -> None:
         robot_id, _ = self._channels.pop((client, channel), (None, ""))
@@ -329,7 +314,7 @@ class FleetControls(Refusals):
         if known is None:
             self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         elif known[0] is None:
-            self._refuse(client, known[1], f"topic {known[1]!r} is not taken here: clients publish {self._takes}", excerpt(data), now)
+            self._refuse(client, known[1], self._not_taken(known[1]), excerpt(data), now)
         else:
             self.robots[known[0]].on_message(client, channel, data, now)
 

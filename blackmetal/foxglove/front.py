@@ -101,6 +101,7 @@ def _header_size(head: bytes | bytearray) -> int:
     return 2 + extended + (4 if head[1] & 0x80 else 0)
 
 
+@dataclass(eq=False)
 class FrameTap:
     """Follows the frames of one direction of a WebSocket without changing a byte: where messages end, and the text ones.
 
@@ -108,19 +109,18 @@ class FrameTap:
     whole text messages (up to ``text_limit`` bytes) go to ``on_text``.
     """
 
-    def __init__(self, on_text: Callable[[bytes], None] | None = None, text_limit: int = TEXT_LIMIT) -> None:
-        self.on_text = on_text
-        self.text_limit = text_limit
-        self.closed = False
-        self._head = bytearray()
-        self._left = 0
-        self._in_frame = False
-        self._opcode = 0
-        self._fin = True
-        self._mask = b""
-        self._offset = 0
-        self._fragmented = False
-        self._text: bytearray | None = None
+    on_text: Callable[[bytes], None] | None = None
+    text_limit: int = TEXT_LIMIT
+    closed: bool = False
+    _head: bytearray = field(default_factory=bytearray, init=False)
+    _left: int = field(default=0, init=False)
+    _in_frame: bool = field(default=False, init=False)
+    _opcode: int = field(default=0, init=False)
+    _fin: bool = field(default=True, init=False)
+    _mask: bytes = field(default=b"", init=False)
+    _offset: int = field(default=0, init=False)
+    _fragmented: bool = field(default=False, init=False)
+    _text: bytearray | None = field(default=None, init=False)
 
     @property
     def at_boundary(self) -> bool:

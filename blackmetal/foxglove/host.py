@@ -16,7 +16,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
 from operator import call as run
-from typing import Any, Protocol
+from typing import Any
 
 import msgspec
 
@@ -44,23 +44,10 @@ from .front import (
     ws_frame,
 )
 from .naming import CLIENT_ENCODING, SERVICE_SPECS, ServerRefusal, Service, StatusLevel
-from .params import Gateways, Parameters
+from .params import Parameters
 from .sdk import CALL_MARGIN_S, ServiceFailure, foxglove_parameter, sdk_listener, start_server
 from .settings import FoxgloveSettings
-from .watch import Watch
-
-
-class Viewer(Gateways, Protocol):
-    """What the host tells the view of its clients' subscriptions, and the parameters' gateways."""
-
-    watch: Watch
-
-    def subscribed(self, topic: str) -> None:
-        """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
-
-    def watch_changed(self) -> None:
-        """The watched topics changed: subscribe to the keys they need, and only those."""
-
+from .zenoh_edge import Wired
 
 #: What the host feeds with the clients' doings: one robot's controls, or a fleet's.
 ClientCore = Controls | FleetControls
@@ -100,7 +87,7 @@ class FoxgloveHost:
         self._put_subscription = self._handover.channel("subscriptions", run, capacity=65536)
         self._put_call = self._handover.channel("service calls", run, capacity=256)
         self._put_set = self._handover.channel("parameter sets", run, capacity=256)
-        self.viewer: Viewer | None = None
+        self.viewer: Wired | None = None
         self.params: Parameters | None = None
         #: The parameters as the SDK's threads answer getParameters from: replaced whole on the loop, read whole there.
         self._param_snapshot: list[Any] = []
@@ -151,7 +138,7 @@ class FoxgloveHost:
         self.port = int(self._front.sockets[0].getsockname()[1])
         self.url = url(host, self.port)
 
-    def attach(self, core: ClientCore, params: Parameters, viewer: Viewer, *timed: Core) -> None:
+    def attach(self, core: ClientCore, params: Parameters, viewer: Wired, *timed: Core) -> None:
         """Feed ``core`` and ``params`` (their gateways: ``viewer``), tell ``viewer`` the clients' subscriptions,
         and run the timers of all and of ``timed`` (until :meth:`close`)."""
         self.core, self.params, self.viewer = core, params, viewer
@@ -290,12 +277,11 @@ class FoxgloveHost:
         viewer = self.viewer
         if viewer is None:
             return
-        watch = viewer.watch
         if subscribed:
-            changed = watch.subscribe(client, topic)
+            changed = viewer.watch.subscribe(client, topic)
             viewer.subscribed(topic)
         else:
-            changed = watch.unsubscribe(client, topic)
+            changed = viewer.watch.unsubscribe(client, topic)
         if changed:
             viewer.watch_changed()
         self.poke()

@@ -98,7 +98,8 @@ class LiveView:
         self.odometry = channel(f"{ns}/odometry", Kind.JSON, schemas["Pose"])
         self.wheels = channel(f"{ns}/wheels", Kind.JSON, WHEELS_SCHEMA)
         self.joint_states = channel(f"{ns}/joint_states", Kind.JSON, JOINT_STATE_SCHEMA)
-        self.description = channel(f"{ns}/robot_description", Kind.JSON, STRING_SCHEMA)
+        self.description_topic = f"{ns}/robot_description"
+        self.description = channel(self.description_topic, Kind.JSON, STRING_SCHEMA)
         self.status = channel(f"{ns}/status", Kind.JSON, schemas["RobotStatus"])
         self.health = channel(f"{ns}/health", Kind.JSON, schemas["GatewayHealth"])
         self.diagnostics = channel(f"{ns}/diagnostics", Kind.JSON, DIAGNOSTICS_SCHEMA)
@@ -106,10 +107,6 @@ class LiveView:
         self.log = channel(f"{ns}/log", Kind.LOG, None)
         self._trail = Trail(path_length)
         self._truth_trail = Trail(path_length)
-
-    @property
-    def description_topic(self) -> str:
-        return f"{self.namespace}/robot_description"
 
     def feeds(self) -> dict[str, set[str]]:
         """Key -> the topics its payloads are shown on (the host subscribes to a key while one of them is watched)."""

@@ -20,13 +20,12 @@ from blackmetal.runtime.entry import ServiceCommand, say
 from blackmetal.schemas import Keys, require_extra
 
 from .controls import Controls
-from .fleet import FLEET, serve_views
+from .fleet import FLEET, Wiring, serve_views
 from .front import SUBPROTOCOLS
 from .host import FoxgloveHost
 from .live import LiveView
-from .naming import COMMAND_SOURCE, TAKES, Service
+from .naming import COMMAND_SOURCE, Service, takes
 from .params import Parameters
-from .ports import Wiring
 from .settings import FoxgloveSettings
 from .watch import Watch
 
@@ -53,7 +52,7 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
                 f"blackmetal foxglove: {keys.prefix} on {address}",
                 f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
                 f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}",
-                f"  clients publish {TAKES} (as the command source {COMMAND_SOURCE!r})",
+                f"  clients publish {takes()} (as the command source {COMMAND_SOURCE!r})",
                 f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
                 f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}",
             )

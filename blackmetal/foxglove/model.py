@@ -50,12 +50,10 @@ def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[floa
 def moving_joints(urdf_text: str) -> list[Joint]:
     joints = []
     for element in ET.fromstring(urdf_text).iter("joint"):
-        if element.get("type") not in ("continuous", "revolute"):
-            continue
         parent, child = element.find("parent"), element.find("child")
-        origin, axis = element.find("origin"), element.find("axis")
-        if parent is None or child is None:
+        if element.get("type") not in ("continuous", "revolute") or parent is None or child is None:
             continue
+        origin, axis = element.find("origin"), element.find("axis")
         joints.append(
             Joint(
                 element.get("name", ""),

@@ -63,9 +63,6 @@ def robot_of(name: str, robot_ids: Collection[str]) -> str | None:
     return head if name.startswith("/") and slash and rest and head in robot_ids else None
 
 
-TAKES = takes()
-
-
 def _object(properties: dict[str, Any], required: list[str] | None = None) -> dict[str, Any]:
     return {"type": "object", "properties": properties, "required": required or [], "additionalProperties": False}
 

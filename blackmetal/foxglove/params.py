@@ -16,20 +16,14 @@ import msgspec
 from blackmetal.schemas import GatewayParams, Keys, Param, ParamsSet, ParamsSetReply, ParamValue, PayloadError, decode, encode
 
 from .naming import StatusLevel, robot_of
+from .zenoh_edge import Wired
 
 
-class Gateways(Protocol):
-    """What :class:`Parameters` asks of the robots' gateways (through their Zenoh edges), and where it reports."""
-
-    def ask_params(self, robot_id: str) -> None: ...
-    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
-    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
-
-
-class ParamsOutput(Protocol):
-    """Where :class:`Parameters` sends what it decides for the clients."""
+class Clients(Protocol):
+    """The host as :class:`Parameters` and the controls see it: statuses to a client, answers to calls and sets."""
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None: ...
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None: ...
     def parameters_answer(self, call: int, values: list[Param]) -> None: ...
     def parameters_changed(self, values: list[Param]) -> None: ...
 
@@ -60,12 +54,12 @@ class _Robot:
 class Parameters:
     """Every robot's gateway parameters under Foxglove's names; sets go to the robot's gateway, answers come from its reply."""
 
-    def __init__(self, robots: dict[str, tuple[Keys, str]], output: ParamsOutput, call_timeout: float = 2.0) -> None:
+    def __init__(self, robots: dict[str, tuple[Keys, str]], output: Clients, call_timeout: float = 2.0) -> None:
         """``robots``: id -> (its keys, its namespace: ``""`` for one robot, ``/<id>`` in a fleet). Its ``gateways`` are
         given by the host that serves these parameters (:meth:`~.host.FoxgloveHost.attach`), before any gateway answers."""
         self.robots = {robot_id: _Robot(keys, namespace) for robot_id, (keys, namespace) in robots.items()}
         self.output = output
-        self.gateways: Gateways
+        self.gateways: Wired
         self.call_timeout = call_timeout
         self._calls: dict[int, SetCall] = {}
         self._fleet = any(robot.namespace for robot in self.robots.values())
@@ -132,7 +126,7 @@ class Parameters:
         pending = self._calls.get(call)
         if pending is None or robot_id not in pending.waiting:
             return
-        namespace = self.robots[robot_id].namespace
+        robot = self.robots[robot_id]
         if ok is not None:
             try:
                 reply = decode(ParamsSetReply, ok)
@@ -140,18 +134,18 @@ class Parameters:
                 pending.refusals.append(f"{robot_id}: the gateway answered something else than a ParamsSetReply: {exc}")
             else:
                 pending.refusals += [
-                    f"{param_name(namespace, result.name)} refused by the gateway: {result.reason}"
+                    f"{param_name(robot.namespace, result.name)} refused by the gateway: {result.reason}"
                     for result in reply.results
                     if not result.successful
                 ]
                 self._take(robot_id, reply.params.params)
         elif err is not None:
             reason = err.decode("utf-8", errors="replace") or "no reason given"
-            pending.refusals.append(f"the gateway on {self.robots[robot_id].keys.prefix!r} refused the set: {reason}")
+            pending.refusals.append(f"the gateway on {robot.keys.prefix!r} refused the set: {reason}")
         else:
             pending.refusals.append(
-                f"no gateway answered on {self.robots[robot_id].keys.params_set}: is blackmetal gateway running on prefix "
-                f"{self.robots[robot_id].keys.prefix!r}? nothing was set"
+                f"no gateway answered on {robot.keys.params_set}: is blackmetal gateway running on prefix "
+                f"{robot.keys.prefix!r}? nothing was set"
             )
         pending.waiting.discard(robot_id)
         self._finish_if_done(call)

@@ -19,6 +19,7 @@ from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import ErrorReport, Keys, encode, payload_bytes
 
 from .naming import COMMAND_SOURCE
+from .watch import Watch
 
 if TYPE_CHECKING:
     import zenoh
@@ -31,9 +32,20 @@ RING = 64
 DRAIN_PERIOD_S = 0.02
 
 
-class Answers(Protocol):
-    """Who takes each robot's gateway health, parameters and replies, and its handlers' bugs: the view's wiring."""
+class Wired(Protocol):
+    """What the host, the parameters and the Zenoh edges ask of :class:`~.fleet.Wiring` (here, below all three)."""
 
+    watch: Watch
+
+    def subscribed(self, topic: str) -> None:
+        """A client subscribed to ``topic`` (what is sent once, the URDF, goes to it now)."""
+
+    def watch_changed(self) -> None:
+        """The watched topics changed: subscribe to the keys they need, and only those."""
+
+    def ask_params(self, robot_id: str) -> None: ...
+    def set_params(self, robot_id: str, call: int, payload: bytes) -> None: ...
+    def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
     def on_health(self, robot_id: str, payload: bytes) -> None: ...
     def on_reset_reply(self, robot_id: str, reply: Reply) -> None: ...
     def on_params(self, robot_id: str, payload: bytes) -> None: ...
@@ -70,12 +82,9 @@ class FoxgloveZenoh(ZenohEdge):
         super().__init__(session)
         self.keys = keys
         self.query_timeout = query_timeout
-        self._publishers = {
-            # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
-            keys.cmd_vel_of(COMMAND_SOURCE): self.publisher(keys, keys.cmd_vel_of(COMMAND_SOURCE), express=True),
-            keys.estop: self.publisher(keys, keys.estop, express=True),
-            keys.estop_release: self.publisher(keys, keys.estop_release, express=True),
-        }
+        # blocking congestion control and express: a command or a stop is never dropped, never waits for a batch
+        controls = (keys.cmd_vel_of(COMMAND_SOURCE), keys.estop, keys.estop_release)
+        self._publishers = {key: self.publisher(keys, key, express=True) for key in controls}
         self._errors = self.publisher(keys, keys.errors)  # telemetry: never held behind a dead link
         self._handlers: dict[str, Callable[[bytes], None]] = {}
         self._on_error: Callable[[BaseException], None] | None = None
@@ -87,7 +96,7 @@ class FoxgloveZenoh(ZenohEdge):
         self,
         robot_id: str,
         handlers: dict[str, Callable[[bytes], None]],
-        host: Answers,
+        host: Wired,
         loop: asyncio.AbstractEventLoop,
         presence: Callable[[bool], None] | None = None,
     ) -> Intake:
@@ -117,9 +126,8 @@ class FoxgloveZenoh(ZenohEdge):
             token = self.session.liveliness().declare_subscriber(self.keys.alive_gateway, on_token, history=True)
             self._entities.append(token)
         self._health_reply = handover.channel("health?", partial(host.on_health, robot_id), capacity=64)
-        self._reset_reply = handover.channel(
-            "reset?", partial(host.on_reset_reply, robot_id), capacity=64
-        )  # replies, then the end, in order
+        # replies, then the end, in order
+        self._reset_reply = handover.channel("reset?", partial(host.on_reset_reply, robot_id), capacity=64)
         self._set_reply = handover.channel("params set?", partial(host.on_params_reply, robot_id), capacity=64)
         return handover
 

@@ -14,6 +14,7 @@ import json
 import struct
 import threading
 import time
+from collections import defaultdict
 from collections.abc import Callable, Iterator
 from contextlib import ExitStack
 from typing import Any
@@ -232,6 +233,8 @@ class FoxClient:
         self.ops: list[dict[str, Any]] = []
         self.responses: dict[int, bytes] = {}
         self.services: dict[str, int] = {}
+        #: Subscription id -> the payloads of its message data (a client that subscribes reads them).
+        self.messages: dict[int, list[bytes]] = defaultdict(list)
         self._calls = itertools.count(1)
         self.wait(lambda: self.server_info and len(self.services) >= 2, "serverInfo and the services")
 
@@ -252,6 +255,9 @@ class FoxClient:
             self.ops.append(op)
             if op["op"] == "advertiseServices":
                 self.services.update({service["name"]: service["id"] for service in op["services"]})
+        elif message[0] == 0x01:  # message data: subscription id, log time, payload
+            (subscription,) = struct.unpack_from("<I", message, 1)
+            self.messages[subscription].append(message[13:])
         elif message[0] == 0x03:  # service call response
             _, call, size = struct.unpack_from("<III", message, 1)
             self.responses[call] = message[13 + size :]

@@ -119,6 +119,15 @@ def panels(node: Any) -> Iterator[dict[str, Any]]:
             yield from panels(item)
 
 
+def panel_topics(kind: str, config: dict[str, Any]) -> list[str]:
+    """The topics a Plot, Log, DiagnosticsSummary or RawMessages panel shows (none for another panel)."""
+    if kind == "Plot":
+        return [path["value"].split(".")[0] for path in config["paths"]]
+    if kind in ("Log", "DiagnosticsSummary"):
+        return [config["topicToRender"]]
+    return [config["topicPath"].split(".")[0]] if kind == "RawMessages" else []
+
+
 def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> None:
     layout = json.loads((Path(__file__).parents[3] / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
     shown: set[str] = set()
@@ -139,13 +148,9 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
                 "",
             )
             shown.add(urdf["topic"])
-        elif kind == "Plot":
-            shown.update(path["value"].split(".")[0] for path in config["paths"])
-        elif kind in ("Log", "DiagnosticsSummary"):
-            shown.add(config["topicToRender"])
-        elif kind == "RawMessages":
-            shown.add(config["topicPath"].split(".")[0])
-        elif kind == "Teleop":
+        else:
+            shown.update(panel_topics(kind, config))
+        if kind == "Teleop":
             published.setdefault(config["topic"], []).append(config)
             assert config["publishRate"] >= 5, "the gateway's source timeout is 0.5 s: the panel must publish faster than that"
         elif kind == "Publish":

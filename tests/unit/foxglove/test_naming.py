@@ -26,7 +26,7 @@ def test_a_fleets_robot_is_named_under_its_id_and_one_robots_view_as_before() ->
 
 
 def test_what_clients_may_publish_and_call_is_said_from_one_table() -> None:
-    assert naming.TAKES == naming.takes("") == "/cmd_vel (geometry_msgs/msg/Twist) and /estop (std_msgs/msg/Bool), JSON-encoded"
+    assert naming.takes() == naming.takes("") == "/cmd_vel (geometry_msgs/msg/Twist) and /estop (std_msgs/msg/Bool), JSON-encoded"
     assert naming.takes("/r2").startswith("/r2/cmd_vel (geometry_msgs/msg/Twist) and /r2/estop")
     assert all(naming.CONTROL_SCHEMAS[c][0].count("/msg/") == 1 for c in naming.Control), "the ROS 2 spelling first"
     for service, spec in naming.SERVICE_SPECS.items():
