@@ -77,10 +77,6 @@ class Figure:
     within: str | None = None  # a figure that measures this one too: when that one runs, this one is not run apart
 
 
-def spread(values: list[float]) -> dict[str, float]:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
-
-
 def noisy(values: list[float]) -> bool:
     return len(values) > 1 and min(values) > 0 and max(values) / min(values) > 2.0
 
@@ -97,7 +93,7 @@ def rounds(plan: Plan, **latencies: Callable[[], dict[str, float]]) -> dict[str,
 
 
 def spreads(measured: dict[str, list[float]]) -> dict[str, Any]:
-    return {"p50": spread(measured["p50"]), "p99": spread(measured["p99"])}
+    return {p: {"median": statistics.median(v), "min": min(v), "max": max(v)} for p, v in measured.items()}
 
 
 def over(figure: dict[str, list[float]], baseline: dict[str, list[float]], which: str = "p50") -> float:

@@ -14,7 +14,7 @@ from pathlib import Path
 from . import peers
 from .children import spawn
 from .peers import free_port, percentiles
-from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
+from .rig import KEYS, client_service, cpu_seconds, cpu_window, robot_and_gateway, rss_mb, service, session, wait_polls
 from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, rounds, spreads
 
 
@@ -23,8 +23,8 @@ def ros2_odom_rate(seconds: float, warmup: float = 1.0) -> dict[str, float]:
     counts: collections.Counter[str] = collections.Counter()
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, 100.0)
-        odometry(stack, zport)
-        adapter = ros2_adapter(stack, zport)
+        client_service(stack, "odometry", zport)
+        adapter = client_service(stack, "ros2", zport)
         client = session(stack, zport)
         client.declare_subscriber(KEYS.pose, lambda s: counts.update(("pose",)))
         client.declare_subscriber(adapter.wait_ready()["keys"]["odom"], lambda s: counts.update(("odom",)))
@@ -46,7 +46,7 @@ def pose_latency(seconds: float) -> dict[str, float]:
     with ExitStack() as stack:
         _, zport, _ = robot_and_gateway(stack)
         oport = free_port()
-        odometry(stack, zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
+        client_service(stack, "odometry", zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
         client = session(stack, oport)
         client.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
         deadline = time.monotonic() + 20
@@ -87,7 +87,7 @@ def recorder_load(poll_hz: float, seconds: float, warmup: float = 1.0) -> dict[s
     """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, poll_hz)
-        odometry(stack, zport)
+        client_service(stack, "odometry", zport)
         path = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "bench.mcap"
         recorder = service(stack, "record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
         wait_polls(robot)
@@ -116,7 +116,7 @@ def memory_and_cpu(seconds: float, warmup: float = 1.0) -> dict[str, float]:
         bare.stop(signal.SIGKILL)
     with ExitStack() as stack:
         robot, zport, gw = robot_and_gateway(stack, 100.0)
-        odo = odometry(stack, zport)
+        odo = client_service(stack, "odometry", zport)
         wait_polls(robot)
         time.sleep(warmup)
         start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
