@@ -308,7 +308,7 @@ ROS2_CMD_VEL = Figure("ros2_cmd_vel", "ROS 2 /cmd_vel latency",
 ESTOP = Figure("estop", "e-stop latency", "latency: e-stop -> EMG_STOP at the robot socket, against cmd_vel ...",
                ("estop_to_robot_ms",), _estop, _estop_rows, needs=("cmd_vel",))  # fmt: skip
 ESTOP_FLOOD = Figure("estop_flood", "e-stop under a flood", "latency: e-stop while three processes flood cmd_vel/nav at full speed ...",
-                     ("estop_under_flood_ms",), lambda plan, out: {"estop_under_flood_ms": estop_under_flood(plan.count(10, 100))},
+                     ("estop_under_flood_ms",), lambda plan, out: {"estop_under_flood_ms": estop_under_flood(plan.pick(10, 100))},
                      lambda f: [_estop_flood_row(f["estop_under_flood_ms"])])  # fmt: skip
 FLOOD = Figure("flood", "cmd_vel flood", "cmd_vel flood ...", ("flood",),
-               lambda plan, out: {"flood": flood(5000.0, plan.seconds(0.3, 5.0))}, lambda f: [_flood_row(f["flood"])])  # fmt: skip
+               lambda plan, out: {"flood": flood(5000.0, plan.pick(0.3, 5.0))}, lambda f: [_flood_row(f["flood"])])  # fmt: skip

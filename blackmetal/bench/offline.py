@@ -199,7 +199,7 @@ def _replay(plan: Plan, out: Result) -> Result:
     if without_mcap is not None:
         plan.progress(f"replay from MCAP: skipped, {without_mcap}")
         out["skipped"]["replay_mcap"] = without_mcap
-    replay = replay_throughput(plan.count(50_000, 1_000_000), plan.count(5_000, 100_000), mcap=without_mcap is None)
+    replay = replay_throughput(plan.pick(50_000, 1_000_000), plan.pick(5_000, 100_000), mcap=without_mcap is None)
     return {"replay": replay if without_mcap is None else {**replay, "mcap": {"skipped": without_mcap}}}
 
 
@@ -240,6 +240,6 @@ def _arbiter_rows(f: Result) -> list[Row]:
 
 REPLAY = Figure("replay", "replay throughput", "replay throughput against the streaming path ...", ("replay",), _replay, _replay_rows)
 CALIBRATION = Figure("calibration", "calibration speed", "calibration: the batch odometry on parsed columns, one fit ...", ("calibration",),
-                     lambda plan, out: {"calibration": calibration_speed(plan.count(200_000, 2_000_000))}, _calibration_rows)  # fmt: skip
+                     lambda plan, out: {"calibration": calibration_speed(plan.pick(200_000, 2_000_000))}, _calibration_rows)  # fmt: skip
 ARBITER = Figure("arbiter", "arbiter cost", "the arbiter's cost per command, against the gateway core's whole cmd_vel handling ...", ("arbiter",),
-                 lambda plan, out: {"arbiter": arbiter_cost(plan.count(5_000, 50_000))}, _arbiter_rows)  # fmt: skip
+                 lambda plan, out: {"arbiter": arbiter_cost(plan.pick(5_000, 50_000))}, _arbiter_rows)  # fmt: skip

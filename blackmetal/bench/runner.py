@@ -11,7 +11,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from blackmetal.runtime.harness import ChildFailed
 from blackmetal.schemas import BlackmetalError, MissingExtra, require_extra
@@ -21,6 +21,7 @@ from . import children
 #: The modules each optional extra brings, as the commands that need them check them.
 EXTRA_MODULES: dict[str, tuple[str, ...]] = {"ros2": ("rosbags", "xxhash"), "record": ("mcap",)}
 
+T = TypeVar("T")
 Row = tuple[str, str, str, str]
 Result = dict[str, Any]
 
@@ -44,21 +45,19 @@ class Plan:
 
     @property
     def rounds(self) -> int:
-        return 1 if self.quick else 3
+        return self.pick(1, 3)
 
     @property
     def samples(self) -> int:
-        return 40 if self.quick else 200
+        return self.pick(40, 200)
 
     @property
     def warmups(self) -> dict[str, float]:
         """--quick only proves every figure runs end to end: its warm-ups (before a window) are short, its figures mean nothing."""
         return {"warmup": 0.3} if self.quick else {}
 
-    def seconds(self, quick: float, full: float) -> float:
-        return quick if self.quick else full
-
-    def count(self, quick: int, full: int) -> int:
+    def pick(self, quick: T, full: T) -> T:
+        """``quick`` with --quick, else ``full``: a figure's seconds or sample count."""
         return quick if self.quick else full
 
 

@@ -141,7 +141,7 @@ def _pose(plan: Plan, out: Result) -> Result:
         hop = peers.zenoh_hop(plan.samples // 2, gap=(0.019, 0.021))
         return {"p50_ms": hop["rtt_p50_ms"], "p99_ms": hop["rtt_p99_ms"]}
 
-    measured = rounds(plan, two=two_hops, pose=lambda: pose_latency(plan.seconds(0.5, 4.0)))
+    measured = rounds(plan, two=two_hops, pose=lambda: pose_latency(plan.pick(0.5, 4.0)))
     two, pose = measured["two"], measured["pose"]
     ratio = statistics.median(pose["p50"]) / statistics.median(two["p50"])
     return {
@@ -190,14 +190,14 @@ def _memory_rows(f: Result) -> list[Row]:
 
 
 ROS2_ODOM = Figure("ros2_odom", "ROS 2 /odom rate", "ROS 2 /odom rate at 100 Hz polling, against the pose rate ...", ("ros2_odom",),
-                   lambda plan, out: {"ros2_odom": ros2_odom_rate(plan.seconds(0.5, 10.0), **plan.warmups)}, _ros2_odom_rows, extra="ros2")  # fmt: skip
+                   lambda plan, out: {"ros2_odom": ros2_odom_rate(plan.pick(0.5, 10.0), **plan.warmups)}, _ros2_odom_rows, extra="ros2")  # fmt: skip
 POSE = Figure("pose", "impulse -> Pose latency", "latency: impulse reply -> Pose at a client, against two Zenoh hops ...",
               ("two_hops_ms", "impulse_to_pose_ms"), _pose, _pose_rows)  # fmt: skip
 POLL = Figure("poll", "poll rate", "poll rate at 100 and 200 Hz ...", ("poll",),
-              lambda plan, out: {"poll": {str(int(hz)): poll_rate(hz, plan.seconds(0.5, 5.0), **plan.warmups) for hz in (100.0, 200.0)}},
+              lambda plan, out: {"poll": {str(int(hz)): poll_rate(hz, plan.pick(0.5, 5.0), **plan.warmups) for hz in (100.0, 200.0)}},
               _poll_rows)  # fmt: skip
 RECORDER = Figure("recorder", "recorder load", "recorder CPU and bytes/s at 100 and 200 Hz ...", ("recorder",),
-                  lambda plan, out: {"recorder": {str(int(hz)): recorder_load(hz, plan.seconds(0.5, 10.0), **plan.warmups) for hz in (100.0, 200.0)}},
+                  lambda plan, out: {"recorder": {str(int(hz)): recorder_load(hz, plan.pick(0.5, 10.0), **plan.warmups) for hz in (100.0, 200.0)}},
                   _recorder_rows, extra="record")  # fmt: skip
 MEMORY = Figure("memory", "memory and CPU", "memory and CPU at 100 Hz ...", ("memory",),
-                lambda plan, out: {"memory": memory_and_cpu(plan.seconds(1.0, 60.0), **plan.warmups)}, _memory_rows)  # fmt: skip
+                lambda plan, out: {"memory": memory_and_cpu(plan.pick(1.0, 60.0), **plan.warmups)}, _memory_rows)  # fmt: skip

@@ -99,11 +99,9 @@ _unpack_length = struct.Struct("<Q").unpack_from
 _unpack_channel = struct.Struct("<HHI").unpack_from  # channel id, schema id, topic length
 
 
-def _payload_spans(data: bytes, wanted: Callable[[str], bool], ids: set[int]) -> tuple[list[int], list[int]]:
-    """Start and end offsets of the payloads of wanted channels in one decompressed chunk (channel ids learnt on the way)."""
-    starts: list[int] = []
-    ends: list[int] = []
-    add_start, add_end = starts.append, ends.append
+def _payloads(data: bytes, wanted: Callable[[str], bool], ids: set[int]) -> list[bytes]:
+    """The payloads of wanted channels in one decompressed chunk (channel ids learnt on the way)."""
+    payloads: list[bytes] = []
     offset, size = 0, len(data)
     while offset + 9 <= size:
         opcode = data[offset]
@@ -111,13 +109,12 @@ def _payload_spans(data: bytes, wanted: Callable[[str], bool], ids: set[int]) ->
         offset = body + _unpack_length(data, offset + 1)[0]
         if opcode == _MESSAGE:
             if data[body] | (data[body + 1] << 8) in ids:
-                add_start(body + _MESSAGE_HEADER)
-                add_end(offset)
+                payloads.append(data[body + _MESSAGE_HEADER : offset])
         elif opcode == _CHANNEL:
             channel_id, _schema, topic_length = _unpack_channel(data, body)
             if wanted(data[body + 8 : body + 8 + topic_length].decode("utf-8", "replace")):
                 ids.add(channel_id)
-    return starts, ends
+    return payloads
 
 
 #: Chunks still being walked below this many, the rest go record by record in Python.
@@ -174,8 +171,7 @@ def _chunks_as_lines(chunks: list[bytes], wanted: Callable[[str], bool], ids: se
         bounds.append(bounds[-1] + len(chunk))
     table = _record_table(data, bounds)
     if table is None:  # a damaged chunk: record by record, skipping what cannot be read
-        spans = [(chunk, *_payload_spans(chunk, wanted, ids)) for chunk in chunks]
-        return b"\n".join(b"\n".join([c[a:b] for a, b in zip(starts, ends, strict=True)]) for c, starts, ends in spans)
+        return b"\n".join(b"\n".join(_payloads(chunk, wanted, ids)) for chunk in chunks)
     starts, lengths = table
     raw = np.frombuffer(data, np.uint8)
     opcodes = raw[starts]
