@@ -41,9 +41,7 @@ def publish_time_ns(payload: bytes, log_time_ns: int) -> int:
         stamp = _stamp_decoder.decode(payload).stamp
     except (msgspec.DecodeError, msgspec.ValidationError):
         return log_time_ns
-    if not 0.0 < stamp < 1e10:
-        return log_time_ns
-    return int(stamp * 1e9)
+    return int(stamp * 1e9) if 0.0 < stamp < 1e10 else log_time_ns
 
 
 @dataclass
@@ -88,8 +86,8 @@ class McapRecording:
             message = self.keys.message_for(key)  # keys without a message get no schema
             schema_id = 0
             if message is not None:
-                name = message.__name__
-                schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=self._schemas[name])
+                schema = self._schemas[message.__name__]
+                schema_id = self._writer.register_schema(name=message.__name__, encoding="jsonschema", data=schema)
             channel = self._channels[key] = self._writer.register_channel(topic=key, message_encoding="json", schema_id=schema_id)
         return channel
 
