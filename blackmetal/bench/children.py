@@ -18,7 +18,6 @@ from typing import Any
 
 from blackmetal.runtime.harness import ServiceProcess, stop_in_order
 
-STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 #: How long children get to stop after SIGINT before they are killed.
 GRACE_S = 5.0
 
@@ -67,7 +66,7 @@ def stop_signal() -> int | None:
 def stopping_on_signals() -> Iterator[None]:
     """SIGINT and SIGTERM raise KeyboardInterrupt once (in the main thread); the former handlers come back at the end."""
     _state.signum, _state.held, _state.closing = None, False, False
-    previous = {sig: signal.signal(sig, _on_signal) for sig in STOP_SIGNALS}
+    previous = {sig: signal.signal(sig, _on_signal) for sig in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:

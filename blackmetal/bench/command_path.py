@@ -16,7 +16,7 @@ from blackmetal.schemas import Keys
 
 from . import peers
 from .peers import COMMAND_GAP_S, EXPRESS, RobotProcess, free_port, percentiles
-from .rig import KEYS, peer, robot_and_gateway, ros2_adapter, rss_mb, session, wait_polls
+from .rig import KEYS, client_service, peer, robot_and_gateway, rss_mb, session, wait_polls
 from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, over, rounds, spreads
 
 if TYPE_CHECKING:
@@ -36,20 +36,15 @@ def cmd_latency(samples: int, via_ros2: bool = False, ros2_in_line: bool = False
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack)
         adapter_port = free_port() if ros2_in_line else None
-        adapter = ros2_adapter(stack, zport, adapter_port) if via_ros2 else None
+        adapter = client_service(stack, "ros2", zport, adapter_port) if via_ros2 else None
         client = session(stack, adapter_port or zport)
+        key, payload = KEYS.cmd_vel, _json_twist
         if adapter is not None:
             from blackmetal.ros2.messages import RosCodec
 
             codec = RosCodec()
-            pub = client.declare_publisher(adapter.wait_ready()["keys"]["cmd_vel"], express=EXPRESS)
-
-            def payload(speed: float) -> bytes:
-                return codec.encode_twist(speed, 0.0)
-        else:
-            pub = client.declare_publisher(KEYS.cmd_vel, express=EXPRESS)
-            payload = _json_twist
-
+            key, payload = adapter.wait_ready()["keys"]["cmd_vel"], lambda speed: codec.encode_twist(speed, 0.0)
+        pub = client.declare_publisher(key, express=EXPRESS)
         wait_polls(robot)
         return command_latencies(pub, robot, samples, payload)
 
@@ -88,8 +83,7 @@ EStop = tuple["zenoh.Publisher", "zenoh.Publisher"]
 
 
 def estop_publishers(client: "zenoh.Session", keys: Keys = KEYS) -> EStop:
-    engage, release = (client.declare_publisher(key, express=EXPRESS) for key in (keys.estop, keys.estop_release))
-    return engage, release
+    return client.declare_publisher(keys.estop, express=EXPRESS), client.declare_publisher(keys.estop_release, express=EXPRESS)
 
 
 def _estop_rig(stack: ExitStack) -> tuple[RobotProcess, int, EStop]:
@@ -314,7 +308,7 @@ ROS2_CMD_VEL = Figure("ros2_cmd_vel", "ROS 2 /cmd_vel latency",
 ESTOP = Figure("estop", "e-stop latency", "latency: e-stop -> EMG_STOP at the robot socket, against cmd_vel ...",
                ("estop_to_robot_ms",), _estop, _estop_rows, needs=("cmd_vel",))  # fmt: skip
 ESTOP_FLOOD = Figure("estop_flood", "e-stop under a flood", "latency: e-stop while three processes flood cmd_vel/nav at full speed ...",
-                     ("estop_under_flood_ms",), lambda plan, out: {"estop_under_flood_ms": estop_under_flood(plan.count(10, 100))},
+                     ("estop_under_flood_ms",), lambda plan, out: {"estop_under_flood_ms": estop_under_flood(plan.pick(10, 100))},
                      lambda f: [_estop_flood_row(f["estop_under_flood_ms"])])  # fmt: skip
 FLOOD = Figure("flood", "cmd_vel flood", "cmd_vel flood ...", ("flood",),
-               lambda plan, out: {"flood": flood(5000.0, plan.seconds(0.3, 5.0))}, lambda f: [_flood_row(f["flood"])])  # fmt: skip
+               lambda plan, out: {"flood": flood(5000.0, plan.pick(0.3, 5.0))}, lambda f: [_flood_row(f["flood"])])  # fmt: skip

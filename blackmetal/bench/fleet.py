@@ -24,7 +24,6 @@ from .rig import session as client_session
 
 #: Every fleet robot's poll rate (Hz): the issue's figure.
 POLL_HZ = 50.0
-PROBE = "probe"
 #: The views count as started once both together use at most this much in a second (cores), or after SETTLE_MAX_S.
 SETTLED_CORES = 0.05
 SETTLE_MAX_S = 20.0
@@ -81,7 +80,7 @@ def fleet_figure(robots: int, seconds: float, samples: int, views: bool = False)
             sim_file = Path(folder) / "simulated.toml"
             processes["sim"] = service(stack, "sim", ["sim", "--robots", str(robots - 1), "--write-fleet", str(sim_file), *endpoint])
             simulated = load_fleet(sim_file)
-        probe = FleetRobot(robots, PROBE, "127.0.0.1", probe_robot.control_port, probe_robot.log_port, f"fleet/{PROBE}")
+        probe = FleetRobot(robots, "probe", "127.0.0.1", probe_robot.control_port, probe_robot.log_port, "fleet/probe")
         fleet_file = Path(folder) / "fleet.toml"
         fleet_file.write_text(write_fleet([*simulated, probe]))
         processes["gateway"] = service(

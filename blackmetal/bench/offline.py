@@ -58,20 +58,6 @@ def _fresh(snippet: str, *args: str) -> tuple[int, float]:
     return int(count), float(seconds)
 
 
-def mcap_replay(jsonl: Path) -> list[tuple[int, float]]:
-    """The same log written as an MCAP recording, replayed three times in fresh processes (file reading included)."""
-    from blackmetal.recording.writer import McapRecording
-
-    path = jsonl.with_suffix(".mcap")
-    recording = McapRecording(path, KEYS)
-    for i, line in enumerate(jsonl.read_bytes().splitlines()):
-        recording.write(KEYS.impulses, line, 1_795_000_000_000_000_000 + 10_000_000 * i)
-        if i % 100 == 99:  # a chunk per second at 100 Hz, as the recorder writes them
-            recording.flush()
-    recording.close()
-    return [_fresh(_MCAP_REPLAY_SNIPPET, str(path)) for _ in range(3)]
-
-
 def calibration_speed(samples: int) -> dict[str, float]:
     """The batch odometry on already-parsed columns (samples/s), one fit evaluation (samples/s), and one fit of a 2 m square pair (s)."""
     import numpy as np
@@ -134,7 +120,17 @@ def replay_throughput(samples: int, stream_samples: int, mcap: bool = True) -> d
         path.write_bytes(b"".join(log.jsonl().splitlines(keepends=True)[:samples]))
         replay_runs = [_fresh(_REPLAY_SNIPPET, str(path)) for _ in range(3)]
         stream_count, stream_seconds = _fresh(_STREAM_SNIPPET, str(path), str(stream_samples))
-        mcap_runs = mcap_replay(path) if mcap else []
+        mcap_runs = []
+        if mcap:  # the same log as an MCAP recording, replayed three times too
+            from blackmetal.recording.writer import McapRecording
+
+            recording = McapRecording(path.with_suffix(".mcap"), KEYS)
+            for i, line in enumerate(path.read_bytes().splitlines()):
+                recording.write(KEYS.impulses, line, 1_795_000_000_000_000_000 + 10_000_000 * i)
+                if i % 100 == 99:  # a chunk per second at 100 Hz, as the recorder writes them
+                    recording.flush()
+            recording.close()
+            mcap_runs = [_fresh(_MCAP_REPLAY_SNIPPET, str(recording.path)) for _ in range(3)]
     rates = [count / seconds for count, seconds in replay_runs]
     stream_rate = stream_count / stream_seconds
     mcap_figures = {}
@@ -203,7 +199,7 @@ def _replay(plan: Plan, out: Result) -> Result:
     if without_mcap is not None:
         plan.progress(f"replay from MCAP: skipped, {without_mcap}")
         out["skipped"]["replay_mcap"] = without_mcap
-    replay = replay_throughput(plan.count(50_000, 1_000_000), plan.count(5_000, 100_000), mcap=without_mcap is None)
+    replay = replay_throughput(plan.pick(50_000, 1_000_000), plan.pick(5_000, 100_000), mcap=without_mcap is None)
     return {"replay": replay if without_mcap is None else {**replay, "mcap": {"skipped": without_mcap}}}
 
 
@@ -244,6 +240,6 @@ def _arbiter_rows(f: Result) -> list[Row]:
 
 REPLAY = Figure("replay", "replay throughput", "replay throughput against the streaming path ...", ("replay",), _replay, _replay_rows)
 CALIBRATION = Figure("calibration", "calibration speed", "calibration: the batch odometry on parsed columns, one fit ...", ("calibration",),
-                     lambda plan, out: {"calibration": calibration_speed(plan.count(200_000, 2_000_000))}, _calibration_rows)  # fmt: skip
+                     lambda plan, out: {"calibration": calibration_speed(plan.pick(200_000, 2_000_000))}, _calibration_rows)  # fmt: skip
 ARBITER = Figure("arbiter", "arbiter cost", "the arbiter's cost per command, against the gateway core's whole cmd_vel handling ...", ("arbiter",),
-                 lambda plan, out: {"arbiter": arbiter_cost(plan.count(5_000, 50_000))}, _arbiter_rows)  # fmt: skip
+                 lambda plan, out: {"arbiter": arbiter_cost(plan.pick(5_000, 50_000))}, _arbiter_rows)  # fmt: skip

@@ -16,7 +16,6 @@ import sys
 import threading
 import time
 from contextlib import ExitStack
-from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any
 
 from blackmetal import wire
@@ -49,108 +48,86 @@ def _zenoh_conf(listen: int | None = None, connect: int | None = None) -> "zenoh
     return conf
 
 
-@dataclass
-class MiniRobot:
-    """A robot that answers instantly: status for every command, zeros for polls, a log report per second."""
-
-    control_port: int = 0
-    log_port: int = 0
-    arrivals: dict[float, float] = field(default_factory=dict)  # right wheel speed -> arrival (Unix time, kernel stamp)
-    velocity_commands: int = 0
-    emg_stops: list[float] = field(default_factory=list)  # arrival of every EMG_STOP (Unix time, kernel stamp)
-    poll_times: list[float] = field(default_factory=list)
-    lock: threading.Lock = field(default_factory=threading.Lock)  # the robot's thread against a dump
-
-    def start(self) -> "MiniRobot":
-        self._stop = threading.Event()
-        self._sel = selectors.DefaultSelector()
-        for kind in ("control", "log"):
-            server = socket.socket()
-            server.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            server.bind(("127.0.0.1", 0))
-            server.listen()
-            server.setblocking(False)
-            setattr(self, f"{kind}_port", server.getsockname()[1])
-            self._sel.register(server, selectors.EVENT_READ, ("accept", kind))
-        self._thread = threading.Thread(target=self._run, daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(2)
-
-    def _run(self) -> None:
-        decoders: dict[socket.socket, RequestDecoder] = {}
-        log_clients: list[socket.socket] = []
-        next_log = time.monotonic()
-        while not self._stop.is_set():
-            for key, _ in self._sel.select(0.05):
-                kind, port = key.data
-                sock: socket.socket = key.fileobj  # type: ignore[assignment]
-                if kind == "accept":
-                    conn, _ = sock.accept()
-                    conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-                    conn.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps arrivals
-                    if port == "control":
-                        decoders[conn] = RequestDecoder()
-                        self._sel.register(conn, selectors.EVENT_READ, ("control", None))
-                    else:
-                        log_clients.append(conn)
+def _serve(sel: selectors.BaseSelector, state: dict[str, Any], lock: threading.Lock) -> None:
+    """The robot's thread: status for every command, zeros for polls, a log report per second; arrivals kernel-stamped."""
+    decoders: dict[socket.socket, RequestDecoder] = {}
+    log_clients: list[socket.socket] = []
+    next_log = time.monotonic()
+    while True:
+        for key, _ in sel.select(0.05):
+            kind, port = key.data
+            sock: socket.socket = key.fileobj  # type: ignore[assignment]
+            if kind == "accept":
+                conn, _ = sock.accept()
+                conn.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+                conn.setsockopt(socket.SOL_SOCKET, SO_TIMESTAMPNS, 1)  # the kernel stamps arrivals
+                if port == "control":
+                    decoders[conn] = RequestDecoder()
+                    sel.register(conn, selectors.EVENT_READ, ("control", None))
+                else:
+                    log_clients.append(conn)
+                continue
+            try:
+                data, ancillary, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
+            except OSError:
+                data, ancillary = b"", []
+            now = time.time()
+            for level, kind_, payload in ancillary:
+                if level == socket.SOL_SOCKET and kind_ == SO_TIMESTAMPNS and len(payload) >= 16:
+                    seconds, nanos = struct.unpack("qq", payload[:16])
+                    now = seconds + nanos * 1e-9  # when the bytes reached the socket, not when we woke up
+            if not data:
+                sel.unregister(sock)
+                decoders.pop(sock, None)
+                sock.close()
+                continue
+            out = bytearray()
+            for request in decoders[sock].feed(data):
+                if not isinstance(request, Request):
                     continue
-                try:
-                    data, ancillary, _, _ = sock.recvmsg(65536, socket.CMSG_SPACE(16))
-                except OSError:
-                    data, ancillary = b"", []
-                now = time.time()
-                for level, kind_, payload in ancillary:
-                    if level == socket.SOL_SOCKET and kind_ == SO_TIMESTAMPNS and len(payload) >= 16:
-                        seconds, nanos = struct.unpack("qq", payload[:16])
-                        now = seconds + nanos * 1e-9  # when the bytes reached the socket, not when we woke up
-                if not data:
-                    self._sel.unregister(sock)
-                    decoders.pop(sock, None)
-                    sock.close()
-                    continue
-                out = bytearray()
-                for request in decoders[sock].feed(data):
-                    if not isinstance(request, Request):
-                        continue
-                    out += wire.encode_status()
+                out += wire.encode_status()
+                with lock:
                     if request.command is CommandCode.SET_LR_WHEEL_VELOCITY:
-                        with self.lock:
-                            self.velocity_commands += 1
-                            self.arrivals[float(request.right or 0.0)] = now
+                        state["commands"] += 1
+                        state["arrivals"][float(request.right or 0.0)] = now
                     elif request.command is CommandCode.EMG_STOP:
-                        with self.lock:
-                            self.emg_stops.append(now)
+                        state["emg_stops"].append(now)
                     elif request.command is CommandCode.GET_LR_WHEEL_VELOCITY:
-                        self.poll_times.append(now)
+                        state["polls"].append(now)
                         out += wire.encode_wheel_speeds(left=0, right=0)
+            try:
+                sock.sendall(out)
+            except OSError:
+                pass
+        if time.monotonic() >= next_log:
+            next_log += 1.0
+            for client in list(log_clients):
                 try:
-                    sock.sendall(out)
+                    client.sendall(wire.encode_log_report(1, 1))
                 except OSError:
-                    pass
-            if time.monotonic() >= next_log:
-                next_log += 1.0
-                for client in list(log_clients):
-                    try:
-                        client.sendall(wire.encode_log_report(1, 1))
-                    except OSError:
-                        log_clients.remove(client)
+                    log_clients.remove(client)
 
 
 def robot_main() -> None:
-    """Child process: a MiniRobot; announces its ports, then dumps its arrivals as JSON on 'dump', ends on SIGINT or EOF."""
-    robot = MiniRobot().start()
-    announce_ready("mini-robot", control=robot.control_port, log=robot.log_port)
+    """Child process: a robot that answers at once; announces its ports, dumps what arrived as JSON on 'dump', ends on SIGINT or EOF.
+
+    ``arrivals`` maps each command's right wheel speed to its arrival; every time is Unix time, the kernel's receive stamp.
+    """
+    state: dict[str, Any] = {"arrivals": {}, "polls": [], "commands": 0, "emg_stops": []}
+    lock = threading.Lock()
+    sel = selectors.DefaultSelector()
+    ports = {}
+    for kind in ("control", "log"):
+        server = socket.create_server(("127.0.0.1", 0))  # SO_REUSEADDR, as a robot's server socket
+        server.setblocking(False)
+        ports[kind] = server.getsockname()[1]
+        sel.register(server, selectors.EVENT_READ, ("accept", kind))
+    threading.Thread(target=_serve, args=(sel, state, lock), daemon=True).start()
+    announce_ready("mini-robot", **ports)
     for line in sys.stdin:
         if line.strip() == "dump":
-            with robot.lock:
-                arrivals = list(robot.arrivals.items())
-                state = {"arrivals": arrivals, "polls": robot.poll_times, "commands": robot.velocity_commands, "emg_stops": robot.emg_stops}
-                print(json.dumps(state), flush=True)
-    robot.stop()
+            with lock:
+                print(json.dumps({**state, "arrivals": list(state["arrivals"].items())}), flush=True)
 
 
 class RobotProcess:

@@ -46,20 +46,17 @@ def cpu_window(pids: dict[str, int], seconds: float) -> dict[str, float]:
     return {name: (cpu1[name] - cpu0[name]) / (t1 - t0) for name in pids}
 
 
-def service(stack: ExitStack, name: str, command: list[str]) -> ServiceProcess:
-    """``blackmetal COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
-    child = spawn(name, ["-m", "blackmetal", *command])
-    stack.callback(child.stop)
+def service(stack: ExitStack, name: str, command: list[str], module: str = "blackmetal", timeout: float = 10.0) -> ServiceProcess:
+    """``python -m MODULE COMMAND...`` as a child, stopped when ``stack`` closes; returns once it says it is ready."""
+    child = spawn(name, ["-m", module, *command])
+    stack.callback(child.stop, timeout=timeout)
     child.wait_ready()
     return child
 
 
 def peer(stack: ExitStack, name: str, args: list[str]) -> ServiceProcess:
-    """``python -m blackmetal.bench NAME ARGS``, one of the bench's own peer processes, as :func:`service` starts one."""
-    child = spawn(name, ["-m", "blackmetal.bench", name, *args])
-    stack.callback(child.stop, timeout=3)
-    child.wait_ready()
-    return child
+    """One of the bench's own peer processes (``python -m blackmetal.bench NAME ARGS``)."""
+    return service(stack, name, [name, *args], "blackmetal.bench", timeout=3)
 
 
 def latch_args(stack: ExitStack) -> list[str]:
@@ -68,18 +65,10 @@ def latch_args(stack: ExitStack) -> list[str]:
     return ["--state-dir", folder, "--unsafe-start-released"]
 
 
-def _client_of(zport: int, listen: int | None) -> list[str]:
-    return ["-e", f"tcp/127.0.0.1:{zport}"] + (["-l", f"tcp/127.0.0.1:{listen}"] if listen else [])
-
-
-def odometry(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
-    """The odometry, a client of the gateway's endpoint; with ``listen``, a peer that clients can reach directly."""
-    return service(stack, "odometry", ["odometry", *_client_of(zport, listen)])
-
-
-def ros2_adapter(stack: ExitStack, zport: int, listen: int | None = None) -> ServiceProcess:
-    """``blackmetal ros2`` (rmw_zenoh flavour), a client of the gateway's endpoint; with ``listen``, a peer ROS nodes reach directly."""
-    return service(stack, "ros2", ["ros2", *_client_of(zport, listen)])
+def client_service(stack: ExitStack, command: str, zport: int, listen: int | None = None) -> ServiceProcess:
+    """``blackmetal odometry`` or ``ros2``, a client of the gateway's endpoint; with ``listen``, a peer others reach directly."""
+    listening = ["-l", f"tcp/127.0.0.1:{listen}"] if listen else []
+    return service(stack, command, [command, "-e", f"tcp/127.0.0.1:{zport}", *listening])
 
 
 def session(stack: ExitStack, zport: int) -> "zenoh.Session":

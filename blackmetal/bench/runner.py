@@ -11,7 +11,7 @@ import traceback
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 from blackmetal.runtime.harness import ChildFailed
 from blackmetal.schemas import BlackmetalError, MissingExtra, require_extra
@@ -21,6 +21,7 @@ from . import children
 #: The modules each optional extra brings, as the commands that need them check them.
 EXTRA_MODULES: dict[str, tuple[str, ...]] = {"ros2": ("rosbags", "xxhash"), "record": ("mcap",)}
 
+T = TypeVar("T")
 Row = tuple[str, str, str, str]
 Result = dict[str, Any]
 
@@ -44,21 +45,19 @@ class Plan:
 
     @property
     def rounds(self) -> int:
-        return 1 if self.quick else 3
+        return self.pick(1, 3)
 
     @property
     def samples(self) -> int:
-        return 40 if self.quick else 200
+        return self.pick(40, 200)
 
     @property
     def warmups(self) -> dict[str, float]:
         """--quick only proves every figure runs end to end: its warm-ups (before a window) are short, its figures mean nothing."""
         return {"warmup": 0.3} if self.quick else {}
 
-    def seconds(self, quick: float, full: float) -> float:
-        return quick if self.quick else full
-
-    def count(self, quick: int, full: int) -> int:
+    def pick(self, quick: T, full: T) -> T:
+        """``quick`` with --quick, else ``full``: a figure's seconds or sample count."""
         return quick if self.quick else full
 
 
@@ -77,10 +76,6 @@ class Figure:
     within: str | None = None  # a figure that measures this one too: when that one runs, this one is not run apart
 
 
-def spread(values: list[float]) -> dict[str, float]:
-    return {"median": statistics.median(values), "min": min(values), "max": max(values)}
-
-
 def noisy(values: list[float]) -> bool:
     return len(values) > 1 and min(values) > 0 and max(values) / min(values) > 2.0
 
@@ -97,7 +92,7 @@ def rounds(plan: Plan, **latencies: Callable[[], dict[str, float]]) -> dict[str,
 
 
 def spreads(measured: dict[str, list[float]]) -> dict[str, Any]:
-    return {"p50": spread(measured["p50"]), "p99": spread(measured["p99"])}
+    return {p: {"median": statistics.median(v), "min": min(v), "max": max(v)} for p, v in measured.items()}
 
 
 def over(figure: dict[str, list[float]], baseline: dict[str, list[float]], which: str = "p50") -> float:

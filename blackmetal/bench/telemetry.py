@@ -14,7 +14,7 @@ from pathlib import Path
 from . import peers
 from .children import spawn
 from .peers import free_port, percentiles
-from .rig import KEYS, cpu_seconds, cpu_window, odometry, robot_and_gateway, ros2_adapter, rss_mb, service, session, wait_polls
+from .rig import KEYS, client_service, cpu_seconds, cpu_window, robot_and_gateway, rss_mb, service, session, wait_polls
 from .runner import Figure, Plan, Result, Row, at_most, latency_rows, met, noisy, rounds, spreads
 
 
@@ -23,8 +23,8 @@ def ros2_odom_rate(seconds: float, warmup: float = 1.0) -> dict[str, float]:
     counts: collections.Counter[str] = collections.Counter()
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, 100.0)
-        odometry(stack, zport)
-        adapter = ros2_adapter(stack, zport)
+        client_service(stack, "odometry", zport)
+        adapter = client_service(stack, "ros2", zport)
         client = session(stack, zport)
         client.declare_subscriber(KEYS.pose, lambda s: counts.update(("pose",)))
         client.declare_subscriber(adapter.wait_ready()["keys"]["odom"], lambda s: counts.update(("odom",)))
@@ -46,7 +46,7 @@ def pose_latency(seconds: float) -> dict[str, float]:
     with ExitStack() as stack:
         _, zport, _ = robot_and_gateway(stack)
         oport = free_port()
-        odometry(stack, zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
+        client_service(stack, "odometry", zport, listen=oport)  # gateway -> odometry -> this client: two hops, as the baseline
         client = session(stack, oport)
         client.declare_subscriber(KEYS.pose, lambda s: latencies.append(time.time() - decode(Pose, s.payload.to_bytes()).stamp))
         deadline = time.monotonic() + 20
@@ -87,7 +87,7 @@ def recorder_load(poll_hz: float, seconds: float, warmup: float = 1.0) -> dict[s
     """``blackmetal record`` of every key while the gateway polls at ``poll_hz`` and the odometry runs: CPU and bytes/s."""
     with ExitStack() as stack:
         robot, zport, _ = robot_and_gateway(stack, poll_hz)
-        odometry(stack, zport)
+        client_service(stack, "odometry", zport)
         path = Path(stack.enter_context(tempfile.TemporaryDirectory())) / "bench.mcap"
         recorder = service(stack, "record", ["record", "-o", str(path), "-e", f"tcp/127.0.0.1:{zport}"])
         wait_polls(robot)
@@ -116,7 +116,7 @@ def memory_and_cpu(seconds: float, warmup: float = 1.0) -> dict[str, float]:
         bare.stop(signal.SIGKILL)
     with ExitStack() as stack:
         robot, zport, gw = robot_and_gateway(stack, 100.0)
-        odo = odometry(stack, zport)
+        odo = client_service(stack, "odometry", zport)
         wait_polls(robot)
         time.sleep(warmup)
         start_rss = (rss_mb(gw.proc.pid), rss_mb(odo.proc.pid))
@@ -141,7 +141,7 @@ def _pose(plan: Plan, out: Result) -> Result:
         hop = peers.zenoh_hop(plan.samples // 2, gap=(0.019, 0.021))
         return {"p50_ms": hop["rtt_p50_ms"], "p99_ms": hop["rtt_p99_ms"]}
 
-    measured = rounds(plan, two=two_hops, pose=lambda: pose_latency(plan.seconds(0.5, 4.0)))
+    measured = rounds(plan, two=two_hops, pose=lambda: pose_latency(plan.pick(0.5, 4.0)))
     two, pose = measured["two"], measured["pose"]
     ratio = statistics.median(pose["p50"]) / statistics.median(two["p50"])
     return {
@@ -190,14 +190,14 @@ def _memory_rows(f: Result) -> list[Row]:
 
 
 ROS2_ODOM = Figure("ros2_odom", "ROS 2 /odom rate", "ROS 2 /odom rate at 100 Hz polling, against the pose rate ...", ("ros2_odom",),
-                   lambda plan, out: {"ros2_odom": ros2_odom_rate(plan.seconds(0.5, 10.0), **plan.warmups)}, _ros2_odom_rows, extra="ros2")  # fmt: skip
+                   lambda plan, out: {"ros2_odom": ros2_odom_rate(plan.pick(0.5, 10.0), **plan.warmups)}, _ros2_odom_rows, extra="ros2")  # fmt: skip
 POSE = Figure("pose", "impulse -> Pose latency", "latency: impulse reply -> Pose at a client, against two Zenoh hops ...",
               ("two_hops_ms", "impulse_to_pose_ms"), _pose, _pose_rows)  # fmt: skip
 POLL = Figure("poll", "poll rate", "poll rate at 100 and 200 Hz ...", ("poll",),
-              lambda plan, out: {"poll": {str(int(hz)): poll_rate(hz, plan.seconds(0.5, 5.0), **plan.warmups) for hz in (100.0, 200.0)}},
+              lambda plan, out: {"poll": {str(int(hz)): poll_rate(hz, plan.pick(0.5, 5.0), **plan.warmups) for hz in (100.0, 200.0)}},
               _poll_rows)  # fmt: skip
 RECORDER = Figure("recorder", "recorder load", "recorder CPU and bytes/s at 100 and 200 Hz ...", ("recorder",),
-                  lambda plan, out: {"recorder": {str(int(hz)): recorder_load(hz, plan.seconds(0.5, 10.0), **plan.warmups) for hz in (100.0, 200.0)}},
+                  lambda plan, out: {"recorder": {str(int(hz)): recorder_load(hz, plan.pick(0.5, 10.0), **plan.warmups) for hz in (100.0, 200.0)}},
                   _recorder_rows, extra="record")  # fmt: skip
 MEMORY = Figure("memory", "memory and CPU", "memory and CPU at 100 Hz ...", ("memory",),
-                lambda plan, out: {"memory": memory_and_cpu(plan.seconds(1.0, 60.0), **plan.warmups)}, _memory_rows)  # fmt: skip
+                lambda plan, out: {"memory": memory_and_cpu(plan.pick(1.0, 60.0), **plan.warmups)}, _memory_rows)  # fmt: skip

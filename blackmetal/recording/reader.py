@@ -95,29 +95,26 @@ _MESSAGE, _CHANNEL = 0x05, 0x04
 #: Decompressed chunk bytes read in one vectorised pass (bounds the memory a long recording takes).
 _BATCH = 32 << 20
 _MESSAGE_HEADER = 22  # channel id u16, sequence u32, log time u64, publish time u64
+_unpack_length = struct.Struct("<Q").unpack_from
+_unpack_channel = struct.Struct("<HHI").unpack_from  # channel id, schema id, topic length
 
 
-def _payload_spans(data: bytes, wanted: Callable[[str], bool], ids: set[int]) -> tuple[list[int], list[int]]:
-    """Start and end offsets of the payloads of wanted channels in one decompressed chunk (channel ids learnt on the way)."""
-    unpack_length = struct.Struct("<Q").unpack_from
-    unpack_channel = struct.Struct("<HHI").unpack_from
-    starts: list[int] = []
-    ends: list[int] = []
-    add_start, add_end = starts.append, ends.append
+def _payloads(data: bytes, wanted: Callable[[str], bool], ids: set[int]) -> list[bytes]:
+    """The payloads of wanted channels in one decompressed chunk (channel ids learnt on the way)."""
+    payloads: list[bytes] = []
     offset, size = 0, len(data)
     while offset + 9 <= size:
         opcode = data[offset]
         body = offset + 9
-        offset = body + unpack_length(data, offset + 1)[0]
+        offset = body + _unpack_length(data, offset + 1)[0]
         if opcode == _MESSAGE:
             if data[body] | (data[body + 1] << 8) in ids:
-                add_start(body + _MESSAGE_HEADER)
-                add_end(offset)
+                payloads.append(data[body + _MESSAGE_HEADER : offset])
         elif opcode == _CHANNEL:
-            channel_id, _schema, topic_length = unpack_channel(data, body)
+            channel_id, _schema, topic_length = _unpack_channel(data, body)
             if wanted(data[body + 8 : body + 8 + topic_length].decode("utf-8", "replace")):
                 ids.add(channel_id)
-    return starts, ends
+    return payloads
 
 
 #: Chunks still being walked below this many, the rest go record by record in Python.
@@ -147,14 +144,13 @@ def _record_table(data: bytes, bounds: list[int]) -> Any:
         at = at + 9 + lengths[-1]
         live = at < end
         at, end = at[live], end[live]
-    unpack_length = struct.Struct("<Q").unpack_from
     rest_starts: list[int] = []
     rest_lengths: list[int] = []
     for position, stop in zip(at.tolist(), end.tolist(), strict=True):
         while position < stop:
             if position + 9 > stop:
                 return None
-            length = unpack_length(data, position + 1)[0]
+            length = _unpack_length(data, position + 1)[0]
             if position + 9 + length > stop:
                 return None
             rest_starts.append(position)
@@ -175,14 +171,12 @@ def _chunks_as_lines(chunks: list[bytes], wanted: Callable[[str], bool], ids: se
         bounds.append(bounds[-1] + len(chunk))
     table = _record_table(data, bounds)
     if table is None:  # a damaged chunk: record by record, skipping what cannot be read
-        spans = [(chunk, *_payload_spans(chunk, wanted, ids)) for chunk in chunks]
-        return b"\n".join(b"\n".join([c[a:b] for a, b in zip(starts, ends, strict=True)]) for c, starts, ends in spans)
+        return b"\n".join(b"\n".join(_payloads(chunk, wanted, ids)) for chunk in chunks)
     starts, lengths = table
     raw = np.frombuffer(data, np.uint8)
     opcodes = raw[starts]
-    unpack_channel = struct.Struct("<HHI").unpack_from
     for start in np.sort(starts[opcodes == _CHANNEL]).tolist():
-        channel_id, _schema, topic_length = unpack_channel(data, start + 9)
+        channel_id, _schema, topic_length = _unpack_channel(data, start + 9)
         if wanted(data[start + 17 : start + 17 + topic_length].decode("utf-8", "replace")):
             ids.add(channel_id)
     is_message = (opcodes == _MESSAGE) & (lengths >= _MESSAGE_HEADER)

@@ -2,22 +2,30 @@
 
 Payloads go in byte for byte, invalid ones included; known messages get their JSON Schema. Chunks are
 closed at least once a second, so a killed recorder loses at most the last second (docs/commands/recording.md).
+The recorder writes on a thread of its own: the Zenoh callbacks only queue.
 """
 
 from __future__ import annotations
 
 import json
+import threading
 import time
+from collections import deque
+from contextlib import suppress
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, TYPE_CHECKING, Any
 
 import msgspec
 
-from blackmetal.schemas import ConfigError, Keys, json_schemas, require_extra
+from blackmetal.schemas import ConfigError, Keys, json_schemas, payload_bytes, require_extra
+
+if TYPE_CHECKING:
+    import zenoh
 
 #: Zstandard-compressed chunks of at most this many bytes (closed earlier by flush()).
 CHUNK_BYTES = 1 << 20
+DRAIN_PERIOD_S = 0.02
 
 
 class _Stamped(msgspec.Struct):
@@ -33,9 +41,7 @@ def publish_time_ns(payload: bytes, log_time_ns: int) -> int:
         stamp = _stamp_decoder.decode(payload).stamp
     except (msgspec.DecodeError, msgspec.ValidationError):
         return log_time_ns
-    if not 0.0 < stamp < 1e10:
-        return log_time_ns
-    return int(stamp * 1e9)
+    return int(stamp * 1e9) if 0.0 < stamp < 1e10 else log_time_ns
 
 
 @dataclass
@@ -80,8 +86,8 @@ class McapRecording:
             message = self.keys.message_for(key)  # keys without a message get no schema
             schema_id = 0
             if message is not None:
-                name = message.__name__
-                schema_id = self._writer.register_schema(name=name, encoding="jsonschema", data=self._schemas[name])
+                schema = self._schemas[message.__name__]
+                schema_id = self._writer.register_schema(name=message.__name__, encoding="jsonschema", data=schema)
             channel = self._channels[key] = self._writer.register_channel(topic=key, message_encoding="json", schema_id=schema_id)
         return channel
 
@@ -118,3 +124,57 @@ class McapRecording:
     def progress(self, elapsed: float) -> str:
         per_key = ", ".join(f"{key.removeprefix(self.keys.prefix + '/')} {n}" for key, n in sorted(self.stats.items()))
         return f"recording {self.files[-1].name}: {elapsed:.0f} s, {self.total_bytes / 1e6:.2f} MB | {per_key or 'waiting for messages'}"
+
+
+class SessionRecorder:
+    """Subscribes to ``keyexprs`` on ``session`` and writes every sample to ``recording`` until stopped."""
+
+    def __init__(self, session: "zenoh.Session", keyexprs: list[str], recording: McapRecording, flush_period: float = 1.0) -> None:
+        self.recording = recording
+        self.flush_period = flush_period
+        self.error: BaseException | None = None
+        self._queue: deque[tuple[str, bytes, int]] = deque()
+        self._notes: deque[tuple[str, dict[str, str]]] = deque()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="mcap-writer", daemon=True)
+        self._thread.start()
+        self._subscribers: list[Any] = [session.declare_subscriber(k, self._on_sample) for k in keyexprs]
+
+    def _on_sample(self, sample: "zenoh.Sample") -> None:
+        arrival = time.time_ns()
+        self._queue.append((str(sample.key_expr), payload_bytes(sample), arrival))
+
+    def note(self, name: str, data: dict[str, str]) -> None:
+        """An MCAP metadata record (e.g. where a run starts and ends), written by the writer thread."""
+        self._notes.append((name, data))
+
+    def _drain(self) -> None:
+        queue, write = self._queue, self.recording.write
+        while queue:
+            key, payload, arrival = queue.popleft()
+            write(key, payload, arrival)
+        while self._notes:
+            self.recording.metadata(*self._notes.popleft())
+
+    def _run(self) -> None:
+        next_flush = time.monotonic() + self.flush_period
+        try:
+            while not self._stop.wait(DRAIN_PERIOD_S):
+                self._drain()
+                if time.monotonic() >= next_flush:
+                    self.recording.flush()
+                    next_flush = time.monotonic() + self.flush_period
+        except BaseException as exc:  # a full disk: reported by stop()
+            self.error = exc
+
+    def stop(self) -> None:
+        """Undeclare, write what is queued, finish the file. Idempotent."""
+        for subscriber in self._subscribers:
+            with suppress(Exception):
+                subscriber.undeclare()
+        self._subscribers = []
+        self._stop.set()
+        self._thread.join()
+        if self.error is None:
+            self._drain()
+        self.recording.close()

@@ -13,8 +13,7 @@ import sys
 import time
 from pathlib import Path
 
-from blackmetal.recording.recorder import SessionRecorder
-from blackmetal.recording.writer import McapRecording
+from blackmetal.recording.writer import McapRecording, SessionRecorder
 from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import ConfigError, require_extra

@@ -26,8 +26,7 @@ from typing import Any
 import zenoh
 
 from blackmetal.odometry_service.calibration import centre_of_gravity
-from blackmetal.recording.recorder import SessionRecorder
-from blackmetal.recording.writer import McapRecording
+from blackmetal.recording.writer import McapRecording, SessionRecorder
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.schemas import Pose, Twist, Vector3, encode, require_extra
 
