@@ -56,13 +56,8 @@ SERVICE_TYPES = {service.name: service.ros_type for service in services()}
 SET_CALLS = ("set_parameters", "set_parameters_atomically")
 
 
-class Query:
-    """What a query of the core asks, so its replies go where they belong."""
-
-    HEALTH = "health"
-    RESET = "reset"
-    PARAMS = "params"
-    PARAMS_SET = "params_set"
+#: What a query of the core asks, so its replies go where they belong.
+ASK_HEALTH, ASK_RESET, ASK_PARAMS, ASK_PARAMS_SET = "health", "reset", "params", "params_set"
 
 
 def decoded(reporter: ErrorReporter, kind: type[T], payload: bytes, key: str, now: float) -> T | None:
@@ -144,11 +139,11 @@ class ServiceCalls:
                     self._finish(other, False, f"superseded: set_estop {state} was called since", now)
             self._put_estop(pending, now)
         else:
-            self._ask(Query.RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
+            self._ask(ASK_RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
         self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))
-        self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
+        self._ask(ASK_HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
         pending.repeat_at = now + ESTOP_REPEAT_S
 
     def _ask(self, what: str, key: str, payload: bytes | None, call: int | None, timeout: float) -> None:
@@ -157,7 +152,7 @@ class ServiceCalls:
         self.output.query(key, payload, self._next_tag, timeout)
 
     def ask_params(self) -> None:
-        self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
+        self._ask(ASK_PARAMS, self.keys.params, None, None, self.options.service_timeout)
 
     def on_params(self, payload: bytes, now: float) -> None:
         table = decoded(self.reporter, GatewayParams, payload, self.keys.params, now)
@@ -197,7 +192,7 @@ class ServiceCalls:
         if not plan.values:
             return self._answer_set(pending, None, now)
         self.pending[pending.call] = pending
-        self._ask(Query.PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=plan.values)), pending.call, self.options.service_timeout)
+        self._ask(ASK_PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=plan.values)), pending.call, self.options.service_timeout)
 
     def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
         """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
@@ -221,14 +216,14 @@ class ServiceCalls:
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         what, call = self.queries.get(tag, ("", None))
-        if what == Query.PARAMS:
+        if what == ASK_PARAMS:
             if ok:
                 self.on_params(payload, now)
             return
         pending = self.pending.get(call) if call is not None else None
         if pending is None:
             return
-        if what == Query.PARAMS_SET:
+        if what == ASK_PARAMS_SET:
             try:
                 if not ok:
                     reason = payload.decode(errors="replace") or "no reason given"
@@ -251,12 +246,12 @@ class ServiceCalls:
 
     def on_query_done(self, tag: int, now: float) -> None:
         """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
-        what, call = self.queries.pop(tag, (Query.HEALTH, None))
+        what, call = self.queries.pop(tag, (ASK_HEALTH, None))
         pending = self.pending.get(call) if call is not None else None
         if pending is not None:
             who, key, nothing = (
                 ("gateway", self.keys.params_set, ": nothing was set")
-                if what == Query.PARAMS_SET
+                if what == ASK_PARAMS_SET
                 else ("odometry", self.keys.odometry_reset, "")
             )
             self._fail(pending, f"no {who} answered on {key} (is it running on prefix {self.keys.prefix}?){nothing}", now)

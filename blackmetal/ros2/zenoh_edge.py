@@ -58,10 +58,6 @@ RING = 256
 HEARTBEAT_S = 0.5
 
 
-def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
-    return lambda sample: put(payload_bytes(sample))
-
-
 @dataclass
 class _RosPublisher:
     """A Zenoh publisher on a ROS topic; with rmw_zenoh, each sample carries a rising sequence number.
@@ -209,6 +205,8 @@ class Ros2Zenoh(ZenohEdge):
         self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
 
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
+        import zenoh
+
         driver, core = host.driver, host.core
         intake = self.intake(loop, on_error=driver.on_error(), lock=host.lock)
         self._host = host
@@ -243,10 +241,15 @@ class Ros2Zenoh(ZenohEdge):
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
             if entry is not None:
-                self._watch(topic, entry.publisher, matched)
+                self.watch_matching(entry.publisher, lambda m, t=topic: matched((t, m)))
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
-            self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
+            put_alive = intake.channel(f"alive {who}", on_alive, capacity=16, priority=9)
+            self._entities.append(
+                self.session.liveliness().declare_subscriber(
+                    key, lambda s, put=put_alive: put(s.kind == zenoh.SampleKind.PUT), history=True
+                )
+            )
         for service, key in self.service_keys.items():
             take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
@@ -254,9 +257,6 @@ class Ros2Zenoh(ZenohEdge):
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
         return intake
-
-    def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
-        self.watch_matching(publisher, lambda matched: put((topic, matched)))
 
     def follow(self, streams: frozenset[str]) -> None:
         """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
@@ -270,7 +270,7 @@ class Ros2Zenoh(ZenohEdge):
 
                     self._followed[name] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
                 else:
-                    self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
+                    self._followed[name] = self.session.declare_subscriber(key, lambda sample, put=put: put(payload_bytes(sample)))
 
     def following(self) -> bool:
         return bool(self._followed)
@@ -298,14 +298,6 @@ class Ros2Zenoh(ZenohEdge):
                         break
                     sample = ring.try_recv()
         return taken
-
-    def _alive(self, key: str, put: Callable[[bool], None]) -> None:
-        import zenoh
-
-        def on_sample(sample: "zenoh.Sample") -> None:
-            put(sample.kind == zenoh.SampleKind.PUT)
-
-        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
     def _take_call(self, service: str, query: "zenoh.Query") -> None:
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
