@@ -149,10 +149,6 @@ def rmw_zenoh_data_key(domain_id: int, topic: str, ros_type: str, type_hash: str
     return f"{domain_id}/{topic.strip('/')}/{dds_type(ros_type)}/{type_hash}"
 
 
-def bridge_data_key(topic: str) -> str:
-    return topic.strip("/")
-
-
 @dataclass(frozen=True, slots=True)
 class NodeIdentity:
     """Who we are in the ROS graph: domain, Zenoh session id, node name and namespace (in the root enclave, ``/``)."""

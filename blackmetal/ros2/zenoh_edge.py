@@ -34,7 +34,6 @@ from .naming import (
     Qos,
     ServiceRole,
     attachment,
-    bridge_data_key,
     gid_of,
     normalise_namespace,
     rmw_zenoh_data_key,
@@ -56,6 +55,10 @@ RING = 256
 
 #: rmw_zenoh's SAMPLE_MISS_DETECTION_HEARTBEAT_PERIOD (ms) for a reliable transient-local publisher (rmw_publisher_data.cpp).
 HEARTBEAT_S = 0.5
+
+
+def _payloads_to(put: Callable[[bytes], None]) -> Callable[[Any], None]:
+    return lambda sample: put(payload_bytes(sample))
 
 
 @dataclass
@@ -116,7 +119,7 @@ class Ros2Zenoh(ZenohEdge):
             """The entity's key and, with rmw_zenoh, its GID (its token goes to :attr:`tokens`)."""
             entity_id = next(ids)
             if flavor is not Flavor.RMW_ZENOH:
-                return bridge_data_key(name), None
+                return name.strip("/"), None  # zenoh-bridge-ros2dds: the topic name
             type_hash = type_hash_of(distro, codec.type_hash(ros_type))
             token = node.entity_token(entity_id, kind, name, ros_type, type_hash, qos)
             self.tokens.append(token)
@@ -205,8 +208,6 @@ class Ros2Zenoh(ZenohEdge):
         self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
 
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
-        import zenoh
-
         driver, core = host.driver, host.core
         intake = self.intake(loop, on_error=driver.on_error(), lock=host.lock)
         self._host = host
@@ -241,15 +242,10 @@ class Ros2Zenoh(ZenohEdge):
         for topic in WATCHED_TOPICS:
             entry = self._publishers.get(topic)
             if entry is not None:
-                self.watch_matching(entry.publisher, lambda m, t=topic: matched((t, m)))
+                self._watch(topic, entry.publisher, matched)
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
-            put_alive = intake.channel(f"alive {who}", on_alive, capacity=16, priority=9)
-            self._entities.append(
-                self.session.liveliness().declare_subscriber(
-                    key, lambda s, put=put_alive: put(s.kind == zenoh.SampleKind.PUT), history=True
-                )
-            )
+            self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in self.service_keys.items():
             take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
@@ -257,6 +253,9 @@ class Ros2Zenoh(ZenohEdge):
         for token in self.tokens:  # last: the graph sees the node once it can serve
             self.token(token)
         return intake
+
+    def _watch(self, topic: str, publisher: Any, put: Callable[[tuple[str, bool]], None]) -> None:
+        self.watch_matching(publisher, lambda matched: put((topic, matched)))
 
     def follow(self, streams: frozenset[str]) -> None:
         """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
@@ -270,7 +269,7 @@ class Ros2Zenoh(ZenohEdge):
 
                     self._followed[name] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(ring))
                 else:
-                    self._followed[name] = self.session.declare_subscriber(key, lambda sample, put=put: put(payload_bytes(sample)))
+                    self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
 
     def following(self) -> bool:
         return bool(self._followed)
@@ -298,6 +297,14 @@ class Ros2Zenoh(ZenohEdge):
                         break
                     sample = ring.try_recv()
         return taken
+
+    def _alive(self, key: str, put: Callable[[bool], None]) -> None:
+        import zenoh
+
+        def on_sample(sample: "zenoh.Sample") -> None:
+            put(sample.kind == zenoh.SampleKind.PUT)
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
 
     def _take_call(self, service: str, query: "zenoh.Query") -> None:
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
