@@ -202,10 +202,8 @@ class Ros2Zenoh(ZenohEdge):
             elif reply.err is not None:
                 put((tag, False, bytes(reply.err.payload.to_bytes())))
 
-        def on_done() -> None:
-            put((tag, None, b""))
-
-        self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
+        replies = zenoh.handlers.Callback(on_reply, lambda: put((tag, None, b"")))
+        self.session.get(key, replies, payload=payload, timeout=timeout)
 
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
         driver, core = host.driver, host.core
