@@ -20,7 +20,7 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ErrorReport, Keys, payload_bytes
+from blackmetal.schemas import Keys, payload_bytes
 
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
@@ -174,8 +174,7 @@ class Ros2Zenoh(ZenohEdge):
         """The e-stop or its release (on the loop, never dropped), or the source's command (on the loop or a direct take's Zenoh thread)."""
         self._estop.get(key, self._cmd_vel).put(payload)
 
-    def error(self, message: ErrorReport) -> None:
-        self.publish(message)
+    error = ZenohEdge.publish
 
     def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
         entry = self._calls.pop(call, None)
