@@ -56,13 +56,8 @@ SERVICE_TYPES = {service.name: service.ros_type for service in services()}
 SET_CALLS = ("set_parameters", "set_parameters_atomically")
 
 
-class Query:
-    """What a query of the core asks, so its replies go where they belong."""
-
-    HEALTH = "health"
-    RESET = "reset"
-    PARAMS = "params"
-    PARAMS_SET = "params_set"
+#: What a query of the core asks, so its replies go where they belong.
+ASK_HEALTH, ASK_RESET, ASK_PARAMS, ASK_PARAMS_SET = "health", "reset", "params", "params_set"
 
 
 def decoded(reporter: ErrorReporter, kind: type[T], payload: bytes, key: str, now: float) -> T | None:
@@ -144,11 +139,11 @@ class ServiceCalls:
                     self._finish(other, False, f"superseded: set_estop {state} was called since", now)
             self._put_estop(pending, now)
         else:
-            self._ask(Query.RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
+            self._ask(ASK_RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
         self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))
-        self._ask(Query.HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
+        self._ask(ASK_HEALTH, self.keys.health, None, None, max(min(pending.deadline - now, 5 * ESTOP_REPEAT_S), ESTOP_REPEAT_S))
         pending.repeat_at = now + ESTOP_REPEAT_S
 
     def _ask(self, what: str, key: str, payload: bytes | None, call: int | None, timeout: float) -> None:
@@ -157,7 +152,7 @@ class ServiceCalls:
         self.output.query(key, payload, self._next_tag, timeout)
 
     def ask_params(self) -> None:
-        self._ask(Query.PARAMS, self.keys.params, None, None, self.options.service_timeout)
+        self._ask(ASK_PARAMS, self.keys.params, None, None, self.options.service_timeout)
 
     def on_params(self, payload: bytes, now: float) -> None:
         table = decoded(self.reporter, GatewayParams, payload, self.keys.params, now)
@@ -190,14 +185,13 @@ class ServiceCalls:
         except PayloadError as exc:
             self.reject(self.options.service_keys.get(service, service), str(exc), exc.excerpt, now)
             return self._refuse(pending.call, f"invalid request: {exc}", now)
-        plan = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
-        pending.refused = plan.refused
-        for reason in plan.refused.values():
+        values, pending.refused = p.plan(pending.parameters, atomically=service == "set_parameters_atomically")
+        for reason in pending.refused.values():
             self.reporter.report(self.options.service_keys.get(service, service), f"{service}: {reason}", "", now=now)
-        if not plan.values:
+        if not values:
             return self._answer_set(pending, None, now)
         self.pending[pending.call] = pending
-        self._ask(Query.PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=plan.values)), pending.call, self.options.service_timeout)
+        self._ask(ASK_PARAMS_SET, self.keys.params_set, encode(ParamsSet(values=values)), pending.call, self.options.service_timeout)
 
     def _answer_set(self, pending: PendingCall, reply: ParamsSetReply | None, now: float, failure: str = "") -> None:
         """The SetParametersResult(s) of a set call: the refusals decided here, else the gateway's result for the name."""
@@ -221,42 +215,41 @@ class ServiceCalls:
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         what, call = self.queries.get(tag, ("", None))
-        if what == Query.PARAMS:
+        if what == ASK_PARAMS:
             if ok:
                 self.on_params(payload, now)
             return
         pending = self.pending.get(call) if call is not None else None
         if pending is None:
             return
-        if what == Query.PARAMS_SET:
-            try:
-                if not ok:
-                    reason = payload.decode(errors="replace") or "no reason given"
-                    return self._fail(pending, f"the gateway on {self.keys.prefix!r} refused the set: {reason}", now)
-                reply = decode(ParamsSetReply, payload)
-            except PayloadError as exc:
-                return self._fail(pending, f"the gateway answered something that is not a ParamsSetReply: {exc}", now)
+        setting = what == ASK_PARAMS_SET
+        if not ok:
+            reason = payload.decode(errors="replace")
+            if setting:
+                return self._fail(pending, f"the gateway on {self.keys.prefix!r} refused the set: {reason or 'no reason given'}", now)
+            return self._fail(pending, f"the odometry refused the reset: {reason}", now)
+        try:
+            reply = decode(ParamsSetReply if setting else Pose, payload)
+        except PayloadError as exc:
+            who, kind = ("gateway", "a ParamsSetReply") if setting else ("odometry", "a pose")
+            return self._fail(pending, f"the {who} answered something that is not {kind}: {exc}", now)
+        if isinstance(reply, ParamsSetReply):
             self._take_params(reply.params, now)
             return self._answer_set(pending, reply, now)
-        try:
-            if not ok:
-                return self._fail(pending, f"the odometry refused the reset: {payload.decode(errors='replace')}", now)
-            pose = decode(Pose, payload)
-        except PayloadError as exc:
-            return self._fail(pending, f"the odometry answered something that is not a pose: {exc}", now)
-        if max(abs(pose.x), abs(pose.y), abs(pose.yaw)) <= RESET_TOLERANCE:
+        assert isinstance(reply, Pose)
+        if max(abs(reply.x), abs(reply.y), abs(reply.yaw)) <= RESET_TOLERANCE:
             self._finish(pending, True, f"odometry reset to x=0 y=0 yaw=0 (confirmed by the odometry on {self.keys.odometry_reset})", now)
         else:
-            self._fail(pending, f"the odometry answered x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} after the reset", now)
+            self._fail(pending, f"the odometry answered x={reply.x:g} y={reply.y:g} yaw={reply.yaw:g} after the reset", now)
 
     def on_query_done(self, tag: int, now: float) -> None:
         """No more replies to ``tag`` will come: a reset or a parameter set nobody answered fails now."""
-        what, call = self.queries.pop(tag, (Query.HEALTH, None))
+        what, call = self.queries.pop(tag, (ASK_HEALTH, None))
         pending = self.pending.get(call) if call is not None else None
         if pending is not None:
             who, key, nothing = (
                 ("gateway", self.keys.params_set, ": nothing was set")
-                if what == Query.PARAMS_SET
+                if what == ASK_PARAMS_SET
                 else ("odometry", self.keys.odometry_reset, "")
             )
             self._fail(pending, f"no {who} answered on {key} (is it running on prefix {self.keys.prefix}?){nothing}", now)

@@ -17,7 +17,7 @@ from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
-from .calls import Query, ServiceCalls, decoded
+from .calls import ASK_HEALTH, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .messages import RosCodec
 from .naming import CMD_VEL_STAMPED, ROBOT_DESCRIPTION, TF_STATIC
@@ -194,7 +194,7 @@ class Ros2Core:
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
-        if self.calls.queries.get(tag, ("", None))[0] != Query.HEALTH:
+        if self.calls.queries.get(tag, ("", None))[0] != ASK_HEALTH:
             self.calls.on_query_reply(tag, ok, payload, now)
         elif ok:
             self.on_health(payload, now)

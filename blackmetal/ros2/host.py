@@ -22,17 +22,16 @@ log = logging.getLogger("blackmetal.ros2")
 class Ros2Host:
     """Runs one :class:`Ros2Core` on the running asyncio loop; see the module docstring."""
 
-    def __init__(self, core: Ros2Core, clock: Callable[[], float] = time.monotonic, supervised: bool = False) -> None:
+    def __init__(self, core: Ros2Core, supervised: bool = False) -> None:
         self.core = core
-        self.clock = clock
-        self.driver = Driver(core, clock, supervised=supervised, name=core.keys.prefix, logger=log)
+        self.driver = Driver(core, time.monotonic, supervised=supervised, name=core.keys.prefix, logger=log)
         #: Held by the loop whenever it is in the core; a Zenoh thread taking ``/cmd_vel`` directly only tries it.
         self.lock = self.driver.lock
         self.fail = self.driver.fail
 
     def direct(self, stamped: bool = False) -> Callable[[bytes], bool]:
         """Zenoh's thread, under the lock: forward an acceptable command, else leave it to the loop (no deadline changes)."""
-        driver, take, clock = self.driver, self.core.take_cmd_vel, self.clock
+        driver, take, clock = self.driver, self.core.take_cmd_vel, time.monotonic
         return lambda cdr: driver.may_take_directly() and take(cdr, clock(), stamped=stamped)
 
     async def run(self, stop: asyncio.Event) -> None:

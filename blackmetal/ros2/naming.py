@@ -94,11 +94,6 @@ class Qos:
     history: int = HISTORY_KEEP_LAST
     depth: int = 10
 
-    @classmethod
-    def transient_local(cls, depth: int = 1) -> Qos:
-        """``rclcpp::QoS(1).transient_local()``: robot_state_publisher's /robot_description and tf2's StaticBroadcasterQoS."""
-        return cls(durability=DURABILITY_TRANSIENT_LOCAL, depth=depth)
-
     @property
     def is_transient_local(self) -> bool:
         return self.durability == DURABILITY_TRANSIENT_LOCAL
@@ -108,6 +103,10 @@ class Qos:
         fields = ("" if getattr(self, name) == default else str(getattr(self, name)) for name, default in RMW_ZENOH_DEFAULTS.items())
         reliability, durability, history, depth = fields
         return f"{reliability}:{durability}:{history},{depth}:,:,:,,"
+
+
+#: ``rclcpp::QoS(1).transient_local()``: robot_state_publisher's /robot_description and tf2's StaticBroadcasterQoS.
+TRANSIENT_LOCAL = Qos(durability=DURABILITY_TRANSIENT_LOCAL, depth=1)
 
 
 def check_ros_name(kind: str, name: str) -> str:
@@ -147,10 +146,6 @@ def mangle(name: str) -> str:
 
 def rmw_zenoh_data_key(domain_id: int, topic: str, ros_type: str, type_hash: str) -> str:
     return f"{domain_id}/{topic.strip('/')}/{dds_type(ros_type)}/{type_hash}"
-
-
-def bridge_data_key(topic: str) -> str:
-    return topic.strip("/")
 
 
 @dataclass(frozen=True, slots=True)
@@ -253,8 +248,8 @@ def topics(publish_tf: bool, absolute_tf: bool = False, robot_model: bool = Fals
     out.append(RosTopic("diagnostics", ros.DIAGNOSTIC_ARRAY, Direction.PUBLISH, absolute=True))
     out.append(RosTopic("cmd_vel", ros.TWIST_STAMPED, Direction.SUBSCRIBE, label=CMD_VEL_STAMPED))
     if robot_model:
-        out.append(RosTopic(ROBOT_DESCRIPTION, ros.STRING, Direction.PUBLISH, qos=Qos.transient_local()))
-        out.append(RosTopic(TF_STATIC, ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf, qos=Qos.transient_local()))
+        out.append(RosTopic(ROBOT_DESCRIPTION, ros.STRING, Direction.PUBLISH, qos=TRANSIENT_LOCAL))
+        out.append(RosTopic(TF_STATIC, ros.TF_MESSAGE, Direction.PUBLISH, absolute=absolute_tf, qos=TRANSIENT_LOCAL))
     out.append(RosTopic(PARAMETER_EVENTS, ros.PARAMETER_EVENT, Direction.PUBLISH, absolute=True, qos=PARAMETERS_QOS))
     return out
 

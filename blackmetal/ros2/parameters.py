@@ -48,14 +48,6 @@ def ros_value(param: Param) -> RosValue:
     return param.value
 
 
-@dataclass(frozen=True, slots=True)
-class SetPlan:
-    """A set call split: what goes to the gateway, and the refusals decided here (by position in the call)."""
-
-    values: dict[str, ParamValue]
-    refused: dict[int, str]
-
-
 @dataclass(slots=True)
 class NodeParameters:
     """The gateway's parameter table as the node shows it."""
@@ -91,9 +83,9 @@ class NodeParameters:
             return None, f"{name} must be a finite number, got {value!r}"
         return value, None
 
-    def plan(self, parameters: Sequence[tuple[str, RosValue]], atomically: bool = False) -> SetPlan:
-        """What this side refuses never reaches the gateway; ``atomically``: checked against the table too, one
-        refusal refuses them all."""
+    def plan(self, parameters: Sequence[tuple[str, RosValue]], atomically: bool = False) -> tuple[dict[str, ParamValue], dict[int, str]]:
+        """(what goes to the gateway, the refusals decided here by position in the call): what this side refuses never
+        reaches the gateway; ``atomically``: checked against the table too, one refusal refuses them all."""
         values: dict[str, ParamValue] = {}
         refused: dict[int, str] = {}
         for i, (name, value) in enumerate(parameters):
@@ -106,8 +98,8 @@ class NodeParameters:
         if atomically:
             reasons = [*refused.values(), *(r for name, value in values.items() if (r := self.refusal(name, value)) is not None)]
             if reasons:
-                return SetPlan({}, {i: "; ".join(reasons) for i in range(len(parameters))})
-        return SetPlan(values, refused)
+                return {}, {i: "; ".join(reasons) for i in range(len(parameters))}
+        return values, refused
 
     def refusal(self, name: str, value: ParamValue) -> str | None:
         """Why the gateway would refuse ``name = value`` by its table (read-only, unknown, wrong kind, out of range)."""

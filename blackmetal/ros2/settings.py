@@ -144,13 +144,6 @@ class Ros2Settings:
             if not getattr(self, name):
                 raise ConfigError(f"{name} must not be empty")
 
-    def constants(self) -> tuple[float, float, float, model.Calibration | None]:
-        """(wheel separation, impulses left, impulses right, the calibration): the calibration file's when one is given."""
-        calibration = self.load_calibration()
-        if calibration is None:
-            return self.wheel_separation, self.impulses_left, self.impulses_right, None
-        return calibration.wheel_separation, calibration.impulses_left, calibration.impulses_right, calibration
-
     def covariances(self, calibration: model.Calibration | None) -> tuple[list[float], list[float], str]:
         """/odom's pose and twist covariances and where they come from: a calibration's residuals (x, y, yaw; v, w)
         where it measured them, the configured diagonals for the rest."""
@@ -197,7 +190,8 @@ class Ros2Settings:
     ) -> Ros2Options:
         """The core's options; ``data_keys``/``service_keys``: the Zenoh key of each ROS topic/service, which error reports name;
         ``frame_prefix`` goes before every frame (``r3/``: ``r3/odom``, ``r3/base_footprint``, the URDF's links)."""
-        separation, left, right, calibration = self.constants()
+        calibration = self.load_calibration()
+        constants = calibration or self  # wheel_separation, impulses_left, impulses_right
         pose, twist, covariance = self.covariances(calibration)
         return Ros2Options(
             frames=Frames(frame_prefix + self.odom_frame, frame_prefix + self.base_frame),
@@ -206,7 +200,7 @@ class Ros2Settings:
             publish_tf=self.tf,
             joint_names=(self.left_joint, self.right_joint),
             wheel_radius=self.wheel_radius,
-            encoders=Encoders(left, right),
+            encoders=Encoders(constants.impulses_left, constants.impulses_right),
             data_keys=dict(data_keys),
             source=self.source,
             service_timeout=self.service_timeout,
@@ -216,7 +210,7 @@ class Ros2Settings:
             domain_id=self.domain_id,
             service_keys=dict(service_keys or {}),
             distro=distro.value if self.flavor == Flavor.RMW_ZENOH.value else "any (zenoh-bridge-ros2dds)",
-            robot=self.robot(separation, frame_prefix),
+            robot=self.robot(constants.wheel_separation, frame_prefix),
             calibration=f"{calibration.path} ({calibration.note})" if calibration else "none: the nominal constants",
             covariance=covariance,
         )

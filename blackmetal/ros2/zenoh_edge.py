@@ -20,7 +20,7 @@ from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ErrorReport, Keys, payload_bytes
+from blackmetal.schemas import Keys, payload_bytes
 
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
@@ -34,7 +34,6 @@ from .naming import (
     Qos,
     ServiceRole,
     attachment,
-    bridge_data_key,
     gid_of,
     normalise_namespace,
     rmw_zenoh_data_key,
@@ -120,7 +119,7 @@ class Ros2Zenoh(ZenohEdge):
             """The entity's key and, with rmw_zenoh, its GID (its token goes to :attr:`tokens`)."""
             entity_id = next(ids)
             if flavor is not Flavor.RMW_ZENOH:
-                return bridge_data_key(name), None
+                return name.strip("/"), None  # zenoh-bridge-ros2dds: the topic name
             type_hash = type_hash_of(distro, codec.type_hash(ros_type))
             token = node.entity_token(entity_id, kind, name, ros_type, type_hash, qos)
             self.tokens.append(token)
@@ -175,8 +174,7 @@ class Ros2Zenoh(ZenohEdge):
         """The e-stop or its release (on the loop, never dropped), or the source's command (on the loop or a direct take's Zenoh thread)."""
         self._estop.get(key, self._cmd_vel).put(payload)
 
-    def error(self, message: ErrorReport) -> None:
-        self.publish(message)
+    error = ZenohEdge.publish
 
     def service_reply(self, call: int, cdr: bytes, attachment: bytes | None) -> None:
         entry = self._calls.pop(call, None)
@@ -203,10 +201,8 @@ class Ros2Zenoh(ZenohEdge):
             elif reply.err is not None:
                 put((tag, False, bytes(reply.err.payload.to_bytes())))
 
-        def on_done() -> None:
-            put((tag, None, b""))
-
-        self.session.get(key, zenoh.handlers.Callback(on_reply, on_done), payload=payload, timeout=timeout)
+        replies = zenoh.handlers.Callback(on_reply, lambda: put((tag, None, b"")))
+        self.session.get(key, replies, payload=payload, timeout=timeout)
 
     def attach(self, host: Ros2Host, loop: asyncio.AbstractEventLoop) -> Intake:
         driver, core = host.driver, host.core

@@ -21,6 +21,7 @@ from blackmetal.robot_model import Encoders, read_calibration
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.messages import RosCodec
 from blackmetal.ros2.naming import (
+    TRANSIENT_LOCAL,
     WITHOUT_TYPE_HASHES,
     Direction,
     Distro,
@@ -62,7 +63,7 @@ def test_each_distros_keys_and_tokens() -> None:
         assert token == f"@ros2_lv/0/abc/0/3/MP/%/%/blackmetal/%odom/nav_msgs::msg::dds_::Odometry_/{expected}/::,10:,:,:,,"
         assert (distro in WITHOUT_TYPE_HASHES) is (distro is Distro.HUMBLE)
     # robot_state_publisher's QoS(1).transient_local(): durability 1, depth 1, the rest rmw_zenoh's defaults
-    assert Qos.transient_local().keyexpr() == ":1:,1:,:,:,,"
+    assert TRANSIENT_LOCAL.keyexpr() == ":1:,1:,:,:,,"
     named = {t.key_name: t for t in topics(True, robot_model=True)}
     assert named["robot_description"].qos.is_transient_local and named["tf_static"].qos.is_transient_local
     assert named["robot_description"].full_name("/r2") == "/r2/robot_description"
