@@ -66,9 +66,8 @@ class Closure:
 
 
 def closure(start: Pose, end: Pose) -> Closure:
-    dx, dy = end.x - start.x, end.y - start.y
-    c, s = math.cos(-start.yaw), math.sin(-start.yaw)
-    return Closure(c * dx - s * dy, s * dx + c * dy, math.remainder(end.yaw - start.yaw, math.tau))
+    ((dx, dy),) = _in_frame_of(start, [(end.x, end.y)])
+    return Closure(dx, dy, math.remainder(end.yaw - start.yaw, math.tau))
 
 
 @dataclass
@@ -101,15 +100,12 @@ class Driver:
     speed: float
     turn_rate: float
     stop: threading.Event
-    cmd_timeout: float = 0.5
+    approach_gain: float  # approach_gain() of the gateway's command timeout
     odometry_path: list[tuple[float, float]] = field(default_factory=list)
     truth_path: list[tuple[float, float]] = field(default_factory=list)
     _moved_at: float = field(default_factory=time.monotonic)
     _last_pose: tuple[float, float, float] | None = None
     _rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
-
-    def __post_init__(self) -> None:
-        self.approach_gain = approach_gain(self.cmd_timeout)
 
     def _send(self, v: float, w: float) -> None:
         if v or w:
@@ -304,14 +300,14 @@ def run(args: argparse.Namespace) -> int:
             health = require_gateway(session, keys, settings, args.wait)
             if health.estop:
                 raise ToolError("the emergency stop is engaged; release it first with `blackmetal estop off` (same -e and --prefix)")
-            first = require_pose(session, keys, settings, args.wait)
-            pose = Latest(session, keys.pose, Pose)
-            pose.value = first
+            pose = Latest(session, keys.pose, Pose, require_pose(session, keys, settings, args.wait))
             truth = Latest(session, keys.sim_truth, Pose)
             has_truth = truth.wait(2.0) is not None  # the simulator's
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
-            driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
+            driver = Driver(
+                publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, approach_gain(health.cmd_timeout)
+            )
             print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {settings.where()}", flush=True)
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
@@ -319,12 +315,7 @@ def run(args: argparse.Namespace) -> int:
                 result = drive_square(driver, args.size, clockwise)
                 runs.append(result)
                 if recorder is not None:
-                    span = {
-                        "direction": result.direction,
-                        "size_m": repr(args.size),
-                        "start_ns": str(started),
-                        "end_ns": str(time.time_ns()),
-                    }
+                    span = dict(direction=result.direction, size_m=repr(args.size), start_ns=str(started), end_ns=str(time.time_ns()))
                     recorder.note("blackmetal.square", span)
                 print(report(result), flush=True)
         except Cancelled:

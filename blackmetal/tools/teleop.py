@@ -149,8 +149,7 @@ def run(args: argparse.Namespace) -> int:
             "estop_release": session.declare_publisher(keys.estop_release, express=True),
         }
         pose = Latest(session, keys.pose, Pose)
-        health = Latest(session, keys.health, GatewayHealth)
-        health.value = health0
+        health = Latest(session, keys.health, GatewayHealth, health0)
         print(f"blackmetal teleop on {args.prefix} via {settings.where()}: {HELP}", flush=True)
         return _loop(teleop, publishers, pose, health)
 

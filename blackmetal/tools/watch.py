@@ -83,8 +83,7 @@ def run(args: argparse.Namespace) -> int:
         pose = Latest(session, keys.pose, Pose)
         truth = Latest(session, keys.sim_truth, Pose)
         status = Latest(session, keys.status, RobotStatus)
-        health = Latest(session, keys.health, GatewayHealth)
-        health.value = health0
+        health = Latest(session, keys.health, GatewayHealth, health0)
         errors: deque[ErrorReport] = deque(maxlen=50)
 
         def on_error(sample: zenoh.Sample) -> None:
