@@ -47,10 +47,9 @@ class Latest:
         self._sub = session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            self.value = decode(self.message_type, to_bytes(sample.payload))
-        except PayloadError:
+        if (value := decoded(self.message_type, sample)) is None:
             return
+        self.value = value
         self.count += 1
         self.received_at = time.monotonic()
         self._event.set()
@@ -63,14 +62,19 @@ class Latest:
         return time.monotonic() - self.received_at if self.count else float("inf")
 
 
+def decoded(message_type: type[T], sample: zenoh.Sample) -> T | None:
+    """The sample's message; None for a payload that does not decode, which every tool skips."""
+    try:
+        return decode(message_type, to_bytes(sample.payload))
+    except PayloadError:
+        return None
+
+
 def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
-    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
+    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``."""
     for reply in replies:
-        if reply.ok is not None:
-            try:
-                yield decode(message_type, to_bytes(reply.ok.payload))
-            except PayloadError:
-                continue
+        if reply.ok is not None and (value := decoded(message_type, reply.ok)) is not None:
+            yield value
 
 
 def first_reply(replies: Any, message_type: type[T]) -> T | None:

@@ -225,11 +225,8 @@ def report(run: Run) -> str:
 
 
 def umbmark_figure(runs: list[Run]) -> str | None:
-    """UMBmark's E_max,syst (None without the simulator's truth) and the calibrate command of the true ends.
-
-    A return error is the true end minus the odometry's, both in the start frame: the driver's own stopping error
-    (larger on a loaded machine) is not counted; calibrate takes the odometry's ends from the recording, as here.
-    """
+    """UMBmark's E_max,syst (None without the simulator's truth) and the calibrate command of the true ends. A return
+    error is the true end minus the odometry's (start frame), so the driver's own stopping error is not counted."""
     errors: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     for run in runs:

@@ -11,9 +11,9 @@ from collections import deque
 import zenoh
 
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, PayloadError, Pose, RobotStatus, decode, to_bytes
+from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, Pose, RobotStatus
 
-from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool
+from .client import Latest, add_client_arguments, connect, decoded, decoded_replies, require_gateway, tool
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -87,10 +87,8 @@ def run(args: argparse.Namespace) -> int:
         errors: deque[ErrorReport] = deque(maxlen=50)
 
         def on_error(sample: zenoh.Sample) -> None:
-            try:
-                errors.append(decode(ErrorReport, to_bytes(sample.payload)))
-            except PayloadError:
-                pass
+            if (report := decoded(ErrorReport, sample)) is not None:
+                errors.append(report)
 
         session.declare_subscriber(keys.errors, on_error)
         errors.extend(recent_errors(session, keys.errors, args.wait))  # what went wrong before this watch started

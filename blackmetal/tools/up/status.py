@@ -15,9 +15,9 @@ import zenoh
 
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ANY_GATEWAY_ALIVE, ErrorReport, GatewayHealth, Keys, PayloadError, Pose, decode, to_bytes
+from blackmetal.schemas import ANY_GATEWAY_ALIVE, ErrorReport, GatewayHealth, Keys, Pose
 
-from ..client import Latest
+from ..client import Latest, decoded
 
 #: The status line says the fleet is behind when its median poll rate is below this fraction of the asked rate.
 BEHIND_RATIO = 0.9
@@ -174,10 +174,8 @@ class FleetStatus:
             self.alive.discard(prefix)
 
     def _on_health(self, prefix: str, sample: zenoh.Sample) -> None:
-        try:
-            self.health[prefix] = (decode(GatewayHealth, to_bytes(sample.payload)), time.monotonic())
-        except PayloadError:  # a malformed report: the previous one stands until it goes stale
-            pass
+        if (health := decoded(GatewayHealth, sample)) is not None:  # else the previous one stands until it goes stale
+            self.health[prefix] = (health, time.monotonic())
 
     def _on_error(self, prefix: str, _sample: zenoh.Sample) -> None:
         self.errors[prefix] += 1

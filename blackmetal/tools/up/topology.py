@@ -16,10 +16,8 @@ ROBOTS_PER_PROCESS = 150
 
 
 class Topology:
-    """Where up's session and its children meet (docs/commands/up.md): a hub of up's own, or the router of ``-e``.
-
-    With ``-e`` only, every process is a client of the router: ``rmw_zenohd`` does not route between peers.
-    """
+    """Where up's session and its children meet (docs/commands/up.md): a hub of up's own, or the router of ``-e``
+    (with ``-e`` only, every process is its client: ``rmw_zenohd`` does not route between peers)."""
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.settings = zenoh_settings(args)
