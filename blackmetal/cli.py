@@ -17,8 +17,7 @@ def _schema(args: argparse.Namespace) -> int:
 
     schemas = json_schemas()
     if args.output is None:
-        json.dump(schemas, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        print(json.dumps(schemas, indent=2))
         return 0
     folder = Path(args.output)
     folder.mkdir(parents=True, exist_ok=True)

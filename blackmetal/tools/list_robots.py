@@ -83,12 +83,6 @@ class RobotRow:
         }
 
 
-def robot_rows(session: zenoh.Session, prefixes: list[str], timeout: float = QUERY_S) -> list[RobotRow]:
-    """Each prefix's health and pose; every query is sent before any answer is awaited."""
-    asked = [(p, session.get(Keys(p).health, timeout=timeout), session.get(Keys(p).pose, timeout=timeout)) for p in prefixes]
-    return [RobotRow(prefix, first_reply(health, GatewayHealth), first_reply(pose, Pose)) for prefix, health, pose in asked]
-
-
 HEADER = ("prefix", "link (control/log)", "poll", "x (m)", "y (m)", "yaw (°)", "e-stop", "drives")
 RIGHT = {2, 3, 4, 5}  # numbers
 
@@ -128,7 +122,10 @@ def run(args: argparse.Namespace) -> int:
         robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S), args.expect)
         # the rows' queries may take what is left of --wait (at least QUERY_S): a loaded gateway answers late, not never
         query_s = max(QUERY_S, deadline - time.monotonic())
-        rows = robot_rows(session, robots, query_s) if robots and output != "prefixes" else []
+        # every query is sent before any answer is awaited; piped prefixes need none
+        wanted = robots if output != "prefixes" else []
+        asked = [(p, session.get(Keys(p).health, timeout=query_s), session.get(Keys(p).pose, timeout=query_s)) for p in wanted]
+        rows = [RobotRow(p, first_reply(health, GatewayHealth), first_reply(pose, Pose)) for p, health, pose in asked]
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
     if not robots:
@@ -137,8 +134,7 @@ def run(args: argparse.Namespace) -> int:
     if output == "table":
         print(table(rows))
     elif output == "prefixes":
-        for prefix in robots:
-            print(prefix)
+        print("\n".join(robots))
     return 0
 
 

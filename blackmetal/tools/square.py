@@ -268,12 +268,9 @@ def plot(runs: list[Run], path: str) -> None:
         if run.truth_path:
             xs, ys = zip(*run.truth_path, strict=False)
             ax.plot(xs, ys, "--", label=f"truth ({run.direction})")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title="blackmetal square")
     ax.grid(True)
     ax.legend()
-    ax.set_title("blackmetal square")
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
