@@ -188,18 +188,13 @@ class FleetStatus:
         polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
         count = len(self.robots)
         parts = [f"robots {len(self.alive)}/{count} up"]
-        linked = {
-            r.prefix for r in self.robots if r.prefix in fresh and fresh[r.prefix].control.state == fresh[r.prefix].log.state == "connected"
-        }
+        linked = {prefix for prefix, h in fresh.items() if h.control.state == h.log.state == "connected"}
         self._ever_linked |= linked
         # a robot not yet up since the start is connecting, no fault; one that was up and is not is missing or down
         connecting = [r.id for r in self.robots if r.prefix not in linked and r.prefix not in self._ever_linked]
         missing = [r.id for r in self.robots if r.prefix not in fresh and r.prefix in self._ever_linked]
         down = [r.id for r in self.robots if r.prefix in fresh and r.prefix not in linked and r.prefix in self._ever_linked]
-        if connecting:
-            parts.append(f"connecting {len(connecting)}: {_named(connecting)}")
-        if missing:
-            parts.append(f"no health {len(missing)}: {_named(missing)}")
+        parts += [f"{label} {len(ids)}: {_named(ids)}" for label, ids in (("connecting", connecting), ("no health", missing)) if ids]
         if down:
             first = fresh[next(r.prefix for r in self.robots if r.id == down[0])]
             reason = first.control.reason or first.log.reason
@@ -208,10 +203,7 @@ class FleetStatus:
         linked_polls = [fresh[r.prefix].poll_hz for r in self.robots if r.prefix in linked]
         if linked_polls and statistics.median(linked_polls) < BEHIND_RATIO * self.poll_hz:
             parts.append(f"BEHIND {self.poll_hz:g} Hz: the host is short of CPU (commands and e-stops keep their latency)")
-        if rates is None:
-            parts.append("poses/s measuring")
-        else:
-            parts.append(f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
+        parts.append("poses/s measuring" if rates is None else f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
         stopped = [r.id for r in self.robots if r.prefix in fresh and fresh[r.prefix].estop]
         parts.append(f"E-STOP {len(stopped)}/{count}: {_named(stopped)}" if stopped else f"e-stop 0/{count}")
         driving = [f"{r.id} ({fresh[r.prefix].active_source})" for r in self.robots if r.prefix in fresh and fresh[r.prefix].active_source]
