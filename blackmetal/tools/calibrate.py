@@ -108,8 +108,7 @@ def _runs(path: str, result: BatchResult, metadata: list[tuple[str, dict[str, st
 
 
 def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    channel = read_mcap(path, [key]).channels.get(key)
-    if channel is None or not channel.payloads:
+    if (channel := read_mcap(path, [key]).channels.get(key)) is None or not channel.payloads:
         return None
     decoder = msgspec.json.Decoder(Pose)
     poses = []

@@ -44,14 +44,11 @@ def alive_robots(session: zenoh.Session, timeout: float = 5.0, expect: int = 0) 
         deadline = time.monotonic() + timeout
         last_new = -math.inf
         while (left := deadline - time.monotonic()) > 0 and (len(prefixes) < max(expect, 1) or time.monotonic() - last_new < QUIET_S):
-            sample = subscriber.try_recv()
-            if sample is None:
+            if (sample := subscriber.try_recv()) is None:
                 time.sleep(min(0.02, left))
-            elif sample.kind == zenoh.SampleKind.PUT:
-                prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
-                if prefix not in prefixes:
-                    prefixes.add(prefix)
-                    last_new = time.monotonic()
+            elif sample.kind == zenoh.SampleKind.PUT and (prefix := Keys.prefix_of_gateway_token(str(sample.key_expr))) not in prefixes:
+                prefixes.add(prefix)
+                last_new = time.monotonic()
     finally:
         subscriber.undeclare()
     return sorted(prefixes, key=natural)

@@ -319,10 +319,8 @@ def run(args: argparse.Namespace) -> int:
             if recorder is not None:
                 recorder.stop()
                 print(f"recorded {', '.join(str(f) for f in recorder.recording.files)}", flush=True)
-    if args.both:
-        figure = umbmark_figure(runs)
-        if figure:
-            print(figure, flush=True)
+    if args.both and (figure := umbmark_figure(runs)):
+        print(figure, flush=True)
     if args.json:
         out = [{"direction": r.direction, "odometry": r.odometry.as_dict(), "truth": r.truth.as_dict() if r.truth else None} for r in runs]
         print(json.dumps(out))

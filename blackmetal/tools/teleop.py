@@ -162,8 +162,7 @@ def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, 
             now = time.monotonic()
             messages = []
             if ready:
-                data = os.read(fd, 64)
-                if not data:
+                if not (data := os.read(fd, 64)):
                     break
                 for key in parse_keys(data):
                     messages += teleop.on_key(key, now)

@@ -57,16 +57,14 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
     else:
         h = health
         rtt = "-" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.2f} ms"
-        lines.append(
+        lines += [
             f"health  control {_link(h.control)} (reconnects {h.control.reconnects}), log {_link(h.log)}; "
             f"poll {h.poll_hz:.1f} Hz, rtt {rtt}; e-stop {'ENGAGED' if h.estop else 'off'}; "
-            f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}"
-        )
-        lines.append(f"drivers {describe_sources(h)}")
-        lines.append(
+            f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}",
+            f"drivers {describe_sources(h)}",
             f"counts  commands {h.commands_sent}, polls {h.polls}, replies {h.replies}, full-buffer {h.full_buffer}, "
-            f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}"
-        )
+            f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}",
+        ]
     lines.append(f"errors  {len(errors)} recent" + ("" if errors else ": none"))
     for report in errors[-5:]:
         lines.append(f"  {time.strftime('%H:%M:%S', time.localtime(report.stamp))} {report.source} {report.key}: {report.reason}")

@@ -129,8 +129,7 @@ def run(args: argparse.Namespace) -> int:
         keys = Keys(validate_prefix(args.prefix or files.prefix or DEFAULT_PREFIX))
         topology = Topology(args)
         stop = stop_on_signals()
-        session = open_when_reachable(topology.settings, stop, "up")
-        if session is None:
+        if (session := open_when_reachable(topology.settings, stop, "up")) is None:
             return 0  # Ctrl-C while waiting for the router
         children: list[ServiceProcess] = []
         launch = Launch(args, files, topology, children)

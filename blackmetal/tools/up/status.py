@@ -131,8 +131,7 @@ class PoseSampler:
         if self._subscriber is not None:
             counts = dict.fromkeys(self.prefixes, 0)
             while (sample := self._subscriber.try_recv()) is not None:
-                prefix = str(sample.key_expr).removesuffix("/pose")
-                if prefix in counts:
+                if (prefix := str(sample.key_expr).removesuffix("/pose")) in counts:
                     counts[prefix] += 1
             undeclare(self._subscriber)
             self._subscriber = None
@@ -165,8 +164,7 @@ class FleetStatus:
             ]
 
     def _on_token(self, sample: zenoh.Sample) -> None:
-        prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
-        if prefix not in self.errors:  # not one of this fleet's
+        if (prefix := Keys.prefix_of_gateway_token(str(sample.key_expr))) not in self.errors:  # not one of this fleet's
             return
         if sample.kind == zenoh.SampleKind.PUT:
             self.alive.add(prefix)
@@ -209,8 +207,7 @@ class FleetStatus:
         driving = [f"{r.id} ({fresh[r.prefix].active_source})" for r in self.robots if r.prefix in fresh and fresh[r.prefix].active_source]
         if driving:
             parts.append(f"driving {_named(driving)}")
-        erring = [r.id for r in self.robots if self.errors[r.prefix]]
-        if erring:
+        if erring := [r.id for r in self.robots if self.errors[r.prefix]]:
             parts.append(f"errors {sum(self.errors.values())}: {_named(erring)}")
         return " | ".join(parts)
 
