@@ -100,10 +100,9 @@ def run(args: argparse.Namespace) -> int:
             write_poses(result, out)
     if not args.quiet:
         if truncated:
-            last = final_pose(result)
             print(
                 f"note: the recording ends early (its recorder was stopped abruptly), {truncated}; every whole sample before "
-                f"the cut was replayed, the last at stamp {last.stamp:.3f}",
+                f"the cut was replayed, the last at stamp {final_pose(result).stamp:.3f}",
                 file=sys.stderr,
             )
         print(summary(result), file=sys.stderr)

@@ -99,11 +99,8 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = pose.count, now
-            lines = render(pose.value, truth.value, status.value, health.value, list(errors), rate)
-            if tty:
-                sys.stdout.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
-            else:
-                sys.stdout.write("\n".join(lines) + "\n--\n")
+            text = "\n".join(render(pose.value, truth.value, status.value, health.value, list(errors), rate))
+            sys.stdout.write(f"\x1b[H\x1b[J{text}\n" if tty else f"{text}\n--\n")
             sys.stdout.flush()
             if now >= deadline or stop.wait(min(period, max(deadline - now, 0.0))):
                 break

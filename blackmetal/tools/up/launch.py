@@ -131,9 +131,8 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
         child.wait_ready(READY_TIMEOUT_S)
     view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
     shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
-    processes = (
-        "one gateway, one odometry process" if len(gateways) == 1 else f"{len(gateways)} gateway and {len(gateways)} odometry processes"
-    )
+    n = len(gateways)
+    processes = "one gateway, one odometry process" if n == 1 else f"{n} gateway and {n} odometry processes"
     print(
         f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {launch.topology.describe()}",
         flush=True,
