@@ -17,8 +17,7 @@ def _schema(args: argparse.Namespace) -> int:
 
     schemas = json_schemas()
     if args.output is None:
-        json.dump(schemas, sys.stdout, indent=2)
-        sys.stdout.write("\n")
+        print(json.dumps(schemas, indent=2))
         return 0
     folder = Path(args.output)
     folder.mkdir(parents=True, exist_ok=True)
@@ -75,24 +74,18 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; output piped into a reader that stops early (``| head``) ends quietly."""
+    argv = sys.argv[1:] if argv is None else argv
     try:
-        return _main(argv)
+        parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
+        args, unknown = parser.parse_known_args(argv)
+        if unknown:  # the subcommand's usage says what it takes, not the top level's
+            subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+            subparsers.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
+        return int(args.func(args))
     except BrokenPipeError:
         # the reader is gone: point stdout at nothing so the interpreter's final flush cannot fail again
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
         return 0
-
-
-def _main(argv: list[str] | None) -> int:
-    argv = sys.argv[1:] if argv is None else argv
-    only = argv[0] if argv and argv[0] in COMMANDS else None
-    parser = build_parser(only)
-    args, unknown = parser.parse_known_args(argv)
-    if unknown:  # the subcommand's usage says what it takes, not the top level's
-        subparsers = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-        subparsers.choices[args.command].error(f"unrecognized arguments: {' '.join(unknown)}")
-    return int(args.func(args))
 
 
 if __name__ == "__main__":

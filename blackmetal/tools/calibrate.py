@@ -108,8 +108,7 @@ def _runs(path: str, result: BatchResult, metadata: list[tuple[str, dict[str, st
 
 
 def _reference(path: str, key: str, result: BatchResult) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-    channel = read_mcap(path, [key]).channels.get(key)
-    if channel is None or not channel.payloads:
+    if (channel := read_mcap(path, [key]).channels.get(key)) is None or not channel.payloads:
         return None
     decoder = msgspec.json.Decoder(Pose)
     poses = []
@@ -190,18 +189,9 @@ def as_residuals(figures: ResidualFigures) -> Residuals | None:
 
 
 def trajectory(recordings: list[Recording], used: Constants, reference: str) -> tuple[Constants, list[str], Residuals | None]:
-    segments: list[Segment] = []
-    runs: list[tuple[Run, Segment]] = []
-    for rec in recordings:
-        if rec.reference is None:
-            continue
-        whole = _segment(rec, 0, len(rec.result))
-        if whole is not None:
-            segments.append(whole)
-        for run in rec.runs:
-            seg = _segment(rec, run.start, run.end)
-            if seg is not None:
-                runs.append((run, seg))
+    referenced = [rec for rec in recordings if rec.reference is not None]
+    segments = [seg for rec in referenced if (seg := _segment(rec, 0, len(rec.result))) is not None]
+    runs = [(run, seg) for rec in referenced for run in rec.runs if (seg := _segment(rec, run.start, run.end)) is not None]
     if not segments:
         raise CalibrationError(
             f"no recording holds the reference {reference} over its impulses: record the simulator's truth "
@@ -256,9 +246,7 @@ def umbmark_mode(
         if len(sides) != 1:
             raise CalibrationError("give the squares' side with --size (the recordings do not say it, or say several)")
         side = sides.pop()
-    # UMBmark's return position error is the true end minus where the odometry says the robot ended;
-    # the driver stops the robot where the odometry says the start is, give or take its own stopping
-    # error, which is no business of the constants. The recordings say where the odometry ended.
+    # the return error is the true end minus the odometry's (square.umbmark_figure), which the recordings say
     measured = {"clockwise": centre_of_gravity(cw), "counter-clockwise": centre_of_gravity(ccw)}
     believed = {
         d: centre_of_gravity([odometry_end(rec, run) for rec in recordings for run in rec.runs if run.direction == d]) for d in measured

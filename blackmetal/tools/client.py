@@ -38,19 +38,18 @@ def add_client_arguments(parser: argparse.ArgumentParser) -> None:
 class Latest:
     """The newest decoded value of a key; the callback only stores it."""
 
-    def __init__(self, session: zenoh.Session, key: str, message_type: type[T]) -> None:
+    def __init__(self, session: zenoh.Session, key: str, message_type: type[T], value: Any = None) -> None:
         self.message_type = message_type
-        self.value: Any = None
+        self.value: Any = value
         self.count = 0
         self.received_at = 0.0
         self._event = threading.Event()
         self._sub = session.declare_subscriber(key, self._on_sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        try:
-            self.value = decode(self.message_type, to_bytes(sample.payload))
-        except PayloadError:
+        if (value := decoded(self.message_type, sample)) is None:
             return
+        self.value = value
         self.count += 1
         self.received_at = time.monotonic()
         self._event.set()
@@ -63,14 +62,19 @@ class Latest:
         return time.monotonic() - self.received_at if self.count else float("inf")
 
 
+def decoded(message_type: type[T], sample: zenoh.Sample) -> T | None:
+    """The sample's message; None for a payload that does not decode, which every tool skips."""
+    try:
+        return decode(message_type, to_bytes(sample.payload))
+    except PayloadError:
+        return None
+
+
 def decoded_replies(replies: Any, message_type: type[T]) -> Iterator[T]:
-    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``; the others are skipped."""
+    """The answers among ``replies`` (a ``get``'s) that decode as ``message_type``."""
     for reply in replies:
-        if reply.ok is not None:
-            try:
-                yield decode(message_type, to_bytes(reply.ok.payload))
-            except PayloadError:
-                continue
+        if reply.ok is not None and (value := decoded(message_type, reply.ok)) is not None:
+            yield value
 
 
 def first_reply(replies: Any, message_type: type[T]) -> T | None:
@@ -85,13 +89,11 @@ def query(session: zenoh.Session, key: str, message_type: type[T], timeout: floa
 def _require(session: zenoh.Session, key: str, message_type: type[T], settings: ZenohSettings, timeout: float, who: str, hint: str) -> T:
     """The first valid answer on ``key`` within ``timeout`` (asked once a second), or ToolError: no ``who`` answered, ``hint``."""
     deadline = time.monotonic() + timeout
-    while True:
-        value = query(session, key, message_type, timeout=1.0)
-        if value is not None:
-            return value
+    while (value := query(session, key, message_type, timeout=1.0)) is None:
         if time.monotonic() > deadline:
             raise ToolError(f"no {who} answered on {key} within {timeout:g} s (Zenoh: {settings.where()}). {hint}")
         time.sleep(0.2)
+    return value
 
 
 def require_gateway(session: zenoh.Session, keys: Keys, settings: ZenohSettings, timeout: float) -> GatewayHealth:
@@ -111,11 +113,8 @@ def add_drive_arguments(parser: argparse.ArgumentParser, turn_rate: float) -> No
 
 
 def connect(args: argparse.Namespace, waiting: tuple[threading.Event, str] | None = None) -> tuple[Keys, ZenohSettings, Any]:
-    """The key space, the Zenoh settings and an open session; BlackmetalError says what is wrong.
-
-    ``waiting`` (stop event, name) is for a tool that runs as a service (the recorder): it waits for its
-    endpoint, and the session is None if stopped first.
-    """
+    """The key space, the Zenoh settings and an open session; ``waiting`` (stop event, name): a service (the
+    recorder) waits for its endpoint, the session None if stopped first."""
     keys = Keys(getattr(args, "prefix", DEFAULT_PREFIX))
     settings = zenoh_settings(args)
     return keys, settings, open_session(settings) if waiting is None else open_when_reachable(settings, *waiting)
@@ -129,12 +128,9 @@ def tool(name: str) -> Callable[[Callable[[argparse.Namespace], int]], Callable[
         def wrapper(args: argparse.Namespace) -> int:
             try:
                 return run(args)
-            except (ToolError, ZenohUnavailable, ChildFailed) as exc:
-                print(f"blackmetal {name}: {exc}", file=sys.stderr)
-                return 1
             except BlackmetalError as exc:
                 print(f"blackmetal {name}: {exc}", file=sys.stderr)
-                return 2
+                return 1 if isinstance(exc, ToolError | ZenohUnavailable | ChildFailed) else 2
 
         return wrapper
 

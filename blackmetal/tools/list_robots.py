@@ -44,14 +44,11 @@ def alive_robots(session: zenoh.Session, timeout: float = 5.0, expect: int = 0) 
         deadline = time.monotonic() + timeout
         last_new = -math.inf
         while (left := deadline - time.monotonic()) > 0 and (len(prefixes) < max(expect, 1) or time.monotonic() - last_new < QUIET_S):
-            sample = subscriber.try_recv()
-            if sample is None:
+            if (sample := subscriber.try_recv()) is None:
                 time.sleep(min(0.02, left))
-            elif sample.kind == zenoh.SampleKind.PUT:
-                prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
-                if prefix not in prefixes:
-                    prefixes.add(prefix)
-                    last_new = time.monotonic()
+            elif sample.kind == zenoh.SampleKind.PUT and (prefix := Keys.prefix_of_gateway_token(str(sample.key_expr))) not in prefixes:
+                prefixes.add(prefix)
+                last_new = time.monotonic()
     finally:
         subscriber.undeclare()
     return sorted(prefixes, key=natural)
@@ -81,12 +78,6 @@ class RobotRow:
             "active_source": None if h is None else h.active_source,
             "health": None if h is None else msgspec.to_builtins(h),
         }
-
-
-def robot_rows(session: zenoh.Session, prefixes: list[str], timeout: float = QUERY_S) -> list[RobotRow]:
-    """Each prefix's health and pose; every query is sent before any answer is awaited."""
-    asked = [(p, session.get(Keys(p).health, timeout=timeout), session.get(Keys(p).pose, timeout=timeout)) for p in prefixes]
-    return [RobotRow(prefix, first_reply(health, GatewayHealth), first_reply(pose, Pose)) for prefix, health, pose in asked]
 
 
 HEADER = ("prefix", "link (control/log)", "poll", "x (m)", "y (m)", "yaw (°)", "e-stop", "drives")
@@ -128,7 +119,10 @@ def run(args: argparse.Namespace) -> int:
         robots = alive_robots(session, max(deadline - time.monotonic(), MIN_COLLECT_S), args.expect)
         # the rows' queries may take what is left of --wait (at least QUERY_S): a loaded gateway answers late, not never
         query_s = max(QUERY_S, deadline - time.monotonic())
-        rows = robot_rows(session, robots, query_s) if robots and output != "prefixes" else []
+        # every query is sent before any answer is awaited; piped prefixes need none
+        wanted = robots if output != "prefixes" else []
+        asked = [(p, session.get(Keys(p).health, timeout=query_s), session.get(Keys(p).pose, timeout=query_s)) for p in wanted]
+        rows = [RobotRow(p, first_reply(health, GatewayHealth), first_reply(pose, Pose)) for p, health, pose in asked]
     if output == "json":
         print(json.dumps([row.as_json() for row in rows]))
     if not robots:
@@ -137,8 +131,7 @@ def run(args: argparse.Namespace) -> int:
     if output == "table":
         print(table(rows))
     elif output == "prefixes":
-        for prefix in robots:
-            print(prefix)
+        print("\n".join(robots))
     return 0
 
 

@@ -48,8 +48,7 @@ def run(args: argparse.Namespace) -> int:
     with session:
         require_gateway(session, keys, settings, args.wait)
         if not assignments:
-            table = query(session, keys.params, GatewayParams, timeout=args.wait)
-            if table is None:
+            if (table := query(session, keys.params, GatewayParams, timeout=args.wait)) is None:
                 raise ToolError(f"the gateway on {keys.prefix} answered its health but not {keys.params}: is it older than this tool?")
             print(render(table.params))
             return 0

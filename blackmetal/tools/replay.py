@@ -57,12 +57,8 @@ def compare(result: BatchResult, path: str, prefix: str | None) -> str:
 
 
 def compare_poses(stamp: np.ndarray, x: np.ndarray, y: np.ndarray, yaw: np.ndarray, live: list[Pose]) -> str:
-    """Replayed poses against live ones of the same stamps, the replay moved onto the live pose at the first match.
-
-    A replay starts at (0, 0, 0) while the live odometry may have run (or been
-    reset elsewhere) before the recording began: both are compared as motion
-    from the first stamp they share, so only a difference in how they moved counts.
-    """
+    """Replayed poses against live ones of the same stamps, as motion from the first stamp they share: a replay
+    starts at (0, 0, 0) while the live odometry may have run (or been reset) before the recording began."""
     index = {float(s): k for k, s in enumerate(stamp)}
     pairs = [(pose, index[pose.stamp]) for pose in live if pose.stamp in index]
     if not pairs:
@@ -104,10 +100,9 @@ def run(args: argparse.Namespace) -> int:
             write_poses(result, out)
     if not args.quiet:
         if truncated:
-            last = final_pose(result)
             print(
                 f"note: the recording ends early (its recorder was stopped abruptly), {truncated}; every whole sample before "
-                f"the cut was replayed, the last at stamp {last.stamp:.3f}",
+                f"the cut was replayed, the last at stamp {final_pose(result).stamp:.3f}",
                 file=sys.stderr,
             )
         print(summary(result), file=sys.stderr)

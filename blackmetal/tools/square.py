@@ -65,9 +65,8 @@ class Closure:
 
 
 def closure(start: Pose, end: Pose) -> Closure:
-    dx, dy = end.x - start.x, end.y - start.y
-    c, s = math.cos(-start.yaw), math.sin(-start.yaw)
-    return Closure(c * dx - s * dy, s * dx + c * dy, math.remainder(end.yaw - start.yaw, math.tau))
+    ((dx, dy),) = _in_frame_of(start, [(end.x, end.y)])
+    return Closure(dx, dy, math.remainder(end.yaw - start.yaw, math.tau))
 
 
 @dataclass
@@ -100,15 +99,12 @@ class Driver:
     speed: float
     turn_rate: float
     stop: threading.Event
-    cmd_timeout: float = 0.5
+    approach_gain: float  # approach_gain() of the gateway's command timeout
     odometry_path: list[tuple[float, float]] = field(default_factory=list)
     truth_path: list[tuple[float, float]] = field(default_factory=list)
     _moved_at: float = field(default_factory=time.monotonic)
     _last_pose: tuple[float, float, float] | None = None
     _rest: Pose | None = None  # where settle() found the robot at rest; None once motion is commanded
-
-    def __post_init__(self) -> None:
-        self.approach_gain = approach_gain(self.cmd_timeout)
 
     def _send(self, v: float, w: float) -> None:
         if v or w:
@@ -228,11 +224,8 @@ def report(run: Run) -> str:
 
 
 def umbmark_figure(runs: list[Run]) -> str | None:
-    """UMBmark's E_max,syst (None without the simulator's truth) and the calibrate command of the true ends.
-
-    A return error is the true end minus the odometry's, both in the start frame: the driver's own stopping error
-    (larger on a loaded machine) is not counted; calibrate takes the odometry's ends from the recording, as here.
-    """
+    """UMBmark's E_max,syst (None without the simulator's truth) and the calibrate command of the true ends. A return
+    error is the true end minus the odometry's (start frame), so the driver's own stopping error is not counted."""
     errors: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     ends: dict[str, list[tuple[float, float]]] = {"clockwise": [], "counter-clockwise": []}
     for run in runs:
@@ -274,12 +267,9 @@ def plot(runs: list[Run], path: str) -> None:
         if run.truth_path:
             xs, ys = zip(*run.truth_path, strict=False)
             ax.plot(xs, ys, "--", label=f"truth ({run.direction})")
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
+    ax.set(aspect="equal", xlabel="x (m)", ylabel="y (m)", title="blackmetal square")
     ax.grid(True)
     ax.legend()
-    ax.set_title("blackmetal square")
     fig.savefig(path, dpi=120)
     plt.close(fig)
 
@@ -303,14 +293,14 @@ def run(args: argparse.Namespace) -> int:
             health = require_gateway(session, keys, settings, args.wait)
             if health.estop:
                 raise ToolError("the emergency stop is engaged; release it first with `blackmetal estop off` (same -e and --prefix)")
-            first = require_pose(session, keys, settings, args.wait)
-            pose = Latest(session, keys.pose, Pose)
-            pose.value = first
+            pose = Latest(session, keys.pose, Pose, require_pose(session, keys, settings, args.wait))
             truth = Latest(session, keys.sim_truth, Pose)
             has_truth = truth.wait(2.0) is not None  # the simulator's
             pose.wait(2.0)
             publisher = session.declare_publisher(keys.cmd_vel, express=True)
-            driver = Driver(publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, health.cmd_timeout)
+            driver = Driver(
+                publisher, pose, truth if has_truth else None, args.speed, args.turn_rate, stop, approach_gain(health.cmd_timeout)
+            )
             print(f"blackmetal square: {args.size} m at {args.speed} m/s on {args.prefix} via {settings.where()}", flush=True)
             runs = []
             for clockwise in ([False, True] if args.both else [args.clockwise]) * args.repeat:
@@ -318,12 +308,7 @@ def run(args: argparse.Namespace) -> int:
                 result = drive_square(driver, args.size, clockwise)
                 runs.append(result)
                 if recorder is not None:
-                    span = {
-                        "direction": result.direction,
-                        "size_m": repr(args.size),
-                        "start_ns": str(started),
-                        "end_ns": str(time.time_ns()),
-                    }
+                    span = dict(direction=result.direction, size_m=repr(args.size), start_ns=str(started), end_ns=str(time.time_ns()))
                     recorder.note("blackmetal.square", span)
                 print(report(result), flush=True)
         except Cancelled:
@@ -333,10 +318,8 @@ def run(args: argparse.Namespace) -> int:
             if recorder is not None:
                 recorder.stop()
                 print(f"recorded {', '.join(str(f) for f in recorder.recording.files)}", flush=True)
-    if args.both:
-        figure = umbmark_figure(runs)
-        if figure:
-            print(figure, flush=True)
+    if args.both and (figure := umbmark_figure(runs)):
+        print(figure, flush=True)
     if args.json:
         out = [{"direction": r.direction, "odometry": r.odometry.as_dict(), "truth": r.truth.as_dict() if r.truth else None} for r in runs]
         print(json.dumps(out))

@@ -46,8 +46,7 @@ def stop_robot(host: str, port: int, timeout: float = 3.0) -> str | None:
                     sock.sendall(wire.encode_request(request))
                 except OSError as exc:
                     return f"lost the robot's control port {host}:{port}: {exc.strerror or exc}"
-                status = _status_reply(sock, decoder, min(deadline, time.monotonic() + 0.5))
-                if status is not None and status.ok:
+                if (status := _status_reply(sock, decoder, min(deadline, time.monotonic() + 0.5))) is not None and status.ok:
                     break
                 time.sleep(pause)
                 pause = min(pause * 2, RETRY_CAP_S)
@@ -82,8 +81,7 @@ def run(args: argparse.Namespace) -> int:
     found = read_settings_file(args.settings) if args.settings else {}  # a ConfigError: exit 2
     args.robot = args.robot or str(found.get("robot", "127.0.0.1"))
     args.control_port = args.control_port or int(found.get("control_port", model.CONTROL_PORT))
-    reason = stop_robot(args.robot, args.control_port, args.timeout)
-    if reason is not None:
+    if (reason := stop_robot(args.robot, args.control_port, args.timeout)) is not None:
         raise ToolError(reason)
     print(f"blackmetal stop-robot: the robot at {args.robot}:{args.control_port} accepted zero velocity and NORMAL_STOP")
     return 0

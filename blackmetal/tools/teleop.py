@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import math
 import os
+import re
 import select
 import signal
 import sys
@@ -34,23 +35,14 @@ DRIVE_KEYS: dict[str, tuple[float, float]] = {
     "a": (0.0, 1.0), "left": (0.0, 1.0),
     "d": (0.0, -1.0), "right": (0.0, -1.0),
 }  # fmt: skip
-ARROWS = {"A": "up", "B": "down", "C": "right", "D": "left"}
+#: Raw terminal input -> key name: arrows arrive as ESC [ A..D, Ctrl-C and Ctrl-D quit.
+NAMES = {"\x1b[A": "up", "\x1b[B": "down", "\x1b[C": "right", "\x1b[D": "left", " ": "space", "\x03": "quit", "\x04": "quit"}
 
 
 def parse_keys(data: bytes) -> list[str]:
-    """Key names from raw terminal bytes (arrows arrive as ESC [ A..D)."""
-    keys: list[str] = []
+    """Key names from raw terminal bytes."""
     text = data.decode("utf-8", errors="ignore")
-    i = 0
-    while i < len(text):
-        if text.startswith("\x1b[", i) and i + 2 < len(text) and text[i + 2] in ARROWS:
-            keys.append(ARROWS[text[i + 2]])
-            i += 3
-            continue
-        ch = text[i]
-        keys.append({" ": "space", "\x03": "quit", "\x04": "quit"}.get(ch, ch.lower()))
-        i += 1
-    return keys
+    return [NAMES.get(key, key.lower()) for key in re.findall(r"\x1b\[[ABCD]|.", text, re.DOTALL)]
 
 
 @dataclass
@@ -119,9 +111,6 @@ class Teleop:
         return Twist(linear=Vector3(x=forward * self.speed), angular=Vector3(z=turn * self.turn_rate))
 
 
-HELP = "arrows/WASD drive, space stop, e e-stop, +/- speed, q quit"
-
-
 def _status(teleop: Teleop, pose: Pose | None, health: GatewayHealth | None) -> str:
     forward, turn = teleop.direction
     parts = [f"cmd v={forward * teleop.speed:+.2f} w={turn * teleop.turn_rate:+.2f} (max {teleop.speed:.2f} m/s)"]
@@ -149,9 +138,11 @@ def run(args: argparse.Namespace) -> int:
             "estop_release": session.declare_publisher(keys.estop_release, express=True),
         }
         pose = Latest(session, keys.pose, Pose)
-        health = Latest(session, keys.health, GatewayHealth)
-        health.value = health0
-        print(f"blackmetal teleop on {args.prefix} via {settings.where()}: {HELP}", flush=True)
+        health = Latest(session, keys.health, GatewayHealth, health0)
+        print(
+            f"blackmetal teleop on {args.prefix} via {settings.where()}: arrows/WASD drive, space stop, e e-stop, +/- speed, q quit",
+            flush=True,
+        )
         return _loop(teleop, publishers, pose, health)
 
 
@@ -171,8 +162,7 @@ def _loop(teleop: Teleop, publishers: dict[str, zenoh.Publisher], pose: Latest, 
             now = time.monotonic()
             messages = []
             if ready:
-                data = os.read(fd, 64)
-                if not data:
+                if not (data := os.read(fd, 64)):
                     break
                 for key in parse_keys(data):
                     messages += teleop.on_key(key, now)

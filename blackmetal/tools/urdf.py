@@ -26,9 +26,7 @@ from .client import tool
 
 @tool("urdf")
 def run(args: argparse.Namespace) -> int:
-    separation = args.wheel_separation
-    if args.calibration:
-        separation = model.read_calibration(args.calibration).wheel_separation
+    separation = model.read_calibration(args.calibration).wheel_separation if args.calibration else args.wheel_separation
     body = model.Body(wheel_separation=separation, wheel_radius=args.wheel_radius)
     sys.stdout.write(
         model.urdf(body, left_joint=args.left_joint, right_joint=args.right_joint, frame_prefix=args.frame_prefix, name=args.name)

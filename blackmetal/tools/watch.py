@@ -11,9 +11,9 @@ from collections import deque
 import zenoh
 
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, PayloadError, Pose, RobotStatus, decode, to_bytes
+from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, Pose, RobotStatus
 
-from .client import Latest, add_client_arguments, connect, decoded_replies, require_gateway, tool
+from .client import Latest, add_client_arguments, connect, decoded, decoded_replies, require_gateway, tool
 
 
 def _fmt_pose(pose: Pose | None) -> str:
@@ -57,16 +57,14 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
     else:
         h = health
         rtt = "-" if h.last_rtt_ms is None else f"{h.last_rtt_ms:.2f} ms"
-        lines.append(
+        lines += [
             f"health  control {_link(h.control)} (reconnects {h.control.reconnects}), log {_link(h.log)}; "
             f"poll {h.poll_hz:.1f} Hz, rtt {rtt}; e-stop {'ENGAGED' if h.estop else 'off'}; "
-            f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}"
-        )
-        lines.append(f"drivers {describe_sources(h)}")
-        lines.append(
+            f"{'idle (cmd timeout)' if h.cmd_timeout_active else 'commanded'}",
+            f"drivers {describe_sources(h)}",
             f"counts  commands {h.commands_sent}, polls {h.polls}, replies {h.replies}, full-buffer {h.full_buffer}, "
-            f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}"
-        )
+            f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}",
+        ]
     lines.append(f"errors  {len(errors)} recent" + ("" if errors else ": none"))
     for report in errors[-5:]:
         lines.append(f"  {time.strftime('%H:%M:%S', time.localtime(report.stamp))} {report.source} {report.key}: {report.reason}")
@@ -83,15 +81,12 @@ def run(args: argparse.Namespace) -> int:
         pose = Latest(session, keys.pose, Pose)
         truth = Latest(session, keys.sim_truth, Pose)
         status = Latest(session, keys.status, RobotStatus)
-        health = Latest(session, keys.health, GatewayHealth)
-        health.value = health0
+        health = Latest(session, keys.health, GatewayHealth, health0)
         errors: deque[ErrorReport] = deque(maxlen=50)
 
         def on_error(sample: zenoh.Sample) -> None:
-            try:
-                errors.append(decode(ErrorReport, to_bytes(sample.payload)))
-            except PayloadError:
-                pass
+            if (report := decoded(ErrorReport, sample)) is not None:
+                errors.append(report)
 
         session.declare_subscriber(keys.errors, on_error)
         errors.extend(recent_errors(session, keys.errors, args.wait))  # what went wrong before this watch started
@@ -104,11 +99,8 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = pose.count, now
-            lines = render(pose.value, truth.value, status.value, health.value, list(errors), rate)
-            if tty:
-                sys.stdout.write("\x1b[H\x1b[J" + "\n".join(lines) + "\n")
-            else:
-                sys.stdout.write("\n".join(lines) + "\n--\n")
+            text = "\n".join(render(pose.value, truth.value, status.value, health.value, list(errors), rate))
+            sys.stdout.write(f"\x1b[H\x1b[J{text}\n" if tty else f"{text}\n--\n")
             sys.stdout.flush()
             if now >= deadline or stop.wait(min(period, max(deadline - now, 0.0))):
                 break

@@ -23,7 +23,7 @@ from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.ros2.naming import Flavor, parse_distros
 from blackmetal.ros2.settings import Ros2Settings
-from blackmetal.runtime.harness import ServiceProcess, stop_in_order
+from blackmetal.runtime.harness import stop_in_order
 from blackmetal.runtime.settings import default_of
 from blackmetal.runtime.signals import stop_on_signals
 from blackmetal.runtime.zenoh_setup import add_zenoh_arguments, open_when_reachable
@@ -57,13 +57,10 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
     )
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
     parser.add_argument("--log-port", type=int, default=log_port, help=f"robot log port with --robot (default {log_port})")
-    parser.add_argument(
-        "--prefix", default=None, help=f"key-expression prefix (default: the --settings file's prefix, else {DEFAULT_PREFIX})"
-    )
+    parser.add_argument("--prefix", help=f"key-expression prefix (default: the --settings file's prefix, else {DEFAULT_PREFIX})")
     parser.add_argument(
         "--poll-hz",
-        type=float,
-        default=None,  # not given: the gateway's own default (or the --settings file) applies
+        type=float,  # not given: the gateway's own default (or the --settings file) applies
         help=f"wheel polls per second (default {default_of(GatewaySettings, 'poll_hz'):g})",
     )
     parser.add_argument("--seed", type=int, help="simulator fault seed")
@@ -129,11 +126,9 @@ def run(args: argparse.Namespace) -> int:
         keys = Keys(validate_prefix(args.prefix or files.prefix or DEFAULT_PREFIX))
         topology = Topology(args)
         stop = stop_on_signals()
-        session = open_when_reachable(topology.settings, stop, "up")
-        if session is None:
+        if (session := open_when_reachable(topology.settings, stop, "up")) is None:
             return 0  # Ctrl-C while waiting for the router
-        children: list[ServiceProcess] = []
-        launch = Launch(args, files, topology, children)
+        launch = Launch(args, files, topology, [])
         try:
             if fleet:
                 with tempfile.TemporaryDirectory(prefix="blackmetal-fleet-") as workdir:
@@ -141,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
             return run_one(launch, keys, session, stop)
         finally:
             # odometry and gateway first (the gateway stops the robot), then the simulator
+            children = launch.children
             stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)
             session.close()
     finally:

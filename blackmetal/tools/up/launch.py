@@ -96,16 +96,15 @@ def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.
     if view:
         print(f"Foxglove: open a Foxglove WebSocket connection to {view} (layout: deploy/foxglove/blackmetal.layout.json)", flush=True)
     print(drive_help(keys, hub, cmd_timeout), flush=True)
-    children = launch.children
     announce_ready("up", endpoint=hub, prefix=prefix, robot=host, control_port=control_port, log_port=log_port,
-                   children={child.name: child.proc.pid for child in children})  # fmt: skip
+                   children={child.name: child.proc.pid for child in launch.children})  # fmt: skip
     status = StatusLine(session, keys, with_truth=not args.robot)
 
     def stop_the_robot() -> str:
         reason = stop_robot(host, control_port, timeout=2.0)
         return "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
 
-    return live(args, children, stop, status.render, {gateway: stop_the_robot})
+    return live(args, launch.children, stop, status.render, {gateway: stop_the_robot})
 
 
 def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fleet_file: Path) -> int:
@@ -132,9 +131,8 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
         child.wait_ready(READY_TIMEOUT_S)
     view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
     shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
-    processes = (
-        "one gateway, one odometry process" if len(gateways) == 1 else f"{len(gateways)} gateway and {len(gateways)} odometry processes"
-    )
+    n = len(gateways)
+    processes = "one gateway, one odometry process" if n == 1 else f"{n} gateway and {n} odometry processes"
     print(
         f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {launch.topology.describe()}",
         flush=True,
@@ -179,11 +177,8 @@ def live(
     render: Callable[[], str],
     stoppers: Mapping[ServiceProcess, Callable[[], str]],
 ) -> int:
-    """The status line until Ctrl-C (0), or until a child dies (1, reported with its last lines).
-
-    A gateway that dies has its robots stopped first (``stoppers[gateway]``) and is started again with the e-stop
-    latch it had; any other child's death ends up.
-    """
+    """The status line until Ctrl-C (0), or until a child dies (1, with its last lines). A gateway that dies has its
+    robots stopped first (``stoppers[gateway]``) and is started again with the e-stop latch it had."""
     tty = sys.stdout.isatty()
     say = functools.partial(print, file=sys.stderr, flush=True)
     interval = _status_interval(args)

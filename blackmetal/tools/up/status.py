@@ -15,9 +15,9 @@ import zenoh
 
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ANY_GATEWAY_ALIVE, ErrorReport, GatewayHealth, Keys, PayloadError, Pose, decode, to_bytes
+from blackmetal.schemas import ANY_GATEWAY_ALIVE, ErrorReport, GatewayHealth, Keys, Pose
 
-from ..client import Latest
+from ..client import Latest, decoded
 
 #: The status line says the fleet is behind when its median poll rate is below this fraction of the asked rate.
 BEHIND_RATIO = 0.9
@@ -131,8 +131,7 @@ class PoseSampler:
         if self._subscriber is not None:
             counts = dict.fromkeys(self.prefixes, 0)
             while (sample := self._subscriber.try_recv()) is not None:
-                prefix = str(sample.key_expr).removesuffix("/pose")
-                if prefix in counts:
+                if (prefix := str(sample.key_expr).removesuffix("/pose")) in counts:
                     counts[prefix] += 1
             undeclare(self._subscriber)
             self._subscriber = None
@@ -165,8 +164,7 @@ class FleetStatus:
             ]
 
     def _on_token(self, sample: zenoh.Sample) -> None:
-        prefix = Keys.prefix_of_gateway_token(str(sample.key_expr))
-        if prefix not in self.errors:  # not one of this fleet's
+        if (prefix := Keys.prefix_of_gateway_token(str(sample.key_expr))) not in self.errors:  # not one of this fleet's
             return
         if sample.kind == zenoh.SampleKind.PUT:
             self.alive.add(prefix)
@@ -174,10 +172,8 @@ class FleetStatus:
             self.alive.discard(prefix)
 
     def _on_health(self, prefix: str, sample: zenoh.Sample) -> None:
-        try:
-            self.health[prefix] = (decode(GatewayHealth, to_bytes(sample.payload)), time.monotonic())
-        except PayloadError:  # a malformed report: the previous one stands until it goes stale
-            pass
+        if (health := decoded(GatewayHealth, sample)) is not None:  # else the previous one stands until it goes stale
+            self.health[prefix] = (health, time.monotonic())
 
     def _on_error(self, prefix: str, _sample: zenoh.Sample) -> None:
         self.errors[prefix] += 1
@@ -190,18 +186,13 @@ class FleetStatus:
         polls = [fresh[r.prefix].poll_hz if r.prefix in fresh else 0.0 for r in self.robots]
         count = len(self.robots)
         parts = [f"robots {len(self.alive)}/{count} up"]
-        linked = {
-            r.prefix for r in self.robots if r.prefix in fresh and fresh[r.prefix].control.state == fresh[r.prefix].log.state == "connected"
-        }
+        linked = {prefix for prefix, h in fresh.items() if h.control.state == h.log.state == "connected"}
         self._ever_linked |= linked
         # a robot not yet up since the start is connecting, no fault; one that was up and is not is missing or down
         connecting = [r.id for r in self.robots if r.prefix not in linked and r.prefix not in self._ever_linked]
         missing = [r.id for r in self.robots if r.prefix not in fresh and r.prefix in self._ever_linked]
         down = [r.id for r in self.robots if r.prefix in fresh and r.prefix not in linked and r.prefix in self._ever_linked]
-        if connecting:
-            parts.append(f"connecting {len(connecting)}: {_named(connecting)}")
-        if missing:
-            parts.append(f"no health {len(missing)}: {_named(missing)}")
+        parts += [f"{label} {len(ids)}: {_named(ids)}" for label, ids in (("connecting", connecting), ("no health", missing)) if ids]
         if down:
             first = fresh[next(r.prefix for r in self.robots if r.id == down[0])]
             reason = first.control.reason or first.log.reason
@@ -210,17 +201,13 @@ class FleetStatus:
         linked_polls = [fresh[r.prefix].poll_hz for r in self.robots if r.prefix in linked]
         if linked_polls and statistics.median(linked_polls) < BEHIND_RATIO * self.poll_hz:
             parts.append(f"BEHIND {self.poll_hz:g} Hz: the host is short of CPU (commands and e-stops keep their latency)")
-        if rates is None:
-            parts.append("poses/s measuring")
-        else:
-            parts.append(f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
+        parts.append("poses/s measuring" if rates is None else f"poses/s min {min(rates):.0f} median {statistics.median(rates):.0f}")
         stopped = [r.id for r in self.robots if r.prefix in fresh and fresh[r.prefix].estop]
         parts.append(f"E-STOP {len(stopped)}/{count}: {_named(stopped)}" if stopped else f"e-stop 0/{count}")
         driving = [f"{r.id} ({fresh[r.prefix].active_source})" for r in self.robots if r.prefix in fresh and fresh[r.prefix].active_source]
         if driving:
             parts.append(f"driving {_named(driving)}")
-        erring = [r.id for r in self.robots if self.errors[r.prefix]]
-        if erring:
+        if erring := [r.id for r in self.robots if self.errors[r.prefix]]:
             parts.append(f"errors {sum(self.errors.values())}: {_named(erring)}")
         return " | ".join(parts)
 

@@ -16,10 +16,8 @@ ROBOTS_PER_PROCESS = 150
 
 
 class Topology:
-    """Where up's session and its children meet (docs/commands/up.md): a hub of up's own, or the router of ``-e``.
-
-    With ``-e`` only, every process is a client of the router: ``rmw_zenohd`` does not route between peers.
-    """
+    """Where up's session and its children meet (docs/commands/up.md): a hub of up's own, or the router of ``-e``
+    (with ``-e`` only, every process is its client: ``rmw_zenohd`` does not route between peers)."""
 
     def __init__(self, args: argparse.Namespace) -> None:
         self.settings = zenoh_settings(args)
@@ -78,9 +76,5 @@ def process_count(robots: int, asked: int | None, cores: int | None = None) -> i
 def shards(robots: list[FleetRobot], count: int) -> list[list[FleetRobot]]:
     """``robots`` in ``count`` contiguous groups of near-equal size (r1..r50, r51..r100)."""
     size, extra = divmod(len(robots), count)
-    out, start = [], 0
-    for k in range(count):
-        end = start + size + (1 if k < extra else 0)
-        out.append(robots[start:end])
-        start = end
-    return out
+    bounds = [k * size + min(k, extra) for k in range(count + 1)]  # the first `extra` groups take one more
+    return [robots[bounds[k] : bounds[k + 1]] for k in range(count)]
