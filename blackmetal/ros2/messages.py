@@ -59,22 +59,21 @@ class RosCodec:
         return self.transforms(pose.stamp, [Transform(frames.odom, frames.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w))])
 
     def transforms(self, stamp: float, transforms: Sequence[Transform]) -> bytes:
-        return self.encode(
-            ros.TF_MESSAGE,
+        """tf2_msgs/TFMessage of ``transforms``, stamped ``stamp``; the classes looked up once (every /tf of a fleet)."""
+        types = self.store.types
+        stamped, transform = types["geometry_msgs/msg/TransformStamped"], types["geometry_msgs/msg/Transform"]
+        vector3, quaternion = types["geometry_msgs/msg/Vector3"], types["geometry_msgs/msg/Quaternion"]
+        message = types[ros.TF_MESSAGE](
             transforms=[
-                self.message(
-                    "geometry_msgs/msg/TransformStamped",
+                stamped(
                     header=self.header(stamp, t.parent),
                     child_frame_id=t.child,
-                    transform=self.message(
-                        "geometry_msgs/msg/Transform",
-                        translation=self.vector3(*t.translation),
-                        rotation=self.message("geometry_msgs/msg/Quaternion", **dict(zip("xyzw", t.rotation, strict=True))),
-                    ),
+                    transform=transform(translation=vector3(*t.translation), rotation=quaternion(*t.rotation)),
                 )
                 for t in transforms
-            ],
+            ]
         )
+        return bytes(self.store.serialize_cdr(message, ros.TF_MESSAGE))
 
     def joint_state(self, stamp: float, names: list[str], positions: list[float], velocities: list[float]) -> bytes:
         import numpy as np
