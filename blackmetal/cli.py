@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from . import __version__
+from .runtime.harness import end_with_parent
 
 
 def _schema(args: argparse.Namespace) -> int:
@@ -75,6 +76,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Run one subcommand; output piped into a reader that stops early (``| head``) ends quietly."""
     argv = sys.argv[1:] if argv is None else argv
+    end_with_parent()
     try:
         parser = build_parser(argv[0] if argv and argv[0] in COMMANDS else None)
         args, unknown = parser.parse_known_args(argv)

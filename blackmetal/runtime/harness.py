@@ -23,6 +23,25 @@ from typing import Any
 from blackmetal.schemas import BlackmetalError
 
 READY_FD_ENV = "BLACKMETAL_READY_FD"
+#: Set for a child in its own session: the pid of the parent it must not outlive (:func:`end_with_parent`).
+PARENT_PID_ENV = "BLACKMETAL_PARENT_PID"
+
+
+def end_with_parent() -> None:
+    """A child the harness put in its own session (``up``'s) gets SIGTERM, its orderly stop, when its parent dies.
+
+    Ctrl-C never reaches such a child, so without this a ``kill -9`` of ``up`` left its gateway, odometry and
+    simulator running. Linux only (``PR_SET_PDEATHSIG``); the parent must spawn from a thread that lives as long
+    as it does (``up`` spawns from its main thread).
+    """
+    parent = os.environ.pop(PARENT_PID_ENV, None)
+    if not parent or not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGTERM)  # 1: PR_SET_PDEATHSIG
+    if os.getppid() != int(parent):  # the parent died before the call above: nobody will send the signal
+        os.kill(os.getpid(), signal.SIGTERM)
 
 
 def announce_ready(service: str, **info: Any) -> None:
@@ -73,7 +92,13 @@ class ServiceProcess:
                 stdin=subprocess.PIPE if interactive else subprocess.DEVNULL,
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
-                env={**os.environ, "PYTHONUNBUFFERED": "1", **(env or {}), READY_FD_ENV: str(write_fd)},
+                env={
+                    **os.environ,
+                    "PYTHONUNBUFFERED": "1",
+                    **(env or {}),
+                    READY_FD_ENV: str(write_fd),
+                    **({PARENT_PID_ENV: str(os.getpid())} if own_session else {}),
+                },
                 text=True,
                 pass_fds=(write_fd,),
                 start_new_session=own_session,  # Ctrl-C reaches the parent only; it stops children in order

@@ -150,6 +150,26 @@ def test_under_up_a_killed_gateway_comes_back_engaged(children: list[Child]) -> 
         held_then_released(session, endpoint, killed_at=killed_at)
 
 
+def _running(pid: int) -> bool:
+    """Alive and not a zombie (a child whose parent died may wait to be reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as stat:
+            return stat.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except (FileNotFoundError, ProcessLookupError):
+        return False
+
+
+def test_a_killed_up_leaves_no_process_behind(children: list[Child]) -> None:
+    """``kill -9`` of ``up``: its gateway, odometry and simulator (in their own session, out of Ctrl-C's reach) end too."""
+    zport = free_port()
+    up = Child(["-m", "blackmetal", "up", "-l", f"tcp/127.0.0.1:{zport}", "--no-multicast-scouting"])
+    children.append(up)
+    pids = list(up.ready(timeout=60)["children"].values())
+    assert pids and all(_running(pid) for pid in pids)
+    os.kill(up.proc.pid, signal.SIGKILL)
+    wait_for(lambda: not any(_running(pid) for pid in pids), timeout=20, what="up's children gone after up was killed")
+
+
 def test_in_a_fleet_of_ten_a_killed_gateway_comes_back_with_each_robots_latch(children: list[Child]) -> None:
     zport = free_port()
     endpoint = f"tcp/127.0.0.1:{zport}"
