@@ -3,10 +3,21 @@
 from .codec import MAX_PAYLOAD_BYTES, decode, encode, excerpt, payload_bytes, to_bytes  # noqa: F401
 from .errors import BlackmetalError, ConfigError, MissingExtra, PayloadError, ZenohUnavailable, ZenohUnreachable, require_extra  # noqa: F401
 from .jsonschema import json_schemas  # noqa: F401
-from .keys import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, KEY_SPECS, Delivery, Keys, KeySpec, Sources, any_alive, delivery_of, validate_prefix  # noqa: F401
+from .keys import (  # noqa: F401
+    ANY_GATEWAY_ALIVE,
+    DEFAULT_PREFIX,
+    KEY_SPECS,
+    MESSAGE_TYPES,
+    Delivery,
+    Keys,
+    KeySpec,
+    Sources,
+    any_alive,
+    delivery_of,
+    validate_prefix,
+)
 from .messages import (  # noqa: F401
     DIRECTION_NAMES,
-    MESSAGE_TYPES,
     STATE_NAMES,
     DriverChange,
     ErrorReport,
@@ -33,4 +44,18 @@ from .messages import (  # noqa: F401
     stamp_parts,
     wrap_angle,
     yaw_quaternion,
+)
+from .navigation import (  # noqa: F401
+    GoalState,
+    MapPose,
+    NavCancel,
+    NavCancelReply,
+    NavFeedback,
+    NavGoal,
+    NavGoalReply,
+    NavMove,
+    NavResult,
+    NavResultQuery,
+    PlanarPose,
+    SetPose,
 )

@@ -6,8 +6,7 @@ from typing import Any
 
 import msgspec
 
-from .keys import KEY_SPECS
-from .messages import MESSAGE_TYPES
+from .keys import KEY_SPECS, MESSAGE_TYPES
 
 
 def json_schemas() -> dict[str, dict[str, Any]]:

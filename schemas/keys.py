@@ -13,6 +13,7 @@ import msgspec
 
 from .errors import ConfigError
 from .messages import (
+    ROBOT_MESSAGE_TYPES,
     DriverChange,
     ErrorReport,
     EStop,
@@ -28,8 +29,24 @@ from .messages import (
     Twist,
     WheelImpulses,
 )
+from .navigation import (
+    NAV_MESSAGE_TYPES,
+    MapPose,
+    NavCancel,
+    NavCancelReply,
+    NavFeedback,
+    NavGoal,
+    NavGoalReply,
+    NavMove,
+    NavResult,
+    NavResultQuery,
+    SetPose,
+)
 
 DEFAULT_PREFIX = "robot"
+
+#: Every message type, by the name used for its JSON Schema file.
+MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {**ROBOT_MESSAGE_TYPES, **NAV_MESSAGE_TYPES}
 
 
 class Delivery(StrEnum):
@@ -76,9 +93,19 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("errors", "errors", ErrorReport, "publication", Delivery.TELEMETRY),
     KeySpec("pose", "pose", Pose, "publication", Delivery.TELEMETRY),
     KeySpec("odometry_reset", "odometry/reset", PoseReset, "query", reply=Pose),
+    KeySpec("nav_goal", "nav/goal", NavGoal, "query", reply=NavGoalReply),
+    KeySpec("nav_move", "nav/move", NavMove, "query", reply=NavGoalReply),
+    KeySpec("nav_cancel", "nav/cancel", NavCancel, "query", reply=NavCancelReply),
+    KeySpec("nav_feedback", "nav/feedback", NavFeedback, "publication", Delivery.TELEMETRY),
+    KeySpec("nav_result", "nav/result", NavResultQuery, "query", reply=NavResult),
+    KeySpec("nav_map_pose", "nav/map_pose", MapPose, "publication", Delivery.TELEMETRY),
+    KeySpec("nav_set_pose", "nav/set_pose", SetPose, "query", reply=MapPose),
+    KeySpec("nav_params", "nav/params", GatewayParams, "publication", Delivery.TELEMETRY),
+    KeySpec("nav_params_set", "nav/params/set", ParamsSet, "query", reply=ParamsSetReply),
     KeySpec("alive_gateway", "alive/gateway", None, "liveliness"),
     KeySpec("alive_odometry", "alive/odometry", None, "liveliness"),
     KeySpec("alive_sim", "alive/sim", None, "liveliness"),
+    KeySpec("alive_nav", "alive/nav", None, "liveliness"),
     KeySpec("sim_truth", "sim/truth", Pose, "publication", Delivery.TELEMETRY),
     KeySpec("sim_faults", "sim/faults", SimFaults, "publication", Delivery.COMMAND),
 )
@@ -157,9 +184,19 @@ class Keys:
     errors: str
     pose: str
     odometry_reset: str
+    nav_goal: str
+    nav_move: str
+    nav_cancel: str
+    nav_feedback: str
+    nav_result: str
+    nav_map_pose: str
+    nav_set_pose: str
+    nav_params: str
+    nav_params_set: str
     alive_gateway: str
     alive_odometry: str
     alive_sim: str
+    alive_nav: str
     sim_truth: str
     sim_faults: str
 

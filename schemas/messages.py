@@ -355,8 +355,8 @@ class ParamsSetReply(msgspec.Struct):
     params: GatewayParams
 
 
-#: Every message type, by the name used for its JSON Schema file.
-MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
+#: The robot's messages, by the name used for its JSON Schema file (every message: ``keys.MESSAGE_TYPES``).
+ROBOT_MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {
     "Twist": Twist,
     "EStop": EStop,
     "Lock": Lock,

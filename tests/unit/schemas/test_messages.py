@@ -17,7 +17,9 @@ import pytest
 
 from blackmetal.schemas import MESSAGE_TYPES, PayloadError, decode, encode
 from blackmetal.schemas import messages as m
+from blackmetal.schemas import navigation as n
 
+GOAL_ID = "0123456789abcdef0123456789abcdef"
 PARAMS = m.GatewayParams(
     stamp=5.0, params=[m.Param("max_speed", "double", 0.5, min=0.0, max=1.0), m.Param("name", "string", "r1", read_only=True)]
 )
@@ -49,6 +51,34 @@ EXAMPLES: dict[str, msgspec.Struct] = {
     "ParamsSetReply": m.ParamsSetReply(
         results=[m.ParamResult("max_speed", True), m.ParamResult("x", False, "no such parameter")], params=PARAMS
     ),
+    "NavGoal": n.NavGoal(x=1.0, y=-2.0, yaw=0.5, frame="odom", goal_id=GOAL_ID),
+    "NavMove": n.NavMove(distance=-0.5, goal_id=GOAL_ID),
+    "NavGoalReply": n.NavGoalReply(accepted=False, goal_id=GOAL_ID, reason="the robot is e-stopped"),
+    "NavCancel": n.NavCancel(goal_id=GOAL_ID),
+    "NavCancelReply": n.NavCancelReply(canceled=[GOAL_ID], reason=""),
+    "NavFeedback": n.NavFeedback(
+        stamp=1.0,
+        goal_id=GOAL_ID,
+        state=n.GoalState.ABORTED,
+        pose=n.PlanarPose(0.1, 0.2, 0.3),
+        goal=n.PlanarPose(1.0, 2.0, 3.0, frame="odom"),
+        distance_remaining=2.0,
+        eta=4.5,
+        elapsed=1.5,
+        recoveries=0,
+        reason="e-stop engaged",
+    ),
+    "NavResultQuery": n.NavResultQuery(goal_id=GOAL_ID),
+    "NavResult": n.NavResult(
+        found=True,
+        goal_id=GOAL_ID,
+        state=n.GoalState.SUCCEEDED,
+        pose=n.PlanarPose(1.0, 2.0, 0.0),
+        goal=n.PlanarPose(1.0, 2.0, 0.0),
+        elapsed=3.0,
+    ),
+    "MapPose": n.MapPose(stamp=1.0, x=10.0, y=-5.0, yaw=1.5, map="site", by="r1/nav/set_pose"),
+    "SetPose": n.SetPose(x=1.0, y=2.0, yaw=0.1),
 }
 
 
