@@ -1,0 +1,515 @@
+"""The navigation service's core: payloads and ``now`` in, twists, feedback and reports out. Pure and clock-injected.
+
+It decides everything the service does: which goals to take (and the sentence for the ones it refuses), when a goal
+ends and why, what to command on each pose. Its edge (``nav/zenoh_edge.py``) only routes: inputs by key to the ``on_``
+methods, outputs by type to their keys (:data:`NavOutput`), and calls :meth:`NavCore.tick` at
+:meth:`NavCore.next_deadline`.
+
+A goal that ends other than by arriving (canceled, aborted) sends one zero twist, and then nothing: after an e-stop is
+released, or a teleop lets go, the robot stays where it is until someone sends a new goal.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from typing import TypeVar
+
+import msgspec
+
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import (
+    DriverChange,
+    ErrorReport,
+    GatewayHealth,
+    GatewayParams,
+    GoalState,
+    Keys,
+    MapPose,
+    NavCancel,
+    NavCancelReply,
+    NavFeedback,
+    NavGoal,
+    NavGoalReply,
+    NavMove,
+    NavResult,
+    NavResultQuery,
+    ParamResult,
+    ParamsSet,
+    ParamsSetReply,
+    PayloadError,
+    PlanarPose,
+    Pose,
+    SetPose,
+    Twist,
+    Vector3,
+    decode,
+    excerpt,
+)
+
+from .controller import DEFAULT_PERIOD_S, Controller, Target, Tolerances, plan
+from .goals import GoalRecord, Goals, map_to_odom, odom_to_map, placed, wrap
+from .params import GatewayLimits, NavParams, effective_limits
+
+#: Where the core's messages go; the edge routes each by its type (Twist: ``cmd_vel/nav``, NavFeedback:
+#: ``nav/feedback``, MapPose: ``nav/map_pose``, GatewayParams: ``nav/params``, ErrorReport: ``errors``).
+NavOutput = Callable[[Twist | NavFeedback | MapPose | GatewayParams | ErrorReport], None]
+
+#: A relative move turns at most this much (rad): two whole turns; more is a typo more often than a wish.
+MAX_MOVE_ANGLE = 4 * math.pi
+#: The estimated time left must fall by this much (s) to count as progress.
+PROGRESS_S = 0.05
+#: The pose period is estimated from the poses' stamps; gaps outside this range (s) are not a period.
+PERIOD_RANGE = (0.005, 0.2)
+#: The command source the navigation drives as.
+NAV_SOURCE = "nav"
+#: Rows of the parameter table that a change of the gateway's limits may change.
+EFFECTIVE = ["effective.max_speed", "effective.max_turn", "effective.linear_accel", "effective.angular_accel"]
+
+M = TypeVar("M", bound=msgspec.Struct)
+
+
+class NavCore:
+    """One robot's navigation: at most one goal running, driven on the robot's poses (see the module docstring)."""
+
+    def __init__(
+        self,
+        params: NavParams,
+        keys: Keys,
+        output: NavOutput,
+        *,
+        map_pose: MapPose,
+        geofence: tuple[float, float, float, float] | None = None,
+        wallclock: Callable[[], float] = time.time,
+    ) -> None:
+        params.check()
+        self.keys = keys
+        self.output = output
+        self.wallclock = wallclock
+        self.reporter = ErrorReporter("nav", output, wallclock)
+        self.geofence = geofence
+        self.goals = Goals()
+        self._params = params
+        self._gateway = GatewayLimits()
+        self._limits = effective_limits(params, self._gateway)
+        self._map = map_pose
+        self._started = False  # the first tick publishes the map pose and the parameters
+        self._controller: Controller | None = None
+        self._target: tuple[float, float, float | None] | None = None  # the running goal in its own frame
+        self._drove = False  # the running goal has published a twist (so it ends with a zero one)
+        self._pose: Pose | None = None
+        self._pose_at = -math.inf
+        self._period = DEFAULT_PERIOD_S
+        self._health: GatewayHealth | None = None
+        self._alive: dict[str, bool] = {}
+        self._driver: tuple[float, str | None] | None = None  # (gateway's stamp, source) of the latest news of who drives
+        self._overridden_since: float | None = None
+        self._feedback_due = math.inf
+        self._progress = (math.inf, -math.inf)  # (lowest time left seen, when)
+        self._recoveries = 0  # the running goal's re-plans when progress was last taken
+
+    # ------------------------------------------------------------------------------------------------ telemetry
+
+    def on_pose(self, payload: bytes, now: float) -> None:
+        """An odometry pose: kept, and while a goal runs, the controller's twist for it published."""
+        pose = self._decode(Pose, payload, self.keys.pose, now)
+        if isinstance(pose, str):
+            return
+        if self._pose is not None and PERIOD_RANGE[0] <= pose.stamp - self._pose.stamp <= PERIOD_RANGE[1]:
+            self._period += 0.2 * (pose.stamp - self._pose.stamp - self._period)
+        self._pose, self._pose_at = pose, now
+        self._check(now)
+        controller = self._controller
+        if self.goals.current is None or controller is None:
+            return
+        self.goals.start()
+        v, w = controller.step(pose.x, pose.y, pose.yaw, self._period)
+        if controller.reached:
+            self._end(GoalState.SUCCEEDED, "", now)
+            return
+        self.output(Twist(linear=Vector3(x=v), angular=Vector3(z=w)))
+        self._drove = True
+        left = controller.remaining(pose.x, pose.y, pose.yaw)[2]
+        if left < self._progress[0] - PROGRESS_S or controller.recoveries != self._recoveries:  # closer, or a new plan
+            self._progress, self._recoveries = (left, now), controller.recoveries
+
+    def on_health(self, payload: bytes, now: float) -> None:
+        """The gateway's health: an e-stop, or a control link down, aborts the running goal."""
+        health = self._decode(GatewayHealth, payload, self.keys.health, now)
+        if isinstance(health, str):
+            return
+        self._health = health
+        if self._driver is None or health.stamp > self._driver[0]:
+            self._driven_by(health.stamp, health.active_source, now)
+        self._check(now)
+
+    def on_driver(self, payload: bytes, now: float) -> None:
+        """Who drives now: another source for longer than override_timeout aborts the running goal."""
+        change = self._decode(DriverChange, payload, self.keys.driver, now)
+        if not isinstance(change, str) and (self._driver is None or change.stamp >= self._driver[0]):
+            self._driven_by(change.stamp, change.source, now)
+            self._check(now)
+
+    def on_gateway_params(self, payload: bytes, now: float) -> None:
+        """The gateway's limits: a goal is planned within them from the next pose."""
+        message = self._decode(GatewayParams, payload, self.keys.params, now)
+        if isinstance(message, str):
+            return
+        gateway = GatewayLimits.of(message)
+        if gateway != self._gateway:
+            self._gateway = gateway
+            self._limits_changed(EFFECTIVE)
+
+    def on_alive(self, role: str, alive: bool, now: float) -> None:
+        """A liveliness token came or went (``gateway``, ``odometry``): the gateway gone aborts the running goal."""
+        self._alive[role] = alive
+        self._check(now)
+
+    # --------------------------------------------------------------------------------------------------- queries
+
+    def on_goal(self, payload: bytes | None, now: float) -> NavGoalReply:
+        """A goal: accepted (the running one preempted) or refused with the reason, which is reported too."""
+        key = self.keys.nav_goal
+        goal = self._decode(NavGoal, payload or b"", key, now)
+        if isinstance(goal, str):
+            return NavGoalReply(False, None, goal)
+        if goal.frame != "odom" and goal.frame not in ("map", self._map.map):
+            why = f"goal in another map: frame {goal.frame!r} is neither this robot's map {self._map.map!r} nor 'odom'"
+            return self._refuse(key, goal.goal_id, why, payload, now)
+        in_map = goal.frame != "odom"
+        x, y, yaw = map_to_odom(self._map, goal.x, goal.y, goal.yaw or 0.0) if in_map else (goal.x, goal.y, goal.yaw or 0.0)
+        target = Target(x, y, None if goal.yaw is None else yaw)
+        return self._take(key, goal.goal_id, target, (goal.x, goal.y, goal.yaw), goal.frame, "goal", payload, now)
+
+    def on_move(self, payload: bytes | None, now: float) -> NavGoalReply:
+        """A relative move (a distance straight, or an angle on the spot), run as a goal in the odometry frame."""
+        key = self.keys.nav_move
+        move = self._decode(NavMove, payload or b"", key, now)
+        if isinstance(move, str):
+            return NavGoalReply(False, None, move)
+        if abs(move.angle) > MAX_MOVE_ANGLE:
+            why = f"a move turns at most {MAX_MOVE_ANGLE:.4g} rad (two turns), got {move.angle:g}: send several moves for more"
+            return self._refuse(key, move.goal_id, why, payload, now)
+        refusal = self._robot_refusal(now)
+        if refusal is not None or self._pose is None:
+            return self._refuse(key, move.goal_id, refusal or "odometry not running: no pose yet", payload, now)
+        pose = self._pose
+        if move.angle:
+            target = Target(pose.x, pose.y, turn=move.angle)
+            where = (pose.x, pose.y, wrap(pose.yaw + move.angle))
+        else:
+            x, y = pose.x + move.distance * math.cos(pose.yaw), pose.y + move.distance * math.sin(pose.yaw)
+            target = Target(x, y, pose.yaw, reverse=move.distance < 0)
+            where = (x, y, pose.yaw)
+        return self._take(key, move.goal_id, target, where, "odom", "move", payload, now)
+
+    def on_cancel(self, payload: bytes | None, now: float) -> NavCancelReply:
+        """Cancel the running goal (any, or the one named): it ends canceled, the robot gets one zero twist."""
+        key = self.keys.nav_cancel
+        request = NavCancel() if not payload or not payload.strip() else self._decode(NavCancel, payload, key, now)
+        if isinstance(request, str):
+            return NavCancelReply([], request)
+        current = self.goals.current
+        if request.goal_id is None:
+            if current is None:
+                return NavCancelReply([], "no goal is running")
+        elif current is None or current.goal_id != request.goal_id:
+            known = self.goals.find(request.goal_id)
+            if known is not None:
+                return NavCancelReply([], f"goal {request.goal_id} is not running: it ended {known.state.value}")
+            why = f"no goal {request.goal_id}: the navigation knows its last {self.goals.keep} goals only"
+            self.reporter.report(key, why, excerpt(payload or b""), now=now)
+            return NavCancelReply([], why)
+        assert current is not None
+        self._end(GoalState.CANCELED, "canceled by a client", now)
+        return NavCancelReply([current.goal_id], "")
+
+    def on_result(self, payload: bytes | None, now: float) -> NavResult:
+        """A goal's state: the one named, or the latest."""
+        key = self.keys.nav_result
+        query = NavResultQuery() if not payload or not payload.strip() else self._decode(NavResultQuery, payload, key, now)
+        if isinstance(query, str):
+            return NavResult(False, reason=query)
+        record = self.goals.latest() if query.goal_id is None else self.goals.find(query.goal_id)
+        if record is None:
+            why = (
+                "no goal yet"
+                if query.goal_id is None
+                else f"no goal {query.goal_id}: the navigation knows its last {self.goals.keep} goals only"
+            )
+            return NavResult(False, query.goal_id, reason=why)
+        self._update_pose(record)
+        return record.result(now)
+
+    def on_set_pose(self, payload: bytes | None, now: float) -> MapPose:
+        """The robot is at the given map pose now: odom is placed on the map so that it is (PayloadError, reported, if not)."""
+        key = self.keys.nav_set_pose
+        try:
+            request = decode(SetPose, payload or b"")
+            if request.frame not in ("map", self._map.map):
+                raise PayloadError("SetPose", f"set_pose takes a pose on the map {self._map.map!r}, not in frame {request.frame!r}")
+            if self._pose is None:
+                raise PayloadError("SetPose", "odometry not running: no pose yet to place on the map")
+        except PayloadError as exc:
+            self.reporter.report(key, str(exc), exc.excerpt or excerpt(payload or b""), now=now)
+            raise
+        pose = self._pose
+        x, y, yaw = placed((request.x, request.y, request.yaw), (pose.x, pose.y, pose.yaw))
+        self._map = MapPose(self.wallclock(), x, y, yaw, self._map.map, by=key)
+        record, controller, target = self.goals.current, self._controller, self._target
+        if record is not None and controller is not None and target is not None and record.frame != "odom":
+            gx, gy, gyaw = map_to_odom(self._map, target[0], target[1], target[2] or 0.0)
+            controller.retarget(Target(gx, gy, None if target[2] is None else gyaw))
+        self.output(self._map)
+        return self._map
+
+    def on_params_set(self, payload: bytes | None, now: float) -> ParamsSetReply:
+        """Set parameters, each on its own; the refused ones say why (and are reported)."""
+        key = self.keys.nav_params_set
+        request = self._decode(ParamsSet, payload or b"", key, now)
+        if isinstance(request, str):
+            return ParamsSetReply([ParamResult("", False, f'{request}; send {{"values": {{"max_speed": 0.2}}}}')], self.params())
+        results = []
+        for name, value in request.values.items():
+            self._params, refused = self._params.with_value(name, value)
+            results.append(ParamResult(name, refused is None, refused or ""))
+            if refused is not None:
+                self.reporter.report(key, refused, now=now)
+        changed = [result.name for result in results if result.successful]
+        if changed:
+            if "feedback_hz" in changed and self.goals.current is not None:
+                self._feedback_due = min(self._feedback_due, now + 1 / self._params.feedback_hz)
+            self._limits_changed(changed)
+        return ParamsSetReply(results, self.params())
+
+    def params(self, changed: list[str] | None = None) -> GatewayParams:
+        """``nav/params`` now: the live parameters, then the limits in use."""
+        return GatewayParams(self.wallclock(), self._params.table(self._limits), changed or [])
+
+    def map_pose(self) -> MapPose:
+        return self._map
+
+    @property
+    def nav_params(self) -> NavParams:
+        return self._params
+
+    # --------------------------------------------------------------------------------------------------- time
+
+    def tick(self, now: float) -> None:
+        """What time alone brings: the first publications, a stale pose or a long override (aborts), feedback, summaries."""
+        if not self._started:
+            self._started = True
+            self.output(self._map)
+            self.output(self.params())
+        self._check(now)
+        if self.goals.current is not None and now >= self._feedback_due:
+            self._feedback(now)
+            self._feedback_due = max(self._feedback_due + 1 / self._params.feedback_hz, now + 0.5 / self._params.feedback_hz)
+        self.reporter.tick(now)
+
+    def next_deadline(self) -> float:
+        if not self._started:
+            return -math.inf
+        due = self.reporter.next_deadline()
+        if self.goals.current is not None:
+            p = self._params
+            due = min(due, self._feedback_due, self._pose_at + p.pose_timeout, self._progress[1] + p.no_progress_timeout)
+            if self._overridden_since is not None:
+                due = min(due, self._overridden_since + p.override_timeout)
+        return due
+
+    # ------------------------------------------------------------------------------------------------ internals
+
+    def _decode(self, kind: type[M], payload: bytes, key: str, now: float) -> M | str:
+        """The message in ``payload``, or why it is none (reported)."""
+        try:
+            return decode(kind, payload)
+        except PayloadError as exc:
+            self.reporter.report(key, str(exc), exc.excerpt, now=now)
+            return str(exc)
+
+    def _refuse(self, key: str, goal_id: str | None, why: str, payload: bytes | None, now: float) -> NavGoalReply:
+        self.reporter.report(key, why, excerpt(payload or b""), now=now)
+        return NavGoalReply(False, goal_id, why)
+
+    def _robot_refusal(self, now: float) -> str | None:
+        """Why no goal can run now (e-stop, robot unreachable, odometry not running), if none can."""
+        health = self._health
+        if health is not None and health.estop:
+            return f"robot is e-stopped{health.estop_origin()}: release it ({self.keys.estop_release}), then send the goal again"
+        if self._alive.get("gateway") is False:
+            return "robot unreachable: the gateway is not running (its liveliness token is gone)"
+        if health is None:
+            return "robot unreachable: no health report from the gateway yet"
+        if health.control.state != "connected":
+            why = f": {health.control.reason}" if health.control.reason else ""
+            return f"robot unreachable: the gateway's control link is {health.control.state}{why}"
+        if self._pose is None:
+            return "odometry not running: no pose received yet"
+        age = now - self._pose_at
+        if age > self._params.pose_timeout:
+            gone = " (its liveliness token is gone)" if self._alive.get("odometry") is False else ""
+            return f"odometry not running: the last pose is {age:.1f} s old (pose_timeout {self._params.pose_timeout:g} s){gone}"
+        return None
+
+    def _take(
+        self,
+        key: str,
+        goal_id: str | None,
+        target: Target,
+        where: tuple[float, float, float | None],
+        frame: str,
+        kind: str,
+        payload: bytes | None,
+        now: float,
+    ) -> NavGoalReply:
+        """Accept ``target`` (odom) given as ``where`` in ``frame``, unless the id, the robot or the bounds refuse it."""
+        if goal_id is not None:
+            taken = self.goals.refusal_of_id(goal_id)
+            if taken is not None:
+                return self._refuse(key, goal_id, taken, payload, now)
+        if self.geofence is not None:
+            mx, my, _ = odom_to_map(self._map, target.x, target.y, 0.0)
+            x_min, y_min, x_max, y_max = self.geofence
+            if not (x_min <= mx <= x_max and y_min <= my <= y_max):
+                why = f"goal ({mx:.2f}, {my:.2f}) on the map is outside the geofence x {x_min:g}..{x_max:g}, y {y_min:g}..{y_max:g}"
+                return self._refuse(key, goal_id, why, payload, now)
+        refusal = self._robot_refusal(now)
+        if refusal is not None or self._pose is None:
+            return self._refuse(key, goal_id, refusal or "odometry not running: no pose yet", payload, now)
+        pose = self._pose
+        distance = math.hypot(target.x - pose.x, target.y - pose.y)
+        if distance > self._params.max_goal_distance:
+            why = f"goal is {distance:.1f} m from the robot, farther than max_goal_distance ({self._params.max_goal_distance:g} m)"
+            return self._refuse(key, goal_id, why, payload, now)
+        goal_id = goal_id or self.goals.new_id()
+        yaw = where[2]
+        if yaw is None:  # the heading it will arrive with
+            heading = pose.yaw + plan(pose.x, pose.y, pose.yaw, target, self._limits, self._tolerances()).turn
+            yaw = heading if frame == "odom" else odom_to_map(self._map, 0.0, 0.0, heading)[2]
+        record = GoalRecord(goal_id, PlanarPose(where[0], where[1], wrap(yaw), frame), now, where[2] is None, kind)
+        previous = self._controller
+        v, w = (previous.v, previous.w) if previous is not None and self.goals.current is not None else (0.0, 0.0)
+        preempted = self.goals.accept(record, now)
+        if preempted is not None:
+            self._update_pose(preempted)
+            self._feedback(now, preempted)
+        self._controller = Controller(target, self._limits, self._tolerances(), v=v, w=w, period=self._period)
+        self._target = where
+        self._drove = self._drove and preempted is not None
+        self._overridden_since = None if self._driver is None or self._driver[1] == NAV_SOURCE else now
+        self._progress, self._recoveries = (math.inf, now), 0
+        self._feedback_due = now
+        return NavGoalReply(True, goal_id, "")
+
+    def _tolerances(self) -> Tolerances:
+        p = self._params
+        return Tolerances(p.xy_tolerance, p.yaw_tolerance, p.reverse_distance)
+
+    def _limits_changed(self, changed: list[str]) -> None:
+        self._limits = effective_limits(self._params, self._gateway)
+        if self._controller is not None:
+            self._controller.set_limits(self._limits, self._tolerances())
+        self.output(self.params(changed))
+
+    def _driven_by(self, stamp: float, source: str | None, now: float) -> None:
+        self._driver = (stamp, source)
+        if source == NAV_SOURCE:
+            self._overridden_since = None
+        elif self._overridden_since is None and self.goals.current is not None:
+            self._overridden_since = now
+
+    def _check(self, now: float) -> None:
+        """Abort the running goal if the robot can no longer follow it."""
+        if self.goals.current is None:
+            return
+        health, p = self._health, self._params
+        if health is not None and health.estop:
+            self._end(GoalState.ABORTED, f"e-stop engaged{health.estop_origin()}", now)
+        elif self._alive.get("gateway") is False:
+            self._end(GoalState.ABORTED, "robot unreachable: the gateway is gone (its liveliness token went away)", now)
+        elif health is not None and health.control.state != "connected":
+            why = f": {health.control.reason}" if health.control.reason else ""
+            self._end(GoalState.ABORTED, f"robot unreachable: the gateway's control link is {health.control.state}{why}", now)
+        elif now >= self._pose_at + p.pose_timeout:
+            self._end(
+                GoalState.ABORTED,
+                f"pose stale: no pose from the odometry for {now - self._pose_at:.2f} s (pose_timeout {p.pose_timeout:g} s)",
+                now,
+            )
+        elif self._overridden_since is not None and now >= self._overridden_since + p.override_timeout:
+            who = self._driver[1] if self._driver is not None else None
+            by = f"{who} drives" if who is not None else "nobody drives (a lock blocks the navigation?)"
+            self._end(GoalState.ABORTED, f"overridden: {by} instead of the navigation for {now - self._overridden_since:.1f} s", now)
+        elif now >= self._progress[1] + p.no_progress_timeout:
+            left = self._feedback_figures()
+            self._end(
+                GoalState.ABORTED,
+                f"no progress: {left[0]:.2f} m and {math.degrees(abs(left[1])):.1f} deg left, no closer for {now - self._progress[1]:.1f} s",
+                now,
+            )
+
+    def _end(self, state: GoalState, reason: str, now: float) -> None:
+        """The running goal ends: one zero twist unless it arrived (it stood still already), the last feedback."""
+        record = self.goals.current
+        if record is None:
+            return
+        if state is not GoalState.SUCCEEDED and self._drove:
+            self.output(Twist())
+        self._update_pose(record)
+        self.goals.finish(state, reason, now)
+        if state is GoalState.ABORTED:
+            self.reporter.report(
+                self.keys.nav_goal, f"goal {record.goal_id} {state.value}: {reason}", now=now, family=f"{self.keys.nav_goal}/{state.value}"
+            )
+        self._feedback(now, record)
+        self._controller = None
+        self._target = None
+        self._drove = False
+        self._overridden_since = None
+        self._feedback_due = math.inf
+
+    def _feedback_figures(self) -> tuple[float, float, float]:
+        """(distance m, yaw rad, seconds) left of the running goal, from the latest pose."""
+        controller, pose = self._controller, self._pose
+        if controller is None or pose is None:
+            return 0.0, 0.0, 0.0
+        return controller.remaining(pose.x, pose.y, pose.yaw)
+
+    def _update_pose(self, record: GoalRecord) -> None:
+        """The record's pose: the robot's latest, in the goal's frame (kept as it was once the goal ended)."""
+        pose = self._pose
+        if pose is None or (record.state.done and record.pose is not None):
+            return
+        x, y, yaw = (pose.x, pose.y, pose.yaw) if record.frame == "odom" else odom_to_map(self._map, pose.x, pose.y, pose.yaw)
+        record.pose = PlanarPose(x, y, wrap(yaw), record.frame)
+
+    def _feedback(self, now: float, record: GoalRecord | None = None) -> None:
+        record = record or self.goals.current
+        if record is None:
+            return
+        self._update_pose(record)
+        running = not record.state.done
+        distance, _, eta = self._feedback_figures() if running else (self._distance_left(record), 0.0, 0.0)
+        recoveries = self._controller.recoveries if running and self._controller is not None else 0
+        pose = record.pose or record.goal
+        self.output(
+            NavFeedback(
+                self.wallclock(),
+                record.goal_id,
+                record.state,
+                pose,
+                record.goal,
+                distance,
+                eta,
+                record.elapsed(now),
+                recoveries,
+                record.reason,
+            )
+        )
+
+    @staticmethod
+    def _distance_left(record: GoalRecord) -> float:
+        pose = record.pose
+        return 0.0 if pose is None else math.hypot(record.goal.x - pose.x, record.goal.y - pose.y)

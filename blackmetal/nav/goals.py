@@ -1,0 +1,157 @@
+"""Goals' lives: accepted, executing, then succeeded, canceled or aborted; one at a time; the last ones remembered.
+
+A new goal preempts the running one, which ends canceled with "preempted by goal <id>" (ROS 2's action servers do the
+same), so a client that sends a flood of goals ends up with the last one running and every other one accounted for.
+The results of the last :data:`KEEP_RESULTS` goals answer ``nav/result``; a goal id is never reused while remembered,
+so a late ``result`` or ``cancel`` cannot reach a different goal by the same name.
+
+Also here: the map frame's arithmetic (``map -> odom`` is a planar transform; goals, feedback and set-pose use it).
+"""
+
+from __future__ import annotations
+
+import math
+import uuid
+from collections import OrderedDict
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from blackmetal.schemas import GoalState, MapPose, NavResult, PlanarPose
+
+#: How many goals' results ``nav/result`` answers for (the oldest ended ones are forgotten first).
+KEEP_RESULTS = 100
+
+
+@dataclass(eq=False, slots=True)
+class GoalRecord:
+    """One goal: where to (in the frame the client used), and how it is doing or how it ended.
+
+    ``goal.yaw`` is the heading the robot arrives with when the client gave none (``yaw_free``).
+    """
+
+    goal_id: str
+    goal: PlanarPose
+    accepted_at: float
+    yaw_free: bool = False
+    kind: str = "goal"  # or "move"
+    state: GoalState = GoalState.ACCEPTED
+    reason: str = ""
+    ended_at: float | None = None
+    #: The robot's latest pose in the goal's frame (None until one is seen).
+    pose: PlanarPose | None = None
+
+    @property
+    def frame(self) -> str:
+        return self.goal.frame
+
+    def elapsed(self, now: float) -> float:
+        """Seconds since it was accepted (until it ended, once it has)."""
+        return max((self.ended_at if self.ended_at is not None else now) - self.accepted_at, 0.0)
+
+    def result(self, now: float) -> NavResult:
+        return NavResult(True, self.goal_id, self.state, self.reason, self.pose, self.goal, self.elapsed(now))
+
+
+class Goals:
+    """The running goal (at most one) and the remembered ones. ``new_id`` makes ids for goals sent without one."""
+
+    def __init__(self, keep: int = KEEP_RESULTS, new_id: Callable[[], str] = lambda: uuid.uuid4().hex) -> None:
+        self.keep = keep
+        self._new_id = new_id
+        self._records: OrderedDict[str, GoalRecord] = OrderedDict()  # oldest first; the running one is the newest
+        self.current: GoalRecord | None = None
+
+    def find(self, goal_id: str) -> GoalRecord | None:
+        return self._records.get(goal_id)
+
+    def latest(self) -> GoalRecord | None:
+        return next(reversed(self._records.values()), None)
+
+    def __len__(self) -> int:
+        return len(self._records)
+
+    def new_id(self) -> str:
+        """A fresh id (32 hex digits) that no remembered goal has."""
+        while True:
+            goal_id = self._new_id()
+            if goal_id not in self._records:
+                return goal_id
+
+    def refusal_of_id(self, goal_id: str) -> str | None:
+        """Why ``goal_id`` cannot name a new goal, if it cannot."""
+        known = self._records.get(goal_id)
+        if known is None:
+            return None
+        how = "is running" if not known.state.done else f"ended {known.state.value}"
+        return f"goal id {goal_id} is taken by an earlier goal that {how}: send a new id, or none to have one made"
+
+    def accept(self, record: GoalRecord, now: float) -> GoalRecord | None:
+        """``record`` becomes the running goal; the one it preempts (ended canceled) is returned."""
+        if record.goal_id in self._records:
+            raise ValueError(f"goal id {record.goal_id} is already known")
+        if record.state is not GoalState.ACCEPTED:
+            raise ValueError(f"a new goal must be accepted, not {record.state.value}")
+        preempted = None
+        if self.current is not None:
+            preempted = self.finish(GoalState.CANCELED, f"preempted by goal {record.goal_id}", now)
+        self._records[record.goal_id] = record
+        self.current = record
+        self._forget()
+        return preempted
+
+    def start(self) -> GoalRecord:
+        """The running goal moves from accepted to executing (its first command)."""
+        record = self._running()
+        if record.state is GoalState.ACCEPTED:
+            record.state = GoalState.EXECUTING
+        return record
+
+    def finish(self, state: GoalState, reason: str, now: float) -> GoalRecord:
+        """The running goal ends in ``state`` (succeeded, canceled, aborted), with ``reason``."""
+        if not state.done:
+            raise ValueError(f"a goal ends succeeded, canceled or aborted, not {state.value}")
+        record = self._running()
+        record.state, record.reason, record.ended_at = state, reason, now
+        self.current = None
+        return record
+
+    def _running(self) -> GoalRecord:
+        if self.current is None:
+            raise ValueError("no goal is running")
+        return self.current
+
+    def _forget(self) -> None:
+        """Keep at most ``keep`` goals: the oldest ended ones go first (the running one always stays)."""
+        while len(self._records) > self.keep:
+            oldest = next(iter(self._records))
+            if self._records[oldest] is self.current:
+                break
+            del self._records[oldest]
+
+
+# ------------------------------------------------------------------------------------------ the map frame's arithmetic
+
+
+def wrap(angle: float) -> float:
+    return math.remainder(angle, math.tau)
+
+
+def odom_to_map(map_pose: MapPose, x: float, y: float, yaw: float) -> tuple[float, float, float]:
+    """A pose in the odometry frame, on the map (``map_pose``: where odom sits on the map)."""
+    c, s = math.cos(map_pose.yaw), math.sin(map_pose.yaw)
+    return map_pose.x + c * x - s * y, map_pose.y + s * x + c * y, wrap(yaw + map_pose.yaw)
+
+
+def map_to_odom(map_pose: MapPose, x: float, y: float, yaw: float) -> tuple[float, float, float]:
+    """A pose on the map, in the odometry frame."""
+    c, s = math.cos(map_pose.yaw), math.sin(map_pose.yaw)
+    dx, dy = x - map_pose.x, y - map_pose.y
+    return c * dx + s * dy, -s * dx + c * dy, wrap(yaw - map_pose.yaw)
+
+
+def placed(at: tuple[float, float, float], odom: tuple[float, float, float]) -> tuple[float, float, float]:
+    """Where odom sits on the map when the robot, at ``odom`` in the odometry frame, is at ``at`` on the map:
+    ``at`` composed with the inverse of ``odom``."""
+    yaw = wrap(at[2] - odom[2])
+    c, s = math.cos(yaw), math.sin(yaw)
+    return at[0] - (c * odom[0] - s * odom[1]), at[1] - (s * odom[0] + c * odom[1]), yaw
