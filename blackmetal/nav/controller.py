@@ -123,13 +123,15 @@ def trapezoid_time(distance: float, max_speed: float, accel: float) -> float:
 def braking_speed(remaining: float, accel: float, dt: float) -> float:
     """The highest speed to hold for ``dt`` from which steps of ``accel * dt`` down to zero cover exactly ``remaining``.
 
-    A speed ``m * accel * dt`` braked that way covers ``v**2 / (2 accel) + v dt / 2``; solved for ``v``. For a short
-    ``remaining`` it is ``remaining / dt``: the last step lands on the goal.
+    From ``m`` whole steps plus ``r`` (0 <= r < step), holding each for ``dt``, a stop covers
+    ``dt * ((m + 1) * r + step * m * (m + 1) / 2)``: solved for the speed ``m * step + r``. For a short ``remaining``
+    it is ``remaining / dt``: the last step lands on the goal.
     """
     if remaining <= 0:
         return 0.0
-    half_step = accel * dt / 2
-    return math.sqrt(half_step * half_step + 2 * accel * remaining) - half_step
+    step = accel * dt
+    whole = math.floor((math.sqrt(1 + 8 * remaining / (step * dt)) - 1) / 2)
+    return whole * step + (remaining / dt - step * whole * (whole + 1) / 2) / (whole + 1)
 
 
 def plan(x: float, y: float, yaw: float, target: Target, limits: Limits, tolerances: Tolerances) -> Plan:
@@ -205,6 +207,7 @@ class Controller:
         self._turned = 0.0  # unwrapped yaw (rad): the last yaw plus whole turns since the first step
         self._start_turned = 0.0
         self._rotate_to: float | None = None  # the final yaw, unwrapped
+        self._near = False
 
     def retarget(self, target: Target) -> None:
         """Go somewhere else from here (the map moved under a map goal): re-planned at the next step, from the present speed."""
@@ -256,12 +259,11 @@ class Controller:
         self.reverse = chosen.reverse
         self._rotate_to = None
         distance = math.hypot(self.target.x - px, self.target.y - py)
-        if distance <= self.tolerances.xy:
+        self._near = distance <= self.tolerances.xy  # within tolerance already: only driven along the heading
+        if self._near:
             self.phase = Phase.DRIVE if chosen.drive > AIM * self.tolerances.xy else Phase.ROTATE
         else:
             self.phase = Phase.ALIGN if abs(chosen.turn) > ALIGN_TOLERANCE else Phase.DRIVE
-        if self.phase is Phase.ROTATE:
-            self._rotate(pturned)
 
     def _heading(self, pyaw: float) -> float:
         """Where the robot drives: its yaw, or its back when it reverses."""
@@ -290,8 +292,15 @@ class Controller:
             self._align(px, py, pyaw, pturned)
             return
         step = lim.linear_accel * dt
-        arrived = abs(along) <= AIM * tol.xy and abs(self.v) <= step
-        speed = 0.0 if arrived else math.copysign(braking_speed(abs(along), lim.linear_accel, dt), along)
+        if abs(along) <= AIM * tol.xy and abs(self.v) <= step:  # stops on the goal's position (as well as it goes on this line)
+            if distance <= tol.xy / 2 or (self._near and distance <= tol.xy):
+                self._rotate(pturned)
+                return
+            self.recoveries += 1  # beside it: stop, and turn to it again
+            self._start(px, py, pyaw, pturned)
+            self.v, self.w = 0.0, _step_toward(self.w, 0.0, lim.angular_accel * dt)
+            return
+        speed = math.copysign(braking_speed(abs(along), lim.linear_accel, dt), along)
         speed = max(-lim.max_speed, min(lim.max_speed, speed * max(math.cos(error), 0.0)))
         if self.reverse:
             speed = -speed
@@ -301,12 +310,6 @@ class Controller:
             speed = max(-room, min(room, speed))
         self.v = _step_toward(self.v, speed, step)
         self.w = w
-        if arrived:  # stopped on the goal's position (as well as it goes along this line)
-            if distance > tol.xy / 2:  # beside it: turn to it again
-                self.recoveries += 1
-                self._start(px, py, pyaw, pturned)
-            else:
-                self._rotate(pturned)
 
     def _rotate(self, pturned: float) -> None:
         dt, lim = self.period, self.limits
@@ -383,7 +386,9 @@ class Controller:
         turn = wrap(bearing - heading)
         if self.target.turn is None and self.target.yaw is not None:
             final = wrap(self.target.yaw - (wrap(bearing + math.pi) if self.reverse else bearing))
+        # the drive starts once the turn is within ALIGN_TOLERANCE: the rest of the turn overlaps it
         align = stop_time(abs(turn), math.copysign(1, turn) * self.w, *ang)
+        align = max(align - math.sqrt(2 * min(ALIGN_TOLERANCE, abs(turn)) / lim.angular_accel), 0.0)
         return distance, yaw_left, align + trapezoid_time(distance, *lin) + trapezoid_time(final, *ang) + dt
 
     def set_limits(self, limits: Limits, tolerances: Tolerances) -> None:
