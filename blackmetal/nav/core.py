@@ -50,7 +50,7 @@ from blackmetal.schemas import (
 
 from .controller import DEFAULT_PERIOD_S, Controller, Target, Tolerances, plan
 from .goals import GoalRecord, Goals, map_to_odom, odom_to_map, placed, wrap
-from .params import GatewayLimits, NavParams, effective_limits
+from .params import READ_ONLY, GatewayLimits, NavParams, effective_limits
 
 #: Where the core's messages go; the edge routes each by its type (Twist: ``cmd_vel/nav``, NavFeedback:
 #: ``nav/feedback``, MapPose: ``nav/map_pose``, GatewayParams: ``nav/params``, ErrorReport: ``errors``).
@@ -64,8 +64,6 @@ PROGRESS_S = 0.05
 PERIOD_RANGE = (0.005, 0.2)
 #: The command source the navigation drives as.
 NAV_SOURCE = "nav"
-#: Rows of the parameter table that a change of the gateway's limits may change.
-EFFECTIVE = ["effective.max_speed", "effective.max_turn", "effective.linear_accel", "effective.angular_accel"]
 
 M = TypeVar("M", bound=msgspec.Struct)
 
@@ -159,7 +157,7 @@ class NavCore:
         gateway = GatewayLimits.of(message)
         if gateway != self._gateway:
             self._gateway = gateway
-            self._limits_changed(EFFECTIVE)
+            self._limits_changed(list(READ_ONLY))  # the limits in use may have changed
 
     def on_alive(self, role: str, alive: bool, now: float) -> None:
         """A liveliness token came or went (``gateway``, ``odometry``): the gateway gone aborts the running goal."""
@@ -191,10 +189,9 @@ class NavCore:
         if abs(move.angle) > MAX_MOVE_ANGLE:
             why = f"a move turns at most {MAX_MOVE_ANGLE:.4g} rad (two turns), got {move.angle:g}: send several moves for more"
             return self._refuse(key, move.goal_id, why, payload, now)
-        refusal = self._robot_refusal(now)
-        if refusal is not None or self._pose is None:
-            return self._refuse(key, move.goal_id, refusal or "odometry not running: no pose yet", payload, now)
         pose = self._pose
+        if pose is None:  # the rest of the robot's state is checked as for any goal
+            return self._refuse(key, move.goal_id, self._robot_refusal(now) or "odometry not running", payload, now)
         if move.angle:
             target = Target(pose.x, pose.y, turn=move.angle)
             where = (pose.x, pose.y, wrap(pose.yaw + move.angle))
@@ -233,11 +230,7 @@ class NavCore:
             return NavResult(False, reason=query)
         record = self.goals.latest() if query.goal_id is None else self.goals.find(query.goal_id)
         if record is None:
-            why = (
-                "no goal yet"
-                if query.goal_id is None
-                else f"no goal {query.goal_id}: the navigation knows its last {self.goals.keep} goals only"
-            )
+            why = f"no goal {query.goal_id}: the navigation knows its last {self.goals.keep} goals only" if query.goal_id else "no goal yet"
             return NavResult(False, query.goal_id, reason=why)
         self._update_pose(record)
         return record.result(now)
@@ -333,18 +326,25 @@ class NavCore:
         self.reporter.report(key, why, excerpt(payload or b""), now=now)
         return NavGoalReply(False, goal_id, why)
 
-    def _robot_refusal(self, now: float) -> str | None:
-        """Why no goal can run now (e-stop, robot unreachable, odometry not running), if none can."""
+    def _robot_trouble(self) -> str | None:
+        """What keeps the robot from following any goal now: an e-stop, the gateway gone, its link down."""
         health = self._health
         if health is not None and health.estop:
-            return f"robot is e-stopped{health.estop_origin()}: release it ({self.keys.estop_release}), then send the goal again"
+            return f"e-stop engaged{health.estop_origin()}"
         if self._alive.get("gateway") is False:
-            return "robot unreachable: the gateway is not running (its liveliness token is gone)"
-        if health is None:
-            return "robot unreachable: no health report from the gateway yet"
-        if health.control.state != "connected":
+            return "robot unreachable: the gateway is gone (its liveliness token went away)"
+        if health is not None and health.control.state != "connected":
             why = f": {health.control.reason}" if health.control.reason else ""
             return f"robot unreachable: the gateway's control link is {health.control.state}{why}"
+        return None
+
+    def _robot_refusal(self, now: float) -> str | None:
+        """Why no goal can start now (e-stop, robot unreachable, odometry not running), if none can."""
+        trouble = self._robot_trouble()
+        if trouble is not None and trouble.startswith("e-stop"):
+            return f"robot is e-stopped ({trouble}): release it on {self.keys.estop_release}, then send the goal again"
+        if trouble is not None or self._health is None:
+            return trouble or "robot unreachable: no health report from the gateway yet"
         if self._pose is None:
             return "odometry not running: no pose received yet"
         age = now - self._pose_at
@@ -369,12 +369,6 @@ class NavCore:
             taken = self.goals.refusal_of_id(goal_id)
             if taken is not None:
                 return self._refuse(key, goal_id, taken, payload, now)
-        if self.geofence is not None:
-            mx, my, _ = odom_to_map(self._map, target.x, target.y, 0.0)
-            x_min, y_min, x_max, y_max = self.geofence
-            if not (x_min <= mx <= x_max and y_min <= my <= y_max):
-                why = f"goal ({mx:.2f}, {my:.2f}) on the map is outside the geofence x {x_min:g}..{x_max:g}, y {y_min:g}..{y_max:g}"
-                return self._refuse(key, goal_id, why, payload, now)
         refusal = self._robot_refusal(now)
         if refusal is not None or self._pose is None:
             return self._refuse(key, goal_id, refusal or "odometry not running: no pose yet", payload, now)
@@ -383,6 +377,12 @@ class NavCore:
         if distance > self._params.max_goal_distance:
             why = f"goal is {distance:.1f} m from the robot, farther than max_goal_distance ({self._params.max_goal_distance:g} m)"
             return self._refuse(key, goal_id, why, payload, now)
+        if self.geofence is not None:
+            mx, my, _ = odom_to_map(self._map, target.x, target.y, 0.0)
+            x_min, y_min, x_max, y_max = self.geofence
+            if not (x_min <= mx <= x_max and y_min <= my <= y_max):
+                why = f"goal ({mx:.2f}, {my:.2f}) on the map is outside the geofence x {x_min:g}..{x_max:g}, y {y_min:g}..{y_max:g}"
+                return self._refuse(key, goal_id, why, payload, now)
         goal_id = goal_id or self.goals.new_id()
         yaw = where[2]
         if yaw is None:  # the heading it will arrive with
@@ -422,33 +422,27 @@ class NavCore:
 
     def _check(self, now: float) -> None:
         """Abort the running goal if the robot can no longer follow it."""
-        if self.goals.current is None:
-            return
-        health, p = self._health, self._params
-        if health is not None and health.estop:
-            self._end(GoalState.ABORTED, f"e-stop engaged{health.estop_origin()}", now)
-        elif self._alive.get("gateway") is False:
-            self._end(GoalState.ABORTED, "robot unreachable: the gateway is gone (its liveliness token went away)", now)
-        elif health is not None and health.control.state != "connected":
-            why = f": {health.control.reason}" if health.control.reason else ""
-            self._end(GoalState.ABORTED, f"robot unreachable: the gateway's control link is {health.control.state}{why}", now)
-        elif now >= self._pose_at + p.pose_timeout:
-            self._end(
-                GoalState.ABORTED,
-                f"pose stale: no pose from the odometry for {now - self._pose_at:.2f} s (pose_timeout {p.pose_timeout:g} s)",
-                now,
-            )
-        elif self._overridden_since is not None and now >= self._overridden_since + p.override_timeout:
+        if self.goals.current is not None:
+            reason = self._abort_reason(now)
+            if reason is not None:
+                self._end(GoalState.ABORTED, reason, now)
+
+    def _abort_reason(self, now: float) -> str | None:
+        p = self._params
+        trouble = self._robot_trouble()
+        if trouble is not None:
+            return trouble
+        if now >= self._pose_at + p.pose_timeout:
+            return f"pose stale: no pose from the odometry for {now - self._pose_at:.2f} s (pose_timeout {p.pose_timeout:g} s)"
+        since = self._overridden_since
+        if since is not None and now >= since + p.override_timeout:
             who = self._driver[1] if self._driver is not None else None
             by = f"{who} drives" if who is not None else "nobody drives (a lock blocks the navigation?)"
-            self._end(GoalState.ABORTED, f"overridden: {by} instead of the navigation for {now - self._overridden_since:.1f} s", now)
-        elif now >= self._progress[1] + p.no_progress_timeout:
-            left = self._feedback_figures()
-            self._end(
-                GoalState.ABORTED,
-                f"no progress: {left[0]:.2f} m and {math.degrees(abs(left[1])):.1f} deg left, no closer for {now - self._progress[1]:.1f} s",
-                now,
-            )
+            return f"overridden: {by} instead of the navigation for {now - since:.1f} s"
+        if now >= self._progress[1] + p.no_progress_timeout:
+            distance, yaw, _ = self._feedback_figures()
+            return f"no progress: {distance:.2f} m and {math.degrees(abs(yaw)):.1f} deg left, no closer for {now - self._progress[1]:.1f} s"
+        return None
 
     def _end(self, state: GoalState, reason: str, now: float) -> None:
         """The running goal ends: one zero twist unless it arrived (it stood still already), the last feedback."""
@@ -458,6 +452,8 @@ class NavCore:
         if state is not GoalState.SUCCEEDED and self._drove:
             self.output(Twist())
         self._update_pose(record)
+        if self._controller is not None:
+            record.recoveries = self._controller.recoveries
         self.goals.finish(state, reason, now)
         if state is GoalState.ABORTED:
             self.reporter.report(
@@ -490,26 +486,10 @@ class NavCore:
         if record is None:
             return
         self._update_pose(record)
-        running = not record.state.done
-        distance, _, eta = self._feedback_figures() if running else (self._distance_left(record), 0.0, 0.0)
-        recoveries = self._controller.recoveries if running and self._controller is not None else 0
-        pose = record.pose or record.goal
-        self.output(
-            NavFeedback(
-                self.wallclock(),
-                record.goal_id,
-                record.state,
-                pose,
-                record.goal,
-                distance,
-                eta,
-                record.elapsed(now),
-                recoveries,
-                record.reason,
-            )
-        )
-
-    @staticmethod
-    def _distance_left(record: GoalRecord) -> float:
-        pose = record.pose
-        return 0.0 if pose is None else math.hypot(record.goal.x - pose.x, record.goal.y - pose.y)
+        if record.state.done:
+            self.output(record.feedback(self.wallclock(), now))
+            return
+        distance, _, eta = self._feedback_figures()
+        if self._controller is not None:
+            record.recoveries = self._controller.recoveries
+        self.output(record.feedback(self.wallclock(), now, distance, eta))

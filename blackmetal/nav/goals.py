@@ -16,7 +16,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from blackmetal.schemas import GoalState, MapPose, NavResult, PlanarPose
+from blackmetal.schemas import GoalState, MapPose, NavFeedback, NavResult, PlanarPose
 
 #: How many goals' results ``nav/result`` answers for (the oldest ended ones are forgotten first).
 KEEP_RESULTS = 100
@@ -39,6 +39,8 @@ class GoalRecord:
     ended_at: float | None = None
     #: The robot's latest pose in the goal's frame (None until one is seen).
     pose: PlanarPose | None = None
+    #: Times the controller stopped outside the tolerances and planned again.
+    recoveries: int = 0
 
     @property
     def frame(self) -> str:
@@ -47,6 +49,13 @@ class GoalRecord:
     def elapsed(self, now: float) -> float:
         """Seconds since it was accepted (until it ended, once it has)."""
         return max((self.ended_at if self.ended_at is not None else now) - self.accepted_at, 0.0)
+
+    def feedback(self, stamp: float, now: float, distance: float | None = None, eta: float = 0.0) -> NavFeedback:
+        """Its ``nav/feedback``; ``distance`` left (None: from its pose, as when it ended)."""
+        pose = self.pose or self.goal
+        if distance is None:
+            distance = math.hypot(self.goal.x - pose.x, self.goal.y - pose.y)
+        return NavFeedback(stamp, self.goal_id, self.state, pose, self.goal, distance, eta, self.elapsed(now), self.recoveries, self.reason)
 
     def result(self, now: float) -> NavResult:
         return NavResult(True, self.goal_id, self.state, self.reason, self.pose, self.goal, self.elapsed(now))
