@@ -19,6 +19,7 @@ Pure: fed a pose and the period between poses, it returns the twist to command. 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 from enum import StrEnum
 from typing import NamedTuple
@@ -53,6 +54,9 @@ class Limits:
     #: The gateway's per-wheel limit (m/s; None: none): driving while turning keeps ``|v| + |w| * separation / 2`` in it.
     max_wheel_speed: float | None = None
     wheel_separation: float = 0.5
+    #: Periods from the pose a command is computed on to the wheels running it: 1 (the odometry's pose is a period old
+    #: when the command lands), 2 behind an acceleration ramp in the gateway (it steps the ramp a period later).
+    latency: int = 1
 
 
 @dataclass(frozen=True, slots=True)
@@ -197,7 +201,9 @@ class Controller:
         self.target = target
         self.limits = limits
         self.tolerances = tolerances
-        self.v, self.w = v, w  # the last command: it runs for the next period
+        self.v, self.w = v, w  # the last command
+        #: The commands the wheels have yet to run, oldest first (the last ``latency`` ones).
+        self._pending: deque[tuple[float, float]] = deque([(v, w)] * limits.latency, maxlen=limits.latency)
         self.period = period
         self.phase: Phase | None = None  # None: plan at the next step
         self.reverse = False
@@ -220,16 +226,16 @@ class Controller:
         """The twist (v m/s, w rad/s) to command on the pose (x, y, yaw) just measured; ``period``: until the next pose."""
         dt = self.period = period or self.period
         self._unwrap(yaw)
-        # the command sent on the last pose runs for one more period before this one takes over: plan from its end
-        px, py, _ = integrate(x, y, yaw, self.v, self.w, dt)
-        pturned = self._turned + self.w * dt
+        # the commands sent on the last poses run before this one takes over: plan from where they leave the robot
+        px, py, pturned = x, y, self._turned
+        for v, w in self._pending:
+            px, py, pturned = integrate(px, py, pturned, v, w, dt)
         pyaw = wrap(pturned)
         if self.phase is None:
             self._start(px, py, pyaw, pturned)
-        if self.phase is Phase.DONE:
+        if self.phase is Phase.DONE and not any(v or w for v, w in self._pending):  # stands still: is it there?
             if self._within(px, py, pturned, 1.0):
                 self.reached = True
-                self.v = self.w = 0.0
                 return 0.0, 0.0
             self.recoveries += 1
             self._start(px, py, pyaw, pturned)
@@ -239,9 +245,10 @@ class Controller:
             self._drive(px, py, pyaw, pturned)
         elif self.phase is Phase.ROTATE:
             self._rotate(pturned)
-        else:  # DONE: standing
+        else:  # DONE: the last commands still to run (they were zero, or braking to zero)
             self.v = _step_toward(self.v, 0.0, self.limits.linear_accel * dt)
             self.w = _step_toward(self.w, 0.0, self.limits.angular_accel * dt)
+        self._pending.append((self.v, self.w))
         return self.v, self.w
 
     # ----------------------------------------------------------------------------------------------------- the phases
@@ -394,6 +401,8 @@ class Controller:
     def set_limits(self, limits: Limits, tolerances: Tolerances) -> None:
         """New limits or tolerances (a parameter changed): the same goal, phase and speeds from the next step."""
         self.limits, self.tolerances = limits, tolerances
+        if limits.latency != self._pending.maxlen:
+            self._pending = deque([(self.v, self.w)] * (limits.latency - len(self._pending)) + list(self._pending), maxlen=limits.latency)
 
 
 __all__ = [

@@ -42,6 +42,7 @@ from blackmetal.schemas import (
     PlanarPose,
     Pose,
     SetPose,
+    Sources,
     Twist,
     Vector3,
     decode,
@@ -62,8 +63,6 @@ MAX_MOVE_ANGLE = 4 * math.pi
 PROGRESS_S = 0.05
 #: The pose period is estimated from the poses' stamps; gaps outside this range (s) are not a period.
 PERIOD_RANGE = (0.005, 0.2)
-#: The command source the navigation drives as.
-NAV_SOURCE = "nav"
 
 M = TypeVar("M", bound=msgspec.Struct)
 
@@ -374,7 +373,7 @@ class NavCore:
             return self._refuse(key, goal_id, refusal or "odometry not running: no pose yet", payload, now)
         pose = self._pose
         distance = math.hypot(target.x - pose.x, target.y - pose.y)
-        if distance > self._params.max_goal_distance:
+        if not distance <= self._params.max_goal_distance:  # NaN too: a goal near the float limits, turned onto odom
             why = f"goal is {distance:.1f} m from the robot, farther than max_goal_distance ({self._params.max_goal_distance:g} m)"
             return self._refuse(key, goal_id, why, payload, now)
         if self.geofence is not None:
@@ -398,7 +397,7 @@ class NavCore:
         self._controller = Controller(target, self._limits, self._tolerances(), v=v, w=w, period=self._period)
         self._target = where
         self._drove = self._drove and preempted is not None
-        self._overridden_since = None if self._driver is None or self._driver[1] == NAV_SOURCE else now
+        self._overridden_since = None if self._driver is None or self._driver[1] == Sources.NAV else now
         self._progress, self._recoveries = (math.inf, now), 0
         self._feedback_due = now
         return NavGoalReply(True, goal_id, "")
@@ -415,7 +414,7 @@ class NavCore:
 
     def _driven_by(self, stamp: float, source: str | None, now: float) -> None:
         self._driver = (stamp, source)
-        if source == NAV_SOURCE:
+        if source == Sources.NAV:
             self._overridden_since = None
         elif self._overridden_since is None and self.goals.current is not None:
             self._overridden_since = now

@@ -1,10 +1,9 @@
-"""NavCore with an injected clock and a simulated robot: goals run and end with their reasons, every bad input gets its
-sentence and moves nothing, the robot gets one zero twist when a goal ends early and then nothing."""
+"""NavCore with an injected clock and a simulated robot (tests/unit/nav/bench.py): goals that arrive, every bad input
+refused with its sentence and nothing moved, live parameters and deadlines. Goals that end early: test_core_endings.py."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import msgspec
 import pytest
@@ -13,141 +12,10 @@ from hypothesis import strategies as st
 
 from blackmetal.nav.core import NavCore
 from blackmetal.nav.params import NavParams
-from blackmetal.schemas import (
-    DriverChange,
-    ErrorReport,
-    GatewayHealth,
-    GatewayParams,
-    GoalState,
-    Keys,
-    LinkHealth,
-    MapPose,
-    NavFeedback,
-    Param,
-    PayloadError,
-    Twist,
-    encode,
-    make_pose,
-)
+from blackmetal.schemas import GatewayParams, GoalState, MapPose, Param, PayloadError, encode
 
-from .kinematics import PERIOD, Robot
-
-KEYS = Keys("robot")
-GOAL_A, GOAL_B = "a" * 32, "b" * 32
-
-
-@dataclass
-class Out:
-    """Everything the core published, by kind."""
-
-    twists: list[Twist] = field(default_factory=list)
-    feedback: list[NavFeedback] = field(default_factory=list)
-    map_poses: list[MapPose] = field(default_factory=list)
-    params: list[GatewayParams] = field(default_factory=list)
-    errors: list[ErrorReport] = field(default_factory=list)
-
-    def __call__(self, message: object) -> None:
-        kinds = {
-            Twist: self.twists,
-            NavFeedback: self.feedback,
-            MapPose: self.map_poses,
-            GatewayParams: self.params,
-            ErrorReport: self.errors,
-        }
-        kinds[type(message)].append(message)  # type: ignore[index]
-
-
-def health(estop: bool = False, link: str = "connected", source: str | None = None, stamp: float = 0.0) -> bytes:
-    reason = None if link == "connected" else "cannot connect to 192.0.2.1:665: Connection refused"
-    return encode(
-        GatewayHealth(
-            stamp,
-            LinkHealth(link, reason=reason),
-            LinkHealth("connected"),
-            estop=estop,
-            active_source=source,
-            estop_by="robot/estop" if estop else None,
-            estop_since=1.8e9 if estop else None,
-        )
-    )
-
-
-class Bench:
-    """A NavCore wired to a simulated robot: the gateway runs the latest twist (its command timeout: 0.5 s), the
-    odometry reports a pose every period, the core's deadlines are kept."""
-
-    def __init__(self, map_pose: MapPose | None = None, geofence: tuple[float, float, float, float] | None = None, **params: float) -> None:
-        self.out = Out()
-        self.now = 0.0
-        self.core = NavCore(
-            NavParams(**params),
-            KEYS,
-            self.out,
-            map_pose=map_pose or MapPose(0.0, 0.0, 0.0, 0.0),
-            geofence=geofence,
-            wallclock=lambda: 1.8e9 + self.now,
-        )
-        self.robot = Robot()
-        self.moves = True  # the wheels follow the commands (False: blocked)
-        self.arbiter = True  # the gateway says the nav drives once it commands (False: someone else keeps driving)
-        self._driver: str | None = None
-        self.poses = True  # the odometry publishes
-        self._command = (0.0, 0.0)
-        self._heard = -math.inf
-        assert self.core.next_deadline() == -math.inf  # the first tick is due at once
-        self.core.tick(self.now)
-        self.core.on_alive("gateway", True, self.now)
-        self.core.on_alive("odometry", True, self.now)
-        self.core.on_health(health(), self.now)
-        self.pose()
-
-    def pose(self) -> None:
-        x, y, yaw = self.robot.pose()
-        self.core.on_pose(encode(make_pose(1.8e9 + self.now, x, y, yaw, self.robot.v, self.robot.w)), self.now)
-
-    def run(self, seconds: float) -> None:
-        """``seconds`` of robot time: a pose each period while ``poses``, the core ticked at its deadlines."""
-        end = self.now + seconds - 1e-9
-        while self.now < end:
-            seen = len(self.out.twists)
-            if self.poses:
-                self.pose()
-            if len(self.out.twists) > seen:
-                t = self.out.twists[-1]
-                self._command, self._heard = (t.linear.x, t.angular.z), self.now
-                if self.arbiter and self._driver != "nav":
-                    self._driver = "nav"
-                    self.core.on_driver(encode(DriverChange(1.8e9 + self.now, "nav", None, "nav drives: nobody drove")), self.now)
-            self._tick_until(self.now + PERIOD)
-            if self.now - self._heard > 0.5:  # the gateway's command timeout
-                self._command = (0.0, 0.0)
-            self.robot.run(*(self._command if self.moves else (0.0, 0.0)))
-            if not self.moves:
-                self.robot.v = self.robot.w = 0.0
-            self.now += PERIOD
-
-    def _tick_until(self, until: float) -> None:
-        for _ in range(100):
-            due = self.core.next_deadline()
-            if due >= until:
-                return
-            self.core.tick(max(due, self.now))
-            if self.core.next_deadline() <= due:  # a deadline in the past not cleared: tick once more, not forever
-                self.core.tick(max(due, self.now))
-                return
-
-    def goal(self, **fields: object) -> bytes:
-        return msgspec.json.encode(fields)
-
-    def until_done(self, timeout: float = 60.0) -> None:
-        end = self.now + timeout
-        while self.core.goals.current is not None and self.now < end:
-            self.run(PERIOD)
-
-
-def ended(bench: Bench) -> NavFeedback:
-    return next(f for f in reversed(bench.out.feedback) if f.state.done)
-
+from .bench import GOAL_A, GOAL_B, KEYS, Bench, Out, ended, health
+from .kinematics import PERIOD
 
 # ----------------------------------------------------------------------------------------------- goals that arrive
 
@@ -338,149 +206,6 @@ def test_no_payload_crashes_a_query_or_moves_the_robot(payload: bytes) -> None:
     assert bench.out.twists == []
 
 
-# ------------------------------------------------------------------------------------------ goals that end early
-
-
-def test_a_new_goal_preempts_the_running_one_which_ends_canceled() -> None:
-    bench = Bench()
-    assert bench.core.on_goal(bench.goal(x=3.0, y=0.0, goal_id=GOAL_A), bench.now).accepted
-    bench.run(3.0)
-    twists = len(bench.out.twists)
-    assert bench.core.on_goal(bench.goal(x=0.5, y=0.5, goal_id=GOAL_B), bench.now).accepted
-    first = bench.core.on_result(bench.goal(goal_id=GOAL_A), bench.now)
-    assert first.state is GoalState.CANCELED and first.reason == f"preempted by goal {GOAL_B}"
-    assert ended(bench).goal_id == GOAL_A and ended(bench).reason == f"preempted by goal {GOAL_B}"
-    assert len(bench.out.twists) == twists  # no zero twist in between: the new goal drives on from the speed it has
-    bench.until_done()
-    assert bench.core.on_result(None, bench.now).state is GoalState.SUCCEEDED
-    assert math.hypot(bench.robot.x - 0.5, bench.robot.y - 0.5) <= 0.01
-    speeds = [t.linear.x for t in bench.out.twists[twists - 1 : twists + 2]]
-    assert abs(speeds[1] - speeds[0]) <= 0.5 * PERIOD + 1e-9  # braked within the acceleration limit
-
-
-def test_a_flood_of_goals_leaves_the_last_one_running_and_every_other_accounted_for() -> None:
-    bench = Bench()
-    ids = [f"{n:032x}" for n in range(300)]
-    for goal_id in ids:
-        assert bench.core.on_goal(bench.goal(x=1.0, y=0.5, goal_id=goal_id), bench.now).accepted
-    assert bench.core.goals.current is not None and bench.core.goals.current.goal_id == ids[-1]
-    assert bench.core.on_result(bench.goal(goal_id=ids[-2]), bench.now).reason == f"preempted by goal {ids[-1]}"
-    assert not bench.core.on_result(bench.goal(goal_id=ids[0]), bench.now).found  # the last 100 are remembered
-    bench.until_done()
-    assert bench.core.on_result(None, bench.now).state is GoalState.SUCCEEDED
-
-
-def run_then(bench: Bench, seconds: float = 1.0) -> int:
-    assert bench.core.on_goal(bench.goal(x=2.0, y=0.0, goal_id=GOAL_A), bench.now).accepted
-    bench.run(seconds)
-    assert bench.robot.v > 0.1
-    return len(bench.out.twists)
-
-
-def assert_stopped_once(bench: Bench, twists: int, state: GoalState, words: str) -> None:
-    """The goal ended ``state`` for ``words``; exactly one zero twist since ``twists``, and nothing ever after."""
-    result = bench.core.on_result(None, bench.now)
-    assert result.state is state and words in result.reason, result
-    assert ended(bench).state is state and words in ended(bench).reason
-    assert bench.out.twists[twists:] == [Twist()]
-    bench.core.on_health(health(), bench.now)  # an e-stop released, the link back, the nav driving again...
-    bench.core.on_driver(encode(DriverChange(1e12, "nav", None, "")), bench.now)
-    bench.core.on_alive("gateway", True, bench.now)
-    bench.poses = True
-    bench.run(3.0)
-    assert bench.out.twists[twists:] == [Twist()]  # ...and nothing moves until a new goal
-
-
-def test_an_estop_aborts_the_goal_with_its_reason_and_nothing_moves_after_the_release() -> None:
-    bench = Bench()
-    twists = run_then(bench)
-    bench.core.on_health(health(estop=True), bench.now)
-    assert_stopped_once(bench, twists, GoalState.ABORTED, "e-stop engaged since")
-    assert any("aborted: e-stop engaged" in e.reason for e in bench.out.errors)
-
-
-def test_a_stale_pose_stops_the_robot_and_aborts() -> None:
-    bench = Bench()
-    twists = run_then(bench)
-    bench.poses = False
-    bench.run(0.26)
-    assert bench.core.goals.current is not None
-    bench.run(0.06)
-    assert_stopped_once(bench, twists, GoalState.ABORTED, "pose stale: no pose from the odometry for 0.30 s")
-
-
-@pytest.mark.parametrize(
-    ("event", "words"),
-    [
-        (lambda b: b.core.on_alive("gateway", False, b.now), "robot unreachable: the gateway is gone"),
-        (lambda b: b.core.on_health(health(link="connecting"), b.now), "robot unreachable: the gateway's control link is connecting"),
-    ],
-    ids=["gateway gone", "link down"],
-)
-def test_losing_the_robot_aborts(event: object, words: str) -> None:
-    bench = Bench()
-    twists = run_then(bench)
-    event(bench)  # type: ignore[operator]
-    assert_stopped_once(bench, twists, GoalState.ABORTED, words)
-
-
-def test_an_override_longer_than_its_timeout_aborts_a_shorter_one_does_not() -> None:
-    bench = Bench()
-    twists = run_then(bench)
-    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "teleop", "nav", "teleop outranks nav")), bench.now)
-    bench.run(1.5)
-    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "nav", "teleop", "teleop timed out")), bench.now)
-    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now - 0.5, "teleop", "nav", "late news")), bench.now)  # older: ignored
-    bench.run(1.0)
-    assert bench.core.goals.current is not None
-    twists = len(bench.out.twists)
-    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "teleop", "nav", "teleop outranks nav")), bench.now)
-    bench.run(1.98)
-    assert bench.core.goals.current is not None
-    bench.run(0.04)
-    assert_stopped_once(
-        bench, len(bench.out.twists) - 1, GoalState.ABORTED, "overridden: teleop drives instead of the navigation for 2.0 s"
-    )
-    assert len(bench.out.twists) > twists
-
-
-def test_a_lock_that_blocks_the_navigation_counts_as_an_override() -> None:
-    bench = Bench(override_timeout=0.5)
-    run_then(bench)
-    bench.core.on_health(health(source=None, stamp=1.8e9 + bench.now), bench.now)  # the health says nobody drives
-    bench.run(0.6)
-    assert "nobody drives" in bench.core.on_result(None, bench.now).reason
-
-
-def test_a_robot_that_does_not_move_aborts_for_no_progress() -> None:
-    bench = Bench(no_progress_timeout=1.0)
-    twists = run_then(bench, 0.5)
-    bench.moves = False
-    bench.run(1.2)
-    assert_stopped_once(bench, len(bench.out.twists) - 1, GoalState.ABORTED, "no progress: ")
-    assert len(bench.out.twists) > twists
-
-
-def test_cancel_stops_the_robot_with_one_zero_twist() -> None:
-    bench = Bench()
-    assert bench.core.on_cancel(None, bench.now).reason == "no goal is running"
-    twists = run_then(bench)
-    reply = bench.core.on_cancel(b"", bench.now)
-    assert reply.canceled == [GOAL_A] and reply.reason == ""
-    assert_stopped_once(bench, twists, GoalState.CANCELED, "canceled by a client")
-    late = bench.core.on_cancel(bench.goal(goal_id=GOAL_A), bench.now)
-    assert late.canceled == [] and late.reason == f"goal {GOAL_A} is not running: it ended canceled"
-    assert not any("canceled" in e.reason for e in bench.out.errors)  # a cancel is no error
-
-
-def test_a_goal_canceled_before_its_first_pose_sends_nothing() -> None:
-    bench = Bench()
-    assert bench.core.on_goal(b'{"x": 1, "y": 1}', bench.now).accepted
-    assert bench.core.on_cancel(None, bench.now).canceled
-    bench.run(1.0)
-    assert bench.out.twists == []
-
-
 # --------------------------------------------------------------------------------------------------- parameters
 
 
@@ -528,3 +253,14 @@ def test_deadlines_are_the_feedback_the_pose_timeout_and_report_summaries() -> N
         bench.core.on_goal(b"junk", bench.now)  # rate-limited: a summary is due later
     assert bench.core.on_cancel(None, bench.now).canceled
     assert bench.core.next_deadline() == pytest.approx(bench.now + 1.0)
+
+
+@pytest.mark.parametrize("x", [1.7e308, -1.7e308, 1e300])
+def test_goals_near_the_float_limits_are_refused_on_any_map(x: float) -> None:
+    bench = Bench(map_pose=MapPose(0.0, -1e308, 1e308, 2.0))
+    reply = bench.core.on_goal(bench.goal(x=x, y=-x, yaw=1e300), bench.now)
+    assert not reply.accepted and "farther than max_goal_distance" in reply.reason
+    move = bench.core.on_move(bench.goal(distance=x), bench.now)
+    assert not move.accepted
+    bench.run(0.2)
+    assert bench.out.twists == []

@@ -1,0 +1,155 @@
+"""NavCore's goals that end early: preempted, canceled, aborted (e-stop, stale pose, robot lost, override, no progress),
+each with its reason, one zero twist, and nothing moving after it until a new goal."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from blackmetal.schemas import DriverChange, GoalState, Twist, encode
+
+from .bench import GOAL_A, GOAL_B, Bench, ended, health
+from .kinematics import PERIOD
+
+# ------------------------------------------------------------------------------------------ goals that end early
+
+
+def test_a_new_goal_preempts_the_running_one_which_ends_canceled() -> None:
+    bench = Bench()
+    assert bench.core.on_goal(bench.goal(x=3.0, y=0.0, goal_id=GOAL_A), bench.now).accepted
+    bench.run(3.0)
+    twists = len(bench.out.twists)
+    assert bench.core.on_goal(bench.goal(x=0.5, y=0.5, goal_id=GOAL_B), bench.now).accepted
+    first = bench.core.on_result(bench.goal(goal_id=GOAL_A), bench.now)
+    assert first.state is GoalState.CANCELED and first.reason == f"preempted by goal {GOAL_B}"
+    assert ended(bench).goal_id == GOAL_A and ended(bench).reason == f"preempted by goal {GOAL_B}"
+    assert len(bench.out.twists) == twists  # no zero twist in between: the new goal drives on from the speed it has
+    bench.until_done()
+    assert bench.core.on_result(None, bench.now).state is GoalState.SUCCEEDED
+    assert math.hypot(bench.robot.x - 0.5, bench.robot.y - 0.5) <= 0.01
+    speeds = [t.linear.x for t in bench.out.twists[twists - 1 : twists + 2]]
+    assert abs(speeds[1] - speeds[0]) <= 0.5 * PERIOD + 1e-9  # braked within the acceleration limit
+
+
+def test_a_flood_of_goals_leaves_the_last_one_running_and_every_other_accounted_for() -> None:
+    bench = Bench()
+    ids = [f"{n:032x}" for n in range(300)]
+    for goal_id in ids:
+        assert bench.core.on_goal(bench.goal(x=1.0, y=0.5, goal_id=goal_id), bench.now).accepted
+    assert bench.core.goals.current is not None and bench.core.goals.current.goal_id == ids[-1]
+    assert bench.core.on_result(bench.goal(goal_id=ids[-2]), bench.now).reason == f"preempted by goal {ids[-1]}"
+    assert not bench.core.on_result(bench.goal(goal_id=ids[0]), bench.now).found  # the last 100 are remembered
+    bench.until_done()
+    assert bench.core.on_result(None, bench.now).state is GoalState.SUCCEEDED
+
+
+def run_then(bench: Bench, seconds: float = 1.0) -> int:
+    assert bench.core.on_goal(bench.goal(x=2.0, y=0.0, goal_id=GOAL_A), bench.now).accepted
+    bench.run(seconds)
+    assert bench.robot.v > 0.1
+    return len(bench.out.twists)
+
+
+def assert_stopped_once(bench: Bench, twists: int, state: GoalState, words: str) -> None:
+    """The goal ended ``state`` for ``words``; exactly one zero twist since ``twists``, and nothing ever after."""
+    result = bench.core.on_result(None, bench.now)
+    assert result.state is state and words in result.reason, result
+    assert ended(bench).state is state and words in ended(bench).reason
+    assert bench.out.twists[twists:] == [Twist()]
+    bench.core.on_health(health(), bench.now)  # an e-stop released, the link back, the nav driving again...
+    bench.core.on_driver(encode(DriverChange(1e12, "nav", None, "")), bench.now)
+    bench.core.on_alive("gateway", True, bench.now)
+    bench.poses = True
+    bench.run(3.0)
+    assert bench.out.twists[twists:] == [Twist()]  # ...and nothing moves until a new goal
+
+
+def test_an_estop_aborts_the_goal_with_its_reason_and_nothing_moves_after_the_release() -> None:
+    bench = Bench()
+    twists = run_then(bench)
+    bench.core.on_health(health(estop=True), bench.now)
+    assert_stopped_once(bench, twists, GoalState.ABORTED, "e-stop engaged since")
+    assert any("aborted: e-stop engaged" in e.reason for e in bench.out.errors)
+
+
+def test_a_stale_pose_stops_the_robot_and_aborts() -> None:
+    bench = Bench()
+    twists = run_then(bench)
+    bench.poses = False
+    bench.run(0.26)
+    assert bench.core.goals.current is not None
+    bench.run(0.06)
+    assert_stopped_once(bench, twists, GoalState.ABORTED, "pose stale: no pose from the odometry for 0.30 s")
+
+
+@pytest.mark.parametrize(
+    ("event", "words"),
+    [
+        (lambda b: b.core.on_alive("gateway", False, b.now), "robot unreachable: the gateway is gone"),
+        (lambda b: b.core.on_health(health(link="connecting"), b.now), "robot unreachable: the gateway's control link is connecting"),
+    ],
+    ids=["gateway gone", "link down"],
+)
+def test_losing_the_robot_aborts(event: object, words: str) -> None:
+    bench = Bench()
+    twists = run_then(bench)
+    event(bench)  # type: ignore[operator]
+    assert_stopped_once(bench, twists, GoalState.ABORTED, words)
+
+
+def test_an_override_longer_than_its_timeout_aborts_a_shorter_one_does_not() -> None:
+    bench = Bench()
+    twists = run_then(bench)
+    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "teleop", "nav", "teleop outranks nav")), bench.now)
+    bench.run(1.5)
+    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "nav", "teleop", "teleop timed out")), bench.now)
+    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now - 0.5, "teleop", "nav", "late news")), bench.now)  # older: ignored
+    bench.run(1.0)
+    assert bench.core.goals.current is not None
+    twists = len(bench.out.twists)
+    bench.core.on_driver(encode(DriverChange(1.8e9 + bench.now, "teleop", "nav", "teleop outranks nav")), bench.now)
+    bench.run(1.98)
+    assert bench.core.goals.current is not None
+    bench.run(0.04)
+    assert_stopped_once(
+        bench, len(bench.out.twists) - 1, GoalState.ABORTED, "overridden: teleop drives instead of the navigation for 2.0 s"
+    )
+    assert len(bench.out.twists) > twists
+
+
+def test_a_lock_that_blocks_the_navigation_counts_as_an_override() -> None:
+    bench = Bench(override_timeout=0.5)
+    run_then(bench)
+    bench.core.on_health(health(source=None, stamp=1.8e9 + bench.now), bench.now)  # the health says nobody drives
+    bench.run(0.6)
+    assert "nobody drives" in bench.core.on_result(None, bench.now).reason
+
+
+def test_a_robot_that_does_not_move_aborts_for_no_progress() -> None:
+    bench = Bench(no_progress_timeout=1.0)
+    twists = run_then(bench, 0.5)
+    bench.moves = False
+    bench.run(1.2)
+    assert_stopped_once(bench, len(bench.out.twists) - 1, GoalState.ABORTED, "no progress: ")
+    assert len(bench.out.twists) > twists
+
+
+def test_cancel_stops_the_robot_with_one_zero_twist() -> None:
+    bench = Bench()
+    assert bench.core.on_cancel(None, bench.now).reason == "no goal is running"
+    twists = run_then(bench)
+    reply = bench.core.on_cancel(b"", bench.now)
+    assert reply.canceled == [GOAL_A] and reply.reason == ""
+    assert_stopped_once(bench, twists, GoalState.CANCELED, "canceled by a client")
+    late = bench.core.on_cancel(bench.goal(goal_id=GOAL_A), bench.now)
+    assert late.canceled == [] and late.reason == f"goal {GOAL_A} is not running: it ended canceled"
+    assert not any("canceled" in e.reason for e in bench.out.errors)  # a cancel is no error
+
+
+def test_a_goal_canceled_before_its_first_pose_sends_nothing() -> None:
+    bench = Bench()
+    assert bench.core.on_goal(b'{"x": 1, "y": 1}', bench.now).accepted
+    assert bench.core.on_cancel(None, bench.now).canceled
+    bench.run(1.0)
+    assert bench.out.twists == []
