@@ -403,21 +403,3 @@ class Controller:
         self.limits, self.tolerances = limits, tolerances
         if limits.latency != self._pending.maxlen:
             self._pending = deque([(self.v, self.w)] * (limits.latency - len(self._pending)) + list(self._pending), maxlen=limits.latency)
-
-
-__all__ = [
-    "DEFAULT_PERIOD_S",
-    "Controller",
-    "Limits",
-    "Phase",
-    "Plan",
-    "Target",
-    "Tolerances",
-    "braking_speed",
-    "integrate",
-    "plan",
-    "reference_time",
-    "stop_time",
-    "trapezoid_time",
-    "wrap",
-]
