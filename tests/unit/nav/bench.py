@@ -38,8 +38,11 @@ class Out:
     map_poses: list[MapPose] = field(default_factory=list)
     params: list[GatewayParams] = field(default_factory=list)
     errors: list[ErrorReport] = field(default_factory=list)
+    #: Everything, in order (a test may add its own markers).
+    log: list[object] = field(default_factory=list)
 
     def __call__(self, message: object) -> None:
+        self.log.append(message)
         kinds = {
             Twist: self.twists,
             NavFeedback: self.feedback,

@@ -6,8 +6,10 @@ from __future__ import annotations
 import math
 
 import pytest
+from hypothesis import event, given, settings
+from hypothesis import strategies as st
 
-from blackmetal.schemas import DriverChange, GoalState, Twist, encode
+from blackmetal.schemas import DriverChange, GoalState, NavFeedback, Twist, encode
 
 from .bench import GOAL_A, GOAL_B, Bench, ended, health
 from .kinematics import PERIOD
@@ -153,3 +155,62 @@ def test_a_goal_canceled_before_its_first_pose_sends_nothing() -> None:
     assert bench.core.on_cancel(None, bench.now).canceled
     bench.run(1.0)
     assert bench.out.twists == []
+
+
+#: What may happen, goals and time more often than the rest.
+ACTIONS = [
+    *["goal"] * 4,
+    *["move", "cancel", "cancel_other", "estop", "release", "teleop", "nav_drives", "link_down", "link_up"],
+    *["gateway_gone", "gateway_back", "poses_stop", "poses_go"],
+    *["run"] * 4,
+    "run_long",
+]
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.lists(st.tuples(st.sampled_from(ACTIONS), st.floats(-3.0, 3.0), st.floats(-3.0, 3.0)), min_size=6, max_size=30))
+def test_any_sequence_ends_every_goal_once_and_stops_the_robot_after_each_early_end(steps: list[tuple[str, float, float]]) -> None:
+    """Whatever happens in whatever order: at most one goal runs, each accepted goal ends once (one last feedback), and
+    after a goal ends early the robot gets at most one zero twist and nothing else until the next goal is accepted."""
+    bench = Bench(override_timeout=1.0)
+    b, core = bench, bench.core
+    accepted: list[str] = []
+    for action, x, y in steps:
+        if action == "goal" or action == "move":
+            reply = core.on_goal(b.goal(x=x, y=y), b.now) if action == "goal" else core.on_move(b.goal(distance=x / 3), b.now)
+            if reply.accepted:
+                assert reply.goal_id is not None
+                accepted.append(reply.goal_id)
+                b.out.log.append(("accepted", reply.goal_id))
+        elif action == "cancel":
+            core.on_cancel(None, b.now)
+        elif action == "cancel_other":
+            core.on_cancel(b.goal(goal_id="c" * 32), b.now)
+        elif action in ("estop", "release", "link_down", "link_up"):
+            core.on_health(
+                health(estop=action == "estop", link="down" if action == "link_down" else "connected", source="nav", stamp=1.8e9 + b.now),
+                b.now,
+            )
+        elif action in ("teleop", "nav_drives"):
+            core.on_driver(encode(DriverChange(1.8e9 + b.now, "teleop" if action == "teleop" else "nav", None, "")), b.now)
+        elif action in ("gateway_gone", "gateway_back"):
+            core.on_alive("gateway", action == "gateway_back", b.now)
+        elif action in ("poses_stop", "poses_go"):
+            b.poses = action == "poses_go"
+        else:
+            b.run(0.5 if action == "run" else 3.0)
+    b.run(0.2)
+    finals = [f for f in b.out.feedback if f.state.done]
+    assert sorted(f.goal_id for f in finals) == sorted(set(accepted) - ({core.goals.current.goal_id} if core.goals.current else set()))
+    assert all(f.reason or f.state is GoalState.SUCCEEDED for f in finals)
+    # after an early end (not a preemption: the next goal drives on), one zero twist at most until a goal is accepted
+    quiet, zeros = False, 0
+    for item in b.out.log:
+        if isinstance(item, tuple):
+            quiet, zeros = False, 0
+        elif isinstance(item, NavFeedback) and item.state.done and not item.reason.startswith("preempted"):
+            quiet, zeros = True, 0
+        elif isinstance(item, Twist) and quiet:
+            zeros += 1
+            assert item == Twist() and zeros == 1, "the robot was commanded after its goal ended"
+    event(f"{len(finals)} goals ended, {sum(f.state is GoalState.ABORTED for f in finals)} aborted")
