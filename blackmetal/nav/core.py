@@ -415,6 +415,8 @@ class NavCore:
     def _driven_by(self, stamp: float, source: str | None, now: float) -> None:
         self._driver = (stamp, source)
         if source == Sources.NAV:
+            if self._overridden_since is not None:  # given back: what the other source did is no lack of progress
+                self._progress = (math.inf, now)
             self._overridden_since = None
         elif self._overridden_since is None and self.goals.current is not None:
             self._overridden_since = now

@@ -16,6 +16,7 @@ from blackmetal.schemas import GatewayParams, GoalState, MapPose, Param, Payload
 
 from .bench import GOAL_A, GOAL_B, KEYS, Bench, Out, ended, health
 from .kinematics import PERIOD
+from .test_controller import GOALS, reference
 
 # ----------------------------------------------------------------------------------------------- goals that arrive
 
@@ -264,3 +265,24 @@ def test_goals_near_the_float_limits_are_refused_on_any_map(x: float) -> None:
     assert not move.accepted
     bench.run(0.2)
     assert bench.out.twists == []
+
+
+def test_the_twenty_goals_through_the_core_meet_the_bars_with_their_elapsed_time() -> None:
+    """The issue's set sent as goals in odom: each reported SUCCEEDED within 1 cm and 1 degree of the truth, its
+    ``elapsed`` (acceptance to success) within 1.25 times the trapezoidal reference, its first ETA within 20 %."""
+    bench = Bench()
+    for name, start, target in GOALS:
+        bench.robot.x, bench.robot.y, bench.robot.yaw = start
+        bench.run(PERIOD)
+        fields = {"x": target.x, "y": target.y, "frame": "odom"} | ({} if target.yaw is None else {"yaw": target.yaw})
+        reply = bench.core.on_goal(bench.goal(**fields), bench.now)
+        assert reply.accepted, (name, reply)
+        bench.core.tick(bench.now)
+        first = bench.out.feedback[-1]
+        bench.until_done()
+        result = bench.core.on_result(None, bench.now)
+        assert result.state is GoalState.SUCCEEDED, (name, result)
+        assert math.hypot(bench.robot.x - target.x, bench.robot.y - target.y) <= 0.01, name
+        assert target.yaw is None or abs(math.remainder(bench.robot.yaw - target.yaw, math.tau)) <= math.radians(1), name
+        assert result.elapsed <= 1.25 * reference(start, target), (name, result.elapsed, reference(start, target))
+        assert abs(first.eta - result.elapsed) <= 0.2 * result.elapsed + 2 * PERIOD, (name, first.eta, result.elapsed)
