@@ -36,6 +36,10 @@ ALIGN_TOLERANCE = 0.03
 REALIGN_ANGLE = math.radians(45.0)
 #: The position and yaw phases aim this far inside the tolerances (fraction): the success check has a margin.
 AIM = 0.2
+#: Braking is planned at this fraction of the acceleration limit: a robot a period later than predicted, or slower to
+#: brake than its limits say, still stops on the goal instead of overshooting and coming back (it costs under 1 %
+#: of a goal's time: only the last braking ramp is longer).
+BRAKING = 0.8
 
 
 def wrap(angle: float) -> float:
@@ -293,6 +297,8 @@ class Controller:
         distance = math.hypot(dx, dy)
         heading = self._heading(pyaw)
         along = dx * math.cos(heading) + dy * math.sin(heading)  # negative: passed
+        if along < 0:  # overshot: it comes back the other way, steering as it backs up
+            heading = wrap(heading + math.pi)
         error = wrap(math.atan2(dy, dx) - heading) if distance > STEER_RADIUS else 0.0
         if abs(error) > REALIGN_ANGLE and distance > tol.xy:
             self.phase = Phase.ALIGN
@@ -307,7 +313,7 @@ class Controller:
             self._start(px, py, pyaw, pturned)
             self.v, self.w = 0.0, _step_toward(self.w, 0.0, lim.angular_accel * dt)
             return
-        speed = math.copysign(braking_speed(abs(along), lim.linear_accel, dt), along)
+        speed = math.copysign(braking_speed(abs(along), lim.linear_accel * BRAKING, dt), along)
         speed = max(-lim.max_speed, min(lim.max_speed, speed * max(math.cos(error), 0.0)))
         if self.reverse:
             speed = -speed
@@ -337,7 +343,7 @@ class Controller:
     def _turn_toward(self, error: float, gain: float | None = None) -> float:
         """The turn rate toward ``error`` rad away: on the braking profile (and ``gain * error`` when given), in the limits."""
         dt, lim = self.period, self.limits
-        rate = braking_speed(abs(error), lim.angular_accel, dt)
+        rate = braking_speed(abs(error), lim.angular_accel * BRAKING, dt)
         if gain is not None:
             rate = min(rate, gain * abs(error))
         wanted = math.copysign(min(rate, lim.max_turn), error)

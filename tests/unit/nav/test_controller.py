@@ -230,16 +230,19 @@ def test_the_eta_tracks_the_time_actually_left() -> None:
         {"delay": 2},
         {"linear_accel": None, "angular_accel": None},
         {"noise": 0.001, "yaw_noise": math.radians(0.1)},
+        {"linear_accel": 0.25, "angular_accel": 1.0},
+        {"delay": 3, "noise": 0.001, "yaw_noise": math.radians(0.1)},
     ],
-    ids=["no delay", "two periods late", "no gateway ramp", "noisy odometry"],
+    ids=["no delay", "two periods late", "no gateway ramp", "noisy odometry", "half the acceleration", "three periods late, noisy"],
 )
 def test_a_robot_unlike_the_model_still_gets_there_within_the_bar(robot: dict[str, float | int | None]) -> None:
-    """The controller predicts one period of delay; a robot with none or two, or noisy poses, still arrives (slower)."""
+    """The controller predicts one period of delay and the acceleration it commands; a robot with no delay or three,
+    noisy poses, or wheels that take twice as long to speed up and brake, still arrives (slower)."""
     trials = evaluate(**robot)
     print(figures(trials))
     for t in trials:
         assert t.xy_error <= BAR_XY and t.yaw_error <= BAR_YAW, t
-        assert t.time <= 2.5 * t.reference + 0.5, t
+        assert t.time <= 3 * t.reference + 0.5, t
 
 
 def test_a_controller_told_of_two_periods_of_delay_meets_the_bar_on_a_robot_two_periods_late() -> None:
