@@ -117,8 +117,12 @@ class NavCore:
             self._period += 0.2 * (pose.stamp - self._pose.stamp - self._period)
         self._pose, self._pose_at = pose, now
         self._check(now)
-        controller = self._controller
-        if self.goals.current is None or controller is None:
+        self._step(now)
+
+    def _step(self, now: float) -> None:
+        """The running goal's twist for the latest pose (on each pose, and at once when a goal is accepted)."""
+        controller, pose = self._controller, self._pose
+        if self.goals.current is None or controller is None or pose is None:
             return
         self.goals.start()
         v, w = controller.step(pose.x, pose.y, pose.yaw, self._period)
@@ -282,10 +286,6 @@ class NavCore:
     def map_pose(self) -> MapPose:
         return self._map
 
-    @property
-    def nav_params(self) -> NavParams:
-        return self._params
-
     # --------------------------------------------------------------------------------------------------- time
 
     def tick(self, now: float) -> None:
@@ -400,11 +400,11 @@ class NavCore:
         self._overridden_since = None if self._driver is None or self._driver[1] == Sources.NAV else now
         self._progress, self._recoveries = (math.inf, now), 0
         self._feedback_due = now
+        self._step(now)  # the first command now, from the latest pose (fresh: checked above), not a period later
         return NavGoalReply(True, goal_id, "")
 
     def _tolerances(self) -> Tolerances:
-        p = self._params
-        return Tolerances(p.xy_tolerance, p.yaw_tolerance, p.reverse_distance)
+        return Tolerances(self._params.xy_tolerance, self._params.yaw_tolerance, self._params.reverse_distance)
 
     def _limits_changed(self, changed: list[str]) -> None:
         self._limits = effective_limits(self._params, self._gateway)

@@ -90,6 +90,7 @@ class Bench:
         self.poses = True  # the odometry publishes
         self._command = (0.0, 0.0)
         self._heard = -math.inf
+        self._seen = 0  # twists the gateway has taken
         assert self.core.next_deadline() == -math.inf  # the first tick is due at once
         self.core.tick(self.now)
         self.core.on_alive("gateway", True, self.now)
@@ -105,10 +106,10 @@ class Bench:
         """``seconds`` of robot time: a pose each period while ``poses``, the core ticked at its deadlines."""
         end = self.now + seconds - 1e-9
         while self.now < end:
-            seen = len(self.out.twists)
             if self.poses:
                 self.pose()
-            if len(self.out.twists) > seen:
+            if len(self.out.twists) > self._seen:  # the latest command, sent on this pose or on a query since the last
+                self._seen = len(self.out.twists)
                 t = self.out.twists[-1]
                 self._command, self._heard = (t.linear.x, t.angular.z), self.now
                 if self.arbiter and self._driver != "nav":

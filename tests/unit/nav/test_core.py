@@ -41,7 +41,7 @@ def test_a_goal_on_the_map_is_reached_with_feedback_at_10_hz_and_a_result() -> N
     assert math.hypot(result.pose.x - 10.0, result.pose.y - 6.0) <= 0.01 and abs(result.pose.yaw) <= math.radians(1)
     assert math.hypot(bench.robot.x - 1.0, bench.robot.y) <= 0.01  # in odom: 1 m ahead
     running = [f for f in bench.out.feedback if not f.state.done]
-    assert running[0].state is GoalState.ACCEPTED and running[-1].state is GoalState.EXECUTING
+    assert running[0].state is GoalState.EXECUTING  # its first command went out on acceptance
     assert len(running) >= 5 * (bench.now - start) - 1  # >= 5 Hz (10 Hz by default)
     assert len(running) == pytest.approx(10 * (bench.now - start), abs=2)
     last = ended(bench)
@@ -218,7 +218,7 @@ def test_parameters_change_live_and_refuse_out_of_range() -> None:
     assert bench.out.params[-1].changed == ["max_speed", "feedback_hz"]
     assert {p.name: p.value for p in reply.params.params}["effective.max_speed"] == 0.2
     assert [e.reason for e in bench.out.errors] == ["max_turn must be within 0.05..8, got 99"]
-    assert bench.core.nav_params.max_speed == 0.2
+    assert {p.name: p.value for p in bench.core.params().params}["max_speed"] == 0.2
     start = bench.now
     assert bench.core.on_goal(b'{"x": 1.5, "y": 0}', bench.now).accepted
     bench.until_done()

@@ -26,7 +26,7 @@ def test_a_new_goal_preempts_the_running_one_which_ends_canceled() -> None:
     first = bench.core.on_result(bench.goal(goal_id=GOAL_A), bench.now)
     assert first.state is GoalState.CANCELED and first.reason == f"preempted by goal {GOAL_B}"
     assert ended(bench).goal_id == GOAL_A and ended(bench).reason == f"preempted by goal {GOAL_B}"
-    assert len(bench.out.twists) == twists  # no zero twist in between: the new goal drives on from the speed it has
+    assert len(bench.out.twists) == twists + 1  # no zero twist in between: the new goal's first command at once
     bench.until_done()
     assert bench.core.on_result(None, bench.now).state is GoalState.SUCCEEDED
     assert math.hypot(bench.robot.x - 0.5, bench.robot.y - 0.5) <= 0.01
@@ -149,12 +149,15 @@ def test_cancel_stops_the_robot_with_one_zero_twist() -> None:
     assert not any("canceled" in e.reason for e in bench.out.errors)  # a cancel is no error
 
 
-def test_a_goal_canceled_before_its_first_pose_sends_nothing() -> None:
+def test_a_goal_drives_at_once_and_a_cancel_right_after_stops_it() -> None:
+    """The first command goes out on acceptance (from the latest pose), not a pose later; a cancel then sends one zero."""
     bench = Bench()
     assert bench.core.on_goal(b'{"x": 1, "y": 1}', bench.now).accepted
+    assert len(bench.out.twists) == 1 and bench.out.twists[0].angular.z == pytest.approx(2.0 * PERIOD)  # turning left
+    assert bench.core.on_result(None, bench.now).state is GoalState.EXECUTING
     assert bench.core.on_cancel(None, bench.now).canceled
     bench.run(1.0)
-    assert bench.out.twists == []
+    assert bench.out.twists[1:] == [Twist()]
 
 
 #: What may happen, goals and time more often than the rest.
@@ -177,11 +180,12 @@ def test_any_sequence_ends_every_goal_once_and_stops_the_robot_after_each_early_
     accepted: list[str] = []
     for action, x, y in steps:
         if action == "goal" or action == "move":
+            mark = len(b.out.log)  # what the goal sends on acceptance comes after its mark
             reply = core.on_goal(b.goal(x=x, y=y), b.now) if action == "goal" else core.on_move(b.goal(distance=x / 3), b.now)
             if reply.accepted:
                 assert reply.goal_id is not None
                 accepted.append(reply.goal_id)
-                b.out.log.append(("accepted", reply.goal_id))
+                b.out.log.insert(mark, ("accepted", reply.goal_id))
         elif action == "cancel":
             core.on_cancel(None, b.now)
         elif action == "cancel_other":
