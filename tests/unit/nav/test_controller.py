@@ -156,6 +156,10 @@ def trial(name: str, start: tuple[float, float, float], target: Target, robot: R
             break
         robot.run(*command)
         t += PERIOD
+    for _ in range(robot.delay + 1):  # the commands still on their way run out (the last one, held, is zero)
+        robot.run(0.0, 0.0)
+    while robot.v or robot.w:  # and wheels slower than the limits come to a stop
+        robot.run(0.0, 0.0)
     xy = math.hypot(target.x - robot.x, target.y - robot.y)
     if target.turn is not None:
         yaw = abs(start[2] + target.turn - robot.yaw)
