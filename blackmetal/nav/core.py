@@ -131,9 +131,6 @@ class NavCore:
             return
         self.output(Twist(linear=Vector3(x=v), angular=Vector3(z=w)))
         self._drove = True
-        left = controller.remaining(pose.x, pose.y, pose.yaw)[2]
-        if left < self._progress[0] - PROGRESS_S or controller.recoveries != self._recoveries:  # closer, or a new plan
-            self._progress, self._recoveries = (left, now), controller.recoveries
 
     def on_health(self, payload: bytes, now: float) -> None:
         """The gateway's health: an e-stop, or a control link down, aborts the running goal."""
@@ -493,4 +490,6 @@ class NavCore:
         distance, _, eta = self._feedback_figures()
         if self._controller is not None:
             record.recoveries = self._controller.recoveries
+        if eta < self._progress[0] - PROGRESS_S or record.recoveries != self._recoveries:  # closer, or a new plan
+            self._progress, self._recoveries = (eta, now), record.recoveries  # (taken with the feedback: >= 5 Hz)
         self.output(record.feedback(self.wallclock(), now, distance, eta))
