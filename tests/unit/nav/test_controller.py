@@ -362,3 +362,21 @@ def test_retargeting_goes_to_the_new_place_from_the_present_speed() -> None:
 def test_the_reference_time_is_the_plans() -> None:
     for _, start, target in GOALS:
         assert reference_time(*start, target, LIMITS, TOLERANCES) == pytest.approx(reference(start, target))
+
+
+@pytest.mark.parametrize("period", [0.01, 0.04, 0.1])
+def test_poses_at_another_rate_meet_the_bars_too(period: float) -> None:
+    """The odometry at 100, 25 or 10 Hz: the period is the controller's input, the profile and the prediction follow it."""
+    for name, start, target in GOALS:
+        robot = Robot(*start, dt=period)
+        controller = Controller(target, LIMITS, TOLERANCES, period=period)
+        t = 0.0
+        while not controller.reached and t < 100.0:
+            command = controller.step(*robot.pose(), period)
+            if not controller.reached:
+                robot.run(*command)
+                t += period
+        robot.run(0.0, 0.0)
+        assert math.hypot(target.x - robot.x, target.y - robot.y) <= TOLERANCES.xy, name
+        assert target.yaw is None or abs(wrap(target.yaw - robot.yaw)) <= TOLERANCES.yaw, name
+        assert t <= BAR_TIME * reference(start, target) + period, (name, t)

@@ -93,6 +93,17 @@ def test_set_pose_places_odom_on_the_map_and_a_map_goal_follows() -> None:
     assert [e.key for e in bench.out.errors] == ["robot/nav/set_pose"] * 2
 
 
+def test_a_goal_in_odom_stays_where_it_is_when_the_map_moves_and_a_free_heading_is_the_arrival_one() -> None:
+    bench = Bench()
+    assert bench.core.on_goal(b'{"x": 1, "y": 1, "frame": "odom"}', bench.now).accepted
+    goal = bench.core.on_result(None, bench.now).goal
+    assert goal is not None and goal.yaw == pytest.approx(math.pi / 4) and goal.frame == "odom"  # it will arrive facing 45 deg
+    bench.run(1.0)
+    bench.core.on_set_pose(b'{"x": 5, "y": -5, "yaw": 3}', bench.now)
+    bench.until_done()
+    assert (bench.robot.x, bench.robot.y) == pytest.approx((1.0, 1.0), abs=0.01)
+
+
 # ------------------------------------------------------------------------------------------- bad input: its sentence
 
 
