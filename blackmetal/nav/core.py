@@ -50,7 +50,7 @@ from blackmetal.schemas import (
 )
 
 from .controller import DEFAULT_PERIOD_S, Controller, Target, Tolerances, plan
-from .goals import GoalRecord, Goals, map_to_odom, odom_to_map, placed, wrap
+from .goals import GoalRecord, Goals, jumped, map_to_odom, odom_to_map, placed, refusal, robot_trouble, wrap
 from .params import READ_ONLY, GatewayLimits, NavParams, effective_limits
 
 #: Where the core's messages go; the edge routes each by its type (Twist: ``cmd_vel/nav``, NavFeedback:
@@ -113,9 +113,12 @@ class NavCore:
         pose = self._decode(Pose, payload, self.keys.pose, now)
         if isinstance(pose, str):
             return
-        if self._pose is not None and PERIOD_RANGE[0] <= pose.stamp - self._pose.stamp <= PERIOD_RANGE[1]:
-            self._period += 0.2 * (pose.stamp - self._pose.stamp - self._period)
-        self._pose, self._pose_at = pose, now
+        last, self._pose, self._pose_at = self._pose, pose, now
+        if last is not None and PERIOD_RANGE[0] <= pose.stamp - last.stamp <= PERIOD_RANGE[1]:
+            self._period += 0.2 * (pose.stamp - last.stamp - self._period)
+        jump = None if last is None or self.goals.current is None else jumped(last, pose, self._period)
+        if jump is not None:
+            self._end(GoalState.ABORTED, jump, now)
         self._check(now)
         self._step(now)
 
@@ -324,30 +327,12 @@ class NavCore:
 
     def _robot_trouble(self) -> str | None:
         """What keeps the robot from following any goal now: an e-stop, the gateway gone, its link down."""
-        health = self._health
-        if health is not None and health.estop:
-            return f"e-stop engaged{health.estop_origin()}"
-        if self._alive.get("gateway") is False:
-            return "robot unreachable: the gateway is gone (its liveliness token went away)"
-        if health is not None and health.control.state != "connected":
-            why = f": {health.control.reason}" if health.control.reason else ""
-            return f"robot unreachable: the gateway's control link is {health.control.state}{why}"
-        return None
+        return robot_trouble(self._health, self._alive.get("gateway"))
 
     def _robot_refusal(self, now: float) -> str | None:
         """Why no goal can start now (e-stop, robot unreachable, odometry not running), if none can."""
-        trouble = self._robot_trouble()
-        if trouble is not None and trouble.startswith("e-stop"):
-            return f"robot is e-stopped ({trouble}): release it on {self.keys.estop_release}, then send the goal again"
-        if trouble is not None or self._health is None:
-            return trouble or "robot unreachable: no health report from the gateway yet"
-        if self._pose is None:
-            return "odometry not running: no pose received yet"
-        age = now - self._pose_at
-        if age > self._params.pose_timeout:
-            gone = " (its liveliness token is gone)" if self._alive.get("odometry") is False else ""
-            return f"odometry not running: the last pose is {age:.1f} s old (pose_timeout {self._params.pose_timeout:g} s){gone}"
-        return None
+        age = None if self._pose is None else now - self._pose_at
+        return refusal(self._health, self._alive, age, self._params.pose_timeout, self.keys.estop_release)
 
     def _take(
         self,

@@ -5,7 +5,8 @@ same), so a client that sends a flood of goals ends up with the last one running
 The results of the last :data:`KEEP_RESULTS` goals answer ``nav/result``; a goal id is never reused while remembered,
 so a late ``result`` or ``cancel`` cannot reach a different goal by the same name.
 
-Also here: the map frame's arithmetic (``map -> odom`` is a planar transform; goals, feedback and set-pose use it).
+Also here: what keeps a goal from starting or running (the sentences of refusals and aborts that the robot's state
+causes), and the map frame's arithmetic (``map -> odom`` is a planar transform; goals, feedback and set-pose use it).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from blackmetal.schemas import GoalState, MapPose, NavFeedback, NavResult, PlanarPose
+from blackmetal.schemas import GatewayHealth, GoalState, MapPose, NavFeedback, NavResult, PlanarPose, Pose
 
 #: How many goals' results ``nav/result`` answers for (the oldest ended ones are forgotten first).
 KEEP_RESULTS = 100
@@ -136,6 +137,55 @@ class Goals:
             if self._records[oldest] is self.current:
                 break
             del self._records[oldest]
+
+
+# ----------------------------------------------------------------------------------- what keeps a goal from running
+
+
+def robot_trouble(health: GatewayHealth | None, gateway_alive: bool | None) -> str | None:
+    """What keeps the robot from following any goal now (an e-stop, the gateway gone, its control link down): the
+    reason a running goal is aborted with. ``health`` None: none heard yet (no trouble known); ``gateway_alive`` None:
+    its liveliness not heard of yet."""
+    if health is not None and health.estop:
+        return f"e-stop engaged{health.estop_origin()}"
+    if gateway_alive is False:
+        return "robot unreachable: the gateway is gone (its liveliness token went away)"
+    if health is not None and health.control.state != "connected":
+        why = f": {health.control.reason}" if health.control.reason else ""
+        return f"robot unreachable: the gateway's control link is {health.control.state}{why}"
+    return None
+
+
+def refusal(
+    health: GatewayHealth | None, alive: dict[str, bool], pose_age: float | None, pose_timeout: float, release_key: str
+) -> str | None:
+    """Why a new goal is refused, if it is: the robot e-stopped or unreachable (no health heard counts), or the odometry
+    not running (no pose, or the last one ``pose_age`` seconds old)."""
+    trouble = robot_trouble(health, alive.get("gateway"))
+    if trouble is not None and trouble.startswith("e-stop"):
+        return f"robot is e-stopped ({trouble}): release it on {release_key}, then send the goal again"
+    if trouble is not None or health is None:
+        return trouble or "robot unreachable: no health report from the gateway yet"
+    if pose_age is None:
+        return "odometry not running: no pose received yet"
+    if pose_age > pose_timeout:
+        gone = " (its liveliness token is gone)" if alive.get("odometry") is False else ""
+        return f"odometry not running: the last pose is {pose_age:.1f} s old (pose_timeout {pose_timeout:g} s){gone}"
+    return None
+
+
+#: Faster than this no pose moves (m/s, rad/s: the robot's wire limit of 1 m/s a wheel), plus a margin for jitter (m, rad).
+JUMP_SPEED, JUMP_TURN, JUMP_MARGIN = 1.0, 4.0, 0.05
+
+
+def jumped(last: Pose, pose: Pose, period: float) -> str | None:
+    """Why ``pose`` cannot follow ``last`` by motion, if it cannot: the odometry was reset (or is broken), and a goal's
+    place in the odometry frame means nothing any more."""
+    gap = pose.stamp - last.stamp if 0 < pose.stamp - last.stamp <= 1.0 else period
+    moved, turned = math.hypot(pose.x - last.x, pose.y - last.y), abs(wrap(pose.yaw - last.yaw))
+    if moved <= JUMP_SPEED * gap + JUMP_MARGIN and turned <= JUMP_TURN * gap + JUMP_MARGIN:
+        return None
+    return f"odometry jumped {moved:.2f} m and {math.degrees(turned):.0f} deg in {gap:.2f} s (reset?): the goal's place in it is lost"
 
 
 # ------------------------------------------------------------------------------------------ the map frame's arithmetic

@@ -128,6 +128,14 @@ def test_a_lock_that_blocks_the_navigation_counts_as_an_override() -> None:
     assert "nobody drives" in bench.core.on_result(None, bench.now).reason
 
 
+def test_an_odometry_reset_during_a_goal_aborts_it() -> None:
+    bench = Bench()
+    twists = run_then(bench)
+    bench.robot.x += 1.0  # as a reset to another pose looks from here
+    bench.run(PERIOD)
+    assert_stopped_once(bench, twists, GoalState.ABORTED, "odometry jumped 1.0")
+
+
 def test_a_robot_that_does_not_move_aborts_for_no_progress() -> None:
     bench = Bench(no_progress_timeout=1.0)
     twists = run_then(bench, 0.5)

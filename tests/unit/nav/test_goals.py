@@ -8,8 +8,8 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from blackmetal.nav.goals import GoalRecord, Goals, map_to_odom, odom_to_map, placed, wrap
-from blackmetal.schemas import GoalState, MapPose, PlanarPose
+from blackmetal.nav.goals import GoalRecord, Goals, jumped, map_to_odom, odom_to_map, placed, refusal, robot_trouble, wrap
+from blackmetal.schemas import GatewayHealth, GoalState, LinkHealth, MapPose, PlanarPose, make_pose
 
 
 def record(goal_id: str, at: float = 0.0) -> GoalRecord:
@@ -98,3 +98,42 @@ def test_placing_odom_puts_the_robot_where_it_was_said_to_be(
     assert abs(wrap(odom_to_map(m, ox, oy, oyaw)[2] - ayaw)) < 1e-9
     back = map_to_odom(m, *odom_to_map(m, px, py, 0.3))
     assert back[:2] == pytest.approx((px, py), abs=1e-9)
+
+
+def health(**fields: object) -> GatewayHealth:
+    link = LinkHealth(str(fields.pop("link", "connected")), reason=fields.pop("why", None))  # type: ignore[arg-type]
+    return GatewayHealth(0.0, link, LinkHealth("connected"), **fields)  # type: ignore[arg-type]
+
+
+def test_what_keeps_the_robot_from_a_goal_is_said_in_one_sentence() -> None:
+    assert robot_trouble(None, None) is None and robot_trouble(health(), True) is None
+    assert robot_trouble(health(estop=True, estop_since=0.0, estop_by="robot/estop"), True) == (
+        "e-stop engaged since 1970-01-01 00:00:00 UTC by robot/estop"
+    )
+    assert robot_trouble(health(), False) == "robot unreachable: the gateway is gone (its liveliness token went away)"
+    assert (
+        robot_trouble(health(link="down", why="cannot connect"), None)
+        == "robot unreachable: the gateway's control link is down: cannot connect"
+    )
+    ok = {"gateway": True, "odometry": True}
+    assert refusal(health(), ok, 0.01, 0.3, "robot/estop/release") is None
+    assert "release it on robot/estop/release, then send the goal again" in (
+        refusal(health(estop=True), ok, 0.01, 0.3, "robot/estop/release") or ""
+    )
+    assert refusal(None, ok, 0.01, 0.3, "k") == "robot unreachable: no health report from the gateway yet"
+    assert refusal(health(), ok, None, 0.3, "k") == "odometry not running: no pose received yet"
+    assert refusal(health(), {"odometry": False}, 2.0, 0.3, "k") == (
+        "odometry not running: the last pose is 2.0 s old (pose_timeout 0.3 s) (its liveliness token is gone)"
+    )
+
+
+def test_a_pose_that_no_motion_explains_is_a_jump() -> None:
+    last = make_pose(100.0, 1.0, 1.0, 0.0)
+    assert jumped(last, make_pose(100.02, 1.015, 1.0, 0.06), 0.02) is None  # 0.75 m/s, 3 rad/s: fast, but motion
+    assert (
+        jumped(last, make_pose(100.02, 0.0, 0.0, 0.0), 0.02)
+        == "odometry jumped 1.41 m and 0 deg in 0.02 s (reset?): the goal's place in it is lost"
+    )
+    assert "and 90 deg" in (jumped(last, make_pose(100.02, 1.0, 1.0, math.pi / 2), 0.02) or "")
+    assert jumped(last, make_pose(101.0, 1.9, 1.0, 0.0), 0.02) is None  # a second without poses: 0.9 m is possible
+    assert jumped(last, make_pose(99.0, 1.2, 1.0, 0.0), 0.02) is not None  # stamps out of order: one period is allowed
