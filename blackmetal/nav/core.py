@@ -181,7 +181,7 @@ class NavCore:
         in_map = goal.frame != "odom"
         x, y, yaw = map_to_odom(self._map, goal.x, goal.y, goal.yaw or 0.0) if in_map else (goal.x, goal.y, goal.yaw or 0.0)
         target = Target(x, y, None if goal.yaw is None else yaw)
-        return self._take(key, goal.goal_id, target, (goal.x, goal.y, goal.yaw), goal.frame, "goal", payload, now)
+        return self._take(key, goal.goal_id, target, (goal.x, goal.y, goal.yaw), goal.frame, payload, now)
 
     def on_move(self, payload: bytes | None, now: float) -> NavGoalReply:
         """A relative move (a distance straight, or an angle on the spot), run as a goal in the odometry frame."""
@@ -202,7 +202,7 @@ class NavCore:
             x, y = pose.x + move.distance * math.cos(pose.yaw), pose.y + move.distance * math.sin(pose.yaw)
             target = Target(x, y, pose.yaw, reverse=move.distance < 0)
             where = (x, y, pose.yaw)
-        return self._take(key, move.goal_id, target, where, "odom", "move", payload, now)
+        return self._take(key, move.goal_id, target, where, "odom", payload, now)
 
     def on_cancel(self, payload: bytes | None, now: float) -> NavCancelReply:
         """Cancel the running goal (any, or the one named): it ends canceled, the robot gets one zero twist."""
@@ -341,7 +341,6 @@ class NavCore:
         target: Target,
         where: tuple[float, float, float | None],
         frame: str,
-        kind: str,
         payload: bytes | None,
         now: float,
     ) -> NavGoalReply:
@@ -369,7 +368,7 @@ class NavCore:
         if yaw is None:  # the heading it will arrive with
             heading = pose.yaw + plan(pose.x, pose.y, pose.yaw, target, self._limits, self._tolerances()).turn
             yaw = heading if frame == "odom" else odom_to_map(self._map, 0.0, 0.0, heading)[2]
-        record = GoalRecord(goal_id, PlanarPose(where[0], where[1], wrap(yaw), frame), now, where[2] is None, kind)
+        record = GoalRecord(goal_id, PlanarPose(where[0], where[1], wrap(yaw), frame), now)
         previous = self._controller
         v, w = (previous.v, previous.w) if previous is not None and self.goals.current is not None else (0.0, 0.0)
         preempted = self.goals.accept(record, now)

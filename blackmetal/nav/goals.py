@@ -27,14 +27,12 @@ KEEP_RESULTS = 100
 class GoalRecord:
     """One goal: where to (in the frame the client used), and how it is doing or how it ended.
 
-    ``goal.yaw`` is the heading the robot arrives with when the client gave none (``yaw_free``).
+    ``goal.yaw`` is the heading the robot arrives with when the client gave none.
     """
 
     goal_id: str
     goal: PlanarPose
     accepted_at: float
-    yaw_free: bool = False
-    kind: str = "goal"  # or "move"
     state: GoalState = GoalState.ACCEPTED
     reason: str = ""
     ended_at: float | None = None
