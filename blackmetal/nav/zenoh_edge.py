@@ -1,0 +1,141 @@
+"""Zenoh edge of the navigation service: its input table and its outputs, declarations only.
+
+Inputs reach the host on the service's loop through one intake (a fleet's poses through a ring each, drained by the
+loop); liveliness subscribers ask for history, so a gateway or an odometry alive before nav started is seen at once
+(any start order). Outputs are routed by type (:meth:`ZenohEdge.routes`): ``Twist`` to ``cmd_vel/nav`` (a command:
+never dropped, express), ``NavFeedback``, ``MapPose``, ``GatewayParams`` (``nav/params``) and ``ErrorReport``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from collections.abc import Callable
+from typing import TYPE_CHECKING
+
+import msgspec
+
+from blackmetal.runtime.burst import PutBurst
+from blackmetal.runtime.edge import ZenohEdge
+from blackmetal.runtime.intake import Intake
+from blackmetal.schemas import Keys, PayloadError, Sources, Twist, encode, payload_bytes
+
+from .host import NavHost
+
+if TYPE_CHECKING:
+    import zenoh
+
+#: A fleet robot's poses wait in a Zenoh ring of this many for :meth:`NavZenoh.drain`; only the newest counts.
+RING = 4
+#: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out).
+QUERIES_CAPACITY = 16
+#: The liveliness tokens whose presence the core follows: the roles it needs.
+FOLLOWED_ROLES = ("gateway", "odometry")
+
+
+class NavZenoh(ZenohEdge):
+    def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
+        """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never."""
+        super().__init__(session)
+        self.keys = keys
+        command = keys.cmd_vel_of(Sources.NAV)
+        self.routes(keys, (command,), fast=command)  # express, never held in a burst
+        self.routes(keys, (keys.nav_feedback,), fast=keys.nav_feedback, burst=burst)
+        self.routes(keys, (keys.nav_map_pose, keys.nav_params, keys.errors))
+        self._ring: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]] | None = None
+        self._host: NavHost | None = None
+        #: The last Twist put was not zero: closing, the edge sends a zero so that nothing drives on nav's last word.
+        self.moving = False
+
+    def attach(self, host: NavHost, loop: asyncio.AbstractEventLoop, *, ring: bool = False) -> Intake:
+        """Declare the inputs that feed ``host``; ``ring`` (a fleet): poses wait for :meth:`drain`, no callback each."""
+        intake, keys = self.intake(loop, on_error=host.on_error()), self.keys
+        # what stops a goal (e-stop, link, driver, a service gone) is handled before the poses that wait
+        self.subscriber(keys.health, intake.channel("health", host.on_health, latest=True, priority=1))
+        self.subscriber(keys.driver, intake.channel("driver", host.on_driver, capacity=16, priority=1))
+        self.subscriber(keys.params, intake.channel("gateway params", host.on_gateway_params, latest=True, priority=1))
+        for role in FOLLOWED_ROLES:
+            self._alive(keys.alive(role), intake.channel(f"alive/{role}", _alive_handler(host, role), capacity=16, priority=1))
+        if ring:
+            import zenoh
+
+            self._ring = self.session.declare_subscriber(keys.pose, zenoh.handlers.RingChannel(RING))
+            self._entities.append(self._ring)
+            self._host = host
+        else:
+            self.subscriber(keys.pose, intake.channel("pose", host.on_pose, latest=True))
+        queries: dict[str, Callable[[bytes | None], msgspec.Struct]] = {
+            keys.nav_goal: host.on_goal,
+            keys.nav_move: host.on_move,
+            keys.nav_cancel: host.on_cancel,
+            keys.nav_result: host.on_result,
+            keys.nav_map_pose: host.map_pose,
+            keys.nav_set_pose: host.on_set_pose,
+            keys.nav_params: host.params,
+            keys.nav_params_set: host.on_params_set,
+        }
+        for key, handler in queries.items():
+            self.queryable(key, intake.channel(f"{key.rpartition('/nav/')[2]}?", self._answerer(key, handler), capacity=QUERIES_CAPACITY))
+        recent = host.core.reporter.recent
+        self.queryable(keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, list(recent)), capacity=16))
+        self.token(keys.alive_nav)
+        return intake
+
+    def publish(self, message: msgspec.Struct) -> None:
+        if type(message) is Twist:
+            self.moving = message != Twist()
+        super().publish(message)
+
+    def drain(self) -> int:
+        """On the loop: the newest pose of the ring to the host (the older ones are superseded); how many were taken."""
+        ring, host = self._ring, self._host
+        if ring is None or host is None:
+            return 0
+        taken, newest = 0, None
+        while (sample := ring.try_recv()) is not None:
+            taken += 1
+            newest = sample
+        if newest is not None:
+            host.on_pose(payload_bytes(newest))
+        return taken
+
+    def close(self) -> None:
+        """Undeclare everything; a robot nav was driving gets a zero first (the gateway's timeout would stop it later)."""
+        self._ring = None
+        if self.moving and Twist in self._routes:
+            publisher, _ = self._routes[Twist]
+            try:
+                publisher.put(encode(Twist()))
+            except Exception:  # the session is closing under us: the command timeout stops the robot
+                pass
+            self.moving = False
+        super().close()
+
+    def _alive(self, key: str, put: Callable[[bool], None]) -> None:
+        """A liveliness subscriber with history: ``put(True)`` for a token present now or later, ``put(False)`` when it goes."""
+        import zenoh
+
+        def on_sample(sample: "zenoh.Sample") -> None:
+            put(sample.kind == zenoh.SampleKind.PUT)
+
+        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
+
+    def _answerer(self, key: str, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[["zenoh.Query"], None]:
+        """On the loop: the query's payload to ``handler``, its answer replied as JSON (a PayloadError: an error reply)."""
+
+        def answer(query: "zenoh.Query") -> None:
+            import zenoh
+
+            with query:
+                payload = None if query.payload is None else bytes(query.payload.to_bytes())
+                try:
+                    reply = handler(payload)
+                except PayloadError as exc:
+                    query.reply_err(str(exc).encode())
+                    return
+                query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
+
+        return answer
+
+
+def _alive_handler(host: NavHost, role: str) -> Callable[[bool], None]:
+    return lambda alive: host.on_alive(role, alive)
