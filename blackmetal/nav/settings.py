@@ -13,7 +13,7 @@ import math
 import time
 from dataclasses import dataclass, field
 
-from blackmetal.runtime.settings import check_positive, setting
+from blackmetal.runtime.settings import setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, MapPose, validate_prefix
 
@@ -50,6 +50,7 @@ class NavSettings:
     xy_tolerance: float = _param("xy_tolerance", "a goal is reached within this distance, m", "M")
     yaw_tolerance: float = _param("yaw_tolerance", "and within this heading, rad", "RAD")
     max_goal_distance: float = _param("max_goal_distance", "refuse goals further than this from the robot, m", "M")
+    reverse_distance: float = _param("reverse_distance", "drive backwards to a goal behind the robot at most this far, m (0: never)", "M")
     override_timeout: float = _param("override_timeout", "abort a goal a higher-priority source has overridden this long, s", "S")
     pose_timeout: float = _param("pose_timeout", "stop and abort when no pose came for this long, s", "S")
     no_progress_timeout: float = _param("no_progress_timeout", "abort a goal that came no closer for this long, s", "S")
@@ -68,9 +69,7 @@ class NavSettings:
             x_min, y_min, x_max, y_max = self.geofence
             if not (x_min < x_max and y_min < y_max):
                 raise ConfigError(f"geofence {self.geofence}: XMIN must be below XMAX and YMIN below YMAX (XMIN,YMIN,XMAX,YMAX)")
-        check_positive(self, " ".join(f.name for f in dataclasses.fields(NavParams)))
-        if self.feedback_hz < 5.0:
-            raise ConfigError(f"feedback_hz must be at least 5 (clients count on 5 Hz feedback), got {self.feedback_hz:g}")
+        self.params().check()  # each live parameter within its range, as nav/params/set would have it
 
     def params(self) -> NavParams:
         """The live parameters' start values."""
