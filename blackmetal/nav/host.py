@@ -8,7 +8,6 @@ intake or, in a fleet, the loop's drain of the pose rings. Every decision is the
 from __future__ import annotations
 
 import asyncio
-import logging
 import time
 from collections.abc import Callable
 from typing import Any
@@ -17,8 +16,6 @@ from blackmetal.runtime.driver import CoreTimer
 from blackmetal.schemas import GatewayParams, MapPose, NavCancelReply, NavGoalReply, NavResult, ParamsSetReply
 
 from .core import NavCore
-
-log = logging.getLogger("blackmetal.nav")
 
 
 class NavHost:

@@ -2,14 +2,17 @@
 
 Inputs reach the host on the service's loop through one intake (a fleet's poses through a ring each, drained by the
 loop); liveliness subscribers ask for history, so a gateway or an odometry alive before nav started is seen at once
-(any start order). Outputs are routed by type (:meth:`ZenohEdge.routes`): ``Twist`` to ``cmd_vel/nav`` (a command:
+(any start order), and a gateway that appears is asked for its health and its parameters (published each second and
+only on a change). Outputs are routed by type (:meth:`ZenohEdge.routes`): ``Twist`` to ``cmd_vel/nav`` (a command:
 never dropped, express), ``NavFeedback``, ``MapPose``, ``GatewayParams`` (``nav/params``) and ``ErrorReport``.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 from collections.abc import Callable
+from functools import partial
 from typing import TYPE_CHECKING
 
 import msgspec
@@ -30,6 +33,10 @@ RING = 4
 QUERIES_CAPACITY = 16
 #: The liveliness tokens whose presence the core follows: the roles it needs.
 FOLLOWED_ROLES = ("gateway", "odometry")
+#: How long a get the edge makes for the core (a gateway's health and parameters when it appears) waits for answers (s).
+ASK_TIMEOUT_S = 2.0
+
+log = logging.getLogger("blackmetal.nav")
 
 
 class NavZenoh(ZenohEdge):
@@ -50,11 +57,20 @@ class NavZenoh(ZenohEdge):
         """Declare the inputs that feed ``host``; ``ring`` (a fleet): poses wait for :meth:`drain`, no callback each."""
         intake, keys = self.intake(loop, on_error=host.on_error()), self.keys
         # what stops a goal (e-stop, link, driver, a service gone) is handled before the poses that wait
-        self.subscriber(keys.health, intake.channel("health", host.on_health, latest=True, priority=1))
+        health = intake.channel("health", host.on_health, latest=True, priority=1)
+        limits = intake.channel("gateway params", host.on_gateway_params, latest=True, priority=1)
+        self.subscriber(keys.health, health)
         self.subscriber(keys.driver, intake.channel("driver", host.on_driver, capacity=16, priority=1))
-        self.subscriber(keys.params, intake.channel("gateway params", host.on_gateway_params, latest=True, priority=1))
+        self.subscriber(keys.params, limits)
+
+        def on_alive(role: str, alive: bool) -> None:
+            host.on_alive(role, alive)
+            if alive and role == "gateway":  # its health comes each second, its parameters only when they change: ask
+                self.ask(keys.health, health)
+                self.ask(keys.params, limits)
+
         for role in FOLLOWED_ROLES:
-            self._alive(keys.alive(role), intake.channel(f"alive/{role}", _alive_handler(host, role), capacity=16, priority=1))
+            self._alive(keys.alive(role), intake.channel(f"alive/{role}", partial(on_alive, role), capacity=16, priority=1))
         if ring:
             import zenoh
 
@@ -110,6 +126,18 @@ class NavZenoh(ZenohEdge):
             self.moving = False
         super().close()
 
+    def ask(self, key: str, put: Callable[[bytes], None]) -> None:
+        """A get on ``key`` that does not wait: each answer's payload goes to ``put`` (an intake channel) from Zenoh's thread."""
+
+        def on_reply(reply: "zenoh.Reply") -> None:
+            if reply.ok is not None:
+                put(payload_bytes(reply.ok))
+
+        try:
+            self.session.get(key, on_reply, timeout=ASK_TIMEOUT_S)
+        except Exception as exc:  # the session is closing: nothing to ask any more
+            log.debug("get on %s refused: %s", key, exc)
+
     def _alive(self, key: str, put: Callable[[bool], None]) -> None:
         """A liveliness subscriber with history: ``put(True)`` for a token present now or later, ``put(False)`` when it goes."""
         import zenoh
@@ -135,7 +163,3 @@ class NavZenoh(ZenohEdge):
                 query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
 
         return answer
-
-
-def _alive_handler(host: NavHost, role: str) -> Callable[[bool], None]:
-    return lambda alive: host.on_alive(role, alive)

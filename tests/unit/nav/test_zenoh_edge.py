@@ -212,3 +212,30 @@ def test_a_service_that_leaves_is_seen_gone(session: zenoh.Session, role: str) -
             edge.close()
 
     asyncio.run(scenario())
+
+
+def test_a_gateway_that_appears_is_asked_for_its_health_and_parameters(session: zenoh.Session) -> None:
+    """Its health comes each second and its parameters only on a change: nav, started after it, asks at once."""
+    keys = Keys("edge/ask")
+    answers = {keys.health: b"health now", keys.params: b"params now"}
+    queryables = [session.declare_queryable(key, lambda q, key=key: q.reply(key, answers[key])) for key in answers]
+
+    async def scenario() -> None:
+        edge, host, core = make(session, keys)
+        edge.attach(host, asyncio.get_running_loop())
+        try:
+            await asyncio.sleep(0.1)
+            assert not core.named("health")  # no gateway yet: nothing asked
+            token = session.liveliness().declare_token(keys.alive_gateway)
+            await until(lambda: core.named("health") and core.named("gateway_params"), "the answers")
+            assert core.named("health")[0][1] == b"health now" and core.named("gateway_params")[0][1] == b"params now"
+            token.undeclare()
+        finally:
+            edge.close()
+        edge.ask(keys.health, lambda payload: None)  # after the close: nothing happens, nothing raises
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        for queryable in queryables:
+            queryable.undeclare()
