@@ -117,7 +117,7 @@ class Follower:
 
 def follow(session: Any, keys: Keys, follower: Follower, out: TextIO, tty: bool, clock: Any = time.monotonic) -> int:
     """Print progress until the goal ends; its sentence, and 0 for succeeded, 1 otherwise."""
-    last_news = last_line = clock()
+    last_news, last_line = clock(), -math.inf  # off a terminal, the first progress line at once, then one a second
     next_ask = last_news + ASK_RESULT_AFTER_S
     while True:
         try:

@@ -45,14 +45,14 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         "--robots",
         type=int,
         metavar="N",
-        help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway and one odometry "
+        help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway, one odometry and one nav "
         "process (--fleet), with one status line for all",
     )
     parser.add_argument(
         "--processes",
         type=int,
         metavar="K",
-        help=f"with --robots: spread the robots over K gateway and K odometry processes (default: one per "
+        help=f"with --robots: spread the robots over K gateway, K odometry and K nav processes (default: one per "
         f"{ROBOTS_PER_PROCESS} robots, at most one per core)",
     )
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
