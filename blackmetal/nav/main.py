@@ -1,7 +1,8 @@
-"""``blackmetal nav`` / ``python -m blackmetal.nav``: goals in (``<prefix>/nav/goal``, ``move``, ``cancel``), the robot
-driven to them through the gateway's arbiter as the command source ``nav`` (``<prefix>/cmd_vel/nav``: teleop, locks and
-the e-stop win over it), feedback and results out. It follows the odometry's pose and the gateway's health, and may
-start before or after them."""
+"""``blackmetal nav`` / ``python -m blackmetal.nav``: goals in, the robot driven to them, feedback and results out.
+
+Goals come on ``<prefix>/nav/goal`` (and ``move``, ``cancel``); the robot is driven through the gateway's arbiter as the
+command source ``nav`` (``<prefix>/cmd_vel/nav``: teleop, locks and the e-stop win over it). It follows the odometry's
+pose and the gateway's health, and may start before or after them (docs/navigation.md)."""
 
 from __future__ import annotations
 
