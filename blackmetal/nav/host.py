@@ -8,6 +8,7 @@ intake or, in a fleet, the loop's drain of the pose rings. Every decision is the
 from __future__ import annotations
 
 import asyncio
+import math
 import time
 from collections.abc import Callable
 from typing import Any
@@ -16,6 +17,9 @@ from blackmetal.runtime.driver import CoreTimer
 from blackmetal.schemas import GatewayParams, MapPose, NavCancelReply, NavGoalReply, NavResult, ParamsSetReply
 
 from .core import NavCore
+
+#: Poses poke the core's timer at most this often (s); every other input pokes it at once.
+POSE_POKE_S = 0.05
 
 
 class NavHost:
@@ -31,11 +35,17 @@ class NavHost:
         self.supervised = supervised
         self.timer = CoreTimer(core, clock, on_error=self.fail if supervised else None)
         self._failure: asyncio.Future[None] | None = None
+        self._next_pose_poke = -math.inf
 
     # telemetry: each poke moves the timer only when the core's deadline came earlier
     def on_pose(self, payload: bytes) -> None:
-        self.core.on_pose(payload, self.clock())
-        self.timer.poke()
+        """A pose moves the core's deadlines later (the stale-pose one), seldom earlier (a report's summary): the timer
+        is poked at most every POSE_POKE_S, not at 50 Hz, and such a deadline is met at most that much later."""
+        now = self.clock()
+        self.core.on_pose(payload, now)
+        if now >= self._next_pose_poke:
+            self._next_pose_poke = now + POSE_POKE_S
+            self.timer.poke()
 
     def on_health(self, payload: bytes) -> None:
         self.core.on_health(payload, self.clock())

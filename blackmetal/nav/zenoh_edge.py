@@ -11,6 +11,9 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
+import time
+from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import TYPE_CHECKING
@@ -20,7 +23,7 @@ import msgspec
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import Keys, PayloadError, Sources, Twist, encode, payload_bytes
+from blackmetal.schemas import Keys, NavFeedback, PayloadError, Sources, Twist, encode, payload_bytes
 
 from .host import NavHost
 
@@ -29,6 +32,12 @@ if TYPE_CHECKING:
 
 #: A fleet robot's poses wait in a Zenoh ring of this many for :meth:`NavZenoh.drain`; only the newest counts.
 RING = 4
+#: While its navigation drives nothing, a fleet robot's poses are taken at most this often (s), not at every drain: no
+#: goal needs them sooner (a goal or a move takes the newest first). The last two are taken, so the core still sees the
+#: poses' own period between them; the pause itself (longer than 0.2 s) the core's period estimate leaves out.
+IDLE_DRAIN_S = 0.25
+#: After nav last drove or gave feedback, its robot's poses are taken at every drain for this long (s).
+ACTIVE_FOR_S = 1.0
 #: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out).
 QUERIES_CAPACITY = 16
 #: The liveliness tokens whose presence the core follows: the roles it needs.
@@ -40,9 +49,14 @@ log = logging.getLogger("blackmetal.nav")
 
 
 class NavZenoh(ZenohEdge):
-    def __init__(self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None) -> None:
+    def __init__(
+        self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None, clock: Callable[[], float] = time.monotonic
+    ) -> None:
         """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never."""
         super().__init__(session)
+        self.clock = clock
+        self._active_until = -math.inf  # a fleet robot's poses are taken at every drain until then (see IDLE_DRAIN_S)
+        self._next_idle_take = -math.inf
         self.keys = keys
         command = keys.cmd_vel_of(Sources.NAV)
         self.routes(keys, (command,), fast=command)  # express, never held in a burst
@@ -80,8 +94,8 @@ class NavZenoh(ZenohEdge):
         else:
             self.subscriber(keys.pose, intake.channel("pose", host.on_pose, latest=True))
         queries: dict[str, Callable[[bytes | None], msgspec.Struct]] = {
-            keys.nav_goal: host.on_goal,
-            keys.nav_move: host.on_move,
+            keys.nav_goal: self._fresh(host.on_goal),
+            keys.nav_move: self._fresh(host.on_move),
             keys.nav_cancel: host.on_cancel,
             keys.nav_result: host.on_result,
             keys.nav_map_pose: host.map_pose,
@@ -97,21 +111,49 @@ class NavZenoh(ZenohEdge):
         return intake
 
     def publish(self, message: msgspec.Struct) -> None:
-        if type(message) is Twist:
+        kind = type(message)
+        if kind is Twist:
             self.moving = message != Twist()
+        if kind is Twist or kind is NavFeedback:
+            self._active_until = self.clock() + ACTIVE_FOR_S
         super().publish(message)
 
     def drain(self) -> int:
-        """On the loop: the newest pose of the ring to the host (the older ones are superseded); how many were taken."""
+        """On the loop: the newest pose of the ring to the host (the older ones are superseded); how many were taken.
+
+        While nav drives nothing, at most every IDLE_DRAIN_S (the poses wait in the ring, the newest kept)."""
+        if self._ring is None:
+            return 0
+        now = self.clock()
+        if now < self._active_until:
+            return self._take_newest()
+        if now >= self._next_idle_take:
+            self._next_idle_take = now + IDLE_DRAIN_S
+            return self._take_newest(2)
+        return 0
+
+    def _fresh(self, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[[bytes | None], msgspec.Struct]:
+        """``handler`` (a goal's, a move's), the ring's newest pose handed to the core first: it plans from where the robot is."""
+
+        def handle(payload: bytes | None) -> msgspec.Struct:
+            if self._ring is not None:
+                self._take_newest()
+                self._active_until = self.clock() + ACTIVE_FOR_S
+            return handler(payload)
+
+        return handle
+
+    def _take_newest(self, count: int = 1) -> int:
+        """The ``count`` newest poses of the ring to the host, oldest first; how many samples the ring held."""
         ring, host = self._ring, self._host
         if ring is None or host is None:
             return 0
-        taken, newest = 0, None
+        taken, newest = 0, deque["zenoh.Sample"](maxlen=count)
         while (sample := ring.try_recv()) is not None:
             taken += 1
-            newest = sample
-        if newest is not None:
-            host.on_pose(payload_bytes(newest))
+            newest.append(sample)
+        for sample in newest:
+            host.on_pose(payload_bytes(sample))
         return taken
 
     def close(self) -> None:
@@ -126,15 +168,30 @@ class NavZenoh(ZenohEdge):
             self.moving = False
         super().close()
 
+    def subscriber(self, key: str, put: Callable[[bytes], None]) -> None:
+        """:meth:`ZenohEdge.subscriber` with its callback on Zenoh's receiving thread, not a thread of its own: it only
+        copies the payload into the intake (a fleet of 100 had 1 600 callback threads)."""
+        import zenoh
+
+        handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(lambda sample: put(payload_bytes(sample)), indirect=False)
+        self._entities.append(self.session.declare_subscriber(key, handler))
+
+    def queryable(self, key: str, put: Callable[["zenoh.Query"], None]) -> None:
+        """:meth:`ZenohEdge.queryable`, its callback on Zenoh's thread: it only hands the query to the intake."""
+        import zenoh
+
+        self._entities.append(self.session.declare_queryable(key, zenoh.handlers.Callback(put, indirect=False)))
+
     def ask(self, key: str, put: Callable[[bytes], None]) -> None:
         """A get on ``key`` that does not wait: each answer's payload goes to ``put`` (an intake channel) from Zenoh's thread."""
+        import zenoh
 
         def on_reply(reply: "zenoh.Reply") -> None:
             if reply.ok is not None:
                 put(payload_bytes(reply.ok))
 
         try:
-            self.session.get(key, on_reply, timeout=ASK_TIMEOUT_S)
+            self.session.get(key, zenoh.handlers.Callback(on_reply, indirect=False), timeout=ASK_TIMEOUT_S)
         except Exception as exc:  # the session is closing: nothing to ask any more
             log.debug("get on %s refused: %s", key, exc)
 
@@ -145,7 +202,8 @@ class NavZenoh(ZenohEdge):
         def on_sample(sample: "zenoh.Sample") -> None:
             put(sample.kind == zenoh.SampleKind.PUT)
 
-        self._entities.append(self.session.liveliness().declare_subscriber(key, on_sample, history=True))
+        handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(on_sample, indirect=False)
+        self._entities.append(self.session.liveliness().declare_subscriber(key, handler, history=True))
 
     def _answerer(self, key: str, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[["zenoh.Query"], None]:
         """On the loop: the query's payload to ``handler``, its answer replied as JSON (a PayloadError: an error reply)."""

@@ -108,3 +108,19 @@ def test_an_unsupervised_host_leaves_a_handlers_bug_to_the_loop() -> None:
         assert [str(e) for e in seen] == ["a bug"]
 
     asyncio.run(scenario())
+
+
+def test_poses_poke_the_timer_at_most_every_pose_poke_s_other_inputs_at_once() -> None:
+    from blackmetal.nav.host import POSE_POKE_S
+
+    nav, core, _out, clock = host()
+    pokes: list[float] = []
+    nav.timer.poke = lambda: pokes.append(clock.now)  # type: ignore[method-assign]
+    for _ in range(5):  # 50 Hz for 0.08 s
+        nav.on_pose(b"p")
+        clock.now += 0.02
+    assert len(core.named("pose")) == 5 and pokes == pytest.approx([100.0, 100.06])  # at 0 and once POSE_POKE_S passed
+    assert POSE_POKE_S == 0.05
+    nav.on_health(b"h")
+    nav.on_driver(b"d")
+    assert len(pokes) == 4

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -13,7 +14,7 @@ import zenoh
 
 from blackmetal.nav.host import NavHost
 from blackmetal.nav.params import NavParams
-from blackmetal.nav.zenoh_edge import NavZenoh
+from blackmetal.nav.zenoh_edge import ACTIVE_FOR_S, IDLE_DRAIN_S, NavZenoh
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.schemas import ErrorReport, GatewayParams, Keys, MapPose, NavFeedback, PlanarPose, Twist, Vector3, decode
 
@@ -127,6 +128,10 @@ def test_messages_are_routed_by_type_and_a_closing_edge_stops_what_it_drove(sess
         edge.close()  # nav stops while it drives: a zero goes out first
 
     asyncio.run(scenario())
+    for _ in range(500):  # each subscriber's callback runs on a thread of its own
+        if len(routes[keys.cmd_vel_of("nav")][0]) >= 2 and all(got for got, _ in routes.values()):
+            break
+        time.sleep(0.01)
     commands = [decode(Twist, payload) for payload in routes[keys.cmd_vel_of("nav")][0]]
     assert commands == [Twist(linear=Vector3(x=0.1)), Twist()]
     assert decode(NavFeedback, routes[keys.nav_feedback][0][0]).goal_id == "a" * 32
@@ -150,24 +155,48 @@ def test_a_still_robot_gets_no_zero_when_nav_closes(session: zenoh.Session) -> N
         edge.close()
 
     asyncio.run(scenario())
+    for _ in range(500):  # the subscriber's callback runs on a thread of its own
+        if len(commands) >= 2:
+            break
+        time.sleep(0.01)
+    time.sleep(0.1)  # and no third, a zero of the close, follows
     subscriber.undeclare()
     assert len(commands) == 2
 
 
-def test_a_fleet_robot_takes_the_newest_pose_of_its_ring_at_the_drain(session: zenoh.Session) -> None:
+def test_a_fleet_robot_takes_its_poses_from_its_ring_often_while_it_drives_seldom_while_idle(session: zenoh.Session) -> None:
     keys = Keys("fleet/r1")
+    now = [10.0]
+
+    async def poses(*ks: int) -> None:
+        for k in ks:
+            session.put(keys.pose, b'{"k":%d}' % k)
+        await asyncio.sleep(0.05)
 
     async def scenario() -> None:
-        edge, host, core = make(session, keys, burst=PutBurst())
+        edge, host, core = make(session, keys, burst=PutBurst(), clock=lambda: now[0])
         edge.attach(host, asyncio.get_running_loop(), ring=True)
+        taken = lambda: [call[1] for call in core.named("pose")]  # noqa: E731
         try:
-            for k in range(3):
-                session.put(keys.pose, b'{"k":%d}' % k)
-            await asyncio.sleep(0.05)
-            assert core.named("pose") == []  # nothing on Zenoh's threads: they wait in the ring
-            assert edge.drain() == 3
-            assert [call[1] for call in core.named("pose")] == [b'{"k":2}']  # only the newest counts
-            assert edge.drain() == 0 and len(core.named("pose")) == 1
+            await poses(0, 1, 2)
+            assert taken() == []  # nothing on Zenoh's threads: they wait in the ring
+            assert edge.drain() == 3 and taken() == [b'{"k":1}', b'{"k":2}']  # idle: the last two (their period shows)
+            await poses(3)
+            assert edge.drain() == 0 and len(taken()) == 2  # idle: not before IDLE_DRAIN_S
+            now[0] += IDLE_DRAIN_S
+            assert edge.drain() == 1 and taken()[-1] == b'{"k":3}'
+            await poses(4, 5)
+            (reply,) = await get(session, keys.nav_goal, b"{}")  # a goal takes the newest pose first, then drives
+            assert reply.ok is not None and taken()[-1] == b'{"k":5}' and core.named("goal")
+            await poses(6, 7)
+            assert edge.drain() == 2 and taken()[-1] == b'{"k":7}' and taken().count(b'{"k":6}') == 0  # driving: the newest
+            now[0] += ACTIVE_FOR_S
+            edge.publish(Twist(linear=Vector3(x=0.1)))  # nav drives: every drain
+            await poses(8)
+            assert edge.drain() == 1 and taken()[-1] == b'{"k":8}'
+            now[0] += ACTIVE_FOR_S  # nothing driven or fed back since: idle again
+            await poses(9)
+            assert edge.drain() == 1 and taken()[-2:] == [b'{"k":8}', b'{"k":9}'] and edge.drain() == 0
         finally:
             edge.close()
         assert edge.drain() == 0  # closed: nothing drained from an undeclared subscriber
