@@ -11,6 +11,7 @@ goals sent by ``blackmetal goto`` as a person sends them, the robot's arrival ju
 from __future__ import annotations
 
 import math
+import os
 import signal
 import subprocess
 import sys
@@ -228,3 +229,25 @@ def test_a_prefix_without_navigation_is_one_sentence(robot: Robot) -> None:
     assert (
         done.stderr == "blackmetal goto: no navigation service on nobody/nav/goal: is `blackmetal nav` running (blackmetal up starts it)?\n"
     )
+
+
+def test_up_starts_the_navigation_and_starts_it_again_when_it_dies() -> None:
+    """``blackmetal up``: nav is one of its processes; killed, it is started again and takes goals."""
+    zport = free_port()
+    endpoint = f"tcp/127.0.0.1:{zport}"
+    up = Child(["-m", "blackmetal", "up", "-l", endpoint, "--no-multicast-scouting"])
+    try:
+        children = up.ready(timeout=90)["children"]
+        assert "nav" in children
+        up.wait_line(rf"blackmetal goto 0\.5 0\.3 90 -e {endpoint}")
+        os.kill(children["nav"], signal.SIGKILL)
+        up.wait_line(r"nav gone; its goals ended; the gateway's command timeout stops a robot it drove")
+        up.wait_line(r"nav started again \(pid \d+\)")
+        done = subprocess.run(
+            [sys.executable, "-m", "blackmetal", "goto", "--move", "0.1", "-e", endpoint, "--no-multicast-scouting", "--wait", "30"],
+            capture_output=True, text=True, timeout=120,
+        )  # fmt: skip
+        assert done.returncode == 0, done.stdout + done.stderr
+        assert up.poll() is None
+    finally:
+        up.stop()
