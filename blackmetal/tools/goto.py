@@ -210,11 +210,10 @@ def go(args: argparse.Namespace) -> int:
                 return 1
             what = "move" if key == "nav_move" else "goal"
             print(f"blackmetal goto: {what} {answer.goal_id} accepted on {keys.prefix}; Ctrl-C cancels it", flush=True)
-            try:
-                return follow(session, keys, follower, sys.stdout, sys.stdout.isatty())
-            except KeyboardInterrupt:
-                print(f"\nblackmetal goto: interrupted: {cancel(session, keys, goal_id)}", flush=True)
-                return INTERRUPTED
+            return follow(session, keys, follower, sys.stdout, sys.stdout.isatty())
+        except KeyboardInterrupt:  # the goal went out (its id is ours): whatever its answer, it is canceled
+            print(f"\nblackmetal goto: interrupted: {cancel(session, keys, goal_id)}", flush=True)
+            return INTERRUPTED
         finally:
             subscriber.undeclare()
 

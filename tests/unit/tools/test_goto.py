@@ -215,3 +215,16 @@ def test_cancel_says_what_came_of_it() -> None:
     nothing = FakeSession({KEYS.nav_cancel: [reply(NavCancelReply(canceled=[], reason="no goal runs"))]})
     assert goto.cancel(nothing, KEYS, "a" * 32) == "nothing to cancel (no goal runs)"
     assert "command timeout stops the robot" in goto.cancel(FakeSession(), KEYS, "a" * 32)
+
+
+def test_ctrl_c_while_the_goal_is_sent_cancels_it_by_its_id(monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
+    nav = Nav([])
+
+    def interrupted(session: Any, keys: Keys, key: str, request: Any, timeout: float) -> NavGoalReply:
+        nav.on_goal(encode(request))  # it reached the service, the answer did not reach us
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(goto, "send", interrupted)
+    assert run(monkeypatch, nav, "1", "0") == goto.INTERRUPTED
+    assert nav.cancels == [{"goal_id": nav.goals[0]["goal_id"]}]
+    assert "blackmetal goto: interrupted: goal canceled, the robot stops" in capsys.readouterr().out
