@@ -460,7 +460,7 @@ with zenoh.open(conf) as s:
 
 
 def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[Child], tmp_path: Path) -> None:
-    """deploy/zenoh/gateway.json5 and odometry.json5 (as systemd runs them): started before the router, they join it."""
+    """deploy/zenoh/gateway.json5, odometry.json5 and nav.json5 (as systemd runs them): started before the router, they join it."""
     import re
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -473,15 +473,17 @@ def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[C
     gateway = Child(["-m", "blackmetal", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port),
                      "-c", str(config_copy("gateway.json5", tmp_path, point))])  # fmt: skip
     odometry = Child(["-m", "blackmetal", "odometry", "-c", str(config_copy("odometry.json5", tmp_path, point))])
-    children.extend([gateway, odometry])
-    for child in (gateway, odometry):
+    nav = Child(["-m", "blackmetal", "nav", "-c", str(config_copy("nav.json5", tmp_path, point))])
+    children.extend([gateway, odometry, nav])
+    for child in (gateway, odometry, nav):
         child.wait_line(rf"waiting for {re.escape(endpoint)} \(router or hub\)")
     children.append(Router(config_copy("router.json5", tmp_path), endpoint))
-    for child in (gateway, odometry):
+    for child in (gateway, odometry, nav):
         child.ready()
     with zenoh.open(client_conf(endpoint)) as session:
         wait_for(lambda: get_pose(session, "robot/pose") is not None, what="the odometry through the router")
         wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway's health")
+        wait_for(lambda: any(r.ok is not None for r in session.get("robot/nav/params", timeout=3)), what="the navigation's parameters")
 
 
 def doc_block(page: str, after: str) -> str:
