@@ -30,7 +30,7 @@ from .host import NavHost
 if TYPE_CHECKING:
     import zenoh
 
-#: A fleet robot's poses wait in a Zenoh ring of this many for :meth:`NavZenoh.drain`; only the newest counts.
+#: A fleet robot's poses wait in a Zenoh ring of this many for :meth:`NavZenoh.drain` (which takes the newest).
 RING = 4
 #: While its navigation drives nothing, a fleet robot's poses are taken at most this often (s), not at every drain: no
 #: goal needs them sooner (a goal or a move takes the newest first). The last two are taken, so the core still sees the
@@ -119,9 +119,8 @@ class NavZenoh(ZenohEdge):
         super().publish(message)
 
     def drain(self) -> int:
-        """On the loop: the newest pose of the ring to the host (the older ones are superseded); how many were taken.
-
-        While nav drives nothing, at most every IDLE_DRAIN_S (the poses wait in the ring, the newest kept)."""
+        """On the loop (the fleet's drain): the ring's newest pose to the host, the older ones superseded; how many samples
+        the ring held. While nav drives nothing, only every IDLE_DRAIN_S, and the newest two (see IDLE_DRAIN_S)."""
         if self._ring is None:
             return 0
         now = self.clock()
