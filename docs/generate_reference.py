@@ -29,6 +29,7 @@ from typing import Any
 from blackmetal import cli
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.nav.settings import NavSettings
 from blackmetal.odometry_service.settings import OdometrySettings, PipelineSettings
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.runtime.settings import ENV_PREFIX
@@ -41,6 +42,7 @@ PAGE = Path(__file__).resolve().parent / "reference" / "configuration.md"
 SETTINGS: dict[str, type] = {
     "gateway": GatewaySettings,
     "odometry": OdometrySettings,
+    "nav": NavSettings,
     "sim": SimSettings,
     "ros2": Ros2Settings,
     "foxglove": FoxgloveSettings,
@@ -72,7 +74,7 @@ robot, the page of its command.
 
 ## How a service reads its settings
 
-The services (`gateway`, `odometry`, `sim`, `ros2`, `foxglove`) and the
+The services (`gateway`, `odometry`, `nav`, `sim`, `ros2`, `foxglove`) and the
 pipeline options of `replay` and `calibrate` come from one settings model per
 command. Each setting can be given three ways; the first that gives it wins:
 
@@ -100,12 +102,12 @@ mode = "client"
 ```
 
 `blackmetal up --settings FILE` takes one file for all its services: a key at
-the top level goes to every service that has it (gateway, odometry, ros2,
+the top level goes to every service that has it (gateway, odometry, nav, ros2,
 foxglove; the simulator only for keys no other service has), and a section
-`[gateway]`, `[odometry]`, `[sim]`, `[ros2]` or `[foxglove]` goes to that
-service alone. A fleet file gives one robot its own values in
-`[robot.gateway]`, `[robot.odometry]`, `[robot.sim]`, `[robot.ros2]` and
-`[robot.foxglove]` tables (see [Fleets](../fleets.md)).
+`[gateway]`, `[odometry]`, `[nav]`, `[sim]`, `[ros2]` or `[foxglove]` goes to
+that service alone. A fleet file gives one robot its own values in
+`[robot.gateway]`, `[robot.odometry]`, `[robot.nav]`, `[robot.sim]`,
+`[robot.ros2]` and `[robot.foxglove]` tables (see [Fleets](../fleets.md)).
 """
 
 
@@ -152,7 +154,7 @@ def toml_value(value: Any) -> str:
     if isinstance(value, str):
         return f'`"{value}"`'
     if isinstance(value, list):
-        return "`[" + ", ".join(f'"{item}"' for item in value) + "]`"
+        return "`[" + ", ".join(f"{item:g}" if isinstance(item, float) else f'"{item}"' for item in value) + "]`"
     return f"`{value}`"
 
 
@@ -172,7 +174,11 @@ def kind_of(cls: type, name: str) -> str:
     if args and typing.get_origin(kind) is not list:
         kind = args[0]
     names = {bool: "true/false", int: "integer", float: "number", str: "text"}
-    text = "list of text" if typing.get_origin(kind) is list else names.get(kind, getattr(kind, "__name__", str(kind)))
+    if typing.get_origin(kind) is list:
+        item = typing.get_args(kind)[0] if typing.get_args(kind) else str
+        text = "list of numbers" if item in (int, float) else "list of text"
+    else:
+        text = names.get(kind, getattr(kind, "__name__", str(kind)))
     return text + (" or none" if optional else "")
 
 
@@ -203,7 +209,7 @@ def zenoh_section(parser: argparse.ArgumentParser) -> list[str]:
     lines = [
         "## Zenoh flags",
         "",
-        "Every service (`gateway`, `odometry`, `sim`, `ros2`, `foxglove`) takes these,",
+        "Every service (`gateway`, `odometry`, `nav`, `sim`, `ros2`, `foxglove`) takes these,",
         "under the same rules as its other settings; the user tools and `up` take the",
         "same flags on the command line only. Where a process connects with them:",
         "[Concepts, where a process connects](../concepts.md#where-a-process-connects).",

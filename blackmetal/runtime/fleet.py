@@ -26,7 +26,7 @@ LINK_KEYS = ("id", "host", "control_port", "log_port", "prefix")
 #: The robot's constants: the gateway and the odometry both take them, so they are written once.
 CALIBRATION_KEYS = ("wheel_separation", "impulses_left", "impulses_right")
 #: Per-service tables a robot entry may hold.
-SERVICES = ("gateway", "odometry", "sim", "ros2", "foxglove")
+SERVICES = ("gateway", "odometry", "sim", "ros2", "foxglove", "nav")
 #: Prefixes of a fleet's robots unless an entry names its own.
 FLEET_ROOT = "fleet"
 #: Robots one fleet file may hold, unless it says ``max_robots = N``: a fleet process carries about 140 robots a core at

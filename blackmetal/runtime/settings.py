@@ -35,7 +35,8 @@ def setting(default: Any = dataclasses.MISSING, help: str = "", *, factory: Any 
     """A settings field with the help text and argparse details of its command-line option.
 
     ``option`` may hold ``metavar``, ``choices``, ``flag`` (a different option string, e.g. ``--no-mirror-right``) and
-    ``const`` (for such a flag), or ``cli=False`` for a field with no option.
+    ``const`` (for such a flag), ``comma=True`` for a list given as one comma-separated option (``--map-pose 1,2,0``, as
+    its environment variable is), or ``cli=False`` for a field with no option.
     """
     metadata = {"help": help, **option}
     if factory is not None:
@@ -69,6 +70,8 @@ def _default_text(f: dataclasses.Field[Any]) -> str:
     value = _default(f)
     if value is dataclasses.MISSING or value is None or value == [] or value is False:
         return ""
+    if isinstance(value, list) and f.metadata.get("comma"):
+        return f" (default {','.join(f'{v:g}' if isinstance(v, float) else str(v) for v in value)})"
     return f" (default {value:g})" if isinstance(value, float) else f" (default {value})"
 
 
@@ -90,6 +93,8 @@ def add_setting_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
             kwargs.update(action="store_const", const=meta.get("const", True))
             if "const" in meta:
                 kwargs["help"] = meta.get("help", "")
+        elif typing.get_origin(kind) is list and meta.get("comma"):
+            kwargs.update(type=comma_list, metavar=meta.get("metavar", "A,B"))
         elif typing.get_origin(kind) is list:
             kwargs.update(action="append", metavar=meta.get("metavar", "VALUE"))
         else:
@@ -97,6 +102,13 @@ def add_setting_arguments(parser: argparse.ArgumentParser, cls: type) -> None:
             if "choices" in meta:
                 kwargs["choices"] = meta["choices"]
         parser.add_argument(flag, **kwargs)
+
+
+def comma_list(text: str) -> list[str]:
+    """``1,2,0`` as ``["1", "2", "0"]`` (the settings model converts each item); empty or ``none``: an empty list."""
+    if text.strip().lower() in ("", "none", "off"):
+        return []
+    return [item.strip() for item in text.split(",")]
 
 
 def read_config(path: Path, what: str, toml: bool) -> Any:

@@ -460,7 +460,7 @@ with zenoh.open(conf) as s:
 
 
 def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[Child], tmp_path: Path) -> None:
-    """deploy/zenoh/gateway.json5 and odometry.json5 (as systemd runs them): started before the router, they join it."""
+    """deploy/zenoh/gateway.json5, odometry.json5 and nav.json5 (as systemd runs them): started before the router, they join it."""
     import re
 
     endpoint = f"tcp/127.0.0.1:{free_port()}"
@@ -473,15 +473,17 @@ def test_the_service_configs_wait_for_a_router_that_comes_later(children: list[C
     gateway = Child(["-m", "blackmetal", "gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port),
                      "-c", str(config_copy("gateway.json5", tmp_path, point))])  # fmt: skip
     odometry = Child(["-m", "blackmetal", "odometry", "-c", str(config_copy("odometry.json5", tmp_path, point))])
-    children.extend([gateway, odometry])
-    for child in (gateway, odometry):
+    nav = Child(["-m", "blackmetal", "nav", "-c", str(config_copy("nav.json5", tmp_path, point))])
+    children.extend([gateway, odometry, nav])
+    for child in (gateway, odometry, nav):
         child.wait_line(rf"waiting for {re.escape(endpoint)} \(router or hub\)")
     children.append(Router(config_copy("router.json5", tmp_path), endpoint))
-    for child in (gateway, odometry):
+    for child in (gateway, odometry, nav):
         child.ready()
     with zenoh.open(client_conf(endpoint)) as session:
         wait_for(lambda: get_pose(session, "robot/pose") is not None, what="the odometry through the router")
         wait_for(lambda: any(r.ok is not None for r in session.get("robot/gateway/health", timeout=3)), what="the gateway's health")
+        wait_for(lambda: any(r.ok is not None for r in session.get("robot/nav/params", timeout=3)), what="the navigation's parameters")
 
 
 def doc_block(page: str, after: str) -> str:
@@ -588,3 +590,50 @@ def test_the_systemd_units_exec_stop_post_stops_a_robot_whose_gateway_was_killed
         assert stopped.returncode == 0, stopped.stderr
         assert took <= 1.0
         wait_for(lambda: (p := get_pose(session, "robot/sim/truth")) is not None and p.v == 0.0, timeout=2, what="the robot stopped")
+
+
+def test_the_navigation_runs_as_its_user_and_only_an_operator_sends_it_goals(children: list[Child], tmp_path: Path) -> None:
+    """``blackmetal nav`` as the user nav behind the secure router: it serves nav/**; an operator's goal is answered, a
+    viewer's is denied by the router (no answer), and everyone reads its parameters and map pose."""
+    users = ("operator", "nav", "viewer", "gateway", "odometry", "sim")
+    creds = {user: f"pw-{user}-{os.getpid()}" for user in users}
+    cred_file = tmp_path / "credentials.txt"
+    cred_file.write_text("".join(f"{u}:{p}\n" for u, p in creds.items()))
+
+    def edit(data: dict) -> None:  # type: ignore[type-arg]
+        data["transport"]["auth"]["usrpwd"]["dictionary_file"] = str(cred_file)
+
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    children.append(Router(config_copy("router-secure.json5", tmp_path, edit), endpoint))
+    start_robot(children, endpoint, creds=creds)
+    nav = Child(
+        ["-m", "blackmetal", "nav", "-m", "client", "-e", endpoint, "--no-multicast-scouting"],
+        env={"BLACKMETAL_ZENOH_USER": "nav", "BLACKMETAL_ZENOH_PASSWORD": creds["nav"]},
+    )
+    children.append(nav)
+    nav.ready()
+    sessions = {user: zenoh.open(client_conf(endpoint, user, creds[user])) for user in ("operator", "viewer")}
+    try:
+        operator, viewer = sessions["operator"], sessions["viewer"]
+        wait_services(operator)
+        for session in (operator, viewer):
+            (params,) = wait_for(lambda s=session: [r for r in s.get("robot/nav/params", timeout=3) if r.ok is not None], what="nav/params")
+            assert "max_speed" in {p["name"] for p in json.loads(params.ok.payload.to_bytes())["params"]}
+            assert [r for r in session.get("robot/nav/map_pose", timeout=3) if r.ok is not None]
+        alive = [str(r.ok.key_expr) for r in viewer.liveliness().get("robot/alive/nav", timeout=3) if r.ok is not None]
+        assert alive == ["robot/alive/nav"]
+        start = get_pose(viewer, "robot/sim/truth")
+        assert start is not None
+        goal = json.dumps({"x": 0.1, "y": 0.0, "frame": "odom"})
+        assert [r for r in viewer.get("robot/nav/goal", payload=goal, timeout=1) if r.ok is not None] == []  # denied by the router
+        (answer,) = [r for r in operator.get("robot/nav/goal", payload=goal, timeout=5) if r.ok is not None]
+        assert json.loads(answer.ok.payload.to_bytes())["accepted"] is True
+
+        def moved() -> float:
+            truth = get_pose(viewer, "robot/sim/truth")
+            return 0.0 if truth is None else math.hypot(truth.x - start.x, truth.y - start.y)
+
+        wait_for(lambda: moved() > 0.08, what="the navigation driving the robot through the router")
+    finally:
+        for session in sessions.values():
+            session.close()

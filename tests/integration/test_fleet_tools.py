@@ -122,7 +122,7 @@ def table_rows(out: str) -> dict[str, list[str]]:
 
 
 def test_up_robots_comes_up_with_one_status_line_for_the_fleet(fleet: FleetUp) -> None:
-    assert sorted(fleet.children) == ["gateway", "odometry", "sim"]  # three processes, whatever N
+    assert sorted(fleet.children) == ["gateway", "nav", "odometry", "sim"]  # four processes, whatever N
     assert fleet.prefixes == PREFIXES
     fleet.wait_line(rf"^\s+blackmetal teleop --prefix fleet/r1 -e {re.escape(fleet.endpoint)}$")
     line = fleet.status(
@@ -247,8 +247,8 @@ def test_up_robots_with_foxglove_serves_every_robot_in_one_view() -> None:
 def test_up_spreads_a_fleet_over_two_gateways_and_a_dead_ones_robots_are_stopped() -> None:
     fleet = FleetUp(6, "--processes", "2")
     try:
-        assert sorted(fleet.children) == ["gateway-1", "gateway-2", "odometry-1", "odometry-2", "sim"]
-        fleet.wait_line(r"6 simulated robots fleet/r1 \.\.\. fleet/r6 .*\(one simulator, 2 gateway and 2 odometry processes\)")
+        assert sorted(fleet.children) == ["gateway-1", "gateway-2", "nav-1", "nav-2", "odometry-1", "odometry-2", "sim"]
+        fleet.wait_line(r"6 simulated robots fleet/r1 \.\.\. fleet/r6 .*\(one simulator, 2 gateway, 2 odometry and 2 nav processes\)")
         fleet.status(lambda m: m["up"] == m["n"] == "6" and int(m["poll_min"]) >= 1, what="6/6 robots up, each polled")
         os.kill(fleet.children["gateway-2"], signal.SIGKILL)
         fleet.children["gateway-2"] = int(fleet.wait_line(r"gateway-2 started again \(pid (\d+)\)")[1])

@@ -61,13 +61,13 @@ def test_two_demos_on_one_host_are_independent() -> None:
         a.declare_subscriber(KEYS.pose, lambda s: poses_a.append(s.payload.to_bytes()))
         drive_one_not_the_other(a, b)
         alive = [str(r.ok.key_expr) for r in a.liveliness().get("**/alive/**", timeout=2) if r.ok is not None]
-        assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim})  # each once: A's only
+        assert sorted(alive) == sorted({KEYS.alive_gateway, KEYS.alive_odometry, KEYS.alive_sim, KEYS.alive_nav})  # each once: A's only
         time.sleep(1.0)
         rates = [json.loads(p)["stamp"] for p in poses_a[-60:]]
         assert len(rates) >= 2 and (len(rates) - 1) / (rates[-1] - rates[0]) < 60  # 50 poses/s, not 100
 
 
-@pytest.mark.parametrize("service", ["gateway", "odometry", "sim"])
+@pytest.mark.parametrize("service", ["gateway", "odometry", "sim", "nav"])
 def test_a_port_in_use_is_one_sentence_and_a_router_down_is_waited_for(service: str) -> None:
     import re
     import signal
@@ -100,7 +100,7 @@ def test_a_port_in_use_is_one_sentence_and_a_router_down_is_waited_for(service: 
     assert "Traceback" not in down.output() and " ready" not in down.output()
 
 
-def test_a_second_gateway_or_odometry_on_a_prefix_refuses_to_start() -> None:
+def test_a_second_gateway_odometry_or_nav_on_a_prefix_refuses_to_start() -> None:
     import subprocess
     import sys
 
@@ -109,10 +109,10 @@ def test_a_second_gateway_or_odometry_on_a_prefix_refuses_to_start() -> None:
     hub.ready()
     first = []
     try:
-        for service in ("gateway", "odometry"):
+        for service in ("gateway", "odometry", "nav"):
             first.append(Child(["-m", "blackmetal", service, "-e", endpoint]))
             first[-1].ready()
-        for service, role in (("gateway", "gateway"), ("odometry", "odometry service")):
+        for service, role in (("gateway", "gateway"), ("odometry", "odometry service"), ("nav", "navigation service")):
             second = subprocess.run(
                 [sys.executable, "-m", "blackmetal", service, "-e", endpoint], capture_output=True, text=True, timeout=60
             )

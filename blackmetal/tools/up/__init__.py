@@ -1,4 +1,4 @@
-"""``blackmetal up``: the simulated robot, the gateway and the odometry service in one command.
+"""``blackmetal up``: the simulated robot, the gateway, the odometry and the navigation service in one command.
 
 Each runs as its own process; this one holds the Zenoh endpoint that clients
 connect to (``tcp/127.0.0.1:7447`` unless ``-l`` says otherwise), prints how
@@ -8,9 +8,9 @@ endpoint: every process of the demo is a client of that router. Ctrl-C stops
 everything within 3 s; a child that dies is reported with its last lines.
 
 With ``--robots N``: a fleet of N simulated robots r1 ... rN under
-``fleet/<id>``, in three processes whatever N (``sim --robots N``,
-``gateway --fleet``, ``odometry --fleet``, sharing the fleet file the
-simulator writes), and one live status line for the whole fleet.
+``fleet/<id>``, in four processes whatever N (``sim --robots N``,
+``gateway --fleet``, ``odometry --fleet``, ``nav --fleet``, sharing the
+fleet file the simulator writes), and one live status line for the whole fleet.
 """
 
 from __future__ import annotations
@@ -45,14 +45,14 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         "--robots",
         type=int,
         metavar="N",
-        help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway and one odometry "
+        help="a fleet: N simulated robots r1..rN under fleet/<id>, in one simulator, one gateway, one odometry and one nav "
         "process (--fleet), with one status line for all",
     )
     parser.add_argument(
         "--processes",
         type=int,
         metavar="K",
-        help=f"with --robots: spread the robots over K gateway and K odometry processes (default: one per "
+        help=f"with --robots: spread the robots over K gateway, K odometry and K nav processes (default: one per "
         f"{ROBOTS_PER_PROCESS} robots, at most one per core)",
     )
     parser.add_argument("--control-port", type=int, default=control_port, help=f"robot control port with --robot (default {control_port})")
@@ -68,7 +68,7 @@ def build_parser(parser: argparse.ArgumentParser | None = None) -> argparse.Argu
         "--settings",
         metavar="FILE",
         help="settings file with any service's keys, each service takes its own (e.g. from blackmetal calibrate); "
-        "or sections [gateway], [odometry], [sim], [ros2], [foxglove]",
+        "or sections [gateway], [odometry], [nav], [sim], [ros2], [foxglove]",
     )
     parser.add_argument("--status-interval", type=float, default=0.5, help="seconds between status updates")
     flavor = default_of(Ros2Settings, "flavor")
@@ -111,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
         parse_distros(args.distro)
     if args.foxglove:
         require_extra("blackmetal up --foxglove", "foxglove", "foxglove")
-    services = ["gateway", "odometry", *([] if args.robot else ["sim"]), *(["ros2"] if args.ros2 else []),
+    services = ["gateway", "odometry", "nav", *([] if args.robot else ["sim"]), *(["ros2"] if args.ros2 else []),
                 *(["foxglove"] if args.foxglove else [])]  # fmt: skip
     files = ServiceFiles(args.settings, services)  # a missing or broken file: one sentence now, not failing children
     try:
@@ -135,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
                     return run_fleet(launch, session, stop, Path(workdir) / "fleet.toml")
             return run_one(launch, keys, session, stop)
         finally:
-            # odometry and gateway first (the gateway stops the robot), then the simulator
+            # nav, odometry and gateway first (the gateway stops the robot), then the simulator
             children = launch.children
             stop_in_order([[c for c in children if c.name != "sim"], [c for c in children if c.name == "sim"]], STOP_BUDGET_S - 0.3)
             session.close()

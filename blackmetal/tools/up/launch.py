@@ -1,4 +1,5 @@
-"""Starting up's processes and keeping them running: a gateway that dies has its robots stopped and is started again."""
+"""Starting up's processes and keeping them running: a gateway that dies has its robots stopped and is started again
+(a navigation that dies too: the gateway's command timeout has stopped what it drove)."""
 
 from __future__ import annotations
 
@@ -25,7 +26,7 @@ from blackmetal.schemas import Keys
 
 from ..stop_robot import stop_robot
 from .settings import ServiceFiles, latch_args, ros2_extra
-from .status import FleetStatus, StatusLine, drive_help, fleet_drive_help
+from .status import FleetStatus, StatusLine, drive_help, fleet_drive_help, goto_help
 from .topology import Topology, process_count, shards
 
 STOP_BUDGET_S = 3.0
@@ -85,9 +86,11 @@ def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.
         ["gateway", "--robot", host, "--control-port", str(control_port), "--log-port", str(log_port), "--prefix", prefix, *launch.gateway_args],
     )  # fmt: skip
     odometry = launch.start("odometry", ["odometry", "--prefix", prefix])
+    nav = launch.start("nav", ["nav", "--prefix", prefix])  # any start order: it follows the pose and health when they come
     ros2 = launch.start("ros2", ["ros2", "--flavor", args.ros2, "--prefix", prefix, *ros2_extra(args)]) if args.ros2 else None
     cmd_timeout = float(gateway.wait_ready(READY_TIMEOUT_S).get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
     odometry.wait_ready(READY_TIMEOUT_S)
+    nav.wait_ready(READY_TIMEOUT_S)
     ros2_node = ros2.wait_ready(READY_TIMEOUT_S)["node"] if ros2 else None
     view = launch.foxglove("--prefix", prefix)
     print(f"blackmetal is up: {where}, {launch.topology.describe()}, prefix {prefix}", flush=True)
@@ -96,6 +99,7 @@ def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.
     if view:
         print(f"Foxglove: open a Foxglove WebSocket connection to {view} (layout: deploy/foxglove/blackmetal.layout.json)", flush=True)
     print(drive_help(keys, hub, cmd_timeout), flush=True)
+    print(goto_help(keys, hub), flush=True)
     announce_ready("up", endpoint=hub, prefix=prefix, robot=host, control_port=control_port, log_port=log_port,
                    children={child.name: child.proc.pid for child in launch.children})  # fmt: skip
     status = StatusLine(session, keys, with_truth=not args.robot)
@@ -104,7 +108,7 @@ def run_one(launch: Launch, keys: Keys, session: zenoh.Session, stop: threading.
         reason = stop_robot(host, control_port, timeout=2.0)
         return "the robot was sent zero velocity and NORMAL_STOP" if reason is None else reason
 
-    return live(args, launch.children, stop, status.render, {gateway: stop_the_robot})
+    return live(args, launch.children, stop, status.render, {gateway: stop_the_robot, nav: nav_gone})
 
 
 def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fleet_file: Path) -> int:
@@ -115,6 +119,7 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
     groups = shards(robots, process_count(len(robots), args.processes))
     gateways: dict[ServiceProcess, list[FleetRobot]] = {}
     odometries: list[ServiceProcess] = []
+    navs: list[ServiceProcess] = []
     for k, group in enumerate(groups, 1):
         suffix = "" if len(groups) == 1 else f"-{k}"
         shard_file = fleet_file if len(groups) == 1 else fleet_file.with_name(f"fleet{suffix}.toml")
@@ -122,17 +127,18 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
             shard_file.write_text(write_fleet(group))
         gateways[launch.start(f"gateway{suffix}", ["gateway", "--fleet", str(shard_file), *launch.gateway_args])] = group
         odometries.append(launch.start(f"odometry{suffix}", ["odometry", "--fleet", str(shard_file)]))
+        navs.append(launch.start(f"nav{suffix}", ["nav", "--fleet", str(shard_file)]))
     # one ROS node per robot, /<id>/..., in one adapter process
     ros2 = launch.start("ros2", ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *ros2_extra(args)]) if args.ros2 else None
     announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]
     cmd_timeout = float(announced[0].get("cmd_timeout", default_of(GatewaySettings, "cmd_timeout")))
     poll_hz = float(announced[0].get("poll_hz", default_of(GatewaySettings, "poll_hz")))
-    for child in [*odometries, *([ros2] if ros2 else [])]:
+    for child in [*odometries, *navs, *([ros2] if ros2 else [])]:
         child.wait_ready(READY_TIMEOUT_S)
     view = launch.foxglove("--fleet", str(fleet_file))  # every robot in one view, /<id>/...
     shown = robots[0].prefix + (f" ... {robots[-1].prefix}" if len(robots) > 1 else "")
     n = len(gateways)
-    processes = "one gateway, one odometry process" if n == 1 else f"{n} gateway and {n} odometry processes"
+    processes = "one gateway, one odometry, one nav process" if n == 1 else f"{n} gateway, {n} odometry and {n} nav processes"
     print(
         f"blackmetal is up: {len(robots)} simulated robots {shown} on {robots[0].host} (one simulator, {processes}), {launch.topology.describe()}",
         flush=True,
@@ -149,8 +155,16 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
     announce_ready("up", endpoint=hub, prefixes=[r.prefix for r in robots], robots=robot_rows,
                    children={child.name: child.proc.pid for child in launch.children})  # fmt: skip
     status = FleetStatus(session, robots, interval=_status_interval(args), poll_hz=poll_hz)
-    stoppers = {gateway: functools.partial(_stop_fleet, group) for gateway, group in gateways.items()}
+    stoppers: dict[ServiceProcess, Callable[[], str]] = {
+        gateway: functools.partial(_stop_fleet, group) for gateway, group in gateways.items()
+    }
+    stoppers.update(dict.fromkeys(navs, nav_gone))
     return live(args, launch.children, stop, status.render, stoppers)
+
+
+def nav_gone() -> str:
+    """What up says of a navigation that died: nothing to stop, the gateway's command timeout ends its last command."""
+    return "its goals ended; the gateway's command timeout stops a robot it drove"
 
 
 def _stop_fleet(robots: list[FleetRobot]) -> str:
@@ -178,7 +192,8 @@ def live(
     stoppers: Mapping[ServiceProcess, Callable[[], str]],
 ) -> int:
     """The status line until Ctrl-C (0), or until a child dies (1, with its last lines). A gateway that dies has its
-    robots stopped first (``stoppers[gateway]``) and is started again with the e-stop latch it had."""
+    robots stopped first (``stoppers[gateway]``) and is started again with the e-stop latch it had; so is a navigation
+    (its stopper only says what became of its robots)."""
     tty = sys.stdout.isatty()
     say = functools.partial(print, file=sys.stderr, flush=True)
     interval = _status_interval(args)

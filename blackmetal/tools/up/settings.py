@@ -11,6 +11,7 @@ from typing import Any
 
 from blackmetal.foxglove.settings import FoxgloveSettings
 from blackmetal.gateway.settings import GatewaySettings
+from blackmetal.nav.settings import NavSettings
 from blackmetal.odometry_service.settings import OdometrySettings
 from blackmetal.robot_model import RESIDUAL_LINE
 from blackmetal.ros2.settings import Ros2Settings
@@ -23,13 +24,14 @@ from blackmetal.sim.settings import SimSettings
 SERVICES: dict[str, type] = {
     "gateway": GatewaySettings,
     "odometry": OdometrySettings,
+    "nav": NavSettings,
     "sim": SimSettings,
     "ros2": Ros2Settings,
     "foxglove": FoxgloveSettings,
 }
 #: Keys outside a section go to every one of these that has the setting. Not to the simulator: its wheel
 #: settings are the true robot's, not a calibration's; a key only the simulator knows still goes to it.
-SHARED = ("gateway", "odometry", "ros2", "foxglove")
+SHARED = ("gateway", "odometry", "nav", "ros2", "foxglove")
 #: What up decides itself, whatever a settings file says: the robot (simulator or --robot) and the Zenoh endpoints.
 UP_DECIDES = frozenset({"robot", "control_port", "log_port"}) | {
     f.name for f in dataclasses.fields(ZenohSettings) if f.metadata.get("cli", True)

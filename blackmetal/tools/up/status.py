@@ -15,7 +15,7 @@ import zenoh
 
 from blackmetal.runtime.fleet import FleetRobot
 from blackmetal.runtime.zenoh_entities import undeclare
-from blackmetal.schemas import ANY_GATEWAY_ALIVE, ErrorReport, GatewayHealth, Keys, Pose
+from blackmetal.schemas import ANY_GATEWAY_ALIVE, DEFAULT_PREFIX, ErrorReport, GatewayHealth, Keys, Pose
 
 from ..client import Latest, decoded
 
@@ -58,6 +58,17 @@ def drive_help(keys: Keys, endpoint: str, cmd_timeout: float = 0.5) -> str:
             f'  z_put -e {endpoint} -k {keys.cmd_vel} -p \'{{"linear":{{"x":0.2}}}}\'   # zenoh\'s own CLI, if installed',
             f"Watch it:  blackmetal watch -e {endpoint}    Pose:  z_get -e {endpoint} -s {keys.pose}",
             "Ctrl-C stops everything.",
+        ]
+    )
+
+
+def goto_help(keys: Keys, endpoint: str) -> str:
+    """How to send the robot somewhere: the navigation service (``blackmetal nav``) is one of up's processes."""
+    return "\n".join(
+        [
+            f"Send it somewhere (the navigation service, {keys.nav_goal}):",
+            f"  blackmetal goto 0.5 0.3 90 -e {endpoint}{'' if keys.prefix == DEFAULT_PREFIX else f' --prefix {keys.prefix}'}"
+            "    # x, y in metres, heading in degrees; Ctrl-C cancels",
         ]
     )
 
@@ -221,6 +232,7 @@ def fleet_drive_help(robots: list[FleetRobot], endpoint: str, cmd_timeout: float
             f"  {python_snippet(Keys(first), endpoint)}",
             f"Watch one:  blackmetal watch --prefix {first} -e {endpoint}    All:  blackmetal robots -e {endpoint}",
             f"Stop one:   blackmetal estop on --prefix {first} -e {endpoint}",
+            f"Send one somewhere:  blackmetal goto 0.5 0.3 90 --prefix {first} -e {endpoint}    # m, m, degrees",
             "Ctrl-C stops everything.",
         ]
     )

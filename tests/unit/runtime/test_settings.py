@@ -105,3 +105,23 @@ def test_a_tool_reads_a_services_default() -> None:
     assert default_of(Settings, "poll_hz") == 50.0 and default_of(Settings, "sources") == []
     with pytest.raises(ValueError, match=r"^Settings has no setting 'nope'$"):
         default_of(Settings, "nope")
+
+
+@dataclass
+class Placed:
+    where: list[float] = setting(help="x,y,yaw", factory=lambda: [0.0, 0.0, 0.0], metavar="X,Y,YAW", comma=True)
+
+
+def test_a_comma_list_is_one_option_as_its_variable_is_one_value(tmp_path: Path) -> None:
+    """``--where 1,2,0.5`` as ``BLACKMETAL_WHERE=1,2,0.5`` and ``where = [1, 2, 0.5]`` in a file (map_pose's form)."""
+    parsed = argparse.ArgumentParser(prog="test")
+    add_setting_arguments(parsed, Placed)
+    assert "--where X,Y,YAW x,y,yaw (default 0,0,0)" in " ".join(parsed.format_help().split())
+    assert load_settings(Placed, parsed.parse_args(["--where=-1, 2,0.5"]), environ={}).where == [-1.0, 2.0, 0.5]
+    assert load_settings(Placed, {}, environ={"BLACKMETAL_WHERE": "3,4,0"}).where == [3.0, 4.0, 0.0]
+    file = tmp_path / "placed.toml"
+    file.write_text("where = [5, 6, 1.5]\n")
+    assert load_settings(Placed, {}, settings_file=str(file), environ={}).where == [5.0, 6.0, 1.5]
+    assert load_settings(Placed, parsed.parse_args(["--where", "none"]), environ={}).where == []
+    with pytest.raises(ConfigError, match=r"--where: where must be a number"):
+        load_settings(Placed, parsed.parse_args(["--where", "1,x,2"]), environ={})

@@ -23,3 +23,8 @@ def test_the_status_comes_at_least_every_two_seconds_into_a_file(monkeypatch: py
     monkeypatch.setattr("sys.stdout.isatty", lambda: False)
     assert launch._status_interval(argparse.Namespace(status_interval=0.5)) == 2.0
     assert launch._status_interval(argparse.Namespace(status_interval=5.0)) == 5.0
+
+
+def test_a_navigation_that_dies_is_said_in_one_sentence() -> None:
+    """up starts it again, as a gateway: nothing to stop, the gateway's command timeout ends what it drove."""
+    assert launch.nav_gone() == "its goals ended; the gateway's command timeout stops a robot it drove"

@@ -44,3 +44,20 @@ def test_the_ros2_adapter_gets_the_distro_and_a_calibration_with_residuals(tmp_p
     plain.write_text("poll_hz = 100\n")
     assert ros2_extra(argparse.Namespace(distro="humble", settings=str(plain))) == ["--distro", "humble"]
     assert ros2_extra(argparse.Namespace(distro=None, settings=str(tmp_path / "missing.toml"))) == []
+
+
+def test_the_navigation_takes_its_section_and_the_shared_keys_it_has(tmp_path: Path) -> None:
+    path = tmp_path / "s.toml"
+    path.write_text('prefix = "lab/one"\nlinear_accel = 0.8\n[nav]\nmap_pose = [1.0, 2.0, 0.5]\nmax_speed = 0.2\n')
+    own, _ = split_settings(str(path))
+    assert own["nav"] == {"prefix": "lab/one", "linear_accel": 0.8, "map_pose": [1.0, 2.0, 0.5], "max_speed": 0.2}
+    assert own["gateway"] == {"prefix": "lab/one", "linear_accel": 0.8}  # the gateway's limit, and the plan's
+    files = ServiceFiles(str(path), ["gateway", "odometry", "nav"])
+    try:
+        (flag, written) = files.args("nav")
+        assert flag == "--settings" and json.loads(Path(written).read_text())["map_pose"] == [1.0, 2.0, 0.5]
+    finally:
+        files.close()
+    path.write_text("[nav]\nmap_pose = [1.0, 2.0]\n")
+    with pytest.raises(ConfigError, match="map_pose must be three finite numbers"):
+        ServiceFiles(str(path), ["nav"])

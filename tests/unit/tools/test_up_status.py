@@ -6,7 +6,7 @@ import time
 
 from blackmetal.runtime.fleet import numbered_fleet
 from blackmetal.schemas import GatewayHealth, Keys, LinkHealth
-from blackmetal.tools.up.status import FleetStatus, drive_help, fleet_drive_help
+from blackmetal.tools.up.status import FleetStatus, drive_help, fleet_drive_help, goto_help
 
 
 class NoSession:
@@ -69,3 +69,14 @@ def test_the_drive_help_says_how_often_to_publish() -> None:
     fleet = fleet_drive_help(numbered_fleet(3), "tcp/127.0.0.1:7447", 0.5)
     assert fleet.startswith("Drive one robot from any Zenoh client, by its prefix (fleet/r1 ... fleet/r3;")
     assert "blackmetal estop on --prefix fleet/r1 -e tcp/127.0.0.1:7447" in fleet
+
+
+def test_the_goto_help_names_the_endpoint_and_a_prefix_other_than_robot() -> None:
+    assert goto_help(Keys("robot"), "tcp/127.0.0.1:7447").splitlines() == [
+        "Send it somewhere (the navigation service, robot/nav/goal):",
+        "  blackmetal goto 0.5 0.3 90 -e tcp/127.0.0.1:7447    # x, y in metres, heading in degrees; Ctrl-C cancels",
+    ]
+    assert "blackmetal goto 0.5 0.3 90 -e tcp/x:1 --prefix lab/a " in goto_help(Keys("lab/a"), "tcp/x:1")
+    assert "blackmetal goto 0.5 0.3 90 --prefix fleet/r1 -e tcp/127.0.0.1:7447" in fleet_drive_help(
+        numbered_fleet(3), "tcp/127.0.0.1:7447", 0.5
+    )
