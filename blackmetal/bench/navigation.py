@@ -200,7 +200,9 @@ def nav_goals(plan: Plan, _: Result) -> Result:
             "limits": limits,
             "position_error_max_m": max(r["position_error_m"] for r in rows),
             "yaw_error_max_rad": max(r["yaw_error_rad"] for r in rows),
-            "truth_vs_odometry_max_m": max((r["truth_vs_odometry_m"] for r in rows if math.isfinite(r["truth_vs_odometry_m"])), default=math.nan),
+            "truth_vs_odometry_max_m": max(
+                (r["truth_vs_odometry_m"] for r in rows if math.isfinite(r["truth_vs_odometry_m"])), default=math.nan
+            ),
             "time_ratio_max": max(ratios, default=math.nan),
             "time_ratio_median": statistics.median(ratios) if ratios else math.nan,
         }
@@ -247,7 +249,8 @@ def nav_fleet(plan: Plan, _: Result) -> Result:
         accepted_s = time.monotonic() - t0
         healths: dict[str, list[float]] = {}
         watch = session.declare_subscriber(
-            "fleet/*/gateway/health", lambda s: healths.setdefault(str(s.key_expr), []).append(decode(GatewayHealth, s.payload.to_bytes()).poll_hz)
+            "fleet/*/gateway/health",
+            lambda s: healths.setdefault(str(s.key_expr), []).append(decode(GatewayHealth, s.payload.to_bytes()).poll_hz),
         )
         driving = cpu_window(pids, plan.pick(2.0, 4.0))
         ends = [robot.wait_end(ids[robot.keys.prefix], timeout=120.0) for robot in fleet]
@@ -296,4 +299,6 @@ def _fleet_rows(f: Result) -> list[Row]:
 
 
 NAV_GOALS = Figure("nav_goals", "navigation, 20 goals", "sending one robot 20 goals ...", ("nav_goals",), nav_goals, _goals_rows)
-NAV_FLEET = Figure("nav_fleet", "navigation, a fleet", "sending every robot of a fleet a goal at once ...", ("nav_fleet",), nav_fleet, _fleet_rows)
+NAV_FLEET = Figure(
+    "nav_fleet", "navigation, a fleet", "sending every robot of a fleet a goal at once ...", ("nav_fleet",), nav_fleet, _fleet_rows
+)
