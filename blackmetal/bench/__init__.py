@@ -47,7 +47,7 @@ from typing import Any
 from blackmetal.runtime.harness import ChildFailed
 from blackmetal.schemas import require_extra
 
-from . import children, command_path, offline, telemetry
+from . import children, command_path, navigation, offline, telemetry
 from .runner import Figure, measure, one_sentence, table
 
 #: Every figure, in the order they are measured (a baseline before the figures that need it).
@@ -66,11 +66,13 @@ FIGURES: tuple[Figure, ...] = (
     telemetry.RECORDER,
     telemetry.MEMORY,
     command_path.FLOOD,
+    navigation.NAV_GOALS,
+    navigation.NAV_FLEET,
 )
 FIGURE_NAMES = tuple(figure.name for figure in FIGURES)
 #: The table's order: the command path, then what the services publish, then the offline figures and the costs.
 TABLE_ORDER = ("forwarder", "cmd_vel", "estop", "estop_flood", "pose", "ros2_cmd_vel", "ros2_odom", "poll", "replay",
-               "calibration", "arbiter", "recorder", "memory", "flood")  # fmt: skip
+               "calibration", "arbiter", "recorder", "memory", "flood", "nav_goals", "nav_fleet")  # fmt: skip
 
 
 def _figure_names(text: str) -> set[str]:
