@@ -29,9 +29,7 @@ MAX_IN_FLIGHT = 8
 _POLL = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
 _POLL_BYTES = wire.encode_request(_POLL)
 #: The commands that move or stop the wheels (health's ``last_sent``; any but a position move's own ends that move).
-_MOTION = frozenset(
-    {CommandCode.EMG_STOP, CommandCode.NORMAL_STOP, CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.SET_LR_WHEEL_POSITION}
-)
+_MOTION = frozenset({CommandCode.EMG_STOP, CommandCode.NORMAL_STOP, CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.SET_LR_WHEEL_POSITION})
 
 
 def _is_stop(request: wire.Request) -> bool:

@@ -143,7 +143,8 @@ class MoveInputs(ClientInputs):
             self._end_move(f"a velocity command of {source} replaces it", now, CommandCode.SET_LR_WHEEL_VELOCITY)
 
     def _end_move(self, reason: str, now: float, stop: CommandCode | None) -> None:
-        """The move ends short: published, reported, and the robot sent ``stop`` (zero velocity, NORMAL_STOP) if given."""
+        """The move ends short: published, reported, and the robot sent ``stop`` if given: zero velocity (which drops a
+        position move on the robot), or zero velocity and NORMAL_STOP (as the gateway's own clean stop)."""
         move = self.move
         if move is None:
             return
@@ -151,17 +152,20 @@ class MoveInputs(ClientInputs):
         self._move_hold_at = math.inf
         self._publish_move(move, MoveState.ENDED, now, reason)
         self.reporter.report(self.keys.wheels_move, f"move {move.move_id} of {move.source} ended: {reason}", now=now)
-        if stop is CommandCode.SET_LR_WHEEL_VELOCITY:
+        if stop is not None:  # zero velocity first: its reply starts the governor's wait for the wheels to stand
             self._send(wire.set_velocity(left=0.0, right=0.0), now)
-        elif stop is not None:
+            self.counters.commands_sent += 1
+        if stop is CommandCode.NORMAL_STOP:
             self._send(wire.simple(stop), now)
-        if stop is not None:
             self.counters.commands_sent += 1
 
     def _move_sent(self, request: wire.Request, now: float) -> None:
         """A motion command other than the move's own goes out: it replaces the move on the robot."""
-        names = {CommandCode.EMG_STOP: "EMG_STOP", CommandCode.NORMAL_STOP: "NORMAL_STOP"}
-        self._end_move(f"{names.get(request.command, 'a velocity command')} sent to the robot", now, None)
+        if request.command is CommandCode.EMG_STOP:
+            self._end_move("the e-stop is engaged", now, None)
+        else:
+            name = "NORMAL_STOP" if request.command is CommandCode.NORMAL_STOP else "a velocity command"
+            self._end_move(f"{name} sent to the robot", now, None)
 
     def _move_tick(self, now: float) -> None:
         """The move's own deadlines: its source heard again, its time limit."""
