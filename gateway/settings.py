@@ -62,7 +62,7 @@ class GatewaySettings:
     position_moves: bool = setting(
         False,
         "let <prefix>/wheels/move drive the wheels by the robot's own SET_LR_WHEEL_POSITION; only for a robot known to "
-        "support it (the simulator does; blackmetal up sets it for the robots it simulates)",
+        "support it as docs/safety.md 'Position moves' says (the simulator does)",
     )
     position_speed: float = setting(
         0.3, "rim speed at which the robot runs a position move, m/s (the simulator's 0.3): a move's time limit follows", metavar="M/S"
