@@ -213,7 +213,7 @@ class MoveInputs(ClientInputs):
         if step is Step.SEND:
             left, right = move.command
             if self._congested() or not self._send(wire.Request(CommandCode.SET_LR_WHEEL_POSITION, left=left, right=right), now):
-                move.dropped()  # sent from the next reading
+                move.defer()  # sent from the next reading
                 return
             self.counters.commands_sent += 1
             move.command_sent(now)

@@ -110,6 +110,11 @@ class Run:
         self.fresh_after = self.polls_sent
         self.last_change = now
 
+    def defer(self) -> None:
+        """The segment's command could not go out now (the robot is behind on its replies): from the next reading."""
+        self.want_send = True
+        self.fresh_after = self.polls_sent
+
     def dropped(self) -> bool:
         """The robot did not take the segment's command (FULL_BUFFER): sent again from the next reading; False when
         it was dropped MAX_RESENDS times already."""

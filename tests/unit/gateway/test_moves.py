@@ -16,7 +16,7 @@ import pytest
 
 from blackmetal import wire
 from blackmetal.gateway.position import DEADLINE_FACTOR, DEADLINE_MARGIN_S, MAX_TRAVEL_M, STALL_S
-from blackmetal.schemas import DriverChange, ErrorReport, MoveState, WheelImpulses, WheelMoveReply, WheelPosition
+from blackmetal.schemas import DriverChange, ErrorReport, MoveState, SimFaults, WheelImpulses, WheelMoveReply, WheelPosition
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, Request
 
@@ -381,3 +381,17 @@ def test_the_gateway_stopping_ends_the_move() -> None:
     bench.conn.stop_robot(bench.t)
     bench.settle()
     assert positions(bench)[-1].reason == "a velocity command sent to the robot" and bench.robot.speed_left == 0.0
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_move_on_a_slow_robot_that_drops_commands_still_ends_at_its_target(seed: int) -> None:
+    robot = SimRobot(RobotParams(), now=0.0, seed=seed)
+    robot.faults = SimFaults(full_buffer=0.05, dropout=0.01, spike=0.005)
+    bench = moving_bench(robot)
+    bench.reply_delay = 0.012  # readings come a poll period late or so: a reading asked before a command tells nothing
+    reply = ask(bench, 2.0, 2.0)
+    bench.run(reply.deadline)
+    last = positions(bench)[-1]
+    assert last.state is MoveState.DONE, last.reason
+    assert bench.robot.x == pytest.approx(2.0, abs=0.003) and abs(bench.robot.yaw) < 0.003
+    assert last.elapsed < reply.expected + 0.5

@@ -116,3 +116,10 @@ def test_wheels_that_stop_short_stall_after_stall_s() -> None:
     assert drive_to(run, (0, 0), 5.0 + STALL_S) is Step.STALLED
     run.poll_lost()
     assert run.readings == 4
+
+
+def test_a_deferred_command_goes_out_from_the_next_reading_and_counts_no_resend() -> None:
+    run = run_of(500, 500)
+    assert drive_to(run, (0, 0), 0.0) is Step.SEND
+    run.defer()
+    assert drive_to(run, (0, 0), 0.02) is Step.SEND and run.resends == 0 and run.command == (500, 500)
