@@ -111,8 +111,9 @@ class GatewayCore(MoveInputs):
             self.conflict.next_deadline(),
             self.reporter.next_deadline(),
             self.arbiter.next_deadline(),
-            self._move_deadline(),
         )
+        if self.move is not None:  # (guarded here and below: the poll path runs 50 times a second per robot)
+            deadline = min(deadline, self._move_deadline())
         if self.links.control.connected:
             deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
         return deadline
@@ -169,7 +170,8 @@ class GatewayCore(MoveInputs):
             self._poll(now)
         self._conflict_news(self.conflict.tick(now), now)
         self._arbitrate(now)
-        self._move_tick(now)
+        if self.move is not None:
+            self._move_tick(now)
         if now >= self._next_health:
             self._events.append(self.health(now))
             self._next_health = now + self.settings.health_period
@@ -229,7 +231,7 @@ class GatewayCore(MoveInputs):
             self.counters.lost_replies += self.exchange.forget_expired()
         self._outgoing += data
         command = request.command
-        if command in _MOTION:
+        if command is not CommandCode.GET_LR_WHEEL_VELOCITY and command in _MOTION:  # the poll first: 50 a second
             if self.move is not None and command is not CommandCode.SET_LR_WHEEL_POSITION:
                 self._move_sent(request, now)  # the robot drops a position move for any other motion command
             self._last_sent = (request, self.wallclock())
@@ -245,7 +247,8 @@ class GatewayCore(MoveInputs):
         if gov.emg_stop_due(now) and self._send(wire.simple(CommandCode.EMG_STOP), now):
             gov.on_emg_stop_sent()
             self.counters.commands_sent += 1
-        self._check_move(now)
+        if self.move is not None:
+            self._check_move(now)
         command = gov.next_command(now, congested=self._congested())
         if command is None or not self._send(wire.set_velocity(left=command.wheels.left, right=command.wheels.right), now):
             return
@@ -276,7 +279,8 @@ class GatewayCore(MoveInputs):
         self._poll_waiting = False
         if self._send(_POLL, now):
             self.counters.polls += 1
-            self._after_velocity_poll(now)
+            if self.move is not None:
+                self._after_velocity_poll(now)
 
     def _receive_control(self, data: bytes, now: float) -> None:
         for item in self._replies.feed(data):
