@@ -163,6 +163,8 @@ class MoveInputs(ClientInputs):
         """A motion command other than the move's own goes out: it replaces the move on the robot."""
         if request.command is CommandCode.EMG_STOP:
             self._end_move("the e-stop is engaged", now, None)
+        elif self.stopping:
+            self._end_move("the gateway is stopping", now, None)
         else:
             name = "NORMAL_STOP" if request.command is CommandCode.NORMAL_STOP else "a velocity command"
             self._end_move(f"{name} sent to the robot", now, None)

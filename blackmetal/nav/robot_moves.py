@@ -14,7 +14,7 @@ import math
 from dataclasses import dataclass
 
 from blackmetal import robot_model as model
-from blackmetal.schemas import GatewayParams, MoveState, NavMove, WheelMove, WheelMoveReply, WheelPosition
+from blackmetal.schemas import GatewayParams, GoalState, MoveState, NavMove, WheelMove, WheelMoveReply, WheelPosition
 
 #: Wheels that have not turned (or a gateway that has not said where they are) for this long have stopped (s); a
 #: little longer than the gateway's own stall time, so that its word (``ended``, with the reason) comes first.
@@ -175,3 +175,13 @@ class RobotMoveTracker:
 
     def _total(self) -> float:
         return self.move.angle or self.move.distance
+
+
+def outcome(progress: MoveProgress) -> tuple[GoalState, str] | None:
+    """How the goal of a robot move ends for ``progress`` (None: it runs): succeeded at the target, else aborted with
+    the reason (a cancel of the navigation's own is the navigation's to call canceled)."""
+    if progress.done:
+        return GoalState.SUCCEEDED, ""
+    if progress.ended or progress.stalled:
+        return GoalState.ABORTED, f"the robot's position move ended: {progress.reason}"
+    return None

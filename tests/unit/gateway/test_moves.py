@@ -16,7 +16,17 @@ import pytest
 
 from blackmetal import wire
 from blackmetal.gateway.position import DEADLINE_FACTOR, DEADLINE_MARGIN_S, MAX_TRAVEL_M, STALL_S
-from blackmetal.schemas import DriverChange, ErrorReport, MoveState, SimFaults, WheelImpulses, WheelMoveReply, WheelPosition
+from blackmetal.schemas import (
+    DriverChange,
+    ErrorReport,
+    GatewayHealth,
+    MoveState,
+    SimFaults,
+    WheelImpulses,
+    WheelMoveReply,
+    WheelPosition,
+    encode,
+)
 from blackmetal.sim.physics import RobotParams, SimRobot
 from blackmetal.wire import CommandCode, Request
 
@@ -380,7 +390,8 @@ def test_the_gateway_stopping_ends_the_move() -> None:
     started(bench)
     bench.conn.stop_robot(bench.t)
     bench.settle()
-    assert positions(bench)[-1].reason == "a velocity command sent to the robot" and bench.robot.speed_left == 0.0
+    assert positions(bench)[-1].reason == "the gateway is stopping" and bench.robot.speed_left == 0.0
+    assert [r.command for _, r in sent(bench, bench.t)] == [CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.NORMAL_STOP]
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -395,3 +406,24 @@ def test_a_move_on_a_slow_robot_that_drops_commands_still_ends_at_its_target(see
     assert last.state is MoveState.DONE, last.reason
     assert bench.robot.x == pytest.approx(2.0, abs=0.003) and abs(bench.robot.yaw) < 0.003
     assert last.elapsed < reply.expected + 0.5
+
+
+def test_a_speed_limit_set_below_the_position_speed_ends_the_move() -> None:
+    bench = moving_bench()
+    started(bench)
+    at = bench.t
+    bench.conn.on_params_set(b'{"values": {"max_wheel_speed": 0.25}}', bench.t)
+    bench.settle()
+    assert [(r.command, r.left) for _, r in sent(bench, at)] == [(CommandCode.SET_LR_WHEEL_VELOCITY, 0.0)]
+    assert ended(bench).reason == "max_wheel_speed was set below the robot's position speed"
+
+
+def test_a_second_gateway_on_the_prefix_ends_the_move() -> None:
+    bench = moving_bench()
+    started(bench)
+    mine = bench.conn.health(bench.t)
+    other = GatewayHealth(stamp=mine.stamp, control=mine.control, log=mine.log, source="another-run")
+    bench.conn.on_health_seen(encode(other), bench.t)
+    bench.settle()
+    assert "another gateway (run another-run) serves prefix robot" in ended(bench).reason
+    assert "another gateway" in refused(bench, b'{"left": 1, "right": 1}')

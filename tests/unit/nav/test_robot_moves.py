@@ -8,8 +8,17 @@ import math
 import pytest
 
 from blackmetal import robot_model as model
-from blackmetal.nav.robot_moves import STALL_S, MoveProgress, RobotConstants, RobotMoveTracker, expected_duration, wheel_move, wheel_travels
-from blackmetal.schemas import GatewayParams, MoveState, NavMove, Param, WheelMoveReply, WheelPosition
+from blackmetal.nav.robot_moves import (
+    STALL_S,
+    MoveProgress,
+    RobotConstants,
+    RobotMoveTracker,
+    expected_duration,
+    outcome,
+    wheel_move,
+    wheel_travels,
+)
+from blackmetal.schemas import GatewayParams, GoalState, MoveState, NavMove, Param, WheelMoveReply, WheelPosition
 
 SIM = RobotConstants(position_moves=True, position_speed=0.3, wheel_separation=0.5, impulses_left=1000.0, impulses_right=1000.0)
 MOVE_ID = "ab" * 16
@@ -162,3 +171,12 @@ def test_the_progress_follows_a_move_the_gateway_runs_on_the_simulator() -> None
     assert abs(tracker.progress.remaining) < 0.005
     etas = [p.eta for p in seen if not p.over]
     assert etas[0] == pytest.approx(expected_duration(move, params), abs=0.05) and etas == sorted(etas, reverse=True)
+
+
+def test_the_goal_succeeds_at_the_target_and_aborts_with_the_reason_otherwise() -> None:
+    assert outcome(MoveProgress(0.5, 0.5, 1.0)) is None
+    assert outcome(MoveProgress(0.0, 1.0, 0.0, done=True)) == (GoalState.SUCCEEDED, "")
+    ended = MoveProgress(0.6, 0.4, 0.0, ended=True, reason="the e-stop is engaged")
+    assert outcome(ended) == (GoalState.ABORTED, "the robot's position move ended: the e-stop is engaged")
+    stalled = MoveProgress(0.6, 0.4, 0.0, stalled=True, reason="the gateway said nothing of the move")
+    assert outcome(stalled) == (GoalState.ABORTED, "the robot's position move ended: the gateway said nothing of the move")
