@@ -18,7 +18,7 @@ from blackmetal.wire import CommandCode
 
 from .arbiter import Why
 from .commands import ClientInputs
-from .position import POSITION_POLL_HZ, STALL_S, Run, Step, plan_move, travel_refusal
+from .position import MIN_MOVE_GAP_S, POSITION_POLL_HZ, STALL_S, Run, Step, plan_move, travel_refusal
 from .safety_states import STILL, Driving
 
 if TYPE_CHECKING:
@@ -44,6 +44,8 @@ class MoveInputs(ClientInputs):
     move: Run | None = None
     #: When the move's source is heard again (its move holds it live in the arbiter, as a stream of commands would).
     _move_hold_at = math.inf
+    #: When the latest move was accepted.
+    _move_accepted_at = -math.inf
     #: Velocity polls between position polls while a move runs.
     _position_every = 1
     _polls_to_position = 0
@@ -65,6 +67,7 @@ class MoveInputs(ClientInputs):
         s = self.settings
         plan = plan_move(request.left, request.right, s.impulses_left, s.impulses_right, s.position_speed, s.keepalive)
         move_id = request.move_id or secrets.token_hex(16)
+        self._move_accepted_at = now
         if self.move is not None:
             self._end_move(f"replaced by move {move_id}", now, CommandCode.SET_LR_WHEEL_VELOCITY)
         previous = self.arbiter.active
@@ -112,6 +115,8 @@ class MoveInputs(ClientInputs):
                 f"a velocity command of {active or 'a source'} is in force: a position move starts from standstill "
                 "(put a zero Twist on its cmd_vel, or let it time out, first)"
             )
+        if now - self._move_accepted_at < MIN_MOVE_GAP_S:
+            return f"moves come faster than one in {MIN_MOVE_GAP_S:g} s: this one is refused, the one before goes on"
         return travel_refusal(request.left, request.right)
 
     def _check_move(self, now: float) -> None:

@@ -26,6 +26,8 @@ DEADLINE_FACTOR = 1.5
 DEADLINE_MARGIN_S = 1.0
 #: A segment the robot drops (FULL_BUFFER) is sent again this many times at most.
 MAX_RESENDS = 5
+#: At most one move is accepted in this long (s): a flood of moves would only send the robot stops and readings.
+MIN_MOVE_GAP_S = 0.1
 #: Position readings per second while a move runs (at most one for every velocity poll).
 POSITION_POLL_HZ = 25.0
 #: Reported right impulses are the natural ones times this.

@@ -427,3 +427,19 @@ def test_a_second_gateway_on_the_prefix_ends_the_move() -> None:
     bench.settle()
     assert "another gateway (run another-run) serves prefix robot" in ended(bench).reason
     assert "another gateway" in refused(bench, b'{"left": 1, "right": 1}')
+
+
+def test_a_flood_of_moves_starts_one_a_tenth_of_a_second_at_most() -> None:
+    bench = moving_bench()
+    replies = []
+    for _ in range(50):
+        replies.append(ask(bench, 0.5, 0.5))
+        bench.run(0.004)
+    accepted = [r for r in replies if r.accepted]
+    assert len(accepted) == 2  # 0.2 s of moves
+    assert {r.reason for r in replies if not r.accepted} == {"moves come faster than one in 0.1 s: this one is refused, the one before goes on"}
+    bench.run(2.0)
+    assert positions(bench)[-1].state is MoveState.DONE and positions(bench)[-1].move_id == accepted[-1].move_id
+    done = positions(bench)[-1]
+    assert done.left - done.start_left == round(0.5 * 1012.536)  # the second ran whole, from where the first was cut
+    assert bench.robot.x == pytest.approx(0.5 + done.start_left / 1012.536, abs=0.002)
