@@ -437,7 +437,9 @@ def test_a_flood_of_moves_starts_one_a_tenth_of_a_second_at_most() -> None:
         bench.run(0.004)
     accepted = [r for r in replies if r.accepted]
     assert len(accepted) == 2  # 0.2 s of moves
-    assert {r.reason for r in replies if not r.accepted} == {"moves come faster than one in 0.1 s: this one is refused, the one before goes on"}
+    assert {r.reason for r in replies if not r.accepted} == {
+        "moves come faster than one in 0.1 s: this one is refused, the one before goes on"
+    }
     bench.run(2.0)
     assert positions(bench)[-1].state is MoveState.DONE and positions(bench)[-1].move_id == accepted[-1].move_id
     done = positions(bench)[-1]
