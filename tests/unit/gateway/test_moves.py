@@ -87,7 +87,9 @@ def test_a_metre_forward_runs_on_the_robot_and_is_published_until_done() -> None
     readings = [m.mono for m in bench.of(WheelImpulses) if m.mono is not None and start < m.mono < start + 3.0]
     assert len(readings) >= 49 * 3  # the velocity polls (the odometry's) go on at their rate beside
     assert [r.command for _, r in sent(bench, start)] == [CommandCode.SET_LR_WHEEL_POSITION]
-    assert errors(bench) == [] and bench.robot.counters["watchdog_stops"] == 0
+    counters = bench.robot.counters
+    assert errors(bench) == [] and counters["watchdog_stops"] == 0 and counters["position_commands"] == 1
+    assert counters["position_polls"] == len(published) and counters["polls"] >= 2 * len(published)
     assert bench.conn.health(bench.t).last_sent == "position 1013 1054"
 
 
