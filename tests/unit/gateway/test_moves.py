@@ -447,3 +447,21 @@ def test_a_flood_of_moves_starts_one_a_tenth_of_a_second_at_most() -> None:
     done = positions(bench)[-1]
     assert done.left - done.start_left == round(0.5 * 1012.536)  # the second ran whole, from where the first was cut
     assert bench.robot.x == pytest.approx(0.5 + done.start_left / 1012.536, abs=0.002)
+
+
+def test_a_robot_whose_wheels_are_off_their_drawing_drives_straight_with_its_calibration() -> None:
+    from blackmetal import robot_model as model
+
+    def robot() -> SimRobot:
+        return SimRobot(RobotParams.with_wheel_scales(left=1.015, right=0.99), now=0.0, seed=1)
+
+    calibrated = moving_bench(
+        robot(), impulses_left=model.IMPULSES_PER_METER_LEFT / 1.015, impulses_right=model.IMPULSES_PER_METER_RIGHT / 0.99
+    )
+    reply = ask(calibrated, 10.0, 10.0)
+    calibrated.run(reply.deadline)
+    assert positions(calibrated)[-1].state is MoveState.DONE and positions(calibrated)[-1].elapsed < reply.expected * 1.02
+    assert calibrated.robot.x == pytest.approx(10.0, abs=0.005) and abs(math.degrees(calibrated.robot.yaw)) < 0.1
+    nominal = moving_bench(robot())  # the firmware counts impulses: uncalibrated, the wheels' own errors curve the path
+    nominal.run(ask(nominal, 1.0, 1.0).deadline)
+    assert math.degrees(nominal.robot.yaw) == pytest.approx(-math.degrees(0.025 / 0.5), abs=0.1)
