@@ -91,7 +91,9 @@ class MoveInputs(ClientInputs):
             )
         if governor.estop:
             return 'emergency stop is engaged: a position move is refused until {"engaged": false} is put on estop/release'
-        if self.stopping or not self.links.control.connected or not governor.link_up:
+        if self.stopping:
+            return "the gateway is stopping: a position move is refused"
+        if not self.links.control.connected or not governor.link_up:
             return "robot control link is down: a position move is refused, not queued"
         if self.conflict.active(now):
             return self.conflict.reason()

@@ -127,6 +127,11 @@ class GatewaySettings:
             raise ConfigError(f"max_wheel_speed {self.max_wheel_speed} is beyond the robot's wire limit of 1.0 m/s")
         if self.position_speed > 1.0:
             raise ConfigError(f"position_speed {self.position_speed} is beyond the robot's wire limit of 1.0 m/s")
+        if self.position_moves and self.position_speed > self.max_wheel_speed:
+            raise ConfigError(
+                f"position_moves with position_speed {self.position_speed:g} m/s above max_wheel_speed {self.max_wheel_speed:g} m/s: "
+                "every position move would be refused"
+            )
         if self.keepalive >= model.ROBOT_WATCHDOG_S:
             raise ConfigError(f"keepalive {self.keepalive} s must be shorter than the robot's {model.ROBOT_WATCHDOG_S:g} s watchdog")
         if self.cmd_timeout < 0:

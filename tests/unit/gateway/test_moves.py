@@ -393,6 +393,7 @@ def test_the_gateway_stopping_ends_the_move() -> None:
     bench.conn.stop_robot(bench.t)
     bench.settle()
     assert positions(bench)[-1].reason == "the gateway is stopping" and bench.robot.speed_left == 0.0
+    assert refused(bench, b'{"left": 1, "right": 1}') == "the gateway is stopping: a position move is refused"
     assert [r.command for _, r in sent(bench, bench.t)] == [CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.NORMAL_STOP]
 
 
