@@ -466,3 +466,15 @@ def test_a_robot_whose_wheels_are_off_their_drawing_drives_straight_with_its_cal
     nominal = moving_bench(robot())  # the firmware counts impulses: uncalibrated, the wheels' own errors curve the path
     nominal.run(ask(nominal, 1.0, 1.0).deadline)
     assert math.degrees(nominal.robot.yaw) == pytest.approx(-math.degrees(0.025 / 0.5), abs=0.1)
+
+
+@pytest.mark.parametrize("poll_hz", [10.0, 50.0, 100.0])
+def test_positions_are_read_within_the_poll_rate(poll_hz: float) -> None:
+    bench = moving_bench(poll_hz=poll_hz)
+    reply = ask(bench, 1.0, 1.0)
+    bench.run(reply.deadline)
+    published = positions(bench)
+    assert published[-1].state is MoveState.DONE and bench.robot.x == pytest.approx(1.0, abs=0.002)
+    rate = len(published) / published[-1].elapsed
+    assert min(poll_hz, 25.0) * 0.9 <= rate <= min(poll_hz, 25.0) * 1.15  # one reading for every velocity poll at most
+    assert published[-1].elapsed <= reply.expected + 3.0 / min(poll_hz, 25.0)  # done within a few readings
