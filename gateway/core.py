@@ -92,6 +92,8 @@ class GatewayCore(MoveInputs):
 
     def take_events(self) -> list[Event]:
         """Messages to publish and links to drop, in the order they arose (write the outgoing bytes first)."""
+        if self._ended:
+            self._flush_moves()
         if self._health_due is not None:
             self._events.append(self.health(self._health_due))
             self._health_due = None

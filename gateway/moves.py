@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import secrets
+from collections.abc import Callable
 from typing import TYPE_CHECKING
 
 from blackmetal import wire
@@ -23,7 +24,9 @@ from .safety_states import STILL, Driving
 
 if TYPE_CHECKING:
     from .exchange import Exchange
+    from .latch import Latch
     from .links import Links
+    from .settings import GatewaySettings
 
 #: A zero Twist: what a move's source is heard to command while its move runs (the wheels' own control moves them).
 _STILL_TWIST = Twist()
@@ -40,15 +43,19 @@ class MoveInputs(ClientInputs):
         def _send(self, request: wire.Request, now: float) -> bool: ...
         def _congested(self) -> bool: ...
 
-    #: The move under way, if any.
-    move: Run | None = None
-    #: When the move's source is heard again (its move holds it live in the arbiter, as a stream of commands would).
-    _move_hold_at = math.inf
-    #: When the latest move was accepted.
-    _move_accepted_at = -math.inf
-    #: Velocity polls between position polls while a move runs.
-    _position_every = 1
-    _polls_to_position = 0
+    def __init__(self, settings: GatewaySettings, now: float, wallclock: Callable[[], float], latch: Latch | None) -> None:
+        super().__init__(settings, now, wallclock, latch)
+        #: The move under way, if any.
+        self.move: Run | None = None
+        #: Moves that ended, with why and when: published and reported once the bytes are taken (an EMG_STOP waits for nothing).
+        self._ended: list[tuple[Run, str, float]] = []
+        #: When the move's source is heard again (its move holds it live in the arbiter, as a stream of commands would).
+        self._move_hold_at = math.inf
+        #: When the latest move was accepted.
+        self._move_accepted_at = -math.inf
+        #: Velocity polls between position polls while a move runs.
+        self._position_every = 1
+        self._polls_to_position = 0
 
     def on_wheel_move(self, payload: bytes | None, now: float) -> WheelMoveReply:
         """A get on ``<prefix>/wheels/move``: the move starts (its first reading is asked at once), or why not."""
@@ -157,14 +164,20 @@ class MoveInputs(ClientInputs):
             return
         self.move = None
         self._move_hold_at = math.inf
-        self._publish_move(move, MoveState.ENDED, now, reason)
-        self.reporter.report(self.keys.wheels_move, f"move {move.move_id} of {move.source} ended: {reason}", now=now)
+        self._ended.append((move, reason, now))
         if stop is not None:  # zero velocity first: its reply starts the governor's wait for the wheels to stand
             self._send(wire.set_velocity(left=0.0, right=0.0), now)
             self.counters.commands_sent += 1
         if stop is CommandCode.NORMAL_STOP:
             self._send(wire.simple(stop), now)
             self.counters.commands_sent += 1
+
+    def _flush_moves(self) -> None:
+        """The moves that ended since the last call: published (``ended``, with the reason) and reported."""
+        ended, self._ended = self._ended, []
+        for move, reason, now in ended:
+            self._publish_move(move, MoveState.ENDED, now, reason)
+            self.reporter.report(self.keys.wheels_move, f"move {move.move_id} of {move.source} ended: {reason}", now=now)
 
     def _move_sent(self, request: wire.Request, now: float) -> None:
         """A motion command other than the move's own goes out: it replaces the move on the robot."""
@@ -218,6 +231,8 @@ class MoveInputs(ClientInputs):
         if reading is None:
             move.poll_lost()
             return
+        if self._ended:  # a move ended before this one began: its end is told first
+            self._flush_moves()
         step = move.on_reading(reading.left, reading.right, now)
         if step is Step.SEND:
             left, right = move.command

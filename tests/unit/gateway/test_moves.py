@@ -253,6 +253,16 @@ def test_an_estop_during_a_move_sends_emg_stop_and_ends_it() -> None:
     assert bench.robot.x == x and x == pytest.approx(0.3, abs=0.02)
 
 
+def test_the_emg_stop_waits_for_nothing_the_moves_end_is_told_once_the_bytes_are_taken() -> None:
+    bench = moving_bench()
+    started(bench)
+    bench.conn.on_estop(*_estop(True), bench.t)
+    assert b'"Command":1' in bench.conn.take_outgoing("control")
+    assert not [e for e in bench.conn._events if isinstance(e, WheelPosition | ErrorReport)]  # nothing built before the write
+    ends = [e for e in bench.conn.take_events() if isinstance(e, WheelPosition)]
+    assert [(e.state, e.reason) for e in ends] == [(MoveState.ENDED, "the e-stop is engaged")]
+
+
 def test_a_higher_source_that_speaks_ends_the_move_and_drives() -> None:
     bench = moving_bench()
     started(bench)
