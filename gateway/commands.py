@@ -25,6 +25,7 @@ from blackmetal.schemas import (
     RobotStatus,
     Twist,
     WheelImpulses,
+    WheelPosition,
     decode,
     encode,
     excerpt,
@@ -41,7 +42,7 @@ from .safety import Governor
 from .settings import GatewaySettings
 
 #: What the core produces besides bytes: messages to publish, and links to drop.
-Event = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams | DropLink
+Event = WheelImpulses | WheelPosition | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams | DropLink
 
 
 class ClientInputs:
@@ -93,9 +94,13 @@ class ClientInputs:
         if self.arbiter.active != previous:
             self._driver_changed(source, previous, Why.OUTRANKS)
         if admission is Admission.DRIVES:
+            self._velocity_admitted(source, now)
             # checked above, and nothing since changed the e-stop, the link or the conflict: no second check on the path
             self.governor.steer(twist, now, now)
             self._send_due(now)
+
+    def _velocity_admitted(self, source: str, now: float) -> None:
+        """A velocity command of ``source`` drives now (a position move under way ends: MoveInputs)."""
 
     def on_superseded(self, source: str, count: int, now: float) -> None:
         """``count`` commands of ``source`` were replaced by newer ones before the gateway took them: counted and reported."""

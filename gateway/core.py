@@ -12,11 +12,12 @@ from blackmetal.robot_model import NOMINAL_ENCODERS, WheelSpeeds
 from blackmetal.schemas import GatewayHealth, RobotStatus, WheelImpulses, excerpt
 from blackmetal.wire import CommandCode, Malformed, ReplyDecoder
 
-from .commands import ClientInputs, Event
+from .commands import Event
 from .exchange import Completed, Exchange, Lost
 from .latch import Latch
 from .links import LinkName, Links
 from .log_port import LogPort
+from .moves import MoveInputs
 from .polling import PollSchedule
 from .prepare import PrepareRetry
 from .safety import CommandReason
@@ -27,6 +28,8 @@ MAX_IN_FLIGHT = 8
 #: The poll, sent 50-100 times a second per robot: one request object, its bytes encoded once.
 _POLL = wire.simple(CommandCode.GET_LR_WHEEL_VELOCITY)
 _POLL_BYTES = wire.encode_request(_POLL)
+#: The commands that move or stop the wheels (health's ``last_sent``; any but a position move's own ends that move).
+_MOTION = frozenset({CommandCode.EMG_STOP, CommandCode.NORMAL_STOP, CommandCode.SET_LR_WHEEL_VELOCITY, CommandCode.SET_LR_WHEEL_POSITION})
 
 
 def _is_stop(request: wire.Request) -> bool:
@@ -36,10 +39,12 @@ def _is_stop(request: wire.Request) -> bool:
 
 
 def _describe(request: wire.Request) -> str:
-    """A motion command as health shows it: its name, and (left, right) m/s for a velocity."""
+    """A motion command as health shows it: its name, and (left, right) m/s for a velocity, impulses for a position."""
     if request.command is CommandCode.SET_LR_WHEEL_VELOCITY:
         wheels = _wheels(request)
         return f"velocity {wheels.left:.3f} {wheels.right:.3f}"
+    if request.command is CommandCode.SET_LR_WHEEL_POSITION:
+        return f"position {request.left} {request.right}"
     return request.command.name
 
 
@@ -47,7 +52,7 @@ def _wheels(request: wire.Request) -> WheelSpeeds:
     return WheelSpeeds(left=float(request.left or 0.0), right=float(request.right or 0.0))
 
 
-class GatewayCore(ClientInputs):
+class GatewayCore(MoveInputs):
     """The robot's side (links, requests and replies, polls) and the health; ``robot`` names its link ends in reports."""
 
     def __init__(
@@ -87,6 +92,8 @@ class GatewayCore(ClientInputs):
 
     def take_events(self) -> list[Event]:
         """Messages to publish and links to drop, in the order they arose (write the outgoing bytes first)."""
+        if self._ended:
+            self._flush_moves()
         if self._health_due is not None:
             self._events.append(self.health(self._health_due))
             self._health_due = None
@@ -107,6 +114,8 @@ class GatewayCore(ClientInputs):
             self.reporter.next_deadline(),
             self.arbiter.next_deadline(),
         )
+        if self.move is not None:  # (guarded here and below: the poll path runs 50 times a second per robot)
+            deadline = min(deadline, self._move_deadline())
         if self.links.control.connected:
             deadline = min(deadline, self.polls.next_deadline(), self.prepare.next_deadline())
         return deadline
@@ -138,6 +147,7 @@ class GatewayCore(ClientInputs):
         if link == "control":
             self._outgoing.clear()
         if link == "control" and was_up:
+            self._end_move(f"control link down: {reason}", now, None)
             self.governor.on_link_down()
             self.counters.lost_replies += len(self.exchange.clear(reason))
             self.polls.stop()
@@ -162,6 +172,8 @@ class GatewayCore(ClientInputs):
             self._poll(now)
         self._conflict_news(self.conflict.tick(now), now)
         self._arbitrate(now)
+        if self.move is not None:
+            self._move_tick(now)
         if now >= self._next_health:
             self._events.append(self.health(now))
             self._next_health = now + self.settings.health_period
@@ -220,7 +232,10 @@ class GatewayCore(ClientInputs):
             # a stop cannot wait for doubtful replies to settle: give them up, so the stop's own reply pairs with it
             self.counters.lost_replies += self.exchange.forget_expired()
         self._outgoing += data
-        if request.command is not CommandCode.GET_LR_WHEEL_VELOCITY and request.command is not CommandCode.PREPARE_WHEEL_CONTROLLER:
+        command = request.command
+        if command is not CommandCode.GET_LR_WHEEL_VELOCITY and command in _MOTION:  # the poll first: 50 a second
+            if self.move is not None and command is not CommandCode.SET_LR_WHEEL_POSITION:
+                self._move_sent(request, now)  # the robot drops a position move for any other motion command
             self._last_sent = (request, self.wallclock())
         self.exchange.sent(request, now)
         self.links.request_sent(now)
@@ -234,6 +249,8 @@ class GatewayCore(ClientInputs):
         if gov.emg_stop_due(now) and self._send(wire.simple(CommandCode.EMG_STOP), now):
             gov.on_emg_stop_sent()
             self.counters.commands_sent += 1
+        if self.move is not None:
+            self._check_move(now)
         command = gov.next_command(now, congested=self._congested())
         if command is None or not self._send(wire.set_velocity(left=command.wheels.left, right=command.wheels.right), now):
             return
@@ -264,6 +281,8 @@ class GatewayCore(ClientInputs):
         self._poll_waiting = False
         if self._send(_POLL, now):
             self.counters.polls += 1
+            if self.move is not None:
+                self._after_velocity_poll(now)
 
     def _receive_control(self, data: bytes, now: float) -> None:
         for item in self._replies.feed(data):
@@ -281,7 +300,7 @@ class GatewayCore(ClientInputs):
         command = request.command
         if isinstance(result, Lost):
             self.counters.lost_replies += 1
-            self._not_taken(request, now)
+            self._not_taken(request, now, lost=True)
             return
         self.last_rtt = result.rtt
         if result.late:
@@ -293,7 +312,7 @@ class GatewayCore(ClientInputs):
             )
         if result.status.full_buffer:
             self.counters.full_buffer += 1
-            self._not_taken(request, now)
+            self._not_taken(request, now, lost=False)
             return
         if not result.status.ok:
             self._report_robot("control", f"unknown status {result.status.status!r} from the robot", now)
@@ -308,12 +327,15 @@ class GatewayCore(ClientInputs):
             )
             self.seq += 1
             self.polls.reading(now)
-            self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)
+            if self.move is None:  # while one runs the wheels move by the robot's own control: no stop to confirm
+                self.governor.observe_motion(*NOMINAL_ENCODERS.to_speeds(float(reading.left), float(reading.right)), now)
             if self._poll_waiting:  # the poll that came due while this one was unanswered goes out now
                 self._poll(now)
+        elif isinstance(result.data, wire.PositionReading) or command is CommandCode.GET_LR_WHEEL_POSITION:
+            self._on_position(result.data if isinstance(result.data, wire.PositionReading) else None, now)
 
-    def _not_taken(self, request: wire.Request, now: float) -> None:
-        """The robot dropped ``request`` (FULL_BUFFER) or did not answer in time: re-send what must be re-sent, spaced."""
+    def _not_taken(self, request: wire.Request, now: float, lost: bool) -> None:
+        """The robot dropped ``request`` (FULL_BUFFER) or did not answer in time (``lost``): re-send what must be re-sent, spaced."""
         command = request.command
         if command is CommandCode.SET_LR_WHEEL_VELOCITY:
             reason = self.governor.on_dropped(_wheels(request), now)
@@ -323,6 +345,10 @@ class GatewayCore(ClientInputs):
             self.governor.on_emg_stop_dropped(now)
         elif command is CommandCode.PREPARE_WHEEL_CONTROLLER:
             self.prepare.dropped(now)
+        elif command is CommandCode.GET_LR_WHEEL_POSITION:
+            self._on_position(None, now)
+        else:
+            self._position_not_taken(request, lost, now)
 
     def _receive_log(self, data: bytes, now: float) -> None:
         for item in self._log_port.feed(data, self.wallclock()):

@@ -15,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from blackmetal.runtime.driver import Driver
-from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, RobotStatus, WheelImpulses
+from blackmetal.schemas import DriverChange, ErrorReport, GatewayHealth, GatewayParams, RobotStatus, WheelImpulses, WheelPosition
 from blackmetal.transport import ByteStream, Connector
 
 from .core import GatewayCore
@@ -27,7 +27,7 @@ from .settings import GatewaySettings
 log = logging.getLogger("blackmetal.gateway")
 
 
-Message = WheelImpulses | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams
+Message = WheelImpulses | WheelPosition | RobotStatus | GatewayHealth | ErrorReport | DriverChange | GatewayParams
 
 
 class GatewayHost:

@@ -125,6 +125,8 @@ class ParamTable:
             ("keepalive", "double", s.keepalive, "an unchanged motion command is repeated this often, s"),
             ("max_command_hz", "double", s.max_command_hz, "cap on velocity commands per second to the robot"),
             ("release_key_only", "bool", s.release_key_only, "only <prefix>/estop/release releases the e-stop"),
+            ("position_moves", "bool", s.position_moves, "<prefix>/wheels/move runs the robot's own position moves"),
+            ("position_speed", "double", s.position_speed, "rim speed of the robot's position moves, m/s"),
             ("robot", "string", s.robot, "the robot's address"),
             ("prefix", "string", s.prefix, "the robot's key-expression prefix"),
         ]

@@ -59,6 +59,14 @@ class GatewaySettings:
     max_command_hz: float = setting(
         500.0, "cap on velocity commands per second to the robot; a flood is coalesced to the latest", metavar="HZ"
     )
+    position_moves: bool = setting(
+        False,
+        "let <prefix>/wheels/move drive the wheels by the robot's own SET_LR_WHEEL_POSITION; only for a robot known to "
+        "support it as docs/safety.md 'Position moves' says (the simulator does)",
+    )
+    position_speed: float = setting(
+        0.3, "rim speed at which the robot runs a position move, m/s (the simulator's 0.3): a move's time limit follows", metavar="M/S"
+    )
     prefix: str = setting(DEFAULT_PREFIX, "key-expression prefix, e.g. fleet/a")
     reply_timeout: float = setting(0.5, "a request unanswered this long is given up (the original driver used 0.2 s)", metavar="S")
     silence_timeout: float = setting(1.0, "the control link is re-opened when requests go unanswered this long", metavar="S")
@@ -107,7 +115,7 @@ class GatewaySettings:
         check_positive(
             self,
             "poll_hz wheel_separation max_wheel_speed keepalive reply_timeout silence_timeout log_silence_timeout "
-            "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right",
+            "connect_timeout health_period max_command_hz linear_accel angular_accel impulses_left impulses_right position_speed",
         )
         for name, nominal in (("impulses_left", model.IMPULSES_PER_METER_LEFT), ("impulses_right", model.IMPULSES_PER_METER_RIGHT)):
             value = getattr(self, name)
@@ -117,6 +125,13 @@ class GatewaySettings:
             raise ConfigError(f"poll_hz {self.poll_hz} is beyond 1000 Hz")
         if self.max_wheel_speed > 1.0:
             raise ConfigError(f"max_wheel_speed {self.max_wheel_speed} is beyond the robot's wire limit of 1.0 m/s")
+        if self.position_speed > 1.0:
+            raise ConfigError(f"position_speed {self.position_speed} is beyond the robot's wire limit of 1.0 m/s")
+        if self.position_moves and self.position_speed > self.max_wheel_speed:
+            raise ConfigError(
+                f"position_moves with position_speed {self.position_speed:g} m/s above max_wheel_speed {self.max_wheel_speed:g} m/s: "
+                "every position move would be refused"
+            )
         if self.keepalive >= model.ROBOT_WATCHDOG_S:
             raise ConfigError(f"keepalive {self.keepalive} s must be shorter than the robot's {model.ROBOT_WATCHDOG_S:g} s watchdog")
         if self.cmd_timeout < 0:

@@ -61,7 +61,8 @@ class GatewayZenoh(ZenohEdge):
         super().__init__(session)
         self.keys = keys
         self.fleet = burst is not None
-        self.routes(keys, (keys.impulses, keys.status, keys.health, keys.errors, keys.driver, keys.params), fast=keys.impulses, burst=burst)
+        published = (keys.impulses, keys.wheels_position, keys.status, keys.health, keys.errors, keys.driver, keys.params)
+        self.routes(keys, published, fast=keys.impulses, burst=burst)
 
     def attach(self, service: "GatewayHost", loop: asyncio.AbstractEventLoop) -> Intake:
         """Declare the subscribers, queryables and liveliness token that feed ``service``, as the table below says."""
@@ -111,12 +112,14 @@ class GatewayZenoh(ZenohEdge):
         for key, put, options in guarded:
             self.guarded(key, put, intake, flood, indirect=self.fleet, **options)
         now = driver.clock
+        move = on(core.on_wheel_move, unpack=False)
         #   channel        key              answered on the loop, under the core lock, with
         queries = [
             ("health?", keys.health, lambda q: self._answer(q, keys.health, core.health(now()))),
             ("errors?", keys.errors, lambda q: self.answer_recent(q, keys.errors, list(core.reporter.recent))),
             ("params?", keys.params, lambda q: self._answer(q, keys.params, core.params_now())),
             ("params set?", keys.params_set, lambda q: self._answer_set(q, on(core.on_params_set, unpack=False))),
+            ("wheels move?", keys.wheels_move, lambda q: self._answer(q, keys.wheels_move, move(payload_bytes(q)))),
         ]
         for name, key, answer in queries:
             self.queryable(key, intake.channel(name, answer, capacity=QUERIES_CAPACITY))

@@ -59,3 +59,4 @@ from .navigation import (  # noqa: F401
     PlanarPose,
     SetPose,
 )
+from .wheels import MoveState, WheelMove, WheelMoveReply, WheelPosition  # noqa: F401

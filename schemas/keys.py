@@ -42,11 +42,12 @@ from .navigation import (
     NavResultQuery,
     SetPose,
 )
+from .wheels import WHEEL_MESSAGE_TYPES, WheelMove, WheelMoveReply, WheelPosition
 
 DEFAULT_PREFIX = "robot"
 
 #: Every message type, by the name used for its JSON Schema file.
-MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {**ROBOT_MESSAGE_TYPES, **NAV_MESSAGE_TYPES}
+MESSAGE_TYPES: dict[str, type[msgspec.Struct]] = {**ROBOT_MESSAGE_TYPES, **NAV_MESSAGE_TYPES, **WHEEL_MESSAGE_TYPES}
 
 
 class Delivery(StrEnum):
@@ -85,6 +86,8 @@ KEY_SPECS: tuple[KeySpec, ...] = (
     KeySpec("estop", "estop", EStop, "publication", Delivery.COMMAND),
     KeySpec("estop_release", "estop/release", EStop, "publication", Delivery.COMMAND),
     KeySpec("impulses", "wheels/impulses", WheelImpulses, "publication", Delivery.TELEMETRY),
+    KeySpec("wheels_move", "wheels/move", WheelMove, "query", reply=WheelMoveReply),
+    KeySpec("wheels_position", "wheels/position", WheelPosition, "publication", Delivery.TELEMETRY),
     KeySpec("status", "status", RobotStatus, "publication", Delivery.TELEMETRY),
     KeySpec("health", "gateway/health", GatewayHealth, "publication", Delivery.TELEMETRY),
     KeySpec("driver", "gateway/driver", DriverChange, "publication", Delivery.TELEMETRY),
@@ -176,6 +179,8 @@ class Keys:
     estop: str
     estop_release: str
     impulses: str
+    wheels_move: str
+    wheels_position: str
     status: str
     health: str
     driver: str

@@ -56,7 +56,7 @@ class SimRobot:
         self._read_at: float | None = None  # time of the previous speed reading
         self._read_travel = (0.0, 0.0)  # rim travel at the previous speed reading
         self._dropped = [False, False]  # the previous reading of each wheel was a dropout
-        names = "requests velocity_commands prepare emergency_stops normal_stops watchdog_stops full_buffer polls"
+        names = "requests velocity_commands position_commands prepare emergency_stops normal_stops watchdog_stops full_buffer polls position_polls"
         self.counters: dict[str, int] = dict.fromkeys(names.split(), 0)
 
     @property
@@ -201,6 +201,8 @@ class SimRobot:
                 self.speed_left, self.speed_right = self.target_left, self.target_right
             self._deadline = now + self.params.watchdog
         elif command is CommandCode.SET_LR_WHEEL_POSITION:
+            # relative travel per wheel, natural sign, at position_speed; what drops it: docs/safety.md "Position moves"
+            self.counters["position_commands"] += 1
             self._position_left, self._position_right = self.params.encoders.commanded_travel(
                 int(request.left or 0), int(request.right or 0)
             )
@@ -213,6 +215,7 @@ class SimRobot:
             left, right = self.read_impulses(now)
             replies.append(wire.encode_wheel_speeds(left=left, right=right, separator=separator))
         elif command is CommandCode.GET_LR_WHEEL_POSITION:
+            self.counters["position_polls"] += 1
             left, right = self.read_positions()
             replies.append(wire.encode_wheel_positions(left=left, right=right, separator=separator))
         return replies

@@ -23,6 +23,9 @@ from blackmetal.schemas import ConfigError
         ({"impulses_left": 1.0}, "is the calibration right?"),
         ({"source": []}, "at least one command source"),
         ({"lock": ["a b:3"]}, "one key chunk"),
+        ({"position_speed": 0.0}, "position_speed"),
+        ({"position_speed": 1.2}, "position_speed 1.2 is beyond the robot's wire limit"),
+        ({"position_moves": True, "max_wheel_speed": 0.2}, "every position move would be refused"),
     ],
 )
 def test_settings_that_cannot_work_are_refused_naming_the_setting(changes: dict[str, object], says: str) -> None:

@@ -21,7 +21,7 @@ from blackmetal.gateway.estop import EStopInput
 from blackmetal.gateway.host import GatewayHost
 from blackmetal.gateway.settings import GatewaySettings
 from blackmetal.gateway.zenoh_edge import GatewayZenoh, _estop_batch
-from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, decode
+from blackmetal.schemas import ErrorReport, GatewayHealth, Keys, MoveState, WheelMoveReply, WheelPosition, decode
 from blackmetal.transport import TcpConnector
 
 PREFIX = "edge/gw"
@@ -93,3 +93,21 @@ def test_health_is_answered_from_the_core(edge: Edge, session: zenoh.Session) ->
 
     replies = health()
     assert len(replies) == 1 and replies[0].source == edge.host.core.run_token
+
+
+def test_a_position_move_is_answered_by_the_core_and_its_progress_has_its_key(edge: Edge, session: zenoh.Session) -> None:
+    replies = [
+        reply.ok.payload.to_bytes() for reply in session.get(edge.keys.wheels_move, payload=b'{"left":1,"right":1}', timeout=2) if reply.ok
+    ]
+    assert len(replies) == 1
+    answer = decode(WheelMoveReply, replies[0])
+    assert not answer.accepted and answer.reason.startswith("position moves are off on this gateway")
+    wait_for(lambda: any(report.key == edge.keys.wheels_move for report in edge.reports), what="the refusal reported")
+    seen: list[bytes] = []
+    listener = session.declare_subscriber(edge.keys.wheels_position, lambda sample: seen.append(sample.payload.to_bytes()))
+    try:
+        position = WheelPosition(1.0, "ab" * 16, "nav", MoveState.DONE, 1, -1, 0, 0, 1, -1, 0.5)
+        wait_for(lambda: edge.edge.publish(position) or bool(seen), what="the progress on wheels/position")
+        assert decode(WheelPosition, seen[0]) == position
+    finally:
+        listener.undeclare()

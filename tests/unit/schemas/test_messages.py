@@ -18,6 +18,7 @@ import pytest
 from blackmetal.schemas import MESSAGE_TYPES, PayloadError, decode, encode
 from blackmetal.schemas import messages as m
 from blackmetal.schemas import navigation as n
+from blackmetal.schemas import wheels as wh
 
 GOAL_ID = "0123456789abcdef0123456789abcdef"
 PARAMS = m.GatewayParams(
@@ -79,6 +80,23 @@ EXAMPLES: dict[str, msgspec.Struct] = {
     ),
     "MapPose": n.MapPose(stamp=1.0, x=10.0, y=-5.0, yaw=1.5, map="site", by="r1/nav/set_pose"),
     "SetPose": n.SetPose(x=1.0, y=2.0, yaw=0.1),
+    "WheelMove": wh.WheelMove(left=0.5, right=-0.5, source="nav", move_id=GOAL_ID),
+    "WheelMoveReply": wh.WheelMoveReply(
+        accepted=True, move_id=GOAL_ID, left_impulses=506, right_impulses=-527, expected=1.67, deadline=3.5
+    ),
+    "WheelPosition": wh.WheelPosition(
+        stamp=1_700_000_000.5,
+        move_id=GOAL_ID,
+        source="nav",
+        state=wh.MoveState.RUNNING,
+        left=120,
+        right=-118,
+        start_left=0,
+        start_right=0,
+        target_left=506,
+        target_right=527,
+        elapsed=0.4,
+    ),
 }
 
 
