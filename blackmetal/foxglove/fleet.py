@@ -88,6 +88,8 @@ class Wiring:
 
     def __post_init__(self) -> None:
         self.edges = dict.fromkeys(self.views, NO_EDGE)
+        for robot_id, view in self.views.items():
+            self.controls[robot_id].nav.show = view.nav_event  # the navigation service's answers, on the robot's /log
         self._descriptions = {view.description_topic: view for view in self.views.values()}
 
     def plug(self, robot_id: str, edge: FoxgloveZenoh | NoEdge) -> None:
@@ -99,6 +101,10 @@ class Wiring:
 
     def on_reset_reply(self, robot_id: str, reply: Reply) -> None:
         self.controls[robot_id].on_reset_reply(*reply, self.host.clock())
+        self.host.poke()
+
+    def on_nav_reply(self, robot_id: str, reply: Reply) -> None:
+        self.controls[robot_id].on_nav_reply(*reply, self.host.clock())
         self.host.poke()
 
     def on_params(self, robot_id: str, payload: bytes) -> None:

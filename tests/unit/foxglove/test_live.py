@@ -37,6 +37,8 @@ EXPECTED = {
     "/log": "foxglove.Log",
     "/joint_states": "sensor_msgs/msg/JointState",
     "/robot_description": "std_msgs/msg/String",
+    "/nav/feedback": "NavFeedback",
+    "/nav/goal": "foxglove.PoseInFrame",
 }
 
 
@@ -182,6 +184,8 @@ def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipp
         keys.status: {"/r1/status"},
         keys.health: {"/r1/health", "/r1/diagnostics"},
         keys.errors: {"/r1/errors", "/r1/log"},
+        keys.nav_feedback: {"/r1/nav/feedback", "/r1/nav/goal"},
+        keys.nav_map_pose: {"/r1/tf"},
     }
     assert set(view.handlers()) == set(view.feeds())
     pose = encode(Pose(stamp=1.0, x=1.0, y=2.0, yaw=0.0))

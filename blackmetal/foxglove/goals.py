@@ -1,0 +1,248 @@
+"""The 3D panel's publish tools as navigation requests (pure, clock-injected); docs/foxglove.md ("Sending goals").
+
+Foxglove's "Publish pose" sends a geometry_msgs/PoseStamped (a goal: a get on ``<prefix>/nav/goal``), "Publish pose
+estimate" a PoseWithCovarianceStamped (where the robot is on the map: ``<prefix>/nav/set_pose``) and "Publish point"
+a PointStamped (shown in the log, nothing moves). The navigation service's answer, accepted or rejected with its
+reason, is shown on the view's ``/log`` and, when it is a refusal, as a status to the client that sent it.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Callable, Collection
+from dataclasses import dataclass
+
+import msgspec
+
+from blackmetal.runtime.reports import ErrorReporter
+from blackmetal.schemas import Keys, MapPose, NavGoal, NavGoalReply, PayloadError, SetPose, decode, encode
+
+from .naming import BODY_FRAMES, NavTopic, StatusLevel
+from .params import Clients
+
+
+class Vector(msgspec.Struct, forbid_unknown_fields=True):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+
+
+class Quaternion(msgspec.Struct, forbid_unknown_fields=True):
+    x: float = 0.0
+    y: float = 0.0
+    z: float = 0.0
+    w: float = 1.0
+
+
+class Header(msgspec.Struct):
+    """std_msgs/Header as JSON; its stamp (ROS 1's ``nsec`` or ROS 2's ``nanosec``) and ``seq`` are not used."""
+
+    frame_id: str = ""
+
+
+class RosPose(msgspec.Struct, forbid_unknown_fields=True):
+    position: Vector = msgspec.field(default_factory=Vector)
+    orientation: Quaternion = msgspec.field(default_factory=Quaternion)
+
+
+class PoseStamped(msgspec.Struct, forbid_unknown_fields=True):
+    """geometry_msgs/PoseStamped as JSON: what "Publish pose" sends (a goal)."""
+
+    pose: RosPose
+    header: Header = msgspec.field(default_factory=Header)
+
+
+class PoseWithCovariance(msgspec.Struct, forbid_unknown_fields=True):
+    pose: RosPose
+    covariance: list[float] = []
+
+
+class PoseWithCovarianceStamped(msgspec.Struct, forbid_unknown_fields=True):
+    """geometry_msgs/PoseWithCovarianceStamped as JSON: what "Publish pose estimate" sends."""
+
+    pose: PoseWithCovariance
+    header: Header = msgspec.field(default_factory=Header)
+
+
+class PointStamped(msgspec.Struct, forbid_unknown_fields=True):
+    """geometry_msgs/PointStamped as JSON: what "Publish point" sends."""
+
+    point: Vector
+    header: Header = msgspec.field(default_factory=Header)
+
+
+class Refused(ValueError):
+    """A message that decodes but asks for what cannot be done; the text says why, for a person."""
+
+
+def yaw_of(q: Quaternion) -> float:
+    """The heading of a rotation (its roll and pitch ignored); a quaternion need not be unit length, but not zero."""
+    values = (q.x, q.y, q.z, q.w)
+    if not all(math.isfinite(v) for v in values) or sum(v * v for v in values) < 1e-12:
+        raise Refused(f"the orientation {values} is not a rotation (zero or not finite)")
+    return math.atan2(2.0 * (q.w * q.z + q.x * q.y), q.w * q.w + q.x * q.x - q.y * q.y - q.z * q.z)
+
+
+def _finite(what: str, *values: float) -> None:
+    if not all(math.isfinite(v) for v in values):
+        raise Refused(f"the {what} {values} is not finite")
+
+
+def nav_frame(frame_id: str, frame_prefix: str = "") -> str:
+    """The navigation service's frame for a header's ``frame_id``: ``odom``, or the map's name (an empty frame: ``map``).
+
+    ``frame_prefix``: a fleet's robot's (``r3/``): ``r3/odom`` is its odom. Its body frames, and another robot's
+    frames, are refused with a sentence that says which frame to set in the panel.
+    """
+    frame = frame_id.strip().lstrip("/")
+    if not frame:
+        return "map"
+    local = frame.removeprefix(frame_prefix) if frame_prefix else frame
+    if local == "odom":
+        return "odom"
+    odom = f"{frame_prefix}odom"
+    if local in BODY_FRAMES:
+        raise Refused(
+            f"the pose is in the robot's own frame {frame!r} (the 3D panel's display frame): goals are taken in map or {odom}; "
+            f"set the panel's display frame to map or {odom}"
+        )
+    if "/" in frame:
+        raise Refused(f"frame {frame!r} is not this robot's map or odometry frame: publish in map or {odom}")
+    return frame
+
+
+def robot_of_frame(frame_id: str, robot_ids: Collection[str]) -> str | None:
+    """The fleet's robot a frame names (``r3/odom`` -> ``r3``), None when it names none."""
+    head, slash, _ = frame_id.strip().lstrip("/").partition("/")
+    return head if slash and head in robot_ids else None
+
+
+@dataclass(frozen=True, slots=True)
+class NavRequest:
+    """A navigation query to make: which key, its payload, and what it asks in words (for the log)."""
+
+    key: str
+    payload: bytes
+    summary: str
+
+
+def _degrees(yaw: float) -> str:
+    return f"{math.degrees(yaw):.0f} deg"
+
+
+def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") -> NavRequest | str:
+    """The query a message on ``topic`` asks for, or (a clicked point) a line for the log; raises PayloadError or Refused."""
+    if topic in (NavTopic.GOAL_POSE, NavTopic.MOVE_BASE_GOAL):
+        goal = decode(PoseStamped, data)
+        p = goal.pose.position
+        _finite("position", p.x, p.y)
+        yaw = yaw_of(goal.pose.orientation)
+        frame = nav_frame(goal.header.frame_id, frame_prefix)
+        summary = f"goal ({p.x:.2f}, {p.y:.2f}) facing {_degrees(yaw)} in {frame}"
+        return NavRequest(keys.nav_goal, encode(NavGoal(x=p.x, y=p.y, yaw=yaw, frame=frame)), summary)
+    if topic is NavTopic.INITIAL_POSE:
+        estimate = decode(PoseWithCovarianceStamped, data)
+        p = estimate.pose.pose.position
+        _finite("position", p.x, p.y)
+        yaw = yaw_of(estimate.pose.pose.orientation)
+        frame = nav_frame(estimate.header.frame_id, frame_prefix)
+        summary = f"pose estimate ({p.x:.2f}, {p.y:.2f}) facing {_degrees(yaw)} in {frame}"
+        return NavRequest(keys.nav_set_pose, encode(SetPose(x=p.x, y=p.y, yaw=yaw, frame=frame)), summary)
+    point = decode(PointStamped, data)
+    q = point.point
+    _finite("point", q.x, q.y, q.z)
+    return f"clicked point ({q.x:.2f}, {q.y:.2f}, {q.z:.2f}) in {point.header.frame_id.strip() or 'no frame'}"
+
+
+@dataclass(slots=True)
+class NavCall:
+    """A navigation query waiting for its answer: who sent it, on which topic, what it asked."""
+
+    client: int
+    topic: str
+    request: NavRequest
+    deadline: float
+
+
+#: Shows one line to the view's users (the robot's ``/log``): its level and text.
+Show = Callable[[StatusLevel, str], None]
+#: Refuses a client's message: ``(client, topic, reason, excerpt, now)`` -> a status to it and a report.
+Refuse = Callable[[int, str, str, str, float], None]
+#: Makes a query: ``(key, call, payload)``; its replies and end come back to :meth:`NavDesk.on_reply`.
+Ask = Callable[[str, int, bytes], None]
+
+
+def _no_show(level: StatusLevel, message: str) -> None: ...
+
+
+class NavDesk:
+    """One robot's navigation requests from the view's clients: made, answered, timed out; the answers shown."""
+
+    def __init__(
+        self, keys: Keys, clients: Clients, reporter: ErrorReporter, refuse: Refuse, ask: Ask, call_timeout: float, frame_prefix: str = ""
+    ) -> None:
+        self.keys, self.clients, self.reporter = keys, clients, reporter
+        self.refuse, self.ask = refuse, ask
+        self.call_timeout = call_timeout
+        self.frame_prefix = frame_prefix
+        #: Where the answers are shown (the robot's view's log); plugged in by the view's wiring.
+        self.show: Show = _no_show
+        self.calls: dict[int, NavCall] = {}
+        self._numbers = itertools.count(1)
+
+    def on_message(self, client: int, topic: str, kind: NavTopic, data: bytes, now: float) -> None:
+        try:
+            asked = request(kind, data, self.keys, self.frame_prefix)
+        except PayloadError as exc:
+            return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", exc.excerpt, now)
+        except Refused as exc:
+            return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", "", now)
+        if isinstance(asked, str):
+            return self.show(StatusLevel.INFO, asked)
+        call = next(self._numbers)
+        self.calls[call] = NavCall(client, topic, asked, now + self.call_timeout)
+        self.ask(asked.key, call, asked.payload)
+
+    def on_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        """A reply to ``call`` (``ok`` or ``err``), or its end unanswered (``None, None``); the first one counts."""
+        pending = self.calls.pop(call, None)
+        if pending is None:
+            return
+        asked = pending.request
+        if ok is None and err is None:
+            return self._unanswered(pending, f"no navigation service answered on {asked.key}", now)
+        if ok is None:
+            said = (err or b"").decode("utf-8", errors="replace") or "no reason given"
+            return self._refused(pending, f"the navigation service refused the {asked.summary}: {said}")
+        try:
+            if asked.key == self.keys.nav_goal:
+                reply = decode(NavGoalReply, ok)
+                if not reply.accepted:
+                    return self._refused(pending, f"the navigation service rejected the {asked.summary}: {reply.reason or 'no reason given'}")
+                return self.show(StatusLevel.INFO, f"{asked.summary}: accepted as {reply.goal_id}")
+            placed = decode(MapPose, ok)
+        except PayloadError as exc:
+            return self._refused(pending, f"the navigation service answered the {asked.summary} with something else: {exc}")
+        where = f"map -> odom now ({placed.x:.2f}, {placed.y:.2f}) at {_degrees(placed.yaw)}"
+        self.show(StatusLevel.INFO, f"{asked.summary}: taken, {where}")
+
+    def _refused(self, call: NavCall, sentence: str) -> None:
+        """The service's own refusal: the service reports it; the view tells the client and shows it."""
+        self.clients.status(call.client, StatusLevel.WARNING, sentence)
+        self.show(StatusLevel.WARNING, sentence)
+
+    def _unanswered(self, call: NavCall, why: str, now: float) -> None:
+        sentence = f"{why}: is blackmetal nav running on prefix {self.keys.prefix!r}? The {call.request.summary} went nowhere"
+        self.clients.status(call.client, StatusLevel.ERROR, sentence)
+        self.show(StatusLevel.ERROR, sentence)
+        self.reporter.report(f"foxglove:{call.topic}", f"client {call.client}: {sentence}", now=now)
+
+    def tick(self, now: float) -> None:
+        for call, pending in list(self.calls.items()):
+            if now >= pending.deadline:
+                del self.calls[call]
+                self._unanswered(pending, f"the navigation service did not answer within {self.call_timeout:g} s on {pending.request.key}", now)
+
+    def next_deadline(self) -> float:
+        return min((pending.deadline for pending in self.calls.values()), default=math.inf)
