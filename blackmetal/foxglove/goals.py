@@ -219,7 +219,9 @@ class NavDesk:
             if asked.key == self.keys.nav_goal:
                 reply = decode(NavGoalReply, ok)
                 if not reply.accepted:
-                    return self._refused(pending, f"the navigation service rejected the {asked.summary}: {reply.reason or 'no reason given'}")
+                    return self._refused(
+                        pending, f"the navigation service rejected the {asked.summary}: {reply.reason or 'no reason given'}"
+                    )
                 return self.show(StatusLevel.INFO, f"{asked.summary}: accepted as {reply.goal_id}")
             placed = decode(MapPose, ok)
         except PayloadError as exc:
@@ -242,7 +244,9 @@ class NavDesk:
         for call, pending in list(self.calls.items()):
             if now >= pending.deadline:
                 del self.calls[call]
-                self._unanswered(pending, f"the navigation service did not answer within {self.call_timeout:g} s on {pending.request.key}", now)
+                self._unanswered(
+                    pending, f"the navigation service did not answer within {self.call_timeout:g} s on {pending.request.key}", now
+                )
 
     def next_deadline(self) -> float:
         return min((pending.deadline for pending in self.calls.values()), default=math.inf)

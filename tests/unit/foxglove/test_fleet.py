@@ -116,6 +116,28 @@ def test_fleet_controls_send_each_robots_commands_to_its_prefix_alone() -> None:
     assert b["r3"].commands[-1] == ("fleet/r3/cmd_vel/foxglove", encode(Twist())) and not b["r2"].commands
 
 
+def test_fleet_goals_go_to_the_robot_their_topic_or_frame_names() -> None:
+    fleet = FleetBench()
+    core, b = fleet.core, fleet.benches
+    goal = b'{"header": {"frame_id": "FRAME"}, "pose": {"position": {"x": 1.0, "y": 2.0}}}'
+    core.on_advertise(3, 1, "/r3/goal_pose", "json", "geometry_msgs/PoseStamped", 0.0)
+    core.on_advertise(3, 2, "/goal_pose", "json", "geometry_msgs/PoseStamped", 0.0)  # the 3D panel's own, with no robot's name
+    core.on_advertise(3, 3, "/clicked_point", "json", "geometry_msgs/PointStamped", 0.0)
+    assert not fleet.statuses and not fleet.fleet_errors and not any(bench.statuses for bench in b.values())
+    core.on_message(3, 1, goal.replace(b"FRAME", b"map"), 0.1)
+    core.on_message(3, 2, goal.replace(b"FRAME", b"r2/odom"), 0.1)
+    assert [(key, json.loads(payload)["frame"]) for key, _, payload in b["r3"].nav] == [("fleet/r3/nav/goal", "map")]
+    assert [(key, json.loads(payload)["frame"]) for key, _, payload in b["r2"].nav] == [("fleet/r2/nav/goal", "odom")]
+    core.on_message(3, 2, goal.replace(b"FRAME", b"map"), 0.2)  # which robot's map goal? none said
+    core.on_message(3, 2, b"{oops", 0.2)
+    assert len(fleet.fleet_errors) == 2 and "publish on /<id>/goal_pose or set the 3D panel's frame to <id>/odom" in fleet.statuses[0][2]
+    core.on_message(3, 1, goal.replace(b"FRAME", b"r1/odom"), 0.3)  # r1's frame on r3's topic
+    assert len(b["r3"].nav) == 1 and "not this robot's map or odometry frame" in b["r3"].errors[-1].reason and not b["r1"].nav
+    core.on_client_gone(3, 0.4)
+    core.on_message(3, 2, goal.replace(b"FRAME", b"r2/odom"), 0.5)
+    assert len(b["r2"].nav) == 1, "its channels went with it"
+
+
 def test_fleet_controls_refuse_a_robots_bad_input_on_its_key_and_what_names_no_robot_on_the_fleets() -> None:
     fleet = FleetBench()
     core, b = fleet.core, fleet.benches
