@@ -105,8 +105,8 @@ def with_profile(message: bytes) -> bytes | None:
         return None
     if not isinstance(op, dict) or op.get("op") != "serverInfo":
         return None
-    metadata = op.get("metadata") if isinstance(op.get("metadata"), dict) else {}
-    op["metadata"] = {**PROFILE_METADATA, **metadata}
+    metadata = op.get("metadata")
+    op["metadata"] = {**PROFILE_METADATA, **(metadata if isinstance(metadata, dict) else {})}
     return json.dumps(op).encode()
 
 
