@@ -4,6 +4,9 @@ Foxglove's "Publish pose" sends a geometry_msgs/PoseStamped (a goal: a get on ``
 estimate" a PoseWithCovarianceStamped (where the robot is on the map: ``<prefix>/nav/set_pose``) and "Publish point"
 a PointStamped (shown in the log, nothing moves). The navigation service's answer, accepted or rejected with its
 reason, is shown on the view's ``/log`` and, when it is a refusal, as a status to the client that sent it.
+
+A goal in the robot's own frame (the panel publishes in its display frame, ``base_link`` when it follows the robot)
+is placed in ``odom`` from the odometry's pose, asked for with a get on ``<prefix>/pose`` when the goal comes.
 """
 
 from __future__ import annotations
@@ -16,7 +19,7 @@ from dataclasses import dataclass
 import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import Keys, MapPose, NavGoal, NavGoalReply, PayloadError, SetPose, decode, encode
+from blackmetal.schemas import Keys, MapPose, NavGoal, NavGoalReply, PayloadError, Pose, SetPose, decode, encode
 
 from .naming import BODY_FRAMES, NavTopic, StatusLevel
 from .params import Clients
@@ -89,6 +92,12 @@ def _finite(what: str, *values: float) -> None:
         raise Refused(f"the {what} {values} is not finite")
 
 
+def body_frame(frame_id: str, frame_prefix: str = "") -> bool:
+    """Is ``frame_id`` the robot's own (``base_link``, ``r3/base_link``...): a pose relative to where the robot is."""
+    frame = frame_id.strip().lstrip("/")
+    return (frame.removeprefix(frame_prefix) if frame_prefix else frame) in BODY_FRAMES
+
+
 def nav_frame(frame_id: str, frame_prefix: str = "") -> str:
     """The navigation service's frame for a header's ``frame_id``: ``odom``, or the map's name (an empty frame: ``map``).
 
@@ -120,11 +129,23 @@ def robot_of_frame(frame_id: str, robot_ids: Collection[str]) -> str | None:
 
 @dataclass(frozen=True, slots=True)
 class NavRequest:
-    """A navigation query to make: which key, its payload, and what it asks in words (for the log)."""
+    """A navigation query to make: which key, its payload, and what it asks in words (for the log).
+
+    ``relative``: a goal (x, y, yaw) in the robot's own frame; the query then asks the odometry's pose to place it.
+    """
 
     key: str
     payload: bytes
     summary: str
+    relative: tuple[float, float, float] | None = None
+
+
+def placed_goal(pose: Pose, relative: tuple[float, float, float]) -> NavGoal:
+    """A goal given relative to the robot, in ``odom`` from the robot's pose there."""
+    x, y, yaw = relative
+    c, s = math.cos(pose.yaw), math.sin(pose.yaw)
+    heading = math.atan2(math.sin(pose.yaw + yaw), math.cos(pose.yaw + yaw))
+    return NavGoal(x=pose.x + c * x - s * y, y=pose.y + s * x + c * y, yaw=heading, frame="odom")
 
 
 def _degrees(yaw: float) -> str:
@@ -138,6 +159,9 @@ def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") ->
         p = goal.pose.position
         _finite("position", p.x, p.y)
         yaw = yaw_of(goal.pose.orientation)
+        if body_frame(goal.header.frame_id, frame_prefix):
+            summary = f"goal ({p.x:.2f}, {p.y:.2f}) facing {_degrees(yaw)} from the robot ({goal.header.frame_id.strip()})"
+            return NavRequest(keys.pose, b"", summary, relative=(p.x, p.y, yaw))
         frame = nav_frame(goal.header.frame_id, frame_prefix)
         summary = f"goal ({p.x:.2f}, {p.y:.2f}) facing {_degrees(yaw)} in {frame}"
         return NavRequest(keys.nav_goal, encode(NavGoal(x=p.x, y=p.y, yaw=yaw, frame=frame)), summary)
@@ -211,7 +235,9 @@ class NavDesk:
             return
         asked = pending.request
         if ok is None and err is None:
-            return self._unanswered(pending, f"no navigation service answered on {asked.key}", now)
+            return self._unanswered(pending, f"no {self._service(asked)} answered on {asked.key}", now)
+        if asked.relative is not None:
+            return self._place(pending, ok, err, now)
         if ok is None:
             said = (err or b"").decode("utf-8", errors="replace") or "no reason given"
             return self._refused(pending, f"the navigation service refused the {asked.summary}: {said}")
@@ -229,13 +255,34 @@ class NavDesk:
         where = f"map -> odom now ({placed.x:.2f}, {placed.y:.2f}) at {_degrees(placed.yaw)}"
         self.show(StatusLevel.INFO, f"{asked.summary}: taken, {where}")
 
+    def _place(self, pending: NavCall, ok: bytes | None, err: bytes | None, now: float) -> None:
+        """The odometry's pose came for a goal relative to the robot: the goal, in odom, goes to the service now."""
+        asked = pending.request
+        assert asked.relative is not None
+        try:
+            pose = decode(Pose, ok if ok is not None else b"")
+        except PayloadError as exc:
+            said = (err or b"").decode("utf-8", errors="replace") if ok is None else str(exc)
+            return self._refused(pending, f"the robot's pose for the {asked.summary} did not come: {said or 'no reason given'}")
+        goal = placed_goal(pose, asked.relative)
+        summary = f"{asked.summary}, at ({goal.x:.2f}, {goal.y:.2f}) facing {_degrees(goal.yaw or 0.0)} in odom"
+        call = next(self._numbers)
+        self.calls[call] = NavCall(
+            pending.client, pending.topic, NavRequest(self.keys.nav_goal, encode(goal), summary), now + self.call_timeout
+        )
+        self.ask(self.keys.nav_goal, call, encode(goal))
+
+    def _service(self, asked: NavRequest) -> str:
+        return "odometry" if asked.relative is not None else "navigation service"
+
     def _refused(self, call: NavCall, sentence: str) -> None:
         """The service's own refusal: the service reports it; the view tells the client and shows it."""
         self.clients.status(call.client, StatusLevel.WARNING, sentence)
         self.show(StatusLevel.WARNING, sentence)
 
     def _unanswered(self, call: NavCall, why: str, now: float) -> None:
-        sentence = f"{why}: is blackmetal nav running on prefix {self.keys.prefix!r}? The {call.request.summary} went nowhere"
+        which = "odometry" if call.request.relative is not None else "nav"
+        sentence = f"{why}: is blackmetal {which} running on prefix {self.keys.prefix!r}? The {call.request.summary} went nowhere"
         self.clients.status(call.client, StatusLevel.ERROR, sentence)
         self.show(StatusLevel.ERROR, sentence)
         self.reporter.report(f"foxglove:{call.topic}", f"client {call.client}: {sentence}", now=now)
@@ -244,9 +291,8 @@ class NavDesk:
         for call, pending in list(self.calls.items()):
             if now >= pending.deadline:
                 del self.calls[call]
-                self._unanswered(
-                    pending, f"the navigation service did not answer within {self.call_timeout:g} s on {pending.request.key}", now
-                )
+                service = self._service(pending.request)
+                self._unanswered(pending, f"the {service} did not answer within {self.call_timeout:g} s on {pending.request.key}", now)
 
     def next_deadline(self) -> float:
         return min((pending.deadline for pending in self.calls.values()), default=math.inf)

@@ -214,7 +214,7 @@ class FoxgloveZenoh(ZenohEdge):
     def ask_params(self) -> None:
         self._get(self.keys.params, self._params)
 
-    def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes) -> None:
+    def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes | None) -> None:
         """A get whose replies (``(call, ok, None)`` / ``(call, None, err)``) and end (``(call, None, None)``) go to ``put`` in order."""
         import zenoh
 
@@ -237,7 +237,7 @@ class FoxgloveZenoh(ZenohEdge):
 
     def ask_nav(self, key: str, call: int, payload: bytes) -> None:
         """A goal or a set-pose for the navigation service; its answer goes to ``host.on_nav_reply``."""
-        self._ask(key, self._nav_reply, call, payload)
+        self._ask(key, self._nav_reply, call, payload or None)
 
     def set_params(self, call: int, payload: bytes) -> None:
         self._ask(self.keys.params_set, self._set_reply, call, payload)

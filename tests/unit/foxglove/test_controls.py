@@ -135,8 +135,8 @@ def test_the_3d_panels_own_topics_are_taken_and_a_goal_reaches_the_navigation_se
     }
     core.on_nav_reply(call, b'{"accepted": true, "goal_id": "' + b"c" * 32 + b'", "reason": ""}', None, 0.2)
     assert shown == [(StatusLevel.INFO, f"goal (2.00, 1.00) facing 180 deg in odom: accepted as {'c' * 32}")]
-    core.on_message(6, 1, goal.replace(b"odom", b"base_link"), 0.3)
-    assert len(bench.nav) == 1 and "display frame" in bench.statuses[-1][2] and bench.errors[-1].key == "foxglove:/move_base_simple/goal"
+    core.on_message(6, 1, goal.replace(b"odom", b"r9/odom"), 0.3)
+    assert len(bench.nav) == 1 and "not this robot's" in bench.statuses[-1][2] and bench.errors[-1].key == "foxglove:/move_base_simple/goal"
     core.on_message(6, 4, goal, 0.4)
     assert core.next_deadline() == pytest.approx(2.4), "a goal waits for its answer at most the call timeout"
     core.tick(2.4)

@@ -11,7 +11,7 @@ import pytest
 from blackmetal.foxglove.goals import NavDesk, NavRequest, Quaternion, Refused, nav_frame, request, robot_of_frame, yaw_of
 from blackmetal.foxglove.naming import NavTopic, StatusLevel
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport, Keys, MapPose, NavGoal, NavGoalReply, PayloadError, SetPose, decode, encode
+from blackmetal.schemas import ErrorReport, Keys, MapPose, NavGoal, NavGoalReply, PayloadError, Pose, SetPose, decode, encode
 
 KEYS = Keys("robot")
 
@@ -86,7 +86,8 @@ def test_frames_map_odom_and_the_robots_own_and_a_fleets_robots() -> None:
         (NavTopic.GOAL_POSE, b'{"pose": {"position": {"x": "1"}}}', PayloadError, "Expected `float`"),
         (NavTopic.GOAL_POSE, b'{"pose": {"position": {"x": 1e999}}}', PayloadError, "not finite"),
         (NavTopic.GOAL_POSE, b'{"pose": {"orientation": {"w": 0}}}', Refused, "not a rotation"),
-        (NavTopic.GOAL_POSE, pose_stamped(1.0, 2.0, 0.0, "base_link"), Refused, "display frame"),
+        (NavTopic.INITIAL_POSE, pose_estimate(1.0, 2.0, 0.0, "base_link"), Refused, "display frame"),
+        (NavTopic.GOAL_POSE, pose_stamped(1.0, 2.0, 0.0, "r2/odom"), Refused, "not this robot's"),
         (NavTopic.INITIAL_POSE, pose_stamped(1.0, 2.0, 0.0), PayloadError, "PoseWithCovarianceStamped"),
         (NavTopic.CLICKED_POINT, b'{"point": {"x": 1e999}}', PayloadError, "not finite"),
         (NavTopic.CLICKED_POINT, b"[]", PayloadError, "JSON object"),
@@ -95,6 +96,37 @@ def test_frames_map_odom_and_the_robots_own_and_a_fleets_robots() -> None:
 def test_bad_messages_are_refused_with_a_sentence(topic: NavTopic, payload: bytes, error: type[Exception], words: str) -> None:
     with pytest.raises(error, match=words):
         request(topic, payload, KEYS)
+
+
+def test_a_goal_from_the_robots_own_frame_is_placed_in_odom_from_the_odometrys_pose() -> None:
+    d = Desk()
+    d.desk.on_message(5, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 0.0, math.pi / 2, "base_link"), now=0.0)
+    ((key, call, payload),) = d.asked
+    assert (key, payload) == (KEYS.pose, b""), "the odometry's pose, asked for"
+    robot = Pose(stamp=1.0, x=2.0, y=3.0, yaw=math.pi / 2)
+    d.desk.on_reply(call, encode(robot), None, now=0.1)
+    d.desk.on_reply(call, None, None, now=0.1)  # the pose query's end: the goal's own query waits on
+    key, call, payload = d.asked[-1]
+    goal = decode(NavGoal, payload)
+    assert (
+        key == KEYS.nav_goal
+        and goal.frame == "odom"
+        and (goal.x, goal.y) == pytest.approx((2.0, 4.0))
+        and goal.yaw == pytest.approx(math.pi)
+    )
+    d.desk.on_reply(call, encode(NavGoalReply(accepted=True, goal_id="cd" * 16)), None, now=0.2)
+    assert (
+        d.shown[-1][1]
+        == f"goal (1.00, 0.00) facing 90 deg from the robot (base_link), at (2.00, 4.00) facing 180 deg in odom: accepted as {'cd' * 16}"
+    )
+
+    d.desk.on_message(5, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 0.0, 0.0, "base_footprint"), now=1.0)
+    d.desk.on_reply(d.asked[-1][1], None, None, now=1.1)
+    assert "no odometry answered on robot/pose: is blackmetal odometry running on prefix 'robot'?" in d.shown[-1][1]
+    d.desk.on_message(5, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 0.0, 0.0, "base_link"), now=2.0)
+    d.desk.on_reply(d.asked[-1][1], b"not a pose", None, now=2.1)
+    assert "the robot's pose for the goal (1.00, 0.00) facing 0 deg from the robot (base_link) did not come" in d.shown[-1][1]
+    assert d.asked[-1][0] == KEYS.pose, "no goal without the pose"
 
 
 class Desk:

@@ -15,7 +15,7 @@ import zenoh
 from helpers import Child, free_port, wait_for, zenoh_connect_args
 
 from blackmetal.foxglove.front import LEGACY_SUBPROTOCOL
-from blackmetal.schemas import GoalState, Keys, MapPose, NavFeedback, NavGoal, NavGoalReply, PlanarPose, SetPose, decode, encode
+from blackmetal.schemas import GoalState, Keys, MapPose, NavFeedback, NavGoal, NavGoalReply, PlanarPose, Pose, SetPose, decode, encode
 from unit.foxglove.test_fleet import FleetClient
 from unit.foxglove.test_live import protobuf_class
 
@@ -47,6 +47,10 @@ class Navigation:
         self._entities = [
             session.declare_queryable(KEYS.nav_goal, self._on_goal),
             session.declare_queryable(KEYS.nav_set_pose, self._on_set_pose),
+            # the odometry's pose, for a goal in the robot's own frame: at (1, 1), facing +y
+            session.declare_queryable(
+                KEYS.pose, lambda query: query.reply(KEYS.pose, encode(Pose(stamp=1.0, x=1.0, y=1.0, yaw=math.pi / 2)))
+            ),
         ]
 
     def _on_goal(self, query: zenoh.Query) -> None:
@@ -113,13 +117,18 @@ def test_a_goal_from_the_3d_panel_reaches_nav_goal_and_the_answer_is_shown(view:
         client.wait(lambda: any("outside the geofence" in s["message"] and s["level"] == 1 for s in client.statuses()), "its status")
         assert navigation.goals[-1].frame == "odom"
 
+        client.publish(4, stamped(2.0, 0.0, 0.0, "base_link"))  # the display frame of a panel that follows the robot
+        wait_for(lambda: len(navigation.goals) == 3, what="the goal placed from the robot's pose")
+        ahead = navigation.goals[-1]
+        assert ahead.frame == "odom" and (ahead.x, ahead.y) == pytest.approx((1.0, 3.0)) and ahead.yaw == pytest.approx(math.pi / 2)
+
         client.publish(3, stamped(2.0, 3.0, -math.pi / 2, "map", covariance=True))  # "Publish pose estimate"
         wait_for(lambda: navigation.placed, what="the set-pose")
         assert (navigation.placed[0].x, navigation.placed[0].y) == (2.0, 3.0) and navigation.placed[0].yaw == pytest.approx(-math.pi / 2)
         client.wait(lambda: shown("map -> odom now (2.00, 3.00)"), "the set-pose's answer")
         client.publish(2, b'{"header": {"frame_id": "map"}, "point": {"x": 0.5, "y": 0.25, "z": 0.0}}')
         client.wait(lambda: shown("clicked point (0.50, 0.25, 0.00) in map"), "the clicked point")
-        assert len(navigation.goals) == 2, "a point moves nothing"
+        assert len(navigation.goals) == 3, "a point moves nothing"
         assert not [s for s in client.statuses() if s["level"] == 2], "no error: the panel's topics are all taken"
     finally:
         client.close()
