@@ -175,6 +175,13 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
             rid = config["followTf"].split("/")[0]
             assert (config["fixedFrame"], config["followTf"]) == (robot_frame(rid, "odom"), robot_frame(rid, "base_link"))
             assert all(topic.startswith(f"/{rid}/") for topic in config["topics"])
+            tool = config["publish"]  # its robot's goals: /r2/goal_pose, taken by r2's controls
+            assert (tool["type"], tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]) == (
+                "pose",
+                f"/{rid}/goal_pose",
+                f"/{rid}/initialpose",
+                f"/{rid}/clicked_point",
+            )
             (urdf,) = config["layers"].values()  # its robot's model: the URDF's links are r2/... already
             assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
                 "foxglove.Urdf",
@@ -190,6 +197,7 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown <= topics, shown - topics
+    assert {f"/{rid}/nav/feedback" for rid in IDS} | {f"/{rid}/nav/goal" for rid in IDS} <= shown
     assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} | {f"/{rid}/robot_description" for rid in IDS} <= shown
     assert set(published) == {control_topic(robot_namespace(rid), c) for rid in IDS for c in Control}
     assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}

@@ -139,6 +139,8 @@ def panel_topics(kind: str, config: dict[str, Any]) -> list[str]:
 
 
 def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> None:
+    from blackmetal.foxglove.naming import NavTopic
+
     layout = json.loads((Path(__file__).parents[3] / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
     shown: set[str] = set()
     published: dict[str, list[dict[str, Any]]] = {}
@@ -158,6 +160,16 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
                 "",
             )
             shown.add(urdf["topic"])
+            # its publish tool sends goals (Foxglove's config names, as in its PublishSettings), each to a topic the view takes
+            tool = config["publish"]
+            assert (tool["type"], tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]) == (
+                "pose",
+                "/goal_pose",
+                "/initialpose",
+                "/clicked_point",
+            )
+            assert {tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]} <= {t.value for t in NavTopic}
+            assert config["topics"]["/nav/goal"]["visible"], "the goal being driven to, drawn"
         else:
             shown.update(panel_topics(kind, config))
         if kind == "Teleop":
@@ -168,7 +180,7 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown and shown <= set(EXPECTED), shown - set(EXPECTED)
-    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description"} <= shown
+    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description", "/nav/feedback", "/nav/goal"} <= shown
     assert {"Teleop", "Publish", "DiagnosticsSummary", "Parameters"} <= kinds
     assert set(published) == {"/cmd_vel", "/estop"}
     (stop_button,) = published["/estop"]
