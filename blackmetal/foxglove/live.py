@@ -38,7 +38,8 @@ from .naming import StatusLevel, robot_frame, robot_namespace
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
-#: ``map -> odom`` is sent again with the poses this often (s of message time): a client that came late has it soon.
+#: ``map -> odom`` and the URDF's fixed joints (``base_footprint -> base_link``) are sent again with the poses this
+#: often (s of message time): a client that came late has them soon.
 MAP_TF_PERIOD_S = 1.0
 
 _WHEELS = {"stamp": typed("number"), "left_mps": typed("number"), "right_mps": typed("number")}
@@ -94,7 +95,8 @@ class LiveView:
         self.keys = keys
         self.namespace = ns = robot_namespace(robot_id) if robot_id else ""
         frame_prefix = robot_frame(robot_id, "") if robot_id else ""
-        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_link"
+        # odom -> base_footprint, as the ROS 2 adapter's /odom says and the URDF's root is (#40: base_link had two parents)
+        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_footprint"
         self.model = RobotModel(frame_prefix, encoders)
         self._angles = WheelAngles(wrap=True)
         schemas = json_schemas()
@@ -158,8 +160,8 @@ class LiveView:
         if wants[2]:
             q = pose.orientation
             self.tf.log(transform(pose.stamp, self.frame, self.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w)))
-            if self._map_pose is not None and not 0.0 <= pose.stamp - self._map_sent < MAP_TF_PERIOD_S:
-                self._send_map(pose.stamp)
+            if not 0.0 <= pose.stamp - self._map_sent < MAP_TF_PERIOD_S:
+                self._send_slow(pose.stamp)
         if wants[3]:
             self.odometry.log(payload)
 
@@ -206,10 +208,17 @@ class LiveView:
     def on_error(self, payload: bytes) -> None:
         self._echo(ErrorReport, payload, self.errors, self.log, report_log)
 
+    def _send_slow(self, stamp: float) -> None:
+        """What changes seldom or never, with the poses now and then: the URDF's fixed joints and ``map -> odom``."""
+        for joint in self.model.fixed:
+            self.tf.log(transform(stamp, joint.parent, joint.child, joint.origin, (0.0, 0.0, 0.0, 1.0)))
+        if self._map_pose is not None:
+            self._send_map(stamp)
+        self._map_sent = stamp
+
     def _send_map(self, stamp: float) -> None:
         placed = self._map_pose
         assert placed is not None
-        self._map_sent = stamp
         half = placed.yaw / 2
         self.tf.log(transform(stamp, placed.map, self.frame, (placed.x, placed.y, 0.0), (0.0, 0.0, math.sin(half), math.cos(half))))
 

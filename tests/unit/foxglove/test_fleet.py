@@ -419,10 +419,13 @@ def test_one_view_shows_and_drives_a_fleet_of_three(children: list[Child], tmp_p
             def frames() -> set[tuple[str, str]]:
                 return {(t.parent_frame_id, t.child_frame_id) for t in map(tf_class.FromString, client.messages[2])}
 
-            client.wait(lambda: {(f"{rid}/odom", f"{rid}/base_link") for rid in IDS} <= frames(), "every robot's transform")
-            wheels = {(f"{rid}/base_link", f"{rid}/{wheel}") for rid in IDS for wheel in ("left_wheel", "right_wheel")}
+            poses = {(f"{rid}/odom", f"{rid}/base_footprint") for rid in IDS} | {
+                (f"{rid}/base_footprint", f"{rid}/base_link") for rid in IDS
+            }
+            client.wait(lambda: poses <= frames(), "every robot's transform, to its URDF's root")
+            wheels = {(f"{rid}/base_link", f"{rid}/{wheel}") for rid in IDS for wheel in ("left_wheel", "right_wheel", "caster")}
             client.wait(lambda: wheels <= frames(), "every robot's wheels turning")
-            assert len(frames()) == 9
+            assert len(frames()) == 15, "one tree per robot: no frame with two parents"
 
             def summary() -> dict[str, Any] | None:
                 last = json.loads(client.messages[3][-1]) if client.messages[3] else None

@@ -210,7 +210,10 @@ def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipp
     assert set(view.handlers()) == set(view.feeds())
     pose = encode(Pose(stamp=1.0, x=1.0, y=2.0, yaw=0.0))
     view.handlers()[keys.pose](pose)
-    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/tf"]) == len(logs["/r1/path"]) == 1
+    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/path"]) == 1
+    frames = [(t.parent_frame_id, t.child_frame_id) for t in map(readable, logs["/r1/tf"])]
+    # the pose on odom -> base_footprint, the URDF's root, and its fixed joints with it (#40: base_link had two parents)
+    assert frames == [("r1/odom", "r1/base_footprint"), ("r1/base_footprint", "r1/base_link"), ("r1/base_link", "r1/caster")]
     view.handlers()[keys.pose](b"not a pose")
     assert len(logs["/r1/odometry"]) == 1, "skipped, never raised"
 
@@ -233,7 +236,8 @@ def test_navigation_shows_its_feedback_the_goal_in_its_frame_and_map_to_odom_on_
         handlers[keys.pose](encode(Pose(stamp=10.0 + 0.1 * i, x=0.0, y=0.0, yaw=0.0)))
     sent = [readable(t) for t in logs["/r2/tf"]]
     again = [t for t in sent[1:] if t.parent_frame_id == "map"]
-    assert len(again) == int(2.9 / MAP_TF_PERIOD_S) and {t.child_frame_id for t in sent} == {"r2/odom", "r2/base_link"}
+    assert len(again) == 1 + int(2.9 / MAP_TF_PERIOD_S), "with the first pose, then once a second"
+    assert {t.child_frame_id for t in sent} == {"r2/odom", "r2/base_footprint", "r2/base_link", "r2/caster"}
 
     for goal_frame, shown_frame in (("map", "map"), ("odom", "r2/odom")):
         feedback = NavFeedback(

@@ -112,8 +112,9 @@ def test_twenty_robots_nobody_watching_encode_nothing_and_one_watched_pose_encod
     assert watch.needed() == needed, "the map frame too: published when it changes, it costs nothing"
     logged.clear()
     feed_everything(view, steps=1)
-    # every robot: odom -> base_link from its pose, base_link -> each wheel from its impulses
-    assert logged == Counter({"/tf": 3 * len(ROBOTS), "/r5/pose": 1}), logged
+    # every robot: odom -> base_footprint from its pose with the URDF's two fixed joints (the first pose), base_link -> each
+    # wheel from its impulses
+    assert logged == Counter({"/tf": 5 * len(ROBOTS), "/r5/pose": 1}), logged
 
     assert watch.client_gone(1) and watch.needed() == set()
 
