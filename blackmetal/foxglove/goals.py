@@ -189,6 +189,9 @@ class NavCall:
     deadline: float
 
 
+#: Requests of one robot waiting for their answers at most: a client that floods goals gets refusals, not a flood of queries.
+MAX_WAITING = 16
+
 #: Shows one line to the view's users (the robot's ``/log``): its level and text.
 Show = Callable[[StatusLevel, str], None]
 #: Refuses a client's message: ``(client, topic, reason, excerpt, now)`` -> a status to it and a report.
@@ -224,6 +227,9 @@ class NavDesk:
             return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", "", now)
         if isinstance(asked, str):
             return self.show(StatusLevel.INFO, asked)
+        if len(self.calls) >= MAX_WAITING:
+            reason = f"{MAX_WAITING} requests already wait for the navigation service's answer; the {asked.summary} was not sent"
+            return self.refuse(client, topic, reason, "", now)
         call = next(self._numbers)
         self.calls[call] = NavCall(client, topic, asked, now + self.call_timeout)
         self.ask(asked.key, call, asked.payload)

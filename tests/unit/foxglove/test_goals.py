@@ -8,7 +8,7 @@ from typing import Any
 
 import pytest
 
-from blackmetal.foxglove.goals import NavDesk, NavRequest, Quaternion, Refused, nav_frame, request, robot_of_frame, yaw_of
+from blackmetal.foxglove.goals import MAX_WAITING, NavDesk, NavRequest, Quaternion, Refused, nav_frame, request, robot_of_frame, yaw_of
 from blackmetal.foxglove.naming import NavTopic, StatusLevel
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, Keys, MapPose, NavGoal, NavGoalReply, PayloadError, Pose, SetPose, decode, encode
@@ -196,3 +196,13 @@ def test_a_bad_message_is_refused_and_nothing_is_asked_and_a_point_is_only_shown
     assert [r[2].endswith("nothing was sent to the navigation service") for r in d.refusals] == [True, True]
     d.desk.on_message(2, "/clicked_point", NavTopic.CLICKED_POINT, b'{"header": {"frame_id": "odom"}, "point": {"x": 1}}', now=0.0)
     assert not d.asked and d.shown == [(StatusLevel.INFO, "clicked point (1.00, 0.00, 0.00) in odom")]
+
+
+def test_a_flood_of_goals_is_bounded_by_the_answers_waited_for() -> None:
+    d = Desk()
+    for i in range(MAX_WAITING + 5):
+        d.desk.on_message(3, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(float(i), 0.0, 0.0), now=i * 0.001)
+    assert len(d.asked) == MAX_WAITING and len(d.refusals) == 5 and "already wait for the navigation service's answer" in d.refusals[0][2]
+    d.desk.on_reply(d.asked[0][1], encode(NavGoalReply(accepted=True, goal_id="ef" * 16)), None, now=0.1)
+    d.desk.on_message(3, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 0.0, 0.0), now=0.2)
+    assert len(d.asked) == MAX_WAITING + 1, "one answered: one more may go"
