@@ -367,7 +367,8 @@ class FleetControls(Refusals):
         robot_id = robot_of_frame(frame, self.robots)
         if robot_id is None:
             reason = (
-                f"in a fleet a pose names its robot: its frame {frame!r} is none of {', '.join(self.robots)}'s; "
+                f"in a fleet a pose on {topic} names its robot by its frame (r2/odom: r2), and {frame!r} names none of "
+                f"{', '.join(self.robots)}; "
                 f"publish on {nav_topic('/<id>', nav)} or set the 3D panel's frame to <id>/odom; nothing was sent to any robot"
             )
             return self._refuse(client, topic, reason, excerpt(data), now)
