@@ -75,21 +75,17 @@ class PointStamped(msgspec.Struct, forbid_unknown_fields=True):
     header: Header = msgspec.field(default_factory=Header)
 
 
-class Refused(ValueError):
-    """A message that decodes but asks for what cannot be done; the text says why, for a person."""
-
-
 def yaw_of(q: Quaternion) -> float:
     """The heading of a rotation (its roll and pitch ignored); a quaternion need not be unit length, but not zero."""
     values = (q.x, q.y, q.z, q.w)
     if not all(math.isfinite(v) for v in values) or sum(v * v for v in values) < 1e-12:
-        raise Refused(f"the orientation {values} is not a rotation (zero or not finite)")
+        raise PayloadError("orientation", f"{values} is not a rotation (zero or not finite)")
     return math.atan2(2.0 * (q.w * q.z + q.x * q.y), q.w * q.w + q.x * q.x - q.y * q.y - q.z * q.z)
 
 
 def _finite(what: str, *values: float) -> None:
     if not all(math.isfinite(v) for v in values):
-        raise Refused(f"the {what} {values} is not finite")
+        raise PayloadError(what, f"{values} is not finite")
 
 
 def body_frame(frame_id: str, frame_prefix: str = "") -> bool:
@@ -112,12 +108,13 @@ def nav_frame(frame_id: str, frame_prefix: str = "") -> str:
         return "odom"
     odom = f"{frame_prefix}odom"
     if local in BODY_FRAMES:
-        raise Refused(
-            f"the pose is in the robot's own frame {frame!r} (the 3D panel's display frame): goals are taken in map or {odom}; "
-            f"set the panel's display frame to map or {odom}"
+        raise PayloadError(
+            "frame",
+            f"the pose is in the robot's own frame {frame!r} (the 3D panel's display frame): it is taken in map or {odom}; "
+            f"set the panel's display frame to map or {odom}",
         )
     if "/" in frame:
-        raise Refused(f"frame {frame!r} is not this robot's map or odometry frame: publish in map or {odom}")
+        raise PayloadError("frame", f"{frame!r} is not this robot's map or odometry frame: publish in map or {odom}")
     return frame
 
 
@@ -153,7 +150,8 @@ def _degrees(yaw: float) -> str:
 
 
 def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") -> NavRequest | str:
-    """The query a message on ``topic`` asks for, or (a clicked point) a line for the log; raises PayloadError or Refused."""
+    """The query a message on ``topic`` asks for, or (a clicked point) a line for the log; raises PayloadError (one that decodes but asks
+    what cannot be done too: a zero quaternion, another robot's frame)."""
     if topic in (NavTopic.GOAL_POSE, NavTopic.MOVE_BASE_GOAL):
         goal = decode(PoseStamped, data)
         p = goal.pose.position
@@ -223,8 +221,6 @@ class NavDesk:
             asked = request(kind, data, self.keys, self.frame_prefix)
         except PayloadError as exc:
             return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", exc.excerpt, now)
-        except Refused as exc:
-            return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", "", now)
         if isinstance(asked, str):
             return self.show(StatusLevel.INFO, asked)
         if len(self.calls) >= MAX_WAITING:
