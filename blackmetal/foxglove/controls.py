@@ -236,6 +236,8 @@ class Controls(Refusals):
                 return self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
             self._reset_calls[call] = PendingCall(client, now + self.call_timeout)
             self.robot.ask_reset(call, encode(target))
+        elif known is Service.CANCEL_GOAL:
+            self.nav.cancel(call, client, service, now)  # std_srvs/Trigger: its request carries nothing to read
         else:
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
 

@@ -12,6 +12,7 @@ is placed in ``odom`` from the odometry's pose, asked for with a get on ``<prefi
 from __future__ import annotations
 
 import itertools
+import json
 import math
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
@@ -19,7 +20,19 @@ from dataclasses import dataclass
 import msgspec
 
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import Keys, MapPose, NavGoal, NavGoalReply, PayloadError, Pose, SetPose, decode, encode
+from blackmetal.schemas import (
+    Keys,
+    MapPose,
+    NavCancel,
+    NavCancelReply,
+    NavGoal,
+    NavGoalReply,
+    PayloadError,
+    Pose,
+    SetPose,
+    decode,
+    encode,
+)
 
 from .naming import BODY_FRAMES, NavTopic, StatusLevel
 from .params import Clients
@@ -179,12 +192,16 @@ def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") ->
 
 @dataclass(slots=True)
 class NavCall:
-    """A navigation query waiting for its answer: who sent it, on which topic, what it asked."""
+    """A navigation query waiting for its answer: who sent it, on which topic (or service), what it asked.
+
+    ``answer``: the host's number of the service call to answer (a cancel), None for a published message.
+    """
 
     client: int
     topic: str
     request: NavRequest
     deadline: float
+    answer: int | None = None
 
 
 #: Requests of one robot waiting for their answers at most: a client that floods goals gets refusals, not a flood of queries.
@@ -224,11 +241,23 @@ class NavDesk:
         if isinstance(asked, str):
             return self.show(StatusLevel.INFO, asked)
         if len(self.calls) >= MAX_WAITING:
-            reason = f"{MAX_WAITING} requests already wait for the navigation service's answer; the {asked.summary} was not sent"
-            return self.refuse(client, topic, reason, "", now)
+            return self.refuse(client, topic, self._busy(asked), "", now)
+        self._send(NavCall(client, topic, asked, now + self.call_timeout))
+
+    def _busy(self, asked: NavRequest) -> str:
+        return f"{MAX_WAITING} requests already wait for the navigation service's answer; the {asked.summary} was not sent"
+
+    def _send(self, pending: NavCall) -> None:
         call = next(self._numbers)
-        self.calls[call] = NavCall(client, topic, asked, now + self.call_timeout)
-        self.ask(asked.key, call, asked.payload)
+        self.calls[call] = pending
+        self.ask(pending.request.key, call, pending.request.payload)
+
+    def cancel(self, call: int, client: int, service: str, now: float) -> None:
+        """The ``cancel_goal`` service: a get on ``<prefix>/nav/cancel`` for whatever goal runs; ``call`` answered with its reply."""
+        asked = NavRequest(self.keys.nav_cancel, encode(NavCancel()), "cancel of the running goal")
+        if len(self.calls) >= MAX_WAITING:
+            return self.clients.answer(call, None, self._busy(asked))
+        self._send(NavCall(client, service, asked, now + self.call_timeout, answer=call))
 
     def on_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
         """A reply to ``call`` (``ok`` or ``err``), or its end unanswered (``None, None``); the first one counts."""
@@ -244,6 +273,8 @@ class NavDesk:
             said = (err or b"").decode("utf-8", errors="replace") or "no reason given"
             return self._refused(pending, f"the navigation service refused the {asked.summary}: {said}")
         try:
+            if asked.key == self.keys.nav_cancel:
+                return self._canceled(pending, decode(NavCancelReply, ok))
             if asked.key == self.keys.nav_goal:
                 reply = decode(NavGoalReply, ok)
                 if not reply.accepted:
@@ -268,25 +299,33 @@ class NavDesk:
             return self._refused(pending, f"the robot's pose for the {asked.summary} did not come: {said or 'no reason given'}")
         goal = placed_goal(pose, asked.relative)
         summary = f"{asked.summary}, at ({goal.x:.2f}, {goal.y:.2f}) facing {_degrees(goal.yaw or 0.0)} in odom"
-        call = next(self._numbers)
-        self.calls[call] = NavCall(
-            pending.client, pending.topic, NavRequest(self.keys.nav_goal, encode(goal), summary), now + self.call_timeout
-        )
-        self.ask(self.keys.nav_goal, call, encode(goal))
+        self._send(NavCall(pending.client, pending.topic, NavRequest(self.keys.nav_goal, encode(goal), summary), now + self.call_timeout))
+
+    def _canceled(self, pending: NavCall, reply: NavCancelReply) -> None:
+        said = f"canceled {', '.join(reply.canceled)}" if reply.canceled else f"nothing canceled: {reply.reason or 'no reason given'}"
+        if pending.answer is not None:
+            self.clients.answer(pending.answer, json.dumps({"success": bool(reply.canceled), "message": said}).encode(), None)
+        self.show(StatusLevel.INFO, f"{pending.request.summary}: {said}")
 
     def _service(self, asked: NavRequest) -> str:
         return "odometry" if asked.relative is not None else "navigation service"
 
+    def _tell(self, call: NavCall, level: StatusLevel, sentence: str) -> None:
+        """To the client: the failure of its service call, or a status for what it published; and on /log."""
+        if call.answer is not None:
+            self.clients.answer(call.answer, None, sentence)
+        else:
+            self.clients.status(call.client, level, sentence)
+        self.show(level, sentence)
+
     def _refused(self, call: NavCall, sentence: str) -> None:
         """The service's own refusal: the service reports it; the view tells the client and shows it."""
-        self.clients.status(call.client, StatusLevel.WARNING, sentence)
-        self.show(StatusLevel.WARNING, sentence)
+        self._tell(call, StatusLevel.WARNING, sentence)
 
     def _unanswered(self, call: NavCall, why: str, now: float) -> None:
         which = "odometry" if call.request.relative is not None else "nav"
         sentence = f"{why}: is blackmetal {which} running on prefix {self.keys.prefix!r}? The {call.request.summary} went nowhere"
-        self.clients.status(call.client, StatusLevel.ERROR, sentence)
-        self.show(StatusLevel.ERROR, sentence)
+        self._tell(call, StatusLevel.ERROR, sentence)
         self.reporter.report(f"foxglove:{call.topic}", f"client {call.client}: {sentence}", now=now)
 
     def tick(self, now: float) -> None:

@@ -55,6 +55,8 @@ BODY_FRAMES = ("base_link", "base_footprint")
 class Service(Enum):
     SET_ESTOP = "set_estop"
     RESET_ODOMETRY = "reset_odometry"
+    #: Cancels the goal the navigation service drives to (a get on ``<prefix>/nav/cancel``): the goals' stop button.
+    CANCEL_GOAL = "cancel_goal"
 
 
 def robot_namespace(robot_id: str) -> str:
@@ -127,6 +129,7 @@ SERVICE_SPECS: dict[Service, ServiceSpec] = {
     Service.RESET_ODOMETRY: _spec(
         "blackmetal/srv/ResetOdometry", {"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER}, {**_RESULT, "pose": _POSE_SCHEMA}
     ),
+    Service.CANCEL_GOAL: _spec("std_srvs/srv/Trigger", {}, _RESULT),
 }
 
 

@@ -141,6 +141,10 @@ def test_the_3d_panels_own_topics_are_taken_and_a_goal_reaches_the_navigation_se
     assert core.next_deadline() == pytest.approx(2.4), "a goal waits for its answer at most the call timeout"
     core.tick(2.4)
     assert "did not answer within 2 s" in shown[-1][1] and core.next_deadline() > 2.4
+    core.on_service_call(9, 6, "cancel_goal", b"{}", 2.5)
+    assert bench.nav[-1][0] == "robot/nav/cancel"
+    core.on_nav_reply(bench.nav[-1][1], b'{"canceled": [], "reason": "no goal runs"}', None, 2.6)
+    assert bench.answers[9] == (b'{"success": false, "message": "nothing canceled: no goal runs"}', None)
     core.on_advertise(6, 5, "/goal_pose", "json", "geometry_msgs/msg/Twist", 0.5)
     assert "/goal_pose carries geometry_msgs/msg/PoseStamped or geometry_msgs/PoseStamped" in bench.statuses[-1][2]
 
@@ -395,7 +399,7 @@ def test_a_client_offering_only_foxglove_websocket_v1_connects(robot: Robot) -> 
             info = client.server_info
             assert info is not None and info["name"] == "blackmetal"
             assert {"clientPublish", "services"} <= set(info["capabilities"]) and info["supportedEncodings"] == ["json"]
-            assert set(client.services) == {"set_estop", "reset_odometry"}
+            assert set(client.services) == {"set_estop", "reset_odometry", "cancel_goal"}
         finally:
             client.close()
     with pytest.raises(InvalidStatus) as refused:

@@ -11,7 +11,19 @@ import pytest
 from blackmetal.foxglove.goals import MAX_WAITING, NavDesk, NavRequest, Quaternion, nav_frame, request, robot_of_frame, yaw_of
 from blackmetal.foxglove.naming import NavTopic, StatusLevel
 from blackmetal.runtime.reports import ErrorReporter
-from blackmetal.schemas import ErrorReport, Keys, MapPose, NavGoal, NavGoalReply, PayloadError, Pose, SetPose, decode, encode
+from blackmetal.schemas import (
+    ErrorReport,
+    Keys,
+    MapPose,
+    NavCancelReply,
+    NavGoal,
+    NavGoalReply,
+    PayloadError,
+    Pose,
+    SetPose,
+    decode,
+    encode,
+)
 
 KEYS = Keys("robot")
 
@@ -137,6 +149,7 @@ class Desk:
         self.errors: list[ErrorReport] = []
         self.refusals: list[tuple[int, str, str]] = []
         self.asked: list[tuple[str, int, bytes]] = []
+        self.answers: dict[int, tuple[bytes | None, str | None]] = {}
         self.shown: list[tuple[StatusLevel, str]] = []
         reporter = ErrorReporter("foxglove", self.errors.append, lambda: 1000.0)
         self.desk = NavDesk(KEYS, self, reporter, self.refuse, lambda *asked: self.asked.append(asked), 2.0)  # type: ignore[arg-type]
@@ -144,6 +157,9 @@ class Desk:
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None:
         self.statuses.append((client, level, message))
+
+    def answer(self, call: int, response: bytes | None, failure: str | None) -> None:
+        self.answers[call] = (response, failure)
 
     def refuse(self, client: int, topic: str, reason: str, text: str, now: float) -> None:
         self.refusals.append((client, topic, reason))
@@ -206,3 +222,22 @@ def test_a_flood_of_goals_is_bounded_by_the_answers_waited_for() -> None:
     d.desk.on_reply(d.asked[0][1], encode(NavGoalReply(accepted=True, goal_id="ef" * 16)), None, now=0.1)
     d.desk.on_message(3, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 0.0, 0.0), now=0.2)
     assert len(d.asked) == MAX_WAITING + 1, "one answered: one more may go"
+
+
+def test_cancel_goal_asks_nav_cancel_and_answers_the_call_with_what_it_ended() -> None:
+    d = Desk()
+    d.desk.cancel(31, 2, "cancel_goal", now=0.0)
+    ((key, call, payload),) = d.asked
+    assert key == KEYS.nav_cancel and json.loads(payload) == {"goal_id": None}, "whatever goal runs"
+    d.desk.on_reply(call, encode(NavCancelReply(canceled=["ab" * 16])), None, now=0.1)
+    assert json.loads(d.answers[31][0] or b"") == {"success": True, "message": f"canceled {'ab' * 16}"}
+    assert d.shown[-1] == (StatusLevel.INFO, f"cancel of the running goal: canceled {'ab' * 16}")
+    d.desk.cancel(32, 2, "cancel_goal", now=1.0)
+    d.desk.on_reply(d.asked[-1][1], encode(NavCancelReply(reason="no goal runs")), None, now=1.1)
+    assert json.loads(d.answers[32][0] or b"") == {"success": False, "message": "nothing canceled: no goal runs"}
+    d.desk.cancel(33, 2, "cancel_goal", now=2.0)
+    d.desk.tick(4.0)
+    failure = d.answers[33][1] or ""
+    assert d.answers[33][0] is None and "did not answer within 2 s on robot/nav/cancel" in failure and "blackmetal nav" in failure
+    assert not d.statuses, "a call's failure is its answer, not a status"
+    assert [e.key for e in d.errors] == ["foxglove:cancel_goal"]
