@@ -200,7 +200,9 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
     assert {f"/{rid}/nav/feedback" for rid in IDS} | {f"/{rid}/nav/goal" for rid in IDS} <= shown
     assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} | {f"/{rid}/robot_description" for rid in IDS} <= shown
     assert set(published) == {control_topic(robot_namespace(rid), c) for rid in IDS for c in Control}
-    assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}
+    assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS} | {
+        service_name(robot_namespace(rid), Service.CANCEL_GOAL): {} for rid in IDS
+    }
 
 
 # How the view's parts meet: the wiring takes each edge's answers and reaches every robot's edge (fakes, no I/O).

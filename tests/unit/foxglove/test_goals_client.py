@@ -15,7 +15,21 @@ import zenoh
 from helpers import Child, free_port, wait_for, zenoh_connect_args
 
 from blackmetal.foxglove.front import LEGACY_SUBPROTOCOL
-from blackmetal.schemas import GoalState, Keys, MapPose, NavFeedback, NavGoal, NavGoalReply, PlanarPose, Pose, SetPose, decode, encode
+from blackmetal.schemas import (
+    GoalState,
+    Keys,
+    MapPose,
+    NavCancel,
+    NavCancelReply,
+    NavFeedback,
+    NavGoal,
+    NavGoalReply,
+    PlanarPose,
+    Pose,
+    SetPose,
+    decode,
+    encode,
+)
 from unit.foxglove.test_fleet import FleetClient
 from unit.foxglove.test_live import protobuf_class
 
@@ -47,6 +61,7 @@ class Navigation:
         self._entities = [
             session.declare_queryable(KEYS.nav_goal, self._on_goal),
             session.declare_queryable(KEYS.nav_set_pose, self._on_set_pose),
+            session.declare_queryable(KEYS.nav_cancel, self._on_cancel),
             # the odometry's pose, for a goal in the robot's own frame: at (1, 1), facing +y
             session.declare_queryable(
                 KEYS.pose, lambda query: query.reply(KEYS.pose, encode(Pose(stamp=1.0, x=1.0, y=1.0, yaw=math.pi / 2)))
@@ -60,6 +75,10 @@ class Navigation:
         far = goal.x > 100
         reply = NavGoalReply(accepted=not far, goal_id=None if far else GOAL_ID, reason="the goal is outside the geofence" if far else "")
         query.reply(KEYS.nav_goal, encode(reply))
+
+    def _on_cancel(self, query: zenoh.Query) -> None:
+        decode(NavCancel, query.payload.to_bytes() if query.payload is not None else b"")
+        query.reply(KEYS.nav_cancel, encode(NavCancelReply(canceled=[GOAL_ID])))
 
     def _on_set_pose(self, query: zenoh.Query) -> None:
         placed = decode(SetPose, query.payload.to_bytes() if query.payload is not None else b"")
@@ -129,6 +148,8 @@ def test_a_goal_from_the_3d_panel_reaches_nav_goal_and_the_answer_is_shown(view:
         client.publish(2, b'{"header": {"frame_id": "map"}, "point": {"x": 0.5, "y": 0.25, "z": 0.0}}')
         client.wait(lambda: shown("clicked point (0.50, 0.25, 0.00) in map"), "the clicked point")
         assert len(navigation.goals) == 3, "a point moves nothing"
+        response, failure = client.call("cancel_goal", b"{}")  # the layout's cancel button
+        assert failure is None and response == {"success": True, "message": f"canceled {GOAL_ID}"}
         assert not [s for s in client.statuses() if s["level"] == 2], "no error: the panel's topics are all taken"
     finally:
         client.close()

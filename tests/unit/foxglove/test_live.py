@@ -185,7 +185,8 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
     assert set(published) == {"/cmd_vel", "/estop"}
     (stop_button,) = published["/estop"]
     assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
-    assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
+    assert set(called) <= {"set_estop", "reset_odometry", "cancel_goal"} and called.get("set_estop") == {"data": False}
+    assert called.get("cancel_goal") == {}, "the goals' stop button"
 
 
 def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipped() -> None:
