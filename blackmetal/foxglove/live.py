@@ -54,9 +54,13 @@ FEEDS = {
     "status": ("on_status", ("/status",)),
     "health": ("on_health", ("/health", "/diagnostics")),
     "errors": ("on_error", ("/errors", "/log")),
-    "nav_feedback": ("on_nav_feedback", ("/nav/feedback", "/nav/goal")),
+    "nav_feedback": ("on_nav_feedback", ("/nav/feedback", "/nav/goal", "/nav/plan")),
     "nav_map_pose": ("on_map_pose", ("/tf",)),
 }
+
+
+def _planar(pose: PlanarPose) -> Any:
+    return fox_pose(Pose(stamp=0.0, x=pose.x, y=pose.y, yaw=pose.yaw, orientation=yaw_quaternion(pose.yaw)))
 
 
 class Trail:
@@ -120,6 +124,8 @@ class LiveView:
         self.nav_feedback = channel(f"{ns}/nav/feedback", Kind.JSON, schemas["NavFeedback"])
         #: The goal being driven to (or the last one), in its frame: ``map`` or the robot's ``odom``.
         self.nav_goal = channel(f"{ns}/nav/goal", Kind.POSE, None)
+        #: The way there: the robot and its goal, the straight line the controller drives (it turns, drives, turns).
+        self.nav_plan = channel(f"{ns}/nav/plan", Kind.POSES, None)
         self._map_pose: MapPose | None = None
         self._map_sent = -math.inf
         self._trail = Trail(path_length)
@@ -232,20 +238,21 @@ class LiveView:
 
     def on_nav_feedback(self, payload: bytes) -> None:
         """The navigation service's feedback as it says it, and the goal it drives to as a pose in the goal's frame."""
-        feedback, (shows, goal) = self._take(NavFeedback, payload, self.nav_feedback, self.nav_goal)
+        feedback, (shows, goal, plan) = self._take(NavFeedback, payload, self.nav_feedback, self.nav_goal, self.nav_plan)
         if feedback is None:
             return
         if shows:
             self.nav_feedback.log(payload)
+        frame = self.frame if feedback.goal.frame == "odom" else feedback.goal.frame
         if goal:
-            self.nav_goal.log(self._goal_pose(feedback.stamp, feedback.goal))
+            from foxglove.messages import PoseInFrame
 
-    def _goal_pose(self, stamp: float, goal: PlanarPose) -> Any:
-        from foxglove.messages import PoseInFrame
+            self.nav_goal.log(PoseInFrame(timestamp=timestamp(feedback.stamp), frame_id=frame, pose=_planar(feedback.goal)))
+        if plan:
+            from foxglove.messages import PosesInFrame
 
-        frame = self.frame if goal.frame == "odom" else goal.frame
-        pose = Pose(stamp=stamp, x=goal.x, y=goal.y, yaw=goal.yaw, orientation=yaw_quaternion(goal.yaw))
-        return PoseInFrame(timestamp=timestamp(stamp), frame_id=frame, pose=fox_pose(pose))
+            way = [_planar(feedback.pose), _planar(feedback.goal)]
+            self.nav_plan.log(PosesInFrame(timestamp=timestamp(feedback.stamp), frame_id=frame, poses=way))
 
     def nav_event(self, level: StatusLevel, message: str) -> None:
         """A line for the robot's /log: the navigation service's answer to what a client asked (or a clicked point)."""

@@ -4,8 +4,8 @@ Open Foxglove (app or desktop) or Lichtblick, "Open connection", Foxglove
 WebSocket, and the URL this prints; then import the layout shipped in
 ``deploy/foxglove/blackmetal.layout.json``. Clients may drive: ``/cmd_vel``
 (geometry_msgs/msg/Twist, as the command source ``foxglove``), ``/estop``
-(std_msgs/msg/Bool) and the services ``set_estop`` and ``reset_odometry``,
-all JSON; the 3D panel's publish tools send goals (``/goal_pose``, to
+(std_msgs/msg/Bool) and the services ``set_estop``, ``reset_odometry`` and
+``cancel_goal``, all JSON; the 3D panel's publish tools send goals (``/goal_pose``, to
 ``<prefix>/nav/goal``) and pose estimates (``/initialpose``, to
 ``<prefix>/nav/set_pose``), the answers shown on ``/log``. ``--mcap FILE`` writes the view's channels to an MCAP file as they
 are sent. ``--fleet FILE``: every robot of a fleet file in one view, each

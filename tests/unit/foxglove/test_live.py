@@ -40,6 +40,7 @@ EXPECTED = {
     "/robot_description": "std_msgs/msg/String",
     "/nav/feedback": "NavFeedback",
     "/nav/goal": "foxglove.PoseInFrame",
+    "/nav/plan": "foxglove.PosesInFrame",
 }
 
 
@@ -169,7 +170,7 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
                 "/clicked_point",
             )
             assert {tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]} <= {t.value for t in NavTopic}
-            assert config["topics"]["/nav/goal"]["visible"], "the goal being driven to, drawn"
+            assert config["topics"]["/nav/goal"]["visible"] and config["topics"]["/nav/plan"]["visible"], "the goal and the way there"
         else:
             shown.update(panel_topics(kind, config))
         if kind == "Teleop":
@@ -205,7 +206,7 @@ def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipp
         keys.status: {"/r1/status"},
         keys.health: {"/r1/health", "/r1/diagnostics"},
         keys.errors: {"/r1/errors", "/r1/log"},
-        keys.nav_feedback: {"/r1/nav/feedback", "/r1/nav/goal"},
+        keys.nav_feedback: {"/r1/nav/feedback", "/r1/nav/goal", "/r1/nav/plan"},
         keys.nav_map_pose: {"/r1/tf"},
     }
     assert set(view.handlers()) == set(view.feeds())
@@ -256,6 +257,8 @@ def test_navigation_shows_its_feedback_the_goal_in_its_frame_and_map_to_odom_on_
         goal = readable(logs["/r2/nav/goal"][-1])
         assert goal.frame_id == shown_frame and (goal.pose.position.x, goal.pose.position.y) == (2.0, 1.0)
         assert goal.pose.orientation.z == pytest.approx(1.0)
+        plan = readable(logs["/r2/nav/plan"][-1])
+        assert plan.frame_id == shown_frame and [(p.position.x, p.position.y) for p in plan.poses] == [(0.0, 0.0), (2.0, 1.0)]
     handlers[keys.nav_feedback](b'{"stamp": 1}')
     handlers[keys.nav_map_pose](b"not a map pose")
     assert len(logs["/r2/nav/feedback"]) == 2, "skipped, never raised"
