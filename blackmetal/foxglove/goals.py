@@ -16,6 +16,7 @@ import json
 import math
 from collections.abc import Callable, Collection
 from dataclasses import dataclass
+from typing import Annotated
 
 import msgspec
 
@@ -54,7 +55,7 @@ class Quaternion(msgspec.Struct, forbid_unknown_fields=True):
 class Header(msgspec.Struct):
     """std_msgs/Header as JSON; its stamp (ROS 1's ``nsec`` or ROS 2's ``nanosec``) and ``seq`` are not used."""
 
-    frame_id: str = ""
+    frame_id: Annotated[str, msgspec.Meta(max_length=64)] = ""  # as long as a navigation frame's name may be
 
 
 class RosPose(msgspec.Struct, forbid_unknown_fields=True):
@@ -163,8 +164,11 @@ def _degrees(yaw: float) -> str:
 
 
 def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") -> NavRequest | str:
-    """The query a message on ``topic`` asks for, or (a clicked point) a line for the log; raises PayloadError (one that decodes but asks
-    what cannot be done too: a zero quaternion, another robot's frame)."""
+    """The query a message on ``topic`` asks for, or (a clicked point) a line for the log.
+
+    Raises PayloadError, for a message that decodes but asks what cannot be done too (a zero quaternion, another
+    robot's frame).
+    """
     if topic in (NavTopic.GOAL_POSE, NavTopic.MOVE_BASE_GOAL):
         goal = decode(PoseStamped, data)
         p = goal.pose.position

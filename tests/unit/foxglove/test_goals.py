@@ -103,6 +103,7 @@ def test_frames_map_odom_and_the_robots_own_and_a_fleets_robots() -> None:
         (NavTopic.INITIAL_POSE, pose_stamped(1.0, 2.0, 0.0), PayloadError, "PoseWithCovarianceStamped"),
         (NavTopic.CLICKED_POINT, b'{"point": {"x": 1e999}}', PayloadError, "not finite"),
         (NavTopic.CLICKED_POINT, b"[]", PayloadError, "JSON object"),
+        (NavTopic.GOAL_POSE, pose_stamped(1.0, 2.0, 0.0, "m" * 65), PayloadError, "length <= 64"),
     ],
 )
 def test_bad_messages_are_refused_with_a_sentence(topic: NavTopic, payload: bytes, error: type[Exception], words: str) -> None:
