@@ -210,6 +210,8 @@ class NavCall:
 
 #: Requests of one robot waiting for their answers at most: a client that floods goals gets refusals, not a flood of queries.
 MAX_WAITING = 16
+#: Clicked points are shown at most this often (s): a flood of them is no flood of log lines.
+POINT_PERIOD_S = 0.1
 
 #: Shows one line to the view's users (the robot's ``/log``): its level and text.
 Show = Callable[[StatusLevel, str], None]
@@ -236,6 +238,7 @@ class NavDesk:
         self.show: Show = _no_show
         self.calls: dict[int, NavCall] = {}
         self._numbers = itertools.count(1)
+        self._last_point = -math.inf
 
     def on_message(self, client: int, topic: str, kind: NavTopic, data: bytes, now: float) -> None:
         try:
@@ -243,7 +246,10 @@ class NavDesk:
         except PayloadError as exc:
             return self.refuse(client, topic, f"{exc}; nothing was sent to the navigation service", exc.excerpt, now)
         if isinstance(asked, str):
-            return self.show(StatusLevel.INFO, asked)
+            if not 0.0 <= now - self._last_point < POINT_PERIOD_S:
+                self._last_point = now
+                self.show(StatusLevel.INFO, asked)
+            return None
         if len(self.calls) >= MAX_WAITING:
             return self.refuse(client, topic, self._busy(asked), "", now)
         self._send(NavCall(client, topic, asked, now + self.call_timeout))

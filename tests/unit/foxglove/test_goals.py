@@ -213,6 +213,9 @@ def test_a_bad_message_is_refused_and_nothing_is_asked_and_a_point_is_only_shown
     assert [r[2].endswith("nothing was sent to the navigation service") for r in d.refusals] == [True, True]
     d.desk.on_message(2, "/clicked_point", NavTopic.CLICKED_POINT, b'{"header": {"frame_id": "odom"}, "point": {"x": 1}}', now=0.0)
     assert not d.asked and d.shown == [(StatusLevel.INFO, "clicked point (1.00, 0.00, 0.00) in odom")]
+    for i in range(100):  # a script's flood of points within a second: ten lines
+        d.desk.on_message(2, "/clicked_point", NavTopic.CLICKED_POINT, b'{"point": {"x": 2}}', now=1.0 + i * 0.01)
+    assert len(d.shown) == 1 + 10
 
 
 def test_a_flood_of_goals_is_bounded_by_the_answers_waited_for() -> None:
