@@ -8,7 +8,8 @@ from __future__ import annotations
 import json
 import math
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -192,3 +193,46 @@ def test_nav_feedback_and_the_map_frame_reach_the_client(view: tuple[str, zenoh.
     finally:
         client.close()
         queryable.undeclare()
+
+
+@pytest.mark.integration
+def test_a_fleets_goals_go_to_the_robot_their_topic_or_frame_names(children: list[Child], tmp_path: Path) -> None:
+    """``foxglove --fleet``: /r2/goal_pose to r2's nav/goal, the bare /goal_pose by its frame, a bare one in map refused."""
+    zport = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{zport}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    fleet = tmp_path / "fleet.toml"
+    fleet.write_text("".join(f'[[robot]]\nid = "{rid}"\ncontrol_port = {n}\nlog_port = {n + 1}\n' for n, rid in ((1, "r1"), (3, "r2"))))
+    asked: dict[str, list[NavGoal]] = {"r1": [], "r2": []}
+
+    def stand_in(rid: str) -> Callable[[zenoh.Query], None]:
+        def answer(query: zenoh.Query) -> None:
+            asked[rid].append(decode(NavGoal, query.payload.to_bytes() if query.payload is not None else b""))
+            query.reply(str(query.key_expr), encode(NavGoalReply(accepted=True, goal_id=GOAL_ID)))
+
+        return answer
+
+    with zenoh.open(conf) as session:
+        queryables = [session.declare_queryable(f"fleet/{rid}/nav/goal", stand_in(rid)) for rid in asked]
+        view = Child(["-m", "blackmetal", "foxglove", "--fleet", str(fleet), "--port", "0", *zenoh_connect_args(zport)])
+        children.append(view)
+        client = FleetClient(view.ready()["url"], [LEGACY_SUBPROTOCOL])
+        try:
+            client.wait(lambda: {"/r1/log", "/r2/log", "/fleet/log"} <= set(client.channels()), "the logs")
+            client.subscribe(1, "/r2/log")
+            client.advertise(1, "/r2/goal_pose", "geometry_msgs/PoseStamped")
+            client.advertise(2, "/goal_pose", "geometry_msgs/PoseStamped")  # the 3D panel's default, naming no robot
+            client.publish(1, stamped(1.0, 2.0, 0.0, "map"))
+            client.publish(2, stamped(3.0, 4.0, 0.0, "r1/odom"))
+            client.publish(2, stamped(5.0, 6.0, 0.0, "map"))
+            wait_for(lambda: asked["r1"] and asked["r2"], what="a goal at each robot's stand-in")
+            assert [(g.x, g.y, g.frame) for g in asked["r2"]] == [(1.0, 2.0, "map")]
+            assert [(g.x, g.y, g.frame) for g in asked["r1"]] == [(3.0, 4.0, "odom")]
+            client.wait(lambda: any("names none of r1, r2" in s["message"] for s in client.statuses()), "the refusal of a map goal")
+            log_class = protobuf_class(client.channels()["/r2/log"])
+            client.wait(lambda: any(GOAL_ID in log_class.FromString(m).message for m in client.messages[1]), "r2's answer on /r2/log")
+        finally:
+            client.close()
+            for queryable in queryables:
+                queryable.undeclare()
