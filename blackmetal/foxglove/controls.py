@@ -185,6 +185,7 @@ class Controls(Refusals):
         for key in [key for key in self._topics if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
         self._forget(client)
+        self.nav.client_gone(client)
 
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
         topic = self._topics.get((client, channel))

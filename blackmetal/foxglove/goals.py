@@ -198,10 +198,11 @@ def request(topic: NavTopic, data: bytes, keys: Keys, frame_prefix: str = "") ->
 class NavCall:
     """A navigation query waiting for its answer: who sent it, on which topic (or service), what it asked.
 
-    ``answer``: the host's number of the service call to answer (a cancel), None for a published message.
+    ``answer``: the host's number of the service call to answer (a cancel), None for a published message;
+    ``client`` None: it left (its answer is shown on /log only, never sent to every client as a status to nobody).
     """
 
-    client: int
+    client: int | None
     topic: str
     request: NavRequest
     deadline: float
@@ -324,7 +325,7 @@ class NavDesk:
         """To the client: the failure of its service call, or a status for what it published; and on /log."""
         if call.answer is not None:
             self.clients.answer(call.answer, None, sentence)
-        else:
+        elif call.client is not None:
             self.clients.status(call.client, level, sentence)
         self.show(level, sentence)
 
@@ -336,7 +337,13 @@ class NavDesk:
         which = "odometry" if call.request.relative is not None else "nav"
         sentence = f"{why}: is blackmetal {which} running on prefix {self.keys.prefix!r}? The {call.request.summary} went nowhere"
         self._tell(call, StatusLevel.ERROR, sentence)
-        self.reporter.report(f"foxglove:{call.topic}", f"client {call.client}: {sentence}", now=now)
+        who = "a client that left" if call.client is None else f"client {call.client}"
+        self.reporter.report(f"foxglove:{call.topic}", f"{who}: {sentence}", now=now)
+
+    def client_gone(self, client: int) -> None:
+        for pending in self.calls.values():
+            if pending.client == client:
+                pending.client = None
 
     def tick(self, now: float) -> None:
         for call, pending in list(self.calls.items()):

@@ -245,3 +245,16 @@ def test_cancel_goal_asks_nav_cancel_and_answers_the_call_with_what_it_ended() -
     assert d.answers[33][0] is None and "did not answer within 2 s on robot/nav/cancel" in failure and "blackmetal nav" in failure
     assert not d.statuses, "a call's failure is its answer, not a status"
     assert [e.key for e in d.errors] == ["foxglove:cancel_goal"]
+
+
+def test_the_answer_to_a_client_that_left_is_shown_and_sent_to_nobody() -> None:
+    d = Desk()
+    d.desk.on_message(7, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 2.0, 0.0), now=0.0)
+    d.desk.client_gone(7)
+    d.desk.on_reply(d.asked[-1][1], encode(NavGoalReply(accepted=False, reason="e-stop")), None, now=0.1)
+    assert not d.statuses and d.shown[-1][0] is StatusLevel.WARNING, "a status for a client not known goes to every client"
+    d.desk.on_message(7, "/goal_pose", NavTopic.GOAL_POSE, pose_stamped(1.0, 2.0, 0.0), now=1.0)
+    d.desk.client_gone(7)
+    d.desk.tick(3.0)
+    assert not d.statuses and [e.key for e in d.errors] == ["foxglove:/goal_pose"], "reported all the same"
+    assert d.errors[0].reason.startswith("a client that left: the navigation service did not answer within 2 s")
