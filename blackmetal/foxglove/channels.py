@@ -36,6 +36,55 @@ def message_schema(title: str, description: str, properties: dict[str, Any], req
     return schema if required is None else {**schema, "required": required}
 
 
+_ENUM_TYPES = {str: "string", bool: "boolean", int: "integer", float: "number"}
+
+
+def studio_schema(schema: dict[str, Any]) -> dict[str, Any]:
+    """The schema as Foxglove Studio's (and Lichtblick's) JSON Schema parser takes it: ``"type": "object"`` at the top,
+    every field one plain type (#40: a top-level ``$ref`` / ``$defs`` had the app refuse /odometry, /status, /health).
+
+    References are inlined, ``X | None`` is ``X``, a tuple is an array of its first item's type, an enum is its values'
+    type, a dict an object with no fixed properties. The messages themselves are unchanged.
+    """
+    defs = schema.get("$defs", {})
+
+    def plain(node: Any, seen: frozenset[str]) -> Any:
+        if isinstance(node, list):
+            return [plain(item, seen) for item in node]
+        if not isinstance(node, dict):
+            return node
+        node = {key: value for key, value in node.items() if key != "$defs"}
+        ref = node.pop("$ref", None)
+        if isinstance(ref, str) and ref.startswith("#/$defs/"):
+            name = ref.removeprefix("#/$defs/")
+            target = {"type": "object", "properties": {}} if name in seen else plain(defs.get(name, {}), seen | {name})
+            node = {**target, **node}
+        for union in ("anyOf", "oneOf"):
+            choices = node.get(union)
+            if isinstance(choices, list) and not all(isinstance(c, dict) and isinstance(c.get("const"), int) for c in choices):
+                del node[union]
+                real = [c for c in choices if not (isinstance(c, dict) and c.get("type") == "null")] or [{"type": "string"}]
+                node = {**plain(real[0], seen), **node}
+        kind = node.get("type")
+        if isinstance(kind, list):
+            node["type"] = next((k for k in kind if k != "null"), "string")
+        elif kind is None and isinstance(node.get("enum"), list) and node["enum"]:
+            node["type"] = _ENUM_TYPES.get(type(node["enum"][0]), "string")
+        elif kind is None and "properties" in node:
+            node["type"] = "object"
+        if node.get("type") == "object":
+            node["properties"] = {name: plain(field, seen) for name, field in node.get("properties", {}).items()}
+            node.pop("additionalProperties", None)
+        elif node.get("type") == "array":
+            items, prefix = node.get("items"), node.pop("prefixItems", None)
+            if not isinstance(items, dict):
+                items = prefix[0] if isinstance(prefix, list) and prefix else {"type": "number"}
+            node["items"] = plain(items, seen)
+        return node
+
+    return dict(plain(schema, frozenset()))
+
+
 def timestamp(stamp: float) -> Any:
     from foxglove.messages import Timestamp
 
@@ -85,7 +134,7 @@ def foxglove_channel(topic: str, kind: Kind, schema: dict[str, Any] | None = Non
         import foxglove
 
         assert schema is not None
-        full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(schema).encode())
+        full = foxglove.Schema(name=schema["title"], encoding="jsonschema", data=json.dumps(studio_schema(schema)).encode())
         return cast(Out, foxglove.Channel(topic, schema=full, message_encoding="json"))
     return cast(Out, typed[kind](topic))
 

@@ -17,15 +17,21 @@ import msgspec
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, PoseReset, Twist, decode, encode, excerpt
 
+from .goals import Header, NavDesk, robot_of_frame
 from .naming import (
     CLIENT_ENCODING,
     COMMAND_SOURCE,
     CONTROL_SCHEMAS,
+    NAV_SCHEMAS,
     Control,
+    NavTopic,
     ServerRefusal,
     Service,
     StatusLevel,
     control_topic,
+    nav_takes,
+    nav_topic,
+    robot_frame,
     robot_namespace,
     robot_of,
     service_name,
@@ -55,6 +61,8 @@ class ClientTopic:
     control: Control | None
     refusal: str | None
     drove: bool = False
+    #: The 3D panel's topic it is (a goal, a pose estimate, a point), None for another.
+    nav: NavTopic | None = None
 
 
 @dataclass(slots=True)
@@ -65,6 +73,21 @@ class PendingCall:
     deadline: float
     engage: bool = False
     next_ask: float = math.inf
+
+
+def _mistyped(topic: str, encoding: str, schema_name: str, schemas: tuple[str, ...]) -> str | None:
+    """Why a client channel on a topic the view takes is refused (its encoding or schema), None when it is not."""
+    if encoding != CLIENT_ENCODING:
+        return f"{topic} must be {CLIENT_ENCODING}-encoded, not {encoding!r}"
+    if schema_name and schema_name not in schemas:
+        return f"{topic} carries {' or '.join(schemas)}, not {schema_name!r}"
+    return None
+
+
+class _Framed(msgspec.Struct):
+    """Just the header of a stamped message: which robot's frame a fleet's bare /goal_pose names."""
+
+    header: Header = msgspec.field(default_factory=Header)
 
 
 def _state(engage: bool) -> str:
@@ -121,6 +144,17 @@ class Controls(Refusals):
         #: ``""``, or ``/<id>`` for a fleet's robot: it takes ``/<id>/cmd_vel``, ``/<id>/estop``, ``/<id>/set_estop``, ...
         self.namespace = namespace
         self._controls = {control_topic(namespace, c): c for c in Control}
+        self._nav_topics = {nav_topic(namespace, t): t for t in NavTopic}
+        robot_id = namespace.removeprefix("/")
+        self.nav = NavDesk(
+            keys,
+            clients,
+            self.reporter,
+            self._refuse,
+            lambda key, call, payload: self.robot.ask_nav(key, call, payload),
+            call_timeout,
+            robot_frame(robot_id, "") if robot_id else "",
+        )
         self._services = {service_name(namespace, s): s for s in Service}
         self.call_timeout = call_timeout
         self.cmd_vel_key = keys.cmd_vel_of(COMMAND_SOURCE)
@@ -131,15 +165,13 @@ class Controls(Refusals):
         self.estop_seen: bool | None = None
 
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
-        control = self._controls.get(topic)
-        refusal = None
-        if control is None:
-            refusal = f"topic {topic!r} is not taken here: clients publish {takes(self.namespace)}"
-        elif encoding != CLIENT_ENCODING:
-            refusal = f"{topic} must be {CLIENT_ENCODING}-encoded, not {encoding!r}"
-        elif schema_name and schema_name not in CONTROL_SCHEMAS[control]:
-            refusal = f"{topic} carries {' or '.join(CONTROL_SCHEMAS[control])}, not {schema_name!r}"
-        self._topics[(client, channel)] = ClientTopic(topic, control, refusal)
+        control, nav = self._controls.get(topic), self._nav_topics.get(topic)
+        schemas = CONTROL_SCHEMAS[control] if control is not None else NAV_SCHEMAS[nav] if nav is not None else ()
+        if control is None and nav is None:
+            refusal: str | None = f"topic {topic!r} is not taken here: clients publish {takes(self.namespace)}; {nav_takes(self.namespace)}"
+        else:
+            refusal = _mistyped(topic, encoding, schema_name, schemas)
+        self._topics[(client, channel)] = ClientTopic(topic, control, refusal, nav=nav)
         if refusal is not None:
             self._refuse(client, topic, f"{refusal}; its messages are refused", "", now)
 
@@ -153,6 +185,7 @@ class Controls(Refusals):
         for key in [key for key in self._topics if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
         self._forget(client)
+        self.nav.client_gone(client)
 
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
         topic = self._topics.get((client, channel))
@@ -160,6 +193,8 @@ class Controls(Refusals):
             return self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)
         if topic.refusal is not None:
             return self._refuse(client, topic.topic, topic.refusal, excerpt(data), now)
+        if topic.nav is not None:
+            return self.nav.on_message(client, topic.topic, topic.nav, data, now)
         if topic.control is Control.CMD_VEL:
             try:
                 twist = decode(Twist, data)
@@ -202,6 +237,8 @@ class Controls(Refusals):
                 return self._fail(call, client, known, f"{exc}; the odometry was not reset", exc.excerpt, now)
             self._reset_calls[call] = PendingCall(client, now + self.call_timeout)
             self.robot.ask_reset(call, encode(target))
+        elif known is Service.CANCEL_GOAL:
+            self.nav.cancel(call, client, service, now)  # std_srvs/Trigger: its request carries nothing to read
         else:
             self._unknown_service(call, client, service, ", ".join(self._services), payload, now)
 
@@ -236,6 +273,9 @@ class Controls(Refusals):
         message = f"odometry reset to x={pose.x:g} y={pose.y:g} yaw={pose.yaw:g} (confirmed by the odometry)"
         self.clients.answer(call, msgspec.json.encode({"success": True, "message": message, "pose": pose}), None)
 
+    def on_nav_reply(self, call: int, ok: bytes | None, err: bytes | None, now: float) -> None:
+        self.nav.on_reply(call, ok, err, now)
+
     def _fail(self, call: int, client: int, service: Service, reason: str, text: str, now: float) -> None:
         self._estop_calls.pop(call, None)
         self._reset_calls.pop(call, None)
@@ -262,11 +302,12 @@ class Controls(Refusals):
             if now >= reset.deadline:
                 reason = f"the odometry did not answer within {self.call_timeout:g} s on {self.keys.odometry_reset}"
                 self._fail(call, reset.client, Service.RESET_ODOMETRY, reason, "", now)
+        self.nav.tick(now)
         self.reporter.tick(now)
 
     def next_deadline(self) -> float:
         pending = [*self._estop_calls.values(), *self._reset_calls.values()]
-        return min([self.reporter.next_deadline(), *(min(p.deadline, p.next_ask) for p in pending)])
+        return min([self.reporter.next_deadline(), self.nav.next_deadline(), *(min(p.deadline, p.next_ask) for p in pending)])
 
 
 class FleetControls(Refusals):
@@ -282,12 +323,22 @@ class FleetControls(Refusals):
     ) -> None:
         super().__init__(clients, fleet_error, wallclock)
         self.robots = robots
-        self._takes = f"{takes('/<id>')} for the robots {', '.join(robots)}"
+        self._takes = f"{takes('/<id>')} for the robots {', '.join(robots)}; {nav_takes('/<id>')}"
         #: (client, channel) -> the robot it names, or None with the topic it refused.
         self._channels: dict[tuple[int, int], tuple[str | None, str]] = {}
+        #: The 3D panel's bare topics (/goal_pose...): each message goes to the robot its frame names (r3/odom: r3).
+        self._bare_nav = {t.value: t for t in NavTopic}
+        self._nav_channels: dict[tuple[int, int], tuple[str, NavTopic, str | None]] = {}
 
     def on_advertise(self, client: int, channel: int, topic: str, encoding: str, schema_name: str, now: float) -> None:
         robot_id = robot_of(topic, self.robots)
+        nav = self._bare_nav.get(topic)
+        if robot_id is None and nav is not None:
+            refusal = _mistyped(topic, encoding, schema_name, NAV_SCHEMAS[nav])
+            self._nav_channels[(client, channel)] = (topic, nav, refusal)
+            if refusal is not None:
+                self._refuse(client, topic, f"{refusal}; its messages are refused", "", now)
+            return
         self._channels[(client, channel)] = (robot_id, topic)
         if robot_id is not None:
             self.robots[robot_id].on_advertise(client, channel, topic, encoding, schema_name, now)
@@ -298,18 +349,41 @@ class FleetControls(Refusals):
         return f"topic {topic!r} is not taken here: clients publish {self._takes}"
 
     def on_unadvertise(self, client: int, channel: int, now: float) -> None:
+        self._nav_channels.pop((client, channel), None)
         robot_id, _ = self._channels.pop((client, channel), (None, ""))
         if robot_id is not None:
             self.robots[robot_id].on_unadvertise(client, channel, now)
 
     def on_client_gone(self, client: int, now: float) -> None:
-        for key in [key for key in self._channels if key[0] == client]:
+        for key in [key for key in [*self._channels, *self._nav_channels] if key[0] == client]:
             self.on_unadvertise(client, key[1], now)
         self._forget(client)
         for controls in self.robots.values():
             controls.on_client_gone(client, now)
 
+    def _nav_message(self, client: int, topic: str, nav: NavTopic, data: bytes, now: float) -> None:
+        """A bare /goal_pose (or pose estimate, point): to the robot whose frame it is in."""
+        try:
+            frame = msgspec.json.decode(data, type=_Framed).header.frame_id
+        except (msgspec.DecodeError, msgspec.ValidationError) as exc:
+            return self._refuse(client, topic, f"not a stamped message ({exc}); nothing was sent to any robot", excerpt(data), now)
+        robot_id = robot_of_frame(frame, self.robots)
+        if robot_id is None:
+            reason = (
+                f"in a fleet a pose on {topic} names its robot by its frame (r2/odom: r2), and {frame!r} names none of "
+                f"{', '.join(self.robots)}; "
+                f"publish on {nav_topic('/<id>', nav)} or set the 3D panel's frame to <id>/odom; nothing was sent to any robot"
+            )
+            return self._refuse(client, topic, reason, excerpt(data), now)
+        self.robots[robot_id].nav.on_message(client, topic, nav, data, now)
+
     def on_message(self, client: int, channel: int, data: bytes, now: float) -> None:
+        bare = self._nav_channels.get((client, channel))
+        if bare is not None:
+            topic, nav, refusal = bare
+            if refusal is not None:
+                return self._refuse(client, topic, refusal, excerpt(data), now)
+            return self._nav_message(client, topic, nav, data, now)
         known = self._channels.get((client, channel))
         if known is None:
             self._refuse(client, f"channel {channel}", f"channel {channel} was not advertised by this client", excerpt(data), now)

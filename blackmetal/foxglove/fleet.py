@@ -25,7 +25,7 @@ from .fleet_view import FLEET_TOPICS, LOST_AFTER_S, FleetView
 from .front import INNER_HOST, SUBPROTOCOLS
 from .host import FoxgloveHost
 from .live import LiveView
-from .naming import COMMAND_SOURCE, FLEET_NAMESPACE, Service, robot_frame, robot_namespace, service_name, takes
+from .naming import COMMAND_SOURCE, FLEET_NAMESPACE, Service, nav_takes, robot_frame, robot_namespace, service_name, takes
 from .params import Parameters
 from .settings import FoxgloveSettings
 from .watch import Watch
@@ -88,6 +88,8 @@ class Wiring:
 
     def __post_init__(self) -> None:
         self.edges = dict.fromkeys(self.views, NO_EDGE)
+        for robot_id, view in self.views.items():
+            self.controls[robot_id].nav.show = view.nav_event  # the navigation service's answers, on the robot's /log
         self._descriptions = {view.description_topic: view for view in self.views.values()}
 
     def plug(self, robot_id: str, edge: FoxgloveZenoh | NoEdge) -> None:
@@ -99,6 +101,10 @@ class Wiring:
 
     def on_reset_reply(self, robot_id: str, reply: Reply) -> None:
         self.controls[robot_id].on_reset_reply(*reply, self.host.clock())
+        self.host.poke()
+
+    def on_nav_reply(self, robot_id: str, reply: Reply) -> None:
+        self.controls[robot_id].on_nav_reply(*reply, self.host.clock())
         self.host.poke()
 
     def on_params(self, robot_id: str, payload: bytes) -> None:
@@ -255,6 +261,7 @@ async def serve_fleet(base: FoxgloveSettings, robots: list[FleetRobot], stop: as
                 f"  {FLEET_NAMESPACE}/summary: one row per robot (lost within {LOST_AFTER_S:g} s); transforms of all on /tf",
                 "  each robot's URDF on /<id>/robot_description (links <id>/...), its gateway's parameters as /<id>/<name>",
                 f"  clients publish {takes('/<id>')} (as the command source {COMMAND_SOURCE!r})",
+                f"  goals from the 3D panel: {nav_takes('/<id>')}; the bare /goal_pose goes to the robot its frame names",
                 f"  services: {', '.join(service_name('/<id>', s) for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
             )
             return {

@@ -31,6 +31,10 @@ READ_SIZE = 64 * 1024
 HANDSHAKE_TIMEOUT_S = 10.0
 #: A server text message longer than this is not read for refusals (statuses are short; advertisements can be long).
 TEXT_LIMIT = 64 * 1024
+#: Added to the server's serverInfo metadata: Studio and Lichtblick let the 3D panel's publish tools (a goal, a pose
+#: estimate) send only to a server with a ROS profile, which they read from ``ROS_DISTRO``; what clients publish is
+#: JSON either way (docs/foxglove.md, "Sending goals").
+PROFILE_METADATA = {"ROS_DISTRO": "humble"}
 
 
 OP_CONTINUATION, OP_TEXT, OP_BINARY, OP_CLOSE = 0x0, 0x1, 0x2, 0x8
@@ -91,6 +95,32 @@ def ws_frame(opcode: int, payload: bytes, mask: bytes | None = None) -> bytes:
         head += mask
         payload = bytes(byte ^ mask[i % 4] for i, byte in enumerate(payload))
     return bytes(head) + payload
+
+
+def with_profile(message: bytes) -> bytes | None:
+    """A serverInfo message with :data:`PROFILE_METADATA` added (what the server set itself wins); None for another message."""
+    try:
+        op = json.loads(message)
+    except (ValueError, UnicodeDecodeError):
+        return None
+    if not isinstance(op, dict) or op.get("op") != "serverInfo":
+        return None
+    metadata = op.get("metadata")
+    op["metadata"] = {**PROFILE_METADATA, **(metadata if isinstance(metadata, dict) else {})}
+    return json.dumps(op).encode()
+
+
+async def first_message(reader: asyncio.StreamReader) -> bytes:
+    """The server's first frame (its serverInfo) read whole, with the profile added when it is one; as it came otherwise."""
+    head = await reader.readexactly(2)
+    head += await reader.readexactly(_header_size(head) - 2)
+    length = head[1] & 0x7F
+    if length >= 126:
+        length = int.from_bytes(head[2 : 4 if length == 126 else 10], "big")
+    payload = await reader.readexactly(length)
+    plain_text = head[0] == 0x80 | OP_TEXT and not head[1] & 0x80  # final, uncompressed, unmasked text
+    added = with_profile(payload) if plain_text else None
+    return ws_frame(OP_TEXT, added) if added is not None else head + payload
 
 
 def _header_size(head: bytes | bytearray) -> int:

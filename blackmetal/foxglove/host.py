@@ -34,6 +34,7 @@ from .front import (
     OP_TEXT,
     READ_SIZE,
     Connection,
+    first_message,
     marker_advertisement,
     rewrite_request,
     rewrite_response,
@@ -180,6 +181,7 @@ class FoxgloveHost:
             writer.write(rewrite_response(answer, shown) if upgraded and shown else answer)
             if not upgraded:  # the server's refusal, as it sent it
                 return await self._copy(up_reader, writer)
+            writer.write(await asyncio.wait_for(first_message(up_reader), HANDSHAKE_TIMEOUT_S))
             connection = Connection(secrets.token_hex(8), writer, upstream, self._on_server_text)
             self._connections[connection.token] = connection
             upstream.write(ws_frame(OP_TEXT, marker_advertisement(connection.token), mask=os.urandom(4)))

@@ -7,6 +7,8 @@ paths are throttled on the messages' own stamps.
 from __future__ import annotations
 
 import json
+import math
+import time
 from collections import deque
 from collections.abc import Callable
 from typing import Any
@@ -17,21 +19,28 @@ from blackmetal.schemas import (
     GatewayHealth,
     GatewayParams,
     Keys,
+    MapPose,
+    NavFeedback,
     PayloadError,
+    PlanarPose,
     Pose,
     RobotStatus,
     WheelImpulses,
     decode,
     json_schemas,
+    yaw_quaternion,
 )
 
 from .channels import ChannelFactory, Kind, Out, fox_pose, foxglove_channel, message_schema, report_log, timestamp, transform, typed
 from .diagnostics import DIAGNOSTICS_SCHEMA, diagnostics
 from .model import JOINT_STATE_SCHEMA, STRING_SCHEMA, RobotModel, joint_state, turned
-from .naming import robot_frame, robot_namespace
+from .naming import StatusLevel, robot_frame, robot_namespace
 
 #: How often the paths are sent (s of message time): a path is big, the pose is not.
 PATH_PERIOD_S = 0.2
+#: ``map -> odom`` and the URDF's fixed joints (``base_footprint -> base_link``) are sent again with the poses this
+#: often (s of message time): a client that came late has them soon.
+MAP_TF_PERIOD_S = 1.0
 
 _WHEELS = {"stamp": typed("number"), "left_mps": typed("number"), "right_mps": typed("number")}
 _WHEELS |= {"left_impulses": typed("integer"), "right_impulses": typed("integer")}
@@ -45,7 +54,13 @@ FEEDS = {
     "status": ("on_status", ("/status",)),
     "health": ("on_health", ("/health", "/diagnostics")),
     "errors": ("on_error", ("/errors", "/log")),
+    "nav_feedback": ("on_nav_feedback", ("/nav/feedback", "/nav/goal", "/nav/plan")),
+    "nav_map_pose": ("on_map_pose", ("/tf",)),
 }
+
+
+def _planar(pose: PlanarPose) -> Any:
+    return fox_pose(Pose(stamp=0.0, x=pose.x, y=pose.y, yaw=pose.yaw, orientation=yaw_quaternion(pose.yaw)))
 
 
 class Trail:
@@ -84,7 +99,8 @@ class LiveView:
         self.keys = keys
         self.namespace = ns = robot_namespace(robot_id) if robot_id else ""
         frame_prefix = robot_frame(robot_id, "") if robot_id else ""
-        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_link"
+        # odom -> base_footprint, as the ROS 2 adapter's /odom says and the URDF's root is (#40: base_link had two parents)
+        self.frame, self.base = frame_prefix + "odom", frame_prefix + "base_footprint"
         self.model = RobotModel(frame_prefix, encoders)
         self._angles = WheelAngles(wrap=True)
         schemas = json_schemas()
@@ -105,6 +121,13 @@ class LiveView:
         self.diagnostics = channel(f"{ns}/diagnostics", Kind.JSON, DIAGNOSTICS_SCHEMA)
         self.errors = channel(f"{ns}/errors", Kind.JSON, schemas["ErrorReport"])
         self.log = channel(f"{ns}/log", Kind.LOG, None)
+        self.nav_feedback = channel(f"{ns}/nav/feedback", Kind.JSON, schemas["NavFeedback"])
+        #: The goal being driven to (or the last one), in its frame: ``map`` or the robot's ``odom``.
+        self.nav_goal = channel(f"{ns}/nav/goal", Kind.POSE, None)
+        #: The way there: the robot and its goal, the straight line the controller drives (it turns, drives, turns).
+        self.nav_plan = channel(f"{ns}/nav/plan", Kind.POSES, None)
+        self._map_pose: MapPose | None = None
+        self._map_sent = -math.inf
         self._trail = Trail(path_length)
         self._truth_trail = Trail(path_length)
 
@@ -143,6 +166,8 @@ class LiveView:
         if wants[2]:
             q = pose.orientation
             self.tf.log(transform(pose.stamp, self.frame, self.base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w)))
+            if not 0.0 <= pose.stamp - self._map_sent < MAP_TF_PERIOD_S:
+                self._send_slow(pose.stamp)
         if wants[3]:
             self.odometry.log(payload)
 
@@ -188,6 +213,54 @@ class LiveView:
 
     def on_error(self, payload: bytes) -> None:
         self._echo(ErrorReport, payload, self.errors, self.log, report_log)
+
+    def _send_slow(self, stamp: float) -> None:
+        """What changes seldom or never, with the poses now and then: the URDF's fixed joints and ``map -> odom``."""
+        for joint in self.model.fixed:
+            self.tf.log(transform(stamp, joint.parent, joint.child, joint.origin, (0.0, 0.0, 0.0, 1.0)))
+        if self._map_pose is not None:
+            self._send_map(stamp)
+        self._map_sent = stamp
+
+    def _send_map(self, stamp: float) -> None:
+        placed = self._map_pose
+        assert placed is not None
+        half = placed.yaw / 2
+        self.tf.log(transform(stamp, placed.map, self.frame, (placed.x, placed.y, 0.0), (0.0, 0.0, math.sin(half), math.cos(half))))
+
+    def on_map_pose(self, payload: bytes) -> None:
+        """Where the navigation service places the odometry frame on the map: ``map -> odom`` on the view's /tf."""
+        placed = self._decode(MapPose, payload)  # rare: kept even while nobody watches /tf, for when someone does
+        if placed is not None:
+            self._map_pose = placed
+            if self.tf.has_sinks():
+                self._send_map(placed.stamp)
+
+    def on_nav_feedback(self, payload: bytes) -> None:
+        """The navigation service's feedback as it says it, and the goal it drives to as a pose in the goal's frame."""
+        feedback, (shows, goal, plan) = self._take(NavFeedback, payload, self.nav_feedback, self.nav_goal, self.nav_plan)
+        if feedback is None:
+            return
+        if shows:
+            self.nav_feedback.log(payload)
+        frame = self.frame if feedback.goal.frame == "odom" else feedback.goal.frame
+        if goal:
+            from foxglove.messages import PoseInFrame
+
+            self.nav_goal.log(PoseInFrame(timestamp=timestamp(feedback.stamp), frame_id=frame, pose=_planar(feedback.goal)))
+        if plan:
+            from foxglove.messages import PosesInFrame
+
+            way = [_planar(feedback.pose), _planar(feedback.goal)]
+            self.nav_plan.log(PosesInFrame(timestamp=timestamp(feedback.stamp), frame_id=frame, poses=way))
+
+    def nav_event(self, level: StatusLevel, message: str) -> None:
+        """A line for the robot's /log: the navigation service's answer to what a client asked (or a clicked point)."""
+        if self.log.has_sinks():
+            from foxglove.messages import Log, LogLevel
+
+            kind = {StatusLevel.INFO: LogLevel.Info, StatusLevel.WARNING: LogLevel.Warning}.get(level, LogLevel.Error)
+            self.log.log(Log(timestamp=timestamp(time.time()), level=kind, message=message, name="nav"))
 
     def on_params(self, params: GatewayParams) -> None:
         """The gateway's parameters: a new wheel geometry re-sends the URDF to whoever shows it."""

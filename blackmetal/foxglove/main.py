@@ -4,8 +4,10 @@ Open Foxglove (app or desktop) or Lichtblick, "Open connection", Foxglove
 WebSocket, and the URL this prints; then import the layout shipped in
 ``deploy/foxglove/blackmetal.layout.json``. Clients may drive: ``/cmd_vel``
 (geometry_msgs/msg/Twist, as the command source ``foxglove``), ``/estop``
-(std_msgs/msg/Bool) and the services ``set_estop`` and ``reset_odometry``,
-all JSON. ``--mcap FILE`` writes the view's channels to an MCAP file as they
+(std_msgs/msg/Bool) and the services ``set_estop``, ``reset_odometry`` and
+``cancel_goal``, all JSON; the 3D panel's publish tools send goals (``/goal_pose``, to
+``<prefix>/nav/goal``) and pose estimates (``/initialpose``, to
+``<prefix>/nav/set_pose``), the answers shown on ``/log``. ``--mcap FILE`` writes the view's channels to an MCAP file as they
 are sent. ``--fleet FILE``: every robot of a fleet file in one view, each
 under ``/<id>/`` (/r3/odometry, /r3/cmd_vel, /r3/set_estop; frames r3/odom,
 r3/base_link), with /fleet/summary.
@@ -24,7 +26,7 @@ from .fleet import FLEET, Wiring, serve_views
 from .front import SUBPROTOCOLS
 from .host import FoxgloveHost
 from .live import LiveView
-from .naming import COMMAND_SOURCE, Service, takes
+from .naming import COMMAND_SOURCE, Service, nav_takes, takes
 from .params import Parameters
 from .settings import FoxgloveSettings
 from .watch import Watch
@@ -53,6 +55,7 @@ async def serve(settings: FoxgloveSettings, stop: asyncio.Event) -> None:
                 f"  open in Foxglove: Open connection > Foxglove WebSocket > {address}",
                 f"  or https://app.foxglove.dev/?ds=foxglove-websocket&ds.url={address}",
                 f"  clients publish {takes()} (as the command source {COMMAND_SOURCE!r})",
+                f"  goals from the 3D panel: {nav_takes()}",
                 f"  services: {', '.join(s.value for s in Service)}; subprotocols {', '.join(SUBPROTOCOLS)}",
                 f"  the gateway's parameters ({keys.params}), the URDF on {view.description_topic}",
             )

@@ -48,10 +48,20 @@ def _floats(text: str | None, default: tuple[float, float, float]) -> tuple[floa
 
 
 def moving_joints(urdf_text: str) -> list[Joint]:
+    return _joints(urdf_text, ("continuous", "revolute"))
+
+
+def fixed_joints(urdf_text: str) -> list[Joint]:
+    """The URDF's fixed joints (``base_footprint -> base_link``, the caster): sent on /tf as they are, so the frame tree
+    is whole with or without a URDF layer in the panel (their ``rpy`` is zero in the robot model's URDF)."""
+    return _joints(urdf_text, ("fixed",))
+
+
+def _joints(urdf_text: str, types: tuple[str, ...]) -> list[Joint]:
     joints = []
     for element in ET.fromstring(urdf_text).iter("joint"):
         parent, child = element.find("parent"), element.find("child")
-        if element.get("type") not in ("continuous", "revolute") or parent is None or child is None:
+        if element.get("type") not in types or parent is None or child is None:
             continue
         origin, axis = element.find("origin"), element.find("axis")
         joints.append(
@@ -85,6 +95,7 @@ class RobotModel:
     def _build(self) -> None:
         self.urdf = model.urdf(self.body, frame_prefix=self.frame_prefix)
         self.joints = moving_joints(self.urdf)
+        self.fixed = fixed_joints(self.urdf)
         wheels = {joint.child.removeprefix(self.frame_prefix): joint for joint in self.joints}
         self.left, self.right = wheels.get("left_wheel"), wheels.get("right_wheel")
 

@@ -31,9 +31,32 @@ CONTROL_SCHEMAS: dict[Control, tuple[str, ...]] = {
 }
 
 
+class NavTopic(Enum):
+    """What the 3D panel's publish tools advertise (RViz's names): goals, a pose estimate, a clicked point."""
+
+    GOAL_POSE = "/goal_pose"
+    MOVE_BASE_GOAL = "/move_base_simple/goal"
+    INITIAL_POSE = "/initialpose"
+    CLICKED_POINT = "/clicked_point"
+
+
+_POSE_STAMPED = ("geometry_msgs/msg/PoseStamped", "geometry_msgs/PoseStamped")
+#: The schema names a client may advertise each navigation topic with (ROS 2 and ROS 1 spellings; Foxglove says ROS 1's).
+NAV_SCHEMAS: dict[NavTopic, tuple[str, ...]] = {
+    NavTopic.GOAL_POSE: _POSE_STAMPED,
+    NavTopic.MOVE_BASE_GOAL: _POSE_STAMPED,
+    NavTopic.INITIAL_POSE: ("geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/PoseWithCovarianceStamped"),
+    NavTopic.CLICKED_POINT: ("geometry_msgs/msg/PointStamped", "geometry_msgs/PointStamped"),
+}
+#: The robot's own frames (its URDF's root and body): a pose in one of them is relative to where the robot is.
+BODY_FRAMES = ("base_link", "base_footprint")
+
+
 class Service(Enum):
     SET_ESTOP = "set_estop"
     RESET_ODOMETRY = "reset_odometry"
+    #: Cancels the goal the navigation service drives to (a get on ``<prefix>/nav/cancel``): the goals' stop button.
+    CANCEL_GOAL = "cancel_goal"
 
 
 def robot_namespace(robot_id: str) -> str:
@@ -53,8 +76,21 @@ def service_name(namespace: str, service: Service) -> str:
     return f"{namespace}/{service.value}" if namespace else service.value
 
 
+def nav_topic(namespace: str, topic: NavTopic) -> str:
+    return f"{namespace}{topic.value}"
+
+
 def takes(namespace: str = "") -> str:
     return " and ".join(f"{control_topic(namespace, c)} ({CONTROL_SCHEMAS[c][0]})" for c in Control) + ", JSON-encoded"
+
+
+def nav_takes(namespace: str = "") -> str:
+    """The 3D panel's topics, said once: where its publish tools' goals and pose estimates go."""
+    goals = " and ".join(nav_topic(namespace, t) for t in (NavTopic.GOAL_POSE, NavTopic.MOVE_BASE_GOAL))
+    return (
+        f"{goals} (geometry_msgs/msg/PoseStamped: a goal, to nav/goal), {nav_topic(namespace, NavTopic.INITIAL_POSE)} "
+        f"(PoseWithCovarianceStamped: to nav/set_pose), {nav_topic(namespace, NavTopic.CLICKED_POINT)} (shown in the log)"
+    )
 
 
 def robot_of(name: str, robot_ids: Collection[str]) -> str | None:
@@ -93,6 +129,7 @@ SERVICE_SPECS: dict[Service, ServiceSpec] = {
     Service.RESET_ODOMETRY: _spec(
         "blackmetal/srv/ResetOdometry", {"x": _NUMBER, "y": _NUMBER, "yaw": _NUMBER}, {**_RESULT, "pose": _POSE_SCHEMA}
     ),
+    Service.CANCEL_GOAL: _spec("std_srvs/srv/Trigger", {}, _RESULT),
 }
 
 

@@ -48,6 +48,7 @@ class Wired(Protocol):
     def report(self, robot_id: str | None, topic: str, reason: str, text: str, now: float) -> None: ...
     def on_health(self, robot_id: str, payload: bytes) -> None: ...
     def on_reset_reply(self, robot_id: str, reply: Reply) -> None: ...
+    def on_nav_reply(self, robot_id: str, reply: Reply) -> None: ...
     def on_params(self, robot_id: str, payload: bytes) -> None: ...
     def on_params_reply(self, robot_id: str, reply: Reply) -> None: ...
     def on_bug(self, robot_id: str, exc: BaseException) -> None: ...
@@ -63,6 +64,7 @@ class NoEdge:
     def ask_health(self) -> None: ...
     def ask_params(self) -> None: ...
     def ask_reset(self, call: int, payload: bytes) -> None: ...
+    def ask_nav(self, key: str, call: int, payload: bytes) -> None: ...
     def want(self, keys: set[str]) -> None: ...
     def peek(self, on: bool) -> None: ...
     def latest_pose(self) -> bytes | None: ...
@@ -91,6 +93,7 @@ class FoxgloveZenoh(ZenohEdge):
         self._declared: dict[str, Any] = {}
         self._peek: Any = None
         self._peeked: bytes | None = None
+        self._map_pose: Callable[[bytes], None] | None = None
 
     def attach(
         self,
@@ -129,6 +132,10 @@ class FoxgloveZenoh(ZenohEdge):
         # replies, then the end, in order
         self._reset_reply = handover.channel("reset?", partial(host.on_reset_reply, robot_id), capacity=64)
         self._set_reply = handover.channel("params set?", partial(host.on_params_reply, robot_id), capacity=64)
+        self._nav_reply = handover.channel("nav?", partial(host.on_nav_reply, robot_id), capacity=64)
+        # the map frame is published when it changes: a view that starts following it asks for it too
+        map_pose = handlers.get(self.keys.nav_map_pose)
+        self._map_pose = handover.channel("map pose?", map_pose, capacity=16) if map_pose is not None else None
         return handover
 
     def want(self, keys: set[str]) -> None:
@@ -140,6 +147,8 @@ class FoxgloveZenoh(ZenohEdge):
         for key in sorted(keys):
             if key in self._handlers and key not in self._declared:
                 self._declared[key] = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(RING))
+                if key == self.keys.nav_map_pose and self._map_pose is not None:
+                    self._get(key, self._map_pose)
 
     def drain(self) -> int:
         """On the loop: the rings' samples to their handlers, oldest first; how many. A handler that raises goes to
@@ -205,7 +214,7 @@ class FoxgloveZenoh(ZenohEdge):
     def ask_params(self) -> None:
         self._get(self.keys.params, self._params)
 
-    def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes) -> None:
+    def _ask(self, key: str, put: Callable[[Reply], None], call: int, payload: bytes | None) -> None:
         """A get whose replies (``(call, ok, None)`` / ``(call, None, err)``) and end (``(call, None, None)``) go to ``put`` in order."""
         import zenoh
 
@@ -225,6 +234,10 @@ class FoxgloveZenoh(ZenohEdge):
 
     def ask_reset(self, call: int, payload: bytes) -> None:
         self._ask(self.keys.odometry_reset, self._reset_reply, call, payload)
+
+    def ask_nav(self, key: str, call: int, payload: bytes) -> None:
+        """A goal or a set-pose for the navigation service; its answer goes to ``host.on_nav_reply``."""
+        self._ask(key, self._nav_reply, call, payload or None)
 
     def set_params(self, call: int, payload: bytes) -> None:
         self._ask(self.keys.params_set, self._set_reply, call, payload)

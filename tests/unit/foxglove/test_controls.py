@@ -51,6 +51,7 @@ class Bench:
         self.commands: list[tuple[str, bytes]] = []
         self.health_asks = 0
         self.resets: list[tuple[int, bytes]] = []
+        self.nav: list[tuple[str, int, bytes]] = []
         self.statuses: list[tuple[int | None, StatusLevel, str]] = []
         self.answers: dict[int, tuple[bytes | None, str | None]] = {}
         self.errors: list[ErrorReport] = []
@@ -63,6 +64,9 @@ class Bench:
 
     def ask_reset(self, call: int, payload: bytes) -> None:
         self.resets.append((call, payload))
+
+    def ask_nav(self, key: str, call: int, payload: bytes) -> None:
+        self.nav.append((key, call, payload))
 
     def status(self, client: int | None, level: StatusLevel, message: str) -> None:
         self.statuses.append((client, level, message))
@@ -104,6 +108,45 @@ def test_cmd_vel_drives_as_the_source_foxglove_and_stops_when_its_publisher_goes
     core.on_client_gone(3, 0.2)
     assert bench.commands[-1] == (KEYS.cmd_vel_of(COMMAND_SOURCE), encode(Twist()))
     assert not bench.statuses and not bench.errors
+
+
+def test_the_3d_panels_own_topics_are_taken_and_a_goal_reaches_the_navigation_service(controls: tuple[Controls, Bench]) -> None:
+    core, bench = controls
+    shown: list[tuple[StatusLevel, str]] = []
+    core.nav.show = lambda level, message: shown.append((level, message))
+    panel = {  # what Foxglove's 3D panel advertises as it opens (ROS 1's schema names)
+        1: ("/move_base_simple/goal", "geometry_msgs/PoseStamped"),
+        2: ("/clicked_point", "geometry_msgs/PointStamped"),
+        3: ("/initialpose", "geometry_msgs/PoseWithCovarianceStamped"),
+        4: ("/goal_pose", "geometry_msgs/msg/PoseStamped"),
+    }
+    for channel, (topic, schema) in panel.items():
+        core.on_advertise(6, channel, topic, "json", schema, 0.0)
+    assert not bench.statuses and not bench.errors, "no problem in the app for opening a 3D panel"
+    goal = b'{"header": {"frame_id": "odom"}, "pose": {"position": {"x": 2.0, "y": 1.0}, "orientation": {"z": 1.0, "w": 0.0}}}'
+    core.on_message(6, 4, goal, 0.1)
+    ((key, call, payload),) = bench.nav
+    assert key == "robot/nav/goal" and json.loads(payload) == {
+        "x": 2.0,
+        "y": 1.0,
+        "yaw": pytest.approx(3.141592653589793),
+        "frame": "odom",
+        "goal_id": None,
+    }
+    core.on_nav_reply(call, b'{"accepted": true, "goal_id": "' + b"c" * 32 + b'", "reason": ""}', None, 0.2)
+    assert shown == [(StatusLevel.INFO, f"goal (2.00, 1.00) facing 180 deg in odom: accepted as {'c' * 32}")]
+    core.on_message(6, 1, goal.replace(b"odom", b"r9/odom"), 0.3)
+    assert len(bench.nav) == 1 and "not this robot's" in bench.statuses[-1][2] and bench.errors[-1].key == "foxglove:/move_base_simple/goal"
+    core.on_message(6, 4, goal, 0.4)
+    assert core.next_deadline() == pytest.approx(2.4), "a goal waits for its answer at most the call timeout"
+    core.tick(2.4)
+    assert "did not answer within 2 s" in shown[-1][1] and core.next_deadline() > 2.4
+    core.on_service_call(9, 6, "cancel_goal", b"{}", 2.5)
+    assert bench.nav[-1][0] == "robot/nav/cancel"
+    core.on_nav_reply(bench.nav[-1][1], b'{"canceled": [], "reason": "no goal runs"}', None, 2.6)
+    assert bench.answers[9] == (b'{"success": false, "message": "nothing canceled: no goal runs"}', None)
+    core.on_advertise(6, 5, "/goal_pose", "json", "geometry_msgs/msg/Twist", 0.5)
+    assert "/goal_pose carries geometry_msgs/msg/PoseStamped or geometry_msgs/PoseStamped" in bench.statuses[-1][2]
 
 
 @pytest.mark.parametrize(
@@ -356,7 +399,7 @@ def test_a_client_offering_only_foxglove_websocket_v1_connects(robot: Robot) -> 
             info = client.server_info
             assert info is not None and info["name"] == "blackmetal"
             assert {"clientPublish", "services"} <= set(info["capabilities"]) and info["supportedEncodings"] == ["json"]
-            assert set(client.services) == {"set_estop", "reset_odometry"}
+            assert set(client.services) == {"set_estop", "reset_odometry", "cancel_goal"}
         finally:
             client.close()
     with pytest.raises(InvalidStatus) as refused:

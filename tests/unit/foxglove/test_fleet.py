@@ -116,6 +116,28 @@ def test_fleet_controls_send_each_robots_commands_to_its_prefix_alone() -> None:
     assert b["r3"].commands[-1] == ("fleet/r3/cmd_vel/foxglove", encode(Twist())) and not b["r2"].commands
 
 
+def test_fleet_goals_go_to_the_robot_their_topic_or_frame_names() -> None:
+    fleet = FleetBench()
+    core, b = fleet.core, fleet.benches
+    goal = b'{"header": {"frame_id": "FRAME"}, "pose": {"position": {"x": 1.0, "y": 2.0}}}'
+    core.on_advertise(3, 1, "/r3/goal_pose", "json", "geometry_msgs/PoseStamped", 0.0)
+    core.on_advertise(3, 2, "/goal_pose", "json", "geometry_msgs/PoseStamped", 0.0)  # the 3D panel's own, with no robot's name
+    core.on_advertise(3, 3, "/clicked_point", "json", "geometry_msgs/PointStamped", 0.0)
+    assert not fleet.statuses and not fleet.fleet_errors and not any(bench.statuses for bench in b.values())
+    core.on_message(3, 1, goal.replace(b"FRAME", b"map"), 0.1)
+    core.on_message(3, 2, goal.replace(b"FRAME", b"r2/odom"), 0.1)
+    assert [(key, json.loads(payload)["frame"]) for key, _, payload in b["r3"].nav] == [("fleet/r3/nav/goal", "map")]
+    assert [(key, json.loads(payload)["frame"]) for key, _, payload in b["r2"].nav] == [("fleet/r2/nav/goal", "odom")]
+    core.on_message(3, 2, goal.replace(b"FRAME", b"map"), 0.2)  # which robot's map goal? none said
+    core.on_message(3, 2, b"{oops", 0.2)
+    assert len(fleet.fleet_errors) == 2 and "publish on /<id>/goal_pose or set the 3D panel's frame to <id>/odom" in fleet.statuses[0][2]
+    core.on_message(3, 1, goal.replace(b"FRAME", b"r1/odom"), 0.3)  # r1's frame on r3's topic
+    assert len(b["r3"].nav) == 1 and "not this robot's map or odometry frame" in b["r3"].errors[-1].reason and not b["r1"].nav
+    core.on_client_gone(3, 0.4)
+    core.on_message(3, 2, goal.replace(b"FRAME", b"r2/odom"), 0.5)
+    assert len(b["r2"].nav) == 1, "its channels went with it"
+
+
 def test_fleet_controls_refuse_a_robots_bad_input_on_its_key_and_what_names_no_robot_on_the_fleets() -> None:
     fleet = FleetBench()
     core, b = fleet.core, fleet.benches
@@ -153,6 +175,13 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
             rid = config["followTf"].split("/")[0]
             assert (config["fixedFrame"], config["followTf"]) == (robot_frame(rid, "odom"), robot_frame(rid, "base_link"))
             assert all(topic.startswith(f"/{rid}/") for topic in config["topics"])
+            tool = config["publish"]  # its robot's goals: /r2/goal_pose, taken by r2's controls
+            assert (tool["type"], tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]) == (
+                "pose",
+                f"/{rid}/goal_pose",
+                f"/{rid}/initialpose",
+                f"/{rid}/clicked_point",
+            )
             (urdf,) = config["layers"].values()  # its robot's model: the URDF's links are r2/... already
             assert (urdf["layerId"], urdf["sourceType"], urdf["topic"], urdf["framePrefix"]) == (
                 "foxglove.Urdf",
@@ -168,9 +197,12 @@ def test_the_shipped_fleet_layout_uses_the_fleet_views_topics_controls_and_servi
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown <= topics, shown - topics
+    assert {f"/{rid}/nav/feedback" for rid in IDS} | {f"/{rid}/nav/goal" for rid in IDS} <= shown
     assert "/fleet/summary" in shown and {f"/{rid}/diagnostics" for rid in IDS} | {f"/{rid}/robot_description" for rid in IDS} <= shown
     assert set(published) == {control_topic(robot_namespace(rid), c) for rid in IDS for c in Control}
-    assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS}
+    assert called == {service_name(robot_namespace(rid), Service.SET_ESTOP): {"data": False} for rid in IDS} | {
+        service_name(robot_namespace(rid), Service.CANCEL_GOAL): {} for rid in IDS
+    }
 
 
 # How the view's parts meet: the wiring takes each edge's answers and reaches every robot's edge (fakes, no I/O).
@@ -389,10 +421,13 @@ def test_one_view_shows_and_drives_a_fleet_of_three(children: list[Child], tmp_p
             def frames() -> set[tuple[str, str]]:
                 return {(t.parent_frame_id, t.child_frame_id) for t in map(tf_class.FromString, client.messages[2])}
 
-            client.wait(lambda: {(f"{rid}/odom", f"{rid}/base_link") for rid in IDS} <= frames(), "every robot's transform")
-            wheels = {(f"{rid}/base_link", f"{rid}/{wheel}") for rid in IDS for wheel in ("left_wheel", "right_wheel")}
+            poses = {(f"{rid}/odom", f"{rid}/base_footprint") for rid in IDS} | {
+                (f"{rid}/base_footprint", f"{rid}/base_link") for rid in IDS
+            }
+            client.wait(lambda: poses <= frames(), "every robot's transform, to its URDF's root")
+            wheels = {(f"{rid}/base_link", f"{rid}/{wheel}") for rid in IDS for wheel in ("left_wheel", "right_wheel", "caster")}
             client.wait(lambda: wheels <= frames(), "every robot's wheels turning")
-            assert len(frames()) == 9
+            assert len(frames()) == 15, "one tree per robot: no frame with two parents"
 
             def summary() -> dict[str, Any] | None:
                 last = json.loads(client.messages[3][-1]) if client.messages[3] else None

@@ -94,7 +94,7 @@ def test_the_fleet_view_names_each_robots_channels_under_its_id_on_one_tf() -> N
     view = logged_fleet(logs, [0.0], {})
     assert {"/tf", f"{FLEET_NAMESPACE}/summary", f"{FLEET_NAMESPACE}/log", "/r2/pose", "/r3/robot_description"} <= set(logs)
     assert "/r1/tf" not in logs, "one /tf for the fleet"
-    assert view.views["r2"].frame == "r2/odom" and view.views["r2"].base == "r2/base_link"
+    assert view.views["r2"].frame == "r2/odom" and view.views["r2"].base == "r2/base_footprint"
     feeds = view.feeds()
     assert feeds["fleet/r2/gateway/health"] == {"/r2/health", "/r2/diagnostics", "/fleet/summary", "/fleet/log"}
     assert "/tf" in feeds["fleet/r1/pose"] and "/r1/path" in feeds["fleet/r1/pose"]

@@ -130,3 +130,31 @@ def test_the_messages_the_front_sends_and_reads() -> None:
 )
 def test_only_a_101_switches_protocols(status: bytes, upgraded: bool) -> None:
     assert switches_protocols(status + b"\r\n\r\n") is upgraded
+
+
+def test_the_servers_first_message_gets_a_ros_profile_so_the_3d_panel_may_publish_and_anything_else_passes_as_it_came() -> None:
+    import asyncio
+
+    info = {"op": "serverInfo", "name": "blackmetal", "capabilities": ["clientPublish"], "supportedEncodings": ["json"]}
+    assert json.loads(front.with_profile(json.dumps(info).encode()) or b"")["metadata"] == {"ROS_DISTRO": "humble"}
+    ours = json.loads(front.with_profile(json.dumps({**info, "metadata": {"ROS_DISTRO": "jazzy", "a": "b"}}).encode()) or b"")
+    assert ours["metadata"] == {"ROS_DISTRO": "jazzy", "a": "b"}, "what the server says wins"
+    assert front.with_profile(b'{"op": "advertise", "channels": []}') is None and front.with_profile(b"\xff not json") is None
+
+    async def first(*frames: bytes) -> tuple[bytes, bytes]:
+        reader = asyncio.StreamReader()
+        for frame in frames:
+            reader.feed_data(frame)
+        reader.feed_eof()
+        return await front.first_message(reader), await reader.read()
+
+    long_info = {**info, "name": "x" * 70_000}  # a 64-bit length
+    for sent in (info, long_info):
+        message, rest = asyncio.run(first(ws_frame(OP_TEXT, json.dumps(sent).encode()), ws_frame(OP_BINARY, b"next")))
+        tap_seen: list[bytes] = []
+        FrameTap(tap_seen.append, text_limit=1 << 20).feed(message)
+        assert json.loads(tap_seen[0]) == {**sent, "metadata": front.PROFILE_METADATA} and rest == ws_frame(OP_BINARY, b"next")
+    binary = ws_frame(OP_BINARY, b"\x01" * 200)
+    assert asyncio.run(first(binary)) == (binary, b""), "not a serverInfo: unchanged"
+    with pytest.raises(asyncio.IncompleteReadError):
+        asyncio.run(first(ws_frame(OP_TEXT, b"{}")[:3]))

@@ -5,6 +5,7 @@ from __future__ import annotations
 import base64
 import itertools
 import json
+import math
 import struct
 import time
 from collections.abc import Iterator
@@ -37,7 +38,17 @@ EXPECTED = {
     "/log": "foxglove.Log",
     "/joint_states": "sensor_msgs/msg/JointState",
     "/robot_description": "std_msgs/msg/String",
+    "/nav/feedback": "NavFeedback",
+    "/nav/goal": "foxglove.PoseInFrame",
+    "/nav/plan": "foxglove.PosesInFrame",
 }
+
+
+def readable(message: Any) -> Any:
+    """One of the SDK's Foxglove messages as protobuf, its fields readable (the SDK's own objects only encode)."""
+    schema = message.get_schema()
+    channel = {"schema": base64.b64encode(bytes(schema.data)).decode(), "schemaName": schema.name}
+    return protobuf_class(channel).FromString(message.encode())
 
 
 def protobuf_class(channel: dict[str, Any]) -> Any:
@@ -129,6 +140,8 @@ def panel_topics(kind: str, config: dict[str, Any]) -> list[str]:
 
 
 def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> None:
+    from blackmetal.foxglove.naming import NavTopic
+
     layout = json.loads((Path(__file__).parents[3] / "deploy" / "foxglove" / "blackmetal.layout.json").read_text())
     shown: set[str] = set()
     published: dict[str, list[dict[str, Any]]] = {}
@@ -148,6 +161,16 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
                 "",
             )
             shown.add(urdf["topic"])
+            # its publish tool sends goals (Foxglove's config names, as in its PublishSettings), each to a topic the view takes
+            tool = config["publish"]
+            assert (tool["type"], tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]) == (
+                "pose",
+                "/goal_pose",
+                "/initialpose",
+                "/clicked_point",
+            )
+            assert {tool["poseTopic"], tool["poseEstimateTopic"], tool["pointTopic"]} <= {t.value for t in NavTopic}
+            assert config["topics"]["/nav/goal"]["visible"] and config["topics"]["/nav/plan"]["visible"], "the goal and the way there"
         else:
             shown.update(panel_topics(kind, config))
         if kind == "Teleop":
@@ -158,12 +181,13 @@ def test_the_shipped_layout_uses_the_views_topics_controls_and_services() -> Non
         elif kind == "ServiceCall":
             called[config["serviceName"]] = json.loads(config["requestPayload"])
     assert shown and shown <= set(EXPECTED), shown - set(EXPECTED)
-    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description"} <= shown
+    assert {"/odometry", "/log", "/path", "/diagnostics", "/robot_description", "/nav/feedback", "/nav/goal"} <= shown
     assert {"Teleop", "Publish", "DiagnosticsSummary", "Parameters"} <= kinds
     assert set(published) == {"/cmd_vel", "/estop"}
     (stop_button,) = published["/estop"]
     assert stop_button["datatype"] == "std_msgs/msg/Bool" and json.loads(stop_button["value"]) == {"data": True}
-    assert set(called) <= {"set_estop", "reset_odometry"} and called.get("set_estop") == {"data": False}
+    assert set(called) <= {"set_estop", "reset_odometry", "cancel_goal"} and called.get("set_estop") == {"data": False}
+    assert called.get("cancel_goal") == {}, "the goals' stop button"
 
 
 def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipped() -> None:
@@ -182,10 +206,63 @@ def test_each_key_feeds_its_channels_and_a_payload_that_does_not_decode_is_skipp
         keys.status: {"/r1/status"},
         keys.health: {"/r1/health", "/r1/diagnostics"},
         keys.errors: {"/r1/errors", "/r1/log"},
+        keys.nav_feedback: {"/r1/nav/feedback", "/r1/nav/goal", "/r1/nav/plan"},
+        keys.nav_map_pose: {"/r1/tf"},
     }
     assert set(view.handlers()) == set(view.feeds())
     pose = encode(Pose(stamp=1.0, x=1.0, y=2.0, yaw=0.0))
     view.handlers()[keys.pose](pose)
-    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/tf"]) == len(logs["/r1/path"]) == 1
+    assert logs["/r1/odometry"] == [pose] and len(logs["/r1/pose"]) == len(logs["/r1/path"]) == 1
+    frames = [(t.parent_frame_id, t.child_frame_id) for t in map(readable, logs["/r1/tf"])]
+    # the pose on odom -> base_footprint, the URDF's root, and its fixed joints with it (#40: base_link had two parents)
+    assert frames == [("r1/odom", "r1/base_footprint"), ("r1/base_footprint", "r1/base_link"), ("r1/base_link", "r1/caster")]
     view.handlers()[keys.pose](b"not a pose")
     assert len(logs["/r1/odometry"]) == 1, "skipped, never raised"
+
+
+def test_navigation_shows_its_feedback_the_goal_in_its_frame_and_map_to_odom_on_tf() -> None:
+    from blackmetal.foxglove.live import MAP_TF_PERIOD_S, LiveView
+    from blackmetal.foxglove.naming import StatusLevel
+    from blackmetal.schemas import GoalState, Keys, MapPose, NavFeedback, PlanarPose, encode
+    from unit.foxglove.test_fleet_view import Logged
+
+    logs: dict[str, list[Any]] = {}
+    keys = Keys("fleet/r2")
+    view = LiveView(keys, "r2", channel=lambda topic, kind, schema: Logged(topic, kind, schema, logs))
+    handlers = view.handlers()
+    handlers[keys.nav_map_pose](encode(MapPose(stamp=10.0, x=3.0, y=-1.0, yaw=math.pi / 2)))
+    (placed,) = map(readable, logs["/r2/tf"])
+    assert (placed.parent_frame_id, placed.child_frame_id) == ("map", "r2/odom"), "the site map over this robot's odometry"
+    assert (placed.translation.x, placed.translation.y) == (3.0, -1.0) and placed.rotation.z == pytest.approx(math.sqrt(0.5))
+    for i in range(30):  # 3 s of poses at 10 Hz: map -> odom again once a second, for a client that came late
+        handlers[keys.pose](encode(Pose(stamp=10.0 + 0.1 * i, x=0.0, y=0.0, yaw=0.0)))
+    sent = [readable(t) for t in logs["/r2/tf"]]
+    again = [t for t in sent[1:] if t.parent_frame_id == "map"]
+    assert len(again) == 1 + int(2.9 / MAP_TF_PERIOD_S), "with the first pose, then once a second"
+    assert {t.child_frame_id for t in sent} == {"r2/odom", "r2/base_footprint", "r2/base_link", "r2/caster"}
+
+    for goal_frame, shown_frame in (("map", "map"), ("odom", "r2/odom")):
+        feedback = NavFeedback(
+            stamp=11.0,
+            goal_id="ab" * 16,
+            state=GoalState.EXECUTING,
+            pose=PlanarPose(0.0, 0.0, 0.0, goal_frame),
+            goal=PlanarPose(2.0, 1.0, math.pi, goal_frame),
+            distance_remaining=2.2,
+            eta=3.0,
+            elapsed=1.0,
+        )
+        handlers[keys.nav_feedback](encode(feedback))
+        assert logs["/r2/nav/feedback"][-1] == encode(feedback), "the service's feedback as it said it"
+        goal = readable(logs["/r2/nav/goal"][-1])
+        assert goal.frame_id == shown_frame and (goal.pose.position.x, goal.pose.position.y) == (2.0, 1.0)
+        assert goal.pose.orientation.z == pytest.approx(1.0)
+        plan = readable(logs["/r2/nav/plan"][-1])
+        assert plan.frame_id == shown_frame and [(p.position.x, p.position.y) for p in plan.poses] == [(0.0, 0.0), (2.0, 1.0)]
+    handlers[keys.nav_feedback](b'{"stamp": 1}')
+    handlers[keys.nav_map_pose](b"not a map pose")
+    assert len(logs["/r2/nav/feedback"]) == 2, "skipped, never raised"
+
+    view.nav_event(StatusLevel.WARNING, "the navigation service rejected the goal: e-stop")
+    line = readable(logs["/r2/log"][-1])
+    assert line.name == "nav" and line.message.endswith("e-stop")

@@ -9,7 +9,16 @@ from blackmetal.foxglove.main import COMMAND, ONE_ROBOT, build_parser, main
 
 def test_the_help_names_the_layout_the_controls_and_the_fleet_option() -> None:
     text = build_parser().format_help()
-    for words in ("deploy/foxglove/blackmetal.layout.json", "/cmd_vel", "set_estop", "reset_odometry", "--mcap", "--fleet"):
+    for words in (
+        "deploy/foxglove/blackmetal.layout.json",
+        "/cmd_vel",
+        "set_estop",
+        "reset_odometry",
+        "--mcap",
+        "--fleet",
+        "/goal_pose",
+        "nav/goal",
+    ):
         assert words in " ".join(text.split()), words
     assert COMMAND.name == "foxglove" and COMMAND.fleet is not None and ONE_ROBOT == ""
 

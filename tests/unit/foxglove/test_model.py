@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from blackmetal.foxglove.model import RobotModel, moving_joints, turned
+from blackmetal.foxglove.model import RobotModel, fixed_joints, moving_joints, turned
 from blackmetal.robot_model import WHEEL_SEPARATION, WheelAngles, urdf
 from blackmetal.schemas import GatewayParams, WheelImpulses
 from unit.foxglove.test_params import table
@@ -34,3 +34,12 @@ def test_the_wheel_joints_come_from_the_urdf_and_turn_with_the_impulses() -> Non
     assert angles.positions[0] == pytest.approx(travel / 0.1), "never integrated across a gap"
     _, (qx, qy, qz, qw) = turned(robot.left, math.pi)
     assert (qx, qz) == (0.0, 0.0) and qy == pytest.approx(1.0) and abs(qw) < 1e-12
+
+
+def test_the_fixed_joints_place_base_link_on_base_footprint_and_the_caster() -> None:
+    robot = RobotModel("r2/")
+    assert [(j.name, j.parent, j.child) for j in fixed_joints(robot.urdf)] == [
+        ("r2/base_joint", "r2/base_footprint", "r2/base_link"),
+        ("r2/caster_joint", "r2/base_link", "r2/caster"),
+    ]
+    assert robot.fixed[0].origin == (0.0, 0.0, robot.body.wheel_radius), "base_link at the wheels' axle height"

@@ -33,3 +33,11 @@ def test_what_clients_may_publish_and_call_is_said_from_one_table() -> None:
         assert spec.request["title"] == f"{spec.type}_Request" and spec.response["title"] == f"{spec.type}_Response", service
         assert spec.response["properties"]["success"] == {"type": "boolean"}
     assert naming.SERVICE_SPECS[naming.Service.SET_ESTOP].request["required"] == ["data"]
+
+
+def test_the_3d_panels_topics_and_what_they_carry() -> None:
+    assert naming.nav_topic("/r2", naming.NavTopic.GOAL_POSE) == "/r2/goal_pose"
+    assert {t.value for t in naming.NavTopic} == {"/goal_pose", "/move_base_simple/goal", "/initialpose", "/clicked_point"}
+    assert all(naming.NAV_SCHEMAS[t][0].count("/msg/") == 1 and naming.NAV_SCHEMAS[t][1].count("/") == 1 for t in naming.NavTopic)
+    said = naming.nav_takes("/r2")
+    assert "/r2/goal_pose and /r2/move_base_simple/goal" in said and "nav/goal" in said and "/r2/initialpose" in said

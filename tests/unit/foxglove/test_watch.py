@@ -93,7 +93,7 @@ def test_twenty_robots_nobody_watching_encode_nothing_and_one_watched_pose_encod
     feed_everything(view)
     assert sum(logged.values()) == 0, logged
     assert watch.needed() == set(), "nothing watched: not one key followed"
-    assert len(watch.feeds) == 6 * len(ROBOTS)
+    assert len(watch.feeds) == 8 * len(ROBOTS)
 
     watch.subscribe(1, "/r5/pose")
     watched.add("/r5/pose")
@@ -108,11 +108,13 @@ def test_twenty_robots_nobody_watching_encode_nothing_and_one_watched_pose_encod
 
     watch.subscribe(1, "/tf")
     watched.add("/tf")
-    assert watch.needed() == {f"fleet/{rid}/{k}" for rid in ROBOTS for k in ("pose", "wheels/impulses")} | {"fleet/r5/pose"}
+    needed = {f"fleet/{rid}/{k}" for rid in ROBOTS for k in ("pose", "wheels/impulses", "nav/map_pose")}
+    assert watch.needed() == needed, "the map frame too: published when it changes, it costs nothing"
     logged.clear()
     feed_everything(view, steps=1)
-    # every robot: odom -> base_link from its pose, base_link -> each wheel from its impulses
-    assert logged == Counter({"/tf": 3 * len(ROBOTS), "/r5/pose": 1}), logged
+    # every robot: odom -> base_footprint from its pose with the URDF's two fixed joints (the first pose), base_link -> each
+    # wheel from its impulses
+    assert logged == Counter({"/tf": 5 * len(ROBOTS), "/r5/pose": 1}), logged
 
     assert watch.client_gone(1) and watch.needed() == set()
 
