@@ -250,7 +250,7 @@ def test_a_robot_unlike_the_model_still_gets_there_within_the_bar(robot: dict[st
 
 
 def test_a_controller_told_of_two_periods_of_delay_meets_the_bar_on_a_robot_two_periods_late() -> None:
-    """Behind the gateway's ramp a command lands a period later: the controller then predicts two periods ahead."""
+    """A robot known to answer a period later: told so (``Limits.latency``), the controller predicts two periods ahead."""
     limits = Limits(latency=2)
     trials = [trial(name, start, target, Robot(*start, delay=2), limits=limits) for name, start, target in GOALS]
     print(figures(trials))
