@@ -404,9 +404,11 @@ class Controller:
         turn = wrap(bearing - heading)
         if self.target.turn is None and self.target.yaw is not None:
             final = wrap(self.target.yaw - (wrap(bearing + math.pi) if self.reverse else bearing))
-        # the drive starts once the turn is within ALIGN_TOLERANCE: the rest of the turn overlaps it
+        # the drive starts once the turn is within ALIGN_TOLERANCE: the rest of the turn overlaps it (with a final yaw,
+        # the turn to it takes up what the overlap left: no saving then)
         align = stop_time(abs(turn), math.copysign(1, turn) * self.w, *ang)
-        align = max(align - math.sqrt(2 * min(ALIGN_TOLERANCE, abs(turn)) / lim.angular_accel), 0.0)
+        if self.target.yaw is None:
+            align = max(align - math.sqrt(2 * min(ALIGN_TOLERANCE, abs(turn)) / lim.angular_accel), 0.0)
         return distance, yaw_left, align + trapezoid_time(distance, *lin) + trapezoid_time(final, *ang) + dt
 
     def set_limits(self, limits: Limits, tolerances: Tolerances) -> None:
