@@ -160,7 +160,7 @@ class NavCore:
         gateway = GatewayLimits.of(message)
         if gateway != self._gateway:
             self._gateway = gateway
-            self._limits_changed(list(READ_ONLY))  # the limits in use may have changed
+            self._limits_changed([])  # the limits in use may have changed
 
     def on_alive(self, role: str, alive: bool, now: float) -> None:
         """A liveliness token came or went (``gateway``, ``odometry``): the gateway gone aborts the running goal."""
@@ -388,10 +388,13 @@ class NavCore:
         return Tolerances(self._params.xy_tolerance, self._params.yaw_tolerance, self._params.reverse_distance)
 
     def _limits_changed(self, changed: list[str]) -> None:
-        self._limits = effective_limits(self._params, self._gateway)
+        """Parameters ``changed`` (or the gateway's limits): the limits in use follow; nav/params says what changed."""
+        before, self._limits = self._limits, effective_limits(self._params, self._gateway)
+        changed = changed + [name for name, (field, _) in READ_ONLY.items() if getattr(before, field) != getattr(self._limits, field)]
         if self._controller is not None:
             self._controller.set_limits(self._limits, self._tolerances())
-        self.output(self.params(changed))
+        if changed:
+            self.output(self.params(changed))
 
     def _driven_by(self, stamp: float, source: str | None, now: float) -> None:
         self._driver = (stamp, source)

@@ -146,5 +146,4 @@ def effective_limits(params: NavParams, gateway: GatewayLimits) -> Limits:
         angular_accel=angular_accel,
         max_wheel_speed=gateway.max_wheel_speed,
         wheel_separation=gateway.wheel_separation,
-        latency=1 if gateway.linear_accel is None and gateway.angular_accel is None else 2,  # the ramp takes a period more
     )

@@ -250,7 +250,7 @@ def test_a_robot_unlike_the_model_still_gets_there_within_the_bar(robot: dict[st
 
 
 def test_a_controller_told_of_two_periods_of_delay_meets_the_bar_on_a_robot_two_periods_late() -> None:
-    """Behind the gateway's ramp a command lands a period later: the controller then predicts two periods ahead."""
+    """A robot known to answer a period later: told so (``Limits.latency``), the controller predicts two periods ahead."""
     limits = Limits(latency=2)
     trials = [trial(name, start, target, Robot(*start, delay=2), limits=limits) for name, start, target in GOALS]
     print(figures(trials))
@@ -380,3 +380,18 @@ def test_poses_at_another_rate_meet_the_bars_too(period: float) -> None:
         assert math.hypot(target.x - robot.x, target.y - robot.y) <= TOLERANCES.xy, name
         assert target.yaw is None or abs(wrap(target.yaw - robot.yaw)) <= TOLERANCES.yaw, name
         assert t <= BAR_TIME * reference(start, target) + period, (name, t)
+
+
+def test_new_limits_mid_goal_take_effect_from_the_next_step() -> None:
+    robot = Robot(delay=2)
+    controller = Controller(Target(2.0, 0.5, 0.0), LIMITS, TOLERANCES)
+    for _ in range(100):
+        robot.run(*controller.step(*robot.pose(), PERIOD))
+    controller.set_limits(Limits(max_speed=0.15, latency=2), TOLERANCES)  # slower, and told of the robot's delay
+    speeds = []
+    while not controller.reached:
+        v, w = controller.step(*robot.pose(), PERIOD)
+        speeds.append(v)
+        robot.run(v, w)
+    assert max(speeds[25:]) <= 0.15 + 1e-9  # braked down to the new limit within its acceleration
+    assert math.hypot(2.0 - robot.x, 0.5 - robot.y) <= TOLERANCES.xy and abs(wrap(robot.yaw)) <= TOLERANCES.yaw

@@ -226,7 +226,7 @@ def test_parameters_change_live_and_refuse_out_of_range() -> None:
     reply = bench.core.on_params_set(b'{"values": {"max_speed": 0.2, "max_turn": 99, "feedback_hz": 20}}', bench.now)
     assert [(r.name, r.successful) for r in reply.results] == [("max_speed", True), ("max_turn", False), ("feedback_hz", True)]
     assert reply.results[1].reason == "max_turn must be within 0.05..8, got 99"
-    assert bench.out.params[-1].changed == ["max_speed", "feedback_hz"]
+    assert bench.out.params[-1].changed == ["max_speed", "feedback_hz", "effective.max_speed"]
     assert {p.name: p.value for p in reply.params.params}["effective.max_speed"] == 0.2
     assert [e.reason for e in bench.out.errors] == ["max_turn must be within 0.05..8, got 99"]
     assert {p.name: p.value for p in bench.core.params().params}["max_speed"] == 0.2
@@ -242,9 +242,14 @@ def test_the_gateways_limits_bound_a_goal() -> None:
     bench = Bench()
     limits = GatewayParams(0.0, [Param("max_wheel_speed", "double", 0.15), Param("wheel_separation", "double", 0.5, read_only=True)])
     bench.core.on_gateway_params(encode(limits), bench.now)
-    assert bench.out.params[-1].changed[0] == "effective.max_speed"
+    assert bench.out.params[-1].changed == ["effective.max_speed", "effective.max_turn"]  # 0.15 m/s, 0.6 rad/s
     bench.core.on_gateway_params(encode(limits), bench.now)  # the same again: nothing to publish
-    assert len(bench.out.params) == 2
+    faster = GatewayParams(0.0, [Param("max_wheel_speed", "double", 0.7), Param("wheel_separation", "double", 0.5)])
+    bench.core.on_gateway_params(encode(faster), bench.now)
+    same = GatewayParams(0.0, [Param("max_wheel_speed", "double", 0.7), Param("linear_accel", "double", 0.0)])
+    bench.core.on_gateway_params(encode(same), bench.now)
+    assert len(bench.out.params) == 3  # back to the navigation's own limits; then a change that changes none of them
+    bench.core.on_gateway_params(encode(limits), bench.now)
     assert bench.core.on_goal(b'{"x": 1, "y": 1}', bench.now).accepted
     bench.until_done()
     assert max(abs(t.linear.x) + abs(t.angular.z) * 0.25 for t in bench.out.twists) <= 0.15 + 1e-9

@@ -3,13 +3,14 @@ each with its reason, one zero twist, and nothing moving after it until a new go
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import pytest
 from hypothesis import event, given, settings
 from hypothesis import strategies as st
 
-from blackmetal.schemas import DriverChange, GoalState, NavFeedback, Twist, encode
+from blackmetal.schemas import DriverChange, GoalState, NavFeedback, Twist, encode, make_pose
 
 from .bench import GOAL_A, GOAL_B, Bench, ended, health
 from .kinematics import PERIOD
@@ -226,3 +227,45 @@ def test_any_sequence_ends_every_goal_once_and_stops_the_robot_after_each_early_
             zeros += 1
             assert item == Twist() and zeros == 1, "the robot was commanded after its goal ended"
     event(f"{len(finals)} goals ended, {sum(f.state is GoalState.ABORTED for f in finals)} aborted")
+
+
+finite = st.floats(allow_nan=False, allow_infinity=False)
+
+
+@settings(max_examples=150, deadline=None)
+@given(poses=st.lists(st.tuples(finite, finite, finite, st.floats(-0.05, 1.0)), min_size=1, max_size=30))
+def test_whatever_poses_the_odometry_sends_the_core_commands_only_finite_twists_within_the_limits(
+    poses: list[tuple[float, float, float, float]],
+) -> None:
+    """Poses anywhere (1e308 away, jumping, stamps going back): no exception, and every twist finite and within the limits."""
+    bench = Bench()
+    assert bench.core.on_goal(b'{"x": 1, "y": 0.5, "yaw": 2}', bench.now).accepted
+    stamp = 1.8e9
+    for x, y, yaw, gap in poses:
+        stamp += gap
+        bench.now += max(gap, 0.0)
+        bench.core.on_pose(encode(make_pose(stamp, x, y, yaw)), bench.now)
+        bench.core.tick(bench.now)
+    for twist in bench.out.twists:
+        assert math.isfinite(twist.linear.x) and math.isfinite(twist.angular.z)
+        assert abs(twist.linear.x) <= 0.3 + 1e-9 and abs(twist.angular.z) <= 1.2 + 1e-9
+
+
+@settings(max_examples=60, deadline=None)
+@given(steps=st.lists(st.tuples(st.floats(-0.015, 0.015), st.floats(-0.015, 0.015), st.floats(-0.06, 0.06)), min_size=1, max_size=120))
+def test_a_wandering_pose_gets_finite_twists_within_the_limits_and_their_accelerations(steps: list[tuple[float, float, float]]) -> None:
+    """Poses that move in ways the commands do not explain (slip, noise, a push), but never jump: the controller
+    keeps every twist finite, within the speed limits, and each within one period's acceleration of the one before."""
+    bench = Bench(no_progress_timeout=600.0, override_timeout=60.0)  # nothing ends it but arriving
+    assert bench.core.on_goal(b'{"x": 0.4, "y": -0.3, "yaw": 2}', bench.now).accepted
+    x = y = yaw = 0.0
+    for dx, dy, dyaw in steps:
+        x, y, yaw = x + dx, y + dy, yaw + dyaw
+        bench.now += PERIOD
+        bench.core.on_pose(encode(make_pose(1.8e9 + bench.now, x, y, yaw)), bench.now)
+        bench.core.tick(bench.now)
+    twists = [(0.0, 0.0)] + [(t.linear.x, t.angular.z) for t in bench.out.twists]
+    for (v0, w0), (v1, w1) in itertools.pairwise(twists):
+        assert math.isfinite(v1) and math.isfinite(w1) and abs(v1) <= 0.3 + 1e-9 and abs(w1) <= 1.2 + 1e-9
+        # within the acceleration over the period the core measured (from stamps near 1.8e9 s: good to 1e-6 s)
+        assert (v1, w1) == (0.0, 0.0) or (abs(v1 - v0) <= 0.5 * PERIOD + 1e-6 and abs(w1 - w0) <= 2.0 * PERIOD + 1e-6)

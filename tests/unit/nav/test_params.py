@@ -73,7 +73,7 @@ def test_the_gateways_limits_bound_the_navigations() -> None:
     use = effective_limits(NavParams(), limits)
     assert use.max_speed == 0.3 and use.linear_accel == 0.3 and use.angular_accel == 2.0
     assert use.max_turn == pytest.approx(1.2)  # 0.4 m/s at 0.25 m from the middle is 1.6 rad/s: 1.2 stays
-    assert use.latency == 2  # the gateway ramps: its step comes a period after the command
+    assert use.latency == 1  # the gateway's ramp steps on its polls too: measured, it costs no whole period
     slow = effective_limits(NavParams(), GatewayLimits.of(gateway(max_wheel_speed=0.1)))
     assert slow.max_speed == 0.1 and slow.max_turn == pytest.approx(0.4) and slow.max_wheel_speed == 0.1
     assert slow.latency == 1
