@@ -45,6 +45,9 @@ from blackmetal.schemas import (
     Sources,
     Twist,
     Vector3,
+    WheelMove,
+    WheelMoveReply,
+    WheelPosition,
     decode,
     excerpt,
 )
@@ -52,10 +55,12 @@ from blackmetal.schemas import (
 from .controller import DEFAULT_PERIOD_S, Controller, Target, Tolerances, plan
 from .goals import GoalRecord, Goals, jumped, map_to_odom, odom_to_map, placed, refusal, robot_trouble, wrap
 from .params import READ_ONLY, GatewayLimits, NavParams, effective_limits
+from .robot_moves import RobotConstants, RobotMoveTracker, outcome, wheel_move
 
 #: Where the core's messages go; the edge routes each by its type (Twist: ``cmd_vel/nav``, NavFeedback:
-#: ``nav/feedback``, MapPose: ``nav/map_pose``, GatewayParams: ``nav/params``, ErrorReport: ``errors``).
-NavOutput = Callable[[Twist | NavFeedback | MapPose | GatewayParams | ErrorReport], None]
+#: ``nav/feedback``, MapPose: ``nav/map_pose``, GatewayParams: ``nav/params``, ErrorReport: ``errors``; WheelMove: a
+#: get on ``wheels/move``, its answer to :meth:`NavCore.on_wheel_move_reply`).
+NavOutput = Callable[[Twist | NavFeedback | MapPose | GatewayParams | ErrorReport | WheelMove], None]
 
 #: A relative move turns at most this much (rad): two whole turns; more is a typo more often than a wish.
 MAX_MOVE_ANGLE = 4 * math.pi
@@ -105,6 +110,8 @@ class NavCore:
         self._feedback_due = math.inf
         self._progress = (math.inf, -math.inf)  # (lowest time left seen, when)
         self._recoveries = 0  # the running goal's re-plans when progress was last taken
+        self._robot = RobotConstants()  # the gateway's word on the robot's own position moves (nav/move)
+        self._robot_move: RobotMoveTracker | None = None  # the running goal is a move the robot's position control runs
 
     # ------------------------------------------------------------------------------------------------ telemetry
 
@@ -157,6 +164,7 @@ class NavCore:
         message = self._decode(GatewayParams, payload, self.keys.params, now)
         if isinstance(message, str):
             return
+        self._robot = RobotConstants.of(message)
         gateway = GatewayLimits.of(message)
         if gateway != self._gateway:
             self._gateway = gateway
@@ -184,7 +192,8 @@ class NavCore:
         return self._take(key, goal.goal_id, target, (goal.x, goal.y, goal.yaw), goal.frame, payload, now)
 
     def on_move(self, payload: bytes | None, now: float) -> NavGoalReply:
-        """A relative move (a distance straight, or an angle on the spot), run as a goal in the odometry frame."""
+        """A relative move (a distance straight, or an angle on the spot), run as a goal in the odometry frame: by the
+        robot's own position control where the gateway says it runs them (``position_moves``), else by the controller."""
         key = self.keys.nav_move
         move = self._decode(NavMove, payload or b"", key, now)
         if isinstance(move, str):
@@ -202,7 +211,25 @@ class NavCore:
             x, y = pose.x + move.distance * math.cos(pose.yaw), pose.y + move.distance * math.sin(pose.yaw)
             target = Target(x, y, pose.yaw, reverse=move.distance < 0)
             where = (x, y, pose.yaw)
-        return self._take(key, move.goal_id, target, where, "odom", payload, now)
+        by_robot = RobotMoveTracker(move, self._robot, now) if self._robot.position_moves and (move.angle or move.distance) else None
+        return self._take(key, move.goal_id, target, where, "odom", payload, now, by_robot)
+
+    def on_wheel_move_reply(self, payload: bytes, now: float) -> None:
+        """The gateway's answer to the running move's ``wheels/move``: it runs (executing), or the goal is aborted."""
+        reply, tracker = self._decode(WheelMoveReply, payload, self.keys.wheels_move, now), self._robot_move
+        if tracker is not None and not isinstance(reply, str):
+            refused = tracker.on_reply(reply, now)
+            if refused is None:
+                self.goals.start()
+            else:
+                self._end(GoalState.ABORTED, f"the gateway refused the robot's position move: {refused}", now)
+
+    def on_wheel_position(self, payload: bytes, now: float) -> None:
+        """The gateway's ``wheels/position``: the running robot move's progress, and its end."""
+        position, tracker = self._decode(WheelPosition, payload, self.keys.wheels_position, now), self._robot_move
+        progress = None if tracker is None or isinstance(position, str) else tracker.on_position(position, now)
+        if progress is not None and (ended := outcome(progress)) is not None:
+            self._end(*ended, now)
 
     def on_cancel(self, payload: bytes | None, now: float) -> NavCancelReply:
         """Cancel the running goal (any, or the one named): it ends canceled, the robot gets one zero twist."""
@@ -295,6 +322,8 @@ class NavCore:
             self.output(self._map)
             self.output(self.params())
         self._check(now)
+        if self._robot_move is not None and (ended := outcome(self._robot_move.check(now))) is not None:
+            self._end(*ended, now)
         if self.goals.current is not None and now >= self._feedback_due:
             self._feedback(now)
             self._feedback_due = max(self._feedback_due + 1 / self._params.feedback_hz, now + 0.5 / self._params.feedback_hz)
@@ -309,6 +338,8 @@ class NavCore:
             due = min(due, self._feedback_due, self._pose_at + p.pose_timeout, self._progress[1] + p.no_progress_timeout)
             if self._overridden_since is not None:
                 due = min(due, self._overridden_since + p.override_timeout)
+            if self._robot_move is not None:
+                due = min(due, self._robot_move.deadline())
         return due
 
     # ------------------------------------------------------------------------------------------------ internals
@@ -343,8 +374,10 @@ class NavCore:
         frame: str,
         payload: bytes | None,
         now: float,
+        by_robot: RobotMoveTracker | None = None,
     ) -> NavGoalReply:
-        """Accept ``target`` (odom) given as ``where`` in ``frame``, unless the id, the robot or the bounds refuse it."""
+        """Accept ``target`` (odom) given as ``where`` in ``frame``, unless the id, the robot or the bounds refuse it;
+        ``by_robot``: a move the robot's position control runs (the controller stands aside)."""
         if goal_id is not None:
             taken = self.goals.refusal_of_id(goal_id)
             if taken is not None:
@@ -381,6 +414,11 @@ class NavCore:
         self._overridden_since = None if self._driver is None or self._driver[1] == Sources.NAV else now
         self._progress, self._recoveries = (math.inf, now), 0
         self._feedback_due = now
+        self._robot_move = by_robot
+        if by_robot is not None:  # one zero twist ends it on a cancel or an abort (the gateway ends a move on any twist)
+            self._controller, self._drove = None, True
+            self.output(wheel_move(by_robot.move, self._robot, goal_id))
+            return NavGoalReply(True, goal_id, "")
         self._step(now)  # the first command now, from the latest pose (fresh: checked above), not a period later
         return NavGoalReply(True, goal_id, "")
 
@@ -446,6 +484,7 @@ class NavCore:
             )
         self._feedback(now, record)
         self._controller = None
+        self._robot_move = None
         self._target = None
         self._drove = False
         self._overridden_since = None
@@ -453,7 +492,10 @@ class NavCore:
 
     def _feedback_figures(self) -> tuple[float, float, float]:
         """(distance m, yaw rad, seconds) left of the running goal, from the latest pose."""
-        controller, pose = self._controller, self._pose
+        controller, pose, tracker = self._controller, self._pose, self._robot_move
+        if tracker is not None:
+            left = tracker.progress
+            return (0.0, left.remaining, left.eta) if tracker.move.angle else (abs(left.remaining), 0.0, left.eta)
         if controller is None or pose is None:
             return 0.0, 0.0, 0.0
         return controller.remaining(pose.x, pose.y, pose.yaw)

@@ -59,6 +59,14 @@ class NavHost:
         self.core.on_gateway_params(payload, self.clock())
         self.timer.poke()
 
+    def on_wheel_move_reply(self, payload: bytes) -> None:
+        self.core.on_wheel_move_reply(payload, self.clock())
+        self.timer.poke()
+
+    def on_wheel_position(self, payload: bytes) -> None:
+        self.core.on_wheel_position(payload, self.clock())
+        self.timer.poke()
+
     def on_alive(self, role: str, alive: bool) -> None:
         self.core.on_alive(role, alive, self.clock())
         self.timer.poke()

@@ -23,7 +23,7 @@ import msgspec
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import Keys, NavFeedback, PayloadError, Sources, Twist, encode, payload_bytes
+from blackmetal.schemas import Keys, NavFeedback, PayloadError, Sources, Twist, WheelMove, encode, payload_bytes
 
 from .host import NavHost
 
@@ -64,6 +64,7 @@ class NavZenoh(ZenohEdge):
         self.routes(keys, (keys.nav_map_pose, keys.nav_params, keys.errors))
         self._ring: zenoh.Subscriber[zenoh.handlers.Handler[zenoh.Sample]] | None = None
         self._host: NavHost | None = None
+        self._move_replies: Callable[[bytes], None] | None = None  # the gateway's answers to a robot move (intake channel)
         #: The last Twist put was not zero: closing, the edge sends a zero so that nothing drives on nav's last word.
         self.moving = False
 
@@ -76,6 +77,8 @@ class NavZenoh(ZenohEdge):
         self.subscriber(keys.health, health)
         self.subscriber(keys.driver, intake.channel("driver", host.on_driver, capacity=16, priority=1))
         self.subscriber(keys.params, limits)
+        self.subscriber(keys.wheels_position, intake.channel("wheels position", host.on_wheel_position, latest=True, priority=1))
+        self._move_replies = intake.channel("wheels move!", host.on_wheel_move_reply, capacity=4, priority=1)
 
         def on_alive(role: str, alive: bool) -> None:
             host.on_alive(role, alive)
@@ -112,6 +115,10 @@ class NavZenoh(ZenohEdge):
 
     def publish(self, message: msgspec.Struct) -> None:
         kind = type(message)
+        if kind is WheelMove:  # a robot move is a get on the gateway's wheels/move; its answer goes to the core
+            if self._move_replies is not None:
+                self.ask(self.keys.wheels_move, self._move_replies, encode(message))
+            return
         if kind is Twist:
             self.moving = message != Twist()
         if kind is Twist or kind is NavFeedback:
@@ -181,8 +188,9 @@ class NavZenoh(ZenohEdge):
 
         self._entities.append(self.session.declare_queryable(key, zenoh.handlers.Callback(put, indirect=False)))
 
-    def ask(self, key: str, put: Callable[[bytes], None]) -> None:
-        """A get on ``key`` that does not wait: each answer's payload goes to ``put`` (an intake channel) from Zenoh's thread."""
+    def ask(self, key: str, put: Callable[[bytes], None], payload: bytes | None = None) -> None:
+        """A get on ``key`` (with ``payload``) that does not wait: each answer's payload goes to ``put`` (an intake
+        channel) from Zenoh's thread."""
         import zenoh
 
         def on_reply(reply: "zenoh.Reply") -> None:
@@ -190,7 +198,7 @@ class NavZenoh(ZenohEdge):
                 put(payload_bytes(reply.ok))
 
         try:
-            self.session.get(key, zenoh.handlers.Callback(on_reply, indirect=False), timeout=ASK_TIMEOUT_S)
+            self.session.get(key, zenoh.handlers.Callback(on_reply, indirect=False), payload=payload, timeout=ASK_TIMEOUT_S)
         except Exception as exc:  # the session is closing: nothing to ask any more
             log.debug("get on %s refused: %s", key, exc)
 
