@@ -67,12 +67,13 @@ FIGURES: tuple[Figure, ...] = (
     telemetry.MEMORY,
     command_path.FLOOD,
     navigation.NAV_GOALS,
+    navigation.NAV_GOALS_CALIBRATED,
     navigation.NAV_FLEET,
 )
 FIGURE_NAMES = tuple(figure.name for figure in FIGURES)
 #: The table's order: the command path, then what the services publish, then the offline figures and the costs.
 TABLE_ORDER = ("forwarder", "cmd_vel", "estop", "estop_flood", "pose", "ros2_cmd_vel", "ros2_odom", "poll", "replay",
-               "calibration", "arbiter", "recorder", "memory", "flood", "nav_goals", "nav_fleet")  # fmt: skip
+               "calibration", "arbiter", "recorder", "memory", "flood", "nav_goals", "nav_goals_calibrated", "nav_fleet")  # fmt: skip
 
 
 def _figure_names(text: str) -> set[str]:

@@ -11,12 +11,15 @@ from __future__ import annotations
 
 import math
 import statistics
+import tempfile
 import threading
 import time
 from contextlib import ExitStack
+from functools import partial
 from pathlib import Path
 from typing import Any
 
+from blackmetal import robot_model as model
 from blackmetal.schemas import GatewayHealth, GatewayParams, GoalState, Keys, NavFeedback, NavGoal, NavGoalReply, Pose, decode, encode
 
 from .peers import free_port
@@ -52,6 +55,9 @@ GOALS: tuple[tuple[float, float, float | None], ...] = (
 POSITION_BAR_M = 0.02
 YAW_BAR_RAD = math.radians(2.0)
 TIME_BAR = 1.25
+#: ``nav_goals_calibrated``: a simulated robot unlike its drawing (wheels 1.5 % long and 1 % short, 2 cm wider), and
+#: the constants a calibration finds for it given to every service (the simulator's truth is the drawing's error).
+UNLIKE = {"left_wheel_scale": 1.015, "right_wheel_scale": 0.99, "wheel_separation": model.WHEEL_SEPARATION + 0.02}
 #: One goal of ``nav_fleet`` for every robot: 1 m ahead, 0.5 m to the left, facing left.
 FLEET_GOAL = (1.0, 0.5, math.pi / 2)
 
@@ -122,12 +128,14 @@ class _Robot:
         return self.pose
 
 
-def send_goal(session: Any, keys: Keys, goal: NavGoal, patience: float = 5.0) -> NavGoalReply:
-    """The nav service's answer to ``goal`` (TimeoutError when none answers); a refusal because it has not yet heard
-    that the robot's link came up (the gateway's health comes once a second) is asked again for ``patience`` s."""
+def send_goal(session: Any, keys: Keys, goal: NavGoal, patience: float = 5.0) -> tuple[NavGoalReply, float]:
+    """The nav service's answer to ``goal`` and when the query that got it was sent (TimeoutError when none answers); a
+    refusal because it has not yet heard that the robot's link came up (the gateway's health comes once a second) is
+    asked again for ``patience`` s."""
     deadline = time.monotonic() + patience
     while True:
         answer: NavGoalReply | None = None
+        sent = time.monotonic()
         for reply in session.get(keys.nav_goal, payload=encode(goal), timeout=5.0):
             if reply.ok is None:
                 raise RuntimeError(f"nav/goal answered an error: {reply.err.payload.to_bytes().decode(errors='replace')}")
@@ -135,7 +143,7 @@ def send_goal(session: Any, keys: Keys, goal: NavGoal, patience: float = 5.0) ->
         if answer is None:
             raise TimeoutError(f"no navigation service answered on {keys.nav_goal}")
         if answer.accepted or "unreachable" not in answer.reason or time.monotonic() > deadline:
-            return answer
+            return answer, sent
         time.sleep(0.2)
 
 
@@ -173,10 +181,24 @@ def _settle(robot: _Robot, seconds: float = 0.3) -> Pose:
     return robot.wait_pose()
 
 
-def nav_goals(plan: Plan, _: Result) -> Result:
+def calibrated_settings(folder: Path) -> Path:
+    """``up --settings`` for the robot of UNLIKE: the simulator's truth, the calibrated constants for the others."""
+    settings = folder / "calibrated.toml"
+    settings.write_text(
+        f"wheel_separation = {UNLIKE['wheel_separation']}\n"
+        f"impulses_left = {model.IMPULSES_PER_METER_LEFT / UNLIKE['left_wheel_scale']}\n"
+        f"impulses_right = {model.IMPULSES_PER_METER_RIGHT / UNLIKE['right_wheel_scale']}\n"
+        "[sim]\n" + "".join(f"{key} = {value}\n" for key, value in UNLIKE.items())
+    )
+    return settings
+
+
+def nav_goals(plan: Plan, _: Result, calibrated: bool = False) -> Result:
     goals = GOALS if not plan.quick else GOALS[:4]
+    name = "nav_goals_calibrated" if calibrated else "nav_goals"
     with ExitStack() as stack:
-        zport, _up_process = _up(stack, [])
+        args = ["--settings", str(calibrated_settings(Path(stack.enter_context(tempfile.TemporaryDirectory()))))] if calibrated else []
+        zport, _up_process = _up(stack, args)
         session = client_session(stack, zport)
         keys = Keys()
         robot = _Robot(session, keys)
@@ -190,8 +212,7 @@ def nav_goals(plan: Plan, _: Result) -> Result:
             c, s = math.cos(here.yaw), math.sin(here.yaw)
             target = (here.x + c * forward - s * left, here.y + s * forward + c * left, None if turn is None else here.yaw + turn)
             reference = reference_time((here.x, here.y, here.yaw), target, limits)
-            t0 = time.monotonic()
-            reply = send_goal(session, keys, NavGoal(x=target[0], y=target[1], yaw=target[2], frame="odom"))
+            reply, t0 = send_goal(session, keys, NavGoal(x=target[0], y=target[1], yaw=target[2], frame="odom"))
             if not reply.accepted or reply.goal_id is None:
                 raise RuntimeError(f"goal {target} refused: {reply.reason}")
             end = robot.wait_end(reply.goal_id, timeout=max(60.0, 4 * reference))
@@ -217,7 +238,7 @@ def nav_goals(plan: Plan, _: Result) -> Result:
             )
     ratios = [r["time_ratio"] for r in rows if math.isfinite(r["time_ratio"]) and r["reference_s"] >= 0.5]
     return {
-        "nav_goals": {
+        name: {
             "goals": rows,
             "limits": limits,
             "position_error_max_m": max(r["position_error_m"] for r in rows),
@@ -265,7 +286,7 @@ def nav_fleet(plan: Plan, _: Result) -> Result:
         t0 = time.monotonic()
         ids = {}
         for robot in fleet:
-            reply = send_goal(session, robot.keys, NavGoal(x=FLEET_GOAL[0], y=FLEET_GOAL[1], yaw=FLEET_GOAL[2], frame="odom"))
+            reply, _ = send_goal(session, robot.keys, NavGoal(x=FLEET_GOAL[0], y=FLEET_GOAL[1], yaw=FLEET_GOAL[2], frame="odom"))
             if not reply.accepted or reply.goal_id is None:
                 raise RuntimeError(f"{robot.keys.prefix}: goal refused: {reply.reason}")
             ids[robot.keys.prefix] = reply.goal_id
@@ -300,11 +321,12 @@ def nav_fleet(plan: Plan, _: Result) -> Result:
     }
 
 
-def _goals_rows(f: Result) -> list[Row]:
-    g = f["nav_goals"]
+def _goals_rows(f: Result, name: str = "nav_goals") -> list[Row]:
+    g = f[name]
     n = len(g["goals"])
+    robot = ", a robot unlike its drawing, calibrated" if name != "nav_goals" else ""
     return [
-        (f"nav: {n} goals, worst position error (odometry)", f"{g['position_error_max_m'] * 100:.2f} cm", f"bar {POSITION_BAR_M * 100:g} cm",
+        (f"nav: {n} goals{robot}, worst position error (odometry)", f"{g['position_error_max_m'] * 100:.2f} cm", f"bar {POSITION_BAR_M * 100:g} cm",
          met(g["position_error_max_m"] <= POSITION_BAR_M).removeprefix(": ")),
         ("nav: worst yaw error", f"{math.degrees(g['yaw_error_max_rad']):.2f} deg", f"bar {math.degrees(YAW_BAR_RAD):g} deg",
          met(g["yaw_error_max_rad"] <= YAW_BAR_RAD).removeprefix(": ")),
@@ -326,6 +348,14 @@ def _fleet_rows(f: Result) -> list[Row]:
 
 
 NAV_GOALS = Figure("nav_goals", "navigation, 20 goals", "sending one robot 20 goals ...", ("nav_goals",), nav_goals, _goals_rows)
+NAV_GOALS_CALIBRATED = Figure(
+    "nav_goals_calibrated",
+    "navigation, 20 goals, a calibrated robot",
+    "sending a robot unlike its drawing, calibrated, 20 goals ...",
+    ("nav_goals_calibrated",),
+    partial(nav_goals, calibrated=True),
+    partial(_goals_rows, name="nav_goals_calibrated"),
+)
 NAV_FLEET = Figure(
     "nav_fleet", "navigation, a fleet", "sending every robot of a fleet a goal at once ...", ("nav_fleet",), nav_fleet, _fleet_rows
 )
