@@ -286,7 +286,7 @@ def nav_fleet(plan: Plan, _: Result) -> Result:
         t0 = time.monotonic()
         ids = {}
         for robot in fleet:
-            reply, _ = send_goal(session, robot.keys, NavGoal(x=FLEET_GOAL[0], y=FLEET_GOAL[1], yaw=FLEET_GOAL[2], frame="odom"))
+            reply, _sent = send_goal(session, robot.keys, NavGoal(x=FLEET_GOAL[0], y=FLEET_GOAL[1], yaw=FLEET_GOAL[2], frame="odom"))
             if not reply.accepted or reply.goal_id is None:
                 raise RuntimeError(f"{robot.keys.prefix}: goal refused: {reply.reason}")
             ids[robot.keys.prefix] = reply.goal_id
