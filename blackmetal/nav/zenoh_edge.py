@@ -44,6 +44,9 @@ QUERIES_CAPACITY = 16
 FOLLOWED_ROLES = ("gateway", "odometry")
 #: How long a get the edge makes for the core (a gateway's health and parameters when it appears) waits for answers (s).
 ASK_TIMEOUT_S = 2.0
+#: A goal or a move first asks the gateway for its health (it is published once a second: a link that came up since
+#: would still read down), and waits at most this long (s) for it; the gateway's answer comes in about a millisecond.
+REFRESH_TIMEOUT_S = 0.25
 
 log = logging.getLogger("blackmetal.nav")
 
@@ -103,8 +106,12 @@ class NavZenoh(ZenohEdge):
             keys.nav_params: host.params,
             keys.nav_params_set: host.on_params_set,
         }
+        later = intake.channel("after health", _call, capacity=2 * QUERIES_CAPACITY)
         for key, handler in queries.items():
-            self.queryable(key, intake.channel(f"{key.rpartition('/nav/')[2]}?", self._answerer(key, handler), capacity=QUERIES_CAPACITY))
+            answer = self._answerer(key, handler)
+            if key in (keys.nav_goal, keys.nav_move):
+                answer = self._after_health(answer, health, later)
+            self.queryable(key, intake.channel(f"{key.rpartition('/nav/')[2]}?", answer, capacity=QUERIES_CAPACITY))
         recent = host.core.reporter.recent
         self.queryable(keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, list(recent)), capacity=16))
         self.token(keys.alive_nav)
@@ -204,6 +211,35 @@ class NavZenoh(ZenohEdge):
         handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(on_sample, indirect=False)
         self._entities.append(self.session.liveliness().declare_subscriber(key, handler, history=True))
 
+    def _after_health(
+        self,
+        answer: Callable[["zenoh.Query"], None],
+        health: Callable[[bytes], None],
+        later: Callable[[tuple[Callable[["zenoh.Query"], None], "zenoh.Query"]], None],
+    ) -> Callable[["zenoh.Query"], None]:
+        """``answer`` once the gateway's health is asked for and handed to the core (its replies go into ``health``, a
+        channel the intake serves first; the get's end puts the query into ``later``), or REFRESH_TIMEOUT_S passed."""
+        import zenoh
+
+        def first(query: "zenoh.Query") -> None:
+            pending = [query]  # answered once: by the get's end, or here if the get is refused
+
+            def on_reply(reply: "zenoh.Reply") -> None:
+                if reply.ok is not None:
+                    health(payload_bytes(reply.ok))
+
+            def done() -> None:
+                if pending:
+                    later((answer, pending.pop()))
+
+            try:
+                self.session.get(self.keys.health, zenoh.handlers.Callback(on_reply, drop=done, indirect=False), timeout=REFRESH_TIMEOUT_S)
+            except Exception as exc:  # the session is closing: answer with what the core knows
+                log.debug("get on %s refused: %s", self.keys.health, exc)
+                done()
+
+        return first
+
     def _answerer(self, key: str, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[["zenoh.Query"], None]:
         """On the loop: the query's payload to ``handler``, its answer replied as JSON (a PayloadError: an error reply)."""
 
@@ -220,3 +256,8 @@ class NavZenoh(ZenohEdge):
                 query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
 
         return answer
+
+
+def _call(item: tuple[Callable[["zenoh.Query"], None], "zenoh.Query"]) -> None:
+    answer, query = item
+    answer(query)

@@ -251,3 +251,27 @@ def test_up_starts_the_navigation_and_starts_it_again_when_it_dies() -> None:
         assert up.poll() is None
     finally:
         up.stop()
+
+
+def test_a_fleets_navigation_drives_the_robot_it_is_asked_to_alone() -> None:
+    """``up --robots 2``: one ``nav --fleet`` for both; a move for r2 moves r2, and r1 stays where it is."""
+    zport = free_port()
+    endpoint = f"tcp/127.0.0.1:{zport}"
+    up = Child(["-m", "blackmetal", "up", "--robots", "2", "-l", endpoint, "--no-multicast-scouting"])
+    try:
+        assert "nav" in up.ready(timeout=90)["children"]
+        with zenoh.open(client_config(zport)) as session:
+            starts = {p: wait_for(lambda p=p: get(session, f"fleet/{p}/sim/truth", Pose), what=f"{p}'s truth") for p in ("r1", "r2")}
+            done = subprocess.run(
+                [sys.executable, "-m", "blackmetal", "goto", "--move", "0.25", "--prefix", "fleet/r2", "-e", endpoint,
+                 "--no-multicast-scouting", "--wait", "30"],
+                capture_output=True, text=True, timeout=120,
+            )  # fmt: skip
+            assert done.returncode == 0, done.stdout + done.stderr
+            assert "accepted on fleet/r2" in done.stdout
+            ends = {p: get(session, f"fleet/{p}/sim/truth", Pose) for p in ("r1", "r2")}
+        x, y, _ = relative(starts["r2"], ends["r2"])
+        assert math.hypot(x - 0.25, y) < TRUTH_TOLERANCE_M, (x, y)
+        assert math.hypot(ends["r1"].x - starts["r1"].x, ends["r1"].y - starts["r1"].y) < 0.001
+    finally:
+        up.stop()

@@ -268,3 +268,34 @@ def test_a_gateway_that_appears_is_asked_for_its_health_and_parameters(session: 
     finally:
         for queryable in queryables:
             queryable.undeclare()
+
+
+def test_a_goal_is_handled_after_the_gateways_health_it_asks_for(session: zenoh.Session) -> None:
+    """Health comes once a second: a link that came up since would still read down. A goal (and a move) asks first."""
+    keys = Keys("edge/fresh")
+    asked: list[int] = []
+
+    def health(query: zenoh.Query) -> None:
+        asked.append(1)
+        query.reply(keys.health, b"health now")
+
+    queryable = session.declare_queryable(keys.health, health)
+
+    async def scenario() -> None:
+        edge, host, core = make(session, keys)
+        edge.attach(host, asyncio.get_running_loop())
+        try:
+            for key in (keys.nav_goal, keys.nav_move):
+                (reply,) = await get(session, key, b"{}")
+                assert reply.ok is not None
+            order = [call[0] for call in core.calls]
+            assert order == ["health", "goal", "health", "move"] and len(asked) == 2
+            (reply,) = await get(session, keys.nav_cancel, b"{}")  # a cancel never waits for anything
+            assert reply.ok is not None and len(asked) == 2
+        finally:
+            edge.close()
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        queryable.undeclare()
