@@ -54,7 +54,8 @@ async def serve(base: NavSettings, robots: list[FleetRobot], stop: asyncio.Event
 
 
 FLEET = Fleet(
-    "navigate every robot of this fleet file in this one process, on one Zenoh session",
+    "navigate every robot of this fleet file in this one process, on one Zenoh session (each robot's map_pose in its "
+    "[robot.nav] table); not with --prefix, --map-pose",
     fleet_settings,
     serve,
     single_robot={
