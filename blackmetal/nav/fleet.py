@@ -34,7 +34,7 @@ def build(member: Member[NavSettings]) -> tuple[NavZenoh, NavHost]:
     """One robot's navigation, from zero: inputs and queries through its intake, poses from its ring (the fleet's drain)."""
     settings = member.settings
     keys = Keys(settings.prefix)
-    edge = NavZenoh(member.session, keys, burst=member.burst)
+    edge = NavZenoh(member.session, keys, burst=member.burst, command_hz=settings.command_hz)
     core = NavCore(settings.params(), keys, edge.publish, map_pose=settings.start_map_pose(), geofence=settings.fence())
     host = NavHost(core, supervised=True)
     edge.attach(host, asyncio.get_running_loop(), ring=True)

@@ -52,11 +52,23 @@ log = logging.getLogger("blackmetal.nav")
 
 class NavZenoh(ZenohEdge):
     def __init__(
-        self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None, clock: Callable[[], float] = time.monotonic
+        self,
+        session: "zenoh.Session",
+        keys: Keys,
+        *,
+        burst: PutBurst | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        command_hz: float = 0.0,
     ) -> None:
-        """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never."""
+        """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never.
+
+        ``command_hz`` > 0: at most that many commands a second, the newest held until its turn (a stop never waits)."""
         super().__init__(session)
         self.clock = clock
+        self._command_period = 1.0 / command_hz if command_hz > 0 else 0.0
+        self._last_command_at = -math.inf
+        self._held: Twist | None = None  # the newest command waiting for its turn (command_hz)
+        self._held_timer: asyncio.TimerHandle | None = None
         self._active_until = -math.inf  # a fleet robot follows its poses until then (see ACTIVE_FOR_S)
         self._following = False  # a fleet robot (ring mode): poses wait for drain() in self._ring while it drives
         self._ready = False  # the last health said the robot can drive (see _noting_ready)
@@ -127,11 +139,41 @@ class NavZenoh(ZenohEdge):
 
     def publish(self, message: msgspec.Struct) -> None:
         kind = type(message)
-        if kind is Twist:
-            self.moving = message != Twist()
         if kind is Twist or kind is NavFeedback:
             self._active_until = self.clock() + ACTIVE_FOR_S
+        if kind is Twist:
+            self.moving = message != Twist()
+            if self._command_period:
+                self._pace(message)  # type: ignore[arg-type]
+                return
         super().publish(message)
+
+    def _pace(self, twist: Twist) -> None:
+        """``command_hz``: a command goes now if its turn came, else it waits (the newest replacing the one waiting) until
+        its turn; a stop goes at once and drops what waits."""
+        now = self.clock()
+        due = self._last_command_at + self._command_period
+        if self.moving and now < due:
+            self._held = twist
+            if self._held_timer is None:
+                self._held_timer = asyncio.get_running_loop().call_later(due - now, self._send_held)
+            return
+        self._drop_held()
+        self._last_command_at = now
+        ZenohEdge.publish(self, twist)
+
+    def _send_held(self) -> None:
+        self._held_timer = None
+        held, self._held = self._held, None
+        if held is not None:
+            self._last_command_at = self.clock()
+            ZenohEdge.publish(self, held)
+
+    def _drop_held(self) -> None:
+        self._held = None
+        if self._held_timer is not None:
+            self._held_timer.cancel()
+            self._held_timer = None
 
     def drain(self) -> int:
         """On the loop (the fleet's drain): the ring's newest pose to the host, the older ones superseded; how many samples
@@ -176,6 +218,7 @@ class NavZenoh(ZenohEdge):
 
     def close(self) -> None:
         """Undeclare everything; a robot nav was driving gets a zero first (the gateway's timeout would stop it later)."""
+        self._drop_held()
         self.follow(False)
         if self.moving and Twist in self._routes:
             publisher, _ = self._routes[Twist]

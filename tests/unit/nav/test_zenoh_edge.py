@@ -348,3 +348,37 @@ def test_a_goal_asks_for_the_health_only_when_the_last_said_the_robot_could_not_
         asyncio.run(scenario())
     finally:
         queryable.undeclare()
+
+
+def test_command_hz_sends_the_newest_command_at_its_turn_and_a_stop_at_once(session: zenoh.Session) -> None:
+    keys = Keys("edge/paced")
+    commands, subscriber = collect(session, keys.cmd_vel_of("nav"))
+
+    def twist(v: float) -> Twist:
+        return Twist(linear=Vector3(x=v))
+
+    async def scenario() -> None:
+        edge = NavZenoh(session, keys, command_hz=10.0)  # one each 0.1 s at most
+        edge.publish(twist(0.1))  # its turn: at once
+        edge.publish(twist(0.2))  # waits...
+        edge.publish(twist(0.3))  # ...replaced by the newest
+        await asyncio.sleep(0.02)
+        assert len(commands) == 1
+        await asyncio.sleep(0.15)
+        assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3]  # the newest, at its turn
+        edge.publish(twist(0.4))  # waits for its turn...
+        edge.publish(Twist())  # ...a stop does not: at once, and the waiting one is dropped
+        await asyncio.sleep(0.15)
+        assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3, 0.0] and not edge.moving
+        edge.publish(twist(0.5))
+        edge.publish(twist(0.6))
+        edge.close()  # a command still waiting is dropped, and the robot gets a zero
+        await asyncio.sleep(0.15)
+
+    asyncio.run(scenario())
+    for _ in range(100):
+        if len(commands) >= 5:
+            break
+        time.sleep(0.01)
+    subscriber.undeclare()
+    assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3, 0.0, 0.5, 0.0]
