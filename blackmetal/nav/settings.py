@@ -80,8 +80,9 @@ class NavSettings:
             raise ConfigError(f"command_hz must be from 0 (one command per pose) to 1000, got {self.command_hz:g}")
 
     def params(self) -> NavParams:
-        """The live parameters' start values."""
-        return NavParams(**{f.name: float(getattr(self, f.name)) for f in dataclasses.fields(NavParams)})
+        """The live parameters' start values (a parameter with no setting of its name keeps NavParams' default)."""
+        names = {f.name for f in dataclasses.fields(self)}
+        return NavParams(**{f.name: float(getattr(self, f.name)) for f in dataclasses.fields(NavParams) if f.name in names})
 
     def start_map_pose(self, wallclock: float | None = None) -> MapPose:
         """``map -> odom`` as the settings place it, by ``settings``."""
