@@ -275,3 +275,34 @@ def test_a_fleets_navigation_drives_the_robot_it_is_asked_to_alone() -> None:
         assert math.hypot(ends["r1"].x - starts["r1"].x, ends["r1"].y - starts["r1"].y) < 0.001
     finally:
         up.stop()
+
+
+def test_the_odometry_killed_during_a_goal_aborts_it_and_the_robot_stops() -> None:
+    """Pose lost: the goal ends aborted with its reason, and the robot stands still within the command timeout."""
+    zport = free_port()
+    processes: list[Child] = []
+    try:
+        sim = SimProcess(*zenoh_listen_args(zport))
+        processes.append(sim)
+        for args in (["gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port)], ["odometry"], ["nav"]):
+            processes.append(Child(["-m", "blackmetal", *args, *zenoh_connect_args(zport)]))
+            processes[-1].ready()
+        odometry = processes[2]
+        robot = Robot(zport, f"tcp/127.0.0.1:{zport}", processes)
+        with robot.session() as session:
+            wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.control.state == "connected",
+                     what="the gateway connected")  # fmt: skip
+            running = goto(robot, "3", "0")
+            try:
+                moving(session)
+                odometry.proc.kill()
+                code, out, err = finish(running, timeout=30)
+            finally:
+                if running.poll() is None:
+                    running.kill()
+            assert code == 1, out + err
+            assert "blackmetal goto: goal aborted after" in out and ("pose" in out or "odometry" in out), out
+            stays_still(session)
+    finally:
+        for process in reversed(processes):
+            process.stop()
