@@ -4,7 +4,9 @@ goals sent by ``blackmetal goto`` as a person sends them, the robot's arrival ju
 - ``goto 0.5 0.3 90`` reaches the goal (the truth within 3 cm and 2 degrees of it);
 - a goal while the e-stop is engaged is rejected with its sentence, and nothing moves;
 - an e-stop during a goal aborts it with its reason, and after the release the robot stays still;
+- teleop taking over for longer than the override timeout aborts the goal, and nothing resumes it;
 - Ctrl-C of goto (SIGINT) cancels the goal: exit 130, no traceback, and the robot stops;
+- the odometry killed during a goal aborts it, and the robot stops;
 - relative moves (``--move``, ``--turn``); one sentence when no navigation answers on a prefix.
 """
 
@@ -201,6 +203,26 @@ def test_an_estop_during_a_goal_aborts_it_and_nothing_moves_after_the_release(ro
         finally:
             estop(robot, "off")
         stays_still(session)  # no goal resumes after the release
+
+
+def test_teleop_taking_over_for_longer_than_the_override_timeout_aborts_the_goal(robot: Robot) -> None:
+    """teleop (priority 100) wins over nav (10) at once; after override_timeout (2 s) the goal ends aborted, and when
+    teleop lets go nothing resumes it."""
+    with robot.session() as session:
+        running = goto(robot, "-1.5", "-1")
+        try:
+            moving(session)
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end and running.poll() is None:
+                session.put("robot/cmd_vel/teleop", b'{"linear": {"x": 0.0}}')  # an operator holds the robot still
+                time.sleep(0.1)
+            code, out, err = finish(running, timeout=30)
+        finally:
+            if running.poll() is None:
+                running.kill()
+        assert code == 1, out + err
+        assert "blackmetal goto: goal aborted after" in out and "overridden" in out and "teleop" in out, out
+        stays_still(session)
 
 
 def test_ctrl_c_of_goto_cancels_the_goal_and_the_robot_stops(robot: Robot) -> None:
