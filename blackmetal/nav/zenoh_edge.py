@@ -36,8 +36,10 @@ RING = 4
 #: A fleet robot follows its poses (a subscriber) from a goal, a move or a set-pose until this long (s) after its
 #: navigation last drove or gave feedback; then it undeclares it, and asks for the pose with the next one.
 ACTIVE_FOR_S = 1.0
-#: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out).
-QUERIES_CAPACITY = 16
+#: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out). The
+#: core answers a goal in microseconds, so they wait only for a burst: 300 goals sent at once left 13 unanswered with
+#: 16 places, none with this many (each a refused or a preempting goal, with its sentence).
+QUERIES_CAPACITY = 1024
 #: The liveliness tokens whose presence the core follows: the roles it needs.
 FOLLOWED_ROLES = ("gateway", "odometry")
 #: How long a get the edge makes for the core (a gateway's health and parameters when it appears) waits for answers (s).

@@ -7,7 +7,8 @@ goals sent by ``blackmetal goto`` as a person sends them, the robot's arrival ju
 - teleop taking over for longer than the override timeout aborts the goal, and nothing resumes it;
 - Ctrl-C of goto (SIGINT) cancels the goal: exit 130, no traceback, and the robot stops;
 - the odometry killed during a goal aborts it, and the robot stops;
-- relative moves (``--move``, ``--turn``); one sentence when no navigation answers on a prefix.
+- a flood of goals, a third of them not goals, each answered; relative moves (``--move``, ``--turn``); one sentence
+  when no navigation answers on a prefix.
 """
 
 from __future__ import annotations
@@ -239,6 +240,37 @@ def test_ctrl_c_of_goto_cancels_the_goal_and_the_robot_stops(robot: Robot) -> No
         assert "Traceback" not in err, err
         assert "blackmetal goto: interrupted: goal canceled, the robot stops" in out, out
         stays_still(session)
+
+
+def test_a_flood_of_goals_is_answered_goal_by_goal_and_nothing_crashes(robot: Robot) -> None:
+    """300 goals at once, a third of them not a goal: each gets its answer (accepted, each preempting the last, or
+    refused with the reason); the navigation lives on, and a cancel stops the robot."""
+    import json
+    import threading
+
+    with robot.session() as session:
+        still(session)
+        answers: list[dict[str, object]] = []
+        lock = threading.Lock()
+
+        def send(k: int) -> None:
+            payload = json.dumps({"x": 0.3 + 0.0001 * k, "y": 0.0, "frame": "odom"}) if k % 3 else '{"x": "NaN", "y": 0}'
+            replies = [r for r in session.get("robot/nav/goal", payload=payload, timeout=10) if r.ok is not None]
+            with lock:
+                answers.extend(json.loads(r.ok.payload.to_bytes()) for r in replies)
+
+        threads = [threading.Thread(target=send, args=(k,)) for k in range(300)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(30)
+        assert len(answers) == 300
+        assert sum(bool(a["accepted"]) for a in answers) == 200
+        assert {str(a["reason"]).split(":")[0] for a in answers if not a["accepted"]} == {"invalid NavGoal"}
+        cancel = [r for r in session.get("robot/nav/cancel", timeout=5) if r.ok is not None]
+        assert cancel, "the navigation no longer answers"
+        stays_still(session)
+    assert all(process.poll() is None for process in robot.processes)
 
 
 def test_a_prefix_without_navigation_is_one_sentence(robot: Robot) -> None:
