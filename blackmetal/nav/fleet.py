@@ -34,7 +34,7 @@ def build(member: Member[NavSettings]) -> tuple[NavZenoh, NavHost]:
     """One robot's navigation, from zero: inputs and queries through its intake, poses from its ring (the fleet's drain)."""
     settings = member.settings
     keys = Keys(settings.prefix)
-    edge = NavZenoh(member.session, keys, burst=member.burst)
+    edge = NavZenoh(member.session, keys, burst=member.burst, command_hz=settings.command_hz)
     core = NavCore(settings.params(), keys, edge.publish, map_pose=settings.start_map_pose(), geofence=settings.fence())
     host = NavHost(core, supervised=True)
     edge.attach(host, asyncio.get_running_loop(), ring=True)
@@ -54,7 +54,8 @@ async def serve(base: NavSettings, robots: list[FleetRobot], stop: asyncio.Event
 
 
 FLEET = Fleet(
-    "navigate every robot of this fleet file in this one process, on one Zenoh session",
+    "navigate every robot of this fleet file in this one process, on one Zenoh session (each robot's map_pose in its "
+    "[robot.nav] table); not with --prefix, --map-pose",
     fleet_settings,
     serve,
     single_robot={

@@ -25,7 +25,7 @@ async def serve(settings: NavSettings, stop: asyncio.Event) -> None:
     keys = Keys(settings.prefix)
     with await open_service_session(settings.zenoh, stop, "nav") as session:
         refuse_taken(session, "nav", [keys.prefix], what="navigation service")
-        edge = NavZenoh(session, keys)
+        edge = NavZenoh(session, keys, command_hz=settings.command_hz)
         core = NavCore(settings.params(), keys, edge.publish, map_pose=settings.start_map_pose(), geofence=settings.fence())
         host = NavHost(core)
         edge.attach(host, asyncio.get_running_loop())

@@ -55,6 +55,12 @@ class NavSettings:
     pose_timeout: float = _param("pose_timeout", "stop and abort when no pose came for this long, s", "S")
     no_progress_timeout: float = _param("no_progress_timeout", "abort a goal that came no closer for this long, s", "S")
     feedback_hz: float = _param("feedback_hz", "nav/feedback publications a second while a goal runs", "HZ")
+    command_hz: float = setting(
+        0.0,
+        "velocity commands a second at most, the newest sent at its turn, a stop at once (0: one per pose, as the core "
+        "makes them); fewer spare a fleet gateway (docs/performance.md)",
+        metavar="HZ",
+    )
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
 
     def check(self) -> None:
@@ -70,10 +76,13 @@ class NavSettings:
             if not (x_min < x_max and y_min < y_max):
                 raise ConfigError(f"geofence {self.geofence}: XMIN must be below XMAX and YMIN below YMAX (XMIN,YMIN,XMAX,YMAX)")
         self.params().check()  # each live parameter within its range, as nav/params/set would have it
+        if not (math.isfinite(self.command_hz) and 0.0 <= self.command_hz <= 1000.0):
+            raise ConfigError(f"command_hz must be from 0 (one command per pose) to 1000, got {self.command_hz:g}")
 
     def params(self) -> NavParams:
-        """The live parameters' start values."""
-        return NavParams(**{f.name: float(getattr(self, f.name)) for f in dataclasses.fields(NavParams)})
+        """The live parameters' start values (a parameter with no setting of its name keeps NavParams' default)."""
+        names = {f.name for f in dataclasses.fields(self)}
+        return NavParams(**{f.name: float(getattr(self, f.name)) for f in dataclasses.fields(NavParams) if f.name in names})
 
     def start_map_pose(self, wallclock: float | None = None) -> MapPose:
         """``map -> odom`` as the settings place it, by ``settings``."""

@@ -1,9 +1,10 @@
 """Zenoh edge of the navigation service: its input table and its outputs, declarations only.
 
-Inputs reach the host on the service's loop through one intake (a fleet's poses through a ring each, drained by the
-loop); liveliness subscribers ask for history, so a gateway or an odometry alive before nav started is seen at once
-(any start order), and a gateway that appears is asked for its health and its parameters (published each second and
-only on a change). Outputs are routed by type (:meth:`ZenohEdge.routes`): ``Twist`` to ``cmd_vel/nav`` (a command:
+Inputs reach the host on the service's loop through one intake; liveliness subscribers ask for history, so a gateway
+or an odometry alive before nav started is seen at once (any start order), and a gateway that appears is asked for its
+health and its parameters (published each second and only on a change). A fleet robot follows its poses only while its
+navigation drives (a ring the loop drains): a goal asks for the pose and the health first, and an idle fleet costs the
+router and nav no pose at all. Outputs are routed by type (:meth:`ZenohEdge.routes`): ``Twist`` to ``cmd_vel/nav`` (a command:
 never dropped, express), ``NavFeedback``, ``MapPose``, ``GatewayParams`` (``nav/params``) and ``ErrorReport``.
 """
 
@@ -13,7 +14,6 @@ import asyncio
 import logging
 import math
 import time
-from collections import deque
 from collections.abc import Callable
 from functools import partial
 from typing import TYPE_CHECKING
@@ -23,7 +23,8 @@ import msgspec
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.runtime.edge import ZenohEdge
 from blackmetal.runtime.intake import Intake
-from blackmetal.schemas import Keys, NavFeedback, PayloadError, Sources, Twist, WheelMove, encode, payload_bytes
+from blackmetal.runtime.zenoh_entities import undeclare
+from blackmetal.schemas import GatewayHealth, Keys, NavFeedback, PayloadError, Sources, Twist, WheelMove, decode, encode, payload_bytes
 
 from .host import NavHost
 
@@ -32,31 +33,47 @@ if TYPE_CHECKING:
 
 #: A fleet robot's poses wait in a Zenoh ring of this many for :meth:`NavZenoh.drain` (which takes the newest).
 RING = 4
-#: While its navigation drives nothing, a fleet robot's poses are taken at most this often (s), not at every drain: no
-#: goal needs them sooner (a goal or a move takes the newest first). The last two are taken, so the core still sees the
-#: poses' own period between them; the pause itself (longer than 0.2 s) the core's period estimate leaves out.
-IDLE_DRAIN_S = 0.25
-#: After nav last drove or gave feedback, its robot's poses are taken at every drain for this long (s).
+#: A fleet robot follows its poses (a subscriber) from a goal, a move or a set-pose until this long (s) after its
+#: navigation last drove or gave feedback; then it undeclares it, and asks for the pose with the next one.
 ACTIVE_FOR_S = 1.0
-#: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out).
-QUERIES_CAPACITY = 16
+#: Queries of one kind that wait for the loop; a flood beyond it drops the oldest (its client's get times out). The
+#: core answers a goal in microseconds, so they wait only for a burst: 300 goals sent at once left 13 unanswered with
+#: 16 places, none with this many (each a refused or a preempting goal, with its sentence).
+QUERIES_CAPACITY = 1024
 #: The liveliness tokens whose presence the core follows: the roles it needs.
 FOLLOWED_ROLES = ("gateway", "odometry")
 #: How long a get the edge makes for the core (a gateway's health and parameters when it appears) waits for answers (s).
 ASK_TIMEOUT_S = 2.0
+#: A goal or a move first asks the gateway for its health (it is published once a second: a link that came up since
+#: would still read down) and, in a fleet, the odometry for the pose, and waits at most this long (s) for them; their
+#: answers come in about a millisecond.
+REFRESH_TIMEOUT_S = 0.25
 
 log = logging.getLogger("blackmetal.nav")
 
 
 class NavZenoh(ZenohEdge):
     def __init__(
-        self, session: "zenoh.Session", keys: Keys, *, burst: PutBurst | None = None, clock: Callable[[], float] = time.monotonic
+        self,
+        session: "zenoh.Session",
+        keys: Keys,
+        *,
+        burst: PutBurst | None = None,
+        clock: Callable[[], float] = time.monotonic,
+        command_hz: float = 0.0,
     ) -> None:
-        """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never."""
+        """One robot; a fleet (``burst``): feedback batched with the other robots' telemetry, commands never.
+
+        ``command_hz`` > 0: at most that many commands a second, the newest held until its turn (a stop never waits)."""
         super().__init__(session)
         self.clock = clock
-        self._active_until = -math.inf  # a fleet robot's poses are taken at every drain until then (see IDLE_DRAIN_S)
-        self._next_idle_take = -math.inf
+        self._command_period = 1.0 / command_hz if command_hz > 0 else 0.0
+        self._last_command_at = -math.inf
+        self._held: Twist | None = None  # the newest command waiting for its turn (command_hz)
+        self._held_timer: asyncio.TimerHandle | None = None
+        self._active_until = -math.inf  # a fleet robot follows its poses until then (see ACTIVE_FOR_S)
+        self._following = False  # a fleet robot (ring mode): poses wait for drain() in self._ring while it drives
+        self._ready = False  # the last health said the robot can drive (see _noting_ready)
         self.keys = keys
         command = keys.cmd_vel_of(Sources.NAV)
         self.routes(keys, (command,), fast=command)  # express, never held in a burst
@@ -72,7 +89,7 @@ class NavZenoh(ZenohEdge):
         """Declare the inputs that feed ``host``; ``ring`` (a fleet): poses wait for :meth:`drain`, no callback each."""
         intake, keys = self.intake(loop, on_error=host.on_error()), self.keys
         # what stops a goal (e-stop, link, driver, a service gone) is handled before the poses that wait
-        health = intake.channel("health", host.on_health, latest=True, priority=1)
+        health = intake.channel("health", self._noting_ready(host.on_health), latest=True, priority=1)
         limits = intake.channel("gateway params", host.on_gateway_params, latest=True, priority=1)
         self.subscriber(keys.health, health)
         self.subscriber(keys.driver, intake.channel("driver", host.on_driver, capacity=16, priority=1))
@@ -88,26 +105,38 @@ class NavZenoh(ZenohEdge):
 
         for role in FOLLOWED_ROLES:
             self._alive(keys.alive(role), intake.channel(f"alive/{role}", partial(on_alive, role), capacity=16, priority=1))
-        if ring:
-            import zenoh
-
-            self._ring = self.session.declare_subscriber(keys.pose, zenoh.handlers.RingChannel(RING))
-            self._entities.append(self._ring)
+        pose = intake.channel("pose", host.on_pose, latest=True, priority=1 if ring else 0)
+        if ring:  # a fleet: poses only while driving; a goal asks for the pose first (before the query, priority 1)
             self._host = host
         else:
-            self.subscriber(keys.pose, intake.channel("pose", host.on_pose, latest=True))
+            self.subscriber(keys.pose, pose)
+
+        def for_a_goal() -> list[tuple[str, Callable[[bytes], None]]]:
+            """What a goal or a move asks for first: the health unless the last said the robot can drive (an e-stop and a
+            link lost are published at once, a link that came up only within a second), a fleet robot's pose unless
+            it follows its poses."""
+            return [(keys.health, health)] * (not self._ready) + [(keys.pose, pose)] * (ring and not self._following)
+
+        def for_a_set_pose() -> list[tuple[str, Callable[[bytes], None]]]:
+            return [(keys.pose, pose)] * (ring and not self._following)
+
         queries: dict[str, Callable[[bytes | None], msgspec.Struct]] = {
-            keys.nav_goal: self._fresh(host.on_goal),
-            keys.nav_move: self._fresh(host.on_move),
+            keys.nav_goal: self._following_poses(host.on_goal),
+            keys.nav_move: self._following_poses(host.on_move),
             keys.nav_cancel: host.on_cancel,
             keys.nav_result: host.on_result,
             keys.nav_map_pose: host.map_pose,
-            keys.nav_set_pose: host.on_set_pose,
+            keys.nav_set_pose: self._following_poses(host.on_set_pose),
             keys.nav_params: host.params,
             keys.nav_params_set: host.on_params_set,
         }
+        first = {keys.nav_goal: for_a_goal, keys.nav_move: for_a_goal, keys.nav_set_pose: for_a_set_pose}
+        later = intake.channel("after asking", _call, capacity=2 * QUERIES_CAPACITY)
         for key, handler in queries.items():
-            self.queryable(key, intake.channel(f"{key.rpartition('/nav/')[2]}?", self._answerer(key, handler), capacity=QUERIES_CAPACITY))
+            answer = self._answerer(key, handler)
+            if key in first:
+                answer = self._after_asking(answer, first[key], later)
+            self.queryable(key, intake.channel(f"{key.rpartition('/nav/')[2]}?", answer, capacity=QUERIES_CAPACITY))
         recent = host.core.reporter.recent
         self.queryable(keys.errors, intake.channel("errors?", lambda q: self.answer_recent(q, keys.errors, list(recent)), capacity=16))
         self.token(keys.alive_nav)
@@ -119,52 +148,87 @@ class NavZenoh(ZenohEdge):
             if self._move_replies is not None:
                 self.ask(self.keys.wheels_move, self._move_replies, encode(message))
             return
-        if kind is Twist:
-            self.moving = message != Twist()
         if kind is Twist or kind is NavFeedback:
             self._active_until = self.clock() + ACTIVE_FOR_S
+        if kind is Twist:
+            self.moving = message != Twist()
+            if self._command_period:
+                self._pace(message)  # type: ignore[arg-type]
+                return
         super().publish(message)
+
+    def _pace(self, twist: Twist) -> None:
+        """``command_hz``: a command goes now if its turn came, else it waits (the newest replacing the one waiting) until
+        its turn; a stop goes at once and drops what waits."""
+        now = self.clock()
+        due = self._last_command_at + self._command_period
+        if self.moving and now < due:
+            self._held = twist
+            if self._held_timer is None:
+                self._held_timer = asyncio.get_running_loop().call_later(due - now, self._send_held)
+            return
+        self._drop_held()
+        self._last_command_at = now
+        ZenohEdge.publish(self, twist)
+
+    def _send_held(self) -> None:
+        self._held_timer = None
+        held, self._held = self._held, None
+        if held is not None:
+            self._last_command_at = self.clock()
+            ZenohEdge.publish(self, held)
+
+    def _drop_held(self) -> None:
+        self._held = None
+        if self._held_timer is not None:
+            self._held_timer.cancel()
+            self._held_timer = None
 
     def drain(self) -> int:
         """On the loop (the fleet's drain): the ring's newest pose to the host, the older ones superseded; how many samples
-        the ring held. While nav drives nothing, only every IDLE_DRAIN_S, and the newest two (see IDLE_DRAIN_S)."""
-        if self._ring is None:
+        the ring held. Past ACTIVE_FOR_S without driving, the robot stops following its poses."""
+        ring, host = self._ring, self._host
+        if ring is None or host is None:
             return 0
-        now = self.clock()
-        if now < self._active_until:
-            return self._take_newest()
-        if now >= self._next_idle_take:
-            self._next_idle_take = now + IDLE_DRAIN_S
-            return self._take_newest(2)
-        return 0
+        if self.clock() >= self._active_until:
+            self.follow(False)
+            return 0
+        taken, newest = 0, None
+        while (sample := ring.try_recv()) is not None:
+            taken += 1
+            newest = sample
+        if newest is not None:
+            host.on_pose(payload_bytes(newest))
+        return taken
 
-    def _fresh(self, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[[bytes | None], msgspec.Struct]:
-        """``handler`` (a goal's, a move's), the ring's newest pose handed to the core first: it plans from where the robot is."""
+    def follow(self, on: bool) -> None:
+        """A fleet robot: declare (or undeclare) the ring of its poses; on the loop."""
+        if on == self._following:
+            return
+        self._following = on
+        if on:
+            import zenoh
+
+            self._ring = self.session.declare_subscriber(self.keys.pose, zenoh.handlers.RingChannel(RING))
+        elif self._ring is not None:
+            ring, self._ring = self._ring, None
+            undeclare(ring)
+
+    def _following_poses(self, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[[bytes | None], msgspec.Struct]:
+        """``handler`` (a goal's, a move's, a set-pose's); a fleet robot follows its poses from then on."""
 
         def handle(payload: bytes | None) -> msgspec.Struct:
-            if self._ring is not None:
-                self._take_newest()
+            if self._host is not None:
                 self._active_until = self.clock() + ACTIVE_FOR_S
+                self.follow(True)
             return handler(payload)
 
         return handle
 
-    def _take_newest(self, count: int = 1) -> int:
-        """The ``count`` newest poses of the ring to the host, oldest first; how many samples the ring held."""
-        ring, host = self._ring, self._host
-        if ring is None or host is None:
-            return 0
-        taken, newest = 0, deque["zenoh.Sample"](maxlen=count)
-        while (sample := ring.try_recv()) is not None:
-            taken += 1
-            newest.append(sample)
-        for sample in newest:
-            host.on_pose(payload_bytes(sample))
-        return taken
-
     def close(self) -> None:
         """Undeclare everything; a robot nav was driving gets a zero first (the gateway's timeout would stop it later)."""
-        self._ring = None
+        self._drop_held()
+        self.follow(False)
         if self.moving and Twist in self._routes:
             publisher, _ = self._routes[Twist]
             try:
@@ -212,6 +276,58 @@ class NavZenoh(ZenohEdge):
         handler: zenoh.handlers.Callback[zenoh.Sample] = zenoh.handlers.Callback(on_sample, indirect=False)
         self._entities.append(self.session.liveliness().declare_subscriber(key, handler, history=True))
 
+    def _noting_ready(self, on_health: Callable[[bytes], None]) -> Callable[[bytes], None]:
+        """``on_health``, the edge noting whether the health said the robot can drive (connected, no e-stop): only then
+        does a goal go to the core without asking for the health first. The core decides alone what the health means."""
+
+        def handle(payload: bytes) -> None:
+            try:
+                health = decode(GatewayHealth, payload)
+                self._ready = health.control.state == "connected" and not health.estop
+            except PayloadError:
+                self._ready = False
+            on_health(payload)
+
+        return handle
+
+    def _after_asking(
+        self,
+        answer: Callable[["zenoh.Query"], None],
+        asks: Callable[[], list[tuple[str, Callable[[bytes], None]]]],
+        later: Callable[[tuple[Callable[["zenoh.Query"], None], "zenoh.Query"]], None],
+    ) -> Callable[["zenoh.Query"], None]:
+        """``answer`` once each key ``asks()`` names now (the gateway's health; a fleet robot's pose) was asked for and
+        its answers handed to the core (into their channels, which the intake serves first), at most REFRESH_TIMEOUT_S
+        later: the last get's end puts the query into ``later``. Nothing to ask: answered at once."""
+        import zenoh
+
+        def first(query: "zenoh.Query") -> None:
+            asked = asks()
+            if not asked:
+                answer(query)
+                return
+            pending = [query]  # answered once: after the last get's end
+            left = [len(asked)]
+
+            def done() -> None:
+                left[0] -= 1
+                if left[0] <= 0 and pending:
+                    later((answer, pending.pop()))
+
+            for key, put in asked:
+
+                def on_reply(reply: "zenoh.Reply", put: Callable[[bytes], None] = put) -> None:
+                    if reply.ok is not None:
+                        put(payload_bytes(reply.ok))
+
+                try:
+                    self.session.get(key, zenoh.handlers.Callback(on_reply, drop=done, indirect=False), timeout=REFRESH_TIMEOUT_S)
+                except Exception as exc:  # the session is closing: answer with what the core knows
+                    log.debug("get on %s refused: %s", key, exc)
+                    done()
+
+        return first
+
     def _answerer(self, key: str, handler: Callable[[bytes | None], msgspec.Struct]) -> Callable[["zenoh.Query"], None]:
         """On the loop: the query's payload to ``handler``, its answer replied as JSON (a PayloadError: an error reply)."""
 
@@ -228,3 +344,8 @@ class NavZenoh(ZenohEdge):
                 query.reply(key, encode(reply), encoding=zenoh.Encoding.APPLICATION_JSON)
 
         return answer
+
+
+def _call(item: tuple[Callable[["zenoh.Query"], None], "zenoh.Query"]) -> None:
+    answer, query = item
+    answer(query)

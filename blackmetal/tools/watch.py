@@ -1,4 +1,4 @@
-"""``blackmetal watch``: a live view of pose, status, health and errors."""
+"""``blackmetal watch``: a live view of pose, status, health, the navigation's goal and errors."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from collections import deque
 import zenoh
 
 from blackmetal.runtime.signals import stop_on_signals
-from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, Pose, RobotStatus
+from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, NavFeedback, Pose, RobotStatus
 
 from .client import Latest, add_client_arguments, connect, decoded, decoded_replies, require_gateway, tool
 
@@ -46,8 +46,19 @@ def describe_sources(health: GatewayHealth) -> str:
     return "; ".join(parts)
 
 
+def describe_goal(feedback: NavFeedback) -> str:
+    """The navigation's latest goal, one line: its state, where to, how far and how long left, why it ended."""
+    goal = feedback.goal
+    where = f"({goal.x:.3f}, {goal.y:.3f}, {math.degrees(goal.yaw):.1f}°) in {goal.frame}"
+    if feedback.state.done:
+        why = f": {feedback.reason}" if feedback.reason else ""
+        return f"goal {feedback.goal_id[:8]} to {where} {feedback.state.value} after {feedback.elapsed:.1f} s{why}"
+    return (f"goal {feedback.goal_id[:8]} to {where} {feedback.state.value}: {feedback.distance_remaining:.3f} m left, "
+            f"eta {feedback.eta:.1f} s, {feedback.elapsed:.1f} s so far")  # fmt: skip
+
+
 def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, health: GatewayHealth | None,
-           errors: list[ErrorReport], pose_rate: float) -> list[str]:  # fmt: skip
+           errors: list[ErrorReport], pose_rate: float, nav: NavFeedback | None = None) -> list[str]:  # fmt: skip
     lines = [f"pose    {_fmt_pose(pose)}   ({pose_rate:.0f}/s)"]
     if truth is not None:
         lines.append(f"truth   {_fmt_pose(truth)}")
@@ -65,6 +76,8 @@ def render(pose: Pose | None, truth: Pose | None, status: RobotStatus | None, he
             f"counts  commands {h.commands_sent}, polls {h.polls}, replies {h.replies}, full-buffer {h.full_buffer}, "
             f"malformed {h.malformed_replies}, rejected inputs {h.rejected_inputs}, keep-alives {h.keepalives}",
         ]
+    if nav is not None:
+        lines.append(f"nav     {describe_goal(nav)}")
     lines.append(f"errors  {len(errors)} recent" + ("" if errors else ": none"))
     for report in errors[-5:]:
         lines.append(f"  {time.strftime('%H:%M:%S', time.localtime(report.stamp))} {report.source} {report.key}: {report.reason}")
@@ -82,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         truth = Latest(session, keys.sim_truth, Pose)
         status = Latest(session, keys.status, RobotStatus)
         health = Latest(session, keys.health, GatewayHealth, health0)
+        nav = Latest(session, keys.nav_feedback, NavFeedback)
         errors: deque[ErrorReport] = deque(maxlen=50)
 
         def on_error(sample: zenoh.Sample) -> None:
@@ -99,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
             now = time.monotonic()
             rate = (pose.count - last_count) / max(now - last_time, 1e-6)
             last_count, last_time = pose.count, now
-            text = "\n".join(render(pose.value, truth.value, status.value, health.value, list(errors), rate))
+            text = "\n".join(render(pose.value, truth.value, status.value, health.value, list(errors), rate, nav.value))
             sys.stdout.write(f"\x1b[H\x1b[J{text}\n" if tty else f"{text}\n--\n")
             sys.stdout.flush()
             if now >= deadline or stop.wait(min(period, max(deadline - now, 0.0))):

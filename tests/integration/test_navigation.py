@@ -4,8 +4,11 @@ goals sent by ``blackmetal goto`` as a person sends them, the robot's arrival ju
 - ``goto 0.5 0.3 90`` reaches the goal (the truth within 3 cm and 2 degrees of it);
 - a goal while the e-stop is engaged is rejected with its sentence, and nothing moves;
 - an e-stop during a goal aborts it with its reason, and after the release the robot stays still;
+- teleop taking over for longer than the override timeout aborts the goal, and nothing resumes it;
 - Ctrl-C of goto (SIGINT) cancels the goal: exit 130, no traceback, and the robot stops;
-- relative moves (``--move``, ``--turn``); one sentence when no navigation answers on a prefix.
+- the odometry killed during a goal aborts it, and the robot stops;
+- a flood of goals, a third of them not goals, each answered; relative moves (``--move``, ``--turn``); one sentence
+  when no navigation answers on a prefix.
 """
 
 from __future__ import annotations
@@ -203,6 +206,26 @@ def test_an_estop_during_a_goal_aborts_it_and_nothing_moves_after_the_release(ro
         stays_still(session)  # no goal resumes after the release
 
 
+def test_teleop_taking_over_for_longer_than_the_override_timeout_aborts_the_goal(robot: Robot) -> None:
+    """teleop (priority 100) wins over nav (10) at once; after override_timeout (2 s) the goal ends aborted, and when
+    teleop lets go nothing resumes it."""
+    with robot.session() as session:
+        running = goto(robot, "-1.5", "-1")
+        try:
+            moving(session)
+            end = time.monotonic() + 3.0
+            while time.monotonic() < end and running.poll() is None:
+                session.put("robot/cmd_vel/teleop", b'{"linear": {"x": 0.0}}')  # an operator holds the robot still
+                time.sleep(0.1)
+            code, out, err = finish(running, timeout=30)
+        finally:
+            if running.poll() is None:
+                running.kill()
+        assert code == 1, out + err
+        assert "blackmetal goto: goal aborted after" in out and "overridden" in out and "teleop" in out, out
+        stays_still(session)
+
+
 def test_ctrl_c_of_goto_cancels_the_goal_and_the_robot_stops(robot: Robot) -> None:
     with robot.session() as session:
         running = goto(robot, "-2", "0.5")
@@ -217,6 +240,37 @@ def test_ctrl_c_of_goto_cancels_the_goal_and_the_robot_stops(robot: Robot) -> No
         assert "Traceback" not in err, err
         assert "blackmetal goto: interrupted: goal canceled, the robot stops" in out, out
         stays_still(session)
+
+
+def test_a_flood_of_goals_is_answered_goal_by_goal_and_nothing_crashes(robot: Robot) -> None:
+    """300 goals at once, a third of them not a goal: each gets its answer (accepted, each preempting the last, or
+    refused with the reason); the navigation lives on, and a cancel stops the robot."""
+    import json
+    import threading
+
+    with robot.session() as session:
+        still(session)
+        answers: list[dict[str, object]] = []
+        lock = threading.Lock()
+
+        def send(k: int) -> None:
+            payload = json.dumps({"x": 0.3 + 0.0001 * k, "y": 0.0, "frame": "odom"}) if k % 3 else '{"x": "NaN", "y": 0}'
+            replies = [r for r in session.get("robot/nav/goal", payload=payload, timeout=10) if r.ok is not None]
+            with lock:
+                answers.extend(json.loads(r.ok.payload.to_bytes()) for r in replies)
+
+        threads = [threading.Thread(target=send, args=(k,)) for k in range(300)]
+        for thread in threads:
+            thread.start()
+        for thread in threads:
+            thread.join(30)
+        assert len(answers) == 300
+        assert sum(bool(a["accepted"]) for a in answers) == 200
+        assert {str(a["reason"]).split(":")[0] for a in answers if not a["accepted"]} == {"invalid NavGoal"}
+        cancel = [r for r in session.get("robot/nav/cancel", timeout=5) if r.ok is not None]
+        assert cancel, "the navigation no longer answers"
+        stays_still(session)
+    assert all(process.poll() is None for process in robot.processes)
 
 
 def test_a_prefix_without_navigation_is_one_sentence(robot: Robot) -> None:
@@ -251,3 +305,58 @@ def test_up_starts_the_navigation_and_starts_it_again_when_it_dies() -> None:
         assert up.poll() is None
     finally:
         up.stop()
+
+
+def test_a_fleets_navigation_drives_the_robot_it_is_asked_to_alone() -> None:
+    """``up --robots 2``: one ``nav --fleet`` for both; a move for r2 moves r2, and r1 stays where it is."""
+    zport = free_port()
+    endpoint = f"tcp/127.0.0.1:{zport}"
+    up = Child(["-m", "blackmetal", "up", "--robots", "2", "-l", endpoint, "--no-multicast-scouting"])
+    try:
+        assert "nav" in up.ready(timeout=90)["children"]
+        with zenoh.open(client_config(zport)) as session:
+            starts = {p: wait_for(lambda p=p: get(session, f"fleet/{p}/sim/truth", Pose), what=f"{p}'s truth") for p in ("r1", "r2")}
+            done = subprocess.run(
+                [sys.executable, "-m", "blackmetal", "goto", "--move", "0.25", "--prefix", "fleet/r2", "-e", endpoint,
+                 "--no-multicast-scouting", "--wait", "30"],
+                capture_output=True, text=True, timeout=120,
+            )  # fmt: skip
+            assert done.returncode == 0, done.stdout + done.stderr
+            assert "accepted on fleet/r2" in done.stdout
+            ends = {p: get(session, f"fleet/{p}/sim/truth", Pose) for p in ("r1", "r2")}
+        x, y, _ = relative(starts["r2"], ends["r2"])
+        assert math.hypot(x - 0.25, y) < TRUTH_TOLERANCE_M, (x, y)
+        assert math.hypot(ends["r1"].x - starts["r1"].x, ends["r1"].y - starts["r1"].y) < 0.001
+    finally:
+        up.stop()
+
+
+def test_the_odometry_killed_during_a_goal_aborts_it_and_the_robot_stops() -> None:
+    """Pose lost: the goal ends aborted with its reason, and the robot stands still within the command timeout."""
+    zport = free_port()
+    processes: list[Child] = []
+    try:
+        sim = SimProcess(*zenoh_listen_args(zport))
+        processes.append(sim)
+        for args in (["gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port)], ["odometry"], ["nav"]):
+            processes.append(Child(["-m", "blackmetal", *args, *zenoh_connect_args(zport)]))
+            processes[-1].ready()
+        odometry = processes[2]
+        robot = Robot(zport, f"tcp/127.0.0.1:{zport}", processes)
+        with robot.session() as session:
+            wait_for(lambda: (h := get(session, "robot/gateway/health", GatewayHealth)) is not None and h.control.state == "connected",
+                     what="the gateway connected")  # fmt: skip
+            running = goto(robot, "3", "0")
+            try:
+                moving(session)
+                odometry.proc.kill()
+                code, out, err = finish(running, timeout=30)
+            finally:
+                if running.poll() is None:
+                    running.kill()
+            assert code == 1, out + err
+            assert "blackmetal goto: goal aborted after" in out and ("pose" in out or "odometry" in out), out
+            stays_still(session)
+    finally:
+        for process in reversed(processes):
+            process.stop()

@@ -33,6 +33,10 @@ STOP_BUDGET_S = 3.0
 READY_TIMEOUT_S = 30.0
 #: How often the children are checked: a dead gateway's robot is stopped within about this long.
 CHILD_CHECK_S = 0.05
+#: A fleet's navigation commands each robot at most this often (``nav --command-hz``; 0 in a settings file: every pose):
+#: 100 robots commanded at 50 Hz took the fleet gateway to a whole core and its polls down to 25-30 Hz on a 2-core host;
+#: at 10 Hz they stayed at 48-50 Hz, and goals still ended within 2 mm of the simulator's truth (docs/performance.md).
+FLEET_COMMAND_HZ = 10.0
 #: A gateway that dies is started again (as systemd's Restart=on-failure does), at most this many times in the window (s).
 MAX_RESTARTS = 5
 RESTART_WINDOW_S = 60.0
@@ -64,6 +68,11 @@ class Launch:
     @property
     def gateway_args(self) -> list[str]:
         return [*(["--poll-hz", str(self.args.poll_hz)] if self.args.poll_hz is not None else []), *latch_args(self.args, self.files)]
+
+    @property
+    def nav_fleet_args(self) -> list[str]:
+        """A fleet's navigation paced to FLEET_COMMAND_HZ, unless the settings file says otherwise."""
+        return [] if self.files.sets("nav", "command_hz") else ["--command-hz", f"{FLEET_COMMAND_HZ:g}"]
 
     def foxglove(self, *where: str) -> str | None:
         """The Foxglove view's URL, when asked for one."""
@@ -127,7 +136,7 @@ def run_fleet(launch: Launch, session: zenoh.Session, stop: threading.Event, fle
             shard_file.write_text(write_fleet(group))
         gateways[launch.start(f"gateway{suffix}", ["gateway", "--fleet", str(shard_file), *launch.gateway_args])] = group
         odometries.append(launch.start(f"odometry{suffix}", ["odometry", "--fleet", str(shard_file)]))
-        navs.append(launch.start(f"nav{suffix}", ["nav", "--fleet", str(shard_file)]))
+        navs.append(launch.start(f"nav{suffix}", ["nav", "--fleet", str(shard_file), *launch.nav_fleet_args]))
     # one ROS node per robot, /<id>/..., in one adapter process
     ros2 = launch.start("ros2", ["ros2", "--fleet", str(fleet_file), "--flavor", args.ros2, *ros2_extra(args)]) if args.ros2 else None
     announced = [gateway.wait_ready(READY_TIMEOUT_S) for gateway in gateways]

@@ -83,11 +83,14 @@ class ServiceFiles:
     def __init__(self, path: str | None, services: list[str]) -> None:
         self._dir: tempfile.TemporaryDirectory[str] | None = None
         self.files: dict[str, str] = {}
+        #: Each service's own keys from the file (empty without a file).
+        self.own: dict[str, dict[str, Any]] = {}
         self.prefix: str | None = None
         self.decided: list[str] = []
         if not path:
             return
         own, self.decided = split_settings(path)
+        self.own = own
         prefixes = {str(values["prefix"]) for values in own.values() if "prefix" in values}
         if len(prefixes) > 1:
             raise ConfigError(f"settings file {path}: one demo has one prefix, got {sorted(prefixes)}")
@@ -103,6 +106,10 @@ class ServiceFiles:
 
     def args(self, name: str) -> list[str]:
         return ["--settings", self.files[name]] if name in self.files else []
+
+    def sets(self, name: str, key: str) -> bool:
+        """Whether the file gives service ``name`` the setting ``key`` (up then leaves it to the file)."""
+        return key in self.own.get(name, {})
 
     def run_dir(self) -> str:
         """This run's folder (removed when up ends): the state of its simulated robots."""

@@ -44,7 +44,7 @@ def test_each_robot_has_its_prefix_and_its_own_place_on_the_map() -> None:
     assert (second.prefix, second.map_pose, second.fence(), second.max_speed) == ("fleet/r2", [0.0, 0.0, 0.0], None, 0.2)
 
 
-def test_a_member_is_built_supervised_and_takes_its_poses_at_the_drain(session: zenoh.Session, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_a_member_is_built_supervised_and_follows_its_poses_from_a_move(session: zenoh.Session, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setattr(fleet, "NavCore", FakeNavCore)
     robot = robots()[0]
 
@@ -52,10 +52,16 @@ def test_a_member_is_built_supervised_and_takes_its_poses_at_the_drain(session: 
         member = Member(fleet.ROLE, robot, fleet.fleet_settings(NavSettings(), [robot])[0], session, PutBurst()).start()
         core = member.host.core
         assert member.host.supervised and core.geofence == (0.0, 0.0, 10.0, 10.0) and core.map_pose().yaw == math.pi / 2
-        for k in range(3):
+        session.put("fleet/r1/pose", b'{"k":0}')
+        await asyncio.sleep(0.05)
+        member.drain()
+        assert core.named("pose") == []  # idle: its poses are not followed
+        await asyncio.to_thread(lambda: list(session.get("fleet/r1/nav/move", payload=b"{}", timeout=5)))
+        for k in range(1, 4):
             session.put("fleet/r1/pose", b'{"k":%d}' % k)
         await asyncio.sleep(0.05)
-        assert member.drain() and [call[1] for call in core.named("pose")] == [b'{"k":1}', b'{"k":2}']  # idle: the last two
+        member.drain()
+        assert [call[1] for call in core.named("pose")] == [b'{"k":3}']  # a move: followed, the newest taken
         member.close()
 
     asyncio.run(scenario())

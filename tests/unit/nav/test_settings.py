@@ -36,6 +36,10 @@ def test_every_live_parameter_is_a_setting_of_its_name() -> None:
     assert (settings.params().max_speed, settings.params().yaw_tolerance, settings.params().feedback_hz) == (0.2, 0.03, 20.0)
 
 
+def test_command_hz_is_off_unless_asked() -> None:
+    assert load().command_hz == 0.0 and load("--command-hz", "10").command_hz == 10.0
+
+
 def test_map_pose_and_geofence_from_the_command_line_the_environment_and_a_file(tmp_path: Path) -> None:
     settings = load("--map-pose=-1.5,2,1.57", "--map", "floor2", "--geofence=-5,-4,5,4")
     assert settings.map_pose == [-1.5, 2.0, 1.57] and settings.fence() == (-5.0, -4.0, 5.0, 4.0)
@@ -79,6 +83,7 @@ def test_a_fleet_files_robot_nav_table_places_each_robot() -> None:
         (["--pose-timeout", "-1"], r"nav setting pose_timeout must be within .*, got -1.0"),
         (["--feedback-hz", "2"], r"nav setting feedback_hz must be within .*, got 2.0"),
         (["--map", " "], r"map must name the site map"),
+        (["--command-hz", "-1"], r"command_hz must be from 0 \(one command per pose\) to 1000, got -1"),
         (["--prefix", "robot/*"], r"prefix 'robot/\*' must not contain wildcards"),
     ],
 )

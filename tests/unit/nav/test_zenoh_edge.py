@@ -14,7 +14,7 @@ import zenoh
 
 from blackmetal.nav.host import NavHost
 from blackmetal.nav.params import NavParams
-from blackmetal.nav.zenoh_edge import ACTIVE_FOR_S, IDLE_DRAIN_S, NavZenoh
+from blackmetal.nav.zenoh_edge import ACTIVE_FOR_S, NavZenoh
 from blackmetal.runtime.burst import PutBurst
 from blackmetal.schemas import ErrorReport, GatewayParams, Keys, MapPose, NavFeedback, PlanarPose, Twist, Vector3, decode
 
@@ -164,9 +164,15 @@ def test_a_still_robot_gets_no_zero_when_nav_closes(session: zenoh.Session) -> N
     assert len(commands) == 2
 
 
-def test_a_fleet_robot_takes_its_poses_from_its_ring_often_while_it_drives_seldom_while_idle(session: zenoh.Session) -> None:
+def test_a_fleet_robot_follows_its_poses_only_while_it_drives(session: zenoh.Session) -> None:
+    """Idle, no pose reaches nav; a goal asks for the pose (and the health) first, then follows the poses in a ring the
+    loop drains (the newest taken) until ACTIVE_FOR_S after nav last drove or gave feedback."""
     keys = Keys("fleet/r1")
     now = [10.0]
+    queryables = [
+        session.declare_queryable(keys.pose, lambda q: q.reply(keys.pose, b'{"k":"asked"}')),
+        session.declare_queryable(keys.health, lambda q: q.reply(keys.health, b"health now")),
+    ]
 
     async def poses(*ks: int) -> None:
         for k in ks:
@@ -178,30 +184,35 @@ def test_a_fleet_robot_takes_its_poses_from_its_ring_often_while_it_drives_seldo
         edge.attach(host, asyncio.get_running_loop(), ring=True)
         taken = lambda: [call[1] for call in core.named("pose")]  # noqa: E731
         try:
-            await poses(0, 1, 2)
-            assert taken() == []  # nothing on Zenoh's threads: they wait in the ring
-            assert edge.drain() == 3 and taken() == [b'{"k":1}', b'{"k":2}']  # idle: the last two (their period shows)
-            await poses(3)
-            assert edge.drain() == 0 and len(taken()) == 2  # idle: not before IDLE_DRAIN_S
-            now[0] += IDLE_DRAIN_S
-            assert edge.drain() == 1 and taken()[-1] == b'{"k":3}'
-            await poses(4, 5)
-            (reply,) = await get(session, keys.nav_goal, b"{}")  # a goal takes the newest pose first, then drives
-            assert reply.ok is not None and taken()[-1] == b'{"k":5}' and core.named("goal")
-            await poses(6, 7)
-            assert edge.drain() == 2 and taken()[-1] == b'{"k":7}' and taken().count(b'{"k":6}') == 0  # driving: the newest
-            now[0] += ACTIVE_FOR_S
-            edge.publish(Twist(linear=Vector3(x=0.1)))  # nav drives: every drain
-            await poses(8)
-            assert edge.drain() == 1 and taken()[-1] == b'{"k":8}'
-            now[0] += ACTIVE_FOR_S  # nothing driven or fed back since: idle again
-            await poses(9)
-            assert edge.drain() == 1 and taken()[-2:] == [b'{"k":8}', b'{"k":9}'] and edge.drain() == 0
+            await poses(0, 1)
+            assert edge.drain() == 0 and taken() == []  # idle: nothing followed
+            (reply,) = await get(session, keys.nav_goal, b"{}")
+            assert reply.ok is not None
+            assert [call[0] for call in core.calls] in (["health", "pose", "goal"], ["pose", "health", "goal"])
+            assert taken() == [b'{"k":"asked"}']  # the pose asked for, before the goal
+            await poses(2, 3)
+            assert edge.drain() == 2 and taken()[-1] == b'{"k":3}' and b'{"k":2}' not in taken()  # following: the newest
+            now[0] += ACTIVE_FOR_S / 2
+            edge.publish(Twist(linear=Vector3(x=0.1)))  # nav drives: it goes on following
+            now[0] += ACTIVE_FOR_S / 2
+            await poses(4)
+            assert edge.drain() == 1 and taken()[-1] == b'{"k":4}'
+            now[0] += ACTIVE_FOR_S  # nothing driven or fed back since: it stops following
+            await poses(5)
+            assert edge.drain() == 0
+            await poses(6)
+            assert edge.drain() == 0 and taken()[-1] == b'{"k":4}'
+            (reply,) = await get(session, keys.nav_set_pose, b'{"x":1,"y":2}')  # a set-pose asks for the pose too
+            assert reply.ok is not None and taken()[-1] == b'{"k":"asked"}' and len(core.named("health")) == 1
         finally:
             edge.close()
         assert edge.drain() == 0  # closed: nothing drained from an undeclared subscriber
 
-    asyncio.run(scenario())
+    try:
+        asyncio.run(scenario())
+    finally:
+        for queryable in queryables:
+            queryable.undeclare()
 
 
 def test_a_bug_in_a_handler_goes_to_the_host(session: zenoh.Session) -> None:
@@ -268,3 +279,106 @@ def test_a_gateway_that_appears_is_asked_for_its_health_and_parameters(session: 
     finally:
         for queryable in queryables:
             queryable.undeclare()
+
+
+def test_a_goal_is_handled_after_the_gateways_health_it_asks_for(session: zenoh.Session) -> None:
+    """Health comes once a second: a link that came up since would still read down. A goal (and a move) asks first."""
+    keys = Keys("edge/fresh")
+    asked: list[int] = []
+
+    def health(query: zenoh.Query) -> None:
+        asked.append(1)
+        query.reply(keys.health, b"health now")
+
+    queryable = session.declare_queryable(keys.health, health)
+
+    async def scenario() -> None:
+        edge, host, core = make(session, keys)
+        edge.attach(host, asyncio.get_running_loop())
+        try:
+            for key in (keys.nav_goal, keys.nav_move):
+                (reply,) = await get(session, key, b"{}")
+                assert reply.ok is not None
+            order = [call[0] for call in core.calls]
+            assert order == ["health", "goal", "health", "move"] and len(asked) == 2
+            (reply,) = await get(session, keys.nav_cancel, b"{}")  # a cancel never waits for anything
+            assert reply.ok is not None and len(asked) == 2
+        finally:
+            edge.close()
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        queryable.undeclare()
+
+
+def test_a_goal_asks_for_the_health_only_when_the_last_said_the_robot_could_not_drive(session: zenoh.Session) -> None:
+    """An e-stop and a lost link are published at once; a link that came up, within a second: only then is it asked."""
+    from blackmetal.schemas import GatewayHealth, LinkHealth, encode
+
+    keys = Keys("edge/ready")
+    asked: list[int] = []
+
+    def health(ready: bool, estop: bool = False) -> bytes:
+        state = "connected" if ready else "down"
+        return encode(GatewayHealth(stamp=1.0, control=LinkHealth(state), log=LinkHealth(state), estop=estop))
+
+    queryable = session.declare_queryable(keys.health, lambda q: (asked.append(1), q.reply(keys.health, health(True))))
+
+    async def scenario() -> None:
+        edge, host, core = make(session, keys)
+        edge.attach(host, asyncio.get_running_loop())
+        try:
+            await get(session, keys.nav_goal, b"{}")
+            assert len(asked) == 1  # nothing heard yet: asked
+            await get(session, keys.nav_goal, b"{}")
+            assert len(asked) == 1  # the answer said it can drive: not asked again
+            session.put(keys.health, health(True, estop=True))
+            await until(lambda: len(core.named("health")) == 2, "the e-stop's health")
+            await get(session, keys.nav_move, b"{}")
+            assert len(asked) == 2  # engaged at the last word: asked (it may have been released since)
+            session.put(keys.health, b"not json")
+            await until(lambda: len(core.named("health")) == 4, "the bad health")
+            await get(session, keys.nav_goal, b"{}")
+            assert len(asked) == 3 and [c[0] for c in core.calls].count("goal") == 3
+        finally:
+            edge.close()
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        queryable.undeclare()
+
+
+def test_command_hz_sends_the_newest_command_at_its_turn_and_a_stop_at_once(session: zenoh.Session) -> None:
+    keys = Keys("edge/paced")
+    commands, subscriber = collect(session, keys.cmd_vel_of("nav"))
+
+    def twist(v: float) -> Twist:
+        return Twist(linear=Vector3(x=v))
+
+    async def scenario() -> None:
+        edge = NavZenoh(session, keys, command_hz=10.0)  # one each 0.1 s at most
+        edge.publish(twist(0.1))  # its turn: at once
+        edge.publish(twist(0.2))  # waits...
+        edge.publish(twist(0.3))  # ...replaced by the newest
+        await asyncio.sleep(0.02)
+        assert len(commands) == 1
+        await asyncio.sleep(0.15)
+        assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3]  # the newest, at its turn
+        edge.publish(twist(0.4))  # waits for its turn...
+        edge.publish(Twist())  # ...a stop does not: at once, and the waiting one is dropped
+        await asyncio.sleep(0.15)
+        assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3, 0.0] and not edge.moving
+        edge.publish(twist(0.5))
+        edge.publish(twist(0.6))
+        edge.close()  # a command still waiting is dropped, and the robot gets a zero
+        await asyncio.sleep(0.15)
+
+    asyncio.run(scenario())
+    for _ in range(100):
+        if len(commands) >= 5:
+            break
+        time.sleep(0.01)
+    subscriber.undeclare()
+    assert [decode(Twist, c).linear.x for c in commands] == [0.1, 0.3, 0.0, 0.5, 0.0]

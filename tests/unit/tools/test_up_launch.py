@@ -28,3 +28,18 @@ def test_the_status_comes_at_least_every_two_seconds_into_a_file(monkeypatch: py
 def test_a_navigation_that_dies_is_said_in_one_sentence() -> None:
     """up starts it again, as a gateway: nothing to stop, the gateway's command timeout ends what it drove."""
     assert launch.nav_gone() == "its goals ended; the gateway's command timeout stops a robot it drove"
+
+
+def test_a_fleets_navigation_is_paced_unless_the_settings_file_says_otherwise(tmp_path) -> None:  # type: ignore[no-untyped-def]
+    from blackmetal.tools.up.settings import ServiceFiles
+
+    plain = launch.Launch(argparse.Namespace(), ServiceFiles(None, []), None, [])  # type: ignore[arg-type]
+    assert plain.nav_fleet_args == ["--command-hz", "10"] and launch.FLEET_COMMAND_HZ == 10.0
+    path = tmp_path / "s.toml"
+    path.write_text("[nav]\ncommand_hz = 0\n")
+    files = ServiceFiles(str(path), ["nav"])
+    try:
+        assert files.sets("nav", "command_hz") and not files.sets("gateway", "command_hz")
+        assert launch.Launch(argparse.Namespace(), files, None, []).nav_fleet_args == []  # type: ignore[arg-type]
+    finally:
+        files.close()

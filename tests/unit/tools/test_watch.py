@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import math
+
 from blackmetal.schemas import ErrorReport, GatewayHealth, LinkHealth, SourceHealth, make_pose
-from blackmetal.tools.watch import describe_sources, recent_errors, render
+from blackmetal.tools.watch import describe_goal, describe_sources, recent_errors, render
 
 from .fake_session import FakeSession, reply
 
@@ -30,3 +32,16 @@ def test_recent_errors_are_oldest_first() -> None:
     late, early = (ErrorReport(stamp=s, source="gateway", key="robot/cmd_vel", reason=r) for s, r in ((2.0, "late"), (1.0, "early")))
     session = FakeSession({"robot/errors": [reply(late), reply(early)]})
     assert [e.reason for e in recent_errors(session, "robot/errors", 1.0)] == ["early", "late"]  # type: ignore[arg-type]
+
+
+def test_the_navigations_goal_is_one_line_running_or_ended() -> None:
+    from blackmetal.schemas import GoalState, NavFeedback, PlanarPose
+
+    pose, goal = PlanarPose(0.1, 0.2, 0.0), PlanarPose(0.5, 0.3, math.pi / 2)
+    running = NavFeedback(stamp=0.0, goal_id="5f0c" * 8, state=GoalState.EXECUTING, pose=pose, goal=goal, distance_remaining=0.34,
+                          eta=1.9, elapsed=1.1)  # fmt: skip
+    lines = render(None, None, None, None, [], 0.0, running)
+    assert lines[-2] == "nav     goal 5f0c5f0c to (0.500, 0.300, 90.0°) in map executing: 0.340 m left, eta 1.9 s, 1.1 s so far"
+    aborted = NavFeedback(stamp=0.0, goal_id="5f0c" * 8, state=GoalState.ABORTED, pose=pose, goal=goal, distance_remaining=0.3,
+                          eta=0.0, elapsed=2.0, reason="e-stop engaged")  # fmt: skip
+    assert describe_goal(aborted) == "goal 5f0c5f0c to (0.500, 0.300, 90.0°) in map aborted after 2.0 s: e-stop engaged"
