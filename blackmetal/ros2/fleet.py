@@ -72,9 +72,13 @@ def declare_node(
     """One node of ``distro`` for the robot of ``s``, attached to the running loop; with ``burst``, a fleet's node
     (absolute /tf, frames prefixed by its namespace, streams in rings, supervised)."""
     fleet = burst is not None
-    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst)
+    first = s.distros()[0] if s.flavor == Flavor.RMW_ZENOH.value else DEFAULT_DISTRO
+    rmf = s.rmf and distro is first  # free_fleet's keys once per robot, on its first distro's node
+    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst, rmf=rmf)
     frame_prefix = tf_frame_prefix(normalise_namespace(s.namespace)) if fleet else ""
     options = s.options(edge.data_keys, edge.service_keys, frame_prefix=frame_prefix, distro=distro)
+    if not rmf:
+        options = dataclasses.replace(options, rmf_name="")
     host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=fleet)
     edge.attach(host, asyncio.get_running_loop())
     return edge, host

@@ -22,6 +22,7 @@ from blackmetal.runtime.intake import Intake
 from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import Keys, payload_bytes
 
+from .action_types import GOAL_POSE, INITIAL_POSE, action_hashes, layout_of, nav_services, nav_topics
 from .core import WATCHED_TOPICS
 from .host import Ros2Host
 from .naming import (
@@ -41,6 +42,7 @@ from .naming import (
     topics,
     type_hash_of,
 )
+from .navigate import ACTION_SERVICES, FEEDBACK, RMF, RMF_BATTERY, RMF_TF, STATUS
 from .settings import Ros2Settings
 
 if TYPE_CHECKING:
@@ -95,9 +97,11 @@ class Ros2Zenoh(ZenohEdge):
         distro: Distro = DEFAULT_DISTRO,
         fleet: bool = False,
         burst: PutBurst | None = None,
+        rmf: bool = False,
     ) -> None:
         """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
-        of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`."""
+        of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`.
+        ``rmf``: free_fleet's plain keys too (one node of the robot declares them, whatever its distros)."""
         import zenoh
         import zenoh.ext
 
@@ -112,6 +116,10 @@ class Ros2Zenoh(ZenohEdge):
         self.service_keys: dict[str, str] = {}
         self.tokens: list[str] = []
         self._publishers: dict[str, _RosPublisher] = {}
+        self._burst = burst
+        #: free_fleet's services ("rmf/" + the action's service name) -> their plain keys.
+        self.rmf_keys: dict[str, str] = {}
+        known_hashes = action_hashes(layout_of(distro))  # the action's types, not in the codec's store
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
 
@@ -120,7 +128,7 @@ class Ros2Zenoh(ZenohEdge):
             entity_id = next(ids)
             if flavor is not Flavor.RMW_ZENOH:
                 return name.strip("/"), None  # zenoh-bridge-ros2dds: the topic name
-            type_hash = type_hash_of(distro, codec.type_hash(ros_type))
+            type_hash = type_hash_of(distro, known_hashes.get(ros_type) or codec.type_hash(ros_type))
             token = node.entity_token(entity_id, kind, name, ros_type, type_hash, qos)
             self.tokens.append(token)
             return rmw_zenoh_data_key(domain_id, name, ros_type, type_hash), gid_of(token)
@@ -128,26 +136,24 @@ class Ros2Zenoh(ZenohEdge):
         for topic in ros_topics:
             key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
             self.data_keys[topic.key_name] = key
-            if topic.direction is not Direction.PUBLISH:
-                continue
-            drop, reliable = zenoh.CongestionControl.DROP, zenoh.Reliability.RELIABLE
-            if topic.qos.is_transient_local:
-                publisher: zenoh.Publisher | zenoh.ext.AdvancedPublisher = zenoh.ext.declare_advanced_publisher(
-                    self.session,
-                    key,
-                    congestion_control=drop,
-                    reliability=reliable,
-                    cache=zenoh.ext.CacheConfig(max_samples=topic.qos.depth),
-                    publisher_detection=True,
-                    sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
-                )
-            else:
-                publisher = self.session.declare_publisher(key, congestion_control=drop, reliability=reliable)
-            self._entities.append(publisher)
-            self._publishers[topic.key_name] = _RosPublisher(publisher, gid, None if topic.qos.is_transient_local else burst)
-        for service in services():
+            if topic.direction is Direction.PUBLISH:
+                self._declare_publisher(topic.key_name, key, gid, topic.qos)
+        # the action's entities after the services, so that the entities before them keep their ids
+        for service in [*services(), *nav_services()]:
             name = service.full_name(namespace, node_name)
             self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
+        for topic in nav_topics():
+            key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
+            self.data_keys[topic.key_name] = key
+            if topic.direction is Direction.PUBLISH:
+                self._declare_publisher(topic.key_name, key, gid, topic.qos)
+        if rmf:  # zenoh-bridge-ros2dds's plain keys under the robot's RMF name: no type, no hash, no attachment
+            robot = settings.rmf_robot()
+            for name in (RMF_TF, RMF + FEEDBACK, RMF + STATUS, RMF_BATTERY):
+                key = f"{robot}/{name.removeprefix(RMF)}"
+                self.data_keys[name] = key
+                self._declare_publisher(name, key, None, Qos())
+            self.rmf_keys = {RMF + name: f"{robot}/{name}" for name in ACTION_SERVICES}
         # drop congestion control, as rmw_zenoh put the command: the direct take's Zenoh thread never waits on a link
         self._cmd_vel = self.session.declare_publisher(
             keys.cmd_vel_of(settings.source),
@@ -166,6 +172,27 @@ class Ros2Zenoh(ZenohEdge):
         self._rings = fleet
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
+
+    def _declare_publisher(self, name: str, key: str, gid: bytes | None, qos: Qos) -> None:
+        """A ROS topic's publisher: transient local as rmw_zenoh declares one (an AdvancedPublisher with its cache)."""
+        import zenoh
+        import zenoh.ext
+
+        drop, reliable = zenoh.CongestionControl.DROP, zenoh.Reliability.RELIABLE
+        if qos.is_transient_local:
+            publisher: zenoh.Publisher | zenoh.ext.AdvancedPublisher = zenoh.ext.declare_advanced_publisher(
+                self.session,
+                key,
+                congestion_control=drop,
+                reliability=reliable,
+                cache=zenoh.ext.CacheConfig(max_samples=qos.depth),
+                publisher_detection=True,
+                sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None, sporadic_heartbeat=HEARTBEAT_S),
+            )
+        else:
+            publisher = self.session.declare_publisher(key, congestion_control=drop, reliability=reliable)
+        self._entities.append(publisher)
+        self._publishers[name] = _RosPublisher(publisher, gid, None if qos.is_transient_local else self._burst)
 
     def ros(self, topic: str, cdr: bytes) -> None:
         self._publishers[topic].put(cdr)
@@ -231,6 +258,11 @@ class Ros2Zenoh(ZenohEdge):
             for name, (key, method, options, ring) in streams.items()
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
+        # navigation: RViz's pose tools in, the navigation service's feedback and map frame in
+        self.subscriber(self.data_keys[GOAL_POSE], intake.channel(GOAL_POSE, on(core.on_goal_pose), capacity=16, priority=7))
+        self.subscriber(self.data_keys[INITIAL_POSE], intake.channel(INITIAL_POSE, on(core.on_initial_pose), capacity=16, priority=7))
+        self.subscriber(self.keys.nav_feedback, intake.channel("nav feedback", on(core.nav.on_feedback), capacity=64, priority=6))
+        self.subscriber(self.keys.nav_map_pose, intake.channel("nav map_pose", on(core.nav.on_map_pose), latest=True, priority=6))
 
         def on_matched(event: tuple[str, bool]) -> None:
             host.driver.run_locked(core.on_matched, *event)
@@ -243,7 +275,7 @@ class Ros2Zenoh(ZenohEdge):
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
             self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
-        for service, key in self.service_keys.items():
+        for service, key in [*self.service_keys.items(), *self.rmf_keys.items()]:
             take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
             self._entities.append(self.session.declare_queryable(key, take, complete=True))
@@ -307,16 +339,16 @@ class Ros2Zenoh(ZenohEdge):
         """On the loop: number the call, keep the query until the core answers it, hand the request to the host."""
         assert self._host is not None
         self._next_call += 1
-        self._calls[self._next_call] = (query, self.service_keys[service])
+        self._calls[self._next_call] = (query, self.service_keys.get(service) or self.rmf_keys[service])
         payload = b"" if query.payload is None else bytes(query.payload.to_bytes())
         extra = None if query.attachment is None else bytes(query.attachment.to_bytes())
-        self._host.driver.run_locked(self._host.core.calls.on_service_request, service, self._next_call, payload, extra)
+        self._host.driver.run_locked(self._host.core.on_service_request, service, self._next_call, payload, extra)
 
     def _on_query_event(self, event: tuple[int, bool | None, bytes]) -> None:
         assert self._host is not None
         tag, ok, payload = event
         if ok is None:
-            self._host.driver.run_locked(self._host.core.calls.on_query_done, tag)
+            self._host.driver.run_locked(self._host.core.on_query_done, tag)
         else:
             self._host.driver.run_locked(self._host.core.on_query_reply, tag, ok, payload)
 

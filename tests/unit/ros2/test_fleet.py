@@ -165,11 +165,14 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [str(r.ok.key_expr).split("/") for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 19, what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services each)")
+        wait_for(
+            lambda: len(tokens()) == 3 * 26,
+            what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services, the action's 5, 2 pose topics each)",
+        )
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 3 * 19  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 3 * 26  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {
@@ -178,7 +181,9 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
                 f"%{rid}%set_estop",
                 f"%{rid}%reset_odometry",
                 "%parameter_events",
-            } | {f"%{rid}%blackmetal%{name}" for name in PARAMETER_SERVICES}, names
+            } | {f"%{rid}%blackmetal%{name}" for name in PARAMETER_SERVICES} | {
+                f"%{rid}%navigate_to_pose%_action%{name}" for name in ("send_goal", "cancel_goal", "get_result", "feedback", "status")
+            } | {f"%{rid}%goal_pose", f"%{rid}%initialpose"}, names
 
         # /r2/odom: its frames prefixed as diff_drive_controller does; /tf carries every robot's
         wait_for(lambda: len(odoms) >= 5, what="/r2/odom")
