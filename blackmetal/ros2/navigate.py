@@ -293,7 +293,7 @@ class NavAction:
                 self._on_goal_reply(waiting, decode(NavGoalReply, payload), now)
             elif waiting.what == "cancel":
                 self._on_cancel_reply(waiting, decode(NavCancelReply, payload))
-            elif waiting.what == "result":
+            elif waiting.what in ("result", "poll"):
                 self._on_result(waiting, decode(NavResult, payload), now)
         except PayloadError as exc:
             self._failed(waiting, f"the navigation service answered something unexpected on {key}: {exc}", now)

@@ -1,0 +1,151 @@
+"""The action through the adapter's Zenoh edge, against a stand-in for the navigation service: rmw_zenoh's keys with
+their attachments (get_result held open until the goal ends), free_fleet's plain keys with ``--rmf``, /tf's map -> odom.
+
+The stand-in answers nav/goal, nav/cancel, nav/result and nav/map_pose as the navigation service's schemas say, and
+publishes the robot's pose and the goal's feedback; the test plays the ROS client (an rmw_zenoh service client's get
+with its 33-byte attachment) and free_fleet (plain gets, no attachment).
+"""
+
+from __future__ import annotations
+
+import json
+import struct
+import threading
+import time
+
+import pytest
+import zenoh
+from helpers import Child, client_config, free_port, wait_for
+
+from blackmetal.ros2 import action_cdr as cdr
+from blackmetal.ros2.action_types import NavLayout
+from blackmetal.ros2.messages import RosCodec
+from blackmetal.ros2.naming import attachment, parse_attachment
+from blackmetal.ros2.ros_types import TF_MESSAGE
+from blackmetal.schemas import encode, make_pose
+from blackmetal.schemas.navigation import MapPose, NavCancelReply, NavFeedback, NavGoalReply, NavResult, PlanarPose
+
+UUID = bytes(range(1, 17))
+GID = bytes(range(100, 116))
+SEND_GOAL_HASH = "RIHS01_a4fcb3bee1bf32e21a0e541a943b221aa0826996e2c98f079b47022b256f48b5"
+GET_RESULT_HASH = "RIHS01_c407920357d566771e8882b4ef4d1f1a84ee922d609920ccd57faa6d6e391dc5"
+SEND_GOAL_KEY = f"0/navigate_to_pose/_action/send_goal/nav2_msgs::action::dds_::NavigateToPose_SendGoal_/{SEND_GOAL_HASH}"
+GET_RESULT_KEY = f"0/navigate_to_pose/_action/get_result/nav2_msgs::action::dds_::NavigateToPose_GetResult_/{GET_RESULT_HASH}"
+
+
+def goal_request(uuid: bytes, x: float, y: float, frame: str = "map") -> bytes:
+    data = frame.encode() + b"\x00"
+    body = uuid + struct.pack("<iII", 0, 0, len(data)) + data
+    return (
+        b"\x00\x01\x00\x00" + body + b"\x00" * (-len(body) % 8) + struct.pack("<7d", x, y, 0, 0, 0, 0, 1) + struct.pack("<I", 1) + b"\x00"
+    )
+
+
+class NavStandIn:
+    """What the navigation service answers; ``state`` moves the goal on."""
+
+    def __init__(self, session: zenoh.Session) -> None:
+        self.session, self.goals, self.state, self.asked = session, [], "executing", []  # type: ignore[var-annotated]
+        for name, handler in (("goal", self.goal), ("cancel", self.cancel), ("result", self.result), ("map_pose", self.map_pose)):
+            session.declare_queryable(f"robot/nav/{name}", handler)
+
+    def goal(self, query: zenoh.Query) -> None:
+        asked = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
+        self.asked.append(asked)
+        self.goals.append(asked.get("goal_id") or "ff" * 16)
+        query.reply(query.key_expr, encode(NavGoalReply(accepted=True, goal_id=self.goals[-1])))
+
+    def cancel(self, query: zenoh.Query) -> None:
+        self.state = "canceled"
+        query.reply(query.key_expr, encode(NavCancelReply(canceled=self.goals[-1:])))
+
+    def result(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, encode(NavResult(found=False)))
+
+    def map_pose(self, query: zenoh.Query) -> None:
+        query.reply(query.key_expr, encode(MapPose(stamp=time.time(), x=10.0, y=0.0, yaw=0.0)))
+
+    def publish(self) -> None:
+        now = time.time()
+        self.session.put("robot/pose", encode(make_pose(now, 1.0, 2.0, 0.0)))
+        if self.goals:
+            pose = PlanarPose(x=1.0, y=2.0, yaw=0.0)
+            message = NavFeedback(
+                stamp=now,
+                goal_id=self.goals[-1],
+                state=self.state,
+                pose=pose,
+                goal=pose,
+                distance_remaining=1.0,
+                eta=2.0,
+                elapsed=1.0,  # type: ignore[arg-type]
+            )
+            self.session.put("robot/nav/feedback", encode(message))
+
+
+def call(session: zenoh.Session, key: str, payload: bytes, extra: bytes | None = None, timeout: float = 10.0) -> tuple[bytes, bytes | None]:
+    replies = list(session.get(key, payload=payload, attachment=extra, timeout=timeout))
+    assert replies and replies[0].ok is not None, [r.err.payload.to_string() for r in replies if r.err is not None]
+    ok = replies[0].ok
+    return ok.payload.to_bytes(), None if ok.attachment is None else ok.attachment.to_bytes()
+
+
+@pytest.mark.integration
+def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child]) -> None:
+    codec = RosCodec()
+    port = free_port()
+    router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
+    children.append(router)
+    router.ready()
+    ros2 = Child(["-m", "blackmetal", "ros2", "--rmf", "--rmf-battery", "0.5", "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{port}"])
+    children.append(ros2)
+    with zenoh.open(client_config(port)) as session:
+        nav = NavStandIn(session)
+        ready = ros2.ready()
+        assert ready["services"]["navigate_to_pose/_action/send_goal"] == SEND_GOAL_KEY
+        seen: dict[str, list[bytes]] = {}
+        for key in ("robot/tf", "robot/battery_state", "robot/navigate_to_pose/_action/feedback", "robot/navigate_to_pose/_action/status"):
+            session.declare_subscriber(key, lambda s, k=key: seen.setdefault(k, []).append(s.payload.to_bytes()))
+        stop = threading.Event()
+
+        def feed() -> None:
+            while not stop.wait(0.05):
+                nav.publish()
+
+        feeder = threading.Thread(target=feed, daemon=True)
+        feeder.start()
+        try:
+            # free_fleet's tf: map -> odom (from nav/map_pose) then odom -> base_footprint, frames not prefixed
+            wait_for(lambda: len(seen.get("robot/tf", [])) >= 3, what="robot/tf")
+            transforms = codec.decode(seen["robot/tf"][-1], TF_MESSAGE).transforms
+            assert [(t.header.frame_id, t.child_frame_id) for t in transforms] == [("map", "odom"), ("odom", "base_footprint")]
+            assert transforms[0].transform.translation.x == 10.0
+            wait_for(lambda: seen.get("robot/battery_state"), what="robot/battery_state")
+            assert codec.decode(seen["robot/battery_state"][-1], "sensor_msgs/msg/BatteryState").percentage == pytest.approx(0.5)
+
+            # ROS 2: send_goal with rmw_zenoh's attachment, echoed; get_result held open until the goal ends
+            response, extra = call(session, SEND_GOAL_KEY, goal_request(UUID, 3.0, 4.0), attachment(1, time.time_ns(), GID))
+            assert response[4] == 1 and extra is not None and parse_attachment(extra)[0] == 1 and parse_attachment(extra)[2] == GID
+            assert nav.asked[-1] == {"x": 3.0, "y": 4.0, "yaw": 0.0, "frame": "map", "goal_id": UUID.hex()}
+            result: list[tuple[bytes, bytes | None]] = []
+            waiter = threading.Thread(
+                target=lambda: result.append(call(session, GET_RESULT_KEY, b"\x00\x01\x00\x00" + UUID, attachment(2, 0, GID)))
+            )
+            waiter.start()
+            wait_for(lambda: seen.get("robot/navigate_to_pose/_action/feedback"), what="free_fleet's feedback")
+            time.sleep(0.3)
+            assert not result  # still running: no answer yet
+
+            # free_fleet: get_result at once with EXECUTING; cancel-all; then the held result says CANCELED
+            fleet_result, none = call(session, "robot/navigate_to_pose/_action/get_result", b"\x00\x01\x00\x00" + UUID)
+            assert fleet_result[4] == 2 and none is None
+            canceled, _ = call(session, "robot/navigate_to_pose/_action/cancel_goal", b"\x00\x01\x00\x00" + bytes(24))
+            assert canceled == cdr.cancel_goal_response(0, [(UUID, *struct.unpack_from("<iI", response, 8))])
+            waiter.join(timeout=10)
+            assert result and result[0][0] == cdr.get_result_response(NavLayout.JAZZY, 5)
+            assert result[0][1] is not None and parse_attachment(result[0][1])[0] == 2
+            statuses = seen["robot/navigate_to_pose/_action/status"]
+            wait_for(lambda: statuses[-1][-1] == 5, what="free_fleet's status: CANCELED")
+        finally:
+            stop.set()
+            feeder.join()
