@@ -327,6 +327,8 @@ class NavAction:
             if waiting.uuid not in self.goals:
                 self._remember(waiting.uuid, stamp)
             self._publish_status()
+            for other in [g for g in self.goals.values() if g.uuid != waiting.uuid and g.status not in TERMINAL]:
+                self._poll(other.uuid)  # preempted: how it ended, should its last feedback have been missed
         self._reply(waiting, cdr.send_goal_response(reply.accepted, *cdr.duration(stamp)))
 
     def _on_cancel_reply(self, waiting: Waiting, reply: NavCancelReply) -> None:
@@ -348,7 +350,9 @@ class NavAction:
         self._reply(waiting, cdr.cancel_goal_response(code, []))
 
     def _on_result(self, waiting: Waiting, result: NavResult, now: float) -> None:
-        if not result.found or result.state is None:
+        if not result.found or result.state is None:  # the service forgot it (or never knew): UNKNOWN, as rcl_action says
+            for held in [w for w in self.results.values() if w.uuid == waiting.uuid]:
+                self._answer_result(held, None)
             if waiting.what == "result":
                 self._answer_result(waiting, None)
             return
@@ -381,10 +385,13 @@ class NavAction:
         if now >= self._next_poll:
             self._next_poll = now + RESULT_POLL_S if self.results else math.inf
             for uuid in dict.fromkeys(w.uuid for w in self.results.values()):
-                self._ask("poll", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), Waiting("poll", 0, None, uuid))
+                self._poll(uuid)
         if now >= self._next_battery and self.battery is not None:
             self._next_battery = now + BATTERY_PERIOD_S
             self.output.ros(RMF_BATTERY, self.battery())
+
+    def _poll(self, uuid: bytes) -> None:
+        self._ask("poll", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), Waiting("poll", 0, None, uuid))
 
     def next_deadline(self) -> float:
         return min(self._next_poll, self._next_battery)

@@ -270,3 +270,17 @@ def test_feedback_of_goals_from_other_clients_and_bad_feedback() -> None:
     for i in range(40):  # the memory is bounded
         nav.on_feedback(feedback("succeeded", goal_id=f"{i:032x}"), now=2.0)
     assert len(status_list(out.topic(STATUS)[-1])) == 32
+
+
+def test_a_preempted_goal_is_asked_after_and_a_forgotten_one_ends_unknown() -> None:
+    nav, out = make()
+    accept(nav, out)
+    nav.on_feedback(feedback("executing"), now=1.5)
+    nav.on_request(GET_RESULT, 5, H + UUID, None, now=1.6)
+    second = bytes(16 * [0xCD])
+    nav.on_request(SEND_GOAL, 2, send_goal_payload(uuid=second), None, now=2.0)
+    nav.on_query_reply(out.queries[-1][2], True, encode(NavGoalReply(accepted=True, goal_id=second.hex())), now=2.0)
+    key, asked, tag = out.queries[-1]
+    assert key == "fleet/r1/nav/result" and asked == {"goal_id": HEX}  # the first one, preempted: how did it end?
+    nav.on_query_reply(tag, True, encode(NavResult(found=False)), now=2.0)
+    assert out.replies[5][0] == cdr.get_result_response(NavLayout.JAZZY, 0)  # forgotten by the service: UNKNOWN
