@@ -73,6 +73,12 @@ def test_fleet_settings_per_robot_and_their_mistakes() -> None:
     )
     one, two = fleet_settings(Ros2Settings(flavor="bridge"), robots)
     assert (one.namespace, one.prefix, one.node_name, one.flavor) == ("r1", "fleet/r1", "blackmetal", "bridge")
+    assert not one.rmf and one.rmf_robot() == "r1"
+    rmf = parse_fleet(
+        {"robot": [{"id": "r1", "control_port": 1, "log_port": 2, "ros2": {"rmf": True, "rmf_name": "tiny1", "rmf_battery": 1.0}}]}
+    )
+    (free_fleets,) = fleet_settings(Ros2Settings(), rmf)
+    assert free_fleets.rmf and free_fleets.rmf_robot() == "tiny1" and free_fleets.rmf_battery == 1.0
     assert (two.namespace, two.prefix, two.node_name, two.domain_id) == ("r2", "lab/b", "base", 7)
 
     def refused(*entries: dict[str, object]) -> str:
