@@ -157,7 +157,10 @@ class Ros2Settings:
         check_source_name(self.source)
         check_positive(self, "service_timeout expected_poll_hz")
         if self.rmf:
-            validate_prefix(self.rmf_robot())  # one or more key chunks, no wildcards
+            try:
+                validate_prefix(self.rmf_robot())  # one or more key chunks, no wildcards
+            except ConfigError as exc:
+                raise ConfigError(f"rmf_name {self.rmf_robot()!r} cannot head free_fleet's keys: {exc}") from None
         if not (self.rmf_battery < 0 or 0.0 <= self.rmf_battery <= 1.0) or not math.isfinite(self.rmf_battery):
             raise ConfigError(f"rmf_battery is a charge 0..1 (negative: no battery), got {self.rmf_battery!r}")
         self.covariances(None)  # both diagonals parse

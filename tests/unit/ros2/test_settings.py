@@ -32,7 +32,7 @@ def test_a_diagonal_is_the_row_major_six_by_six_matrix() -> None:
         ({"distro": "foxy"}, "--distro 'foxy' is not a ROS 2 distro"),
         ({"rmf_battery": 1.5}, "rmf_battery is a charge 0..1"),
         ({"rmf_battery": float("nan")}, "rmf_battery is a charge 0..1"),
-        ({"rmf": True, "rmf_name": "a/*"}, "prefix"),
+        ({"rmf": True, "rmf_name": "a/*"}, "rmf_name 'a/*' cannot head free_fleet's keys"),
     ],
 )
 def test_a_setting_the_node_cannot_use_is_one_sentence(changes: dict[str, object], sentence: str) -> None:
