@@ -75,6 +75,15 @@ def hex_of(uuid: bytes) -> str:
     return uuid.hex()
 
 
+def _uuid(goal_id: str) -> bytes:
+    """A goal id of the navigation service as a UUID's 16 bytes (an id not 32 hex digits: empty)."""
+    try:
+        uuid = bytes.fromhex(goal_id)
+    except ValueError:
+        return b""
+    return uuid if len(uuid) == cdr.UUID_SIZE else b""
+
+
 @dataclass(slots=True)
 class Goal:
     uuid: bytes
@@ -334,7 +343,7 @@ class NavAction:
     def _on_cancel_reply(self, waiting: Waiting, reply: NavCancelReply) -> None:
         canceling: list[cdr.GoalInfo] = []
         for goal_id in reply.canceled:
-            uuid = bytes.fromhex(goal_id) if len(goal_id) == 32 else b""
+            uuid = _uuid(goal_id)
             goal = self.goals.get(uuid)
             if goal is not None and goal.status not in TERMINAL:
                 goal.status = CANCELING

@@ -216,6 +216,9 @@ def test_cancel_all_one_unknown_and_finished() -> None:
     assert status_list(out.topic(STATUS)[-1]) == [(UUID, 3)]
     nav.on_feedback(feedback("canceled"), now=2.1)
     assert status_list(out.topic(STATUS)[-1]) == [(UUID, 5)]
+    nav.on_request(CANCEL_GOAL, 5, H + bytes(24), None, now=3.0)
+    nav.on_query_reply(out.queries[-1][2], True, encode(NavCancelReply(canceled=["zz" * 16, "1234"])), now=3.0)
+    assert out.replies[5][0] == cdr.cancel_goal_response(0, [(bytes(16), 0, 0)] * 2)  # ids not UUIDs: named zero
     other = bytes(16 * [0xAB])
     for call, uuid, code in ((3, other, 2), (4, UUID, 3)):
         nav.on_request(CANCEL_GOAL, call, H + uuid + bytes(8), None, now=3.0)
