@@ -85,22 +85,22 @@ def test_action_hashes_by_rosidls_construction_reproduce_jazzys_own() -> None:
     ],
 )
 def test_definitions_are_navigation2s_on_each_branch(branch: str, layout: NavLayout) -> None:
-    goal, result, feedback = (INTERFACES / "nav2_msgs" / branch / "NavigateToPose.action").read_text().split("---")
+    goal, result, feedback = (INTERFACES / branch / "nav2_msgs/action/NavigateToPose.action").read_text().split("---")
     ours = DEFINITIONS[layout]
     assert [fields_of(s) for s in (goal, result, feedback)] == [fields_of(s) for s in ours]
     assert layout_of(Distro(branch)) is layout
 
 
 def test_action_msgs_and_uuid_are_rcl_interfaces() -> None:
-    request, response = (INTERFACES / "action_msgs/srv/CancelGoal.srv").read_text().split("---")
+    request, response = (INTERFACES / "jazzy/action_msgs/srv/CancelGoal.srv").read_text().split("---")
     assert fields_of(request) == ["GoalInfo goal_info"] and CANCEL_GOAL_DEFINITION[0] == "action_msgs/msg/GoalInfo goal_info"
     assert fields_of(response)[1] == "GoalInfo[] goals_canceling"
     assert fields_of(CANCEL_GOAL_DEFINITION[1])[0] == fields_of(response)[0] == "int8 return_code"
-    assert fields_of((INTERFACES / "unique_identifier_msgs/msg/UUID.msg").read_text()) == ["uint8[16] uuid"]
+    assert fields_of((INTERFACES / "jazzy/unique_identifier_msgs/msg/UUID.msg").read_text()) == ["uint8[16] uuid"]
     store = type_store()  # rosbags' own action_msgs and UUID: the same fields
     assert [name for name, _ in store.fielddefs["unique_identifier_msgs/msg/UUID"][1]] == ["uuid"]
     assert [name for name, _ in store.fielddefs["action_msgs/msg/GoalInfo"][1]] == ["goal_id", "stamp"]
-    status = fields_of((INTERFACES / "action_msgs/msg/GoalStatus.msg").read_text())
+    status = fields_of((INTERFACES / "jazzy/action_msgs/msg/GoalStatus.msg").read_text())
     assert status == ["GoalInfo goal_info", "int8 status"]
 
 
