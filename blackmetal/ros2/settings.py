@@ -161,6 +161,11 @@ class Ros2Settings:
                 validate_prefix(self.rmf_robot())  # one or more key chunks, no wildcards
             except ConfigError as exc:
                 raise ConfigError(f"rmf_name {self.rmf_robot()!r} cannot head free_fleet's keys: {exc}") from None
+            if self.flavor == Flavor.BRIDGE.value and normalise_namespace(self.namespace).strip("/") == self.rmf_robot():
+                raise ConfigError(
+                    f"--rmf with the bridge flavour in namespace {self.namespace!r} would serve free_fleet's keys "
+                    f"{self.rmf_robot()}/... twice: give --rmf-name another name, or drop --rmf"
+                )
         if not (self.rmf_battery < 0 or 0.0 <= self.rmf_battery <= 1.0) or not math.isfinite(self.rmf_battery):
             raise ConfigError(f"rmf_battery is a charge 0..1 (negative: no battery), got {self.rmf_battery!r}")
         self.covariances(None)  # both diagonals parse

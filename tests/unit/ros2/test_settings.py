@@ -31,6 +31,7 @@ def test_a_diagonal_is_the_row_major_six_by_six_matrix() -> None:
         ({"source": "a/b"}, "source 'a/b' must be letters, digits"),
         ({"distro": "foxy"}, "--distro 'foxy' is not a ROS 2 distro"),
         ({"rmf_battery": 1.5}, "rmf_battery is a charge 0..1"),
+        ({"rmf": True, "flavor": "bridge", "namespace": "robot"}, "--rmf with the bridge flavour in namespace 'robot' would serve"),
         ({"rmf_battery": float("nan")}, "rmf_battery is a charge 0..1"),
         ({"rmf": True, "rmf_name": "a/*"}, "rmf_name 'a/*' cannot head free_fleet's keys"),
     ],
