@@ -77,10 +77,14 @@ class Ros2Core:
         o = self.options
         if self._wants("odom"):
             self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
+        tf = None
         if self._wants("tf"):
-            self.output.ros("tf", self._transforms(pose, o.frames.odom, o.frames.base))
+            tf = self._transforms(pose, o.frames.odom, o.frames.base)
+            self.output.ros("tf", tf)
         if o.rmf_name:  # free_fleet looks map -> base_footprint up in <name>/tf, frames as Nav2 names them
-            self.output.ros(RMF_TF, self._transforms(pose, o.rmf_frames.odom, o.rmf_frames.base))
+            if tf is None or o.rmf_frames != o.frames:  # else (one robot): the same bytes, encoded once
+                tf = self._transforms(pose, o.rmf_frames.odom, o.rmf_frames.base)
+            self.output.ros(RMF_TF, tf)
 
     def _transforms(self, pose: Pose, odom: str, base: str) -> bytes:
         """``odom -> base`` of ``pose``, after ``map -> odom`` once the navigation service has placed it (same stamp)."""
