@@ -103,6 +103,14 @@ def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child]) -> 
         nav = NavStandIn(session)
         ready = ros2.ready()
         assert ready["services"]["navigate_to_pose/_action/send_goal"] == SEND_GOAL_KEY
+        assert ready["rmf"] == {
+            "rmf/tf": "robot/tf",
+            "rmf/battery_state": "robot/battery_state",
+            **{
+                f"rmf/navigate_to_pose/_action/{n}": f"robot/navigate_to_pose/_action/{n}"
+                for n in ("send_goal", "cancel_goal", "get_result", "feedback", "status")
+            },
+        }
         seen: dict[str, list[bytes]] = {}
         for key in ("robot/tf", "robot/battery_state", "robot/navigate_to_pose/_action/feedback", "robot/navigate_to_pose/_action/status"):
             session.declare_subscriber(key, lambda s, k=key: seen.setdefault(k, []).append(s.payload.to_bytes()))
