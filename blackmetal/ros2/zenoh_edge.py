@@ -149,7 +149,8 @@ class Ros2Zenoh(ZenohEdge):
                 self._declare_publisher(topic.key_name, key, gid, topic.qos)
         if rmf:  # zenoh-bridge-ros2dds's plain keys under the robot's RMF name: no type, no hash, no attachment
             robot = settings.rmf_robot()
-            for name in (RMF_TF, RMF + FEEDBACK, RMF + STATUS, RMF_BATTERY):
+            battery = (RMF_BATTERY,) if settings.rmf_battery >= 0 else ()  # a robot with no battery gauge: none
+            for name in (RMF_TF, RMF + FEEDBACK, RMF + STATUS, *battery):
                 key = f"{robot}/{name.removeprefix(RMF)}"
                 self.data_keys[name] = key
                 self._declare_publisher(name, key, None, Qos())
