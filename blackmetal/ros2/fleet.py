@@ -44,6 +44,7 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
     """Each robot's adapter settings: the command line's, its prefix, the namespace of its id, its [robot.ros2] table."""
     out: list[Ros2Settings] = []
     nodes: dict[tuple[int, str], FleetRobot] = {}
+    rmf_names: dict[str, FleetRobot] = {}
     for robot in robots:
         table = robot.tables.get("ros2", {})
         if "prefix" in table:
@@ -62,6 +63,14 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
         if other is not None:
             raise ConfigError(f"{robot.describe()}: node {node} (domain {settings.domain_id}) is already {other.describe()}'s")
         nodes[(settings.domain_id, node)] = robot
+        if settings.rmf:
+            other = rmf_names.get(settings.rmf_robot())
+            if other is not None:
+                raise ConfigError(
+                    f"{robot.describe()}: free_fleet's name {settings.rmf_robot()!r} is already {other.describe()}'s: "
+                    'give one of them rmf_name = "..." in [robot.ros2]'
+                )
+            rmf_names[settings.rmf_robot()] = robot
         out.append(settings)
     return out
 

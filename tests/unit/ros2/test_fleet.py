@@ -79,6 +79,16 @@ def test_fleet_settings_per_robot_and_their_mistakes() -> None:
     )
     (free_fleets,) = fleet_settings(Ros2Settings(), rmf)
     assert free_fleets.rmf and free_fleets.rmf_robot() == "tiny1" and free_fleets.rmf_battery == 1.0
+    twins = parse_fleet(
+        {
+            "robot": [
+                {"id": "a", "control_port": 1, "log_port": 2, "prefix": "x/r1"},
+                {"id": "b", "control_port": 3, "log_port": 4, "prefix": "y/r1"},
+            ]
+        }
+    )
+    with pytest.raises(ConfigError, match="robot 2 \\(id 'b'\\): free_fleet's name 'r1' is already robot 1 \\(id 'a'\\)'s"):
+        fleet_settings(Ros2Settings(rmf=True), twins)
     assert (two.namespace, two.prefix, two.node_name, two.domain_id) == ("r2", "lab/b", "base", 7)
 
     def refused(*entries: dict[str, object]) -> str:
