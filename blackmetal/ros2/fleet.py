@@ -123,6 +123,7 @@ async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Even
                 "prefix": m.settings.prefix,
                 "keys": dict(m.edge.data_keys),
                 "services": dict(m.edge.service_keys),
+                "rmf": {k: v for k, v in [*m.edge.rmf_keys.items(), *m.edge.data_keys.items()] if k.startswith("rmf/")},
                 "tokens": list(m.edge.tokens),
                 "frames": dataclasses.asdict(frames),
             }
