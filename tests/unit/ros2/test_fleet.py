@@ -149,7 +149,7 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
     sim.ready()
     gateway = Child(["-m", "blackmetal.gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
     odometry = Child(["-m", "blackmetal.odometry_service", "--fleet", str(fleet), *_zargs(port)])
-    ros2 = Child(["-m", "blackmetal", "ros2", "--fleet", str(fleet), *_zargs(port)])
+    ros2 = Child(["-m", "blackmetal", "ros2", "--fleet", str(fleet), "--rmf", *_zargs(port)])
     children += [gateway, odometry, ros2]
     gateway.ready()
     odometry.ready()
@@ -157,6 +157,10 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
     assert {rid: nodes[rid]["node"] for rid in IDS} == {rid: f"/{rid}/blackmetal" for rid in IDS}
     assert nodes["r2"]["keys"]["odom"] == odom_key("r2") and nodes["r3"]["keys"]["cmd_vel"] == twist_key("r3")
     assert nodes["r2"]["keys"]["tf"] == TF_KEY and nodes["r2"]["services"]["set_estop"].startswith("0/r2/set_estop/")
+    assert (
+        nodes["r2"]["rmf"]["rmf/tf"] == "r2/tf"
+        and nodes["r3"]["rmf"]["rmf/navigate_to_pose/_action/send_goal"] == "r3/navigate_to_pose/_action/send_goal"
+    )
 
     with zenoh.open(client_config(port)) as session:
         odoms: list[bytes] = []
@@ -171,6 +175,14 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
                 transforms[t.child_frame_id] = (t.header.frame_id, t.child_frame_id)
 
         session.declare_subscriber(TF_KEY, on_tf)
+        rmf_tf: dict[str, list[tuple[str, str]]] = {}
+        session.declare_subscriber(  # free_fleet's <robot>/tf: the robot's own frames, not prefixed (free_fleet prefixes them)
+            "*/tf",
+            lambda s: rmf_tf.__setitem__(
+                str(s.key_expr).split("/")[0],
+                [(t.header.frame_id, t.child_frame_id) for t in codec.decode(s.payload.to_bytes(), "tf2_msgs/msg/TFMessage").transforms],
+            ),
+        )
         session.declare_subscriber(DIAGNOSTICS_KEY, lambda s: statuses.update(read_diagnostics(s.payload.to_bytes())))
         session.declare_subscriber(
             "fleet/*/errors", lambda s: errors[str(s.key_expr).split("/")[1]].append(decode(ErrorReport, s.payload.to_bytes()))
@@ -207,6 +219,8 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         assert (odom["frame"], odom["child"]) == ("r2/odom", "r2/base_footprint")
         wait_for(lambda: {f"{rid}/base_footprint" for rid in IDS} <= set(transforms), what="/tf from every robot")
         assert all(transforms[f"{rid}/base_footprint"] == (f"{rid}/odom", f"{rid}/base_footprint") for rid in IDS)
+        wait_for(lambda: set(IDS) <= set(rmf_tf), what="free_fleet's <robot>/tf from every robot")
+        assert all(rmf_tf[rid] == [("odom", "base_footprint")] for rid in IDS), rmf_tf  # no navigation service: no map yet
         wait_for(lambda: {f"{rid}/blackmetal: robot link" for rid in IDS} <= statuses, what="every node's statuses on /diagnostics")
 
         # a CDR Twist on /r3/cmd_vel moves r3 alone
