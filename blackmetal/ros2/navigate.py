@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import (
@@ -168,12 +168,11 @@ class NavAction:
             sec, nanosec = cdr.duration(f.stamp)
             values = cdr.Feedback(sec, nanosec, frame, f.pose.x, f.pose.y, f.pose.yaw, f.elapsed, f.eta, f.recoveries, f.distance_remaining)
             self.output.ros(FEEDBACK, cdr.feedback_message(self.layout, uuid, values))
-            if self.rmf:
-                rmf = cdr.Feedback(
-                    sec, nanosec, f.pose.frame, f.pose.x, f.pose.y, f.pose.yaw, f.elapsed, f.eta, f.recoveries, f.distance_remaining
-                )
-                self.output.ros(RMF + FEEDBACK, cdr.feedback_message(NavLayout.JAZZY, uuid, rmf))
-        self._set(goal, status if not (goal.status == CANCELING and status in (ACCEPTED, EXECUTING)) else CANCELING, f.reason)
+            if self.rmf:  # free_fleet: the frame as the service names it, Jazzy's layout
+                self.output.ros(RMF + FEEDBACK, cdr.feedback_message(NavLayout.JAZZY, uuid, replace(values, frame=f.pose.frame)))
+        if goal.status == CANCELING and status in (ACCEPTED, EXECUTING):
+            status = CANCELING  # a cancel was asked: CANCELING until the service says how the goal ended
+        self._set(goal, status, f.reason)
 
     def _remember(self, uuid: bytes, stamp: float) -> Goal:
         sec, nanosec = cdr.duration(stamp)
