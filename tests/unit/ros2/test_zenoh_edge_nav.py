@@ -20,8 +20,10 @@ from helpers import Child, client_config, free_port, wait_for
 from blackmetal.ros2 import action_cdr as cdr
 from blackmetal.ros2.action_types import NavLayout
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import attachment, parse_attachment
+from blackmetal.ros2.naming import Distro, attachment, parse_attachment
 from blackmetal.ros2.ros_types import TF_MESSAGE
+from blackmetal.ros2.settings import Ros2Settings
+from blackmetal.ros2.zenoh_edge import Ros2Zenoh
 from blackmetal.schemas import encode, make_pose
 from blackmetal.schemas.navigation import MapPose, NavCancelReply, NavFeedback, NavGoalReply, NavResult, PlanarPose
 
@@ -157,3 +159,40 @@ def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child]) -> 
         finally:
             stop.set()
             feeder.join()
+
+
+@pytest.mark.parametrize(
+    ("distro", "send_goal", "feedback"),
+    [
+        ("humble", "TypeHashNotSupported", "TypeHashNotSupported"),
+        ("jazzy", SEND_GOAL_HASH, "RIHS01_9d1f6fa2eb975ce733b419ac2e97b134d8ff92b6478b6559feed9a50bdfd82b3"),
+        ("kilted", SEND_GOAL_HASH, "RIHS01_9d1f6fa2eb975ce733b419ac2e97b134d8ff92b6478b6559feed9a50bdfd82b3"),
+        ("lyrical", SEND_GOAL_HASH, "RIHS01_2c1b4ec1a0e3a53c9aa326aabe717670eeef0ff3d4c3351ff940613b2011728a"),
+        ("rolling", SEND_GOAL_HASH, "RIHS01_2c1b4ec1a0e3a53c9aa326aabe717670eeef0ff3d4c3351ff940613b2011728a"),
+    ],
+)
+def test_each_distros_action_keys_and_tokens(session: zenoh.Session, distro: str, send_goal: str, feedback: str) -> None:
+    edge = Ros2Zenoh(session, Ros2Settings(namespace="r1"), RosCodec(), distro=Distro(distro))
+    try:
+        assert edge.service_keys["navigate_to_pose/_action/send_goal"] == (
+            f"0/r1/navigate_to_pose/_action/send_goal/nav2_msgs::action::dds_::NavigateToPose_SendGoal_/{send_goal}"
+        )
+        assert edge.data_keys["navigate_to_pose/_action/feedback"] == (
+            f"0/r1/navigate_to_pose/_action/feedback/nav2_msgs::action::dds_::NavigateToPose_FeedbackMessage_/{feedback}"
+        )
+        status = [t for t in edge.tokens if "%r1%navigate_to_pose%_action%status" in t]
+        assert len(status) == 1 and status[0].split("/")[5] == "MP" and status[0].endswith("/:1:,1:,:,:,,")  # transient local
+        entities = [t.split("/") for t in edge.tokens if t.split("/")[5] != "NN"]
+        kinds = {parts[9]: parts[5] for parts in entities if "pose" in parts[9]}
+        assert kinds == {
+            "%r1%navigate_to_pose%_action%send_goal": "SS",
+            "%r1%navigate_to_pose%_action%cancel_goal": "SS",
+            "%r1%navigate_to_pose%_action%get_result": "SS",
+            "%r1%navigate_to_pose%_action%feedback": "MP",
+            "%r1%navigate_to_pose%_action%status": "MP",
+            "%r1%goal_pose": "MS",
+            "%r1%initialpose": "MS",
+        }
+        assert edge.rmf_keys == {}  # no --rmf: no plain keys
+    finally:
+        edge.close()
