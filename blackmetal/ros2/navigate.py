@@ -66,6 +66,8 @@ MAX_GOALS = 32
 MAX_WAITING = 64
 #: While a get_result waits, nav/result is asked this often (s), in case the goal's last feedback was missed.
 RESULT_POLL_S = 1.0
+#: The action's queries of the navigation service outstanding at once; a call beyond them is refused at once.
+MAX_ASKING = 256
 #: How long the adapter waits for the navigation service to answer (s).
 NAV_TIMEOUT_S = 2.0
 BATTERY_PERIOD_S = 1.0
@@ -91,6 +93,8 @@ class Goal:
     nanosec: int
     status: int = ACCEPTED
     reason: str = ""
+    #: When to ask the service how it ended, if no feedback has said so (a goal preempted by a newer one).
+    check_at: float = math.inf
 
     @property
     def info(self) -> cdr.GoalInfo:
@@ -135,7 +139,7 @@ class NavAction:
 
     # --- the robot's side -------------------------------------------------------------------------------------
     def start(self) -> None:
-        self._ask("map_pose", self.keys.nav_map_pose, None, Waiting("map_pose", 0, None))
+        self._ask("map_pose", self.keys.nav_map_pose, None, Waiting("map_pose", 0, None), now=-math.inf)
 
     def on_map_pose(self, payload: bytes, now: float) -> None:
         try:
@@ -206,13 +210,22 @@ class NavAction:
             if name == SEND_GOAL:
                 return self._send_goal(waiting, *cdr.send_goal_request(payload), now=now)
             if name == CANCEL_GOAL:
-                return self._cancel(waiting, *cdr.cancel_goal_request(payload))
+                return self._cancel(waiting, *cdr.cancel_goal_request(payload), now=now)
             if name == GET_RESULT:
                 return self._get_result(waiting, cdr.get_result_request(payload), now)
-        except PayloadError as exc:
+        except PayloadError as exc:  # answered all the same: rmw_zenoh's client drops an error reply and waits for ever
             self.reporter.report(service, str(exc), exc.excerpt, now=now)
-            return self.output.service_refuse(call, f"invalid request: {exc}")
+            return self._refuse(waiting)
         self.output.service_refuse(call, f"no service {service!r} here")
+
+    def _refuse(self, waiting: Waiting) -> None:
+        """The answer that refuses a call without reading it: not accepted, nothing canceled, the result UNKNOWN."""
+        if waiting.what == SEND_GOAL:
+            self._reply(waiting, cdr.send_goal_response(False, *cdr.duration(self.wallclock())))
+        elif waiting.what == CANCEL_GOAL:
+            self._reply(waiting, cdr.cancel_goal_response(CANCEL_REJECTED, []))
+        else:
+            self._answer_result(waiting, None)
 
     def _frame(self, frame: str) -> str | None:
         """A ROS frame as the navigation service names it: ``map`` or ``odom``; None for any other."""
@@ -231,9 +244,9 @@ class NavAction:
             self.reporter.report(waiting.what, reason, "", now=now)
             return self._reply(waiting, cdr.send_goal_response(False, *cdr.duration(self.wallclock())))
         goal = NavGoal(x=pose.x, y=pose.y, yaw=pose.yaw, frame=frame, goal_id=hex_of(uuid))
-        self._ask("goal", self.keys.nav_goal, encode(goal), waiting)
+        self._ask("goal", self.keys.nav_goal, encode(goal), waiting, now)
 
-    def _cancel(self, waiting: Waiting, uuid: bytes, sec: int, nanosec: int) -> None:
+    def _cancel(self, waiting: Waiting, uuid: bytes, sec: int, nanosec: int, now: float) -> None:
         waiting.uuid = uuid
         if uuid != cdr.ZERO_UUID:
             asked = NavCancel(goal_id=hex_of(uuid))
@@ -244,7 +257,7 @@ class NavAction:
             asked = NavCancel(goal_id=hex_of(running[-1].uuid))
         else:
             asked = NavCancel()
-        self._ask("cancel", self.keys.nav_cancel, encode(asked), waiting)
+        self._ask("cancel", self.keys.nav_cancel, encode(asked), waiting, now)
 
     def _get_result(self, waiting: Waiting, uuid: bytes, now: float) -> None:
         waiting.uuid = uuid
@@ -253,7 +266,7 @@ class NavAction:
             return self._answer_result(waiting, goal)
         if goal is not None:
             return self._hold(waiting, now)
-        self._ask("result", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), waiting)
+        self._ask("result", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), waiting, now)
 
     def _hold(self, waiting: Waiting, now: float) -> None:
         if len(self.results) >= MAX_WAITING:
@@ -277,7 +290,14 @@ class NavAction:
         self.output.service_reply(waiting.call, response, extra)
 
     # --- the navigation service's answers ---------------------------------------------------------------------
-    def _ask(self, what: str, key: str, payload: bytes | None, waiting: Waiting) -> None:
+    def _ask(self, what: str, key: str, payload: bytes | None, waiting: Waiting, now: float) -> None:
+        if len(self.queries) >= MAX_ASKING:
+            if waiting.call or waiting.what in ("pose", "set_pose"):  # a client's request: refused, and said why
+                reason = f"{MAX_ASKING} requests already wait for the navigation service on {self.keys.prefix}/nav: refused, ask again"
+                self.reporter.report(key, reason, "", now=now)
+            if waiting.call:
+                self._refuse(waiting)
+            return
         self._tag -= 1  # negative: the core's other queries are numbered from 1 up
         waiting.what = what
         self.queries[self._tag] = waiting
@@ -336,7 +356,7 @@ class NavAction:
                 self._remember(waiting.uuid, stamp)
             self._publish_status()
             for other in [g for g in self.goals.values() if g.uuid != waiting.uuid and g.status not in TERMINAL]:
-                self._poll(other.uuid)  # preempted: how it ended, should its last feedback have been missed
+                other.check_at = min(other.check_at, now + RESULT_POLL_S)  # preempted: asked, should its last feedback be missed
         self._reply(waiting, cdr.send_goal_response(reply.accepted, *cdr.duration(stamp)))
 
     def _on_cancel_reply(self, waiting: Waiting, reply: NavCancelReply) -> None:
@@ -379,27 +399,31 @@ class NavAction:
         frame = self._frame(pose.frame)
         if frame is None:
             return self.reporter.report("goal_pose", f"goal in frame {pose.frame!r}: give map or {self.odom_frame}", "", now=now)
-        self._ask("pose", self.keys.nav_goal, encode(NavGoal(x=pose.x, y=pose.y, yaw=pose.yaw, frame=frame)), Waiting("pose", 0, None))
+        goal = NavGoal(x=pose.x, y=pose.y, yaw=pose.yaw, frame=frame)
+        self._ask("pose", self.keys.nav_goal, encode(goal), Waiting("pose", 0, None), now)
 
     def on_initial_pose(self, pose: cdr.StampedPose, now: float) -> None:
         """RViz's 2D Pose Estimate: the robot is here on the map now."""
         if self._frame(pose.frame) != "map":
             return self.reporter.report("initialpose", f"initial pose in frame {pose.frame!r}: give it on the map (map)", "", now=now)
-        self._ask(
-            "set_pose", self.keys.nav_set_pose, encode(SetPose(x=pose.x, y=pose.y, yaw=pose.yaw or 0.0)), Waiting("set_pose", 0, None)
-        )
+        here = SetPose(x=pose.x, y=pose.y, yaw=pose.yaw or 0.0)
+        self._ask("set_pose", self.keys.nav_set_pose, encode(here), Waiting("set_pose", 0, None), now)
 
     def tick(self, now: float) -> None:
+        for goal in [g for g in self.goals.values() if g.check_at <= now]:
+            goal.check_at = math.inf
+            if goal.status not in TERMINAL:
+                self._poll(goal.uuid, now)
         if now >= self._next_poll:
             self._next_poll = now + RESULT_POLL_S if self.results else math.inf
             for uuid in dict.fromkeys(w.uuid for w in self.results.values()):
-                self._poll(uuid)
+                self._poll(uuid, now)
         if now >= self._next_battery and self.battery is not None:
             self._next_battery = now + BATTERY_PERIOD_S
             self.output.ros(RMF_BATTERY, self.battery())
 
-    def _poll(self, uuid: bytes) -> None:
-        self._ask("poll", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), Waiting("poll", 0, None, uuid))
+    def _poll(self, uuid: bytes, now: float) -> None:
+        self._ask("poll", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), Waiting("poll", 0, None, uuid), now)
 
     def next_deadline(self) -> float:
-        return min(self._next_poll, self._next_battery)
+        return min(self._next_poll, self._next_battery, *(g.check_at for g in self.goals.values()))

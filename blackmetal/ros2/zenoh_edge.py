@@ -42,7 +42,7 @@ from .naming import (
     topics,
     type_hash_of,
 )
-from .navigate import ACTION_SERVICES, FEEDBACK, RMF, RMF_BATTERY, RMF_TF, STATUS
+from .navigate import ACTION_SERVICES, FEEDBACK, MAX_ASKING, RMF, RMF_BATTERY, RMF_TF, STATUS
 from .settings import Ros2Settings
 
 if TYPE_CHECKING:
@@ -240,7 +240,8 @@ class Ros2Zenoh(ZenohEdge):
         def on(method: Callable[..., Any]) -> Callable[[Any], Any]:
             return driver.handler(method, unpack=False)
 
-        self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=256, priority=8)
+        # the action's queries of the navigation service are at most MAX_ASKING at once: a reply and a done each
+        self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=4 * MAX_ASKING, priority=8)
         self.subscriber(self.data_keys["estop"], intake.channel("estop", on(core.on_estop), capacity=64, priority=10))
         twist = intake.channel("cmd_vel", on(core.on_cmd_vel), latest=True, priority=5, direct=host.direct())
         self.subscriber(self.data_keys["cmd_vel"], twist)
@@ -277,7 +278,10 @@ class Ros2Zenoh(ZenohEdge):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
             self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in [*self.service_keys.items(), *self.rmf_keys.items()]:
-            take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=16, priority=9)
+            # a query dropped from a full channel is never answered: the action's take a flood of goals (free_fleet's
+            # dispatchers, scripts) and answer each, refusing what is beyond MAX_ASKING
+            capacity = 4 * MAX_ASKING if service.removeprefix(RMF) in ACTION_SERVICES else 16
+            take = intake.channel(f"{service}?", functools.partial(self._take_call, service), capacity=capacity, priority=9)
             # complete: rmw_zenoh's client targets ALL_COMPLETE queryables only
             self._entities.append(self.session.declare_queryable(key, take, complete=True))
         for token in self.tokens:  # last: the graph sees the node once it can serve

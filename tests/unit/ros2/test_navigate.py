@@ -17,6 +17,8 @@ from blackmetal.ros2.navigate import (
     CANCEL_GOAL,
     FEEDBACK,
     GET_RESULT,
+    MAX_ASKING,
+    MAX_GOALS,
     RESULT_POLL_S,
     RMF,
     SEND_GOAL,
@@ -153,8 +155,14 @@ def test_rejections_and_silence_are_refusals_with_the_reason_reported() -> None:
     nav.on_request(SEND_GOAL, 2, send_goal_payload(), None, now=1.0)
     nav.on_query_done(out.queries[-1][2], now=3.0)
     assert out.replies[2][0][4] == 0 and "no navigation service answered" in out.errors[-1].reason
+    # a request that does not read, or carries a NaN, is answered all the same: rmw_zenoh's client drops error replies
     nav.on_request(SEND_GOAL, 3, b"\x00\x01\x00\x00garbage", None, now=4.0)
-    assert "invalid request" in out.refused[3]
+    nav.on_request(SEND_GOAL, 4, send_goal_payload(x=math.nan), (9, GID), now=4.0)
+    nav.on_request(CANCEL_GOAL, 5, b"", None, now=4.0)
+    nav.on_request(GET_RESULT, 6, H + b"\x01", None, now=4.0)
+    assert out.replies[3][0][4] == out.replies[4][0][4] == 0 and parse_attachment(out.replies[4][1] or b"")[0] == 9
+    assert out.replies[5][0] == cdr.cancel_goal_response(1, []) and out.replies[6][0] == cdr.get_result_response(NavLayout.JAZZY, 0)
+    assert "finite" in out.errors[-3].reason and out.refused == {}
     assert out.topic(STATUS) == []  # nothing was accepted
 
 
@@ -283,7 +291,23 @@ def test_a_preempted_goal_is_asked_after_and_a_forgotten_one_ends_unknown() -> N
     second = bytes(16 * [0xCD])
     nav.on_request(SEND_GOAL, 2, send_goal_payload(uuid=second), None, now=2.0)
     nav.on_query_reply(out.queries[-1][2], True, encode(NavGoalReply(accepted=True, goal_id=second.hex())), now=2.0)
+    nav.tick(2.0 + RESULT_POLL_S)
     key, asked, tag = out.queries[-1]
     assert key == "fleet/r1/nav/result" and asked == {"goal_id": HEX}  # the first one, preempted: how did it end?
     nav.on_query_reply(tag, True, encode(NavResult(found=False)), now=2.0)
     assert out.replies[5][0] == cdr.get_result_response(NavLayout.JAZZY, 0)  # forgotten by the service: UNKNOWN
+
+
+def test_a_flood_of_goals_is_each_answered() -> None:
+    nav, out = make()
+    for call in range(1, MAX_ASKING + 11):
+        nav.on_request(SEND_GOAL, call, send_goal_payload(uuid=call.to_bytes(16, "big")), None, now=1.0)
+    assert len(out.queries) == MAX_ASKING  # the service is asked this many at once
+    beyond = [call for call, (data, _) in out.replies.items() if data[4] == 0]
+    assert beyond == list(range(MAX_ASKING + 1, MAX_ASKING + 11)) and "already wait" in out.errors[-1].reason
+    for _, asked, tag in list(out.queries):
+        nav.on_query_reply(tag, True, encode(NavGoalReply(accepted=True, goal_id=asked["goal_id"])), now=1.1)
+    assert len(out.replies) == MAX_ASKING + 10 and nav.queries == {}
+    nav.tick(1.1 + RESULT_POLL_S)  # every goal but the last is asked how it ended, once
+    polls = out.queries[MAX_ASKING:]
+    assert len(polls) == MAX_GOALS - 1 and {key for key, _, _ in polls} == {"fleet/r1/nav/result"}  # those remembered
