@@ -269,8 +269,11 @@ class NavAction:
         self._ask("result", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), waiting, now)
 
     def _hold(self, waiting: Waiting, now: float) -> None:
-        if len(self.results) >= MAX_WAITING:
-            return self.output.service_refuse(waiting.call, f"{MAX_WAITING} get_result calls already wait for their goal; call again")
+        if len(self.results) >= MAX_WAITING:  # answered with the state now, as free_fleet's are: a reply, not an error
+            self.reporter.report(
+                waiting.what, f"{MAX_WAITING} get_result calls already wait for their goal: answered with its state now", now=now
+            )
+            return self._answer_result(waiting, self.goals.get(waiting.uuid))
         self.results[waiting.call] = waiting
         self._next_poll = min(self._next_poll, now + RESULT_POLL_S)
 
@@ -342,8 +345,8 @@ class NavAction:
             self._reply(waiting, cdr.send_goal_response(False, *cdr.duration(self.wallclock())))
         elif waiting.what == "cancel":
             self._reply(waiting, cdr.cancel_goal_response(CANCEL_REJECTED, []))
-        elif waiting.what == "result":
-            self.output.service_refuse(waiting.call, reason)
+        elif waiting.what == "result":  # nobody could say: UNKNOWN, as rcl_action answers an id it does not know
+            self._answer_result(waiting, None)
 
     def _on_goal_reply(self, waiting: Waiting, reply: NavGoalReply, now: float) -> None:
         if not reply.accepted:

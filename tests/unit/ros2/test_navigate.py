@@ -19,6 +19,7 @@ from blackmetal.ros2.navigate import (
     GET_RESULT,
     MAX_ASKING,
     MAX_GOALS,
+    MAX_WAITING,
     RESULT_POLL_S,
     RMF,
     SEND_GOAL,
@@ -311,3 +312,17 @@ def test_a_flood_of_goals_is_each_answered() -> None:
     nav.tick(1.1 + RESULT_POLL_S)  # every goal but the last is asked how it ended, once
     polls = out.queries[MAX_ASKING:]
     assert len(polls) == MAX_GOALS - 1 and {key for key, _, _ in polls} == {"fleet/r1/nav/result"}  # those remembered
+
+
+def test_results_beyond_those_held_and_without_a_service_are_answered() -> None:
+    nav, out = make()
+    accept(nav, out)
+    nav.on_feedback(feedback("executing"), now=1.5)
+    for call in range(10, 10 + MAX_WAITING + 1):
+        nav.on_request(GET_RESULT, call, H + UUID, None, now=2.0)
+    assert list(out.replies) == [1, 10 + MAX_WAITING]  # the one beyond: its state now (EXECUTING), not an error
+    assert out.replies[10 + MAX_WAITING][0] == cdr.get_result_response(NavLayout.JAZZY, 2) and "already wait" in out.errors[-1].reason
+    other = bytes(16 * [0xEE])
+    nav.on_request(GET_RESULT, 99, H + other, None, now=3.0)
+    nav.on_query_done(out.queries[-1][2], now=5.0)  # no navigation service answered
+    assert out.replies[99][0] == cdr.get_result_response(NavLayout.JAZZY, 0) and out.refused == {}
