@@ -62,7 +62,7 @@ TERMINAL = (SUCCEEDED, CANCELED, ABORTED)
 CANCEL_OK, CANCEL_REJECTED, CANCEL_UNKNOWN_GOAL, CANCEL_TERMINATED = range(4)
 #: Goals remembered for status and results (the oldest finished one is forgotten first).
 MAX_GOALS = 32
-#: get_result calls held open at once; one more is refused with a Zenoh error reply.
+#: get_result calls held open at once; one more is answered with its goal's state now.
 MAX_WAITING = 64
 #: While a get_result waits, nav/result is asked this often (s), in case the goal's last feedback was missed.
 RESULT_POLL_S = 1.0
@@ -135,6 +135,7 @@ class NavAction:
         self.map_pose: MapPose | None = None
         self._tag = 0
         self._next_poll = math.inf
+        self._next_check = math.inf  # the earliest Goal.check_at
         self._next_battery = -math.inf if rmf and battery is not None else math.inf
 
     # --- the robot's side -------------------------------------------------------------------------------------
@@ -360,6 +361,7 @@ class NavAction:
             self._publish_status()
             for other in [g for g in self.goals.values() if g.uuid != waiting.uuid and g.status not in TERMINAL]:
                 other.check_at = min(other.check_at, now + RESULT_POLL_S)  # preempted: asked, should its last feedback be missed
+                self._next_check = min(self._next_check, other.check_at)
         self._reply(waiting, cdr.send_goal_response(reply.accepted, *cdr.duration(stamp)))
 
     def _on_cancel_reply(self, waiting: Waiting, reply: NavCancelReply) -> None:
@@ -413,10 +415,12 @@ class NavAction:
         self._ask("set_pose", self.keys.nav_set_pose, encode(here), Waiting("set_pose", 0, None), now)
 
     def tick(self, now: float) -> None:
-        for goal in [g for g in self.goals.values() if g.check_at <= now]:
-            goal.check_at = math.inf
-            if goal.status not in TERMINAL:
-                self._poll(goal.uuid, now)
+        if now >= self._next_check:
+            for goal in [g for g in self.goals.values() if g.check_at <= now]:
+                goal.check_at = math.inf
+                if goal.status not in TERMINAL:
+                    self._poll(goal.uuid, now)
+            self._next_check = min((g.check_at for g in self.goals.values()), default=math.inf)
         if now >= self._next_poll:
             self._next_poll = now + RESULT_POLL_S if self.results else math.inf
             for uuid in dict.fromkeys(w.uuid for w in self.results.values()):
@@ -429,4 +433,4 @@ class NavAction:
         self._ask("poll", self.keys.nav_result, encode(NavResultQuery(goal_id=hex_of(uuid))), Waiting("poll", 0, None, uuid), now)
 
     def next_deadline(self) -> float:
-        return min(self._next_poll, self._next_battery, *(g.check_at for g in self.goals.values()))
+        return min(self._next_poll, self._next_battery, self._next_check)
