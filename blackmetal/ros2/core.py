@@ -23,7 +23,7 @@ from .calls import ASK_HEALTH, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .messages import RosCodec
 from .naming import CMD_VEL_STAMPED, ROBOT_DESCRIPTION, TF_STATIC
-from .navigate import ACTION_SERVICES, RMF, RMF_TF, NavAction
+from .navigate import ACTION_SERVICES, FEEDBACK, RMF, RMF_TF, NavAction
 from .options import Ros2Options, Ros2Output
 from .ros_types import BOOL, STRING, Transform
 
@@ -32,6 +32,9 @@ DEFAULT_CMD_TIMEOUT = 0.5
 
 #: The ROS topics fed by a stream of the robot: published, and their streams followed, only while someone subscribes.
 WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
+#: The action's feedback (the node's, free_fleet's): encoded only while someone subscribes (the status always: it is
+#: transient local, a late subscriber gets the last one).
+WATCHED_FEEDBACK = (FEEDBACK, RMF + FEEDBACK)
 
 
 @dataclass(eq=False)
@@ -61,6 +64,7 @@ class Ros2Core:
         self.nav = NavAction(
             self.keys, self.output, self.reporter, self.wallclock, NavLayout(o.nav_layout), o.frames.odom, bool(o.rmf_name), battery
         )
+        self.nav.wants = self._wants
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
         self._model_published = False

@@ -133,6 +133,8 @@ class NavAction:
         self.queries: dict[int, Waiting] = {}  # by (negative) tag
         self.results: dict[int, Waiting] = {}  # get_result calls held open, by call
         self.map_pose: MapPose | None = None
+        #: Whether someone subscribes to a topic (the core's matching listeners say): feedback nobody reads is not encoded.
+        self.wants: Callable[[str], bool] = lambda topic: True
         self._tag = 0
         self._next_poll = math.inf
         self._next_check = math.inf  # the earliest Goal.check_at
@@ -168,12 +170,13 @@ class NavAction:
             )
         goal = self.goals.get(uuid) or self._remember(uuid, f.stamp - f.elapsed)
         status = STATUS_OF[f.state]
-        if status not in TERMINAL:
+        if status not in TERMINAL and (self.wants(FEEDBACK) or (self.rmf and self.wants(RMF + FEEDBACK))):
             frame = self.odom_frame if f.pose.frame == "odom" else f.pose.frame
             sec, nanosec = cdr.duration(f.stamp)
             values = cdr.Feedback(sec, nanosec, frame, f.pose.x, f.pose.y, f.pose.yaw, f.elapsed, f.eta, f.recoveries, f.distance_remaining)
-            self.output.ros(FEEDBACK, cdr.feedback_message(self.layout, uuid, values))
-            if self.rmf:  # free_fleet: the frame as the service names it, Jazzy's layout
+            if self.wants(FEEDBACK):
+                self.output.ros(FEEDBACK, cdr.feedback_message(self.layout, uuid, values))
+            if self.rmf and self.wants(RMF + FEEDBACK):  # free_fleet: the frame as the service names it, Jazzy's layout
                 self.output.ros(RMF + FEEDBACK, cdr.feedback_message(NavLayout.JAZZY, uuid, replace(values, frame=f.pose.frame)))
         if goal.status == CANCELING and status in (ACCEPTED, EXECUTING):
             status = CANCELING  # a cancel was asked: CANCELING until the service says how the goal ended

@@ -23,7 +23,7 @@ from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import Keys, payload_bytes
 
 from .action_types import GOAL_POSE, INITIAL_POSE, action_hashes, layout_of, nav_services, nav_topics
-from .core import WATCHED_TOPICS
+from .core import WATCHED_FEEDBACK, WATCHED_TOPICS
 from .host import Ros2Host
 from .naming import (
     CMD_VEL_STAMPED,
@@ -270,7 +270,7 @@ class Ros2Zenoh(ZenohEdge):
             host.driver.run_locked(core.on_matched, *event)
 
         matched = intake.channel("matching", on_matched, capacity=64, priority=7)
-        for topic in WATCHED_TOPICS:
+        for topic in (*WATCHED_TOPICS, *WATCHED_FEEDBACK):
             entry = self._publishers.get(topic)
             if entry is not None:
                 self._watch(topic, entry.publisher, matched)

@@ -12,12 +12,12 @@ import pytest
 from blackmetal.robot_model import Encoders
 from blackmetal.ros2.core import Ros2Core
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.navigate import RMF, RMF_BATTERY, RMF_TF, SEND_GOAL
+from blackmetal.ros2.navigate import FEEDBACK, RMF, RMF_BATTERY, RMF_TF, SEND_GOAL, STATUS
 from blackmetal.ros2.options import Ros2Options
 from blackmetal.ros2.ros_types import TF_MESSAGE, Frames
 from blackmetal.ros2.settings import diagonal_matrix
 from blackmetal.schemas import ErrorReport, Keys, encode, make_pose
-from blackmetal.schemas.navigation import MapPose
+from blackmetal.schemas.navigation import MapPose, NavFeedback, PlanarPose
 
 NOW = 1_700_000_000.0
 
@@ -144,3 +144,20 @@ def test_calls_reach_the_action_and_bad_attachments_are_refused(codec: RosCodec)
     assert "not rmw_zenoh's" in out.refused[3] and len(out.queries) == 2
     core.on_query_done(out.queries[0][2], now=3.0)  # negative tags are the action's
     assert "no navigation service answered" in out.errors[-1].reason
+
+
+def test_feedback_is_encoded_only_while_someone_subscribes(codec: RosCodec) -> None:
+    core, out = make(codec, rmf="robot")
+    core.start()  # from now on only what is watched
+    pose = PlanarPose(x=0.5, y=1.0, yaw=0.25)
+    running = encode(
+        NavFeedback(stamp=NOW, goal_id="ab" * 16, state="executing", pose=pose, goal=pose, distance_remaining=1.0, eta=2.0, elapsed=1.0)  # type: ignore[arg-type]
+    )
+    core.nav.on_feedback(running, now=1.0)
+    assert out.topic(FEEDBACK) == out.topic(RMF + FEEDBACK) == [] and len(out.topic(STATUS)) == 1  # the status always
+    core.on_matched(RMF + FEEDBACK, True, now=1.1)  # free_fleet subscribes
+    core.nav.on_feedback(running, now=1.2)
+    assert out.topic(FEEDBACK) == [] and len(out.topic(RMF + FEEDBACK)) == 1
+    core.on_matched(FEEDBACK, True, now=1.3)  # and a ROS action client
+    core.nav.on_feedback(running, now=1.4)
+    assert len(out.topic(FEEDBACK)) == 1 and len(out.topic(RMF + FEEDBACK)) == 2
