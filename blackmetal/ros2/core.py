@@ -64,7 +64,7 @@ class Ros2Core:
         self.nav = NavAction(
             self.keys, self.output, self.reporter, self.wallclock, NavLayout(o.nav_layout), o.frames.odom, bool(o.rmf_name), battery
         )
-        self.nav.wants = self._wants
+        self.nav.wants, self.nav.reject = self._wants, self._reject
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
         self._model_published = False

@@ -135,6 +135,10 @@ class NavAction:
         self.map_pose: MapPose | None = None
         #: Whether someone subscribes to a topic (the core's matching listeners say): feedback nobody reads is not encoded.
         self.wants: Callable[[str], bool] = lambda topic: True
+        #: How a bad ROS request is reported (the core's: counted in /diagnostics as a rejected input too).
+        self.reject: Callable[[str, str, str, float], None] = lambda key, reason, excerpt, now: reporter.report(
+            key, reason, excerpt, now=now
+        )
         self._tag = 0
         self._next_poll = math.inf
         self._next_check = math.inf  # the earliest Goal.check_at
@@ -218,7 +222,7 @@ class NavAction:
             if name == GET_RESULT:
                 return self._get_result(waiting, cdr.get_result_request(payload), now)
         except PayloadError as exc:  # answered all the same: rmw_zenoh's client drops an error reply and waits for ever
-            self.reporter.report(service, str(exc), exc.excerpt, now=now)
+            self.reject(service, str(exc), exc.excerpt, now)
             return self._refuse(waiting)
         self.output.service_refuse(call, f"no service {service!r} here")
 

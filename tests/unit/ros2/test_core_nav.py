@@ -140,6 +140,8 @@ def test_calls_reach_the_action_and_bad_attachments_are_refused(codec: RosCodec)
     core.on_service_request(SEND_GOAL, 1, goal, None, now=1.0)
     core.on_service_request(RMF + SEND_GOAL, 2, goal, None, now=1.0)
     assert [q[0] for q in out.queries] == ["fleet/r1/nav/goal"] * 2 and all(q[2] < 0 for q in out.queries)
+    core.on_service_request(SEND_GOAL, 4, b"\x00\x01\x00\x00", None, now=1.0)  # a bad request: counted as a rejected input
+    assert core.stats.bad_inputs.total == 1 and out.errors[-1].key == SEND_GOAL
     core.on_service_request(SEND_GOAL, 3, goal, b"\x01\x02", now=1.0)
     assert "not rmw_zenoh's" in out.refused[3] and len(out.queries) == 2
     core.on_query_done(out.queries[0][2], now=3.0)  # negative tags are the action's
