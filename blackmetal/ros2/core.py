@@ -35,6 +35,8 @@ WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
 #: The action's feedback (the node's, free_fleet's): encoded only while someone subscribes (the status always: it is
 #: transient local, a late subscriber gets the last one).
 WATCHED_FEEDBACK = (FEEDBACK, RMF + FEEDBACK)
+#: The navigation's feedback, a robot stream every node follows: it keeps the action's goal states.
+NAV_STREAM = "nav_feedback"
 
 
 @dataclass(eq=False)
@@ -172,11 +174,12 @@ class Ros2Core:
         return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
     def _follow(self) -> None:
-        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it), and
+        the navigation's feedback."""
         if self.watched is None:
             return  # not started: the edge follows everything it declared
         robot = self.options.robot
-        out = set()
+        out = {NAV_STREAM}  # the action's goal states: always (nothing flows while no goal runs)
         if any(map(self._wants, ("odom", "tf", "diagnostics"))) or self.options.rmf_name:
             out.add("pose")
         if self._wants("joint_states") or (robot is not None and robot.wheel_tf and self._wants("tf")):

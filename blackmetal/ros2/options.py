@@ -53,7 +53,7 @@ class Ros2Output(Protocol):
         """``get`` on ``key``; each reply comes back as ``on_query_reply(tag, ...)``, then ``on_query_done(tag)``."""
 
     def follow(self, streams: frozenset[str]) -> None:
-        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``), no others."""
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``, ``nav_feedback``), no others."""
 
 
 @dataclass(frozen=True, slots=True)

@@ -23,7 +23,7 @@ from blackmetal.runtime.zenoh_entities import undeclare
 from blackmetal.schemas import Keys, payload_bytes
 
 from .action_types import GOAL_POSE, INITIAL_POSE, action_hashes, layout_of, nav_services, nav_topics
-from .core import WATCHED_FEEDBACK, WATCHED_TOPICS
+from .core import NAV_STREAM, WATCHED_FEEDBACK, WATCHED_TOPICS
 from .host import Ros2Host
 from .naming import (
     CMD_VEL_STAMPED,
@@ -254,16 +254,16 @@ class Ros2Zenoh(ZenohEdge):
             "impulses": (self.keys.impulses, core.on_impulses, {"capacity": 256}, RING),
             "errors": (self.keys.errors, core.on_error_report, {"capacity": 256}, RING),
             "health": (self.keys.health, core.on_health, {"latest": True, "priority": 8}, 1),
+            NAV_STREAM: (self.keys.nav_feedback, core.nav.on_feedback, {"capacity": 256, "priority": 6}, RING),
         }
         self._streams = {
             name: (key, intake.channel(name, on(method), **options), on(method), ring)
             for name, (key, method, options, ring) in streams.items()
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
-        # navigation: RViz's pose tools in, the navigation service's feedback and map frame in
+        # navigation: RViz's pose tools in, the navigation service's map frame in (its feedback: a stream, above)
         self.subscriber(self.data_keys[GOAL_POSE], intake.channel(GOAL_POSE, on(core.on_goal_pose), capacity=16, priority=7))
         self.subscriber(self.data_keys[INITIAL_POSE], intake.channel(INITIAL_POSE, on(core.on_initial_pose), capacity=16, priority=7))
-        self.subscriber(self.keys.nav_feedback, intake.channel("nav feedback", on(core.nav.on_feedback), capacity=64, priority=6))
         self.subscriber(self.keys.nav_map_pose, intake.channel("nav map_pose", on(core.nav.on_map_pose), latest=True, priority=6))
 
         def on_matched(event: tuple[str, bool]) -> None:
@@ -292,7 +292,8 @@ class Ros2Zenoh(ZenohEdge):
         self.watch_matching(publisher, lambda matched: put((topic, matched)))
 
     def follow(self, streams: frozenset[str]) -> None:
-        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``); on the loop."""
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``,
+        ``nav_feedback``); on the loop."""
         for name in [n for n in self._followed if n not in streams]:
             undeclare(self._followed.pop(name))
         for name in sorted(streams):
@@ -306,17 +307,24 @@ class Ros2Zenoh(ZenohEdge):
                     self._followed[name] = self.session.declare_subscriber(key, _payloads_to(put))
 
     def following(self) -> bool:
-        return bool(self._followed)
+        """Whether a fleet's loop drains this node at its busy pace: a watched stream is followed, or the navigation's
+        feedback (always followed, drained here at the idle pace) has just brought samples: an idle fleet stays idle."""
+        if any(name != NAV_STREAM for name in self._followed):
+            return True
+        return self.drain(only=NAV_STREAM) > 0
 
-    def drain(self) -> int:
+    def drain(self, only: str | None = None) -> int:
         """On the loop (a fleet node): hand the rings' waiting samples to the host under its lock, oldest first; how many.
 
-        No Python runs per sample on Zenoh's threads. A handler's exception propagates: the fleet fails this node alone."""
+        No Python runs per sample on Zenoh's threads. A handler's exception propagates: the fleet fails this node alone.
+        ``only``: that stream's ring alone."""
         host = self._host
         if not self._rings or host is None or not host.driver.serving or not self._followed:
             return 0
         taken = 0
         for name, subscriber in list(self._followed.items()):
+            if only is not None and name != only:
+                continue
             # the first sample is taken before the lock (rings are thread-safe): most drains find every ring empty
             ring = subscriber  # (a name of its own: the identity tests below narrow ``subscriber`` for mypy)
             sample = ring.try_recv() if self._followed.get(name) is subscriber else None

@@ -12,6 +12,7 @@ import json
 import struct
 import threading
 import time
+from pathlib import Path
 
 import pytest
 import zenoh
@@ -32,6 +33,7 @@ GID = bytes(range(100, 116))
 SEND_GOAL_HASH = "RIHS01_a4fcb3bee1bf32e21a0e541a943b221aa0826996e2c98f079b47022b256f48b5"
 GET_RESULT_HASH = "RIHS01_c407920357d566771e8882b4ef4d1f1a84ee922d609920ccd57faa6d6e391dc5"
 SEND_GOAL_KEY = f"0/navigate_to_pose/_action/send_goal/nav2_msgs::action::dds_::NavigateToPose_SendGoal_/{SEND_GOAL_HASH}"
+CANCEL_GOAL_HASH = "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a"
 GET_RESULT_KEY = f"0/navigate_to_pose/_action/get_result/nav2_msgs::action::dds_::NavigateToPose_GetResult_/{GET_RESULT_HASH}"
 
 
@@ -46,10 +48,10 @@ def goal_request(uuid: bytes, x: float, y: float, frame: str = "map") -> bytes:
 class NavStandIn:
     """What the navigation service answers; ``state`` moves the goal on."""
 
-    def __init__(self, session: zenoh.Session) -> None:
-        self.session, self.goals, self.state, self.asked = session, [], "executing", []  # type: ignore[var-annotated]
+    def __init__(self, session: zenoh.Session, prefix: str) -> None:
+        self.session, self.prefix, self.goals, self.state, self.asked = session, prefix, [], "executing", []  # type: ignore[var-annotated]
         for name, handler in (("goal", self.goal), ("cancel", self.cancel), ("result", self.result), ("map_pose", self.map_pose)):
-            session.declare_queryable(f"robot/nav/{name}", handler)
+            session.declare_queryable(f"{prefix}/nav/{name}", handler)
 
     def goal(self, query: zenoh.Query) -> None:
         asked = json.loads(query.payload.to_bytes()) if query.payload is not None else {}
@@ -69,7 +71,7 @@ class NavStandIn:
 
     def publish(self) -> None:
         now = time.time()
-        self.session.put("robot/pose", encode(make_pose(now, 1.0, 2.0, 0.0)))
+        self.session.put(f"{self.prefix}/pose", encode(make_pose(now, 1.0, 2.0, 0.0)))
         if self.goals:
             pose = PlanarPose(x=1.0, y=2.0, yaw=0.0)
             message = NavFeedback(
@@ -82,7 +84,7 @@ class NavStandIn:
                 eta=2.0,
                 elapsed=1.0,  # type: ignore[arg-type]
             )
-            self.session.put("robot/nav/feedback", encode(message))
+            self.session.put(f"{self.prefix}/nav/feedback", encode(message))
 
 
 def call(session: zenoh.Session, key: str, payload: bytes, extra: bytes | None = None, timeout: float = 10.0) -> tuple[bytes, bytes | None]:
@@ -93,28 +95,42 @@ def call(session: zenoh.Session, key: str, payload: bytes, extra: bytes | None =
 
 
 @pytest.mark.integration
-def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child]) -> None:
+@pytest.mark.parametrize("fleet", [False, True], ids=["one robot", "a fleet (feedback drained from rings)"])
+def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child], tmp_path: Path, fleet: bool) -> None:
     codec = RosCodec()
     port = free_port()
     router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
     children.append(router)
     router.ready()
-    ros2 = Child(["-m", "blackmetal", "ros2", "--rmf", "--rmf-battery", "0.5", "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{port}"])
+    args = ["--rmf", "--rmf-battery", "0.5", "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{port}"]
+    prefix, name, ns = "robot", "robot", ""
+    if fleet:  # robot r1 of a fleet file: prefix fleet/r1, namespace /r1, free_fleet's name r1
+        (tmp_path / "fleet.toml").write_text('[[robot]]\nid = "r1"\ncontrol_port = 1\nlog_port = 2\n')
+        args += ["--fleet", str(tmp_path / "fleet.toml")]
+        prefix, name, ns = "fleet/r1", "r1", "r1/"
+    ros2 = Child(["-m", "blackmetal", "ros2", *args])
     children.append(ros2)
+    send_goal_key, get_result_key = SEND_GOAL_KEY.replace("0/", f"0/{ns}", 1), GET_RESULT_KEY.replace("0/", f"0/{ns}", 1)
     with zenoh.open(client_config(port)) as session:
-        nav = NavStandIn(session)
+        nav = NavStandIn(session, prefix)
         ready = ros2.ready()
-        assert ready["services"]["navigate_to_pose/_action/send_goal"] == SEND_GOAL_KEY
-        assert ready["rmf"] == {
-            "rmf/tf": "robot/tf",
-            "rmf/battery_state": "robot/battery_state",
+        node = ready["nodes"]["r1"] if fleet else ready
+        assert node["services"]["navigate_to_pose/_action/send_goal"] == send_goal_key
+        assert node["rmf"] == {
+            "rmf/tf": f"{name}/tf",
+            "rmf/battery_state": f"{name}/battery_state",
             **{
-                f"rmf/navigate_to_pose/_action/{n}": f"robot/navigate_to_pose/_action/{n}"
+                f"rmf/navigate_to_pose/_action/{n}": f"{name}/navigate_to_pose/_action/{n}"
                 for n in ("send_goal", "cancel_goal", "get_result", "feedback", "status")
             },
         }
         seen: dict[str, list[bytes]] = {}
-        for key in ("robot/tf", "robot/battery_state", "robot/navigate_to_pose/_action/feedback", "robot/navigate_to_pose/_action/status"):
+        for key in (
+            f"{name}/tf",
+            f"{name}/battery_state",
+            f"{name}/navigate_to_pose/_action/feedback",
+            f"{name}/navigate_to_pose/_action/status",
+        ):
             session.declare_subscriber(key, lambda s, k=key: seen.setdefault(k, []).append(s.payload.to_bytes()))
         stop = threading.Event()
 
@@ -126,39 +142,78 @@ def test_the_action_on_rmw_zenoh_and_free_fleets_keys(children: list[Child]) -> 
         feeder.start()
         try:
             # free_fleet's tf: map -> odom (from nav/map_pose) then odom -> base_footprint, frames not prefixed
-            wait_for(lambda: len(seen.get("robot/tf", [])) >= 3, what="robot/tf")
-            transforms = codec.decode(seen["robot/tf"][-1], TF_MESSAGE).transforms
+            wait_for(lambda: len(seen.get(f"{name}/tf", [])) >= 3, what=f"{name}/tf")
+            transforms = codec.decode(seen[f"{name}/tf"][-1], TF_MESSAGE).transforms
             assert [(t.header.frame_id, t.child_frame_id) for t in transforms] == [("map", "odom"), ("odom", "base_footprint")]
             assert transforms[0].transform.translation.x == 10.0
-            wait_for(lambda: seen.get("robot/battery_state"), what="robot/battery_state")
-            assert codec.decode(seen["robot/battery_state"][-1], "sensor_msgs/msg/BatteryState").percentage == pytest.approx(0.5)
+            wait_for(lambda: seen.get(f"{name}/battery_state"), what=f"{name}/battery_state")
+            assert codec.decode(seen[f"{name}/battery_state"][-1], "sensor_msgs/msg/BatteryState").percentage == pytest.approx(0.5)
 
             # ROS 2: send_goal with rmw_zenoh's attachment, echoed; get_result held open until the goal ends
-            response, extra = call(session, SEND_GOAL_KEY, goal_request(UUID, 3.0, 4.0), attachment(1, time.time_ns(), GID))
+            response, extra = call(session, send_goal_key, goal_request(UUID, 3.0, 4.0), attachment(1, time.time_ns(), GID))
             assert response[4] == 1 and extra is not None and parse_attachment(extra)[0] == 1 and parse_attachment(extra)[2] == GID
             assert nav.asked[-1] == {"x": 3.0, "y": 4.0, "yaw": 0.0, "frame": "map", "goal_id": UUID.hex()}
             result: list[tuple[bytes, bytes | None]] = []
             waiter = threading.Thread(
-                target=lambda: result.append(call(session, GET_RESULT_KEY, b"\x00\x01\x00\x00" + UUID, attachment(2, 0, GID)))
+                target=lambda: result.append(call(session, get_result_key, b"\x00\x01\x00\x00" + UUID, attachment(2, 0, GID)))
             )
             waiter.start()
-            wait_for(lambda: seen.get("robot/navigate_to_pose/_action/feedback"), what="free_fleet's feedback")
+            wait_for(lambda: seen.get(f"{name}/navigate_to_pose/_action/feedback"), what="free_fleet's feedback")
             time.sleep(0.3)
             assert not result  # still running: no answer yet
 
             # free_fleet: get_result at once with EXECUTING; cancel-all; then the held result says CANCELED
-            fleet_result, none = call(session, "robot/navigate_to_pose/_action/get_result", b"\x00\x01\x00\x00" + UUID)
+            fleet_result, none = call(session, f"{name}/navigate_to_pose/_action/get_result", b"\x00\x01\x00\x00" + UUID)
             assert fleet_result[4] == 2 and none is None
-            canceled, _ = call(session, "robot/navigate_to_pose/_action/cancel_goal", b"\x00\x01\x00\x00" + bytes(24))
+            canceled, _ = call(session, f"{name}/navigate_to_pose/_action/cancel_goal", b"\x00\x01\x00\x00" + bytes(24))
             assert canceled == cdr.cancel_goal_response(0, [(UUID, *struct.unpack_from("<iI", response, 8))])
             waiter.join(timeout=10)
             assert result and result[0][0] == cdr.get_result_response(NavLayout.JAZZY, 5)
             assert result[0][1] is not None and parse_attachment(result[0][1])[0] == 2
-            statuses = seen["robot/navigate_to_pose/_action/status"]
+            statuses = seen[f"{name}/navigate_to_pose/_action/status"]
             wait_for(lambda: statuses[-1][-1] == 5, what="free_fleet's status: CANCELED")
         finally:
             stop.set()
             feeder.join()
+
+
+@pytest.mark.integration
+def test_an_idle_fleet_node_still_hears_the_navigation(children: list[Child], tmp_path: Path) -> None:
+    """A fleet node nobody watches follows only the navigation's feedback, drained at the fleet's idle pace: a held
+    get_result still ends with the goal (the ROS side alone, no --rmf: no pose is followed)."""
+    port = free_port()
+    router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting"])
+    children.append(router)
+    router.ready()
+    (tmp_path / "fleet.toml").write_text('[[robot]]\nid = "r1"\ncontrol_port = 1\nlog_port = 2\n')
+    ros2 = Child(
+        ["-m", "blackmetal", "ros2", "--fleet", str(tmp_path / "fleet.toml"), "--no-multicast-scouting", "-e", f"tcp/127.0.0.1:{port}"]
+    )
+    children.append(ros2)
+    cancel_key = "0/r1/navigate_to_pose/_action/cancel_goal/action_msgs::srv::dds_::CancelGoal_/" + CANCEL_GOAL_HASH
+    with zenoh.open(client_config(port)) as session:
+        nav = NavStandIn(session, "fleet/r1")
+        ros2.ready()
+        response, _ = call(session, SEND_GOAL_KEY.replace("0/", "0/r1/", 1), goal_request(UUID, 1.0, 0.0), attachment(1, 0, GID))
+        assert response[4] == 1
+        result: list[tuple[bytes, bytes | None]] = []
+        waiter = threading.Thread(
+            target=lambda: result.append(
+                call(session, GET_RESULT_KEY.replace("0/", "0/r1/", 1), b"\x00\x01\x00\x00" + UUID, attachment(2, 0, GID))
+            )
+        )
+        waiter.start()
+        nav.publish()
+        time.sleep(0.3)
+        assert not result
+        canceled, _ = call(session, cancel_key, b"\x00\x01\x00\x00" + UUID + bytes(8), attachment(3, 0, GID))
+        assert canceled[4] == 0  # ERROR_NONE: it is canceling
+        started = time.monotonic()
+        while waiter.is_alive() and time.monotonic() - started < 10:
+            nav.publish()  # the service's last feedback: CANCELED
+            time.sleep(0.05)
+        waiter.join(timeout=1)
+        assert result and result[0][0] == cdr.get_result_response(NavLayout.JAZZY, 5)
 
 
 @pytest.mark.parametrize(
