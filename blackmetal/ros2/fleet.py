@@ -76,14 +76,21 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
 
 
 def declare_node(
-    session: Any, s: Ros2Settings, codec: RosCodec, ids: Iterator[int], distro: Distro, burst: PutBurst | None = None
+    session: Any,
+    s: Ros2Settings,
+    codec: RosCodec,
+    ids: Iterator[int],
+    distro: Distro,
+    burst: PutBurst | None = None,
+    taken: dict[str, object] | None = None,
 ) -> tuple[Ros2Zenoh, Ros2Host]:
     """One node of ``distro`` for the robot of ``s``, attached to the running loop; with ``burst``, a fleet's node
-    (absolute /tf, frames prefixed by its namespace, streams in rings, supervised)."""
+    (absolute /tf, frames prefixed by its namespace, streams in rings, supervised). ``taken``: the session's action
+    keys and who serves each (:class:`Ros2Zenoh`)."""
     fleet = burst is not None
     first = s.distros()[0] if s.flavor == Flavor.RMW_ZENOH.value else DEFAULT_DISTRO
     rmf = s.rmf and distro is first  # free_fleet's keys once per robot, on its first distro's node
-    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst, rmf=rmf)
+    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst, rmf=rmf, taken=taken)
     frame_prefix = tf_frame_prefix(normalise_namespace(s.namespace)) if fleet else ""
     options = s.options(edge.data_keys, edge.service_keys, frame_prefix=frame_prefix, distro=distro)
     if not rmf:
@@ -96,10 +103,11 @@ def declare_node(
 async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+    taken: dict[str, object] = {}  # the session's action keys: one node serves each
     failure = "ROS 2 node of {robot} failed ({exc!r}, its %s node); starting it again in {pause:g} s"
 
     def role(d: Distro) -> Role[Ros2Settings]:
-        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst), failure % d.value)
+        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst, taken), failure % d.value)
 
     roles = {d: role(d) for d in Distro}
     parts = [

@@ -51,10 +51,11 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
     distros = settings.distros() if flavor is Flavor.RMW_ZENOH else (DEFAULT_DISTRO,)
     with await open_service_session(settings.zenoh, stop, "ros2") as session:
         ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+        taken: dict[str, object] = {}  # the action's keys two distros share (Jazzy's and Kilted's): one node serves each
         nodes: list[tuple[str, Ros2Zenoh, Ros2Host]] = []
         try:
             for distro in distros:
-                nodes.append((distro.value, *declare_node(session, settings, codec, ids, distro)))
+                nodes.append((distro.value, *declare_node(session, settings, codec, ids, distro, taken=taken)))
             node = full_topic(namespace, settings.node_name)
             which = ", ".join(d for d, _, _ in nodes) if flavor is Flavor.RMW_ZENOH else "any distro"
             say(f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}")

@@ -69,12 +69,15 @@ class _RosPublisher:
 
     ``burst`` (a fleet's volatile topics): put with the other nodes' samples at the end of the loop's turn."""
 
-    publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher"
+    #: None: another node of the session publishes on this very key (see ``taken``): nothing is put here.
+    publisher: "zenoh.Publisher | zenoh.ext.AdvancedPublisher | None"
     gid: bytes | None
     burst: PutBurst | None = None
     sequence: int = 0
 
     def put(self, cdr: bytes) -> None:
+        if self.publisher is None:
+            return
         extra: bytes | None = None
         if self.gid is not None:
             self.sequence += 1
@@ -98,10 +101,13 @@ class Ros2Zenoh(ZenohEdge):
         fleet: bool = False,
         burst: PutBurst | None = None,
         rmf: bool = False,
+        taken: dict[str, object] | None = None,
     ) -> None:
         """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
         of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`.
-        ``rmf``: free_fleet's plain keys too (one node of the robot declares them, whatever its distros)."""
+        ``rmf``: free_fleet's plain keys too (one node of the robot declares them, whatever its distros). ``taken``: the
+        session's action and pose-tool keys and which node serves each: two distros with one definition (Jazzy and
+        Kilted, Lyrical and Rolling) have one key, which one node serves (two would take every goal twice)."""
         import zenoh
         import zenoh.ext
 
@@ -120,6 +126,8 @@ class Ros2Zenoh(ZenohEdge):
         #: free_fleet's services ("rmf/" + the action's service name) -> their plain keys.
         self.rmf_keys: dict[str, str] = {}
         known_hashes = action_hashes(layout_of(distro))  # the action's types, not in the codec's store
+        self._taken: dict[str, object] = {} if taken is None else taken
+        self._elsewhere: set[str] = set()  # the action's services and pose tools another node of the session serves
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
 
@@ -141,11 +149,16 @@ class Ros2Zenoh(ZenohEdge):
         # the action's entities after the services, so that the entities before them keep their ids
         for service in [*services(), *nav_services()]:
             name = service.full_name(namespace, node_name)
-            self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
+            key = self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
+            if service.name in ACTION_SERVICES and not self._own(key):
+                self._elsewhere.add(service.name)
         for topic in nav_topics():
             key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
             self.data_keys[topic.key_name] = key
-            if topic.direction is Direction.PUBLISH:
+            if not self._own(key):
+                self._elsewhere.add(topic.key_name)
+                self._publishers[topic.key_name] = _RosPublisher(None, None)
+            elif topic.direction is Direction.PUBLISH:
                 self._declare_publisher(topic.key_name, key, gid, topic.qos)
         if rmf:  # zenoh-bridge-ros2dds's plain keys under the robot's RMF name: no type, no hash, no attachment
             robot = settings.rmf_robot()
@@ -173,6 +186,10 @@ class Ros2Zenoh(ZenohEdge):
         self._rings = fleet
         self._host: Ros2Host | None = None
         self._put_query_event: Callable[[tuple[int, bool | None, bytes]], None] | None = None
+
+    def _own(self, key: str) -> bool:
+        """Serve ``key`` unless another node of the session does (it is this node's from now on)."""
+        return self._taken.setdefault(key, self) is self
 
     def _declare_publisher(self, name: str, key: str, gid: bytes | None, qos: Qos) -> None:
         """A ROS topic's publisher: transient local as rmw_zenoh declares one (an AdvancedPublisher with its cache)."""
@@ -262,8 +279,9 @@ class Ros2Zenoh(ZenohEdge):
         }
         self.subscriber(self.keys.params, intake.channel("params", on(core.calls.on_params), latest=True, priority=8))
         # navigation: RViz's pose tools in, the navigation service's map frame in (its feedback: a stream, above)
-        self.subscriber(self.data_keys[GOAL_POSE], intake.channel(GOAL_POSE, on(core.on_goal_pose), capacity=16, priority=7))
-        self.subscriber(self.data_keys[INITIAL_POSE], intake.channel(INITIAL_POSE, on(core.on_initial_pose), capacity=16, priority=7))
+        for tool, method in ((GOAL_POSE, core.on_goal_pose), (INITIAL_POSE, core.on_initial_pose)):
+            if tool not in self._elsewhere:
+                self.subscriber(self.data_keys[tool], intake.channel(tool, on(method), capacity=16, priority=7))
         self.subscriber(self.keys.nav_map_pose, intake.channel("nav map_pose", on(core.nav.on_map_pose), latest=True, priority=6))
 
         def on_matched(event: tuple[str, bool]) -> None:
@@ -272,12 +290,14 @@ class Ros2Zenoh(ZenohEdge):
         matched = intake.channel("matching", on_matched, capacity=64, priority=7)
         for topic in (*WATCHED_TOPICS, *WATCHED_FEEDBACK):
             entry = self._publishers.get(topic)
-            if entry is not None:
+            if entry is not None and entry.publisher is not None:
                 self._watch(topic, entry.publisher, matched)
         for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
             self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in [*self.service_keys.items(), *self.rmf_keys.items()]:
+            if service in self._elsewhere:
+                continue
             # a query dropped from a full channel is never answered: the action's take a flood of goals (free_fleet's
             # dispatchers, scripts) and answer each, refusing what is beyond MAX_ASKING
             capacity = 4 * MAX_ASKING if service.removeprefix(RMF) in ACTION_SERVICES else 16
@@ -366,6 +386,8 @@ class Ros2Zenoh(ZenohEdge):
             self._host.driver.run_locked(self._host.core.on_query_reply, tag, ok, payload)
 
     def close(self) -> None:
+        for key in [k for k, owner in self._taken.items() if owner is self]:  # a node started again takes them anew
+            del self._taken[key]
         for query, _ in self._calls.values():  # unanswered calls end with the adapter
             query.drop()
         self._calls.clear()

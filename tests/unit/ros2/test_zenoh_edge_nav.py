@@ -251,3 +251,42 @@ def test_each_distros_action_keys_and_tokens(session: zenoh.Session, distro: str
         assert edge.rmf_keys == {}  # no --rmf: no plain keys
     finally:
         edge.close()
+
+
+@pytest.mark.parametrize(
+    ("second", "elsewhere"),
+    [
+        (
+            "kilted",
+            {
+                *(f"navigate_to_pose/_action/{n}" for n in ("send_goal", "cancel_goal", "get_result", "feedback", "status")),
+                "goal_pose",
+                "initialpose",
+            },
+        ),
+        (
+            "rolling",
+            {*(f"navigate_to_pose/_action/{n}" for n in ("send_goal", "cancel_goal", "get_result", "status")), "goal_pose", "initialpose"},
+        ),
+        ("humble", set()),
+    ],
+)
+def test_two_distros_with_one_key_serve_it_once(session: zenoh.Session, second: str, elsewhere: set[str]) -> None:
+    """Jazzy's and Kilted's action keys are one (the same definitions, the same hashes): the first node serves them, or
+    every goal would be taken twice; Rolling's feedback is its own; Humble's keys all differ (no hashes)."""
+    taken: dict[str, object] = {}
+    codec = RosCodec()
+    first = Ros2Zenoh(session, Ros2Settings(), codec, distro=Distro.JAZZY, taken=taken)
+    other = Ros2Zenoh(session, Ros2Settings(), codec, distro=Distro(second), taken=taken)
+    try:
+        assert first._elsewhere == set() and other._elsewhere == elsewhere
+        assert (
+            other.service_keys["navigate_to_pose/_action/send_goal"] == first.service_keys["navigate_to_pose/_action/send_goal"]
+            or not elsewhere
+        )
+        assert all(owner is first for owner in taken.values() if owner is not other)
+    finally:
+        first.close()
+    assert all(owner is other for owner in taken.values())  # a node closed (to be started again) lets go of its keys
+    other.close()
+    assert taken == {}
