@@ -33,6 +33,7 @@ from .naming import (
     Flavor,
     NodeIdentity,
     Qos,
+    RosTopic,
     ServiceRole,
     attachment,
     gid_of,
@@ -106,8 +107,9 @@ class Ros2Zenoh(ZenohEdge):
         """``ids``: the session's one entity counter, as rmw_zenoh numbers a context's entities (shared by the nodes
         of one session). ``fleet``: the absolute /tf, and the robot's streams wait in Zenoh rings for :meth:`drain`.
         ``rmf``: free_fleet's plain keys too (one node of the robot declares them, whatever its distros). ``taken``: the
-        session's action and pose-tool keys and which node serves each: two distros with one definition (Jazzy and
-        Kilted, Lyrical and Rolling) have one key, which one node serves (two would take every goal twice)."""
+        session's keys and which node serves each: two distros with one type hash (Jazzy and Kilted; Lyrical and
+        Rolling; all but Humble for most types) have one key, which one node serves (two took every goal and command
+        twice, answered every call twice); an absolute topic (/diagnostics, a fleet's /tf) is every node's."""
         import zenoh
         import zenoh.ext
 
@@ -127,7 +129,7 @@ class Ros2Zenoh(ZenohEdge):
         self.rmf_keys: dict[str, str] = {}
         known_hashes = action_hashes(layout_of(distro))  # the action's types, not in the codec's store
         self._taken: dict[str, object] = {} if taken is None else taken
-        self._elsewhere: set[str] = set()  # the action's services and pose tools another node of the session serves
+        self._elsewhere: set[str] = set()  # the topics and services another node of the session serves (same key)
         if flavor is Flavor.RMW_ZENOH:
             self.tokens.append(node.node_token())
 
@@ -141,25 +143,26 @@ class Ros2Zenoh(ZenohEdge):
             self.tokens.append(token)
             return rmw_zenoh_data_key(domain_id, name, ros_type, type_hash), gid_of(token)
 
-        for topic in ros_topics:
+        def place(topic: RosTopic) -> None:
+            """Declare ``topic`` unless another node of the session has its key (an absolute topic: every node's)."""
             key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
             self.data_keys[topic.key_name] = key
-            if topic.direction is Direction.PUBLISH:
-                self._declare_publisher(topic.key_name, key, gid, topic.qos)
-        # the action's entities after the services, so that the entities before them keep their ids
-        for service in [*services(), *nav_services()]:
-            name = service.full_name(namespace, node_name)
-            key = self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
-            if service.name in ACTION_SERVICES and not self._own(key):
-                self._elsewhere.add(service.name)
-        for topic in nav_topics():
-            key, gid = declare(topic.direction, topic.full_name(namespace), topic.ros_type, topic.qos)
-            self.data_keys[topic.key_name] = key
-            if not self._own(key):
+            if not topic.absolute and not self._own(key):
                 self._elsewhere.add(topic.key_name)
                 self._publishers[topic.key_name] = _RosPublisher(None, None)
             elif topic.direction is Direction.PUBLISH:
                 self._declare_publisher(topic.key_name, key, gid, topic.qos)
+
+        for topic in ros_topics:
+            place(topic)
+        # the action's entities after the services, so that the entities before them keep their ids
+        for service in [*services(), *nav_services()]:
+            name = service.full_name(namespace, node_name)
+            key = self.service_keys[service.name] = declare(ServiceRole.SERVER, name, service.ros_type, service.qos)[0]
+            if not self._own(key):
+                self._elsewhere.add(service.name)
+        for topic in nav_topics():
+            place(topic)
         if rmf:  # zenoh-bridge-ros2dds's plain keys under the robot's RMF name: no type, no hash, no attachment
             robot = settings.rmf_robot()
             battery = (RMF_BATTERY,) if settings.rmf_battery >= 0 else ()  # a robot with no battery gauge: none
@@ -259,12 +262,15 @@ class Ros2Zenoh(ZenohEdge):
 
         # the action's queries of the navigation service are at most MAX_ASKING at once: a reply and a done each
         self._put_query_event = intake.channel("query replies", self._on_query_event, capacity=4 * MAX_ASKING, priority=8)
-        self.subscriber(self.data_keys["estop"], intake.channel("estop", on(core.on_estop), capacity=64, priority=10))
+        if "estop" not in self._elsewhere:
+            self.subscriber(self.data_keys["estop"], intake.channel("estop", on(core.on_estop), capacity=64, priority=10))
         twist = intake.channel("cmd_vel", on(core.on_cmd_vel), latest=True, priority=5, direct=host.direct())
-        self.subscriber(self.data_keys["cmd_vel"], twist)
+        if "cmd_vel" not in self._elsewhere:
+            self.subscriber(self.data_keys["cmd_vel"], twist)
         on_stamped = on(functools.partial(core.on_cmd_vel, stamped=True))
         stamped = intake.channel(CMD_VEL_STAMPED, on_stamped, latest=True, priority=5, direct=host.direct(stamped=True))
-        self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
+        if CMD_VEL_STAMPED not in self._elsewhere:
+            self.subscriber(self.data_keys[CMD_VEL_STAMPED], stamped)
         # the robot streams it follows (ring drains and callbacks meet the same handler): key, method, channel, ring
         streams: dict[str, tuple[str, Callable[..., Any], dict[str, Any], int]] = {
             "pose": (self.keys.pose, core.on_pose, {"capacity": 256}, RING),

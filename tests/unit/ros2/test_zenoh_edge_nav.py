@@ -19,9 +19,9 @@ import zenoh
 from helpers import Child, client_config, free_port, wait_for
 
 from blackmetal.ros2 import action_cdr as cdr
-from blackmetal.ros2.action_types import NavLayout
+from blackmetal.ros2.action_types import NavLayout, nav_topics
 from blackmetal.ros2.messages import RosCodec
-from blackmetal.ros2.naming import Distro, attachment, parse_attachment
+from blackmetal.ros2.naming import Distro, attachment, parse_attachment, topics
 from blackmetal.ros2.ros_types import TF_MESSAGE
 from blackmetal.ros2.settings import Ros2Settings
 from blackmetal.ros2.zenoh_edge import Ros2Zenoh
@@ -253,38 +253,24 @@ def test_each_distros_action_keys_and_tokens(session: zenoh.Session, distro: str
         edge.close()
 
 
-@pytest.mark.parametrize(
-    ("second", "elsewhere"),
-    [
-        (
-            "kilted",
-            {
-                *(f"navigate_to_pose/_action/{n}" for n in ("send_goal", "cancel_goal", "get_result", "feedback", "status")),
-                "goal_pose",
-                "initialpose",
-            },
-        ),
-        (
-            "rolling",
-            {*(f"navigate_to_pose/_action/{n}" for n in ("send_goal", "cancel_goal", "get_result", "status")), "goal_pose", "initialpose"},
-        ),
-        ("humble", set()),
-    ],
-)
-def test_two_distros_with_one_key_serve_it_once(session: zenoh.Session, second: str, elsewhere: set[str]) -> None:
-    """Jazzy's and Kilted's action keys are one (the same definitions, the same hashes): the first node serves them, or
-    every goal would be taken twice; Rolling's feedback is its own; Humble's keys all differ (no hashes)."""
+@pytest.mark.parametrize(("second", "shares_feedback"), [("kilted", True), ("rolling", False), ("humble", None)])
+def test_two_distros_with_one_key_serve_it_once(session: zenoh.Session, second: str, shares_feedback: bool | None) -> None:
+    """Jazzy's and Kilted's keys are one (the same definitions, the same hashes): the first node serves them, or every
+    goal, command and call was taken twice; Rolling's action feedback is its own; Humble's keys all differ (no
+    hashes); an absolute topic (/diagnostics, /parameter_events) is every node's."""
     taken: dict[str, object] = {}
     codec = RosCodec()
     first = Ros2Zenoh(session, Ros2Settings(), codec, distro=Distro.JAZZY, taken=taken)
     other = Ros2Zenoh(session, Ros2Settings(), codec, distro=Distro(second), taken=taken)
     try:
-        assert first._elsewhere == set() and other._elsewhere == elsewhere
-        assert (
-            other.service_keys["navigate_to_pose/_action/send_goal"] == first.service_keys["navigate_to_pose/_action/send_goal"]
-            or not elsewhere
-        )
-        assert all(owner is first for owner in taken.values() if owner is not other)
+        relative = {t.key_name for t in [*topics(True, robot_model=True), *nav_topics()] if not t.absolute}
+        expected = set() if shares_feedback is None else relative | set(first.service_keys)
+        if shares_feedback is False:
+            expected.discard("navigate_to_pose/_action/feedback")
+        assert first._elsewhere == set() and other._elsewhere == expected
+        assert {"diagnostics", "parameter_events"}.isdisjoint(other._elsewhere)
+        mine = relative | set(first.service_keys)  # each node owns the keys the other does not serve for it
+        assert sum(o is first for o in taken.values()) == len(mine) and sum(o is other for o in taken.values()) == len(mine - expected)
     finally:
         first.close()
     assert all(owner is other for owner in taken.values())  # a node closed (to be started again) lets go of its keys
