@@ -156,7 +156,9 @@ class Ros2Core:
         self.diagnostics.on_error_report(report, now)
 
     def on_alive(self, who: str, alive: bool, now: float) -> None:
-        """The gateway's or the odometry's liveliness token appeared (True) or went away (False)."""
+        """The gateway's, the odometry's or the navigation's liveliness token appeared (True) or went away (False)."""
+        if who == "nav":
+            return self.nav.on_alive(alive, now)
         if who == "gateway" and alive and self.diagnostics.gateway_alive is False:
             self.calls.ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
         self.diagnostics.on_alive(who, alive)

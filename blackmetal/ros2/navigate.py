@@ -66,6 +66,8 @@ MAX_GOALS = 32
 MAX_WAITING = 64
 #: While a get_result waits, nav/result is asked this often (s), in case the goal's last feedback was missed.
 RESULT_POLL_S = 1.0
+#: Polls of a held goal in a row that nobody answers before it ends ABORTED.
+UNANSWERED_POLLS = 3
 #: The action's queries of the navigation service outstanding at once; a call beyond them is refused at once.
 MAX_ASKING = 256
 #: How long the adapter waits for the navigation service to answer (s).
@@ -95,6 +97,8 @@ class Goal:
     reason: str = ""
     #: When to ask the service how it ended, if no feedback has said so (a goal preempted by a newer one).
     check_at: float = math.inf
+    #: Polls of nav/result in a row nobody answered.
+    unanswered: int = 0
 
     @property
     def info(self) -> cdr.GoalInfo:
@@ -160,6 +164,15 @@ class NavAction:
         if m is None:
             return None
         return Transform(m.map, odom_frame, (m.x, m.y, 0.0), (0.0, 0.0, math.sin(m.yaw / 2), math.cos(m.yaw / 2)))
+
+    def on_alive(self, alive: bool, now: float) -> None:
+        """The navigation service's liveliness token: gone, no goal of it can go on; each ends ABORTED, held results
+        answered (rmw_zenoh's get_result waits for ever otherwise). Back: its map frame asked again."""
+        if alive:
+            return self._ask("map_pose", self.keys.nav_map_pose, None, Waiting("map_pose", 0, None), now)
+        reason = f"the navigation service on {self.keys.prefix} went away ({self.keys.alive_nav} is gone): the goal cannot go on"
+        for goal in [g for g in self.goals.values() if g.status not in TERMINAL]:
+            self._set(goal, ABORTED, reason)
 
     def on_feedback(self, payload: bytes, now: float) -> None:
         """A goal's progress: its feedback out while it runs, its status on each change, its waiting results answered."""
@@ -338,8 +351,16 @@ class NavAction:
             self._failed(waiting, f"the navigation service answered something unexpected on {key}: {exc}", now)
 
     def on_query_done(self, tag: int, now: float) -> None:
-        """No reply came (the query is still ours): nobody serves the key."""
+        """No reply came (the query is still ours): nobody serves the key. A held get_result's goal asked this many
+        times in a row with no answer ends ABORTED (a navigation gone without its liveliness token saying so)."""
         waiting = self.queries.pop(tag, None)
+        if waiting is not None and waiting.what == "poll":
+            goal = self.goals.get(waiting.uuid)
+            if goal is not None and goal.status not in TERMINAL:
+                goal.unanswered += 1
+                if goal.unanswered >= UNANSWERED_POLLS:
+                    self._set(goal, ABORTED, f"no navigation service answered on {self.keys.nav_result} for {goal.unanswered} polls")
+            return
         if waiting is not None and waiting.what != "map_pose":
             self._failed(
                 waiting, f"no navigation service answered on {self.keys.prefix}/nav (is blackmetal nav running for this robot?)", now
@@ -397,6 +418,7 @@ class NavAction:
                 self._answer_result(waiting, None)
             return
         goal = self.goals.get(waiting.uuid) or self._remember(waiting.uuid, self.wallclock() - result.elapsed)
+        goal.unanswered = 0
         status = STATUS_OF[result.state]
         self._set(goal, CANCELING if goal.status == CANCELING and status not in TERMINAL else status, result.reason)
         if waiting.what == "result":

@@ -298,7 +298,7 @@ class Ros2Zenoh(ZenohEdge):
             entry = self._publishers.get(topic)
             if entry is not None and entry.publisher is not None:
                 self._watch(topic, entry.publisher, matched)
-        for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry)):
+        for who, key in (("gateway", self.keys.alive_gateway), ("odometry", self.keys.alive_odometry), ("nav", self.keys.alive_nav)):
             on_alive = functools.partial(host.driver.run_locked, core.on_alive, who)
             self._alive(key, intake.channel(f"alive {who}", on_alive, capacity=16, priority=9))
         for service, key in [*self.service_keys.items(), *self.rmf_keys.items()]:

@@ -163,3 +163,9 @@ def test_feedback_is_encoded_only_while_someone_subscribes(codec: RosCodec) -> N
     core.on_matched(FEEDBACK, True, now=1.3)  # and a ROS action client
     core.nav.on_feedback(running, now=1.4)
     assert len(out.topic(FEEDBACK)) == 1 and len(out.topic(RMF + FEEDBACK)) == 2
+
+
+def test_the_navigations_liveliness_reaches_the_action(codec: RosCodec) -> None:
+    core, out = make(codec)
+    core.on_alive("nav", True, now=1.0)
+    assert out.queries[-1][0] == "fleet/r1/nav/map_pose"

@@ -326,3 +326,26 @@ def test_results_beyond_those_held_and_without_a_service_are_answered() -> None:
     nav.on_request(GET_RESULT, 99, H + other, None, now=3.0)
     nav.on_query_done(out.queries[-1][2], now=5.0)  # no navigation service answered
     assert out.replies[99][0] == cdr.get_result_response(NavLayout.JAZZY, 0) and out.refused == {}
+
+
+def test_a_held_result_ends_when_the_navigation_goes_away() -> None:
+    nav, out = make()
+    accept(nav, out)
+    nav.on_feedback(feedback("executing"), now=1.5)
+    nav.on_request(GET_RESULT, 2, H + UUID, None, now=1.6)
+    nav.on_alive(False, now=2.0)  # its liveliness token is gone: killed, or its host lost
+    response = out.replies[2][0]
+    assert response[4] == 6 and b"went away" in response and status_list(out.topic(STATUS)[-1]) == [(UUID, 6)]
+    nav.on_alive(True, now=3.0)  # back: its map frame asked again
+    assert out.queries[-1][0] == "fleet/r1/nav/map_pose"
+
+
+def test_a_held_result_ends_when_nobody_answers_its_polls() -> None:
+    nav, out = make()
+    accept(nav, out)
+    nav.on_feedback(feedback("executing"), now=1.5)
+    nav.on_request(GET_RESULT, 2, H + UUID, None, now=1.6)
+    for second in range(1, 4):
+        nav.tick(1.6 + second * RESULT_POLL_S)
+        nav.on_query_done(out.queries[-1][2], now=1.6 + second * RESULT_POLL_S + 0.5)  # nobody serves nav/result
+    assert out.replies[2][0][4] == 6 and b"no navigation service answered" in out.replies[2][0]
