@@ -378,8 +378,7 @@ class NavAction:
             self._answer_result(waiting, None)
 
     def _on_goal_reply(self, waiting: Waiting, reply: NavGoalReply, now: float) -> None:
-        if not reply.accepted:
-            self.reporter.report(self.keys.nav_goal, f"goal rejected: {reply.reason}", "", now=now)
+        # a refusal's sentence is the navigation service's to report (on <prefix>/errors): said once, not twice
         if waiting.what == "pose":
             return
         stamp = self.wallclock()

@@ -152,7 +152,7 @@ def test_rejections_and_silence_are_refusals_with_the_reason_reported() -> None:
     nav, out = make()
     nav.on_request(SEND_GOAL, 1, send_goal_payload(), None, now=1.0)
     nav.on_query_reply(out.queries[-1][2], True, encode(NavGoalReply(accepted=False, reason="the robot is e-stopped")), now=1.0)
-    assert out.replies[1][0][4] == 0 and "e-stopped" in out.errors[-1].reason
+    assert out.replies[1][0][4] == 0 and out.errors == []  # its sentence: the navigation service reports it
     nav.on_request(SEND_GOAL, 2, send_goal_payload(), None, now=1.0)
     nav.on_query_done(out.queries[-1][2], now=3.0)
     assert out.replies[2][0][4] == 0 and "no navigation service answered" in out.errors[-1].reason
@@ -255,7 +255,7 @@ def test_rviz_tools_and_the_map_frame() -> None:
     key, asked, tag = out.queries[-1]
     assert key == "fleet/r1/nav/goal" and asked == {"x": 3.0, "y": 4.0, "yaw": None, "frame": "map", "goal_id": None}
     nav.on_query_reply(tag, True, encode(NavGoalReply(accepted=False, reason="outside the geofence")), now=1.0)
-    assert "geofence" in out.errors[-1].reason and out.replies == {}
+    assert out.errors == [] and out.replies == {}  # the navigation service reports its refusal
     assert nav.map_transform("r1/odom") is None
     nav.on_initial_pose(cdr.StampedPose(0, 0, "map", 1.0, 2.0, math.pi / 2), now=2.0)
     key, asked, tag = out.queries[-1]
