@@ -9,7 +9,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import TypeVar
+from typing import Literal, TypeVar
 
 import msgspec
 
@@ -106,17 +106,9 @@ class ServiceCalls:
         key = self.options.service_keys.get(service, service)
         if service not in SERVICE_TYPES:
             return self.output.service_refuse(call, f"no service {service!r} here")
-        reply_to = None
-        if request_attachment is not None:
-            try:
-                sequence, _, gid = parse_attachment(request_attachment)
-                if sequence < 0:
-                    raise ValueError(f"sequence number {sequence} is negative")
-            except ValueError as exc:
-                reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
-                self.reject(key, reason, excerpt(request_attachment), now)
-                return self._refuse(call, reason, now)
-            reply_to = (sequence, gid)
+        reply_to = self.reply_to(service, call, request_attachment, now)
+        if reply_to is False:
+            return None
         pending = PendingCall(call, service, reply_to, deadline=now + self.options.service_timeout)
         if service in PARAMETER_SERVICES:
             if len(self.pending) >= MAX_PENDING_CALLS and (service in SET_CALLS or not self.parameters.known):
@@ -140,6 +132,21 @@ class ServiceCalls:
             self._put_estop(pending, now)
         else:
             self._ask(ASK_RESET, self.keys.odometry_reset, None, call, self.options.service_timeout)
+
+    def reply_to(self, service: str, call: int, request_attachment: bytes | None, now: float) -> tuple[int, bytes] | Literal[False] | None:
+        """(sequence number, client GID) of an rmw_zenoh request's attachment, None without one; False: refused (reported)."""
+        if request_attachment is None:
+            return None
+        try:
+            sequence, _, gid = parse_attachment(request_attachment)
+            if sequence < 0:
+                raise ValueError(f"sequence number {sequence} is negative")
+        except ValueError as exc:
+            reason = f"service request with an attachment that is not rmw_zenoh's: {exc}"
+            self.reject(self.options.service_keys.get(service, service), reason, excerpt(request_attachment), now)
+            self._refuse(call, reason, now)
+            return False
+        return sequence, gid
 
     def _put_estop(self, pending: PendingCall, now: float) -> None:
         self.output.blackmetal(self.keys.estop_for(pending.engage), encode(EStop(engaged=pending.engage)))

@@ -17,18 +17,26 @@ from blackmetal.runtime.diagnostics import Status
 from blackmetal.runtime.reports import ErrorReporter
 from blackmetal.schemas import ErrorReport, EStop, GatewayHealth, Keys, PayloadError, Pose, WheelImpulses, decode, encode
 
+from . import action_cdr
+from .action_types import BATTERY_STATE, NavLayout
 from .calls import ASK_HEALTH, ServiceCalls, decoded
 from .diagnostics import DIAGNOSTICS_PERIOD_S, AdapterStats, Diagnostics
 from .messages import RosCodec
 from .naming import CMD_VEL_STAMPED, ROBOT_DESCRIPTION, TF_STATIC
+from .navigate import ACTION_SERVICES, FEEDBACK, RMF, RMF_TF, NavAction
 from .options import Ros2Options, Ros2Output
-from .ros_types import BOOL, STRING
+from .ros_types import BOOL, STRING, Transform
 
 #: The gateway's command timeout (s) until its health has said what it is: how old a TwistStamped may be.
 DEFAULT_CMD_TIMEOUT = 0.5
 
 #: The ROS topics fed by a stream of the robot: published, and their streams followed, only while someone subscribes.
 WATCHED_TOPICS = ("odom", "tf", "joint_states", "diagnostics")
+#: The action's feedback (the node's, free_fleet's): encoded only while someone subscribes (the status always: it is
+#: transient local, a late subscriber gets the last one).
+WATCHED_FEEDBACK = (FEEDBACK, RMF + FEEDBACK)
+#: The navigation's feedback, a robot stream every node follows: it keeps the action's goal states.
+NAV_STREAM = "nav_feedback"
 
 
 @dataclass(eq=False)
@@ -54,6 +62,11 @@ class Ros2Core:
             o, self.keys, self.output, self.codec, self.wallclock, self.reporter, self.stats, self._follow, self._reject
         )
         self.parameters = self.calls.parameters
+        battery = self._battery if o.rmf_name and o.rmf_battery is not None else None
+        self.nav = NavAction(
+            self.keys, self.output, self.reporter, self.wallclock, NavLayout(o.nav_layout), o.frames.odom, bool(o.rmf_name), battery
+        )
+        self.nav.wants, self.nav.reject = self._wants, self._reject
         self._following: frozenset[str] | None = None
         self._next_diagnostics = -math.inf
         self._model_published = False
@@ -70,8 +83,48 @@ class Ros2Core:
         o = self.options
         if self._wants("odom"):
             self.output.ros("odom", self.codec.odometry(pose, o.frames, o.pose_covariance, o.twist_covariance))
+        tf = None
         if self._wants("tf"):
-            self.output.ros("tf", self.codec.transform(pose, o.frames))
+            tf = self._transforms(pose, o.frames.odom, o.frames.base)
+            self.output.ros("tf", tf)
+        if o.rmf_name:  # free_fleet looks map -> base_footprint up in <name>/tf, frames as Nav2 names them
+            if tf is None or o.rmf_frames != o.frames:  # else (one robot): the same bytes, encoded once
+                tf = self._transforms(pose, o.rmf_frames.odom, o.rmf_frames.base)
+            self.output.ros(RMF_TF, tf)
+
+    def _transforms(self, pose: Pose, odom: str, base: str) -> bytes:
+        """``odom -> base`` of ``pose``, after ``map -> odom`` once the navigation service has placed it (same stamp)."""
+        q = pose.orientation
+        robot = Transform(odom, base, (pose.x, pose.y, 0.0), (q.x, q.y, q.z, q.w))
+        placed = self.nav.map_transform(odom)
+        return self.codec.transforms(pose.stamp, [robot] if placed is None else [placed, robot])
+
+    def _battery(self) -> bytes:
+        charge = self.options.rmf_battery or 0.0
+        return self.codec.encode(
+            BATTERY_STATE,
+            **_battery_fields(self.codec, self.wallclock(), charge),
+        )
+
+    def on_service_request(self, service: str, call: int, cdr: bytes, request_attachment: bytes | None, now: float) -> None:
+        """A call to one of the node's services, or to the action's (the node's, or free_fleet's with ``rmf/``)."""
+        if service.removeprefix(RMF) not in ACTION_SERVICES:
+            return self.calls.on_service_request(service, call, cdr, request_attachment, now)
+        reply_to = self.calls.reply_to(service, call, request_attachment, now)
+        if reply_to is not False:
+            self.nav.on_request(service, call, cdr, reply_to, now)
+
+    def on_goal_pose(self, cdr: bytes, now: float) -> None:
+        try:
+            self.nav.on_goal_pose(action_cdr.pose_stamped(cdr), now)
+        except PayloadError as exc:
+            self._reject(self.options.data_keys.get("goal_pose", "goal_pose"), str(exc), exc.excerpt, now)
+
+    def on_initial_pose(self, cdr: bytes, now: float) -> None:
+        try:
+            self.nav.on_initial_pose(action_cdr.pose_with_covariance_stamped(cdr), now)
+        except PayloadError as exc:
+            self._reject(self.options.data_keys.get("initialpose", "initialpose"), str(exc), exc.excerpt, now)
 
     def on_impulses(self, payload: bytes, now: float) -> None:
         sample = decoded(self.reporter, WheelImpulses, payload, self.keys.impulses, now)
@@ -103,7 +156,9 @@ class Ros2Core:
         self.diagnostics.on_error_report(report, now)
 
     def on_alive(self, who: str, alive: bool, now: float) -> None:
-        """The gateway's or the odometry's liveliness token appeared (True) or went away (False)."""
+        """The gateway's, the odometry's or the navigation's liveliness token appeared (True) or went away (False)."""
+        if who == "nav":
+            return self.nav.on_alive(alive, now)
         if who == "gateway" and alive and self.diagnostics.gateway_alive is False:
             self.calls.ask_params()  # the gateway came back: its table may differ (another settings file, a restart)
         self.diagnostics.on_alive(who, alive)
@@ -111,6 +166,7 @@ class Ros2Core:
     def start(self) -> None:
         """Once, when the node starts serving: ask for the gateway's parameters; from now on follow only what is watched."""
         self.calls.ask_params()
+        self.nav.start()
         if self.watched is None:
             self.watched = set()
         self._follow()
@@ -120,12 +176,13 @@ class Ros2Core:
         return (self.watched is None or topic in self.watched) and (topic != "tf" or self.options.publish_tf)
 
     def _follow(self) -> None:
-        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it)."""
+        """Follow the robot's streams the watched topics need (the health also while a set_estop waits for it), and
+        the navigation's feedback."""
         if self.watched is None:
             return  # not started: the edge follows everything it declared
         robot = self.options.robot
-        out = set()
-        if any(map(self._wants, ("odom", "tf", "diagnostics"))):
+        out = {NAV_STREAM}  # the action's goal states: always (nothing flows while no goal runs)
+        if any(map(self._wants, ("odom", "tf", "diagnostics"))) or self.options.rmf_name:
             out.add("pose")
         if self._wants("joint_states") or (robot is not None and robot.wheel_tf and self._wants("tf")):
             out.add("impulses")
@@ -194,10 +251,19 @@ class Ros2Core:
 
     def on_query_reply(self, tag: int, ok: bool, payload: bytes, now: float) -> None:
         """One reply to our query ``tag`` (``ok`` False: an error reply, ``payload`` its text)."""
-        if self.calls.queries.get(tag, ("", None))[0] != ASK_HEALTH:
+        if tag < 0:
+            self.nav.on_query_reply(tag, ok, payload, now)
+        elif self.calls.queries.get(tag, ("", None))[0] != ASK_HEALTH:
             self.calls.on_query_reply(tag, ok, payload, now)
         elif ok:
             self.on_health(payload, now)
+
+    def on_query_done(self, tag: int, now: float) -> None:
+        """No more replies to ``tag`` (the action's queries are the negative tags)."""
+        if tag < 0:
+            self.nav.on_query_done(tag, now)
+        else:
+            self.calls.on_query_done(tag, now)
 
     def statuses(self, now: float) -> list[Status]:
         d = self.diagnostics
@@ -211,6 +277,7 @@ class Ros2Core:
             self.output.ros(TF_STATIC, self.codec.transforms(self.wallclock(), robot.fixed))
             self._model_published = True
         self.calls.tick(now)
+        self.nav.tick(now)
         if now >= self._next_diagnostics:
             if self._wants("diagnostics"):  # nobody subscribes: nothing encoded
                 self.output.ros("diagnostics", self.codec.diagnostics(self.wallclock(), self.statuses(now)))
@@ -220,7 +287,32 @@ class Ros2Core:
 
     def next_deadline(self) -> float:
         diagnostics = self._next_diagnostics if self._wants("diagnostics") else math.inf  # nobody watches: no timer
-        deadline = min(diagnostics, self.reporter.next_deadline())
+        deadline = min(diagnostics, self.reporter.next_deadline(), self.nav.next_deadline())
         if self.calls.pending:  # asked after every pose: the common case, no call pending, builds nothing
             deadline = min(deadline, self.calls.next_deadline())
         return deadline
+
+
+def _battery_fields(codec: RosCodec, stamp: float, charge: float) -> dict[str, object]:
+    """sensor_msgs/BatteryState with only ``percentage`` known (free_fleet reads nothing else): NaN where unmeasured."""
+    import numpy as np
+
+    nan = float("nan")
+    return {
+        "header": codec.header(stamp, ""),
+        "voltage": nan,
+        "temperature": nan,
+        "current": nan,
+        "charge": nan,
+        "capacity": nan,
+        "design_capacity": nan,
+        "percentage": charge,
+        "power_supply_status": 0,
+        "power_supply_health": 0,
+        "power_supply_technology": 0,
+        "present": True,
+        "cell_voltage": np.zeros(0, dtype=np.float32),
+        "cell_temperature": np.zeros(0, dtype=np.float32),
+        "location": "",
+        "serial_number": "",
+    }

@@ -44,6 +44,7 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
     """Each robot's adapter settings: the command line's, its prefix, the namespace of its id, its [robot.ros2] table."""
     out: list[Ros2Settings] = []
     nodes: dict[tuple[int, str], FleetRobot] = {}
+    rmf_names: dict[str, FleetRobot] = {}
     for robot in robots:
         table = robot.tables.get("ros2", {})
         if "prefix" in table:
@@ -62,19 +63,38 @@ def fleet_settings(base: Ros2Settings, robots: list[FleetRobot]) -> list[Ros2Set
         if other is not None:
             raise ConfigError(f"{robot.describe()}: node {node} (domain {settings.domain_id}) is already {other.describe()}'s")
         nodes[(settings.domain_id, node)] = robot
+        if settings.rmf:
+            other = rmf_names.get(settings.rmf_robot())
+            if other is not None:
+                raise ConfigError(
+                    f"{robot.describe()}: free_fleet's name {settings.rmf_robot()!r} is already {other.describe()}'s: "
+                    'give one of them rmf_name = "..." in [robot.ros2]'
+                )
+            rmf_names[settings.rmf_robot()] = robot
         out.append(settings)
     return out
 
 
 def declare_node(
-    session: Any, s: Ros2Settings, codec: RosCodec, ids: Iterator[int], distro: Distro, burst: PutBurst | None = None
+    session: Any,
+    s: Ros2Settings,
+    codec: RosCodec,
+    ids: Iterator[int],
+    distro: Distro,
+    burst: PutBurst | None = None,
+    taken: dict[str, object] | None = None,
 ) -> tuple[Ros2Zenoh, Ros2Host]:
     """One node of ``distro`` for the robot of ``s``, attached to the running loop; with ``burst``, a fleet's node
-    (absolute /tf, frames prefixed by its namespace, streams in rings, supervised)."""
+    (absolute /tf, frames prefixed by its namespace, streams in rings, supervised). ``taken``: the session's action
+    keys and who serves each (:class:`Ros2Zenoh`)."""
     fleet = burst is not None
-    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst)
+    first = s.distros()[0] if s.flavor == Flavor.RMW_ZENOH.value else DEFAULT_DISTRO
+    rmf = s.rmf and distro is first  # free_fleet's keys once per robot, on its first distro's node
+    edge = Ros2Zenoh(session, s, codec, ids, distro, fleet=fleet, burst=burst, rmf=rmf, taken=taken)
     frame_prefix = tf_frame_prefix(normalise_namespace(s.namespace)) if fleet else ""
     options = s.options(edge.data_keys, edge.service_keys, frame_prefix=frame_prefix, distro=distro)
+    if not rmf:
+        options = dataclasses.replace(options, rmf_name="")
     host = Ros2Host(Ros2Core(options, edge.keys, edge, codec), supervised=fleet)
     edge.attach(host, asyncio.get_running_loop())
     return edge, host
@@ -83,10 +103,11 @@ def declare_node(
 async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Event) -> None:
     codec = RosCodec()  # before Zenoh: a missing extra is one sentence, not a half-open session
     ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+    taken: dict[str, object] = {}  # the session's action keys: one node serves each
     failure = "ROS 2 node of {robot} failed ({exc!r}, its %s node); starting it again in {pause:g} s"
 
     def role(d: Distro) -> Role[Ros2Settings]:
-        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst), failure % d.value)
+        return Role("ros2", lambda m: declare_node(m.session, m.settings, codec, ids, d, m.burst, taken), failure % d.value)
 
     roles = {d: role(d) for d in Distro}
     parts = [
@@ -110,6 +131,7 @@ async def serve(base: Ros2Settings, robots: list[FleetRobot], stop: asyncio.Even
                 "prefix": m.settings.prefix,
                 "keys": dict(m.edge.data_keys),
                 "services": dict(m.edge.service_keys),
+                "rmf": {k: v for k, v in [*m.edge.rmf_keys.items(), *m.edge.data_keys.items()] if k.startswith("rmf/")},
                 "tokens": list(m.edge.tokens),
                 "frames": dataclasses.asdict(frames),
             }

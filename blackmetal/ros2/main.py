@@ -2,7 +2,11 @@
 
 /cmd_vel, /estop in; /odom, /tf, /joint_states, /diagnostics out; services
 set_estop (std_srvs/SetBool) and reset_odometry (std_srvs/Trigger),
-answered once the gateway or the odometry confirms.
+answered once the gateway or the odometry confirms. Nav2's action
+navigate_to_pose, /goal_pose and /initialpose go to the navigation
+service (<prefix>/nav/...); /tf carries its map -> odom. ``--rmf``: the
+same for Open-RMF's free_fleet on plain keys under the robot's name
+(<name>/tf, <name>/navigate_to_pose/_action/..., <name>/battery_state).
 
 With ROS 2's Zenoh middleware (``--flavor rmw_zenoh``, the default) connect
 to its router: ``blackmetal ros2 -m client -e tcp/localhost:7447``. With
@@ -26,6 +30,7 @@ from blackmetal.runtime.harness import announce_ready
 from blackmetal.runtime.zenoh_setup import open_service_session
 from blackmetal.schemas import Keys
 
+from .action_types import nav_services, nav_topics
 from .fleet import FLEET, declare_node
 from .host import Ros2Host
 from .messages import RosCodec
@@ -40,16 +45,17 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
     keys = Keys(settings.prefix)
     flavor = Flavor(settings.flavor)
     namespace = normalise_namespace(settings.namespace)
-    ros_topics = topics(settings.tf, robot_model=settings.robot_model)
-    ros_services = services()
+    ros_topics = [*topics(settings.tf, robot_model=settings.robot_model), *nav_topics()]
+    ros_services = [*services(), *nav_services()]
     # zenoh-bridge-ros2dds maps DDS, whatever the distro: one node on its plain keys
     distros = settings.distros() if flavor is Flavor.RMW_ZENOH else (DEFAULT_DISTRO,)
     with await open_service_session(settings.zenoh, stop, "ros2") as session:
         ids = itertools.count()  # one counter for the session's nodes and entities, as rmw_zenoh's context keeps
+        taken: dict[str, object] = {}  # the action's keys two distros share (Jazzy's and Kilted's): one node serves each
         nodes: list[tuple[str, Ros2Zenoh, Ros2Host]] = []
         try:
             for distro in distros:
-                nodes.append((distro.value, *declare_node(session, settings, codec, ids, distro)))
+                nodes.append((distro.value, *declare_node(session, settings, codec, ids, distro, taken=taken)))
             node = full_topic(namespace, settings.node_name)
             which = ", ".join(d for d, _, _ in nodes) if flavor is Flavor.RMW_ZENOH else "any distro"
             say(f"blackmetal ros2 ready: node {node} ({flavor.value}, {which}, domain {settings.domain_id}) <-> prefix {keys.prefix}")
@@ -64,9 +70,18 @@ async def serve(settings: Ros2Settings, stop: asyncio.Event) -> None:
                     name, key = service.full_name(namespace, settings.node_name), edge.service_keys[service.name]
                     say(f"  {name:<{width}} {service.ros_type:<41} service       on {key}")
             say(f"  /cmd_vel drives as the command source {settings.source!r}: {keys.cmd_vel_of(settings.source)}")
+            say(f"  navigate_to_pose, /goal_pose, /initialpose <-> {keys.nav_goal}, nav/cancel, nav/result, nav/feedback, nav/set_pose")
+            rmf = {
+                name: key
+                for _, edge, _ in nodes
+                for name, key in [*edge.rmf_keys.items(), *edge.data_keys.items()]
+                if name.startswith("rmf/")
+            }
+            if rmf:
+                say(f"  Open-RMF free_fleet (plain keys): {', '.join(sorted(rmf.values()))}")
             by_distro = {d: {"keys": e.data_keys, "services": e.service_keys, "tokens": e.tokens} for d, e, _ in nodes}
             first = by_distro[nodes[0][0]]  # the first distro's at the top
-            ready = {"prefix": keys.prefix, "node": node, "flavor": flavor.value, "distros": list(by_distro), **first}
+            ready = {"prefix": keys.prefix, "node": node, "flavor": flavor.value, "distros": list(by_distro), **first, "rmf": rmf}
             announce_ready("ros2", **ready, by_distro=by_distro)
             await asyncio.gather(*(host.run(stop) for _, _, host in nodes))
         finally:

@@ -53,7 +53,7 @@ class Ros2Output(Protocol):
         """``get`` on ``key``; each reply comes back as ``on_query_reply(tag, ...)``, then ``on_query_done(tag)``."""
 
     def follow(self, streams: frozenset[str]) -> None:
-        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``), no others."""
+        """Subscribe to exactly these of the robot's streams (``pose``, ``impulses``, ``errors``, ``health``, ``nav_feedback``), no others."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -83,3 +83,9 @@ class Ros2Options:
     #: For the diagnostics: the calibration in use and where /odom's covariance comes from.
     calibration: str = "none: the nominal constants"
     covariance: str = "fixed diagonals (--pose-covariance-diagonal, --twist-covariance-diagonal)"
+    #: NavigateToPose's layout on the node's distro (:class:`~.action_types.NavLayout`).
+    nav_layout: str = "jazzy"
+    #: free_fleet's plain keys under this robot name ("": off), its frames (never prefixed) and battery (0..1 or None).
+    rmf_name: str = ""
+    rmf_frames: Frames = field(default_factory=Frames)
+    rmf_battery: float | None = None

@@ -12,6 +12,7 @@ from blackmetal.runtime.settings import check_positive, setting
 from blackmetal.runtime.zenoh_setup import ZenohSettings
 from blackmetal.schemas import DEFAULT_PREFIX, ConfigError, Sources, validate_prefix
 
+from .action_types import layout_of
 from .naming import (
     DEFAULT_DISTRO,
     Distro,
@@ -111,7 +112,24 @@ class Ros2Settings:
     )
     impulses_left: float = setting(model.IMPULSES_PER_METER_LEFT, "impulses per metre, left wheel", metavar="N")
     impulses_right: float = setting(model.IMPULSES_PER_METER_RIGHT, "impulses per metre, right wheel", metavar="N")
+    rmf: bool = setting(
+        False,
+        "serve Open-RMF free_fleet's Nav2 robot adapter on plain keys under the robot's RMF name: <name>/tf, "
+        "<name>/navigate_to_pose/_action/*, <name>/battery_state (docs/open-rmf.md)",
+    )
+    rmf_name: str = setting(
+        "", "the robot's name in free_fleet's config (its key prefix); empty: the last chunk of --prefix", metavar="NAME"
+    )
+    rmf_battery: float = setting(
+        -1.0,
+        "with --rmf: publish <name>/battery_state with this charge, 0..1 (a robot with no battery gauge); negative: none",
+        metavar="FRACTION",
+    )
     zenoh: ZenohSettings = field(default_factory=ZenohSettings)
+
+    def rmf_robot(self) -> str:
+        """The robot's name in free_fleet's config: ``rmf_name``, else the last chunk of the prefix (``fleet/r1`` -> ``r1``)."""
+        return self.rmf_name or self.prefix.rstrip("/").rsplit("/", 1)[-1]
 
     def distros(self) -> tuple[Distro, ...]:
         """The distros to serve, one node each (ConfigError naming ROS_DISTRO when the value came from it)."""
@@ -138,6 +156,18 @@ class Ros2Settings:
         normalise_namespace(self.namespace)
         check_source_name(self.source)
         check_positive(self, "service_timeout expected_poll_hz")
+        if self.rmf:
+            try:
+                validate_prefix(self.rmf_robot())  # one or more key chunks, no wildcards
+            except ConfigError as exc:
+                raise ConfigError(f"rmf_name {self.rmf_robot()!r} cannot head free_fleet's keys: {exc}") from None
+            if self.flavor == Flavor.BRIDGE.value and normalise_namespace(self.namespace).strip("/") == self.rmf_robot():
+                raise ConfigError(
+                    f"--rmf with the bridge flavour in namespace {self.namespace!r} would serve free_fleet's keys "
+                    f"{self.rmf_robot()}/... twice: give --rmf-name another name, or drop --rmf"
+                )
+        if not (self.rmf_battery < 0 or 0.0 <= self.rmf_battery <= 1.0) or not math.isfinite(self.rmf_battery):
+            raise ConfigError(f"rmf_battery is a charge 0..1 (negative: no battery), got {self.rmf_battery!r}")
         self.covariances(None)  # both diagonals parse
         check_positive(self, "wheel_radius wheel_separation impulses_left impulses_right")
         for name in ("odom_frame", "base_frame", "left_joint", "right_joint"):
@@ -213,4 +243,8 @@ class Ros2Settings:
             robot=self.robot(constants.wheel_separation, frame_prefix),
             calibration=f"{calibration.path} ({calibration.note})" if calibration else "none: the nominal constants",
             covariance=covariance,
+            nav_layout=layout_of(distro).value,
+            rmf_name=self.rmf_robot() if self.rmf else "",
+            rmf_frames=Frames(self.odom_frame, self.base_frame),
+            rmf_battery=self.rmf_battery if self.rmf_battery >= 0 else None,
         )

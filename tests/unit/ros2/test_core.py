@@ -376,8 +376,9 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         nodes = [t for t in tokens if t.split("/")[5] == "NN"]
         entities = [t for t in tokens if t.split("/")[5] in ("MP", "MS", "SS")]
         assert len(nodes) == 1 and nodes[0].split("/")[6:] == ["%", "%", "blackmetal"] and len(nodes[0].split("/")) == 9
-        # /cmd_vel twice: Twist and TwistStamped; the robot model's two; /parameter_events and six parameter services
-        assert len(entities) == len(tokens) - 1 == 18
+        # /cmd_vel twice: Twist and TwistStamped; the robot model's two; /parameter_events and six parameter services;
+        # navigate_to_pose's three services and two topics, /goal_pose and /initialpose
+        assert len(entities) == len(tokens) - 1 == 25
         for token in tokens:
             assert all(token.split("/")), token
         for token in entities:
@@ -385,12 +386,17 @@ def test_rmw_zenoh_flavour_end_to_end(children: list[Child], codec: RosCodec) ->
         published = {t.split("/")[9] for t in entities if t.split("/")[5] == "MP"}
         subscribed = {t.split("/")[9] for t in entities if t.split("/")[5] == "MS"}
         served = {t.split("/")[9] for t in entities if t.split("/")[5] == "SS"}
-        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static", "%parameter_events"}
-        assert subscribed == {"%cmd_vel", "%estop"}
+        assert published == {"%odom", "%tf", "%joint_states", "%diagnostics", "%robot_description", "%tf_static", "%parameter_events"} | {
+            "%navigate_to_pose%_action%feedback",
+            "%navigate_to_pose%_action%status",
+        }
+        assert subscribed == {"%cmd_vel", "%estop", "%goal_pose", "%initialpose"}
         cmd_vel_types = sorted(t.split("/")[10] for t in entities if t.split("/")[9] == "%cmd_vel")
         assert cmd_vel_types == ["geometry_msgs::msg::dds_::TwistStamped_", "geometry_msgs::msg::dds_::Twist_"]
         params = {f"%blackmetal%{name}" for name in PARAMETER_SERVICES}  # node-private, as rclcpp's ~/list_parameters
-        assert served == {"%set_estop", "%reset_odometry"} | params
+        assert served == {"%set_estop", "%reset_odometry"} | params | {
+            f"%navigate_to_pose%_action%{n}" for n in ("send_goal", "cancel_goal", "get_result")
+        }
 
         # /cmd_vel from a ROS publisher drives the robot, with or without the attachment
         twist = codec.encode_twist(0.3, 0.0)
@@ -434,7 +440,7 @@ def test_bridge_flavour_and_namespaces(children: list[Child], codec: RosCodec) -
         assert drives(session, "r1/cmd_vel", twist) > 0.15
         assert drives(session, rmw_keys["cmd_vel"], twist) > 0.15
         tokens = [str(r.ok.key_expr) for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
-        # node + 9 topics + 8 services, none from the bridges
-        assert len(tokens) == 18 and all(t.split("/")[7] == "%r1" for t in tokens)
+        # node + 9 topics + 8 services + the action's 5 and RViz's 2 pose topics, none from the bridges
+        assert len(tokens) == 25 and all(t.split("/")[7] == "%r1" for t in tokens)
         names = {t.split("/")[9] for t in tokens if len(t.split("/")) == 13}
         assert {"%r1%cmd_vel", "%diagnostics", "%r1%set_estop"} <= names  # /diagnostics is absolute, services relative

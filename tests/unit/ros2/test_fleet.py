@@ -73,6 +73,22 @@ def test_fleet_settings_per_robot_and_their_mistakes() -> None:
     )
     one, two = fleet_settings(Ros2Settings(flavor="bridge"), robots)
     assert (one.namespace, one.prefix, one.node_name, one.flavor) == ("r1", "fleet/r1", "blackmetal", "bridge")
+    assert not one.rmf and one.rmf_robot() == "r1"
+    rmf = parse_fleet(
+        {"robot": [{"id": "r1", "control_port": 1, "log_port": 2, "ros2": {"rmf": True, "rmf_name": "tiny1", "rmf_battery": 1.0}}]}
+    )
+    (free_fleets,) = fleet_settings(Ros2Settings(), rmf)
+    assert free_fleets.rmf and free_fleets.rmf_robot() == "tiny1" and free_fleets.rmf_battery == 1.0
+    twins = parse_fleet(
+        {
+            "robot": [
+                {"id": "a", "control_port": 1, "log_port": 2, "prefix": "x/r1"},
+                {"id": "b", "control_port": 3, "log_port": 4, "prefix": "y/r1"},
+            ]
+        }
+    )
+    with pytest.raises(ConfigError, match="robot 2 \\(id 'b'\\): free_fleet's name 'r1' is already robot 1 \\(id 'a'\\)'s"):
+        fleet_settings(Ros2Settings(rmf=True), twins)
     assert (two.namespace, two.prefix, two.node_name, two.domain_id) == ("r2", "lab/b", "base", 7)
 
     def refused(*entries: dict[str, object]) -> str:
@@ -133,7 +149,7 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
     sim.ready()
     gateway = Child(["-m", "blackmetal.gateway", "--fleet", str(fleet), "--poll-hz", "50", *_zargs(port)])
     odometry = Child(["-m", "blackmetal.odometry_service", "--fleet", str(fleet), *_zargs(port)])
-    ros2 = Child(["-m", "blackmetal", "ros2", "--fleet", str(fleet), *_zargs(port)])
+    ros2 = Child(["-m", "blackmetal", "ros2", "--fleet", str(fleet), "--rmf", *_zargs(port)])
     children += [gateway, odometry, ros2]
     gateway.ready()
     odometry.ready()
@@ -141,6 +157,10 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
     assert {rid: nodes[rid]["node"] for rid in IDS} == {rid: f"/{rid}/blackmetal" for rid in IDS}
     assert nodes["r2"]["keys"]["odom"] == odom_key("r2") and nodes["r3"]["keys"]["cmd_vel"] == twist_key("r3")
     assert nodes["r2"]["keys"]["tf"] == TF_KEY and nodes["r2"]["services"]["set_estop"].startswith("0/r2/set_estop/")
+    assert (
+        nodes["r2"]["rmf"]["rmf/tf"] == "r2/tf"
+        and nodes["r3"]["rmf"]["rmf/navigate_to_pose/_action/send_goal"] == "r3/navigate_to_pose/_action/send_goal"
+    )
 
     with zenoh.open(client_config(port)) as session:
         odoms: list[bytes] = []
@@ -155,6 +175,14 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
                 transforms[t.child_frame_id] = (t.header.frame_id, t.child_frame_id)
 
         session.declare_subscriber(TF_KEY, on_tf)
+        rmf_tf: dict[str, list[tuple[str, str]]] = {}
+        session.declare_subscriber(  # free_fleet's <robot>/tf: the robot's own frames, not prefixed (free_fleet prefixes them)
+            "*/tf",
+            lambda s: rmf_tf.__setitem__(
+                str(s.key_expr).split("/")[0],
+                [(t.header.frame_id, t.child_frame_id) for t in codec.decode(s.payload.to_bytes(), "tf2_msgs/msg/TFMessage").transforms],
+            ),
+        )
         session.declare_subscriber(DIAGNOSTICS_KEY, lambda s: statuses.update(read_diagnostics(s.payload.to_bytes())))
         session.declare_subscriber(
             "fleet/*/errors", lambda s: errors[str(s.key_expr).split("/")[1]].append(decode(ErrorReport, s.payload.to_bytes()))
@@ -165,11 +193,14 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         def tokens() -> list[list[str]]:
             return [str(r.ok.key_expr).split("/") for r in session.liveliness().get("@ros2_lv/0/**", timeout=5) if r.ok is not None]
 
-        wait_for(lambda: len(tokens()) == 3 * 19, what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services each)")
+        wait_for(
+            lambda: len(tokens()) == 3 * 26,
+            what="3 nodes' tokens (node, 10 topics with /cmd_vel twice, 8 services, the action's 5, 2 pose topics each)",
+        )
         graph = tokens()
         node_tokens = [t for t in graph if t[5] == "NN"]
         assert sorted(t[7] for t in node_tokens) == ["%r1", "%r2", "%r3"] and {t[8] for t in node_tokens} == {"blackmetal"}
-        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 3 * 19  # ids unique in the session
+        assert len({t[3] for t in node_tokens}) == 3 and len({t[4] for t in graph}) == 3 * 26  # ids unique in the session
         for rid in IDS:
             names = {t[9] for t in graph if t[7] == f"%{rid}" and t[5] != "NN"}
             assert names == {f"%{rid}%cmd_vel", f"%{rid}%estop", f"%{rid}%odom", f"%{rid}%joint_states", "%tf", "%diagnostics"} | {
@@ -178,7 +209,9 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
                 f"%{rid}%set_estop",
                 f"%{rid}%reset_odometry",
                 "%parameter_events",
-            } | {f"%{rid}%blackmetal%{name}" for name in PARAMETER_SERVICES}, names
+            } | {f"%{rid}%blackmetal%{name}" for name in PARAMETER_SERVICES} | {
+                f"%{rid}%navigate_to_pose%_action%{name}" for name in ("send_goal", "cancel_goal", "get_result", "feedback", "status")
+            } | {f"%{rid}%goal_pose", f"%{rid}%initialpose"}, names
 
         # /r2/odom: its frames prefixed as diff_drive_controller does; /tf carries every robot's
         wait_for(lambda: len(odoms) >= 5, what="/r2/odom")
@@ -186,6 +219,8 @@ def test_a_fleet_of_three_ros_nodes_in_one_process(children: list[Child], tmp_pa
         assert (odom["frame"], odom["child"]) == ("r2/odom", "r2/base_footprint")
         wait_for(lambda: {f"{rid}/base_footprint" for rid in IDS} <= set(transforms), what="/tf from every robot")
         assert all(transforms[f"{rid}/base_footprint"] == (f"{rid}/odom", f"{rid}/base_footprint") for rid in IDS)
+        wait_for(lambda: set(IDS) <= set(rmf_tf), what="free_fleet's <robot>/tf from every robot")
+        assert all(rmf_tf[rid] == [("odom", "base_footprint")] for rid in IDS), rmf_tf  # no navigation service: no map yet
         wait_for(lambda: {f"{rid}/blackmetal: robot link" for rid in IDS} <= statuses, what="every node's statuses on /diagnostics")
 
         # a CDR Twist on /r3/cmd_vel moves r3 alone

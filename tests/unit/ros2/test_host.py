@@ -24,6 +24,9 @@ from blackmetal.ros2.zenoh_edge import Ros2Zenoh
 from blackmetal.schemas import Keys, Pose, WheelImpulses, encode
 from unit.ros2.test_services import make_core
 
+#: The navigation's feedback is always followed: it keeps the action's goal states (nothing flows while no goal runs).
+NAV = frozenset({"nav_feedback"})
+
 
 @pytest.fixture(scope="module")
 def codec() -> RosCodec:
@@ -54,24 +57,24 @@ def serving(edge: Ros2Zenoh, host: Ros2Host) -> Iterator[asyncio.AbstractEventLo
 def test_nothing_is_followed_or_encoded_until_a_topic_is_watched(codec: RosCodec) -> None:
     core, out = make_core(codec)
     core.start()
-    assert out.followed == [frozenset()]  # nobody watches: no pose, no impulses, no error reports
+    assert out.followed == [NAV]  # nobody watches: no pose, no impulses, no error reports (the navigation's feedback: always)
     core.on_pose(pose(), now=1.0)
     core.on_impulses(encode(WheelImpulses(seq=1, stamp=1.0, left=10, right=10)), now=1.0)
     core.tick(5.0)  # the diagnostics are due, and nobody subscribes to them
     assert [topic for topic, _ in out.ros_out] == []
 
     core.on_matched("odom", True, now=6.0)
-    assert out.followed[-1] == frozenset({"pose"})
+    assert out.followed[-1] == NAV | {"pose"}
     core.on_pose(pose(2.0), now=6.1)
     assert [topic for topic, _ in out.ros_out] == ["odom"]  # /odom only: /tf is not watched
     core.on_matched("joint_states", True, now=6.2)
     core.on_matched("diagnostics", True, now=6.3)
-    assert out.followed[-1] == frozenset({"pose", "impulses", "errors", "health"})
+    assert out.followed[-1] == NAV | {"pose", "impulses", "errors", "health"}
     core.tick(6.3)  # a new diagnostics watcher gets the statuses at once
     assert out.ros_out[-1][0] == "diagnostics"
     for topic in ("odom", "joint_states", "diagnostics"):
         core.on_matched(topic, False, now=7.0)
-    assert out.followed[-1] == frozenset()
+    assert out.followed[-1] == NAV
     count = len(out.ros_out)
     core.on_pose(pose(3.0), now=7.1)
     core.tick(9.0)
@@ -87,7 +90,7 @@ def test_the_wheels_on_tf_need_the_impulses_and_tf_needs_the_poses(codec: RosCod
                                           "robot": RobotModel("<robot/>", (), (Wheel("base_link", "l", 0.2), Wheel("base_link", "r", -0.2)))})  # fmt: skip
     core.start()
     core.on_matched("tf", True, now=1.0)
-    assert out.followed[-1] == frozenset({"pose", "impulses"})
+    assert out.followed[-1] == NAV | {"pose", "impulses"}
 
 
 def test_the_real_edge_follows_poses_only_while_odom_has_a_subscriber(session: zenoh.Session, codec: RosCodec) -> None:
@@ -131,9 +134,9 @@ def test_a_waiting_set_estop_follows_the_health_until_it_is_answered(codec: RosC
     core, out = make_core(codec)
     core.start()
     core.calls.on_service_request("set_estop", 1, set_bool_request(True), attachment(1, 1, GID), now=1.0)
-    assert out.followed[-1] == frozenset({"health"})
+    assert out.followed[-1] == NAV | {"health"}
     core.on_health(health(estop=True), now=1.05)
-    assert 1 in out.replies and out.followed[-1] == frozenset()
+    assert 1 in out.replies and out.followed[-1] == NAV
 
 
 def test_a_stamped_commands_age_limit_is_the_gateways_cmd_timeout_parameter(codec: RosCodec) -> None:

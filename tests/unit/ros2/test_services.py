@@ -49,6 +49,11 @@ PARAMETER_SERVICE_HASHES = {
     "describe_parameters": ("DescribeParameters", "RIHS01_845b484d71eb0673dae682f2e3ba3c4851a65a3dcfb97bddd82c5b57e91e4cff"),
     "list_parameters": ("ListParameters", "RIHS01_3e6062bfbb27bfb8730d4cef2558221f51a11646d78e7bb30a1e83afac3aad9d"),
 }
+#: navigate_to_pose's services on Jazzy: CancelGoal's is ROS 2's own (written down); NavigateToPose's computed by the
+#: construction test_action_types.py holds to the published Fibonacci hashes, written down here so that a change shows.
+CANCEL_GOAL_HASH = "RIHS01_573d8b0a534451d7bc2ac8c5ffde8ac14b8593b7001175d0cd6516dcbeb8689a"
+SEND_GOAL_HASH = "RIHS01_a4fcb3bee1bf32e21a0e541a943b221aa0826996e2c98f079b47022b256f48b5"
+GET_RESULT_HASH = "RIHS01_c407920357d566771e8882b4ef4d1f1a84ee922d609920ccd57faa6d6e391dc5"
 PARAMETER_EVENT_HASH = "RIHS01_043e627780fcad87a22d225bc2a037361dba713fca6a6b9f4b869a5aa0393204"
 SET_ESTOP_KEY = f"0/set_estop/std_srvs::srv::dds_::SetBool_/{SET_BOOL_HASH}"
 RESET_KEY = f"0/reset_odometry/std_srvs::srv::dds_::Trigger_/{TRIGGER_HASH}"
@@ -420,7 +425,7 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
     assert ready["keys"]["diagnostics"] == DIAGNOSTICS_KEY
     assert bridge.ready()["services"] == {"set_estop": "r1/set_estop", "reset_odometry": "r1/reset_odometry"} | {
         name: f"r1/blackmetal/{name}" for name in PARAMETER_SERVICES
-    }
+    } | {f"navigate_to_pose/_action/{name}": f"r1/navigate_to_pose/_action/{name}" for name in ("send_goal", "cancel_goal", "get_result")}
     with zenoh.open(client_config(zport)) as session:
         arrays: list[tuple[float, dict[str, dict[str, Any]]]] = []
 
@@ -447,6 +452,10 @@ def test_services_and_diagnostics_as_rmw_zenoh_sees_them(children: list[Child], 
         } | {
             f"%blackmetal%{name}": [f"rcl_interfaces::srv::dds_::{type_name}_", type_hash]
             for name, (type_name, type_hash) in PARAMETER_SERVICE_HASHES.items()
+        } | {
+            "%navigate_to_pose%_action%send_goal": ["nav2_msgs::action::dds_::NavigateToPose_SendGoal_", SEND_GOAL_HASH],
+            "%navigate_to_pose%_action%cancel_goal": ["action_msgs::srv::dds_::CancelGoal_", CANCEL_GOAL_HASH],
+            "%navigate_to_pose%_action%get_result": ["nav2_msgs::action::dds_::NavigateToPose_GetResult_", GET_RESULT_HASH],
         }
 
         # /diagnostics at 1 Hz: all three OK once the robot runs

@@ -30,6 +30,10 @@ def test_a_diagonal_is_the_row_major_six_by_six_matrix() -> None:
         ({"odom_frame": ""}, "odom_frame must not be empty"),
         ({"source": "a/b"}, "source 'a/b' must be letters, digits"),
         ({"distro": "foxy"}, "--distro 'foxy' is not a ROS 2 distro"),
+        ({"rmf_battery": 1.5}, "rmf_battery is a charge 0..1"),
+        ({"rmf": True, "flavor": "bridge", "namespace": "robot"}, "--rmf with the bridge flavour in namespace 'robot' would serve"),
+        ({"rmf_battery": float("nan")}, "rmf_battery is a charge 0..1"),
+        ({"rmf": True, "rmf_name": "a/*"}, "rmf_name 'a/*' cannot head free_fleet's keys"),
     ],
 )
 def test_a_setting_the_node_cannot_use_is_one_sentence(changes: dict[str, object], sentence: str) -> None:
@@ -76,3 +80,13 @@ def test_a_fleet_nodes_options_prefix_every_frame_and_link() -> None:
     assert all(t.parent.startswith("r3/") and t.child.startswith("r3/") for t in robot.fixed)
     assert Ros2Settings(robot_model=False).options(KEYS).robot is None
     assert Ros2Settings(flavor="bridge").options(KEYS).distro == "any (zenoh-bridge-ros2dds)"
+
+
+def test_free_fleets_robot_name_and_battery() -> None:
+    assert Ros2Settings(prefix="fleet/r3").rmf_robot() == "r3" and Ros2Settings().rmf_robot() == "robot"
+    assert Ros2Settings(prefix="fleet/r3", rmf_name="tinyRobot1").rmf_robot() == "tinyRobot1"
+    options = Ros2Settings(rmf=True, rmf_battery=0.75).options({}, distro=Distro.HUMBLE)
+    assert (options.rmf_name, options.rmf_battery, options.nav_layout) == ("robot", 0.75, "humble")
+    assert (options.rmf_frames.odom, options.rmf_frames.base) == ("odom", "base_footprint")  # never prefixed
+    off = Ros2Settings().options({}, frame_prefix="r1/", distro=Distro.ROLLING)
+    assert (off.rmf_name, off.rmf_battery, off.nav_layout, off.frames.odom) == ("", None, "rolling", "r1/odom")
