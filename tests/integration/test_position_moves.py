@@ -50,3 +50,36 @@ def test_a_move_and_a_turn_run_on_the_robot_and_an_estop_ends_the_next(children:
         assert math.hypot(stopped.x - pose.x, stopped.y - pose.y) < 3.0  # stopped short of the long move's end
         refused = move(session, left=0.1, right=0.1)
         assert not refused.accepted and "emergency stop is engaged" in refused.reason
+
+
+def test_goto_move_and_turn_are_run_by_the_robot_where_the_gateway_runs_position_moves(children: list[Child]) -> None:
+    """``blackmetal goto --move / --turn`` through ``blackmetal nav``: the gateway's wheels/move carries them out (no
+    velocity command from nav), the goal succeeds when the wheels stand at their target."""
+    import subprocess
+    import sys
+
+    from helpers import zenoh_connect_args
+
+    rig = Rig(children, "--position-moves")
+    for service in ("odometry", "nav"):
+        child = Child(["-m", "blackmetal", service, *zenoh_connect_args(rig.zport)])
+        children.append(child)
+        child.ready()
+    with zenoh.open(client_config(rig.zport)) as session:
+        wait_for(lambda: (h := health(session)) is not None and h.control.state == "connected", what="a connected gateway")
+        twists: list[bytes] = []
+        session.declare_subscriber("robot/cmd_vel/nav", lambda s: twists.append(s.payload.to_bytes()))
+        moves: list[WheelPosition] = []
+        session.declare_subscriber("robot/wheels/position", lambda s: moves.append(decode(WheelPosition, s.payload.to_bytes())))
+        start = truth(session)
+        goto = [sys.executable, "-m", "blackmetal", "goto", "-e", f"tcp/127.0.0.1:{rig.zport}", "--no-multicast-scouting", "--wait", "20"]
+        done = subprocess.run([*goto, "--move", "0.4"], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stdout + done.stderr
+        moved = truth(session)
+        assert math.hypot(moved.x - start.x, moved.y - start.y) == pytest.approx(0.4, abs=0.01)
+        assert moves and moves[-1].state is MoveState.DONE and twists == [], "the robot's position control ran it, not nav's twists"
+        done = subprocess.run([*goto, "--turn", "-90"], capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stdout + done.stderr
+        turned = math.remainder(truth(session).yaw - moved.yaw, 2 * math.pi)
+        assert math.degrees(turned) == pytest.approx(-90.0, abs=1.0)
+        assert twists == []
