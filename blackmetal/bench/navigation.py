@@ -154,7 +154,7 @@ class _Robot:
         return self.pose
 
 
-def send_goal(session: Any, keys: Keys, goal: NavGoal, patience: float = 5.0) -> tuple[NavGoalReply, float]:
+def send_goal(session: Any, keys: Keys, goal: NavGoal, patience: float = 15.0) -> tuple[NavGoalReply, float]:
     """The nav service's answer to ``goal`` and when the query that got it was sent (TimeoutError when none answers); a
     refusal because it has not yet heard that the robot's link came up (the gateway's health comes once a second) is
     asked again for ``patience`` s."""
