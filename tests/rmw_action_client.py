@@ -1,0 +1,643 @@
+"""A ROS 2 action client as rcl_action makes one over rmw_zenoh, on Humble and on Jazzy keys: the independent client of tests/integration/test_ros2_navigate.py.
+
+Written from the sources, never from our adapter:
+
+* **rosidl** (https://github.com/ros2/rosidl, branch ``jazzy``): ``rosidl_adapter/msg`` for the ``.msg``
+  field grammar (``char`` is ``uint8``, ``byte`` is ``octet``), ``rosidl_parser/definition.py`` for the
+  types an ``.action`` and a ``.srv`` imply (``<Action>_SendGoal`` with ``goal_id`` + ``goal``,
+  ``<Action>_GetResult`` with ``status`` + ``result``, ``<Action>_FeedbackMessage``, every service's
+  ``_Event`` message) and an empty structure's ``structure_needs_at_least_one_member``,
+  ``rosidl_generator_type_description/__init__.py`` for REP-2011's RIHS01 hash (the JSON of the
+  type description without default values, sha256);
+* **rcl_action** (https://github.com/ros2/rcl, ``rcl_action/src/rcl_action/names.c``, ``default_qos.h``):
+  the action's three services and two topics, ``<action>/_action/{send_goal,cancel_goal,get_result}``,
+  ``<action>/_action/{feedback,status}``, status transient local with depth 1; a client is ready when
+  the three servers and the two publishers are in the graph (``rcl_action_server_is_available``);
+* **rmw_zenoh** (https://github.com/ros2/rmw_zenoh, Humble 0.1.x and Jazzy 0.2.x): keys
+  ``<domain>/<name without its outer slashes>/<pkg>::<kind>::dds_::<Type>_/<hash>`` (a service's type
+  without ``Request_``), ``TypeHashNotSupported`` on Humble; liveliness tokens
+  ``@ros2_lv/<domain>/<zid>/<nid>/<id>/<NN|MP|MS|SS|SC>/<enclave>/<ns>/<node>/<name>/<type>/<hash>/<qos>``
+  with ``/`` written ``%``, an entity's GID the XXH3-128 of its token (``liveliness_utils.cpp``); a
+  request is a get on the service key, target ALL_COMPLETE, no consolidation, get_result without a
+  timeout (``rmw_client_data.cpp``), its payload CDR with the 4-byte encapsulation header and an
+  attachment of int64 sequence number (from 1), int64 timestamp (ns) and the 16-byte GID after its
+  length byte (``attachment_helpers.cpp``: 33 bytes); a reply carries the request's sequence number and
+  the client's GID back; a transient-local subscription is an advanced subscriber that queries late
+  publishers' caches (``rmw_subscription_data.cpp``).
+
+The CDR writer and reader below are driven by the parsed definitions (XCDR1, little endian, each
+primitive aligned to its size from the end of the encapsulation header).
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import math
+import re
+import struct
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import xxhash
+import zenoh
+
+INTERFACES = Path(__file__).resolve().parent / "ros2_interfaces"
+DISTROS = ("humble", "jazzy")
+HUMBLE_HASH = "TypeHashNotSupported"
+CDR_LE = b"\x00\x01\x00\x00"
+
+# ------------------------------------------------------------------ the interface definitions
+#: .msg primitive -> (IDL type, struct format, size); rosidl_adapter's MSG_TYPE_TO_IDL.
+PRIMITIVES: dict[str, tuple[str, str, int]] = {
+    "bool": ("boolean", "?", 1),
+    "byte": ("octet", "B", 1),
+    "char": ("uint8", "B", 1),
+    "int8": ("int8", "b", 1),
+    "uint8": ("uint8", "B", 1),
+    "int16": ("int16", "h", 2),
+    "uint16": ("uint16", "H", 2),
+    "int32": ("int32", "i", 4),
+    "uint32": ("uint32", "I", 4),
+    "int64": ("int64", "q", 8),
+    "uint64": ("uint64", "Q", 8),
+    "float32": ("float", "f", 4),
+    "float64": ("double", "d", 8),
+}
+#: type_description_interfaces/msg/FieldType.msg's ids of the value types.
+FIELD_TYPE_IDS = {
+    "nested": 1,
+    "int8": 2,
+    "uint8": 3,
+    "int16": 4,
+    "uint16": 5,
+    "int32": 6,
+    "uint32": 7,
+    "int64": 8,
+    "uint64": 9,
+    "float": 10,
+    "double": 11,
+    "boolean": 15,
+    "octet": 16,
+    "string": 17,
+    "wstring": 18,
+    "bounded_string": 21,
+    "bounded_wstring": 22,
+}
+#: The id offset of arrays, bounded sequences and unbounded sequences (FieldType.msg).
+COLLECTION_OFFSETS = {"single": 0, "array": 48, "bounded": 96, "sequence": 144}
+EMPTY_MEMBER = "structure_needs_at_least_one_member"
+
+
+@dataclass(frozen=True)
+class FieldType:
+    """One field's type: a primitive (.msg spelling), ``string`` / ``wstring`` (with a bound), or ``pkg/msg/Name``."""
+
+    base: str
+    collection: str = "single"  # single, array, bounded, sequence
+    size: int = 0  # array length or sequence bound
+    string_bound: int = 0
+
+    @property
+    def nested(self) -> bool:
+        return "/" in self.base
+
+
+@dataclass(frozen=True)
+class Field:
+    name: str
+    type: FieldType
+    default: str = ""
+
+
+def _field_type(spelled: str, package: str) -> FieldType:
+    collection, size = "single", 0
+    match = re.fullmatch(r"(.+?)\[(<=)?(\d*)\]", spelled)
+    if match:
+        spelled = match.group(1)
+        if match.group(2):
+            collection, size = "bounded", int(match.group(3))
+        elif match.group(3):
+            collection, size = "array", int(match.group(3))
+        else:
+            collection = "sequence"
+    string_bound = 0
+    bounded = re.fullmatch(r"(w?string)<=(\d+)", spelled)
+    if bounded:
+        spelled, string_bound = bounded.group(1), int(bounded.group(2))
+    if spelled in PRIMITIVES or spelled in ("string", "wstring"):
+        base = spelled
+    elif "/" in spelled:
+        pkg, name = spelled.split("/")
+        base = f"{pkg}/msg/{name}"
+    else:
+        base = f"{package}/msg/{spelled}"
+    return FieldType(base, collection, size, string_bound)
+
+
+def parse_fields(text: str, package: str) -> list[Field]:
+    """The fields of one .msg section (constants and comments dropped); an empty one gets rosidl's placeholder."""
+    fields = []
+    for raw in text.splitlines():
+        line = raw.split("#", 1)[0].strip()
+        if not line:
+            continue
+        spelled, _, rest = line.partition(" ")
+        rest = rest.strip()
+        if "=" in rest:
+            continue  # a constant: not part of the structure, nor of the type hash
+        name, _, default = rest.partition(" ")
+        fields.append(Field(name, _field_type(spelled, package), default.strip()))
+    return fields or [Field(EMPTY_MEMBER, FieldType("uint8"))]
+
+
+class Interfaces:
+    """The structures of one distro's vendored definitions, with the types rosidl derives from a .srv and an .action."""
+
+    def __init__(self, distro: str, extra: dict[str, str] | None = None) -> None:
+        self.distro = distro
+        self.root = INTERFACES / distro
+        self.extra = dict(extra or {})  # "pkg/srv/Name" -> its text, for definitions not vendored
+        self._structs: dict[str, list[Field]] = {}
+
+    def _text(self, typename: str) -> str:
+        if typename in self.extra:
+            return self.extra[typename]
+        package, kind, name = typename.split("/")
+        return (self.root / package / kind / f"{name}.{kind}").read_text()
+
+    def fields(self, typename: str) -> list[Field]:
+        """The members of ``pkg/msg/Name``, ``pkg/srv/Name[_Request|_Response|_Event]``, ``pkg/action/Name[_Goal|...]`` or the service / action itself."""
+        if typename not in self._structs:
+            package, kind, name = typename.split("/")
+            if kind == "msg":
+                self._structs[typename] = parse_fields(self._text(typename), package)
+            elif kind == "srv":
+                service = re.sub(r"_(Request|Response|Event)$", "", name)
+                self._add_service(package, "srv", service, *self._sections(f"{package}/srv/{service}", 2))
+            else:
+                self._add_action(
+                    package, re.sub(r"_(Goal|Result|Feedback|SendGoal|GetResult|FeedbackMessage)(_Request|_Response|_Event)?$", "", name)
+                )
+            if typename not in self._structs:
+                raise KeyError(typename)
+        return self._structs[typename]
+
+    def _sections(self, typename: str, count: int) -> list[str]:
+        parts = re.split(r"^---\s*$", self._text(typename), flags=re.M)
+        assert len(parts) == count, f"{typename}: {len(parts)} sections, not {count}"
+        return parts
+
+    def _add_service(self, package: str, kind: str, name: str, request: str | list[Field], response: str | list[Field]) -> None:
+        base = f"{package}/{kind}/{name}"
+        self._structs[f"{base}_Request"] = parse_fields(request, package) if isinstance(request, str) else request
+        self._structs[f"{base}_Response"] = parse_fields(response, package) if isinstance(response, str) else response
+        self._structs[base] = [
+            Field("request_message", FieldType(f"{base}_Request")),
+            Field("response_message", FieldType(f"{base}_Response")),
+        ]
+        if self.distro == "humble":
+            return  # service events (and their type descriptions) came with Iron
+        self._structs[f"{base}_Event"] = [
+            Field("info", FieldType("service_msgs/msg/ServiceEventInfo")),
+            Field("request", FieldType(f"{base}_Request", "bounded", 1)),
+            Field("response", FieldType(f"{base}_Response", "bounded", 1)),
+        ]
+        self._structs[base].append(Field("event_message", FieldType(f"{base}_Event")))
+
+    def _add_action(self, package: str, name: str) -> None:
+        base = f"{package}/action/{name}"
+        goal, result, feedback = self._sections(base, 3)
+        self._structs[f"{base}_Goal"] = parse_fields(goal, package)
+        self._structs[f"{base}_Result"] = parse_fields(result, package)
+        self._structs[f"{base}_Feedback"] = parse_fields(feedback, package)
+        uuid = FieldType("unique_identifier_msgs/msg/UUID")
+        self._add_service(
+            package,
+            "action",
+            f"{name}_SendGoal",
+            [Field("goal_id", uuid), Field("goal", FieldType(f"{base}_Goal"))],
+            [Field("accepted", FieldType("bool")), Field("stamp", FieldType("builtin_interfaces/msg/Time"))],
+        )
+        self._add_service(
+            package,
+            "action",
+            f"{name}_GetResult",
+            [Field("goal_id", uuid)],
+            [Field("status", FieldType("int8")), Field("result", FieldType(f"{base}_Result"))],
+        )
+        self._structs[f"{base}_FeedbackMessage"] = [Field("goal_id", uuid), Field("feedback", FieldType(f"{base}_Feedback"))]
+        self._structs[base] = [
+            Field("goal", FieldType(f"{base}_Goal")),
+            Field("result", FieldType(f"{base}_Result")),
+            Field("feedback", FieldType(f"{base}_Feedback")),
+            Field("send_goal_service", FieldType(f"{base}_SendGoal")),
+            Field("get_result_service", FieldType(f"{base}_GetResult")),
+            Field("feedback_message", FieldType(f"{base}_FeedbackMessage")),
+        ]
+
+    # -------------------------------------------------------------- REP-2011
+    def _individual(self, typename: str) -> dict[str, Any]:
+        described = []
+        for f in self.fields(typename):
+            t = f.type
+            if t.nested:
+                value = "nested"
+            elif t.base in ("string", "wstring"):
+                value = ("bounded_" if t.string_bound else "") + t.base
+            else:
+                value = PRIMITIVES[t.base][0]
+            described.append(
+                {
+                    "name": f.name,
+                    "type": {
+                        "type_id": FIELD_TYPE_IDS[value] + COLLECTION_OFFSETS[t.collection],
+                        "capacity": t.size,
+                        "string_capacity": t.string_bound,
+                        "nested_type_name": t.base if t.nested else "",
+                    },
+                    "default_value": f.default,
+                }
+            )
+        return {"type_name": typename, "fields": described}
+
+    def type_description(self, typename: str) -> dict[str, Any]:
+        """``extract_full_type_description``: the type and every type it references, sorted by name."""
+        references: set[str] = set()
+        queue = [f.type.base for f in self.fields(typename) if f.type.nested]
+        while queue:
+            name = queue.pop()
+            if name not in references:
+                references.add(name)
+                queue.extend(f.type.base for f in self.fields(name) if f.type.nested)
+        return {
+            "type_description": self._individual(typename),
+            "referenced_type_descriptions": [self._individual(name) for name in sorted(references)],
+        }
+
+    def type_hash(self, typename: str) -> str:
+        """RIHS01 of ``typename`` (``calculate_type_hash``), or ``TypeHashNotSupported`` on Humble."""
+        if self.distro == "humble":
+            return HUMBLE_HASH
+        hashable = copy.deepcopy(self.type_description(typename))
+        for described in [hashable["type_description"], *hashable["referenced_type_descriptions"]]:
+            for f in described["fields"]:
+                del f["default_value"]
+        text = json.dumps(
+            hashable,
+            skipkeys=False,
+            ensure_ascii=True,
+            check_circular=True,
+            allow_nan=False,
+            indent=None,
+            separators=(", ", ": "),
+            sort_keys=False,
+        )
+        return "RIHS01_" + hashlib.sha256(text.encode()).hexdigest()
+
+    # -------------------------------------------------------------- CDR
+    def serialize(self, typename: str, value: dict[str, Any]) -> bytes:
+        """``value`` (dicts for structures, missing fields zero) as CDR with its encapsulation header."""
+        out = bytearray()
+        self._write(out, typename, value or {})
+        return CDR_LE + bytes(out)
+
+    def deserialize(self, typename: str, data: bytes) -> dict[str, Any]:
+        """CDR (with its encapsulation header, little endian) to dicts; raises ValueError on trailing or missing bytes."""
+        if data[:4] != CDR_LE:
+            raise ValueError(f"not little-endian CDR: header {data[:4].hex()}")
+        body = data[4:]
+        value, end = self._read(body, 0, typename)
+        if len(body) - end >= 4:  # CDR pads a message to 4 bytes at most
+            raise ValueError(f"{len(body) - end} bytes left after {typename}")
+        return value
+
+    def _write(self, out: bytearray, typename: str, value: dict[str, Any]) -> None:
+        for f in self.fields(typename):
+            item = value.get(f.name)
+            t = f.type
+            if t.collection == "single":
+                self._write_one(out, t, item)
+                continue
+            items = list(item) if item is not None else []
+            if t.collection == "array":
+                items = items or [None] * t.size
+                assert len(items) == t.size, f"{typename}.{f.name}: {len(items)} items, not {t.size}"
+            else:
+                assert t.collection == "sequence" or len(items) <= t.size, f"{typename}.{f.name}: over its bound"
+                _align(out, 4)
+                out += struct.pack("<I", len(items))
+            for one in items:
+                self._write_one(out, t, one)
+
+    def _write_one(self, out: bytearray, t: FieldType, item: Any) -> None:
+        if t.nested:
+            self._write(out, t.base, item or {})
+        elif t.base in ("string", "wstring"):
+            encoded = str(item or "").encode()
+            _align(out, 4)
+            out += struct.pack("<I", len(encoded) + 1) + encoded + b"\x00"
+        else:
+            _, fmt, size = PRIMITIVES[t.base]
+            _align(out, size)
+            out += struct.pack("<" + fmt, item if item is not None else (False if fmt == "?" else 0))
+
+    def _read(self, body: bytes, pos: int, typename: str) -> tuple[dict[str, Any], int]:
+        value: dict[str, Any] = {}
+        for f in self.fields(typename):
+            t = f.type
+            if t.collection == "single":
+                value[f.name], pos = self._read_one(body, pos, t)
+                continue
+            if t.collection == "array":
+                count = t.size
+            else:
+                pos += -pos % 4
+                (count,) = struct.unpack_from("<I", body, pos)
+                pos += 4
+                if t.collection == "bounded" and count > t.size:
+                    raise ValueError(f"{typename}.{f.name}: {count} items over its bound {t.size}")
+            items = []
+            for _ in range(count):
+                one, pos = self._read_one(body, pos, t)
+                items.append(one)
+            value[f.name] = items
+        return value, pos
+
+    def _read_one(self, body: bytes, pos: int, t: FieldType) -> tuple[Any, int]:
+        if t.nested:
+            return self._read(body, pos, t.base)
+        if t.base in ("string", "wstring"):
+            pos += -pos % 4
+            (length,) = struct.unpack_from("<I", body, pos)
+            raw = body[pos + 4 : pos + 4 + length]
+            if length == 0 or len(raw) != length or raw[-1] != 0:
+                raise ValueError(f"a string of {length} bytes without its terminating NUL")
+            return raw[:-1].decode(), pos + 4 + length
+        _, fmt, size = PRIMITIVES[t.base]
+        pos += -pos % size
+        if pos + size > len(body):
+            raise ValueError("the payload ends inside a field")
+        return struct.unpack_from("<" + fmt, body, pos)[0], pos + size
+
+
+def _align(out: bytearray, size: int) -> None:
+    out += b"\x00" * (-len(out) % size)
+
+
+def dds_type(typename: str) -> str:
+    """``pkg/kind/Name`` as rmw_zenoh writes it in keys and tokens: ``pkg::kind::dds_::Name_``."""
+    package, kind, name = typename.split("/")
+    return f"{package}::{kind}::dds_::{name}_"
+
+
+def quaternion_from_yaw(yaw: float) -> dict[str, float]:
+    return {"x": 0.0, "y": 0.0, "z": math.sin(yaw / 2), "w": math.cos(yaw / 2)}
+
+
+def yaw_of(q: dict[str, float]) -> float:
+    return math.atan2(2 * (q["w"] * q["z"] + q["x"] * q["y"]), 1 - 2 * (q["y"] ** 2 + q["z"] ** 2))
+
+
+# ------------------------------------------------------------------ the action client
+#: GoalStatus and CancelGoal's return codes (action_msgs).
+STATUS = {0: "UNKNOWN", 1: "ACCEPTED", 2: "EXECUTING", 3: "CANCELING", 4: "SUCCEEDED", 5: "CANCELED", 6: "ABORTED"}
+CANCEL_CODES = {0: "ERROR_NONE", 1: "ERROR_REJECTED", 2: "ERROR_UNKNOWN_GOAL_ID", 3: "ERROR_GOAL_TERMINATED"}
+SERVICE_QOS = "::,10:,:,:,,"  # rmw_qos_profile_services_default against rmw_zenoh's defaults
+FEEDBACK_QOS = "::,10:,:,:,,"  # rmw_qos_profile_default
+STATUS_QOS = ":1:,1:,:,:,,"  # rcl_action_qos_profile_status_default: transient local, depth 1
+
+
+@dataclass
+class Reply:
+    """One service reply: its message, its attachment's fields, and how long the call took."""
+
+    message: dict[str, Any]
+    sequence: int
+    timestamp_ns: int
+    gid: bytes
+    elapsed: float
+    started: float
+
+
+def attachment(sequence: int, gid: bytes, timestamp_ns: int | None = None) -> bytes:
+    """rmw_zenoh's 33-byte attachment: int64 sequence, int64 ns timestamp, the GID's length byte and the GID."""
+    return struct.pack("<qqB", sequence, time.time_ns() if timestamp_ns is None else timestamp_ns, 16) + gid
+
+
+def read_attachment(raw: bytes) -> tuple[int, int, bytes]:
+    if len(raw) != 33 or raw[16] != 16:
+        raise ValueError(f"an attachment of {len(raw)} bytes, not rmw_zenoh's 33 (int64, int64, 16 + a 16-byte GID)")
+    sequence, stamp = struct.unpack_from("<qq", raw)
+    return sequence, stamp, raw[17:]
+
+
+class ActionClient:
+    """``rclcpp_action::Client<NavigateToPose>`` on one distro's rmw_zenoh keys, as a plain Zenoh session."""
+
+    def __init__(
+        self,
+        session: zenoh.Session,
+        distro: str,
+        action: str = "/navigate_to_pose",
+        action_type: str = "nav2_msgs/action/NavigateToPose",
+        *,
+        node: str = "navigate_client",
+        domain: int = 0,
+    ) -> None:
+        assert distro in DISTROS, distro
+        self.session, self.distro, self.action, self.action_type, self.domain = session, distro, action.rstrip("/"), action_type, domain
+        self.interfaces = Interfaces(distro)
+        self.zid = str(session.zid())
+        self.node = node
+        self._next_id = 1
+        self._sequence = 0
+        self._lock = threading.Lock()
+        self.tokens = [session.liveliness().declare_token(f"@ros2_lv/{domain}/{self.zid}/0/0/NN/%/%/{node}")]
+        services = {
+            "send_goal": f"{action_type}_SendGoal",
+            "cancel_goal": "action_msgs/srv/CancelGoal",
+            "get_result": f"{action_type}_GetResult",
+        }
+        topics = {"feedback": f"{action_type}_FeedbackMessage", "status": "action_msgs/msg/GoalStatusArray"}
+        self.types = {**services, **topics}
+        self.keys = {part: self.key(f"{self.action}/_action/{part}", typename) for part, typename in self.types.items()}
+        self.gids = {
+            part: self._entity("SC", f"{self.action}/_action/{part}", typename, SERVICE_QOS) for part, typename in services.items()
+        }
+        self._entity("MS", f"{self.action}/_action/feedback", topics["feedback"], FEEDBACK_QOS)
+        self._entity("MS", f"{self.action}/_action/status", topics["status"], STATUS_QOS)
+        self.feedback: list[tuple[float, dict[str, Any], bytes | None]] = []  # (monotonic, FeedbackMessage, attachment)
+        self.statuses: list[tuple[float, dict[str, Any]]] = []  # (monotonic, GoalStatusArray)
+        self.errors: list[str] = []
+        self._feedback_sub = session.declare_subscriber(self.keys["feedback"], self._on_feedback)
+        import zenoh.ext
+
+        self._status_sub = zenoh.ext.declare_advanced_subscriber(
+            session,
+            self.keys["status"],
+            self._on_status,
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            subscriber_detection=True,
+        )
+
+    # -------------------------------------------------------------- names
+    def type_hash(self, typename: str) -> str:
+        return self.interfaces.type_hash(typename)
+
+    def key(self, name: str, typename: str) -> str:
+        return f"{self.domain}/{name.strip('/')}/{dds_type(typename)}/{self.type_hash(typename)}"
+
+    def _entity(self, kind: str, name: str, typename: str, qos: str) -> bytes:
+        token = (
+            f"@ros2_lv/{self.domain}/{self.zid}/0/{self._next_id}/{kind}/%/%/{self.node}/{name.replace('/', '%')}/"
+            f"{dds_type(typename)}/{self.type_hash(typename)}/{qos}"
+        )
+        self._next_id += 1
+        self.tokens.append(self.session.liveliness().declare_token(token))
+        return bytes(xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little"))
+
+    # -------------------------------------------------------------- the graph
+    def server_tokens(self) -> list[str]:
+        return [str(r.ok.key_expr) for r in self.session.liveliness().get(f"@ros2_lv/{self.domain}/**", timeout=5) if r.ok is not None]
+
+    def server_is_available(self) -> bool:
+        """``rcl_action_server_is_available``: a server for each of the three services and a publisher on both topics,
+        each with this distro's type name and hash."""
+        found = set()
+        for token in self.server_tokens():
+            parts = token.split("/")
+            if len(parts) < 13 or parts[3] == self.zid:
+                continue
+            kind, name, type_name, type_hash = parts[5], parts[9].replace("%", "/"), parts[10], parts[11]
+            for part, typename in self.types.items():
+                wanted = "SS" if part in self.gids else "MP"
+                if (kind, name, type_name, type_hash) == (
+                    wanted,
+                    f"{self.action}/_action/{part}",
+                    dds_type(typename),
+                    self.type_hash(typename),
+                ):
+                    found.add(part)
+        return found == set(self.types)
+
+    # -------------------------------------------------------------- subscriptions
+    def _on_feedback(self, sample: zenoh.Sample) -> None:
+        raw = sample.attachment.to_bytes() if sample.attachment is not None else None
+        try:
+            message = self.interfaces.deserialize(self.types["feedback"], sample.payload.to_bytes())
+        except Exception as exc:
+            self.errors.append(f"feedback: {type(exc).__name__}: {exc}")
+            return
+        self.feedback.append((time.monotonic(), message, raw))
+
+    def _on_status(self, sample: zenoh.Sample) -> None:
+        try:
+            message = self.interfaces.deserialize(self.types["status"], sample.payload.to_bytes())
+        except Exception as exc:
+            self.errors.append(f"status: {type(exc).__name__}: {exc}")
+            return
+        self.statuses.append((time.monotonic(), message))
+
+    # -------------------------------------------------------------- services
+    def call(self, part: str, request: dict[str, Any], timeout: float = 10.0) -> Reply:
+        """One request on ``part``'s service; its one reply (an AssertionError says why there is none)."""
+        typename = self.types[part]
+        with self._lock:
+            self._sequence += 1
+            sequence = self._sequence
+        payload = self.interfaces.serialize(f"{typename}_Request", request)
+        started = time.monotonic()
+        replies = list(
+            self.session.get(
+                self.keys[part],
+                payload=payload,
+                attachment=attachment(sequence, self.gids[part]),
+                target=zenoh.QueryTarget.ALL_COMPLETE,
+                consolidation=zenoh.ConsolidationMode.NONE,
+                timeout=timeout,
+            )
+        )
+        elapsed = time.monotonic() - started
+        oks = [r.ok for r in replies if r.ok is not None]
+        errs = [r.err.payload.to_bytes() for r in replies if r.err is not None]
+        assert len(oks) == 1, f"{part}: {len(oks)} replies in {elapsed:.2f} s (errors: {errs})"
+        (reply,) = oks
+        assert reply.attachment is not None, f"{part}: a reply without rmw_zenoh's attachment"
+        echoed, stamp, gid = read_attachment(reply.attachment.to_bytes())
+        message = self.interfaces.deserialize(f"{typename}_Response", reply.payload.to_bytes())
+        return Reply(message, echoed, stamp, gid, elapsed, started)
+
+    def send_goal(
+        self, x: float, y: float, yaw: float, frame: str = "map", goal_id: bytes | None = None, behavior_tree: str = ""
+    ) -> tuple[bytes, Reply]:
+        """``async_send_goal``: a random UUID (rclcpp_action's generate_goal_id) and the goal pose stamped now."""
+        import os
+
+        goal_id = goal_id if goal_id is not None else os.urandom(16)
+        now = time.time()
+        request = {
+            "goal_id": {"uuid": list(goal_id)},
+            "goal": {
+                "pose": {
+                    "header": {"stamp": {"sec": int(now), "nanosec": int((now % 1) * 1e9)}, "frame_id": frame},
+                    "pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion_from_yaw(yaw)},
+                },
+                "behavior_tree": behavior_tree,
+            },
+        }
+        return goal_id, self.call("send_goal", request)
+
+    def get_result(self, goal_id: bytes, timeout: float = 120.0) -> Reply:
+        """``async_get_result``: rmw_zenoh waits without a timeout for get_result; here ``timeout`` bounds a test."""
+        return self.call("get_result", {"goal_id": {"uuid": list(goal_id)}}, timeout=timeout)
+
+    def get_result_async(self, goal_id: bytes, timeout: float = 120.0) -> dict[str, Any]:
+        """get_result on a thread: the dict gets ``reply`` (or ``error``) when it ends."""
+        box: dict[str, Any] = {}
+
+        def run() -> None:
+            try:
+                box["reply"] = self.get_result(goal_id, timeout)
+            except BaseException as exc:  # the test reads it
+                box["error"] = exc
+
+        box["thread"] = threading.Thread(target=run, daemon=True)
+        box["thread"].start()
+        return box
+
+    def cancel(self, goal_id: bytes | None = None, stamp: tuple[int, int] = (0, 0)) -> Reply:
+        """``async_cancel_goal`` (a goal id) or ``async_cancel_all_goals`` (zero id, zero stamp)."""
+        uuid = list(goal_id) if goal_id is not None else [0] * 16
+        return self.call("cancel_goal", {"goal_info": {"goal_id": {"uuid": uuid}, "stamp": {"sec": stamp[0], "nanosec": stamp[1]}}})
+
+    def feedback_of(self, goal_id: bytes) -> list[tuple[float, dict[str, Any]]]:
+        return [(t, m["feedback"]) for t, m, _ in list(self.feedback) if bytes(m["goal_id"]["uuid"]) == goal_id]
+
+    def status_of(self, goal_id: bytes) -> list[int]:
+        """Every status this goal had in the status arrays seen, in order."""
+        seen = []
+        for _, array in list(self.statuses):
+            for entry in array["status_list"]:
+                if bytes(entry["goal_info"]["goal_id"]["uuid"]) == goal_id:
+                    seen.append(entry["status"])
+        return seen
+
+    def close(self) -> None:
+        self._feedback_sub.undeclare()
+        self._status_sub.undeclare()
+        for token in self.tokens:
+            token.undeclare()
+
+
+def rate(times: Iterable[float]) -> float:
+    """Samples per second over a list of arrival times (0 for fewer than two)."""
+    stamps = sorted(times)
+    if len(stamps) < 2 or stamps[-1] == stamps[0]:
+        return 0.0
+    return (len(stamps) - 1) / (stamps[-1] - stamps[0])
