@@ -1,0 +1,171 @@
+"""ROS 2's ``navigate_to_pose`` action on a Black Metal robot, as ``ros2 action send_goal`` and Nav2's clients use it (issue #39).
+
+The client is tests/rmw_action_client.py, written from rcl_action's, rmw_zenoh's and rosidl's sources
+(not from our adapter): a Humble client (``TypeHashNotSupported``) and a Jazzy client (RIHS01 hashes it
+computes from the genuine definitions in tests/ros2_interfaces/), each with its liveliness tokens, its
+33-byte attachments and CDR built from the ``.action``. The robot is ``blackmetal up --ros2`` (the
+simulator, gateway, odometry, navigation service and the ROS 2 adapter) as a client of a router started
+with rmw_zenoh's router config, as the ROS side deploys it.
+
+Figures printed: send_goal round trips, the feedback rate per distro, how long after a cancel the
+simulator's true speed was zero.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Iterator
+
+import pytest
+import zenoh
+from helpers import Child, client_config, wait_for
+from rmw_action_client import CANCEL_CODES, STATUS, ActionClient, rate, yaw_of
+
+from blackmetal.schemas import Pose, decode
+from integration.test_ros2_sdk import ros_graph
+
+pytestmark = pytest.mark.integration
+
+SUCCEEDED, CANCELED, UNKNOWN = 4, 5, 0
+
+
+@pytest.fixture
+def graph(children: list[Child]) -> Iterator[zenoh.Session]:
+    """``up --ros2 --distro humble,jazzy``: one node per distro, one robot, one navigation service."""
+    port = ros_graph(children, "--distro", "humble,jazzy")
+    with zenoh.open(client_config(port)) as session:
+        yield session
+
+
+def clients(session: zenoh.Session, distros: tuple[str, ...] = ("humble", "jazzy")) -> dict[str, ActionClient]:
+    """An action client per distro, once the server is in the graph for it (``wait_for_action_server``)."""
+    made = {distro: ActionClient(session, distro, node=f"{distro}_navigate_client") for distro in distros}
+    for distro, client in made.items():
+        wait_for(client.server_is_available, timeout=30, interval=0.5, what=f"the {distro} action server's three services and two topics")
+    return made
+
+
+class Truth:
+    def __init__(self, session: zenoh.Session) -> None:
+        self.samples: list[tuple[float, Pose]] = []
+        self._sub = session.declare_subscriber(
+            "robot/sim/truth", lambda s: self.samples.append((time.monotonic(), decode(Pose, s.payload.to_bytes())))
+        )
+
+    def moving(self) -> bool:
+        return bool(self.samples) and abs(self.samples[-1][1].v) > 0.05
+
+    def stopped_after(self, since: float) -> float | None:
+        for arrived, pose in list(self.samples):
+            if arrived >= since and abs(pose.v) < 1e-9 and abs(pose.w) < 1e-9:
+                return arrived - since
+        return None
+
+
+def angle(a: float, b: float) -> float:
+    return abs(math.remainder(a - b, math.tau))
+
+
+def test_send_goal_feedback_and_result_on_humble_and_jazzy_keys(graph: zenoh.Session) -> None:
+    made = clients(graph)
+    truth = Truth(graph)
+    try:
+        goals = {"jazzy": (0.6, 0.2, 0.8), "humble": (0.0, 0.0, 0.0)}
+        for distro, (x, y, yaw) in goals.items():
+            client = made[distro]
+            goal_id, reply = client.send_goal(x, y, yaw, frame="map")
+            assert reply.message["accepted"] is True, reply
+            assert reply.sequence >= 1 and reply.gid == client.gids["send_goal"]  # rmw_zenoh: our sequence and GID back
+            result = client.get_result(goal_id, timeout=60)  # held until the goal ends, as rmw_zenoh's client waits
+            assert result.message["status"] == SUCCEEDED, (STATUS.get(result.message["status"]), result.message)
+            if distro == "jazzy":
+                assert result.message["result"] == {"error_code": 0, "error_msg": ""}
+            else:
+                assert result.message["result"] == {"result": {"structure_needs_at_least_one_member": 0}}  # std_msgs/Empty
+            end = truth.samples[-1][1]
+            assert math.dist((end.x, end.y), (x, y)) < 0.03 and angle(end.yaw, yaw) < math.radians(3), (end, (x, y, yaw))
+            for name, other in made.items():  # each node publishes the goal's feedback on its own distro's key
+                times = [t for t, _ in other.feedback_of(goal_id)]
+                print(
+                    f"{distro} goal: accepted in {1000 * reply.elapsed:.1f} ms; its feedback on {name}'s key: {len(times)} at {rate(times):.1f} Hz"
+                )
+                assert rate(times) >= 5.0
+            last = client.feedback_of(goal_id)[-1][1]
+            assert last["current_pose"]["header"]["frame_id"] == "map"
+            assert yaw_of(last["current_pose"]["pose"]["orientation"]) == pytest.approx(yaw, abs=math.radians(5))
+            statuses = client.status_of(goal_id)
+            assert statuses and statuses[-1] == SUCCEEDED and set(statuses) <= {1, 2, 4}, statuses
+            assert reply.elapsed <= 0.050, reply.elapsed
+        for client in made.values():
+            assert client.errors == []
+    finally:
+        for client in made.values():
+            client.close()
+
+
+def test_cancel_on_each_distro_stops_the_robot_and_ends_the_goal_canceled(graph: zenoh.Session) -> None:
+    made = clients(graph)
+    truth = Truth(graph)
+    try:
+        for distro, distance in (("jazzy", 3.0), ("humble", -3.0)):
+            client = made[distro]
+            goal_id, reply = client.send_goal(distance, 0.0, 0.0)
+            assert reply.message["accepted"]
+            pending = client.get_result_async(goal_id)
+            wait_for(truth.moving, what="the robot driving to the goal")
+            wait_for(
+                lambda c=client, g=goal_id: 2 in c.status_of(g), what=f"the goal EXECUTING in /navigate_to_pose/_action/status ({distro})"
+            )
+            time.sleep(0.5)
+            since = time.monotonic()
+            canceled = client.cancel(goal_id)
+            assert CANCEL_CODES[canceled.message["return_code"]] == "ERROR_NONE", canceled.message
+            assert [bytes(g["goal_id"]["uuid"]) for g in canceled.message["goals_canceling"]] == [goal_id]
+            stopped = wait_for(lambda s=since: truth.stopped_after(s), timeout=5, what="the true speed at zero")
+            pending["thread"].join(30)
+            assert "reply" in pending, pending.get("error")
+            assert pending["reply"].message["status"] == CANCELED
+            print(f"{distro}: cancel answered in {1000 * canceled.elapsed:.1f} ms, the robot's true speed 0 after {1000 * stopped:.0f} ms")
+            assert stopped <= 0.25
+            assert client.status_of(goal_id)[-1] == CANCELED
+        # cancel-all (zero id, zero stamp) with nothing running, a goal nobody knows, a result nobody has
+        humble, jazzy = made["humble"], made["jazzy"]
+        assert humble.cancel().message["goals_canceling"] == []
+        unknown = bytes(range(16))
+        assert CANCEL_CODES[jazzy.cancel(unknown).message["return_code"]] == "ERROR_UNKNOWN_GOAL_ID"
+        started = time.monotonic()
+        assert jazzy.get_result(unknown, timeout=10).message["status"] == UNKNOWN
+        assert time.monotonic() - started < 2.0  # answered at once, not held
+        # a cancel-all while a goal runs (Humble's ``ros2 action send_goal`` Ctrl-C is a cancel of its goal; Nav2's
+        # clients and free_fleet cancel all)
+        goal_id, reply = humble.send_goal(2.0, 0.0, 0.0)
+        wait_for(truth.moving, what="the robot driving again")
+        canceled = humble.cancel()
+        assert [bytes(g["goal_id"]["uuid"]) for g in canceled.message["goals_canceling"]] == [goal_id]
+        wait_for(lambda: humble.get_result(goal_id, timeout=10).message["status"] == CANCELED, what="the goal canceled")
+        for client in made.values():
+            assert client.errors == []
+    finally:
+        for client in made.values():
+            client.close()
+
+
+def test_a_late_status_subscriber_gets_the_last_goal_statuses(graph: zenoh.Session) -> None:
+    """The status topic is transient local (rcl_action's status QoS, depth 1): a client that joins after the goal
+    ended still reads its final status from the publisher's cache."""
+    first = clients(graph, ("jazzy",))["jazzy"]
+    try:
+        goal_id, reply = first.send_goal(0.2, 0.0, 0.0)
+        assert reply.message["accepted"]
+        assert first.get_result(goal_id, timeout=60).message["status"] == SUCCEEDED
+    finally:
+        first.close()
+    time.sleep(1.0)
+    for distro in ("jazzy", "humble"):
+        late = ActionClient(graph, distro, node=f"late_{distro}_client")
+        try:
+            wait_for(lambda late=late: late.statuses, timeout=10, what=f"the {distro} status array from the publisher's cache")
+            assert late.status_of(goal_id)[-1] == SUCCEEDED
+        finally:
+            late.close()
