@@ -61,10 +61,23 @@ def start_site(children: list[Child], *ros2_args: str, prefix: str = "robot") ->
     return port
 
 
+def robot_ready(session: zenoh.Session, prefix: str = "robot") -> None:
+    """Until the gateway's control link is up: before that the navigation refuses goals ("robot unreachable: the
+    gateway's control link is connecting"), which free_fleet would meet with a replan."""
+    health: list[dict[str, Any]] = []
+    sub = session.declare_subscriber(f"{prefix}/gateway/health", lambda s: health.append(json.loads(s.payload.to_bytes())))
+    try:
+        wait_for(lambda: health and health[-1]["control"]["state"] == "connected", what=f"{prefix}'s control link connected")
+        time.sleep(0.3)  # the navigation service reads the same health
+    finally:
+        sub.undeclare()
+
+
 @pytest.fixture
 def site(children: list[Child]) -> Iterator[zenoh.Session]:
     port = start_site(children)
     with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
         yield session
 
 
@@ -234,6 +247,7 @@ def test_a_fleet_robot_is_named_by_its_prefixs_last_chunk_and_its_battery_gauge_
     of which free_fleet reads ``percentage``."""
     port = start_site(children, "--rmf-battery", "0.42", prefix="fleet/bm_1")
     with zenoh.open(client_config(port)) as session:
+        robot_ready(session, "fleet/bm_1")
         robot = FreeFleetRobot(session, "bm_1", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
         try:
             pose, _ = robot.initialize()
