@@ -20,13 +20,15 @@ import math
 import re
 import statistics
 import time
+import tomllib
 from collections.abc import Iterator
+from pathlib import Path
 from typing import Any
 
 import pytest
 import zenoh
 from free_fleet_client import FreeFleetRobot, GoalStatus, yaw_from_quaternion
-from helpers import Child, SimProcess, client_config, free_port, wait_for, zenoh_connect_args
+from helpers import Child, SimProcess, client_config, free_port, free_ports, wait_for, zenoh_connect_args
 
 from blackmetal.schemas import Pose, decode
 
@@ -279,3 +281,85 @@ def test_what_free_fleet_reads_from_the_robots_tf(site: zenoh.Session) -> None:
     assert (map_odom.translation.x, map_odom.translation.y) == pytest.approx(MAP_POSE[:2])
     r = map_odom.rotation
     assert yaw_from_quaternion(r.x, r.y, r.z, r.w) == pytest.approx(MAP_POSE[2])
+
+
+# ------------------------------------------------------------------ docs/open-rmf.md's recipes, as written there
+def docs_toml_blocks() -> list[dict[str, Any]]:
+    """The TOML blocks of docs/open-rmf.md, parsed."""
+    text = (Path(__file__).resolve().parents[2] / "docs" / "open-rmf.md").read_text()
+    return [tomllib.loads(block) for block in re.findall(r"```toml\n(.*?)```", text, flags=re.S)]
+
+
+def test_the_docs_settings_file_with_up_puts_the_robot_on_the_map_for_free_fleet(children: list[Child], tmp_path: Path) -> None:
+    site_settings = docs_toml_blocks()[0]
+    assert site_settings["ros2"]["rmf"] is True
+    settings = tmp_path / "site.toml"
+    settings.write_text(f"[nav]\nmap_pose = {site_settings['nav']['map_pose']}\n\n[ros2]\nrmf = true\n")
+    port = free_port()
+    up = Child(["-m", "blackmetal", "up", "--ros2", "--settings", str(settings), "-l", f"tcp/127.0.0.1:{port}"])
+    children.append(up)
+    up.ready(timeout=90)
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+        robot = FreeFleetRobot(session, "robot", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+        try:
+            pose, _ = robot.initialize()
+            x, y, yaw = site_settings["nav"]["map_pose"]
+            assert (pose[0], pose[1]) == pytest.approx((x, y), abs=0.01) and angle(pose[2], yaw) < math.radians(1)
+            goal = (x + 0.3 * math.cos(yaw), y + 0.3 * math.sin(yaw), yaw)  # 30 cm straight ahead, on the map
+            accepted, _ = robot.navigate(*goal)
+            assert accepted and drive_to_done(robot) == GoalStatus.SUCCEEDED
+            pose = robot.get_pose()
+            assert pose is not None and math.dist(pose[:2], goal[:2]) < 0.02
+        finally:
+            robot.close()
+
+
+def test_the_docs_fleet_file_names_each_robot_and_places_it_on_the_map(children: list[Child], tmp_path: Path) -> None:
+    """The fleet file of docs/open-rmf.md (its hosts replaced by simulated robots on free ports): one process of each
+    kind for both robots, free_fleet's robots ``r1`` and ``r2`` each found at its own map_pose, and driven."""
+    fleet = docs_toml_blocks()[1]["robot"]
+    base = free_ports(2 * len(fleet))
+    lines = []
+    for n, robot in enumerate(fleet):
+        lines += [
+            "[[robot]]",
+            f'id = "{robot["id"]}"',
+            'host = "127.0.0.1"',
+            f"control_port = {base + 2 * n}",
+            f"log_port = {base + 2 * n + 1}",
+            "[robot.nav]",
+            f"map_pose = {robot['nav']['map_pose']}",
+            "[robot.ros2]",
+            f"rmf = {str(robot['ros2']['rmf']).lower()}",
+            "",
+        ]
+    path = tmp_path / "fleet.toml"
+    path.write_text("\n".join(lines))
+    port = free_port()
+    router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}"])
+    children.append(router)
+    router.ready()
+    started = [
+        Child(["-m", "blackmetal", kind, "--fleet", str(path), *zenoh_connect_args(port)])
+        for kind in ("sim", "gateway", "odometry", "nav", "ros2")
+    ]
+    for child in started:  # the simulator first: the gateways connect to its ports
+        children.append(child)
+        child.ready(timeout=60)
+    with zenoh.open(client_config(port)) as session:
+        for robot in fleet:
+            robot_ready(session, f"fleet/{robot['id']}")
+        for robot in fleet:
+            ff = FreeFleetRobot(session, robot["id"], service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+            try:
+                pose, _ = ff.initialize()
+                x, y, yaw = robot["nav"]["map_pose"]
+                assert (pose[0], pose[1]) == pytest.approx((x, y), abs=0.01) and angle(pose[2], yaw) < math.radians(1), (robot["id"], pose)
+                goal = (x + 0.25 * math.cos(yaw), y + 0.25 * math.sin(yaw), yaw)
+                accepted, _ = ff.navigate(*goal)
+                assert accepted and drive_to_done(ff) == GoalStatus.SUCCEEDED, (robot["id"], ff.errors)
+                print(f"free_fleet's {robot['id']}: found at {[round(v, 3) for v in pose]}, reached {[round(v, 3) for v in goal]}")
+                assert ff.errors == []
+            finally:
+                ff.close()
