@@ -186,3 +186,28 @@ def test_a_late_status_subscriber_gets_the_last_goal_statuses(graph: zenoh.Sessi
             assert late.status_of(goal_id)[-1] == SUCCEEDED
         finally:
             late.close()
+
+
+def test_bad_goals_are_answered_refused(graph: zenoh.Session) -> None:
+    """A goal that decodes gets its answer, accepted = false, with the reason on robot/errors: rmw_zenoh's client drops
+    an error reply (``z_reply_is_ok returned False``) and ``ros2 action send_goal`` would wait for ever, where
+    rclcpp_action's server answers a goal its handler rejects."""
+    errors: list[str] = []
+    graph.declare_subscriber("robot/errors", lambda s: errors.append(json.loads(s.payload.to_bytes())["reason"]))
+    client = clients(graph, ("jazzy",))["jazzy"]
+    try:
+        for what, (x, y, yaw, frame) in {
+            "x NaN": (math.nan, 0.0, 0.0, "map"),
+            "yaw infinite": (0.5, 0.0, math.inf, "map"),
+            "10 km away": (10_000.0, 0.0, 0.0, "map"),
+            "another frame": (0.5, 0.0, 0.0, "earth"),
+        }.items():
+            before = len(errors)
+            _, reply = client.send_goal(x, y, yaw, frame=frame)
+            assert reply.message["accepted"] is False, what
+            wait_for(lambda before=before: len(errors) > before, timeout=5, what=f"the reason for the goal with {what}")
+            print(f"{what}: {errors[before]}")
+        goal_id, reply = client.send_goal(0.2, 0.0, 0.0)
+        assert reply.message["accepted"] and client.get_result(goal_id, timeout=60).message["status"] == SUCCEEDED
+    finally:
+        client.close()
