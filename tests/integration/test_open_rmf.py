@@ -22,7 +22,7 @@ import statistics
 import struct
 import time
 import tomllib
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -133,10 +133,13 @@ def angle(a: float, b: float) -> float:
     return abs(math.remainder(a - b, math.tau))
 
 
-def drive_to_done(robot: FreeFleetRobot, timeout: float = 60.0) -> GoalStatus | None:
-    """free_fleet's update loop: ``_is_navigation_done`` every update period until it says done; the status it read."""
+def drive_to_done(robot: FreeFleetRobot, timeout: float = 60.0, each: Callable[[], None] | None = None) -> GoalStatus | None:
+    """free_fleet's update loop: ``_is_navigation_done`` every update period until it says done; the status it read
+    (``each``: called every update, as free_fleet reads the pose for RMF's robot state)."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
+        if each is not None:
+            each()
         done, status = robot.is_navigation_done()
         if done:
             return status
@@ -168,6 +171,16 @@ def test_free_fleet_finds_the_robot_on_the_map_from_tf_alone_and_assumes_a_full_
 
 def test_free_fleet_goals_accepted_fast_succeeded_read_back_and_preempted(site: zenoh.Session) -> None:
     robot = FreeFleetRobot(site, "robot", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+    odometry: list[Pose] = []
+    site.declare_subscriber("robot/pose", lambda s: odometry.append(decode(Pose, s.payload.to_bytes())))
+    behind: list[float] = []  # how far the pose free_fleet reads is from the odometry's latest, on the map (m)
+
+    def compare() -> None:  # free_fleet's get_pose for RMF's robot state, at each update
+        pose = robot.get_pose()
+        if pose is not None and odometry:
+            latest = odometry[-1]
+            behind.append(math.dist(pose[:2], on_map(latest.x, latest.y, latest.yaw)[:2]))
+
     try:
         robot.initialize()
         accepted_in: list[float] = []
@@ -178,7 +191,7 @@ def test_free_fleet_goals_accepted_fast_succeeded_read_back_and_preempted(site: 
             assert accepted is True, (call, robot.errors)
             accepted_in.append(call.elapsed)
             first_feedback = len(robot.feedback_times)
-            status = drive_to_done(robot)
+            status = drive_to_done(robot, each=compare)
             assert status == GoalStatus.SUCCEEDED, (status, robot.errors)
             pose = robot.get_pose()
             assert pose is not None, robot.last_lookup_error
@@ -201,6 +214,10 @@ def test_free_fleet_goals_accepted_fast_succeeded_read_back_and_preempted(site: 
         robot.last_feedback = None
         assert robot.is_navigation_done() == (True, GoalStatus.CANCELED)
         print("send_goal round trips (ms):", [round(1000 * t, 1) for t in accepted_in])
+        print(
+            f"the pose free_fleet read while driving: at most {1000 * max(behind):.1f} mm from the odometry's latest ({len(behind)} reads)"
+        )
+        assert len(behind) > 20 and max(behind) < 0.02  # tf's latest common time is the latest pose: nothing old
         assert statistics.median(accepted_in) <= 0.050 and max(accepted_in[1:]) <= 0.050, accepted_in
         assert robot.errors == []
     finally:
