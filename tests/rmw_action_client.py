@@ -458,7 +458,8 @@ class ActionClient:
         self._next_id = 1
         self._sequence = 0
         self._lock = threading.Lock()
-        self.tokens = [session.liveliness().declare_token(f"@ros2_lv/{domain}/{self.zid}/0/0/NN/%/%/{node}")]
+        self.tokens_declared = [f"@ros2_lv/{domain}/{self.zid}/0/0/NN/%/%/{node}"]  # the key expressions, as declared
+        self.tokens = [session.liveliness().declare_token(self.tokens_declared[0])]
         services = {
             "send_goal": f"{action_type}_SendGoal",
             "cancel_goal": "action_msgs/srv/CancelGoal",
@@ -499,6 +500,7 @@ class ActionClient:
             f"{dds_type(typename)}/{self.type_hash(typename)}/{qos}"
         )
         self._next_id += 1
+        self.tokens_declared.append(token)
         self.tokens.append(self.session.liveliness().declare_token(token))
         return bytes(xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little"))
 

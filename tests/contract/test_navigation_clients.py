@@ -499,3 +499,125 @@ def test_the_vendored_tree_is_what_the_readme_lists() -> None:
         package, kind, name = path.parts[-3], path.parts[-2], path.stem
         assert package in readme and name in readme, f"{path}: not in tests/ros2_interfaces/README.md"
         assert kind in ("msg", "srv", "action")
+
+
+# ------------------------------------------------------------------ the clients' own behaviour, against stand-in servers in this process
+class FakeNav2:
+    """A stand-in for a Nav2 action server behind zenoh-bridge-ros2dds, on one in-process session: what free_fleet's
+    adapter asked (key, payload) and canned answers."""
+
+    def __init__(self, session: Any, robot: str, status: int = 2) -> None:
+        self.asked: list[tuple[str, bytes]] = []
+        self.status = status
+        self._queryables = [
+            session.declare_queryable(f"{robot}/navigate_to_pose/_action/{part}", lambda q, part=part: self._answer(part, q))
+            for part in ("send_goal", "get_result", "cancel_goal")
+        ]
+
+    def _answer(self, part: str, query: Any) -> None:
+        payload = query.payload.to_bytes() if query.payload is not None else b""
+        self.asked.append((part, payload))
+        if part == "send_goal":
+            query.reply(query.key_expr, SendGoalResponse(accepted=True, stamp=Time(sec=1, nanosec=2)).serialize())
+        elif part == "get_result":
+            query.reply(query.key_expr, Interfaces("jazzy").serialize(f"{NAV}_GetResult_Response", {"status": self.status}))
+        else:
+            query.reply(query.key_expr, CancelGoalResponse(return_code=0, goals_canceling=[]).serialize())
+
+    def close(self) -> None:
+        for queryable in self._queryables:
+            queryable.undeclare()
+
+
+def test_the_free_fleet_client_makes_free_fleets_calls_in_its_order(session: Any) -> None:
+    from free_fleet_client import FreeFleetRobot
+
+    server = FakeNav2(session, "r1")
+    robot = FreeFleetRobot(session, "r1", service_call_timeout_sec=1.0, clock=lambda: 1000.25)
+    try:
+        accepted, call = robot.navigate(1.0, 2.0, 0.5)
+        assert accepted is True and call.key == "r1/navigate_to_pose/_action/send_goal"
+        assert [part for part, _ in server.asked] == ["send_goal"]  # no goal held: no cancel first
+        sent = SendGoalRequest.deserialize(server.asked[0][1])
+        assert list(sent.goal_id) == robot.goal_id and all(0 <= b <= 254 for b in sent.goal_id)
+        assert (sent.pose.header.frame_id, sent.pose.header.stamp.sec, sent.pose.header.stamp.nanosec) == ("map", 1000, 250_000_000)
+        assert (sent.pose.pose.position.x, sent.pose.pose.position.y) == (1.0, 2.0) and sent.behavior_tree == ""
+        assert sent.pose.pose.orientation.z == pytest.approx(math.sin(0.25))
+        # feedback that says 5 s remain: free_fleet does not ask for the result before they are over
+        feedback = FeedbackMessage(robot.goal_id, pose_stamped(POSE), Duration(1, 0), Duration(5, 0), 0, 1.0)
+        session.put("r1/navigate_to_pose/_action/feedback", feedback.serialize())
+        wait(lambda: robot.feedback_count == 1)
+        assert robot.is_navigation_done() == (False, None) and len(server.asked) == 1
+        robot.last_feedback = None
+        assert robot.is_navigation_done() == (False, GoalStatus.EXECUTING)
+        server.status = GoalStatus.SUCCEEDED
+        assert robot.is_navigation_done() == (True, GoalStatus.SUCCEEDED)
+        assert GetResultRequest.deserialize(server.asked[-1][1]).goal_id == bytes(robot.goal_id)
+        # a new destination while a goal is held: cancel-all first, then the goal
+        robot.navigate(3.0, 4.0, 0.0)
+        assert [part for part, _ in server.asked[-2:]] == ["cancel_goal", "send_goal"]
+        assert server.asked[-2][1] == cancel_all_request().serialize()
+        # tf: frames namespaced by the robot's name, map -> base_footprint from the chain
+        session.put("r1/tf", CASES["tf"][0].serialize())
+        wait(lambda: robot.get_pose() is not None)
+        x, y, yaw = robot.get_pose()  # type: ignore[misc]
+        assert (x, y) == pytest.approx((2.5, 1.0)) and yaw == pytest.approx(2 * math.asin(0.1))
+        assert robot.battery_soc == 1.0 and robot.errors == []
+        session.put("r1/battery_state", CASES["battery state"][0].serialize())
+        wait(lambda: robot.battery_soc != 1.0)
+        assert robot.battery_soc == pytest.approx(0.75)
+    finally:
+        robot.close()
+        server.close()
+
+
+def wait(condition: Any, timeout: float = 5.0) -> None:
+    import time
+
+    deadline = time.monotonic() + timeout
+    while not condition():
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.01)
+
+
+def test_the_action_client_sends_rmw_zenohs_requests(session: Any) -> None:
+    """Against a stand-in rmw_zenoh service server: the key with the hash, a 33-byte attachment whose sequence goes
+    up from 1 and whose GID is the XXH3-128 of the client's token, CDR payloads; the reply's attachment read back."""
+    import zenoh
+
+    asked: list[tuple[str, bytes, bytes]] = []
+    jazzy = Interfaces("jazzy")
+
+    def answer(query: Any) -> None:
+        attachment_in = query.attachment.to_bytes()
+        asked.append((str(query.key_expr), query.payload.to_bytes(), attachment_in))
+        sequence, _, gid = read_attachment(attachment_in)
+        response = jazzy.serialize(f"{NAV}_SendGoal_Response", {"accepted": True, "stamp": STAMP})
+        query.reply(query.key_expr, response, attachment=attachment(sequence, gid))
+
+    key = f"0/navigate_to_pose/_action/send_goal/{dds_type(NAV + '_SendGoal')}/{JAZZY_HASHES[NAV + '_SendGoal']}"
+    queryable = session.declare_queryable(key, answer, complete=True)
+    client = ActionClient(session, "jazzy")
+    try:
+        for n in (1, 2):
+            goal_id, reply = client.send_goal(1.5, -2.0, 0.3, frame="map")
+            assert reply.message["accepted"] is True and reply.sequence == n and reply.gid == client.gids["send_goal"]
+            got_key, payload, raw = asked[-1]
+            assert got_key == key
+            request = jazzy.deserialize(f"{NAV}_SendGoal_Request", payload)
+            assert bytes(request["goal_id"]["uuid"]) == goal_id
+            assert request["goal"]["pose"]["header"]["frame_id"] == "map" and request["goal"]["behavior_tree"] == ""
+            sequence, stamp, gid = read_attachment(raw)
+            assert sequence == n and abs(stamp - time_ns()) < 5e9
+            token = next(t for t in client.tokens_declared if "%send_goal/" in t)
+            assert gid == xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little")
+        assert isinstance(zenoh.QueryTarget.ALL_COMPLETE, zenoh.QueryTarget)
+    finally:
+        client.close()
+        queryable.undeclare()
+
+
+def time_ns() -> int:
+    import time
+
+    return time.time_ns()
