@@ -62,11 +62,9 @@ def clients(session: zenoh.Session, distros: tuple[str, ...] = ("humble", "jazzy
 
 
 class Truth:
-    def __init__(self, session: zenoh.Session) -> None:
+    def __init__(self, session: zenoh.Session, key: str = "robot/sim/truth") -> None:
         self.samples: list[tuple[float, Pose]] = []
-        self._sub = session.declare_subscriber(
-            "robot/sim/truth", lambda s: self.samples.append((time.monotonic(), decode(Pose, s.payload.to_bytes())))
-        )
+        self._sub = session.declare_subscriber(key, lambda s: self.samples.append((time.monotonic(), decode(Pose, s.payload.to_bytes()))))
 
     def moving(self) -> bool:
         return bool(self.samples) and abs(self.samples[-1][1].v) > 0.05
@@ -211,3 +209,28 @@ def test_bad_goals_are_answered_refused(graph: zenoh.Session) -> None:
         assert reply.message["accepted"] and client.get_result(goal_id, timeout=60).message["status"] == SUCCEEDED
     finally:
         client.close()
+
+
+def test_each_robot_of_a_fleet_has_its_own_action_under_its_namespace(children: list[Child]) -> None:
+    """``up --robots 2 --ros2``: a node per robot, the action at ``/r2/navigate_to_pose`` (keys
+    ``0/r2/navigate_to_pose/_action/...``); a goal there drives r2 alone, in r2's ``r2/odom`` frame as a ROS user
+    of that node names it."""
+    port = ros_graph(children, "--robots", "2", "--distro", "jazzy")
+    with zenoh.open(client_config(port)) as session:
+        for robot in ("r1", "r2"):
+            robot_ready(session, f"fleet/{robot}")
+        truths = {robot: Truth(session, f"fleet/{robot}/sim/truth") for robot in ("r1", "r2")}
+        client = ActionClient(session, "jazzy", "/r2/navigate_to_pose", node="fleet_navigate_client")
+        try:
+            wait_for(client.server_is_available, timeout=30, interval=0.5, what="r2's action server")
+            assert client.keys["send_goal"].startswith("0/r2/navigate_to_pose/_action/send_goal/")
+            goal_id, reply = client.send_goal(0.4, 0.0, 0.0, frame="r2/odom")
+            assert reply.message["accepted"], reply
+            assert client.get_result(goal_id, timeout=60).message["status"] == SUCCEEDED
+            wait_for(lambda: len(client.feedback_of(goal_id)) > 5, what="r2's feedback")
+            end = truths["r2"].samples[-1][1]
+            assert math.dist((end.x, end.y), (0.4, 0.0)) < 0.03
+            assert truths["r1"].samples and all(abs(p.x) < 1e-9 and abs(p.v) < 1e-9 for _, p in truths["r1"].samples), "r1 moved"
+            assert client.errors == []
+        finally:
+            client.close()
