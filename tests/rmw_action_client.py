@@ -643,3 +643,38 @@ def rate(times: Iterable[float]) -> float:
     if len(stamps) < 2 or stamps[-1] == stamps[0]:
         return 0.0
     return (len(stamps) - 1) / (stamps[-1] - stamps[0])
+
+
+class TopicPublisher:
+    """A publisher as rmw_zenoh's ``PublisherData`` makes one (its own node here): an MP token, the topic's key with the
+    type's hash, each sample CDR with the 33-byte attachment (sequence from 1, ns timestamp, the entity's GID)."""
+
+    def __init__(self, session: zenoh.Session, distro: str, topic: str, typename: str, *, node: str, domain: int = 0) -> None:
+        self.interfaces = Interfaces(distro)
+        self.typename = typename
+        zid = str(session.zid())
+        type_hash = self.interfaces.type_hash(typename)
+        token = f"@ros2_lv/{domain}/{zid}/0/1/MP/%/%/{node}/{topic.replace('/', '%')}/{dds_type(typename)}/{type_hash}/::,10:,:,:,,"
+        self.tokens = [
+            session.liveliness().declare_token(f"@ros2_lv/{domain}/{zid}/0/0/NN/%/%/{node}"),
+            session.liveliness().declare_token(token),
+        ]
+        self.gid = bytes(xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little"))
+        self.key = f"{domain}/{topic.strip('/')}/{dds_type(typename)}/{type_hash}"
+        self._publisher = session.declare_publisher(self.key)
+        self._sequence = 0
+
+    def publish(self, message: dict[str, Any]) -> None:
+        self._sequence += 1
+        self._publisher.put(self.interfaces.serialize(self.typename, message), attachment=attachment(self._sequence, self.gid))
+
+    def close(self) -> None:
+        self._publisher.undeclare()
+        for token in self.tokens:
+            token.undeclare()
+
+
+def stamped_now(frame: str) -> dict[str, Any]:
+    """A std_msgs/Header stamped now in ``frame``."""
+    now = time.time()
+    return {"stamp": {"sec": int(now), "nanosec": int((now % 1) * 1e9)}, "frame_id": frame}

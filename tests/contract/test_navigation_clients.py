@@ -345,7 +345,8 @@ def test_the_definitions_differ_between_humble_and_jazzy_only_where_the_readme_s
 
 # ------------------------------------------------------------------ REP-2011
 @pytest.mark.parametrize("typename", sorted(p for p in ("action_msgs/msg/GoalStatusArray", "action_msgs/msg/GoalStatus", "action_msgs/msg/GoalInfo",
-                                                        "geometry_msgs/msg/PoseStamped", "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage",
+                                                        "geometry_msgs/msg/PoseStamped",
+        "geometry_msgs/msg/PoseWithCovarianceStamped", "geometry_msgs/msg/TransformStamped", "tf2_msgs/msg/TFMessage",
                                                         "sensor_msgs/msg/BatteryState", "unique_identifier_msgs/msg/UUID", "std_msgs/msg/Empty",
                                                         "builtin_interfaces/msg/Duration")))  # fmt: skip
 def test_message_hashes_are_rosbags_hashes(typename: str) -> None:

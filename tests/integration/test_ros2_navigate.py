@@ -22,7 +22,7 @@ from typing import Any
 import pytest
 import zenoh
 from helpers import Child, client_config, wait_for
-from rmw_action_client import CANCEL_CODES, STATUS, ActionClient, rate, yaw_of
+from rmw_action_client import CANCEL_CODES, STATUS, ActionClient, TopicPublisher, quaternion_from_yaw, rate, stamped_now, yaw_of
 
 from blackmetal.schemas import Pose, decode
 from integration.test_ros2_sdk import ros_graph
@@ -234,3 +234,56 @@ def test_each_robot_of_a_fleet_has_its_own_action_under_its_namespace(children: 
             assert client.errors == []
         finally:
             client.close()
+
+
+def test_rviz_2d_goal_pose_and_2d_pose_estimate(graph: zenoh.Session) -> None:
+    """RViz's tools as rmw_zenoh publishers: *2D Goal Pose* (``/goal_pose``, a PoseStamped in ``map``) on Jazzy keys
+    drives the robot there, reported on the action's feedback and status; *2D Pose Estimate* (``/initialpose``, a
+    PoseWithCovarianceStamped) on Humble keys puts the robot there on the map (``map -> odom`` moves)."""
+    truth = Truth(graph)
+    watcher = clients(graph, ("jazzy",))["jazzy"]
+    goal_pose = TopicPublisher(graph, "jazzy", "/goal_pose", "geometry_msgs/msg/PoseStamped", node="rviz2")
+    initial_pose = TopicPublisher(graph, "humble", "/initialpose", "geometry_msgs/msg/PoseWithCovarianceStamped", node="rviz2")
+    try:
+        time.sleep(0.5)  # the tokens and the publishers' declarations reach the router
+        target = (0.5, 0.2, 0.4)
+        goal_pose.publish(
+            {
+                "header": stamped_now("map"),
+                "pose": {"position": {"x": target[0], "y": target[1]}, "orientation": quaternion_from_yaw(target[2])},
+            }
+        )
+        wait_for(truth.moving, what="the robot driving to RViz's goal")
+        wait_for(lambda: watcher.statuses and watcher.statuses[-1][1]["status_list"] and watcher.statuses[-1][1]["status_list"][-1]["status"] == SUCCEEDED,
+                 timeout=60, what="RViz's goal SUCCEEDED in the action's status")  # fmt: skip
+        end = truth.samples[-1][1]
+        assert math.dist((end.x, end.y), target[:2]) < 0.03 and angle(end.yaw, target[2]) < math.radians(3), end
+        assert watcher.feedback, "no feedback for RViz's goal on the action's feedback topic"
+
+        here = (5.0, -2.0, 1.0)  # "the robot is here on the map now"
+        covariance = [0.0] * 36
+        initial_pose.publish(
+            {
+                "header": stamped_now("map"),
+                "pose": {
+                    "pose": {"position": {"x": here[0], "y": here[1]}, "orientation": quaternion_from_yaw(here[2])},
+                    "covariance": covariance,
+                },
+            }
+        )
+
+        def on_map_now() -> tuple[float, float, float] | None:
+            odom = [json.loads(r.ok.payload.to_bytes()) for r in graph.get("robot/pose", timeout=2) if r.ok is not None]
+            placed = [json.loads(r.ok.payload.to_bytes()) for r in graph.get("robot/nav/map_pose", timeout=2) if r.ok is not None]
+            if not odom or not placed:
+                return None
+            p, m = odom[0], placed[0]
+            c, s = math.cos(m["yaw"]), math.sin(m["yaw"])
+            return (m["x"] + c * p["x"] - s * p["y"], m["y"] + s * p["x"] + c * p["y"], m["yaw"] + p["yaw"])
+
+        placed = wait_for(lambda: (q := on_map_now()) and math.dist(q[:2], here[:2]) < 0.01 and q, what="the robot placed where RViz said")
+        assert angle(placed[2], here[2]) < math.radians(1), placed
+    finally:
+        goal_pose.close()
+        initial_pose.close()
+        watcher.close()
