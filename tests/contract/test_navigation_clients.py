@@ -2,7 +2,7 @@
 
 tests/free_fleet_client.py lays its messages out as free_fleet's ``ros2_types.py`` does (pycdr2, some types
 flattened: the goal id's UUID as 16 bytes, the goal's fields inline, the result left out);
-tests/rmw_action_client.py parses the vendored ``.msg`` / ``.srv`` / ``.action`` files
+tests/rmw_action_client.py (with tests/ros2_idl.py) parses the vendored ``.msg`` / ``.srv`` / ``.action`` files
 (tests/ros2_interfaces/README.md says where from) into rosidl's structures, writes CDR from them and
 hashes them as REP-2011 says. Here each is checked against something it was not written from:
 
@@ -12,7 +12,7 @@ hashes them as REP-2011 says. Here each is checked against something it was not 
 * the RIHS01 hashes = rosbags' for every message type, and rmw_zenoh's published hash of
   ``example_interfaces/srv/AddTwoInts`` (its docs/design.md) for a service (the ``_Event`` message and
   ``service_msgs/ServiceEventInfo``'s ``char[16]``, which rosidl reads as ``uint8[16]``);
-* the tf2 emulation and the key / token / attachment formats, on their own.
+* the tf2 emulation (tests/tf2_buffer.py) and the key / token / attachment formats, on their own.
 
 No processes, no network: pure.
 """
