@@ -383,6 +383,23 @@ def test_the_navigate_to_pose_hashes_per_distro() -> None:
     assert jazzy.fields(f"{NAV}_FeedbackMessage") == humble.fields(f"{NAV}_FeedbackMessage")
 
 
+@pytest.mark.parametrize(
+    ("distro", "feedback_hash"),
+    [
+        ("kilted", JAZZY_HASHES[f"{NAV}_FeedbackMessage"]),  # result constants only: nothing a hash sees
+        ("rolling", "RIHS01_2c1b4ec1a0e3a53c9aa326aabe717670eeef0ff3d4c3351ff940613b2011728a"),  # + 2 feedback fields
+    ],
+)
+def test_later_distros_hashes(distro: str, feedback_hash: str) -> None:
+    """Kilted's and Rolling's NavigateToPose with Jazzy's other definitions; the values agree with the ones the ROS 2
+    adapter's helper computed with rosbags (NAV_KEYS.md), independently of this implementation."""
+    text = (INTERFACES / distro / "nav2_msgs" / "action" / "NavigateToPose.action").read_text()
+    later = Interfaces("jazzy", extra={NAV: text})
+    assert later.type_hash(f"{NAV}_FeedbackMessage") == feedback_hash
+    for part in ("_SendGoal", "_GetResult"):
+        assert later.type_hash(NAV + part) == JAZZY_HASHES[NAV + part]
+
+
 # ------------------------------------------------------------------ tf2's lookup, as free_fleet uses it
 def test_tf_lookup_resolves_map_to_base_footprint_at_the_latest_common_time() -> None:
     tf = TfBuffer()
