@@ -50,6 +50,7 @@ from free_fleet_client import (
 )
 from helpers import Child, SimProcess, client_config, free_port, free_ports, wait_for, zenoh_connect_args
 
+from blackmetal import robot_model as model
 from blackmetal.schemas import Pose, decode
 
 pytestmark = pytest.mark.integration
@@ -62,17 +63,20 @@ SERVICE_CALL_TIMEOUT_S = 1.0
 UPDATE_PERIOD_S = 0.1
 
 
-def start_site(children: list[Child], *ros2_args: str, prefix: str = "robot") -> int:
-    """A router, and the robot's processes under ``prefix`` as its clients; the router's port."""
+def start_site(
+    children: list[Child], *ros2_args: str, prefix: str = "robot", sim_args: tuple[str, ...] = (), constants: tuple[str, ...] = ()
+) -> int:
+    """A router, and the robot's processes under ``prefix`` as its clients (``constants``: the gateway's and the
+    odometry's robot constants); the router's port."""
     port = free_port()
     router = Child(["-m", "blackmetal", "router", "-l", f"tcp/127.0.0.1:{port}"])
     children.append(router)
     router.ready()
-    sim = SimProcess("--prefix", prefix, *zenoh_connect_args(port))
+    sim = SimProcess("--prefix", prefix, *sim_args, *zenoh_connect_args(port))
     children.append(sim)
     robot = [
-        ["gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port)],
-        ["odometry"],
+        ["gateway", "--control-port", str(sim.control_port), "--log-port", str(sim.log_port), *constants],
+        ["odometry", *constants],
         ["nav", "--map-pose=" + ",".join(map(str, MAP_POSE))],
         ["ros2", "--rmf", *ros2_args],
     ]
@@ -526,3 +530,45 @@ def test_a_flood_of_goals_is_answered_and_the_last_one_is_driven(site: zenoh.Ses
     assert len(running) == 1, statuses
     wait_for(lambda: status(running[0]) == GoalStatus.SUCCEEDED, timeout=30, what="the goal that won to succeed")
     assert all(statuses[n] == GoalStatus.CANCELED for n in accepted if n != running[0]), statuses
+
+
+#: A robot that differs from the nominal constants (wheels 2 % long and 1.5 % short, a wider track) and whose motors
+#: take time to reach a speed; its calibration, as blackmetal calibrate would find it.
+DIFFERENT_ROBOT = ("--left-wheel-scale", "1.02", "--right-wheel-scale", "0.985", "--wheel-separation", "0.515", "--accel-limit", "1.5")
+CALIBRATION = (
+    "--impulses-left", str(model.IMPULSES_PER_METER_LEFT / 1.02),
+    "--impulses-right", str(model.IMPULSES_PER_METER_RIGHT / 0.985),
+    "--wheel-separation", "0.515",
+)  # fmt: skip
+
+
+@pytest.mark.parametrize("calibrated", [True, False], ids=["calibrated", "nominal constants"])
+def test_free_fleet_on_a_robot_that_differs_from_its_nominal_constants(children: list[Child], calibrated: bool) -> None:
+    """The goals free_fleet reads back are reached in the odometry either way (within 2 cm and 2 degrees on the map);
+    the true robot is there too once calibrated, and off by its calibration error when not (printed)."""
+    port = start_site(children, sim_args=DIFFERENT_ROBOT, constants=CALIBRATION if calibrated else ())
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+        truth = Truth(session)
+        robot = FreeFleetRobot(session, "robot", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+        try:
+            robot.initialize()
+            for x, y, yaw in ((1.5, 0.4, 0.3), (0.2, -0.3, -2.5)):
+                target = on_map(x, y, yaw)
+                accepted, _ = robot.navigate(*target)
+                assert accepted and drive_to_done(robot) == GoalStatus.SUCCEEDED, robot.errors
+                pose = robot.get_pose()
+                assert pose is not None and math.dist(pose[:2], target[:2]) < 0.02 and angle(pose[2], target[2]) < math.radians(2), (
+                    pose,
+                    target,
+                )
+                wait_for(lambda: not truth.moving(), what="the robot at rest")
+                true = truth.samples[-1][1]
+                off = math.dist((true.x, true.y), (x, y))
+                print(f"{'calibrated' if calibrated else 'nominal constants'}: goal {(x, y)} (odometry frame), the true robot {1000 * off:.0f} mm "
+                      f"and {math.degrees(angle(true.yaw, yaw)):.1f} deg from it")  # fmt: skip
+                if calibrated:
+                    assert off < 0.02 and angle(true.yaw, yaw) < math.radians(2)
+            assert robot.errors == []
+        finally:
+            robot.close()
