@@ -639,3 +639,15 @@ def time_ns() -> int:
     import time
 
     return time.time_ns()
+
+
+def test_the_free_fleet_client_gives_up_on_a_robot_without_a_pose_as_free_fleet_does(session: Any) -> None:
+    from free_fleet_client import FreeFleetRobot
+
+    robot = FreeFleetRobot(session, "nobody", init_timeout_sec=1.5)
+    try:
+        with pytest.raises(RuntimeError, match=r"Timeout trying to initialize robot \[nobody\]"):
+            robot.initialize()
+        assert "does not exist" in robot.last_lookup_error or "same tree" in robot.last_lookup_error
+    finally:
+        robot.close()
