@@ -285,6 +285,40 @@ def test_free_fleet_goal_refused_while_the_e_stop_is_engaged(site: zenoh.Session
         robot.close()
 
 
+def test_an_e_stop_during_free_fleets_goal_aborts_it_and_nothing_moves_after_the_release(site: zenoh.Session) -> None:
+    """free_fleet reads ABORTED (it files an issue ticket and RMF replans); the reason is the navigation's
+    (``robot/nav/result``); after the release the robot stays put until RMF sends a new goal."""
+    health: list[dict[str, Any]] = []
+    site.declare_subscriber("robot/gateway/health", lambda s: health.append(json.loads(s.payload.to_bytes())))
+    truth = Truth(site)
+    robot = FreeFleetRobot(site, "robot", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+    try:
+        robot.initialize()
+        accepted, _ = robot.navigate(*on_map(2.5, 0.0, 0.0))
+        assert accepted
+        wait_for(truth.moving, what="the robot driving to free_fleet's goal")
+        time.sleep(0.5)
+        since = time.monotonic()
+        site.put("robot/estop", json.dumps({"engaged": True}))
+        stopped = wait_for(lambda: truth.stopped_after(since), timeout=5, what="the robot stopped by the e-stop")
+        robot.last_feedback = None  # free_fleet asks at its next update once the feedback says the goal is due
+        done, _ = wait_for(lambda: (r := robot.is_navigation_done())[1] == GoalStatus.ABORTED and r, timeout=10, what="ABORTED")
+        assert done is False  # free_fleet: an issue ticket and a replan, the goal id kept until RMF sends another
+        results = [json.loads(r.ok.payload.to_bytes()) for r in site.get("robot/nav/result", timeout=5) if r.ok is not None]
+        assert results and results[0]["state"] == "aborted" and re.search(r"e-?stop", results[0]["reason"], re.I), results
+        print(f"e-stop during free_fleet's goal: the true speed 0 after {1000 * stopped:.0f} ms; ABORTED: {results[0]['reason']}")
+        site.put("robot/estop/release", json.dumps({"engaged": False}))
+        wait_for(lambda: health and not health[-1].get("estop"), what="the e-stop released")
+        released = time.monotonic()
+        time.sleep(1.5)
+        assert all(abs(p.v) < 1e-9 and abs(p.w) < 1e-9 for t, p in truth.samples if t > released), "the robot moved after the release"
+        accepted, _ = robot.navigate(*on_map(0.3, 0.0, 0.0))  # RMF's replan: a new goal, which drives again
+        assert accepted and drive_to_done(robot) == GoalStatus.SUCCEEDED
+        assert robot.errors == []
+    finally:
+        robot.close()
+
+
 def test_a_fleet_robot_is_named_by_its_prefixs_last_chunk_and_its_battery_gauge_reaches_free_fleet(children: list[Child]) -> None:
     """Prefix ``fleet/bm_1``: free_fleet's robot ``bm_1`` (keys ``bm_1/...``); ``--rmf-battery``: ``bm_1/battery_state``,
     of which free_fleet reads ``percentage``."""
