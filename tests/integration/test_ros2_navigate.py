@@ -20,9 +20,20 @@ from collections.abc import Iterator
 from typing import Any
 
 import pytest
+import xxhash
 import zenoh
 from helpers import Child, client_config, wait_for
-from rmw_action_client import CANCEL_CODES, STATUS, ActionClient, TopicPublisher, quaternion_from_yaw, rate, stamped_now, yaw_of
+from rmw_action_client import (
+    CANCEL_CODES,
+    STATUS,
+    ActionClient,
+    TopicPublisher,
+    quaternion_from_yaw,
+    rate,
+    read_attachment,
+    stamped_now,
+    yaw_of,
+)
 
 from blackmetal.schemas import Pose, decode
 from integration.test_ros2_sdk import ros_graph
@@ -112,7 +123,12 @@ def test_send_goal_feedback_and_result_on_humble_and_jazzy_keys(graph: zenoh.Ses
             )
             assert set(client.status_of(goal_id)) <= {1, 2, 4}, client.status_of(goal_id)
             assert reply.elapsed <= 1.0, reply.elapsed  # the first request of a client sets its routes up; printed above
-        for client in made.values():
+        for distro, client in made.items():  # the feedback publisher's attachment: its sequence and its GID, the hash of its token
+            attachments = [read_attachment(raw) for _, _, raw in client.feedback if raw is not None]
+            assert len(attachments) == len(client.feedback) and [a[0] for a in attachments] == sorted({a[0] for a in attachments})
+            (token,) = [t for t in client.server_tokens() if t.split("/")[5] == "MP" and t.split("/")[9] == "%navigate_to_pose%_action%feedback"
+                        and t.split("/")[11] == client.type_hash(client.types["feedback"])]  # fmt: skip
+            assert {a[2] for a in attachments} == {xxhash.xxh3_128_intdigest(token.encode()).to_bytes(16, "little")}, distro
             assert client.errors == []
     finally:
         for client in made.values():
