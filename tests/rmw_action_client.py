@@ -217,7 +217,14 @@ class ActionClient:
         return Reply(message, echoed, stamp, gid, elapsed, started)
 
     def send_goal(
-        self, x: float, y: float, yaw: float, frame: str = "map", goal_id: bytes | None = None, behavior_tree: str = ""
+        self,
+        x: float,
+        y: float,
+        yaw: float,
+        frame: str = "map",
+        goal_id: bytes | None = None,
+        behavior_tree: str = "",
+        orientation: dict[str, float] | None = None,
     ) -> tuple[bytes, Reply]:
         """``async_send_goal``: a random UUID (rclcpp_action's generate_goal_id) and the goal pose stamped now."""
         import os
@@ -229,7 +236,7 @@ class ActionClient:
             "goal": {
                 "pose": {
                     "header": {"stamp": {"sec": int(now), "nanosec": int((now % 1) * 1e9)}, "frame_id": frame},
-                    "pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": quaternion_from_yaw(yaw)},
+                    "pose": {"position": {"x": x, "y": y, "z": 0.0}, "orientation": orientation or quaternion_from_yaw(yaw)},
                 },
                 "behavior_tree": behavior_tree,
             },

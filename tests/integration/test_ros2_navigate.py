@@ -210,14 +210,15 @@ def test_bad_goals_are_answered_refused(graph: zenoh.Session) -> None:
     graph.declare_subscriber("robot/errors", lambda s: errors.append(json.loads(s.payload.to_bytes())["reason"]))
     client = clients(graph, ("jazzy",))["jazzy"]
     try:
-        for what, (x, y, yaw, frame) in {
-            "x NaN": (math.nan, 0.0, 0.0, "map"),
-            "yaw infinite": (0.5, 0.0, math.inf, "map"),
-            "10 km away": (10_000.0, 0.0, 0.0, "map"),
-            "another frame": (0.5, 0.0, 0.0, "earth"),
+        level = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
+        for what, (x, y, orientation, frame) in {
+            "x NaN": (math.nan, 0.0, level, "map"),
+            "an infinite orientation": (0.5, 0.0, {**level, "z": math.inf}, "map"),
+            "10 km away": (10_000.0, 0.0, level, "map"),
+            "another frame": (0.5, 0.0, level, "earth"),
         }.items():
             before = len(errors)
-            _, reply = client.send_goal(x, y, yaw, frame=frame)
+            _, reply = client.send_goal(x, y, 0.0, frame=frame, orientation=orientation)
             assert reply.message["accepted"] is False, what
             wait_for(lambda before=before: len(errors) > before, timeout=5, what=f"the reason for the goal with {what}")
             print(f"{what}: {errors[before]}")
