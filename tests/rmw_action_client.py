@@ -1,5 +1,8 @@
 """A ROS 2 action client as rcl_action makes one over rmw_zenoh, on Humble and on Jazzy keys: the independent client of tests/integration/test_ros2_navigate.py.
 
+Kilted and Rolling are spoken as Jazzy (the same key, token and attachment formats), each with its own
+NavigateToPose (Rolling's feedback has two more fields, so another hash).
+
 Written from the sources, never from our adapter:
 
 * **rosidl**: tests/ros2_idl.py (the definitions' structures, their RIHS01 hashes, their CDR);
@@ -32,9 +35,9 @@ from typing import Any
 
 import xxhash
 import zenoh
-from ros2_idl import DISTROS, EMPTY_MEMBER, INTERFACES, FieldType, Interfaces, dds_type
+from ros2_idl import DISTROS, EMPTY_MEMBER, INTERFACES, LATER_DISTROS, FieldType, Interfaces, dds_type
 
-__all__ = ["DISTROS", "EMPTY_MEMBER", "INTERFACES", "FieldType", "Interfaces", "dds_type"]  # re-exported for the tests
+__all__ = ["DISTROS", "EMPTY_MEMBER", "INTERFACES", "LATER_DISTROS", "FieldType", "Interfaces", "dds_type"]  # re-exported for the tests
 
 
 def quaternion_from_yaw(yaw: float) -> dict[str, float]:
@@ -91,7 +94,7 @@ class ActionClient:
         node: str = "navigate_client",
         domain: int = 0,
     ) -> None:
-        assert distro in DISTROS, distro
+        assert distro in DISTROS + LATER_DISTROS, distro
         self.session, self.distro, self.action, self.action_type, self.domain = session, distro, action.rstrip("/"), action_type, domain
         self.interfaces = Interfaces(distro)
         self.zid = str(session.zid())

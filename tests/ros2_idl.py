@@ -24,6 +24,8 @@ from typing import Any
 
 INTERFACES = Path(__file__).resolve().parent / "ros2_interfaces"
 DISTROS = ("humble", "jazzy")
+#: Distros whose vendored directory holds only what differs from Jazzy (their NavigateToPose.action).
+LATER_DISTROS = ("kilted", "rolling")
 HUMBLE_HASH = "TypeHashNotSupported"
 CDR_LE = b"\x00\x01\x00\x00"
 
@@ -144,7 +146,10 @@ class Interfaces:
         if typename in self.extra:
             return self.extra[typename]
         package, kind, name = typename.split("/")
-        return (self.root / package / kind / f"{name}.{kind}").read_text()
+        path = self.root / package / kind / f"{name}.{kind}"
+        if self.distro in LATER_DISTROS and not path.exists():
+            path = INTERFACES / "jazzy" / package / kind / f"{name}.{kind}"  # the rest as Jazzy has it
+        return path.read_text()
 
     def fields(self, typename: str) -> list[Field]:
         """The members of ``pkg/msg/Name``, ``pkg/srv/Name[_Request|_Response|_Event]``, ``pkg/action/Name[_Goal|...]`` or the service / action itself."""

@@ -304,3 +304,34 @@ def test_rviz_2d_goal_pose_and_2d_pose_estimate(graph: zenoh.Session) -> None:
         goal_pose.close()
         initial_pose.close()
         watcher.close()
+
+
+def test_kilted_and_rolling_keys_with_their_own_navigate_to_pose(children: list[Child]) -> None:
+    """Kilted's hashes are Jazzy's; Rolling's feedback carries ``position_tracking_error`` and
+    ``heading_tracking_error`` (another layout, another hash): each distro's client reads its node's feedback.
+    Kilted's and Rolling's send_goal, get_result, cancel_goal and status have one key (the same definitions): one
+    server answers there, once (two would give two answers to one goal, the second "goal id taken", in any order)."""
+    port = ros_graph(children, "--distro", "kilted,rolling")
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+        made = {distro: ActionClient(session, distro, node=f"{distro}_navigate_client") for distro in ("kilted", "rolling")}
+        try:
+            for distro, client in made.items():
+                wait_for(client.server_is_available, timeout=30, interval=0.5, what=f"the {distro} action server")
+            for distro, (x, y, yaw) in {"kilted": (0.4, 0.1, 0.5), "rolling": (0.0, 0.0, 0.0)}.items():
+                client = made[distro]
+                goal_id, reply = client.send_goal(x, y, yaw)
+                assert reply.message["accepted"], reply
+                assert client.get_result(goal_id, timeout=60).message["status"] == SUCCEEDED
+                for name, other in made.items():
+                    times = [t for t, _ in other.feedback_of(goal_id)]
+                    print(f"{distro} goal: its feedback on {name}'s key: {len(times)} at {rate(times):.1f} Hz")
+                    assert rate(times) >= 5.0
+            last = made["rolling"].feedback[-1][1]["feedback"]
+            assert {"position_tracking_error", "heading_tracking_error"} <= set(last)
+            assert "position_tracking_error" not in made["kilted"].feedback[-1][1]["feedback"]
+            for client in made.values():
+                assert client.errors == []
+        finally:
+            for client in made.values():
+                client.close()
