@@ -212,7 +212,10 @@ class ActionClient:
         elapsed = time.monotonic() - started
         oks = [r.ok for r in replies if r.ok is not None]
         errs = [r.err.payload.to_bytes() for r in replies if r.err is not None]
-        assert len(oks) == 1, f"{part}: {len(oks)} replies in {elapsed:.2f} s (errors: {errs})"
+        if len(oks) > 1:  # more than one server on this key: say what each answered
+            answers = [self.interfaces.deserialize(f"{typename}_Response", ok.payload.to_bytes()) for ok in oks]
+            raise AssertionError(f"{part}: {len(oks)} servers answered on {self.keys[part]}, one request: {answers}")
+        assert len(oks) == 1, f"{part}: no reply in {elapsed:.2f} s (errors: {errs})"
         (reply,) = oks
         assert reply.attachment is not None, f"{part}: a reply without rmw_zenoh's attachment"
         echoed, stamp, gid = read_attachment(reply.attachment.to_bytes())
