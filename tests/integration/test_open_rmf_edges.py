@@ -302,3 +302,53 @@ def test_free_fleet_on_a_robot_that_differs_from_its_nominal_constants(children:
             assert robot.errors == []
         finally:
             robot.close()
+
+
+# ------------------------------------------------------------------ with free_fleet's own pinned packages
+#: free_fleet's README: ``pip3 install nudged eclipse-zenoh==1.5.0 pycdr2 rosbags``; the adapter's Zenoh and CDR are these.
+FREE_FLEET_PACKAGES = ("eclipse-zenoh==1.5.0", "pycdr2")
+
+
+@pytest.fixture(scope="session")
+def free_fleet_python(tmp_path_factory: pytest.TempPathFactory) -> str:
+    """A virtualenv with free_fleet's pinned Zenoh and pycdr2 from PyPI; its interpreter (skipped only when PyPI cannot be reached)."""
+    import subprocess
+    import venv
+
+    root = tmp_path_factory.mktemp("free-fleet-venv")
+    venv.EnvBuilder(with_pip=True).create(root / "venv")
+    python = str(root / "venv" / "bin" / "python")
+    pip = [python, "-m", "pip", "--disable-pip-version-check", "-q"]
+    installed = subprocess.run([*pip, "install", *FREE_FLEET_PACKAGES], capture_output=True, text=True, timeout=600)
+    if installed.returncode != 0:
+        probe = subprocess.run([*pip, "download", "--no-deps", "-d", str(root / "probe"), "pycdr2"], capture_output=True, timeout=300)
+        if probe.returncode != 0:
+            pytest.skip("PyPI cannot be reached, so free_fleet's pinned packages cannot be installed.")
+        raise AssertionError(f"pip install {' '.join(FREE_FLEET_PACKAGES)} failed:\n{installed.stdout}\n{installed.stderr}")
+    return python
+
+
+def test_free_fleets_own_zenoh_version_drives_the_robot(children: list[Child], free_fleet_python: str) -> None:
+    """The same calls through eclipse-zenoh 1.5.0 (free_fleet's pin), a client of the site's router: the robot found,
+    a goal accepted and read back SUCCEEDED, a far goal stopped by RMF's cancel-all."""
+    import os
+    import subprocess
+
+    port = start_site(children)
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+    target = on_map(0.4, 0.2, 0.5)
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    script = Path(__file__).resolve().parents[1] / "free_fleet_run.py"
+    ran = subprocess.run(
+        [free_fleet_python, str(script), str(port), "robot", *map(str, target)], capture_output=True, text=True, timeout=180, env=env
+    )
+    assert ran.returncode == 0, ran.stderr[-3000:]
+    out = json.loads(ran.stdout.strip().splitlines()[-1])
+    print(f"free_fleet with eclipse-zenoh {out['zenoh']}, pycdr2 {out['pycdr2']}: found after {out['found_after_s']:.1f} s, "
+          f"accepted in {1000 * out['accepted_in_s']:.1f} ms, {out['status']}, cancel-all {out['cancel_codes']}")  # fmt: skip
+    assert out["zenoh"] == "1.5.0"
+    assert out["accepted"] is True and out["status"] == "SUCCEEDED" and out["accepted_in_s"] <= 0.050
+    assert math.dist(out["end_pose"][:2], target[:2]) < 0.02 and angle(out["end_pose"][2], target[2]) < math.radians(2)
+    assert out["far_accepted"] is True and out["cancel_codes"] == [0]
+    assert out["feedback_count"] > 5 and out["battery_soc"] == 1.0 and out["errors"] == []
