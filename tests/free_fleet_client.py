@@ -253,6 +253,27 @@ def cancel_all_request() -> CancelGoalRequest:
     return CancelGoalRequest(goal_info=GoalInfo(UUID(uuid=[0] * 16), Time(sec=0, nanosec=0)))
 
 
+def _prepare_types() -> None:
+    """Have pycdr2 build each type's (de)serializer now, on one thread: it builds them lazily, and two Zenoh
+    callbacks reading a type for the first time at once (two robots' tf) can find it half built. free_fleet would
+    lose that one sample (its tf callback logs the error at debug level); here nothing is lost."""
+    stamp = Time(sec=0, nanosec=0)
+    pose = PoseStamped(Header(stamp, ""), Pose(Point(0.0, 0.0, 0.0), Quaternion()))
+    samples = [
+        TFMessage([TransformStamped(Header(stamp, ""), "", Transform(Vector3(0.0, 0.0, 0.0), Quaternion()))]),
+        FeedbackMessage([0] * 16, pose, Duration(0, 0), Duration(0, 0), 0, 0.0),
+        BatteryState(Header(stamp, ""), *[0.0] * 7, 0, 0, 0, False, [], [], "", ""),
+        SendGoalRequest([0] * 16, pose, ""),
+        SendGoalResponse(False, stamp),
+        GetResultRequest([0] * 16),
+        GetResultResponse(0),
+        CancelGoalRequest(GoalInfo(UUID([0] * 16), stamp)),
+        CancelGoalResponse(0, [GoalInfo(UUID([0] * 16), stamp)]),
+    ]
+    for sample in samples:
+        type(sample).deserialize(sample.serialize())
+
+
 def namespacify(base_name: str, namespace: str) -> str:
     """free_fleet's key and frame naming: ``<namespace>/<base_name>``, or the base name alone without a namespace."""
     return base_name if not namespace else f"{namespace}/{base_name}"
@@ -471,6 +492,8 @@ class FreeFleetRobot:
         for subscriber in self._subscribers:
             subscriber.undeclare()
 
+
+_prepare_types()
 
 __all__ = [
     "UUID",

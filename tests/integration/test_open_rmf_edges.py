@@ -120,18 +120,25 @@ def test_the_docs_fleet_file_names_each_robot_and_places_it_on_the_map(children:
     with zenoh.open(client_config(port)) as session:
         for robot in fleet:
             robot_ready(session, f"fleet/{robot['id']}")
-        for robot in fleet:
-            ff = FreeFleetRobot(session, robot["id"], service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
-            try:
+        adapters = {robot["id"]: FreeFleetRobot(session, robot["id"], service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S) for robot in fleet}
+        try:
+            goals = {}
+            for robot in fleet:  # RMF dispatches both robots at once: each goes to its own goal
+                ff = adapters[robot["id"]]
                 pose, _ = ff.initialize()
                 x, y, yaw = robot["nav"]["map_pose"]
                 assert (pose[0], pose[1]) == pytest.approx((x, y), abs=0.01) and angle(pose[2], yaw) < math.radians(1), (robot["id"], pose)
-                goal = (x + 0.25 * math.cos(yaw), y + 0.25 * math.sin(yaw), yaw)
-                accepted, _ = ff.navigate(*goal)
-                assert accepted and drive_to_done(ff) == GoalStatus.SUCCEEDED, (robot["id"], ff.errors)
-                print(f"free_fleet's {robot['id']}: found at {[round(v, 3) for v in pose]}, reached {[round(v, 3) for v in goal]}")
+                goals[robot["id"]] = (x + 0.25 * math.cos(yaw), y + 0.25 * math.sin(yaw), yaw)
+                accepted, _ = ff.navigate(*goals[robot["id"]])
+                assert accepted, (robot["id"], ff.errors)
+            for name, ff in adapters.items():
+                assert drive_to_done(ff) == GoalStatus.SUCCEEDED, (name, ff.errors)
+                pose = ff.get_pose()
+                assert pose is not None and math.dist(pose[:2], goals[name][:2]) < 0.02, (name, pose, goals[name])
+                print(f"free_fleet's {name}: reached {[round(v, 3) for v in pose]} (goal {[round(v, 3) for v in goals[name]]})")
                 assert ff.errors == []
-            finally:
+        finally:
+            for ff in adapters.values():
                 ff.close()
 
 
