@@ -111,6 +111,12 @@ class ActionClient:
         }
         topics = {"feedback": f"{action_type}_FeedbackMessage", "status": "action_msgs/msg/GoalStatusArray"}
         self.types = {**services, **topics}
+        for typename in self.types.values():  # every structure parsed now, before Zenoh's threads read samples with them
+            self.interfaces.fields(typename)
+            for suffix in ("_Request", "_Response") if typename in services.values() else ():
+                self.interfaces.type_description(typename + suffix)
+            if typename not in services.values():
+                self.interfaces.type_description(typename)
         self.keys = {part: self.key(f"{self.action}/_action/{part}", typename) for part, typename in self.types.items()}
         self.gids = {
             part: self._entity("SC", f"{self.action}/_action/{part}", typename, SERVICE_QOS) for part, typename in services.items()
