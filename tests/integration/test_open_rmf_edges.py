@@ -40,7 +40,7 @@ from free_fleet_client import (
 from helpers import Child, client_config, free_port, free_ports, wait_for, zenoh_connect_args
 
 from blackmetal import robot_model as model
-from integration.test_open_rmf import SERVICE_CALL_TIMEOUT_S, Truth, angle, drive_to_done, on_map, robot_ready, start_site
+from integration.test_open_rmf import SERVICE_CALL_TIMEOUT_S, UPDATE_PERIOD_S, Truth, angle, drive_to_done, on_map, robot_ready, start_site
 
 pytestmark = pytest.mark.integration
 
@@ -359,3 +359,50 @@ def test_free_fleets_own_zenoh_version_drives_the_robot(children: list[Child], f
     assert math.dist(out["end_pose"][:2], target[:2]) < 0.02 and angle(out["end_pose"][2], target[2]) < math.radians(2)
     assert out["far_accepted"] is True and out["cancel_codes"] == [0]
     assert out["feedback_count"] > 5 and out["battery_soc"] == 1.0 and out["errors"] == []
+
+
+def test_the_navigation_service_restarting_mid_goal_as_free_fleet_sees_it(children: list[Child]) -> None:
+    """The navigation process dies while free_fleet's goal runs: the robot stops (the gateway's command timeout ends
+    nav's last command); within 10 s free_fleet's get_result says the goal ended (ABORTED, or UNKNOWN to a new
+    navigation), so that RMF replans (a goal left EXECUTING holds its task for ever); a new navigation drives no old
+    goal, and free_fleet's next goal drives again."""
+    port = start_site(children)
+    (nav,) = [c for c in children if c.args[2:3] == ["nav"]]
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+        truth = Truth(session)
+        robot = FreeFleetRobot(session, "robot", service_call_timeout_sec=SERVICE_CALL_TIMEOUT_S)
+        try:
+            robot.initialize()
+            accepted, _ = robot.navigate(*on_map(3.0, 0.0, 0.0))
+            assert accepted
+            wait_for(truth.moving, what="the robot driving")
+            since = time.monotonic()
+            nav.proc.kill()  # a crash: no last zero command
+            nav.proc.wait(10)
+            stopped = wait_for(lambda: truth.stopped_after(since), timeout=5, what="the robot stopped without its navigation")
+            assert stopped < 1.0  # the gateway's command timeout (0.5 s) and a poll
+            # free_fleet asks at each update; a goal left EXECUTING for ever would hold RMF's task for ever
+            robot.last_feedback = None
+            seen = [robot.is_navigation_done()[1]]
+            ended = (GoalStatus.ABORTED, GoalStatus.UNKNOWN, GoalStatus.CANCELED)
+            deadline = time.monotonic() + 10
+            while seen[-1] not in ended and time.monotonic() < deadline:
+                time.sleep(UPDATE_PERIOD_S)
+                seen.append(robot.is_navigation_done()[1])
+            print(
+                f"navigation gone mid-goal: the robot stopped after {1000 * stopped:.0f} ms; free_fleet's get_result said {seen[0]!r}, then {seen[-1]!r}"
+            )
+            restarted = Child(["-m", "blackmetal", *nav.args[2:]])
+            children.append(restarted)
+            restarted.ready(timeout=60)
+            time.sleep(0.5)
+            assert not truth.moving(), "a new navigation drove an old goal"
+            after = robot.is_navigation_done()[1]
+            print(f"and once a new navigation is up: {after!r}")
+            assert seen[-1] in ended, f"the goal of a navigation that died was still {seen[-1]!r} after 10 s: free_fleet never replans"
+            assert after in ended
+            accepted, _ = robot.navigate(*on_map(0.3, 0.0, 0.0))
+            assert accepted and drive_to_done(robot) == GoalStatus.SUCCEEDED
+        finally:
+            robot.close()
