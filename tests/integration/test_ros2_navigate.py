@@ -335,3 +335,32 @@ def test_kilted_and_rolling_keys_with_their_own_navigate_to_pose(children: list[
         finally:
             for client in made.values():
                 client.close()
+
+
+def test_a_held_get_result_ends_when_the_navigation_dies(children: list[Child]) -> None:
+    """rmw_zenoh's client waits for get_result without a timeout: when the navigation process dies mid-goal the held
+    call must still end (ABORTED, or UNKNOWN once nobody knows the goal) within 10 s, or ``ros2 action send_goal``
+    waits for ever on a robot that has stopped."""
+    from integration.test_open_rmf import start_site
+
+    port = start_site(children)
+    (nav,) = [c for c in children if c.args[2:3] == ["nav"]]
+    with zenoh.open(client_config(port)) as session:
+        robot_ready(session)
+        truth = Truth(session)
+        client = clients(session, ("jazzy",))["jazzy"]
+        try:
+            goal_id, reply = client.send_goal(3.0, 0.0, 0.0)
+            assert reply.message["accepted"]
+            pending = client.get_result_async(goal_id, timeout=30)
+            wait_for(truth.moving, what="the robot driving")
+            killed = time.monotonic()
+            nav.proc.kill()
+            nav.proc.wait(10)
+            pending["thread"].join(15)
+            assert "reply" in pending, f"the held get_result did not end within 15 s of the navigation's death: {pending.get('error')}"
+            status = pending["reply"].message["status"]
+            print(f"navigation killed: the held get_result ended {time.monotonic() - killed:.1f} s later with {STATUS[status]}")
+            assert status in (6, 0), STATUS[status]
+        finally:
+            client.close()
