@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -364,3 +365,32 @@ def test_a_held_get_result_ends_when_the_navigation_dies(children: list[Child]) 
             assert status in (6, 0), STATUS[status]
         finally:
             client.close()
+
+
+def test_an_e_stop_during_a_goal_aborts_it_with_its_reason_in_the_result(graph: zenoh.Session) -> None:
+    """Jazzy's result carries why: ABORTED, ``error_code`` 9000 (UNKNOWN: NavigateToPose has no e-stop code) and the
+    navigation's sentence in ``error_msg``; nothing moves after the release."""
+    truth = Truth(graph)
+    client = clients(graph, ("jazzy",))["jazzy"]
+    try:
+        goal_id, reply = client.send_goal(2.5, 0.0, 0.0)
+        assert reply.message["accepted"]
+        pending = client.get_result_async(goal_id, timeout=30)
+        wait_for(truth.moving, what="the robot driving")
+        since = time.monotonic()
+        graph.put("robot/estop", json.dumps({"engaged": True}))
+        stopped = wait_for(lambda: truth.stopped_after(since), timeout=5, what="the robot stopped by the e-stop")
+        pending["thread"].join(15)
+        assert "reply" in pending, pending.get("error")
+        result = pending["reply"].message
+        print(f"e-stop during a ROS goal: stopped after {1000 * stopped:.0f} ms; {STATUS[result['status']]}: {result['result']}")
+        assert (
+            result["status"] == 6 and result["result"]["error_code"] == 9000 and re.search(r"e-?stop", result["result"]["error_msg"], re.I)
+        )
+        assert client.status_of(goal_id)[-1:] == [6] or wait_for(lambda: client.status_of(goal_id)[-1:] == [6], timeout=5)
+        graph.put("robot/estop/release", json.dumps({"engaged": False}))
+        time.sleep(2.0)
+        released = [p for t, p in truth.samples if t > since + stopped]
+        assert released and all(abs(p.v) < 1e-9 and abs(p.w) < 1e-9 for p in released), "the robot moved after the release"
+    finally:
+        client.close()
