@@ -201,9 +201,12 @@ def test_free_fleet_goals_accepted_fast_succeeded_read_back_and_preempted(site: 
         assert robot.is_navigation_done() == (True, GoalStatus.CANCELED)
         print("send_goal round trips (ms):", [round(1000 * t, 1) for t in accepted_in])
         print(
-            f"the pose free_fleet read while driving: at most {1000 * max(behind):.1f} mm from the odometry's latest ({len(behind)} reads)"
+            f"the pose free_fleet read while driving: median {1000 * statistics.median(behind):.1f} mm, at most "
+            f"{1000 * max(behind):.1f} mm from the odometry's latest ({len(behind)} reads)"
         )
-        assert len(behind) > 20 and max(behind) < 0.02  # tf's latest common time is the latest pose: nothing old
+        # tf's latest common time is the latest pose: nothing old (a map -> odom stamped apart would lag by its
+        # period, and fall out of tf2's 10 s cache); the max leaves room for a loaded machine's scheduling
+        assert len(behind) > 20 and statistics.median(behind) < 0.01 and max(behind) < 0.06
         assert statistics.median(accepted_in) <= 0.050 and max(accepted_in[1:]) <= 0.050, accepted_in
         assert robot.errors == []
     finally:
