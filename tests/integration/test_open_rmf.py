@@ -130,6 +130,8 @@ def drive_to_done(robot: FreeFleetRobot, timeout: float = 60.0, each: Callable[[
         if done:
             return status
         if status == GoalStatus.ABORTED:
+            why = [r.ok.payload.to_string() for r in robot.session.get("**/nav/result", timeout=2) if r.ok is not None]
+            print(f"free_fleet's goal ABORTED; the navigation's results: {why}")  # the reason, for whoever reads the failure
             return status
         time.sleep(UPDATE_PERIOD_S)
     raise AssertionError(f"free_fleet's goal did not end in {timeout:.0f} s; errors: {robot.errors}")
