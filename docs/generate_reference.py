@@ -218,7 +218,7 @@ def zenoh_section(parser: argparse.ArgumentParser) -> list[str]:
         "|---|---|---|---|",
     ]
     for f in dataclasses.fields(ZenohSettings):
-        if f.name in ZENOH_ENV_ONLY or f.name not in by_dest:  # not a flag: a service's own choice (downsampling)
+        if f.name in ZENOH_ENV_ONLY:
             continue
         action = by_dest[f.name]
         lines.append(

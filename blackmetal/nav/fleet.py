@@ -8,7 +8,6 @@ others go on.
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 
 from blackmetal.runtime.entry import Fleet
 from blackmetal.runtime.fleet import FleetRobot
@@ -24,10 +23,6 @@ from .zenoh_edge import NavZenoh
 #: How often the fleet's loop takes every robot's newest pose (s): a command follows its pose at most this much later,
 #: and the loop wakes 100 times a second for the whole fleet, not once per pose.
 DRAIN_PERIOD_S = 0.01
-#: A fleet's navigation takes each robot's poses at most this often (Hz), dropped before Python by Zenoh's ingress
-#: downsampling: at 100 robots driving, 50 Hz poses cost it 0.20 cores, 25 Hz 0.145; the controller meets its
-#: tolerances on poses 0.04 s apart (test_controller.py, "period") and in the fleet bench.
-FLEET_POSE_HZ = 25.0
 
 
 def fleet_settings(base: NavSettings, robots: list[FleetRobot]) -> list[NavSettings]:
@@ -55,10 +50,7 @@ async def serve(base: NavSettings, robots: list[FleetRobot], stop: asyncio.Event
         announce_ready("nav", prefix=robots[0].prefix, prefixes=[r.prefix for r in robots])
 
     parts = [(ROLE, robot, s) for robot, s in zip(robots, fleet_settings(base, robots), strict=True)]
-    zenoh = dataclasses.replace(
-        base.zenoh, downsampling=[*base.zenoh.downsampling, *((Keys(r.prefix).pose, FLEET_POSE_HZ) for r in robots)]
-    )
-    await serve_fleet(zenoh, stop, parts, announce, refuse="navigation service", drain_every=(DRAIN_PERIOD_S, None))
+    await serve_fleet(base.zenoh, stop, parts, announce, refuse="navigation service", drain_every=(DRAIN_PERIOD_S, None))
 
 
 FLEET = Fleet(

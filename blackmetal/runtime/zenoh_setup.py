@@ -51,9 +51,6 @@ class ZenohSettings:
     #: so no secret sits on a command line or in a file.
     user: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_USER") or None, metadata={"cli": False})
     password: str | None = field(default_factory=lambda: os.environ.get("BLACKMETAL_ZENOH_PASSWORD") or None, metadata={"cli": False})
-    #: (key expression, Hz): puts on these keys reach this session at most that often each (Zenoh's ingress downsampling,
-    #: in Rust: the rest never reach Python). A service's own choice, not a flag.
-    downsampling: list[tuple[str, float]] = field(default_factory=list, metadata={"cli": False})
 
     def __post_init__(self) -> None:
         if self.mode is not None and self.mode not in MODES:
@@ -129,9 +126,6 @@ class ZenohSettings:
                 discover = json.dumps(self.discovers)
                 conf.insert_json5("scouting/multicast/enabled", discover)
                 conf.insert_json5("scouting/gossip/enabled", discover)
-            if self.downsampling:
-                rules = [{"key_expr": key, "freq": hz} for key, hz in self.downsampling]
-                conf.insert_json5("downsampling", json.dumps([{"flows": ["ingress"], "messages": ["put"], "rules": rules}]))
             if self.user is not None:
                 if self.password is None:
                     raise ConfigError("BLACKMETAL_ZENOH_USER is set but BLACKMETAL_ZENOH_PASSWORD is not")

@@ -149,10 +149,3 @@ def test_zenohs_failures_are_told_as_what_to_check(monkeypatch: pytest.MonkeyPat
     assert unavailable_reason(client, "something else at /src/y.rs:12") == "cannot open a Zenoh session (tcp/10.0.0.1:7447): something else"
     assert type(unavailable_error(client, "Unable to connect")) is ZenohUnreachable
     assert type(unavailable_error(hub, "Address already in use")) is ZenohUnavailable
-
-
-def test_a_services_downsampling_is_zenohs_ingress_rule_per_key() -> None:
-    conf = ZenohSettings(connect=["tcp/127.0.0.1:7447"], downsampling=[("fleet/r1/pose", 25.0), ("fleet/r2/pose", 25.0)]).to_config()
-    (rule,) = json.loads(conf.get_json("downsampling"))
-    assert rule["flows"] == ["ingress"] and rule["messages"] == ["put"]
-    assert rule["rules"] == [{"key_expr": "fleet/r1/pose", "freq": 25.0}, {"key_expr": "fleet/r2/pose", "freq": 25.0}]
