@@ -36,7 +36,7 @@ CHILD_CHECK_S = 0.05
 #: A fleet's navigation commands each robot at most this often (``nav --command-hz``; 0 in a settings file: every pose):
 #: 100 robots commanded at 50 Hz took the fleet gateway to a whole core and its polls down to 25-30 Hz on a 2-core host;
 #: at 10 Hz they stayed at 48-50 Hz, and goals still ended within 2 mm of the simulator's truth (docs/performance.md).
-FLEET_COMMAND_HZ = 10.0
+FLEET_COMMAND_HZ = 5.0
 #: A gateway that dies is started again (as systemd's Restart=on-failure does), at most this many times in the window (s).
 MAX_RESTARTS = 5
 RESTART_WINDOW_S = 60.0
