@@ -34,7 +34,7 @@ def test_a_fleets_navigation_is_paced_unless_the_settings_file_says_otherwise(tm
     from blackmetal.tools.up.settings import ServiceFiles
 
     plain = launch.Launch(argparse.Namespace(), ServiceFiles(None, []), None, [])  # type: ignore[arg-type]
-    assert plain.nav_fleet_args == ["--command-hz", "10"] and launch.FLEET_COMMAND_HZ == 10.0
+    assert plain.nav_fleet_args == ["--command-hz", "5"] and launch.FLEET_COMMAND_HZ == 5.0
     path = tmp_path / "s.toml"
     path.write_text("[nav]\ncommand_hz = 0\n")
     files = ServiceFiles(str(path), ["nav"])
