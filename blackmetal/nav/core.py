@@ -53,7 +53,7 @@ from blackmetal.schemas import (
 )
 
 from .controller import DEFAULT_PERIOD_S, Controller, Target, Tolerances, plan
-from .goals import GoalRecord, Goals, jumped, map_to_odom, odom_to_map, placed, refusal, robot_trouble, wrap
+from .goals import GoalRecord, Goals, jumped, map_to_odom, odom_to_map, out_of_bounds, placed, refusal, robot_trouble, wrap
 from .params import READ_ONLY, GatewayLimits, NavParams, effective_limits
 from .robot_moves import RobotConstants, RobotMoveTracker, outcome, wheel_move
 
@@ -180,7 +180,7 @@ class NavCore:
     def on_goal(self, payload: bytes | None, now: float) -> NavGoalReply:
         """A goal: accepted (the running one preempted) or refused with the reason, which is reported too."""
         key = self.keys.nav_goal
-        goal = self._decode(NavGoal, payload or b"", key, now)
+        goal = self._decode(NavGoal, payload, key, now)
         if isinstance(goal, str):
             return NavGoalReply(False, None, goal)
         if goal.frame != "odom" and goal.frame not in ("map", self._map.map):
@@ -195,7 +195,7 @@ class NavCore:
         """A relative move (a distance straight, or an angle on the spot), run as a goal in the odometry frame: by the
         robot's own position control where the gateway says it runs them (``position_moves``), else by the controller."""
         key = self.keys.nav_move
-        move = self._decode(NavMove, payload or b"", key, now)
+        move = self._decode(NavMove, payload, key, now)
         if isinstance(move, str):
             return NavGoalReply(False, None, move)
         if abs(move.angle) > MAX_MOVE_ANGLE:
@@ -234,7 +234,7 @@ class NavCore:
     def on_cancel(self, payload: bytes | None, now: float) -> NavCancelReply:
         """Cancel the running goal (any, or the one named): it ends canceled, the robot gets one zero twist."""
         key = self.keys.nav_cancel
-        request = NavCancel() if not payload or not payload.strip() else self._decode(NavCancel, payload, key, now)
+        request = self._decode(NavCancel, payload, key, now, empty=NavCancel())
         if isinstance(request, str):
             return NavCancelReply([], request)
         current = self.goals.current
@@ -245,7 +245,7 @@ class NavCore:
             known = self.goals.find(request.goal_id)
             if known is not None:
                 return NavCancelReply([], f"goal {request.goal_id} is not running: it ended {known.state.value}")
-            why = f"no goal {request.goal_id}: the navigation knows its last {self.goals.keep} goals only"
+            why = self.goals.unknown(request.goal_id)
             self.reporter.report(key, why, excerpt(payload or b""), now=now)
             return NavCancelReply([], why)
         assert current is not None
@@ -255,12 +255,12 @@ class NavCore:
     def on_result(self, payload: bytes | None, now: float) -> NavResult:
         """A goal's state: the one named, or the latest."""
         key = self.keys.nav_result
-        query = NavResultQuery() if not payload or not payload.strip() else self._decode(NavResultQuery, payload, key, now)
+        query = self._decode(NavResultQuery, payload, key, now, empty=NavResultQuery())
         if isinstance(query, str):
             return NavResult(False, reason=query)
         record = self.goals.latest() if query.goal_id is None else self.goals.find(query.goal_id)
         if record is None:
-            why = f"no goal {query.goal_id}: the navigation knows its last {self.goals.keep} goals only" if query.goal_id else "no goal yet"
+            why = self.goals.unknown(query.goal_id) if query.goal_id else "no goal yet"
             return NavResult(False, query.goal_id, reason=why)
         self._update_pose(record)
         return record.result(now)
@@ -290,15 +290,12 @@ class NavCore:
     def on_params_set(self, payload: bytes | None, now: float) -> ParamsSetReply:
         """Set parameters, each on its own; the refused ones say why (and are reported)."""
         key = self.keys.nav_params_set
-        request = self._decode(ParamsSet, payload or b"", key, now)
+        request = self._decode(ParamsSet, payload, key, now)
         if isinstance(request, str):
             return ParamsSetReply([ParamResult("", False, f'{request}; send {{"values": {{"max_speed": 0.2}}}}')], self.params())
-        results = []
-        for name, value in request.values.items():
-            self._params, refused = self._params.with_value(name, value)
-            results.append(ParamResult(name, refused is None, refused or ""))
-            if refused is not None:
-                self.reporter.report(key, refused, now=now)
+        self._params, results = self._params.with_values(request.values)
+        for refused in (result.reason for result in results if not result.successful):
+            self.reporter.report(key, refused, now=now)
         changed = [result.name for result in results if result.successful]
         if changed:
             if "feedback_hz" in changed and self.goals.current is not None:
@@ -344,10 +341,12 @@ class NavCore:
 
     # ------------------------------------------------------------------------------------------------ internals
 
-    def _decode(self, kind: type[M], payload: bytes, key: str, now: float) -> M | str:
-        """The message in ``payload``, or why it is none (reported)."""
+    def _decode(self, kind: type[M], payload: bytes | None, key: str, now: float, empty: M | None = None) -> M | str:
+        """The message in ``payload`` (``empty`` for none, when given), or why it is none (reported)."""
+        if empty is not None and (not payload or not payload.strip()):
+            return empty
         try:
-            return decode(kind, payload)
+            return decode(kind, payload or b"")
         except PayloadError as exc:
             self.reporter.report(key, str(exc), exc.excerpt, now=now)
             return str(exc)
@@ -386,16 +385,9 @@ class NavCore:
         if refusal is not None or self._pose is None:
             return self._refuse(key, goal_id, refusal or "odometry not running: no pose yet", payload, now)
         pose = self._pose
-        distance = math.hypot(target.x - pose.x, target.y - pose.y)
-        if not distance <= self._params.max_goal_distance:  # NaN too: a goal near the float limits, turned onto odom
-            why = f"goal is {distance:.1f} m from the robot, farther than max_goal_distance ({self._params.max_goal_distance:g} m)"
-            return self._refuse(key, goal_id, why, payload, now)
-        if self.geofence is not None:
-            mx, my, _ = odom_to_map(self._map, target.x, target.y, 0.0)
-            x_min, y_min, x_max, y_max = self.geofence
-            if not (x_min <= mx <= x_max and y_min <= my <= y_max):
-                why = f"goal ({mx:.2f}, {my:.2f}) on the map is outside the geofence x {x_min:g}..{x_max:g}, y {y_min:g}..{y_max:g}"
-                return self._refuse(key, goal_id, why, payload, now)
+        outside = out_of_bounds(pose, (target.x, target.y), self._params.max_goal_distance, self.geofence, self._map)
+        if outside is not None:
+            return self._refuse(key, goal_id, outside, payload, now)
         goal_id = goal_id or self.goals.new_id()
         yaw = where[2]
         if yaw is None:  # the heading it will arrive with

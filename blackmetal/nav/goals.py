@@ -85,6 +85,10 @@ class Goals:
             if goal_id not in self._records:
                 return goal_id
 
+    def unknown(self, goal_id: str) -> str:
+        """The sentence for an id this book does not hold (a cancel's, a result's)."""
+        return f"no goal {goal_id}: the navigation knows its last {self.keep} goals only"
+
     def refusal_of_id(self, goal_id: str) -> str | None:
         """Why ``goal_id`` cannot name a new goal, if it cannot."""
         known = self._records.get(goal_id)
@@ -174,6 +178,22 @@ def refusal(
 
 #: Faster than this no pose moves (m/s, rad/s: the robot's wire limit of 1 m/s a wheel), plus a margin for jitter (m, rad).
 JUMP_SPEED, JUMP_TURN, JUMP_MARGIN = 1.0, 4.0, 0.05
+
+
+def out_of_bounds(
+    pose: Pose, target: tuple[float, float], max_distance: float, geofence: tuple[float, float, float, float] | None, map_pose: MapPose
+) -> str | None:
+    """Why a goal at ``target`` (odom) is out of bounds: farther than ``max_distance`` from ``pose``, or outside the
+    ``geofence`` (map frame); None when it is within them."""
+    distance = math.hypot(target[0] - pose.x, target[1] - pose.y)
+    if not distance <= max_distance:  # NaN too: a goal near the float limits, turned onto odom
+        return f"goal is {distance:.1f} m from the robot, farther than max_goal_distance ({max_distance:g} m)"
+    if geofence is not None:
+        mx, my, _ = odom_to_map(map_pose, target[0], target[1], 0.0)
+        x_min, y_min, x_max, y_max = geofence
+        if not (x_min <= mx <= x_max and y_min <= my <= y_max):
+            return f"goal ({mx:.2f}, {my:.2f}) on the map is outside the geofence x {x_min:g}..{x_max:g}, y {y_min:g}..{y_max:g}"
+    return None
 
 
 def jumped(last: Pose, pose: Pose, period: float) -> str | None:

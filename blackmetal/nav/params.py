@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass, fields, replace
 from typing import NamedTuple
 
-from blackmetal.schemas import ConfigError, GatewayParams, Param, ParamValue
+from blackmetal.schemas import ConfigError, GatewayParams, Param, ParamResult, ParamValue
 
 from .controller import Limits
 
@@ -65,6 +65,14 @@ class NavParams:
             reason = _refusal(item.name, getattr(self, item.name))
             if reason is not None:
                 raise ConfigError(f"nav setting {reason}")
+
+    def with_values(self, values: dict[str, ParamValue]) -> tuple[NavParams, list[ParamResult]]:
+        """These parameters with ``values`` set, each on its own, and each one's result (a refusal says why)."""
+        params, results = self, []
+        for name, value in values.items():
+            params, refused = params.with_value(name, value)
+            results.append(ParamResult(name, refused is None, refused or ""))
+        return params, results
 
     def with_value(self, name: str, value: ParamValue) -> tuple[NavParams, str | None]:
         """These parameters with ``name`` set to ``value``, or themselves and the reason it is refused."""
